@@ -1,0 +1,45 @@
+"""ament_python setup for dmf_sim; also installs with plain pip."""
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = 'dmf_sim'
+
+setup(
+    name=PACKAGE,
+    version='0.1.0',
+    packages=find_packages(exclude=['test', 'benchmarks']),
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE]),
+        ('share/' + PACKAGE, ['package.xml']),
+        ('share/' + PACKAGE + '/config', sorted(glob('config/*.yaml')) + sorted(glob('config/*.csv'))),
+    ],
+    python_requires='>=3.11',
+    install_requires=[
+        'setuptools',
+        'numpy>=1.26',
+        'scipy>=1.11',
+        'PyYAML>=6',
+        'matplotlib>=3.8',
+        'numba>=0.59',
+        'tqdm>=4.66',
+        'rosbags>=0.10',
+        'mcap>=1.1',
+    ],
+    extras_require={
+        'ros': ['ros-jazzy-rclpy[fastrtps]', 'ros-jazzy-common-interfaces'],
+        'test': ['pytest>=7', 'mcap-ros2-support>=0.5'],
+    },
+    zip_safe=True,
+    maintainer='dmf_sim developers',
+    maintainer_email='dmf-sim@example.com',
+    description='Truck driveline torsional vibrations with a two-step dual mass flywheel',
+    license='Apache-2.0',
+    tests_require=['pytest'],
+    entry_points={
+        'console_scripts': [
+            'dmf-sim = dmf_sim.cli:main',
+            'driveline_node = dmf_sim.node:main',
+        ],
+    },
+)
