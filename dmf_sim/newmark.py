@@ -1,0 +1,610 @@
+"""Newmark time integration of the non-linear driveline (design.md §3) — the live node's hot loop.
+
+Equation of motion in vibratory DOF coordinates q (deviation from the reference rotation psi/R_i):
+
+    J q'' + C q' + K q + e g(e q) = P(psi) + a_dal domega/dt                    (eq. 7, merged)
+
+with g the DMF's non-linear extra torque and e the wind-up row. Newmark's scheme (beta, gamma;
+average acceleration beta = 1/4, gamma = 1/2 by default) gives per step
+
+    Khat q_{n+1} + e g(e q_{n+1}) = rhs,   Khat = K + a0 J + a1 C,
+    rhs = P_{n+1} + J (a0 q_n + a2 v_n + a3 a_n) + C (a1 q_n + a4 v_n + a5 a_n).
+
+Condensed on the wind-up (u = Khat^-1 e, h = e.u): w + h g(w) = e.Khat^-1 rhs — a scalar
+equation solved by Newton's method with the active spring region checked, which is exact on the
+piecewise-linear spring (knee crossings are resolved inside the step, not at its end). Then
+q_{n+1} = Khat^-1 rhs - u g(w).
+
+Khat is tridiagonal (a chain of merged inertias), so each step is O(n): a Thomas solve with a
+precomputed factorization. The kernel is compiled with numba (cached); ``_step_reference`` is the
+readable numpy path the tests compare against.
+
+Speed: the reference rotation's crank speed omega ramps toward its target at ``ramp`` [rad/s^2];
+the excitation phase is psi = integral of omega dt (trapezoid, exact for a linear ramp), never
+omega t. The reference acceleration enters as the balanced d'Alembert load (see loads.py).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from dmf_sim.harmonic import solve_static
+from dmf_sim.loads import RPM_TO_RAD_S, DrivelineLoads
+
+try:
+    import numba
+    HAVE_NUMBA = True
+except ImportError:  # pragma: no cover - numba is a hard dependency, kept optional for readability
+    HAVE_NUMBA = False
+
+
+# ------------------------------------------------------------------------------------------------
+# The kernel (plain Python; compiled by numba below)
+# ------------------------------------------------------------------------------------------------
+
+def _advance_kernel(nsteps, stride, q, v, a, scal, coef, fixed, Jd, Clo, Cd, Cup,
+                    klo, kinv_den, kcp, e, u, B, cyl_dof, cyl_scale, dal, spring,
+                    out_t, out_psi, out_omega, out_q, out_v, out_a, out_w, counters):
+    """Advance ``nsteps`` Newmark steps in place.
+
+    scal: [t, psi, omega, omega_target, ramp_rad_s2, omega_dot]       (state, updated in place)
+    coef: [dt, a0, a1, a2, a3, a4, a5, gamma, h]
+    fixed: (n,) constant generalized load (rear load etc.) [Nm]
+    B: (n_cyl, N+1) complex cylinder coefficients A_n exp(-i n beta_k/2)
+    spring: [b, theta, b_coast, theta_coast]   (theta_coast = inf for none)
+    counters: [knee_crossings, steps_secondary, steps_coast]
+    Every ``stride`` steps the state is written to the out_* arrays (row j = step // stride).
+    """
+    n = q.shape[0]
+    dt = coef[0]
+    a0 = coef[1]
+    a1 = coef[2]
+    a2 = coef[3]
+    a3 = coef[4]
+    a4 = coef[5]
+    a5 = coef[6]
+    gam = coef[7]
+    h = coef[8]
+    b = spring[0]
+    th = spring[1]
+    bc = spring[2]
+    thc = spring[3]
+    n_cyl = B.shape[0]
+    n_h = B.shape[1]
+    rhs = np.empty(n)
+    y = np.empty(n)
+    x = np.empty(n)
+    zp = np.empty(n_h, dtype=np.complex128)
+    w_prev = 0.0
+    for i in range(n):
+        w_prev += e[i] * q[i]
+    region_prev = 1 if w_prev > th else (-1 if w_prev < -thc else 0)
+    j = 0
+    for step in range(nsteps):
+        # --- reference speed and excitation phase -----------------------------------------
+        omega = scal[2]
+        diff = scal[3] - omega
+        lim = scal[4] * dt
+        if diff > lim:
+            diff = lim
+        elif diff < -lim:
+            diff = -lim
+        omega_new = omega + diff
+        omega_dot = diff / dt
+        psi = scal[1] + 0.5 * (omega + omega_new) * dt
+        scal[2] = omega_new
+        scal[1] = psi
+        scal[0] += dt
+        scal[5] = omega_dot
+        # --- load P_{n+1}: eq. (16)-(17) with z = exp(i psi/2), plus fixed and d'Alembert ----
+        for i in range(n):
+            rhs[i] = fixed[i] + dal[i] * omega_dot
+        z = complex(math.cos(0.5 * psi), math.sin(0.5 * psi))
+        zp[0] = 1.0
+        for k in range(1, n_h):
+            zp[k] = zp[k - 1] * z
+        for c in range(n_cyl):
+            acc = 0.0
+            for k in range(n_h):
+                acc += B[c, k].real * zp[k].real - B[c, k].imag * zp[k].imag
+            rhs[cyl_dof[c]] += cyl_scale[c] * acc
+        # --- rhs += J (a0 q + a2 v + a3 a) + C (a1 q + a4 v + a5 a) ----------------------
+        for i in range(n):
+            y[i] = a1 * q[i] + a4 * v[i] + a5 * a[i]
+            rhs[i] += Jd[i] * (a0 * q[i] + a2 * v[i] + a3 * a[i]) + Cd[i] * y[i]
+        for i in range(n - 1):
+            rhs[i] += Cup[i] * y[i + 1]
+            rhs[i + 1] += Clo[i] * y[i]
+        # --- Thomas solve Khat x = rhs ------------------------------------------------------
+        x[0] = rhs[0] * kinv_den[0]
+        for i in range(1, n):
+            x[i] = (rhs[i] - klo[i - 1] * x[i - 1]) * kinv_den[i]
+        for i in range(n - 2, -1, -1):
+            x[i] -= kcp[i] * x[i + 1]
+        # --- condensed DMF equation w + h g(w) = w_lin, exact per region ----------------------
+        w_lin = 0.0
+        for i in range(n):
+            w_lin += e[i] * x[i]
+        if w_lin > th:
+            w = (w_lin + h * b * th) / (1.0 + h * b)
+            g = b * (w - th)
+            region = 1
+        elif w_lin < -thc:
+            w = (w_lin - h * bc * thc) / (1.0 + h * bc)
+            g = -bc * (-w - thc)
+            region = -1
+        else:
+            w = w_lin
+            g = 0.0
+            region = 0
+        if region != region_prev:
+            counters[0] += 1
+        if region == 1:
+            counters[1] += 1
+        elif region == -1:
+            counters[2] += 1
+        region_prev = region
+        # --- update q, a, v ---------------------------------------------------------------
+        for i in range(n):
+            qn = x[i] - u[i] * g
+            an = a0 * (qn - q[i]) - a2 * v[i] - a3 * a[i]
+            v[i] = v[i] + dt * ((1.0 - gam) * a[i] + gam * an)
+            a[i] = an
+            q[i] = qn
+        if (step + 1) % stride == 0:
+            out_t[j] = scal[0]
+            out_psi[j] = psi
+            out_omega[j] = omega_new
+            out_w[j] = w
+            for i in range(n):
+                out_q[j, i] = q[i]
+                out_v[j, i] = v[i]
+                out_a[j, i] = a[i]
+            j += 1
+    return j
+
+
+if HAVE_NUMBA:
+    _advance_compiled = numba.njit(cache=True, nogil=True, fastmath=False)(_advance_kernel)
+else:  # pragma: no cover
+    _advance_compiled = _advance_kernel
+
+
+# ------------------------------------------------------------------------------------------------
+# Integrator object (stepping API for the node; simulate() for offline use)
+# ------------------------------------------------------------------------------------------------
+
+def _tridiag(M: np.ndarray, name: str):
+    n = M.shape[0]
+    off = M - np.diag(np.diag(M)) - np.diag(np.diag(M, 1), 1) - np.diag(np.diag(M, -1), -1)
+    if np.abs(off).max() > 1e-9 * max(np.abs(M).max(), 1.0):
+        raise ValueError(f'{name} is not tridiagonal: the Newmark kernel needs a series chain')
+    return np.diag(M, -1).copy(), np.diag(M).copy(), np.diag(M, 1).copy()
+
+
+@dataclass
+class StepRecord:
+    """Preallocated buffers the stepper writes into (rows = recorded steps). SI units."""
+
+    t: np.ndarray
+    psi: np.ndarray
+    omega: np.ndarray
+    q: np.ndarray
+    v: np.ndarray
+    a: np.ndarray
+    windup: np.ndarray
+    count: int = 0
+
+    @classmethod
+    def allocate(cls, rows: int, n_dof: int) -> 'StepRecord':
+        return cls(np.zeros(rows), np.zeros(rows), np.zeros(rows), np.zeros((rows, n_dof)),
+                   np.zeros((rows, n_dof)), np.zeros((rows, n_dof)), np.zeros(rows))
+
+
+@dataclass
+class NewmarkIntegrator:
+    """Fixed-step Newmark integrator on a merged model with the two-step DMF.
+
+    Args:
+        loads: DrivelineLoads (model + engine).
+        dt: time step [s].
+        beta, gamma: Newmark parameters (average acceleration: 1/4, 1/2).
+        use_numba: compiled kernel (True) or the readable numpy reference path (False).
+    """
+
+    loads: DrivelineLoads
+    dt: float = 1e-4
+    beta: float = 0.25
+    gamma: float = 0.5
+    use_numba: bool = True
+    knee_crossings: int = field(default=0, init=False)
+    steps_secondary: int = field(default=0, init=False)
+    steps_coast: int = field(default=0, init=False)
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.dt) and self.dt > 0):
+            raise ValueError(f'dt={self.dt}: must be > 0 s')
+        if not (0 < self.beta <= 0.5 and 0.5 <= self.gamma <= 1.0 and self.beta >= self.gamma / 4 - 1e-12):
+            raise ValueError(f'beta={self.beta}, gamma={self.gamma}: need 0.5 <= gamma <= 1 and '
+                             'gamma/4 <= beta <= 0.5 (unconditionally stable Newmark)')
+        m = self.loads.model
+        self.model = m
+        n = m.n_dof
+        dt, be, ga = self.dt, self.beta, self.gamma
+        self._coef = np.array([dt, 1 / (be * dt**2), ga / (be * dt), 1 / (be * dt), 1 / (2 * be) - 1,
+                               ga / be - 1, dt * (ga / (2 * be) - 1), ga, 0.0])
+        a0, a1 = self._coef[1], self._coef[2]
+        self.Khat = m.K + a0 * m.J + a1 * m.C
+        Jd = np.diag(m.J).copy()
+        if np.abs(m.J - np.diag(Jd)).max() > 0:
+            raise ValueError('J is not diagonal')
+        self._Jd = Jd
+        self._Clo, self._Cd, self._Cup = _tridiag(m.C, 'C')
+        klo, kd, kup = _tridiag(self.Khat, 'K + a0 J + a1 C')
+        # Thomas factorization of Khat
+        inv_den = np.zeros(n)
+        cp = np.zeros(max(n - 1, 1))
+        inv_den[0] = 1 / kd[0]
+        for i in range(1, n):
+            cp[i - 1] = kup[i - 1] * inv_den[i - 1]
+            inv_den[i] = 1 / (kd[i] - klo[i - 1] * cp[i - 1])
+        self._klo, self._kinv_den, self._kcp = klo, inv_den, cp
+        self._u = np.linalg.solve(self.Khat, m.e)
+        self._coef[8] = float(m.e @ self._u)
+        sp = m.spring
+        if sp is None:
+            self._spring = np.array([0.0, np.inf, 0.0, np.inf])
+        else:
+            self._spring = np.array([sp.b, sp.theta, sp.b_coast, sp.theta_coast_or_inf])
+        L = self.loads
+        self._cyl_dof = np.array([int(np.flatnonzero(row)[0]) for row in L.cylinder_dof_vectors])
+        self._cyl_scale = np.array([row[d] for row, d in zip(L.cylinder_dof_vectors, self._cyl_dof)])
+        self._dal = L.dalembert_dof.copy()
+        self._rear_vec = L.rear_dof_vector.copy()
+        # state
+        self.q = np.zeros(n)
+        self.v = np.zeros(n)
+        self.a = np.zeros(n)
+        self._scal = np.zeros(6)  # t, psi, omega, omega_target, ramp, omega_dot
+        self._counters = np.zeros(3, dtype=np.int64)
+        self.load = 0.0
+        self._B = np.zeros((len(self._cyl_dof), L.n_max + 1), dtype=complex)
+        self._fixed = np.zeros(n)
+        self._rear_torque = 0.0
+        self._coef_speed_rpm = None
+
+    # ---- state accessors ---------------------------------------------------------------
+    @property
+    def t(self) -> float:
+        return float(self._scal[0])
+
+    @property
+    def psi(self) -> float:
+        """Crank angle of the reference rotation [rad], continuous."""
+        return float(self._scal[1])
+
+    @property
+    def omega(self) -> float:
+        """Reference crank speed [rad/s]."""
+        return float(self._scal[2])
+
+    @property
+    def speed_rpm(self) -> float:
+        return self.omega / RPM_TO_RAD_S
+
+    @property
+    def omega_dot(self) -> float:
+        return float(self._scal[5])
+
+    @property
+    def windup(self) -> float:
+        return float(self.model.e @ self.q)
+
+    # ---- set-up --------------------------------------------------------------------------
+    def update_excitation(self, speed_rpm: float | None = None, load: float | None = None) -> None:
+        """Recompute the cylinder coefficients and rear load for the current (or given) speed
+        [rpm] and load fraction. Called by the stepper between chunks; coefficients are held
+        constant inside a chunk."""
+        if speed_rpm is None:
+            speed_rpm = self.speed_rpm
+        if load is not None:
+            self.load = float(load)
+        L = self.loads
+        self._B[:] = L.cylinder_coefficients(speed_rpm, self.load)
+        self._rear_torque = L.rear_load(speed_rpm, self.load)
+        self._fixed[:] = self._rear_vec * self._rear_torque
+        self._coef_speed_rpm = speed_rpm
+
+    def set_target(self, speed_rpm: float, ramp_rpm_per_s: float) -> None:
+        """Ramp the reference speed toward ``speed_rpm`` at ``ramp_rpm_per_s``."""
+        self._scal[3] = speed_rpm * RPM_TO_RAD_S
+        self._scal[4] = ramp_rpm_per_s * RPM_TO_RAD_S
+
+    def reset(self, speed_rpm: float, load: float, psi: float = 0.0, t: float = 0.0) -> None:
+        """Start at constant speed from the static equilibrium under the mean torque.
+
+        The rigid-body velocity is set to the forced periodic rigid-body velocity at psi so the
+        free chain's mean speed does not drift away from the reference (the rigid mode is
+        decoupled: r^T K = r^T C = 0).
+        """
+        self._scal[:] = [t, psi, speed_rpm * RPM_TO_RAD_S, speed_rpm * RPM_TO_RAD_S, 0.0, 0.0]
+        self.update_excitation(speed_rpm, load)
+        st = self.loads.static_state(speed_rpm, load)
+        self.q[:] = st.q
+        self.v[:] = 0.0
+        r = self.model.rigid_mode
+        if r is not None and speed_rpm > 0:
+            P = self.loads.dof_harmonics(speed_rpm, load)
+            Jr = float(r @ self.model.J @ r)
+            n = np.arange(1, P.shape[0])
+            Om = n / 2 * speed_rpm * RPM_TO_RAD_S
+            F = P[1:] @ r
+            # eta'' = Re(F e^{i n psi/2})/Jr  ->  eta' = Re(F/(i Om Jr) e^{i n psi/2})
+            eta_dot = np.real(np.sum(F / (1j * Om * Jr) * np.exp(1j * n * psi / 2)))
+            self.v[:] = r * eta_dot
+        self.a[:] = self.acceleration(self.q, self.v)
+        self._counters[:] = 0
+
+    def acceleration(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """a = J^-1 (P - C v - K q - e g(e q)) at the current psi and omega_dot."""
+        P = self.generalized_load(self.psi, self.omega_dot)
+        m = self.model
+        g = float(m.spring.extra_torque(m.e @ q)) if m.spring is not None else 0.0
+        return (P - m.C @ v - m.K @ q - m.e * g) / self._Jd
+
+    def generalized_load(self, psi, omega_dot=0.0) -> np.ndarray:
+        """Generalized load [Nm] with the current coefficients at crank angle(s) psi [rad]."""
+        psi = np.asarray(psi, dtype=float)
+        n = np.arange(self._B.shape[1])
+        cyl = np.real(np.exp(1j * np.multiply.outer(psi, n) / 2) @ self._B.T)   # (..., n_cyl)
+        P = np.multiply.outer(np.ones_like(psi), self._fixed) + np.multiply.outer(np.asarray(omega_dot, float) * np.ones_like(psi), self._dal)
+        P[..., self._cyl_dof] += cyl * self._cyl_scale
+        return P
+
+    def element_loads(self, psi, omega_dot=0.0) -> np.ndarray:
+        """Element torques [Nm] (cylinders, rear, d'Alembert) at crank angle(s) psi."""
+        psi = np.asarray(psi, dtype=float)
+        L = self.loads
+        n = np.arange(self._B.shape[1])
+        cyl = np.real(np.exp(1j * np.multiply.outer(psi, n) / 2) @ self._B.T)
+        p = np.multiply.outer(np.asarray(omega_dot, float) * np.ones_like(psi), L.dalembert_elements)
+        p[..., L.cylinder_elements] += cyl
+        p[..., L.rear_element] += self._rear_torque
+        return p
+
+    # ---- stepping ------------------------------------------------------------------------
+    def advance(self, nsteps: int, record: StepRecord | None = None, stride: int = 1) -> int:
+        """Advance ``nsteps`` steps; every ``stride`` steps write the state into ``record``
+        (rows from 0; needs nsteps // stride rows). Returns the number of rows written."""
+        if record is None:
+            record = self._scratch(max(nsteps // stride, 1))
+            stride = max(nsteps, 1)
+        args = (int(nsteps), int(stride), self.q, self.v, self.a, self._scal, self._coef, self._fixed,
+                self._Jd, self._Clo, self._Cd, self._Cup, self._klo, self._kinv_den, self._kcp,
+                self.model.e, self._u, self._B, self._cyl_dof, self._cyl_scale, self._dal,
+                self._spring, record.t, record.psi, record.omega, record.q, record.v, record.a,
+                record.windup, self._counters)
+        rows = (_advance_compiled if self.use_numba else _advance_reference)(*args)
+        record.count = rows
+        self.knee_crossings, self.steps_secondary, self.steps_coast = (int(c) for c in self._counters)
+        return rows
+
+    def _scratch(self, rows: int) -> StepRecord:
+        buf = getattr(self, '_scratch_buf', None)
+        if buf is None or buf.t.shape[0] < rows:
+            buf = StepRecord.allocate(rows, self.model.n_dof)
+            self._scratch_buf = buf
+        return buf
+
+
+def _advance_reference(nsteps, stride, q, v, a, scal, coef, fixed, Jd, Clo, Cd, Cup, klo, kinv_den,
+                       kcp, e, u, B, cyl_dof, cyl_scale, dal, spring, out_t, out_psi, out_omega,
+                       out_q, out_v, out_a, out_w, counters):
+    """Readable numpy version of the kernel (same arguments, same results)."""
+    dt, a0, a1, a2, a3, a4, a5, gam, h = coef
+    b, th, bc, thc = spring
+    n = len(q)
+    C = np.diag(Cd) + np.diag(Cup, 1) + np.diag(Clo, -1)
+    # Rebuild Khat's tridiagonal from the factorization to avoid passing K separately.
+    L = np.eye(n) + np.diag(klo * kinv_den[:-1], -1) if n > 1 else np.eye(1)
+    U = np.diag(1 / kinv_den) + np.diag(kcp[:n - 1] / kinv_den[:-1], 1)
+    Khat = L @ U
+    nh = np.arange(B.shape[1])
+    region_prev = np.sign(int(e @ q > th) - int(e @ q < -thc))
+    j = 0
+    for step in range(nsteps):
+        omega = scal[2]
+        d = np.clip(scal[3] - omega, -scal[4] * dt, scal[4] * dt)
+        omega_new = omega + d
+        scal[5] = d / dt
+        scal[1] += 0.5 * (omega + omega_new) * dt
+        scal[2] = omega_new
+        scal[0] += dt
+        P = fixed + dal * scal[5]
+        np.add.at(P, cyl_dof, cyl_scale * np.real(B @ np.exp(1j * nh * scal[1] / 2)))   # eq. (17)
+        rhs = P + Jd * (a0 * q + a2 * v + a3 * a) + C @ (a1 * q + a4 * v + a5 * a)
+        x = np.linalg.solve(Khat, rhs)
+        w_lin = e @ x
+        # Newton on w + h g(w) = w_lin, with the region of the iterate checked (exact on pw-linear g)
+        w = w_lin
+        for _ in range(4):
+            g = b * max(w - th, 0.0) - bc * max(-w - thc, 0.0)
+            dg = (b if w > th else 0.0) + (bc if w < -thc else 0.0)
+            r = w + h * g - w_lin
+            if abs(r) <= 1e-14 * max(1.0, abs(w_lin)):
+                break
+            w -= r / (1 + h * dg)
+        g = b * max(w - th, 0.0) - bc * max(-w - thc, 0.0)
+        region = 1 if w > th else (-1 if w < -thc else 0)
+        counters[0] += region != region_prev
+        counters[1] += region == 1
+        counters[2] += region == -1
+        region_prev = region
+        qn = x - u * g
+        an = a0 * (qn - q) - a2 * v - a3 * a
+        v += dt * ((1 - gam) * a + gam * an)
+        a[:] = an
+        q[:] = qn
+        if (step + 1) % stride == 0:
+            out_t[j], out_psi[j], out_omega[j], out_w[j] = scal[0], scal[1], omega_new, w
+            out_q[j], out_v[j], out_a[j] = q, v, a
+            j += 1
+    return j
+
+
+# ------------------------------------------------------------------------------------------------
+# Offline: one call, one result (like scipy.integrate.solve_ivp)
+# ------------------------------------------------------------------------------------------------
+
+@dataclass
+class SimulationResult:
+    """Result of :func:`simulate` (SI units; speed in rpm as named).
+
+    Attributes:
+        t, psi, speed_rpm, windup: recorded time [s], crank angle [rad], reference speed, DMF
+            wind-up [rad] (every ``record_stride`` steps; for steady-state runs, the last cycles).
+        q, v: recorded DOF angles [rad] and velocities [rad/s].
+        steady: whether the cycle-to-cycle change fell below ``steady_tol``.
+        cycles: engine cycles integrated; change: the last relative cycle-to-cycle change.
+        windup_orders: complex half-order coefficients c_n of the wind-up over the last
+            ``eval_cycles`` whole cycles (steady-state runs; None otherwise).
+        summary: OrderSummary of the wind-up (3rd/1.5th order, max/min deviation, mean - theta).
+        knee_crossings: DMF region changes counted by the kernel.
+        message: human-readable status.
+    """
+
+    t: np.ndarray
+    psi: np.ndarray
+    speed_rpm: np.ndarray
+    windup: np.ndarray
+    q: np.ndarray
+    v: np.ndarray
+    steady: bool
+    cycles: int
+    change: float
+    windup_orders: np.ndarray | None
+    summary: object | None
+    knee_crossings: int
+    message: str
+    integrator: NewmarkIntegrator | None = None
+
+    @property
+    def success(self) -> bool:
+        return self.steady
+
+
+def simulate(loads: DrivelineLoads, speed_rpm: float, load: float, *, t_end: float | None = None,
+             target_speed_rpm: float | None = None, ramp_rpm_per_s: float = 0.0,
+             dt: float = 1e-4, beta: float = 0.25, gamma: float = 0.5,
+             steady_tol: float = 1e-4, min_cycles: int = 5, max_cycles: int = 400,
+             eval_cycles: int = 4, record_stride: int = 1, chunk_s: float = 0.01,
+             initial: tuple[np.ndarray, np.ndarray] | None = None, use_numba: bool = True,
+             progress: bool = False) -> SimulationResult:
+    """Integrate the driveline at speed ``speed_rpm`` and load fraction ``load``.
+
+    Without ``t_end``: run whole engine cycles at constant speed until the wind-up's
+    cycle-to-cycle change (max abs difference over one cycle on a crank-angle grid, relative to
+    its peak-to-peak) is below ``steady_tol``, then return the wind-up orders of the last
+    ``eval_cycles`` cycles. With ``t_end`` [s]: a transient run, optionally ramping toward
+    ``target_speed_rpm`` at ``ramp_rpm_per_s``, recording every ``record_stride`` steps; the
+    excitation coefficients follow the speed every ``chunk_s`` seconds.
+    ``initial`` = (q, v) replaces the static equilibrium start.
+    """
+    from dmf_sim.orders import CYCLE_RAD, resample_on_angle, half_order_coefficients, summarize
+
+    integ = NewmarkIntegrator(loads, dt=dt, beta=beta, gamma=gamma, use_numba=use_numba)
+    integ.reset(speed_rpm, load)
+    if initial is not None:
+        integ.q[:] = initial[0]
+        integ.v[:] = initial[1]
+        integ.a[:] = integ.acceleration(integ.q, integ.v)
+    theta = loads.model.spring.theta if loads.model.spring is not None else 0.0
+    n_max = loads.n_max
+
+    if t_end is not None:
+        if target_speed_rpm is not None:
+            integ.set_target(target_speed_rpm, ramp_rpm_per_s)
+        n_total = int(round(t_end / dt))
+        chunk = max(int(round(chunk_s / dt)) // record_stride, 1) * record_stride
+        rows_total = n_total // record_stride
+        rec = StepRecord.allocate(rows_total, loads.model.n_dof)
+        done = row = 0
+        bar = _bar(progress, n_total, 'simulate')
+        while done < n_total:
+            k = min(chunk, n_total - done)
+            k -= k % record_stride if k >= record_stride else 0
+            k = max(k, 1)
+            sub = StepRecord(rec.t[row:], rec.psi[row:], rec.omega[row:], rec.q[row:], rec.v[row:],
+                             rec.a[row:], rec.windup[row:])
+            row += integ.advance(k, sub, record_stride)
+            done += k
+            integ.update_excitation()
+            bar.update(k)
+        bar.close()
+        return SimulationResult(rec.t[:row], rec.psi[:row], rec.omega[:row] / RPM_TO_RAD_S,
+                                rec.windup[:row], rec.q[:row], rec.v[:row], steady=False,
+                                cycles=int(integ.psi // CYCLE_RAD), change=float('nan'),
+                                windup_orders=None, summary=None,
+                                knee_crossings=integ.knee_crossings,
+                                message=f'transient run of {t_end} s', integrator=integ)
+
+    # --- steady state at constant speed, cycle by cycle -----------------------------------
+    omega = speed_rpm * RPM_TO_RAD_S
+    steps_per_cycle = CYCLE_RAD / (omega * dt)
+    keep = eval_cycles + 2
+    cap = int(np.ceil(steps_per_cycle)) + 2
+    ring = [StepRecord.allocate(cap, loads.model.n_dof) for _ in range(keep)]
+    grid_pts = 256
+
+    def stitched(first: int, last: int, attr: str) -> np.ndarray:
+        recs = [ring[j % keep] for j in range(first, last + 1)]
+        return np.concatenate([getattr(r, attr)[:r.count] for r in recs])
+
+    prev = None
+    change = np.inf
+    steady = False
+    cyc = 0
+    bar = _bar(progress, max_cycles, f'steady state {speed_rpm:.0f} rpm')
+    for cyc in range(1, max_cycles + 1):
+        # record j covers crank angle [(j-1) 4pi + ~2 omega dt, j 4pi + ~2 omega dt)
+        nsteps = int(np.ceil((cyc * CYCLE_RAD - integ.psi) / (omega * dt))) + 1
+        integ.advance(nsteps, ring[cyc % keep], 1)
+        if cyc >= 2:
+            cur = resample_on_angle(stitched(cyc - 1, cyc, 'psi'), stitched(cyc - 1, cyc, 'windup'),
+                                    (cyc - 1) * CYCLE_RAD, 1, grid_pts)
+            if prev is not None:
+                change = float(np.max(np.abs(cur - prev))) / max(float(np.ptp(cur)), 1e-9)
+                if cyc >= min_cycles and change < steady_tol:
+                    steady = True
+                    bar.update(1)
+                    break
+            prev = cur
+        bar.update(1)
+    bar.close()
+    n_eval = max(min(eval_cycles, cyc - 1), 1)
+    first = cyc - n_eval
+    psi, w = stitched(first, cyc, 'psi'), stitched(first, cyc, 'windup')
+    start = (cyc - n_eval) * CYCLE_RAD
+    samples = resample_on_angle(psi, w, start, n_eval, grid_pts)
+    coeffs = half_order_coefficients(samples, n_eval, n_max)
+    summ = summarize(samples, n_eval, theta, n_max)
+    cat = lambda attr: stitched(first, cyc, attr)  # noqa: E731
+    msg = (f'steady after {cyc} cycles (change {change:.2e})' if steady
+           else f'not steady after {cyc} cycles (change {change:.2e} > {steady_tol:g})')
+    return SimulationResult(cat('t'), psi, np.full(len(psi), speed_rpm), w, cat('q'), cat('v'),
+                            steady=steady, cycles=cyc, change=change, windup_orders=coeffs,
+                            summary=summ, knee_crossings=integ.knee_crossings, message=msg,
+                            integrator=integ)
+
+
+def _bar(enabled: bool, total: int, desc: str):
+    if enabled:
+        from tqdm import tqdm
+        return tqdm(total=total, desc=desc, unit='step' if total > 1000 else 'cycle', leave=False)
+
+    class _Null:
+        def update(self, n): pass
+        def close(self): pass
+    return _Null()
