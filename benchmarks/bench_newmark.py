@@ -1,0 +1,132 @@
+"""Benchmark: Newmark kernel speed on the full DMF model vs scipy.integrate.solve_ivp.
+
+Figures printed: steps per second and real-time factor at dt = 1e-4 s (one core, compiled
+kernel, numba compile excluded), and the speed-up over solve_ivp on the same case (same start,
+same excitation) at the same accuracy: both are compared with a reference run (Newmark at dt/8)
+over the same interval; solve_ivp's rtol is tightened until its wind-up error is no larger than
+Newmark's at dt. Last line: one JSON object.
+
+    python benchmarks/bench_newmark.py [--steps N] [--ivp-seconds S] [--quick]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+
+import numpy as np
+from scipy.integrate import solve_ivp
+
+from dmf_sim.engine import load_engine
+from dmf_sim.loads import DrivelineLoads
+from dmf_sim.model import load_model
+from dmf_sim.newmark import NewmarkIntegrator, StepRecord
+
+SPEED_RPM = 900.0      # 1.5th-order region of the paper (knee crossings happen)
+LOAD = 1.0
+ALPHA = 3.0
+DT = 1e-4
+
+
+def make_loads() -> DrivelineLoads:
+    return DrivelineLoads(load_model('truck_dmf', alpha=ALPHA), load_engine('engine_d13'))
+
+
+def newmark_windup(L, dt: float, t_end: float) -> tuple[np.ndarray, np.ndarray]:
+    integ = NewmarkIntegrator(L, dt=dt)
+    integ.reset(SPEED_RPM, LOAD)
+    n = int(round(t_end / dt))
+    rec = StepRecord.allocate(n, L.model.n_dof)
+    integ.advance(n, rec, 1)
+    return rec.t[:n].copy(), rec.windup[:n].copy()
+
+
+def ivp_windup(L, t_eval: np.ndarray, rtol: float) -> tuple[np.ndarray, float, int]:
+    m = L.model
+    integ = NewmarkIntegrator(L, dt=DT)          # for the same start and the same load function
+    integ.reset(SPEED_RPM, LOAD)
+    omega = integ.omega
+    n = m.n_dof
+    Jinv = 1.0 / np.diag(m.J)
+    sp = m.spring
+
+    def rhs(t, y):
+        q, v = y[:n], y[n:]
+        P = integ.generalized_load(omega * t)
+        f = P - m.C @ v - m.K @ q - m.e * float(sp.extra_torque(m.e @ q))
+        return np.concatenate([v, Jinv * f])
+
+    y0 = np.concatenate([integ.q, integ.v])
+    t0 = time.perf_counter()
+    sol = solve_ivp(rhs, (0.0, t_eval[-1]), y0, method='RK45', rtol=rtol, atol=rtol * 1e-3,
+                    t_eval=t_eval)
+    wall = time.perf_counter() - t0
+    return sol.y[:n].T @ m.e, wall, sol.nfev
+
+
+def main(argv=None) -> dict:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument('--steps', type=int, default=2_000_000, help='Newmark steps timed (default 2e6 = 200 s)')
+    ap.add_argument('--ivp-seconds', type=float, default=0.2, help='simulated seconds for the accuracy race')
+    ap.add_argument('--quick', action='store_true', help='small sizes (used by the test suite)')
+    args = ap.parse_args(argv)
+    if args.quick:
+        args.steps, args.ivp_seconds = 200_000, 0.05
+    os.environ.setdefault('NUMBA_NUM_THREADS', '1')
+    L = make_loads()
+
+    # --- raw kernel speed -------------------------------------------------------------
+    integ = NewmarkIntegrator(L, dt=DT)
+    integ.reset(SPEED_RPM, LOAD)
+    rec = StepRecord.allocate(1000, L.model.n_dof)
+    integ.advance(1000, rec, 1)                              # compile / warm up
+    stride = 100                                            # record at 100 Hz like a light consumer
+    rec = StepRecord.allocate(args.steps // stride + 1, L.model.n_dof)
+    t0 = time.perf_counter()
+    integ.advance(args.steps, rec, stride)
+    wall = time.perf_counter() - t0
+    steps_per_s = args.steps / wall
+    rtf = steps_per_s * DT
+
+    # --- accuracy-matched comparison with solve_ivp -----------------------------------
+    T = args.ivp_seconds
+    t_ref, w_ref = newmark_windup(L, DT / 8, T)
+    t_nm, w_nm = newmark_windup(L, DT, T)
+    w_ref_on = np.interp(t_nm, t_ref, w_ref)
+    scale = float(np.ptp(w_ref_on))
+    err_nm = float(np.max(np.abs(w_nm - w_ref_on))) / scale
+    t1 = time.perf_counter()
+    newmark_windup(L, DT, T)
+    nm_wall = time.perf_counter() - t1
+    ivp_wall = err_ivp = rtol_used = nfev = None
+    for rtol in (1e-2, 1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8):
+        w_ivp, ivp_wall, nfev = ivp_windup(L, t_nm, rtol)
+        err_ivp = float(np.max(np.abs(w_ivp - w_ref_on))) / scale
+        rtol_used = rtol
+        if err_ivp <= err_nm:
+            break
+    result = {
+        'steps_per_s': round(steps_per_s),
+        'realtime_factor': round(rtf, 1),
+        'dt_s': DT,
+        'n_dof': L.model.n_dof,
+        'newmark_rel_error': err_nm,
+        'solve_ivp_rel_error': err_ivp,
+        'solve_ivp_rtol': rtol_used,
+        'solve_ivp_nfev': nfev,
+        'newmark_seconds': round(nm_wall, 4),
+        'solve_ivp_seconds': round(ivp_wall, 3),
+        'speedup_vs_solve_ivp': round(ivp_wall / nm_wall, 1),
+        'simulated_seconds_compared': T,
+        'targets': {'steps_per_s': 1e6, 'realtime_factor': 100, 'speedup_vs_solve_ivp': 50},
+    }
+    print(f'Newmark (numba, 1 core): {steps_per_s:,.0f} steps/s = {rtf:.0f}x real time at dt={DT} s')
+    print(f'accuracy over {T} s vs dt/8 reference: Newmark {err_nm:.2e}, solve_ivp RK45 rtol={rtol_used:g} {err_ivp:.2e}')
+    print(f'wall: Newmark {nm_wall*1e3:.1f} ms, solve_ivp {ivp_wall*1e3:.0f} ms -> speed-up {ivp_wall/nm_wall:.0f}x')
+    print(json.dumps(result))
+    return result
+
+
+if __name__ == '__main__':
+    main()
