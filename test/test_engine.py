@@ -1,0 +1,340 @@
+"""Tests of the engine excitation (dmf_sim/engine.py): default pressure model, tables, Load A/B/C."""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from dmf_sim.engine import (LOAD_SETS, EngineExcitation, cylinder_torque_signal, engine_torque_orders,
+                            load_engine, write_coefficient_table)
+from dmf_sim.paths import config_file
+
+N_MAX = 24
+THIRD, SIXTH = 6, 12      # half-order indices of the 3rd and 6th engine orders
+
+
+@pytest.fixture(scope='module')
+def engines():
+    a = load_engine('engine_d13', 'A')
+    a.warm()
+    return {'A': a, 'B': a.with_load_set('B'), 'C': a.with_load_set('C')}
+
+
+@pytest.fixture(scope='module')
+def engine(engines):
+    return engines['A']
+
+
+@pytest.fixture(scope='module')
+def curve():
+    doc = yaml.safe_load(config_file('engine_d13').read_text())['full_load_curve']
+    return lambda s: float(np.interp(s, doc['speeds_rpm'], doc['torque_nm']))
+
+
+@pytest.fixture()
+def base_yaml() -> dict:
+    return yaml.safe_load(config_file('engine_d13').read_text())
+
+
+def _one_line_error(excinfo, *needles: str) -> None:
+    msg = str(excinfo.value)
+    assert '\n' not in msg, msg
+    for needle in needles:
+        assert needle in msg, msg
+
+
+# ------------------------------------------------------------------------------------------------
+def test_config_and_api(engine):
+    assert config_file('engine_d13').name == 'engine_d13.yaml'
+    assert set(LOAD_SETS) == {'A', 'B', 'C'}
+    assert isinstance(engine, EngineExcitation)
+    assert engine.n_cylinders == 6 and engine.n_max == N_MAX
+    np.testing.assert_array_equal(engine.firing_phases_deg, [0, 480, 240, 600, 120, 360])
+    A = engine.coefficients(1000, 1.0)
+    assert A.shape == (N_MAX + 1,) and A.dtype == complex
+    assert A[0].imag == 0.0
+    assert engine.mean_torque(1000, 1.0) == pytest.approx(6 * A[0].real)
+
+
+@pytest.mark.parametrize('name', ['A', 'B', 'C'])
+def test_mean_torque_follows_curve(engines, curve, name):
+    eng = engines[name]
+    shift = {'A': 0, 'B': 50, 'C': 100}[name]
+    for s in np.arange(600, 2001, 25.0):
+        expected = curve(min(s + shift, max(s, 1000)))
+        assert eng.full_load_torque(s) == pytest.approx(expected, rel=1e-12)
+        assert eng.mean_torque(s, 1.0) == pytest.approx(expected, rel=0.01, abs=1.0)
+        assert eng.mean_torque(s, 0.5) == pytest.approx(0.5 * expected, rel=0.01, abs=1.0)
+        assert abs(eng.mean_torque(s, 0.0)) < 1.0
+    # B/C give more torque at low speed, nothing changes above 1000 rpm
+    assert engines['C'].full_load_torque(700) > engines['B'].full_load_torque(700) > curve(700)
+    assert engines['C'].full_load_torque(1200) == curve(1200)
+
+
+def test_rigid_crank_orders(engine):
+    for s in (600, 1000, 1400, 1800):
+        for load in (0.0, 0.5, 1.0):
+            B = engine_torque_orders(engine, s, load)
+            n = np.arange(B.size)
+            survivors = n % 6 == 0
+            assert np.max(np.abs(B[~survivors])) < 1e-9 * np.max(np.abs(B))
+            assert B[0] == pytest.approx(engine.mean_torque(s, load))
+            if load == 1.0:   # the 3rd order dominates the alternating part
+                assert np.argmax(np.abs(B[1:])) + 1 == THIRD
+
+
+def test_third_and_sixth_order_at_full_load(engine):
+    for s in (600, 800, 1000):
+        B = engine_torque_orders(engine, s, 1.0)
+        assert 1.2 < abs(B[THIRD]) / B[0].real < 2.5, s
+        assert 0.2 < abs(B[SIXTH]) / abs(B[THIRD]) < 0.7, s
+    r = engine.model.cycle(1400, 1.0)   # peak firing pressure of a current truck diesel
+    assert 170e5 < r.peak_pressure_pa < 240e5
+
+
+def test_gas_and_inertia_oppose_in_third_order(engine):
+    for s in (800, 1400, 2000):
+        g = engine.gas_coefficients(s, 0.0)[THIRD]
+        i = engine.inertia_coefficients(s)[THIRD]
+        assert abs(np.angle(g / i, deg=True)) > 150.0
+    speeds = np.arange(600, 2201, 50.0)
+    third = [abs(engine_torque_orders(engine, s, 0.0)[THIRD]) for s in speeds]
+    s_min = speeds[int(np.argmin(third))]
+    assert 1100 <= s_min <= 1800
+    assert min(third) < 0.2 * third[0]
+    # at full load the 3rd order shrinks at high speed
+    assert (abs(engine_torque_orders(engine, 1800, 1.0)[THIRD])
+            < abs(engine_torque_orders(engine, 1200, 1.0)[THIRD]))
+
+
+def test_truncation_error_full_load(engine):
+    model = engine.model
+    for s in range(600, 1901, 100):
+        r = model.cycle(s, 1.0)
+        A = model.gas_coefficients(s, 1.0) + model.inertia_coefficients(s)
+        psi = np.radians(r.psi_deg)
+        series = cylinder_torque_signal(A, psi, 0.0)   # eq. 16
+        err = np.sqrt(np.mean((r.torque_nm - series) ** 2) / np.mean(r.torque_nm ** 2))
+        assert err < 0.01, (s, err)
+        assert model.truncation_error(s, 1.0) == pytest.approx(err, rel=1e-6)
+    # part load: the motored compression peak is sharper, error stays a few percent
+    assert max(model.truncation_error(s, ld) for s in (600, 1400, 2200) for ld in (0, 0.5)) < 0.03
+
+
+def test_cylinder_signal_phase(engine):
+    A = engine.coefficients(1200, 0.8)
+    psi = np.linspace(0, 4 * np.pi, 97)
+    beta = np.radians(480.0)
+    np.testing.assert_allclose(cylinder_torque_signal(A, psi, beta),
+                               cylinder_torque_signal(A, psi - beta, 0.0), atol=1e-9)
+    assert np.mean(cylinder_torque_signal(A, np.linspace(0, 4 * np.pi, 720, endpoint=False), 0.0)) \
+        == pytest.approx(A[0].real)
+
+
+def test_load_sets_shift_gas_part_only(engines):
+    a, b, c = engines['A'], engines['B'], engines['C']
+    for s_b, s_a, eng in ((900, 950, b), (980, 1000, b), (1000, 1000, b), (1200, 1200, b),
+                          (600, 700, c), (850, 950, c), (950, 1000, c), (1500, 1500, c)):
+        for load in (0.3, 1.0):
+            np.testing.assert_allclose(eng.gas_coefficients(s_b, load), a.gas_coefficients(s_a, load),
+                                       rtol=0, atol=1e-9)
+        np.testing.assert_allclose(eng.inertia_coefficients(s_b), a.inertia_coefficients(s_b))
+        np.testing.assert_allclose(eng.coefficients(s_b, 1.0),
+                                   a.gas_coefficients(s_a, 1.0) + a.inertia_coefficients(s_b), atol=1e-9)
+
+
+def test_load_changes_only_gas_part(engine):
+    for s in (700, 1300, 2100):
+        full, zero = engine.coefficients(s, 1.0), engine.coefficients(s, 0.0)
+        np.testing.assert_allclose(full - zero,
+                                   engine.gas_coefficients(s, 1.0) - engine.gas_coefficients(s, 0.0),
+                                   atol=1e-9)
+        r0, r1 = engine.model.cycle(s, 0.0), engine.model.cycle(s, 1.0)
+        np.testing.assert_array_equal(r0.inertia_torque_nm, r1.inertia_torque_nm)
+        assert np.max(np.abs(engine.gas_coefficients(s, 0.0)[1:])) > 100.0   # motored torque remains
+        assert r1.heat_release_j > r0.heat_release_j >= 0.0
+
+
+def test_cache_interpolation_close_to_exact(engine):
+    for s, load in ((1234.0, 0.6), (777.0, 0.9), (1975.0, 0.1)):
+        exact = engine.model.gas_coefficients(s, load) + engine.model.inertia_coefficients(s)
+        interp = engine.coefficients(s, load)
+        assert abs(interp[THIRD] - exact[THIRD]) < 0.02 * abs(exact[THIRD])
+        assert abs(interp[0] - exact[0]) < 0.01 * max(abs(exact[0]), 100.0)
+
+
+def test_warm_query_is_fast(engine):
+    speeds = np.linspace(600, 2100, 2000)
+    t0 = time.perf_counter()
+    for s in speeds:
+        engine.coefficients(s, 0.7)
+    per_call = (time.perf_counter() - t0) / speeds.size
+    assert per_call < 1e-3
+
+
+def test_bad_queries(engine):
+    with pytest.raises(ValueError) as exc:
+        engine.coefficients(3000, 0.5)
+    _one_line_error(exc, 'speed_rpm', '400', '2200')
+    with pytest.raises(ValueError) as exc:
+        engine.coefficients(1000, 1.5)
+    _one_line_error(exc, 'load', '[0, 1]')
+    with pytest.raises(ValueError):
+        engine.coefficients(float('nan'), 0.5)
+    with pytest.raises(ValueError) as exc:
+        load_engine('engine_d13', 'D')
+    _one_line_error(exc, 'load_set', 'A')
+
+
+# ------------------------------------------------------------------------------------------------
+# User tables
+# ------------------------------------------------------------------------------------------------
+def test_example_table_matches_model(engine):
+    table = load_engine('engine_table_example.csv')
+    assert config_file('engine_table_example.csv').stat().st_size < 100_000
+    assert table.n_max == N_MAX and table.speed_range_rpm == (600.0, 2000.0)
+    for s in (600, 1000, 1700):
+        for load in (0.0, 0.5, 1.0):
+            np.testing.assert_allclose(table.coefficients(s, load), engine.coefficients(s, load),
+                                       rtol=0, atol=1e-3)
+    assert table.full_load_torque(1000) == pytest.approx(2500.0, rel=1e-5)
+    assert table.mean_torque(1250, 0.75) == pytest.approx(engine.mean_torque(1250, 0.75), rel=1e-3)
+    # load sets work on tables too
+    tb = load_engine('engine_table_example.csv', 'B')
+    np.testing.assert_allclose(tb.gas_coefficients(900, 1.0), table.gas_coefficients(950, 1.0))
+
+
+def test_full_load_table_scales_gas_part(engine, tmp_path):
+    path = write_coefficient_table(engine, tmp_path / 'full.csv', [600, 1000, 1500, 2000])
+    tab = load_engine(path)
+    for s in (600, 1000, 1500):
+        np.testing.assert_allclose(tab.coefficients(s, 1.0), engine.coefficients(s, 1.0), atol=1e-3)
+        np.testing.assert_allclose(tab.coefficients(s, 0.0), engine.inertia_coefficients(s), atol=1e-3)
+        np.testing.assert_allclose(tab.gas_coefficients(s, 0.4), 0.4 * engine.gas_coefficients(s, 1.0),
+                                   atol=1e-3)
+    assert tab.mean_torque(1000, 0.4) == pytest.approx(1000.0, rel=1e-5)
+
+
+def test_yaml_table(engine, tmp_path):
+    speeds, loads = [800, 1200, 1600], [0.0, 1.0]
+    coeffs = [[[[float(a.real), 0.0 if n == 0 else float(a.imag)] for n, a in enumerate(engine.coefficients(s, ld))]
+               for ld in loads] for s in speeds]
+    doc = {'engine': 'engine_d13', 'speeds_rpm': speeds, 'loads': loads,
+           'orders': list(range(N_MAX + 1)), 'coefficients': coeffs}
+    path = tmp_path / 'tab.yaml'
+    path.write_text(yaml.safe_dump(doc))
+    tab = load_engine(path, 'C')
+    np.testing.assert_allclose(tab.coefficients(1200, 1.0), engine.coefficients(1200, 1.0), atol=1e-9)
+    # without a load axis: full-load data
+    doc2 = dict(doc, loads=None, coefficients=[c[1] for c in coeffs])
+    del doc2['loads']
+    path.write_text(yaml.safe_dump(doc2))
+    np.testing.assert_allclose(load_engine(path).coefficients(1600, 1.0), engine.coefficients(1600, 1.0),
+                               atol=1e-9)
+    doc2['orders'] = list(range(N_MAX))
+    path.write_text(yaml.safe_dump(doc2))
+    with pytest.raises(ValueError) as exc:
+        load_engine(path)
+    _one_line_error(exc, 'coefficients', 'shape')
+
+
+def _csv(tmp_path: Path, rows: list[str], header: str = 'speed_rpm,n,re,im') -> Path:
+    path = tmp_path / 'bad.csv'
+    path.write_text('\n'.join([header] + rows) + '\n')
+    return path
+
+
+def _rows(speeds, orders=range(N_MAX + 1), value='1.0,0.5'):
+    return [f'{s},{n},{value if n else "100,0"}' for s in speeds for n in orders]
+
+
+@pytest.mark.parametrize('rows, header, needles', [
+    (_rows([800, 1000], orders=[n for n in range(N_MAX + 1) if n != 7]), None, ('n', 'missing', '7')),
+    (_rows([1000, 800]), None, ('speed_rpm', 'non-decreasing')),
+    (_rows([800, 1000], value='nan,0'), None, ('re', 'finite')),
+    (_rows([800, 1000], value='1,inf'), None, ('im', 'finite')),
+    (_rows([800, 9000]), None, ('speed_rpm', '100', '5000')),
+    (_rows([800]), None, ('speed_rpm', 'at least 2')),
+    (_rows([800, 1000]), 'rpm,n,re,im', ('header', 'speed_rpm,n,re,im')),
+    ([r.replace(',0,100,0', ',0,100,3') for r in _rows([800, 1000])], None, ('im', 'A_0', 'real')),
+    (_rows([800, 1000]) + ['1000,3,1,1'], None, ('n', 'duplicate')),
+])
+def test_bad_tables_refused(tmp_path, rows, header, needles):
+    path = _csv(tmp_path, rows, header or 'speed_rpm,n,re,im')
+    with pytest.raises(ValueError) as exc:
+        load_engine(path)
+    _one_line_error(exc, 'bad.csv', *needles)
+
+
+def test_minimal_good_csv(tmp_path):
+    eng = load_engine(_csv(tmp_path, _rows([800, 1000])))
+    assert eng.mean_torque(900, 1.0) == pytest.approx(600.0)
+
+
+# ------------------------------------------------------------------------------------------------
+# Engine YAML validation
+# ------------------------------------------------------------------------------------------------
+def _edit(doc: dict, dotted: str, value) -> dict:
+    keys = dotted.split('.')
+    node = doc
+    for k in keys[:-1]:
+        node = node[k]
+    if value is _DELETE:
+        del node[keys[-1]]
+    else:
+        node[keys[-1]] = value
+    return doc
+
+
+_DELETE = object()
+
+
+@pytest.mark.parametrize('field, value, needles', [
+    ('geometry.bore_m', -0.131, ('geometry.bore_m', '(0, 2]')),
+    ('geometry.bore_m', _DELETE, ('geometry.bore_m', 'missing')),
+    ('geometry.piston_mass', 3.0, ('geometry.piston_mass', 'unknown')),
+    ('geometry.conrod_m', 0.05, ('geometry.conrod_m', 'crank radius')),
+    ('geometry.compression_ratio', 'high', ('geometry.compression_ratio', 'number')),
+    ('n_cylinders', 0, ('n_cylinders', '[1, 24]')),
+    ('firing_phases_deg', [0, 480, 240], ('firing_phases_deg', '6')),
+    ('n_max', 100, ('n_max', '[1, 48]')),
+    ('combustion', _DELETE, ('combustion', 'missing')),
+    ('combustion.polytropic_exponent', 0.9, ('combustion.polytropic_exponent', '1.67')),
+    ('full_load_curve.speeds_rpm', [1000, 800], ('full_load_curve.speeds_rpm', 'increasing')),
+    ('grid.loads', [0.25, 1.0], ('grid.loads', 'start at 0')),
+    ('grid.speed_step_rpm', 70, ('grid.speed_step_rpm', 'divide')),
+    ('load_sets.shift_rpm', {'B': 50}, ('load_sets.shift_rpm', 'A')),
+    ('load_sets.shift_rpm.C', 2000, ('load_sets.shift_rpm.C', '[0, 1000)')),
+    ('gas_exchange.evo_deg', float('nan'), ('gas_exchange.evo_deg', '[90, 200]')),
+    ('wheels', 4, ('wheels', 'unknown')),
+])
+def test_bad_engine_yaml_refused(tmp_path, base_yaml, field, value, needles):
+    path = tmp_path / 'engine_bad.yaml'
+    path.write_text(yaml.safe_dump(_edit(base_yaml, field, value)))
+    with pytest.raises(ValueError) as exc:
+        load_engine(path)
+    _one_line_error(exc, 'engine_bad.yaml', *needles)
+
+
+def test_bad_table_references_and_yaml_fields(tmp_path):
+    path = tmp_path / 'ref.csv'
+    path.write_text('# engine: no_such_engine\n' + '\n'.join(['speed_rpm,n,re,im'] + _rows([800, 1000])))
+    with pytest.raises(ValueError) as exc:
+        load_engine(path)
+    _one_line_error(exc, 'ref.csv', 'engine', 'no_such_engine')
+    doc = {'speeds_rpm': [1000, 800], 'orders': [0, 1, 2],
+           'coefficients': [[[100, 0], [1, 1], [2, 2]]] * 2}
+    ypath = tmp_path / 'tab.yaml'
+    ypath.write_text(yaml.safe_dump(doc))
+    with pytest.raises(ValueError) as exc:
+        load_engine(ypath)
+    _one_line_error(exc, 'tab.yaml', 'speeds_rpm', 'increasing')
+    doc['speeds_rpm'] = [800, 1000]
+    doc['coefficients'][1] = [[100, 0], [float('nan'), 1], [2, 2]]
+    ypath.write_text(yaml.safe_dump(doc))
+    with pytest.raises(ValueError) as exc:
+        load_engine(ypath)
+    _one_line_error(exc, 'tab.yaml', 'coefficients', 'finite')
