@@ -44,29 +44,62 @@ except ImportError:  # pragma: no cover - numba is a hard dependency, kept optio
 # The kernel (plain Python; compiled by numba below)
 # ------------------------------------------------------------------------------------------------
 
-def _advance_kernel(nsteps, stride, q, v, a, scal, coef, fixed, Jd, Clo, Cd, Cup,
-                    klo, kinv_den, kcp, e, u, B, cyl_dof, cyl_scale, dal, spring,
+def _factor(h, beta, gam, Jd, Klo, Kd, Kup, Clo, Cd, Cup, e, coef, f_lo, f_inv, f_cp, u):
+    """Newmark constants for a step h [s] into ``coef`` = [h, a0..a5, gamma, e.Khat^-1 e], the
+    Thomas factors of the tridiagonal Khat = K + a0 J + a1 C, and u = Khat^-1 e (all in place)."""
+    n = Jd.shape[0]
+    a0 = 1.0 / (beta * h * h)
+    a1 = gam / (beta * h)
+    coef[0] = h
+    coef[1] = a0
+    coef[2] = a1
+    coef[3] = 1.0 / (beta * h)
+    coef[4] = 1.0 / (2.0 * beta) - 1.0
+    coef[5] = gam / beta - 1.0
+    coef[6] = h * (gam / (2.0 * beta) - 1.0)
+    coef[7] = gam
+    f_inv[0] = 1.0 / (Kd[0] + a0 * Jd[0] + a1 * Cd[0])
+    for i in range(1, n):
+        f_lo[i - 1] = Klo[i - 1] + a1 * Clo[i - 1]
+        f_cp[i - 1] = (Kup[i - 1] + a1 * Cup[i - 1]) * f_inv[i - 1]
+        f_inv[i] = 1.0 / (Kd[i] + a0 * Jd[i] + a1 * Cd[i] - f_lo[i - 1] * f_cp[i - 1])
+    _thomas(f_lo, f_inv, f_cp, e, u)
+    hc = 0.0
+    for i in range(n):
+        hc += e[i] * u[i]
+    coef[8] = hc
+
+
+def _thomas(f_lo, f_inv, f_cp, rhs, x):
+    """Solve Khat x = rhs with the precomputed Thomas factors (O(n))."""
+    n = rhs.shape[0]
+    x[0] = rhs[0] * f_inv[0]
+    for i in range(1, n):
+        x[i] = (rhs[i] - f_lo[i - 1] * x[i - 1]) * f_inv[i]
+    for i in range(n - 2, -1, -1):
+        x[i] -= f_cp[i] * x[i + 1]
+
+
+def _advance_kernel(nsteps, stride, q, v, a, scal, coef, beta, fixed, Jd, Klo, Kd, Kup, Clo, Cd,
+                    Cup, f_lo, f_inv, f_cp, e, u, B, cyl_dof, cyl_scale, dal, spring,
                     out_t, out_psi, out_omega, out_q, out_v, out_a, out_w, counters):
-    """Advance ``nsteps`` Newmark steps in place.
+    """Advance ``nsteps`` Newmark steps of coef[0] seconds in place.
+
+    A step in which the wind-up crosses a knee is redone as two sub-steps that end and start at
+    the crossing (time from linear interpolation of w), so the kink of the spring falls on a step
+    boundary and the trapezoidal rule never straddles it.
 
     scal: [t, psi, omega, omega_target, ramp_rad_s2, omega_dot]       (state, updated in place)
-    coef: [dt, a0, a1, a2, a3, a4, a5, gamma, h]
+    coef: [dt, a0, a1, a2, a3, a4, a5, gamma, e.Khat^-1 e] with f_lo/f_inv/f_cp/u for dt
     fixed: (n,) constant generalized load (rear load etc.) [Nm]
     B: (n_cyl, N+1) complex cylinder coefficients A_n exp(-i n beta_k/2)
     spring: [b, theta, b_coast, theta_coast]   (theta_coast = inf for none)
-    counters: [knee_crossings, steps_secondary, steps_coast]
+    counters: [knee_crossings, steps_secondary, steps_coast, split_steps]
     Every ``stride`` steps the state is written to the out_* arrays (row j = step // stride).
     """
     n = q.shape[0]
     dt = coef[0]
-    a0 = coef[1]
-    a1 = coef[2]
-    a2 = coef[3]
-    a3 = coef[4]
-    a4 = coef[5]
-    a5 = coef[6]
     gam = coef[7]
-    h = coef[8]
     b = spring[0]
     th = spring[1]
     bc = spring[2]
@@ -77,86 +110,137 @@ def _advance_kernel(nsteps, stride, q, v, a, scal, coef, fixed, Jd, Clo, Cd, Cup
     y = np.empty(n)
     x = np.empty(n)
     zp = np.empty(n_h, dtype=np.complex128)
+    q0 = np.empty(n)
+    v0 = np.empty(n)
+    a00 = np.empty(n)
+    s0 = np.empty(6)
+    sub = np.empty(9)
+    s_lo = np.empty(max(n - 1, 1))
+    s_inv = np.empty(n)
+    s_cp = np.empty(max(n - 1, 1))
+    s_u = np.empty(n)
     w_prev = 0.0
     for i in range(n):
         w_prev += e[i] * q[i]
     region_prev = 1 if w_prev > th else (-1 if w_prev < -thc else 0)
+    w = w_prev
+    region = region_prev
     j = 0
     for step in range(nsteps):
-        # --- reference speed and excitation phase -----------------------------------------
-        omega = scal[2]
-        diff = scal[3] - omega
-        lim = scal[4] * dt
-        if diff > lim:
-            diff = lim
-        elif diff < -lim:
-            diff = -lim
-        omega_new = omega + diff
-        omega_dot = diff / dt
-        psi = scal[1] + 0.5 * (omega + omega_new) * dt
-        scal[2] = omega_new
-        scal[1] = psi
-        scal[0] += dt
-        scal[5] = omega_dot
-        # --- load P_{n+1}: eq. (16)-(17) with z = exp(i psi/2), plus fixed and d'Alembert ----
         for i in range(n):
-            rhs[i] = fixed[i] + dal[i] * omega_dot
-        z = complex(math.cos(0.5 * psi), math.sin(0.5 * psi))
-        zp[0] = 1.0
-        for k in range(1, n_h):
-            zp[k] = zp[k - 1] * z
-        for c in range(n_cyl):
-            acc = 0.0
-            for k in range(n_h):
-                acc += B[c, k].real * zp[k].real - B[c, k].imag * zp[k].imag
-            rhs[cyl_dof[c]] += cyl_scale[c] * acc
-        # --- rhs += J (a0 q + a2 v + a3 a) + C (a1 q + a4 v + a5 a) ----------------------
-        for i in range(n):
-            y[i] = a1 * q[i] + a4 * v[i] + a5 * a[i]
-            rhs[i] += Jd[i] * (a0 * q[i] + a2 * v[i] + a3 * a[i]) + Cd[i] * y[i]
-        for i in range(n - 1):
-            rhs[i] += Cup[i] * y[i + 1]
-            rhs[i + 1] += Clo[i] * y[i]
-        # --- Thomas solve Khat x = rhs ------------------------------------------------------
-        x[0] = rhs[0] * kinv_den[0]
-        for i in range(1, n):
-            x[i] = (rhs[i] - klo[i - 1] * x[i - 1]) * kinv_den[i]
-        for i in range(n - 2, -1, -1):
-            x[i] -= kcp[i] * x[i + 1]
-        # --- condensed DMF equation w + h g(w) = w_lin, exact per region ----------------------
-        w_lin = 0.0
-        for i in range(n):
-            w_lin += e[i] * x[i]
-        if w_lin > th:
-            w = (w_lin + h * b * th) / (1.0 + h * b)
-            g = b * (w - th)
-            region = 1
-        elif w_lin < -thc:
-            w = (w_lin - h * bc * thc) / (1.0 + h * bc)
-            g = -bc * (-w - thc)
-            region = -1
-        else:
-            w = w_lin
-            g = 0.0
-            region = 0
-        if region != region_prev:
-            counters[0] += 1
+            q0[i] = q[i]
+            v0[i] = v[i]
+            a00[i] = a[i]
+        for i in range(6):
+            s0[i] = scal[i]
+        n_parts = 1
+        part = 0
+        frac = 1.0
+        while part < n_parts:
+            if n_parts == 1:                      # the regular step: precomputed factors
+                c = coef
+                fl, fi, fc, uu = f_lo, f_inv, f_cp, u
+            else:                                 # split step: factors for this part's length
+                h_part = frac * dt if part == 0 else (1.0 - frac) * dt
+                _factor(h_part, beta, gam, Jd, Klo, Kd, Kup, Clo, Cd, Cup, e, sub, s_lo, s_inv,
+                        s_cp, s_u)
+                c = sub
+                fl, fi, fc, uu = s_lo, s_inv, s_cp, s_u
+            h = c[0]
+            a0 = c[1]
+            a1 = c[2]
+            a2 = c[3]
+            a3 = c[4]
+            a4 = c[5]
+            a5 = c[6]
+            hc = c[8]
+            # --- reference speed and excitation phase psi = integral of omega dt ------------
+            omega = scal[2]
+            diff = scal[3] - omega
+            lim = scal[4] * h
+            if diff > lim:
+                diff = lim
+            elif diff < -lim:
+                diff = -lim
+            omega_new = omega + diff
+            omega_dot = diff / h
+            psi = scal[1] + 0.5 * (omega + omega_new) * h
+            scal[0] += h
+            scal[1] = psi
+            scal[2] = omega_new
+            scal[5] = omega_dot
+            # --- load: eq. (16)-(17) with z = exp(i psi/2), plus fixed and d'Alembert loads --
+            for i in range(n):
+                rhs[i] = fixed[i] + dal[i] * omega_dot
+            z = complex(math.cos(0.5 * psi), math.sin(0.5 * psi))
+            zp[0] = 1.0
+            for k in range(1, n_h):
+                zp[k] = zp[k - 1] * z
+            for cc in range(n_cyl):
+                acc = 0.0
+                for k in range(n_h):
+                    acc += B[cc, k].real * zp[k].real - B[cc, k].imag * zp[k].imag
+                rhs[cyl_dof[cc]] += cyl_scale[cc] * acc
+            # --- rhs += J (a0 q + a2 v + a3 a) + C (a1 q + a4 v + a5 a) ------------------
+            for i in range(n):
+                y[i] = a1 * q[i] + a4 * v[i] + a5 * a[i]
+                rhs[i] += Jd[i] * (a0 * q[i] + a2 * v[i] + a3 * a[i]) + Cd[i] * y[i]
+            for i in range(n - 1):
+                rhs[i] += Cup[i] * y[i + 1]
+                rhs[i + 1] += Clo[i] * y[i]
+            # --- Thomas solve Khat x = rhs ---------------------------------------------------
+            x[0] = rhs[0] * fi[0]
+            for i in range(1, n):
+                x[i] = (rhs[i] - fl[i - 1] * x[i - 1]) * fi[i]
+            for i in range(n - 2, -1, -1):
+                x[i] -= fc[i] * x[i + 1]
+            # --- condensed DMF equation w + hc g(w) = w_lin, Newton with the region checked --
+            w_lin = 0.0
+            for i in range(n):
+                w_lin += e[i] * x[i]
+            if w_lin > th:
+                w = (w_lin + hc * b * th) / (1.0 + hc * b)
+                g = b * (w - th)
+                region = 1
+            elif w_lin < -thc:
+                w = (w_lin - hc * bc * thc) / (1.0 + hc * bc)
+                g = -bc * (-w - thc)
+                region = -1
+            else:
+                w = w_lin
+                g = 0.0
+                region = 0
+            for i in range(n):
+                qn = x[i] - uu[i] * g
+                an = a0 * (qn - q[i]) - a2 * v[i] - a3 * a[i]
+                v[i] = v[i] + h * ((1.0 - gam) * a[i] + gam * an)
+                a[i] = an
+                q[i] = qn
+            part += 1
+            if n_parts == 1 and region != region_prev:
+                counters[0] += 1
+                knee = th if (region == 1 or region_prev == 1) else -thc
+                frac = (knee - w_prev) / (w - w_prev) if w != w_prev else 0.5
+                if 0.01 < frac < 0.99:            # redo as [t, t + frac dt] + the rest
+                    for i in range(n):
+                        q[i] = q0[i]
+                        v[i] = v0[i]
+                        a[i] = a00[i]
+                    for i in range(6):
+                        scal[i] = s0[i]
+                    n_parts = 2
+                    part = 0
+                    counters[3] += 1
         if region == 1:
             counters[1] += 1
         elif region == -1:
             counters[2] += 1
         region_prev = region
-        # --- update q, a, v ---------------------------------------------------------------
-        for i in range(n):
-            qn = x[i] - u[i] * g
-            an = a0 * (qn - q[i]) - a2 * v[i] - a3 * a[i]
-            v[i] = v[i] + dt * ((1.0 - gam) * a[i] + gam * an)
-            a[i] = an
-            q[i] = qn
+        w_prev = w
         if (step + 1) % stride == 0:
             out_t[j] = scal[0]
-            out_psi[j] = psi
-            out_omega[j] = omega_new
+            out_psi[j] = scal[1]
+            out_omega[j] = scal[2]
             out_w[j] = w
             for i in range(n):
                 out_q[j, i] = q[i]
@@ -167,7 +251,10 @@ def _advance_kernel(nsteps, stride, q, v, a, scal, coef, fixed, Jd, Clo, Cd, Cup
 
 
 if HAVE_NUMBA:
-    _advance_compiled = numba.njit(cache=True, nogil=True, fastmath=False)(_advance_kernel)
+    _jit = numba.njit(cache=True, nogil=True)
+    _thomas = _jit(_thomas)
+    _factor = _jit(_factor)
+    _advance_compiled = _jit(_advance_kernel)
 else:  # pragma: no cover
     _advance_compiled = _advance_kernel
 
@@ -222,6 +309,7 @@ class NewmarkIntegrator:
     knee_crossings: int = field(default=0, init=False)
     steps_secondary: int = field(default=0, init=False)
     steps_coast: int = field(default=0, init=False)
+    split_steps: int = field(default=0, init=False)
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.dt) and self.dt > 0):
@@ -232,27 +320,19 @@ class NewmarkIntegrator:
         m = self.loads.model
         self.model = m
         n = m.n_dof
-        dt, be, ga = self.dt, self.beta, self.gamma
-        self._coef = np.array([dt, 1 / (be * dt**2), ga / (be * dt), 1 / (be * dt), 1 / (2 * be) - 1,
-                               ga / be - 1, dt * (ga / (2 * be) - 1), ga, 0.0])
-        a0, a1 = self._coef[1], self._coef[2]
-        self.Khat = m.K + a0 * m.J + a1 * m.C
         Jd = np.diag(m.J).copy()
         if np.abs(m.J - np.diag(Jd)).max() > 0:
             raise ValueError('J is not diagonal')
         self._Jd = Jd
         self._Clo, self._Cd, self._Cup = _tridiag(m.C, 'C')
-        klo, kd, kup = _tridiag(self.Khat, 'K + a0 J + a1 C')
-        # Thomas factorization of Khat
-        inv_den = np.zeros(n)
-        cp = np.zeros(max(n - 1, 1))
-        inv_den[0] = 1 / kd[0]
-        for i in range(1, n):
-            cp[i - 1] = kup[i - 1] * inv_den[i - 1]
-            inv_den[i] = 1 / (kd[i] - klo[i - 1] * cp[i - 1])
-        self._klo, self._kinv_den, self._kcp = klo, inv_den, cp
-        self._u = np.linalg.solve(self.Khat, m.e)
-        self._coef[8] = float(m.e @ self._u)
+        self._Klo, self._Kd, self._Kup = _tridiag(m.K, 'K')
+        # Newmark constants, Thomas factors of Khat = K + a0 J + a1 C and u = Khat^-1 e for dt
+        self._coef = np.zeros(9)
+        self._f_lo, self._f_inv, self._f_cp = np.zeros(max(n - 1, 1)), np.zeros(n), np.zeros(max(n - 1, 1))
+        self._u = np.zeros(n)
+        _factor(self.dt, self.beta, self.gamma, Jd, self._Klo, self._Kd, self._Kup, self._Clo,
+                self._Cd, self._Cup, m.e, self._coef, self._f_lo, self._f_inv, self._f_cp, self._u)
+        self.Khat = m.K + self._coef[1] * m.J + self._coef[2] * m.C
         sp = m.spring
         if sp is None:
             self._spring = np.array([0.0, np.inf, 0.0, np.inf])
@@ -268,7 +348,7 @@ class NewmarkIntegrator:
         self.v = np.zeros(n)
         self.a = np.zeros(n)
         self._scal = np.zeros(6)  # t, psi, omega, omega_target, ramp, omega_dot
-        self._counters = np.zeros(3, dtype=np.int64)
+        self._counters = np.zeros(4, dtype=np.int64)  # crossings, secondary, coast, split steps
         self.load = 0.0
         self._B = np.zeros((len(self._cyl_dof), L.n_max + 1), dtype=complex)
         self._fixed = np.zeros(n)
@@ -381,14 +461,16 @@ class NewmarkIntegrator:
         if record is None:
             record = self._scratch(max(nsteps // stride, 1))
             stride = max(nsteps, 1)
-        args = (int(nsteps), int(stride), self.q, self.v, self.a, self._scal, self._coef, self._fixed,
-                self._Jd, self._Clo, self._Cd, self._Cup, self._klo, self._kinv_den, self._kcp,
+        args = (int(nsteps), int(stride), self.q, self.v, self.a, self._scal, self._coef,
+                float(self.beta), self._fixed, self._Jd, self._Klo, self._Kd, self._Kup, self._Clo,
+                self._Cd, self._Cup, self._f_lo, self._f_inv, self._f_cp,
                 self.model.e, self._u, self._B, self._cyl_dof, self._cyl_scale, self._dal,
                 self._spring, record.t, record.psi, record.omega, record.q, record.v, record.a,
                 record.windup, self._counters)
         rows = (_advance_compiled if self.use_numba else _advance_reference)(*args)
         record.count = rows
-        self.knee_crossings, self.steps_secondary, self.steps_coast = (int(c) for c in self._counters)
+        self.knee_crossings, self.steps_secondary, self.steps_coast, self.split_steps = (
+            int(c) for c in self._counters)
         return rows
 
     def _scratch(self, rows: int) -> StepRecord:
@@ -399,56 +481,74 @@ class NewmarkIntegrator:
         return buf
 
 
-def _advance_reference(nsteps, stride, q, v, a, scal, coef, fixed, Jd, Clo, Cd, Cup, klo, kinv_den,
-                       kcp, e, u, B, cyl_dof, cyl_scale, dal, spring, out_t, out_psi, out_omega,
-                       out_q, out_v, out_a, out_w, counters):
-    """Readable numpy version of the kernel (same arguments, same results)."""
-    dt, a0, a1, a2, a3, a4, a5, gam, h = coef
+def _advance_reference(nsteps, stride, q, v, a, scal, coef, beta, fixed, Jd, Klo, Kd, Kup, Clo, Cd,
+                       Cup, f_lo, f_inv, f_cp, e, u, B, cyl_dof, cyl_scale, dal, spring, out_t,
+                       out_psi, out_omega, out_q, out_v, out_a, out_w, counters):
+    """Readable numpy version of the kernel (same arguments, same results): dense matrices,
+    numpy.linalg.solve and Newton on the condensed DMF equation."""
+    dt, gam = coef[0], coef[7]
     b, th, bc, thc = spring
-    n = len(q)
+    K = np.diag(Kd) + np.diag(Kup, 1) + np.diag(Klo, -1)
     C = np.diag(Cd) + np.diag(Cup, 1) + np.diag(Clo, -1)
-    # Rebuild Khat's tridiagonal from the factorization to avoid passing K separately.
-    L = np.eye(n) + np.diag(klo * kinv_den[:-1], -1) if n > 1 else np.eye(1)
-    U = np.diag(1 / kinv_den) + np.diag(kcp[:n - 1] / kinv_den[:-1], 1)
-    Khat = L @ U
+    J = np.diag(Jd)
     nh = np.arange(B.shape[1])
-    region_prev = np.sign(int(e @ q > th) - int(e @ q < -thc))
-    j = 0
-    for step in range(nsteps):
+
+    def g_of(w):                                   # DMF extra torque and its tangent
+        g = b * max(w - th, 0.0) - bc * max(-w - thc, 0.0)
+        return g, (b if w > th else 0.0) + (bc if w < -thc else 0.0)
+
+    def region_of(w):
+        return 1 if w > th else (-1 if w < -thc else 0)
+
+    def step(h, q, v, a):
+        a0, a1, a2 = 1 / (beta * h * h), gam / (beta * h), 1 / (beta * h)
+        a3, a4, a5 = 1 / (2 * beta) - 1, gam / beta - 1, h * (gam / (2 * beta) - 1)
+        Khat = K + a0 * J + a1 * C
         omega = scal[2]
-        d = np.clip(scal[3] - omega, -scal[4] * dt, scal[4] * dt)
-        omega_new = omega + d
-        scal[5] = d / dt
-        scal[1] += 0.5 * (omega + omega_new) * dt
-        scal[2] = omega_new
-        scal[0] += dt
+        d = np.clip(scal[3] - omega, -scal[4] * h, scal[4] * h)
+        scal[5] = d / h
+        scal[1] += (omega + 0.5 * d) * h                         # psi = integral of omega
+        scal[2] = omega + d
+        scal[0] += h
         P = fixed + dal * scal[5]
         np.add.at(P, cyl_dof, cyl_scale * np.real(B @ np.exp(1j * nh * scal[1] / 2)))   # eq. (17)
-        rhs = P + Jd * (a0 * q + a2 * v + a3 * a) + C @ (a1 * q + a4 * v + a5 * a)
+        rhs = P + J @ (a0 * q + a2 * v + a3 * a) + C @ (a1 * q + a4 * v + a5 * a)
         x = np.linalg.solve(Khat, rhs)
-        w_lin = e @ x
-        # Newton on w + h g(w) = w_lin, with the region of the iterate checked (exact on pw-linear g)
-        w = w_lin
-        for _ in range(4):
-            g = b * max(w - th, 0.0) - bc * max(-w - thc, 0.0)
-            dg = (b if w > th else 0.0) + (bc if w < -thc else 0.0)
-            r = w + h * g - w_lin
-            if abs(r) <= 1e-14 * max(1.0, abs(w_lin)):
+        uu = np.linalg.solve(Khat, e)
+        hc, w_lin = e @ uu, e @ x
+        w = w_lin                                  # Newton on w + hc g(w) = w_lin
+        for _ in range(6):
+            g, dg = g_of(w)
+            r = w + hc * g - w_lin
+            if abs(r) <= 1e-15 * max(1.0, abs(w_lin)):
                 break
-            w -= r / (1 + h * dg)
-        g = b * max(w - th, 0.0) - bc * max(-w - thc, 0.0)
-        region = 1 if w > th else (-1 if w < -thc else 0)
-        counters[0] += region != region_prev
-        counters[1] += region == 1
-        counters[2] += region == -1
-        region_prev = region
-        qn = x - u * g
+            w -= r / (1 + hc * dg)
+        qn = x - uu * g_of(w)[0]
         an = a0 * (qn - q) - a2 * v - a3 * a
-        v += dt * ((1 - gam) * a + gam * an)
-        a[:] = an
-        q[:] = qn
-        if (step + 1) % stride == 0:
-            out_t[j], out_psi[j], out_omega[j], out_w[j] = scal[0], scal[1], omega_new, w
+        return qn, v + h * ((1 - gam) * a + gam * an), an, w
+
+    w_prev = e @ q
+    j = 0
+    for n_step in range(nsteps):
+        saved = (q.copy(), v.copy(), a.copy(), scal.copy())
+        qn, vn, an, w = step(dt, q, v, a)
+        r_new, r_old = region_of(w), region_of(w_prev)
+        if r_new != r_old:
+            knee = th if 1 in (r_new, r_old) else -thc
+            frac = (knee - w_prev) / (w - w_prev) if w != w_prev else 0.5
+            if 0.01 < frac < 0.99:                  # split the step at the knee crossing
+                scal[:] = saved[3]
+                qn, vn, an, _ = step(frac * dt, *saved[:3])
+                qn, vn, an, w = step((1 - frac) * dt, qn, vn, an)
+                counters[3] += 1
+            counters[0] += 1
+        q[:], v[:], a[:] = qn, vn, an
+        r = region_of(w)
+        counters[1] += r == 1
+        counters[2] += r == -1
+        w_prev = w
+        if (n_step + 1) % stride == 0:
+            out_t[j], out_psi[j], out_omega[j], out_w[j] = scal[0], scal[1], scal[2], w
             out_q[j], out_v[j], out_a[j] = q, v, a
             j += 1
     return j
