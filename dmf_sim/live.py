@@ -1,0 +1,627 @@
+"""The live simulation behind ``driveline_node``, without ROS: setpoints, ramps, pacing, samples.
+
+``dmf_sim.node`` is a thin rclpy shell over this module; everything here is importable and
+testable without DDS.
+
+* :func:`check_setpoint`, :func:`ramp_toward`, :func:`publish_stride`, :func:`split_steps` —
+  small pure functions (setpoint validation, rate limiting, publish decimation, phase-exact
+  chunking of the Newmark stepper).
+* :class:`Pacer` — locks simulated time to the wall clock scaled by the real-time factor. On every
+  tick the node integrates *up to the wall clock* (``floor((wall - wall0) * rtf / dt)`` steps since
+  the anchor, minus the steps already done), so timer jitter never makes the simulation drift:
+  a late tick integrates more steps. The lag (wall minus simulated time, in wall seconds) is
+  measured at every tick; above ``max_lag`` an *overrun* is counted and the policy applies:
+
+  - ``skip`` (default): skip ahead — the backlog is dropped and the pacing re-anchored at (now,
+    current step). The node is live again at once. The physics (state, crank angle) continues
+    from where it was, as if paused for the skipped interval; the published time (stamps,
+    /clock, bag log times) jumps ahead by it so it stays locked to the wall clock, leaving a gap
+    in the stamps. Every skip is counted and its length reported (``skipped_s``).
+  - ``catch_up``: the backlog is integrated, at most ``max_lag`` worth of simulated time per
+    tick (so the node stays responsive), until the lag is back under ``max_lag``.
+
+* :class:`LagStats` — per-sample lag statistics (window and since start, histogram based).
+* :class:`LiveSimulation` — owns the model, the engine and the Newmark integrator:
+  setpoints with ramps (the speed ramp runs inside the Newmark kernel, the load ramp here, one
+  increment per chunk), excitation update per chunk, rebuild on alpha/theta/load-set changes
+  keeping the operating point and the vibratory state, reset to static equilibrium, solver health,
+  and the per-element samples the node publishes (vibratory angle, velocity, transmitted torque).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from dmf_sim.loads import DrivelineLoads
+from dmf_sim.model import Driveline, load_driveline
+from dmf_sim.newmark import NewmarkIntegrator, StepRecord
+
+PACING_MODES = ('realtime', 'fast')
+OVERRUN_POLICIES = ('skip', 'catch_up')
+LOAD_RANGE = (0.0, 1.0)
+
+
+# ------------------------------------------------------------------------------------------------
+# Small pure functions
+# ------------------------------------------------------------------------------------------------
+
+def check_setpoint(value, lo: float, hi: float, name: str, unit: str = '') -> str | None:
+    """Why ``value`` is not an acceptable setpoint in [lo, hi], or None when it is."""
+    u = f' {unit}' if unit else ''
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
+        return f'{name} must be a number, got {value!r}'
+    v = float(value)
+    if math.isnan(v):
+        return f'{name} is NaN'
+    if math.isinf(v):
+        return f'{name} is {"+" if v > 0 else "-"}inf'
+    if not lo <= v <= hi:
+        return f'{name} {v:g}{u} outside [{lo:g}, {hi:g}]{u}'
+    return None
+
+
+def ramp_toward(current: float, target: float, rate: float, dt: float) -> float:
+    """Move ``current`` toward ``target`` by at most ``rate * dt`` (rate-limited ramp)."""
+    step = rate * dt
+    if target > current:
+        return min(target, current + step)
+    return max(target, current - step)
+
+
+def publish_stride(publish_rate_hz: float, dt: float) -> int:
+    """Newmark steps between published samples: ``round(1 / (publish_rate * dt))`` (>= 1).
+
+    Raises ValueError if the rate is not positive or faster than one sample per step.
+    """
+    if not (math.isfinite(publish_rate_hz) and publish_rate_hz > 0):
+        raise ValueError(f'publish_rate must be > 0 Hz, got {publish_rate_hz!r}')
+    ratio = 1.0 / (publish_rate_hz * dt)
+    if ratio < 1.0 - 1e-9:
+        raise ValueError(f'publish_rate {publish_rate_hz:g} Hz is faster than the step rate '
+                         f'1/dt = {1.0 / dt:g} Hz')
+    return max(int(round(ratio)), 1)
+
+
+def split_steps(nsteps: int, phase: int, stride: int) -> tuple[list[tuple[int, int, int]], int]:
+    """Split ``nsteps`` Newmark steps into ``advance(k, record, s)`` calls that record exactly
+    every ``stride``-th step counted from the last recorded one.
+
+    ``phase`` = steps done since the last recorded sample (0 <= phase < stride). Returns the calls
+    as (k, s, rows) and the new phase. ``NewmarkIntegrator.advance`` records when
+    ``(step + 1) % s == 0`` inside one call, so a call that must not record uses ``s = k + 1``.
+    """
+    if nsteps < 0 or not 0 <= phase < stride:
+        raise ValueError(f'nsteps={nsteps}, phase={phase}, stride={stride}')
+    if nsteps == 0:
+        return [], phase
+    to_next = stride - phase
+    if nsteps < to_next:
+        return [(nsteps, nsteps + 1, 0)], phase + nsteps
+    if phase == 0:
+        return [(nsteps, stride, nsteps // stride)], nsteps % stride
+    calls = [(to_next, to_next, 1)]
+    rest = nsteps - to_next
+    if rest:
+        calls.append((rest, stride, rest // stride))
+    return calls, rest % stride
+
+
+# ------------------------------------------------------------------------------------------------
+# Pacing
+# ------------------------------------------------------------------------------------------------
+
+@dataclass
+class TickPlan:
+    """What one tick integrates: ``nsteps`` steps; ``lag`` [wall s] before integrating;
+    ``overrun`` when this tick started a new overrun; ``skipped`` [wall s] dropped by this tick
+    (the caller moves its published time ahead by ``skipped * real_time_factor``)."""
+
+    nsteps: int
+    lag: float
+    overrun: bool = False
+    skipped: float = 0.0
+
+
+class Pacer:
+    """Simulated time locked to a scaled wall clock (``real_time_factor``), or as fast as possible.
+
+    Args:
+        dt: Newmark step [s].
+        real_time_factor: simulated seconds per wall second; 0 = as fast as possible.
+        max_lag: lag [wall s] above which a tick counts as an overrun.
+        policy: ``'skip'`` or ``'catch_up'`` (module docstring).
+    """
+
+    def __init__(self, dt: float, real_time_factor: float = 1.0, max_lag: float = 0.05,
+                 policy: str = 'skip') -> None:
+        if policy not in OVERRUN_POLICIES:
+            raise ValueError(f'overrun_policy must be one of {OVERRUN_POLICIES}, got {policy!r}')
+        self.dt = float(dt)
+        self.rtf = float(real_time_factor)
+        self.max_lag = float(max_lag)
+        self.policy = policy
+        self.wall0 = 0.0
+        self.step0 = 0
+        self.overruns = 0
+        self.skipped = 0.0        # wall seconds of backlog dropped (policy 'skip')
+        self.behind = False
+
+    @property
+    def fast(self) -> bool:
+        return self.rtf <= 0.0
+
+    def anchor(self, now: float, steps: int) -> None:
+        """Lock simulated step ``steps`` to wall time ``now``."""
+        self.wall0 = float(now)
+        self.step0 = int(steps)
+        self.behind = False
+
+    def set_rate(self, real_time_factor: float, now: float, steps: int) -> None:
+        """Change the real-time factor without a jump (re-anchor at the current state)."""
+        self.rtf = float(real_time_factor)
+        self.anchor(now, steps)
+
+    def due_steps(self, now: float) -> int:
+        """Step count the simulation should have reached at wall time ``now``."""
+        return self.step0 + int(math.floor((now - self.wall0) * self.rtf / self.dt + 1e-6))
+
+    def due_wall(self, step):
+        """Wall time at which simulated step ``step`` (scalar or array) is due."""
+        return self.wall0 + (np.asarray(step, dtype=float) - self.step0) * self.dt / self.rtf
+
+    def due_wall_scalar(self, step: int) -> float:
+        """:meth:`due_wall` for one step, in plain Python (hot path)."""
+        return self.wall0 + (step - self.step0) * self.dt / self.rtf
+
+    def lag(self, now: float, steps: int) -> float:
+        """Wall minus simulated time [wall s] (0 in fast mode)."""
+        if self.fast:
+            return 0.0
+        return (now - self.wall0) - (steps - self.step0) * self.dt / self.rtf
+
+    def plan(self, now: float, steps: int) -> TickPlan:
+        """Steps to integrate on a real-time tick at wall time ``now`` having done ``steps``."""
+        if self.fast:
+            raise RuntimeError('plan() is for real-time pacing; fast mode integrates chunks')
+        lag = self.lag(now, steps)
+        n = max(self.due_steps(now) - steps, 0)
+        if lag <= self.max_lag:
+            self.behind = False
+            return TickPlan(n, lag)
+        new = not self.behind
+        if new:
+            self.overruns += 1
+        if self.policy == 'skip':
+            self.skipped += lag
+            self.anchor(now, steps)
+            return TickPlan(0, lag, overrun=True, skipped=lag)
+        self.behind = True
+        cap = max(int(math.ceil(self.max_lag * self.rtf / self.dt)), 1)
+        return TickPlan(min(n, cap), lag, overrun=new)
+
+    def next_tick(self, now: float, next_sample_step: int, min_period: float = 5e-4,
+                  max_period: float = 1e-2) -> float:
+        """Wall time of the next tick: when the next sample is due, clamped to
+        [now + min_period, now + max_period] (ticks keep ramps and excitation fresh)."""
+        if self.fast:
+            return now
+        due = float(self.due_wall(next_sample_step))
+        return min(max(due, now + min_period), now + max_period)
+
+
+class LagStats:
+    """Lag statistics [s] of published samples: a window (reset on read) and a histogram since
+    start (0.05 ms bins up to 1 s, then an overflow bin) for percentiles over the whole run."""
+
+    BIN = 5e-5
+    NBINS = 20000
+
+    def __init__(self) -> None:
+        self.hist = np.zeros(self.NBINS + 1, dtype=np.int64)
+        self.count = 0
+        self.max = 0.0
+        self._window: list[float] = []
+
+    def add(self, lags) -> None:
+        if isinstance(lags, float):   # the usual case: one sample per tick
+            x = max(lags, 0.0)
+            self.hist[min(int(x / self.BIN), self.NBINS)] += 1
+            self.count += 1
+            if x > self.max:
+                self.max = x
+            self._window.append(x)
+            return
+        lags = np.asarray(lags, dtype=float)
+        if lags.size == 0:
+            return
+        lags = np.maximum(lags.reshape(-1), 0.0)
+        idx = np.minimum((lags / self.BIN).astype(np.int64), self.NBINS)
+        np.add.at(self.hist, idx, 1)
+        self.count += lags.size
+        self.max = max(self.max, float(lags.max()))
+        self._window.extend(lags.tolist())
+
+    def total_percentile(self, p: float) -> float:
+        """p-th percentile [s] since start (bin upper edge; nan if empty)."""
+        if self.count == 0:
+            return float('nan')
+        k = int(np.searchsorted(np.cumsum(self.hist), math.ceil(p / 100.0 * self.count)))
+        return (k + 1) * self.BIN if k < self.NBINS else self.max
+
+    def take_window(self) -> dict[str, float]:
+        """Stats of the samples since the last call: n, p50, p99, max [s]."""
+        if not self._window:
+            return {'n': 0, 'p50': float('nan'), 'p99': float('nan'), 'max': float('nan')}
+        w = np.asarray(self._window)
+        self._window = []
+        return {'n': int(w.size), 'p50': float(np.percentile(w, 50)),
+                'p99': float(np.percentile(w, 99)), 'max': float(w.max())}
+
+
+# ------------------------------------------------------------------------------------------------
+# The simulation
+# ------------------------------------------------------------------------------------------------
+
+@dataclass
+class Samples:
+    """Published samples of one chunk (rows = samples). Views into reused buffers: consume them
+    before the next :meth:`LiveSimulation.advance`.
+
+    step: absolute step index; t [s]; psi crank angle [rad]; speed_rpm reference engine speed;
+    windup [rad]; position/velocity: vibratory element angles [rad] / velocities [rad/s];
+    effort: torque transmitted into each element [Nm] (rows x elements).
+    """
+
+    step: np.ndarray
+    t: np.ndarray
+    psi: np.ndarray
+    speed_rpm: np.ndarray
+    windup: np.ndarray
+    position: np.ndarray
+    velocity: np.ndarray
+    effort: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.t.shape[0])
+
+
+class TorqueOperator:
+    """``ReducedModel.transmitted_torques`` as precomputed matrices (same result, ~10x faster).
+
+    The transmitted torques are linear in (q, v, a, element loads p) except for the DMF's extra
+    torque g(w), which enters at the DMF element and, through the rigid links in front of it,
+    linearly again: ``T = q Lq + v Lv + a La + p Lp + g(w) c``. The matrices are read off
+    ``transmitted_torques`` itself (columns for small unit inputs, which stay in the primary
+    region), so the model stays the single source of truth; the tests compare both.
+
+    Element loads only matter on rigidly linked elements (``Lp``'s non-zero rows). When neither
+    the cylinders nor the rear element are among them (the truck models), ``p Lp`` reduces to the
+    d'Alembert part ``omega_dot * (dal Lp)`` and the cylinder series need not be evaluated;
+    otherwise the integrator's ``element_loads`` is used.
+
+    :meth:`outputs` gives element angles, velocities and torques at once from one matrix product
+    ``[q v a] M`` (the live node's hot path).
+    """
+
+    def __init__(self, integ: NewmarkIntegrator) -> None:
+        model, L = integ.model, integ.loads
+        n, m = model.n_dof, model.n_elements
+        self.integ = integ
+        self.model = model
+        f = model.transmitted_torques
+        eps = 1e-6
+        In, Im = eps * np.eye(n), eps * np.eye(m)
+        zn, zm = np.zeros((n, n)), np.zeros((n, m))
+        self.Lq = f(In, zn, zn, zm) / eps
+        self.Lv = f(zn, In, zn, zm) / eps
+        self.La = f(zn, zn, In, zm) / eps
+        self.Lp = f(np.zeros((m, n)), np.zeros((m, n)), np.zeros((m, n)), Im) / eps
+        used = np.abs(self.Lp).max(axis=1) > 0
+        self.needs_loads = bool(used[L.cylinder_elements].any() or used[L.rear_element])
+        self.dal = L.dalembert_elements @ self.Lp
+        sp = model.spring
+        self.c = np.zeros(m)
+        self._knees = None
+        if sp is not None:
+            if sp.b > 0:
+                w = 2.0 * sp.theta
+                q = model.e * (w / float(model.e @ model.e))
+                z = np.zeros(n)
+                self.c = (f(q, z, z, np.zeros(m)) - q @ self.Lq) / float(sp.extra_torque(w))
+            self._knees = (sp.b, sp.theta, sp.b_coast, sp.theta_coast_or_inf)
+        # [q v a] (rows x 3n) @ M (3n x 3m) = [angles | velocities | torques without p, g]
+        T = model.T.T
+        M = np.zeros((3 * n, 3 * m))
+        M[:n, :m] = T
+        M[n:2 * n, m:2 * m] = T
+        M[:n, 2 * m:] = self.Lq
+        M[n:2 * n, 2 * m:] = self.Lv
+        M[2 * n:, 2 * m:] = self.La
+        self.M = M
+        self.m = m
+
+    def _extra(self, w):
+        b, th, bc, thc = self._knees
+        g = b * np.maximum(w - th, 0.0)
+        if bc:
+            g = g - bc * np.maximum(-w - thc, 0.0)
+        return g
+
+    def _add_loads(self, out, w, psi, omega_dot: float) -> None:
+        if self.needs_loads:
+            out += self.integ.element_loads(psi, omega_dot) @ self.Lp
+        elif omega_dot:
+            out += omega_dot * self.dal
+        if self._knees is not None:
+            out += np.multiply.outer(self._extra(w), self.c)
+
+    def __call__(self, q, v, a, w, psi, omega_dot: float) -> np.ndarray:
+        """Torques (rows x elements) for states q, v, a, wind-ups w at crank angles psi."""
+        out = q @ self.Lq + v @ self.Lv + a @ self.La
+        self._add_loads(out, w, psi, omega_dot)
+        return out
+
+    def outputs(self, qva, w, psi, omega_dot: float):
+        """Element angles, velocities and torques (each rows x elements) from ``qva`` =
+        [q v a] (rows x 3 n_dof)."""
+        out = qva @ self.M
+        m = self.m
+        torques = out[:, 2 * m:]
+        self._add_loads(torques, w, psi, omega_dot)
+        return out[:, :m], out[:, m:2 * m], torques
+
+
+def _rows(rec: StepRecord, start: int) -> StepRecord:
+    return StepRecord(rec.t[start:], rec.psi[start:], rec.omega[start:], rec.q[start:],
+                      rec.v[start:], rec.a[start:], rec.windup[start:])
+
+
+@dataclass
+class LiveSimulation:
+    """Newmark integration of a driveline with ramped setpoints, stepped in chunks.
+
+    Build with :meth:`from_config`. Setpoint setters return None on success or the reason for
+    refusing (the previous setpoint stays); structural changes raise ValueError and leave the
+    simulation unchanged.
+    """
+
+    line: Driveline
+    engine: object
+    dt: float = 1e-4
+    speed_rpm: float = 1000.0
+    load: float = 0.5
+    speed_ramp_rpm_per_s: float = 500.0
+    load_ramp_per_s: float = 1.0
+    speed_limits_rpm: tuple[float, float] = (500.0, 2200.0)
+    stride: int = 10
+    solver_resets: int = field(default=0, init=False)
+
+    @classmethod
+    def from_config(cls, driveline: str = 'truck_dmf', engine: str = 'engine_d13',
+                    load_set: str = 'A', alpha: float | None = None, theta: float | None = None,
+                    **kw) -> 'LiveSimulation':
+        """Load the driveline YAML and the engine (names in ``config/`` or paths)."""
+        from dmf_sim.engine import load_engine
+
+        line = load_driveline(driveline, alpha=alpha, theta=theta)
+        return cls(line, load_engine(engine, load_set=load_set), **kw)
+
+    def __post_init__(self) -> None:
+        rng = getattr(self.engine, 'speed_range_rpm', None)
+        self.engine_speed_range_rpm = (tuple(float(x) for x in rng) if rng is not None
+                                       else (0.0, math.inf))
+        lo, hi = self.speed_limits_rpm
+        if reason := self.check_speed_limits(lo, hi):
+            raise ValueError(reason)
+        self.speed_limits_rpm = (float(lo), float(hi))
+        for name, value, (a, b), unit in (
+                ('initial_speed_rpm', self.speed_rpm, self.speed_limits_rpm, 'rpm'),
+                ('initial_load', self.load, LOAD_RANGE, '')):
+            if reason := check_setpoint(value, a, b, name, unit):
+                raise ValueError(reason)
+        for name, value in (('speed_ramp_rpm_per_s', self.speed_ramp_rpm_per_s),
+                            ('load_ramp_per_s', self.load_ramp_per_s), ('dt', self.dt)):
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f'{name} must be > 0, got {value!r}')
+        self.speed_setpoint = float(self.speed_rpm)
+        self.load_setpoint = float(self.load)
+        self.load = float(self.load)
+        self.steps = 0
+        self.phase = 0
+        self._knees = self._secondary = 0
+        self._exc_key = None
+        self.integ, self._torques = self._make_integrator(self.line, self.engine)
+        # load the compiled kernel now (numba cache), not on the first real-time tick
+        self.integ.reset(self.speed_setpoint, self.load)
+        self.integ.advance(1)
+        self.integ.reset(self.speed_setpoint, self.load)
+        self.integ.set_target(self.speed_setpoint, self.speed_ramp_rpm_per_s)
+        self._rec = StepRecord.allocate(64, self.integ.model.n_dof)
+        self._qva = np.zeros((64, 3 * self.integ.model.n_dof))
+
+    # ---- building ---------------------------------------------------------------------------
+    def _make_integrator(self, line: Driveline, engine):
+        integ = NewmarkIntegrator(DrivelineLoads(line.reduce(), engine), dt=self.dt)
+        return integ, TorqueOperator(integ)
+
+    @property
+    def model(self):
+        return self.integ.model
+
+    @property
+    def names(self) -> list[str]:
+        return list(self.model.names)
+
+    def _swap(self, line: Driveline, engine) -> None:
+        """Rebuild the integrator for another DMF / engine keeping the operating point (speed,
+        target, load, crank angle, time) and the vibratory state (same DOF layout)."""
+        new, torques = self._make_integrator(line, engine)
+        old = self.integ
+        if new.model.n_dof != old.model.n_dof:
+            raise ValueError('the new driveline has another DOF layout; restart the node instead')
+        new.reset(old.speed_rpm, self.load, psi=old.psi, t=old.t)
+        new.q[:] = old.q
+        new.v[:] = old.v
+        new.a[:] = new.acceleration(new.q, new.v)
+        new.set_target(self.speed_setpoint, self.speed_ramp_rpm_per_s)
+        self._knees += old.knee_crossings
+        self._secondary += old.steps_secondary
+        self.integ, self._torques, self.line, self.engine = new, torques, line, engine
+        self._exc_key = None
+
+    def set_dmf(self, alpha: float | None = None, theta: float | None = None) -> None:
+        """New DMF knee parameters (alpha, theta [rad]); ValueError if invalid."""
+        self._swap(self.line.with_dmf(alpha=alpha, theta=theta), self.engine)
+
+    def set_load_set(self, load_set: str) -> None:
+        """Switch the engine's load set (A, B, C); ValueError if unknown."""
+        if getattr(self.engine, 'load_set', None) == load_set:
+            return
+        if not hasattr(self.engine, 'with_load_set'):
+            raise ValueError('this engine has no load sets')
+        self._swap(self.line, self.engine.with_load_set(load_set))
+
+    # ---- setpoints --------------------------------------------------------------------------
+    def check_speed_limits(self, lo: float, hi: float) -> str | None:
+        elo, ehi = self.engine_speed_range_rpm
+        if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+            return f'speed limits need speed_min_rpm < speed_max_rpm, got [{lo:g}, {hi:g}]'
+        if lo < elo or hi > ehi:
+            return (f'speed limits [{lo:g}, {hi:g}] rpm must lie within the engine data range '
+                    f'[{elo:g}, {ehi:g}] rpm')
+        return None
+
+    def set_speed_limits(self, lo: float, hi: float) -> str | None:
+        if reason := self.check_speed_limits(lo, hi):
+            return reason
+        if not lo <= self.speed_setpoint <= hi:
+            return (f'the current speed setpoint {self.speed_setpoint:g} rpm is outside '
+                    f'[{lo:g}, {hi:g}]')
+        self.speed_limits_rpm = (float(lo), float(hi))
+        return None
+
+    def set_speed_setpoint(self, value) -> str | None:
+        """Engine speed setpoint [rpm]; ramped at ``speed_ramp_rpm_per_s``."""
+        if reason := check_setpoint(value, *self.speed_limits_rpm, 'speed setpoint', 'rpm'):
+            return reason
+        self.speed_setpoint = float(value)
+        self.integ.set_target(self.speed_setpoint, self.speed_ramp_rpm_per_s)
+        return None
+
+    def set_load_setpoint(self, value) -> str | None:
+        """Load setpoint (fraction of full load, 0..1); ramped at ``load_ramp_per_s``."""
+        if reason := check_setpoint(value, *LOAD_RANGE, 'load setpoint'):
+            return reason
+        self.load_setpoint = float(value)
+        return None
+
+    def set_ramps(self, speed_ramp_rpm_per_s: float | None = None,
+                  load_ramp_per_s: float | None = None) -> None:
+        if speed_ramp_rpm_per_s is not None:
+            self.speed_ramp_rpm_per_s = float(speed_ramp_rpm_per_s)
+            self.integ.set_target(self.speed_setpoint, self.speed_ramp_rpm_per_s)
+        if load_ramp_per_s is not None:
+            self.load_ramp_per_s = float(load_ramp_per_s)
+
+    def set_stride(self, stride: int) -> None:
+        """New publish decimation; the next sample comes ``stride`` steps from now."""
+        self.stride = int(stride)
+        self.phase = 0
+
+    def reset(self) -> None:
+        """Static equilibrium at the current setpoints (speed and load jump to them); time,
+        crank angle and step count stay continuous."""
+        it = self.integ
+        self._knees += it.knee_crossings
+        self._secondary += it.steps_secondary
+        self.load = self.load_setpoint
+        it.reset(self.speed_setpoint, self.load, psi=it.psi, t=it.t)
+        it.set_target(self.speed_setpoint, self.speed_ramp_rpm_per_s)
+        self._exc_key = None
+
+    # ---- state ------------------------------------------------------------------------------
+    @property
+    def t(self) -> float:
+        return self.integ.t
+
+    @property
+    def psi(self) -> float:
+        return self.integ.psi
+
+    @property
+    def speed(self) -> float:
+        """Reference (ramped) engine speed [rpm]."""
+        return self.integ.speed_rpm
+
+    @property
+    def windup(self) -> float:
+        return self.integ.windup
+
+    @property
+    def region(self) -> str:
+        sp = self.model.spring
+        return sp.region(self.windup) if sp is not None else 'none'
+
+    @property
+    def knee_crossings(self) -> int:
+        return self._knees + self.integ.knee_crossings
+
+    @property
+    def steps_secondary(self) -> int:
+        return self._secondary + self.integ.steps_secondary
+
+    @property
+    def finite(self) -> bool:
+        """Solver health: the state holds only finite numbers (a NaN/inf anywhere makes the
+        sum non-finite; the tridiagonal solve spreads a NaN to every DOF within one step)."""
+        it = self.integ
+        return math.isfinite(float(it.q.sum() + it.v.sum()))
+
+    @property
+    def next_sample_step(self) -> int:
+        return self.steps + (self.stride - self.phase)
+
+    # ---- stepping ---------------------------------------------------------------------------
+    def advance(self, nsteps: int) -> Samples:
+        """Integrate ``nsteps`` steps: load ramp and excitation update once (held over the chunk),
+        then the kernel; returns the samples due in the chunk (every ``stride``-th step)."""
+        it = self.integ
+        if nsteps > 0:
+            self.load = ramp_toward(self.load, self.load_setpoint, self.load_ramp_per_s,
+                                    nsteps * self.dt)
+            key = (it.speed_rpm, self.load)
+            if key != self._exc_key:
+                it.update_excitation(*key)
+                self._exc_key = key
+        calls, phase = split_steps(int(nsteps), self.phase, self.stride)
+        rows = sum(c[2] for c in calls)
+        if rows > self._rec.t.shape[0]:
+            self._rec = StepRecord.allocate(max(rows, 2 * self._rec.t.shape[0]), it.model.n_dof)
+            self._qva = np.zeros((self._rec.t.shape[0], 3 * it.model.n_dof))
+        first = self.steps + (self.stride - self.phase)
+        rec = self._rec
+        row = 0
+        for k, s, _ in calls:
+            row += it.advance(k, rec if row == 0 else _rows(rec, row), s)
+        self.steps += int(nsteps)
+        self.phase = phase
+        if not self.finite:
+            # Newmark (average acceleration) is unconditionally stable; a non-finite state means
+            # bad input data. Never publish it: restart from static equilibrium.
+            self.solver_resets += 1
+            self.reset()
+            row = 0
+        n = it.model.n_dof
+        qva = self._qva[:row]
+        qva[:, :n] = rec.q[:row]
+        qva[:, n:2 * n] = rec.v[:row]
+        qva[:, 2 * n:] = rec.a[:row]
+        psi, w = rec.psi[:row], rec.windup[:row]
+        # d'Alembert part with the reference acceleration at the end of the chunk (exact while
+        # the speed is constant or ramping; a ramp that ends inside the chunk is off for <= 1 row)
+        position, velocity, effort = self._torques.outputs(qva, w, psi, it.omega_dot)
+        return Samples(step=first + self.stride * np.arange(row, dtype=np.int64),
+                       t=rec.t[:row], psi=psi, speed_rpm=rec.omega[:row] * (30.0 / math.pi),
+                       windup=w, position=position, velocity=velocity, effort=effort)
