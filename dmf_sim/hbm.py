@@ -1089,16 +1089,8 @@ class SpeedSweep:
     def _humps(self, pts: list[HBMPoint]) -> list[list[HBMPoint]]:
         """Stretches where the 1.5th order clearly exceeds its directly forced (linear) level."""
         o = self.options
-        runs, cur = [], []
-        for q in pts:
-            if q.order_1_5 > max(o.ratio_1_5 * q.forced_order_1_5, o.min_subharmonic):
-                cur.append(q)
-            elif cur:
-                runs.append(cur)
-                cur = []
-        if cur:
-            runs.append(cur)
-        return runs
+        return _runs(pts, lambda q: q.order_1_5 > max(o.ratio_1_5 * q.forced_order_1_5,
+                                                      o.min_subharmonic))
 
     def _switch_branches(self, bar) -> None:
         o = self.options

@@ -435,13 +435,9 @@ class NewmarkIntegrator:
         return (P - m.C @ v - m.K @ q - m.e * g) / self._Jd
 
     def generalized_load(self, psi, omega_dot=0.0) -> np.ndarray:
-        """Generalized load [Nm] with the current coefficients at crank angle(s) psi [rad]."""
-        psi = np.asarray(psi, dtype=float)
-        n = np.arange(self._B.shape[1])
-        cyl = np.real(np.exp(1j * np.multiply.outer(psi, n) / 2) @ self._B.T)   # (..., n_cyl)
-        P = np.multiply.outer(np.ones_like(psi), self._fixed) + np.multiply.outer(np.asarray(omega_dot, float) * np.ones_like(psi), self._dal)
-        P[..., self._cyl_dof] += cyl * self._cyl_scale
-        return P
+        """Generalized load [Nm] with the current coefficients at crank angle(s) psi [rad]:
+        ``T^T p`` of :meth:`element_loads` (virtual work)."""
+        return self.model.element_vector(self.element_loads(psi, omega_dot))
 
     def element_loads(self, psi, omega_dot=0.0) -> np.ndarray:
         """Element torques [Nm] (cylinders, rear, d'Alembert) at crank angle(s) psi."""
