@@ -373,11 +373,6 @@ class TorqueOperator:
         return out[:, :m], out[:, m:2 * m], torques
 
 
-def _rows(rec: StepRecord, start: int) -> StepRecord:
-    return StepRecord(rec.t[start:], rec.psi[start:], rec.omega[start:], rec.q[start:],
-                      rec.v[start:], rec.a[start:], rec.windup[start:])
-
-
 @dataclass
 class LiveSimulation:
     """Newmark integration of a driveline with ramped setpoints, stepped in chunks.
@@ -604,7 +599,7 @@ class LiveSimulation:
         rec = self._rec
         row = 0
         for k, s, _ in calls:
-            row += it.advance(k, rec if row == 0 else _rows(rec, row), s)
+            row += it.advance(k, rec if row == 0 else rec.rows_from(row), s)
         self.steps += int(nsteps)
         self.phase = phase
         if not self.finite:

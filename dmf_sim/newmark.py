@@ -284,6 +284,11 @@ class StepRecord:
     windup: np.ndarray
     count: int = 0
 
+    def rows_from(self, start: int) -> 'StepRecord':
+        """A view of these buffers from row ``start`` on (the stepper writes into it)."""
+        return StepRecord(self.t[start:], self.psi[start:], self.omega[start:], self.q[start:],
+                          self.v[start:], self.a[start:], self.windup[start:])
+
     @classmethod
     def allocate(cls, rows: int, n_dof: int) -> 'StepRecord':
         return cls(np.zeros(rows), np.zeros(rows), np.zeros(rows), np.zeros((rows, n_dof)),
@@ -632,9 +637,7 @@ def simulate(loads: DrivelineLoads, speed_rpm: float, load: float, *, t_end: flo
             k = min(chunk, n_total - done)
             k -= k % record_stride if k >= record_stride else 0
             k = max(k, 1)
-            sub = StepRecord(rec.t[row:], rec.psi[row:], rec.omega[row:], rec.q[row:], rec.v[row:],
-                             rec.a[row:], rec.windup[row:])
-            row += integ.advance(k, sub, record_stride)
+            row += integ.advance(k, rec.rows_from(row), record_stride)
             done += k
             integ.update_excitation()
             bar.update(k)
