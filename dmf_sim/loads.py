@@ -67,8 +67,11 @@ class DrivelineLoads:
     # ---- frequency domain ------------------------------------------------------------------
     def cylinder_coefficients(self, speed_rpm: float, load: float) -> np.ndarray:
         """(n_cyl, N+1) complex amplitudes A_n exp(-i n beta_k/2) [Nm] of each cylinder's torque."""
-        A = np.asarray(self.engine.coefficients(speed_rpm, load), dtype=complex)
-        return A[None, :] * self.phase
+        return self.cylinder_coefficients_for(self.engine.coefficients(speed_rpm, load))
+
+    def cylinder_coefficients_for(self, A: np.ndarray) -> np.ndarray:
+        """Eq. (17) phasing of the engine coefficients A_n (n = 0..N) onto every cylinder."""
+        return np.asarray(A, dtype=complex)[None, :] * self.phase
 
     def mean_engine_torque(self, speed_rpm: float, load: float) -> float:
         """Sum of the cylinders' mean torques [Nm] (reflected to element 1)."""
@@ -77,14 +80,18 @@ class DrivelineLoads:
 
     def rear_load(self, speed_rpm: float, load: float) -> float:
         """Rear element torque [Nm]: minus engine mean torque times cumulative gear ratio."""
-        A0 = float(np.real(self.engine.coefficients(speed_rpm, load)[0]))
-        return -A0 * float(np.sum(self._rear_factor))
+        return self.rear_load_for(self.engine.coefficients(speed_rpm, load))
+
+    def rear_load_for(self, A: np.ndarray) -> float:
+        """Rear element torque [Nm] for engine coefficients A_n (only the mean A_0 counts)."""
+        return -float(np.real(A[0])) * float(np.sum(self._rear_factor))
 
     def element_harmonics(self, speed_rpm: float, load: float) -> np.ndarray:
         """(N+1, m) complex element-load amplitudes per half-order n [Nm]; row 0 is the mean."""
         P = np.zeros((self.n_max + 1, self._m), dtype=complex)
-        P[:, self.cylinder_elements] = self.cylinder_coefficients(speed_rpm, load).T
-        P[0, self.rear_element] += self.rear_load(speed_rpm, load)
+        A = self.engine.coefficients(speed_rpm, load)          # one engine query
+        P[:, self.cylinder_elements] = self.cylinder_coefficients_for(A).T
+        P[0, self.rear_element] += self.rear_load_for(A)
         return P
 
     def dof_harmonics(self, speed_rpm: float, load: float) -> np.ndarray:

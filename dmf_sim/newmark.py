@@ -397,8 +397,9 @@ class NewmarkIntegrator:
         if load is not None:
             self.load = float(load)
         L = self.loads
-        self._B[:] = L.cylinder_coefficients(speed_rpm, self.load)
-        self._rear_torque = L.rear_load(speed_rpm, self.load)
+        A = L.engine.coefficients(speed_rpm, self.load)        # one engine query per update
+        self._B[:] = L.cylinder_coefficients_for(A)
+        self._rear_torque = L.rear_load_for(A)
         self._fixed[:] = self._rear_vec * self._rear_torque
         self._coef_speed_rpm = speed_rpm
 
