@@ -49,7 +49,9 @@ from typing import Any
 
 import numpy as np
 
+from dmf_sim.errors import BagError, BagFileError
 from dmf_sim.orders import CYCLE_RAD
+from dmf_sim.run_metadata import RunMetadata
 
 __all__ = [
     'TOPIC_WINDUP', 'TOPIC_JOINTS', 'TOPIC_SPEED', 'TOPIC_CRANK', 'DEFAULT_TOPICS',
@@ -102,15 +104,15 @@ class SignalSpec:
         kind, sep, rest = text.partition(':')
         kind = kind.strip().lower()
         if kind not in SIGNAL_KINDS:
-            raise ValueError(f'signal {text!r}: kind must be one of {", ".join(SIGNAL_KINDS)} '
+            raise BagError(f'signal {text!r}: kind must be one of {", ".join(SIGNAL_KINDS)} '
                              "(e.g. 'windup', 'angle:CYL1', 'torque:INPUT SHAFT', 'topic:/my/float')")
         if kind == 'windup':
             if sep and rest.strip():
-                raise ValueError(f"signal {text!r}: 'windup' takes no element name")
+                raise BagError(f"signal {text!r}: 'windup' takes no element name")
             return cls('windup')
         if not rest.strip():
             what = 'a topic name' if kind == 'topic' else 'an element name'
-            raise ValueError(f"signal {text!r}: '{kind}:' needs {what}, e.g. "
+            raise BagError(f"signal {text!r}: '{kind}:' needs {what}, e.g. "
                              + ("'topic:/driveline/dmf_windup'" if kind == 'topic' else f"'{kind}:CYL1'"))
         return cls(kind, rest.strip())
 
@@ -147,7 +149,7 @@ def _match_name(wanted: str, names: Sequence[str]) -> int:
     hits = [i for i, n in enumerate(names) if n.replace('_', ' ').strip().lower() == key]
     if len(hits) == 1:
         return hits[0]
-    raise ValueError(f'element {wanted!r} is not in the joint states; names are: {", ".join(names)}')
+    raise BagError(f'element {wanted!r} is not in the joint states; names are: {", ".join(names)}')
 
 
 # ================================================================================================
@@ -207,10 +209,10 @@ def _bag_files(path: str | os.PathLike) -> tuple[list[Path], dict | None]:
     if p.is_file() and p.name == 'metadata.yaml':
         p = p.parent
     if not p.exists():
-        raise FileNotFoundError(f'bag {p} does not exist')
+        raise BagFileError(f'bag {p} does not exist')
     if p.is_file():
         if p.suffix != '.mcap':
-            raise ValueError(f'{p} is neither a rosbag2 directory nor an .mcap file')
+            raise BagError(f'{p} is neither a rosbag2 directory nor an .mcap file')
         return [p], None
     meta = None
     files: list[Path] = []
@@ -220,14 +222,14 @@ def _bag_files(path: str | os.PathLike) -> tuple[list[Path], dict | None]:
             meta = yaml.safe_load(metapath.read_text(encoding='utf-8'))['rosbag2_bagfile_information']
             storage = meta.get('storage_identifier', 'mcap')
             if storage and storage != 'mcap':
-                raise ValueError(f'{p}: storage {storage!r} is not supported, only mcap')
+                raise BagError(f'{p}: storage {storage!r} is not supported, only mcap')
             files = [p / Path(f).name for f in meta.get('relative_file_paths') or []]
         except (yaml.YAMLError, KeyError, TypeError, AttributeError):
             meta = None
             files = []
     files = [f for f in files if f.is_file()] or sorted(p.glob('*.mcap'))
     if not files:
-        raise FileNotFoundError(f'{p} holds no .mcap file (is it a rosbag2 MCAP bag?)')
+        raise BagFileError(f'{p} holds no .mcap file (is it a rosbag2 MCAP bag?)')
     return files, meta
 
 
@@ -292,7 +294,7 @@ class _ScalarExtractor(_Extractor):
         try:
             return [float(msg.data)]
         except (AttributeError, TypeError):
-            raise ValueError(f'messages of type {self.msgtype} have no numeric field "data"') from None
+            raise BagError(f'messages of type {self.msgtype} have no numeric field "data"') from None
 
     def extract(self, arr, view, start, length):
         out = np.full((len(start), 1), np.nan)
@@ -384,7 +386,7 @@ class _JointExtractor(_Extractor):
         for (fld, el), i in zip(self.columns, idx):
             arr = getattr(msg, fld)
             if len(arr) <= i:
-                raise ValueError(f'joint states carry no {fld!r} for element {el!r} '
+                raise BagError(f'joint states carry no {fld!r} for element {el!r} '
                                  f'({len(arr)} values for {len(names)} names)')
             row.append(float(arr[i]))
         return row
@@ -484,7 +486,7 @@ class _McapFile:
         if enc != 'cdr':
             raise _Unsupported(f'topic {topic!r} has message encoding {enc!r}')
         if not msgtype:
-            raise ValueError(f'{self.file}: topic {topic!r} has no schema; its type is unknown')
+            raise BagError(f'{self.file}: topic {topic!r} has no schema; its type is unknown')
         self.decoder.add(msgtype, senc, text)
         self.extractors[cid] = factory(msgtype)
 
@@ -504,7 +506,7 @@ class _McapFile:
                 if messages:
                     cid = unpack('<H', view, p + 9)[0]
                     if cid not in self.channels:
-                        raise ValueError(f'{self.file}: message on undeclared channel {cid}')
+                        raise BagError(f'{self.file}: message on undeclared channel {cid}')
                     if self.extractors.get(cid) is not None:
                         found.setdefault(cid, []).append(p)
             elif op == _OP_SCHEMA:
@@ -610,7 +612,7 @@ class _McapFile:
 
     def _read(self, mm, size: int) -> None:
         if mm[:8] != _MAGIC:
-            raise ValueError(f'{self.file} is not an MCAP file')
+            raise BagError(f'{self.file} is not an MCAP file')
         try:
             self._summary(mm, size)
         except (struct.error, UnicodeDecodeError):
@@ -653,7 +655,7 @@ class _McapFile:
             elif op == _OP_MESSAGE:
                 cid = unpack('<H', mm, body)[0]
                 if cid not in self.channels:
-                    raise ValueError(f'{self.file}: message on undeclared channel {cid}')
+                    raise BagError(f'{self.file}: message on undeclared channel {cid}')
                 if self.extractors.get(cid) is not None:
                     loose.setdefault(cid, []).append(pos)
             elif op in (_OP_DATA_END, _OP_FOOTER):
@@ -701,7 +703,7 @@ def read_bag_series(path: str | os.PathLike, *, signals: Sequence[SignalSpec] = 
     Returns a BagSeries whose ``series`` keys are 'crank', 'speed' and the signal labels.
     """
     if stamp not in ('log', 'publish'):
-        raise ValueError(f"stamp={stamp!r}: allowed 'log', 'publish'")
+        raise BagError(f"stamp={stamp!r}: allowed 'log', 'publish'")
     tp = {**DEFAULT_TOPICS, **(topics or {})}
     files, meta = _bag_files(path)
     joint_cols = [(s.field, s.element) for s in signals if s.field is not None]
@@ -737,7 +739,7 @@ def read_bag_series(path: str | os.PathLike, *, signals: Sequence[SignalSpec] = 
     used = 'fast'
     try:
         if reader not in ('fast', 'reference'):
-            raise ValueError(f"reader={reader!r}: allowed 'fast', 'reference'")
+            raise BagError(f"reader={reader!r}: allowed 'fast', 'reference'")
         try:
             if reader != 'fast':
                 raise _Unsupported('reference reader requested')
@@ -785,7 +787,7 @@ def _read_reference(path, files, requests, stamp):
     from dmf_sim.bag import bag_topics, read_messages
 
     if stamp == 'publish':
-        raise ValueError("stamp='publish' needs the fast reader, which cannot read this bag")
+        raise BagError("stamp='publish' needs the fast reader, which cannot read this bag")
     extractors: dict[str, _Extractor] = {}
     rows: dict[str, list] = {}
     times: dict[str, list] = {}
@@ -839,7 +841,7 @@ def crank_angle(bag: BagSeries, topics: Mapping[str, str] | None = None) -> tupl
         return Series(t, psi), 'integrated engine speed (no crank angle topic)'
     tp = {**DEFAULT_TOPICS, **(topics or {})}
     found = ', '.join(sorted(bag.topics)) or 'none'
-    raise ValueError(f'the bag has neither a crank angle topic ({tp["crank"]}) nor an engine speed '
+    raise BagError(f'the bag has neither a crank angle topic ({tp["crank"]}) nor an engine speed '
                      f'topic ({tp["speed"]}) to resample on; topics found: {found} (use '
                      '--crank-topic/--speed-topic for other names)')
 
@@ -910,7 +912,7 @@ def cycle_orders(t_ns: np.ndarray, x: np.ndarray, crank: Series, *, points_per_c
     from scipy.interpolate import CubicSpline
 
     if points_per_cycle < 2 * n_max + 2:
-        raise ValueError(f'points_per_cycle={points_per_cycle} must be >= 2 n_max + 2 = {2 * n_max + 2}')
+        raise BagError(f'points_per_cycle={points_per_cycle} must be >= 2 n_max + 2 = {2 * n_max + 2}')
     t0 = int(crank.t_ns[0] if t0_ns is None else t0_ns)
     tc = (crank.t_ns - t0) * 1e-9
     psi_c = crank.values
@@ -1123,10 +1125,10 @@ def analyze_bag(path: str | os.PathLike, signals: Iterable[str | SignalSpec] = (
     t_start = time.perf_counter()
     specs = [s if isinstance(s, SignalSpec) else SignalSpec.parse(s) for s in signals]
     if not specs:
-        raise ValueError('no signal requested')
+        raise BagError('no signal requested')
     labels = [s.label for s in specs]
     if len(set(labels)) != len(labels):
-        raise ValueError(f'signal requested twice: {labels}')
+        raise BagError(f'signal requested twice: {labels}')
     bag = read_bag_series(path, signals=specs, topics=topics, stamp=stamp, reader=reader,
                           progress=progress)
     crank, source = crank_angle(bag, topics)
@@ -1141,7 +1143,7 @@ def analyze_bag(path: str | os.PathLike, signals: Iterable[str | SignalSpec] = (
         s = bag.series.get(spec.label)
         if s is None or len(s) == 0:
             topic = {'windup': tp['windup'], 'topic': spec.element}.get(spec.kind, tp['joints'])
-            raise ValueError(f'signal {spec.label!r}: topic {topic} is not in the bag (or empty); '
+            raise BagError(f'signal {spec.label!r}: topic {topic} is not in the bag (or empty); '
                              f'topics found: {", ".join(sorted(bag.topics)) or "none"}')
         cyc = cycle_orders(s.t_ns, s.values, crank, points_per_cycle=points_per_cycle, n_max=n_max,
                            t0_ns=int(crank.t_ns[0]))
@@ -1153,7 +1155,7 @@ def analyze_bag(path: str | os.PathLike, signals: Iterable[str | SignalSpec] = (
                 keep &= cyc.t_end <= end_s
             cyc = CycleOrders(*(getattr(cyc, f.name)[keep] for f in fields(CycleOrders)))
         if len(cyc) == 0:
-            raise ValueError(f'signal {spec.label!r}: no whole engine cycle (720 deg of crank '
+            raise BagError(f'signal {spec.label!r}: no whole engine cycle (720 deg of crank '
                              'angle) recorded with the signal'
                              + (' in the time window' if start_s is not None or end_s is not None else ''))
         if len(s) > 1:
@@ -1185,7 +1187,6 @@ def natural_frequencies(model) -> dict[str, list[float]]:
 
 
 COMPARED = ('order_3', 'order_1_5', 'max_deviation', 'min_deviation', 'mean_minus_theta')
-CUSTOM_PREFIX = 'dmf_sim.'
 
 
 def model_settings(metadata: Mapping[str, Any] | None = None, *, config: str | None = None,
@@ -1199,34 +1200,29 @@ def model_settings(metadata: Mapping[str, Any] | None = None, *, config: str | N
     ``sources`` tells where each value came from."""
     from dmf_sim.model import load_driveline
 
-    custom = dict((metadata or {}).get('custom_data') or {})
+    stored = RunMetadata.from_bag_metadata(metadata)
     out: dict[str, Any] = {}
     src: dict[str, str] = {}
 
-    def pick(key: str, given, bag_key: str, default, conv=str):
+    def pick(key: str, given, default):
         if given is not None:
             out[key], src[key] = given, 'option'
-            return
-        raw = custom.get(CUSTOM_PREFIX + bag_key)
-        if raw not in (None, ''):
-            try:
-                out[key], src[key] = conv(raw), 'bag'
-                return
-            except (TypeError, ValueError):
-                pass
-        out[key], src[key] = default, 'default'
+        elif getattr(stored, key) is not None:
+            out[key], src[key] = getattr(stored, key), 'bag'
+        else:
+            out[key], src[key] = default, 'default'
 
-    pick('driveline', config, 'driveline', 'truck_dmf')
-    pick('engine', engine, 'engine', 'engine_d13')
-    pick('load_set', load_set, 'load_set', 'A')
-    pick('load', load, 'load', 1.0, float)
-    pick('alpha', alpha, 'alpha', None, float)
-    pick('theta_rad', theta, 'theta_rad', None, float)
+    pick('driveline', config, 'truck_dmf')
+    pick('engine', engine, 'engine_d13')
+    pick('load_set', load_set, 'A')
+    pick('load', load, 1.0)
+    pick('alpha', alpha, None)
+    pick('theta_rad', theta, None)
     try:
         line = load_driveline(out['driveline'])
     except (OSError, ValueError) as exc:
         where = 'stored in the bag' if src['driveline'] == 'bag' else 'given'
-        raise ValueError(f'driveline {out["driveline"]!r} ({where}) cannot be loaded: {exc}; '
+        raise BagError(f'driveline {out["driveline"]!r} ({where}) cannot be loaded: {exc}; '
                          'pass --config') from None
     if line.dmf is not None:
         if out['alpha'] is None:

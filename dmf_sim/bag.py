@@ -35,6 +35,7 @@ from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
 from dmf_sim import __version__
+from dmf_sim.errors import BagError, BagFileError
 
 __all__ = [
     'BagMessage', 'BagRecorder', 'RecoverReport', 'bag_topics', 'read_messages', 'recover_bag',
@@ -89,7 +90,7 @@ def _qos_text(value: str | None, topic: str) -> str:
     if not _parse_qos(value):
         msg = (f'QoS for {topic!r} must be one of {sorted(_QOS_PRESETS)} or a YAML list of '
                f'profiles, got {value!r}.')
-        raise ValueError(msg)
+        raise BagError(msg)
     return value.strip()
 
 
@@ -186,24 +187,24 @@ class BagRecorder:
                  compression: str = 'none') -> None:
         if not chunk_seconds > 0:
             msg = f'chunk_seconds must be positive, got {chunk_seconds!r}.'
-            raise ValueError(msg)
+            raise BagError(msg)
         if chunk_bytes < 1:
             msg = f'chunk_bytes must be positive, got {chunk_bytes!r}.'
-            raise ValueError(msg)
+            raise BagError(msg)
         if compression not in _COMPRESSION:
             msg = f'compression must be one of {sorted(_COMPRESSION)}, got {compression!r}.'
-            raise ValueError(msg)
+            raise BagError(msg)
         qos = dict(qos or {})
         if unknown := set(qos) - set(topics):
             msg = f'QoS given for undeclared topics {sorted(unknown)}.'
-            raise ValueError(msg)
+            raise BagError(msg)
         self.path = Path(path)
         self._infos: list[_TopicInfo] = []
         schemas = self._schemas(topics, msgdefs or {})
         for topic, msgtype in topics.items():
             if not topic.startswith('/'):
                 msg = f'Topic names must be absolute (start with "/"), got {topic!r}.'
-                raise ValueError(msg)
+                raise BagError(msg)
             self._infos.append(_TopicInfo(topic, msgtype, _qos_text(qos.get(topic), topic),
                                           schemas[msgtype][1]))
         self._custom_data = dict(custom_data or {})
@@ -260,7 +261,7 @@ class BagRecorder:
             else:
                 msg = (f'Unknown message type {msgtype!r}; use the full name like '
                        f'"sensor_msgs/msg/JointState" or pass its definition in msgdefs.')
-                raise ValueError(msg)
+                raise BagError(msg)
         return result
 
     def _metadata(self) -> dict[str, Any]:
@@ -274,15 +275,15 @@ class BagRecorder:
     def _write(self, topic: str, timestamp_ns: int, data: bytes) -> None:
         if self._closed:
             msg = f'Bag {self.path} is closed.'
-            raise ValueError(msg)
+            raise BagError(msg)
         try:
             cid, info = self._channels[topic]
         except KeyError:
             msg = f'Topic {topic!r} was not declared when the bag was opened.'
-            raise ValueError(msg) from None
+            raise BagError(msg) from None
         if timestamp_ns < 0:
             msg = f'Timestamp must be non-negative, got {timestamp_ns}.'
-            raise ValueError(msg)
+            raise BagError(msg)
         self._writer.add_message(cid, timestamp_ns, data, timestamp_ns, info.count & 0xFFFFFFFF)
         info.count += 1
         self.message_count += 1
@@ -372,18 +373,18 @@ def _bag_files(path: str | os.PathLike[str]) -> tuple[Path, list[Path], dict[str
         path = path.parent
     if not path.exists():
         msg = f'{path} does not exist.'
-        raise FileNotFoundError(msg)
+        raise BagFileError(msg)
     if path.is_file():
         if path.suffix != '.mcap':
             msg = f'{path} is neither a rosbag2 directory nor an .mcap file.'
-            raise ValueError(msg)
+            raise BagError(msg)
         return path, [path], None
     metapath = path / 'metadata.yaml'
     if not metapath.exists():
         files = sorted(path.glob('*.mcap'))
         if not files:
             msg = f'{path} holds neither metadata.yaml nor .mcap files.'
-            raise FileNotFoundError(msg)
+            raise BagFileError(msg)
         return path, files, None
     try:
         meta = yaml.safe_load(metapath.read_text(encoding='utf-8'))['rosbag2_bagfile_information']
@@ -392,17 +393,17 @@ def _bag_files(path: str | os.PathLike[str]) -> tuple[Path, list[Path], dict[str
         compression = meta.get('compression_mode', '') or ''
     except (yaml.YAMLError, KeyError, TypeError, AttributeError) as exc:
         msg = f'Invalid bag metadata in {metapath}: {exc!r}.'
-        raise ValueError(msg) from None
+        raise BagError(msg) from None
     if storage != STORAGE_ID:
         msg = f'{path}: storage {storage!r} is not supported, only mcap.'
-        raise ValueError(msg)
+        raise BagError(msg)
     if compression.lower() not in {'', 'none'}:
         msg = f'{path}: rosbag2 compression mode {compression!r} is not supported.'
-        raise ValueError(msg)
+        raise BagError(msg)
     files = [path / n for n in names]
     if missing := [str(f) for f in files if not f.exists()]:
         msg = f'{path}: bag files missing: {missing}.'
-        raise FileNotFoundError(msg)
+        raise BagFileError(msg)
     return path, files, meta
 
 
@@ -458,7 +459,7 @@ class _Decoder:
             store = get_typestore(Stores.ROS2_JAZZY)
             if msgtype not in store.types:
                 msg = f'No schema embedded for type {msgtype!r} and it is not a standard type.'
-                raise ValueError(msg)
+                raise BagError(msg)
             self._stores[msgtype] = store
             return
         text = schema.data.decode()
@@ -473,7 +474,7 @@ class _Decoder:
                 types.update(get_types_from_idl(part))
         else:
             msg = f'Schema encoding {schema.encoding!r} of {msgtype!r} is not supported.'
-            raise ValueError(msg)
+            raise BagError(msg)
         self.store.register(types)
         self._stores[msgtype] = self.store
 
@@ -524,15 +525,15 @@ def read_messages(path: str | os.PathLike[str], topics: str | list[str] | set[st
                 if record.message_encoding != 'cdr':
                     msg = (f'{file}: topic {record.topic!r} has message encoding '
                            f'{record.message_encoding!r}; only cdr is supported.')
-                    raise ValueError(msg)
+                    raise BagError(msg)
                 schema = schemas.get(record.schema_id)
                 if schema is None and record.schema_id != 0:
                     msg = f'{file}: channel {record.topic!r} refers to unknown schema.'
-                    raise ValueError(msg)
+                    raise BagError(msg)
                 msgtype = _normalize(schema.name) if schema else ''
                 if not msgtype:
                     msg = f'{file}: topic {record.topic!r} has no schema; its type is unknown.'
-                    raise ValueError(msg)
+                    raise BagError(msg)
                 if not raw:
                     decoder.add(schema, msgtype)
                 channels[record.id] = (record.topic, msgtype)
@@ -618,7 +619,7 @@ def _rewrite(src: Path, dst: Path, chunk_bytes: int,
                 if record.schema_id:
                     if record.schema_id not in pending_schemas:
                         msg = f'{src}: channel {record.topic!r} refers to unknown schema.'
-                        raise ValueError(msg)
+                        raise BagError(msg)
                     if record.schema_id not in schema_map:
                         s = pending_schemas[record.schema_id]
                         schema_map[record.schema_id] = writer.register_schema(
@@ -674,7 +675,7 @@ def recover_bag(path: str | os.PathLike[str], out_path: str | os.PathLike[str] |
     src, files, meta = _bag_files(path)
     if in_place and out_path is not None:
         msg = 'Give either an output path or in_place, not both.'
-        raise ValueError(msg)
+        raise BagError(msg)
     if in_place:
         out = src.with_name(f'.{src.name}.recover-tmp')
     elif out_path is not None:
@@ -686,7 +687,7 @@ def recover_bag(path: str | os.PathLike[str], out_path: str | os.PathLike[str] |
     as_dir = src.is_dir() if in_place else out.suffix != '.mcap'
     if not as_dir and len(files) > 1:
         msg = f'{src} has {len(files)} files; recover it into a directory.'
-        raise ValueError(msg)
+        raise BagError(msg)
 
     known: dict[str, _TopicInfo] = {}
     infos: list[_FileInfo] = []

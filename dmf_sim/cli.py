@@ -1,7 +1,9 @@
 """``dmf-sim``: command-line entry point. Subcommands live in ``dmf_sim.commands``.
 
 Each module in ``dmf_sim/commands`` defines ``NAME``, ``HELP``, ``add_arguments(parser)`` and
-``run(args) -> int``; they are discovered automatically.
+``run(args) -> int``; they are discovered automatically. Errors a user causes are
+:class:`dmf_sim.errors.DmfSimError` and are reported as one line with exit code 2; anything else
+is a bug and keeps its traceback.
 """
 from __future__ import annotations
 
@@ -11,6 +13,7 @@ import pkgutil
 import sys
 
 from dmf_sim import __version__, commands
+from dmf_sim.errors import DmfSimError, one_line
 
 UNITS = """units (SI throughout unless a name says otherwise):
   angles rad, angular speed rad/s (engine speed on the command line in rpm),
@@ -45,9 +48,13 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     try:
         return int(args._run(args) or 0)
-    except (ValueError, FileNotFoundError) as exc:
-        print(f'dmf-sim {args.command}: error: {exc}', file=sys.stderr)
+    except DmfSimError as exc:      # a user's mistake (bad option, file, data): one line, exit 2
+        print(f'dmf-sim {args.command}: error: {one_line(exc)}', file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print(f'dmf-sim {args.command}: interrupted', file=sys.stderr)
+        return 130
+    # anything else is a bug of ours: Python prints its traceback (exit 1)
 
 
 if __name__ == '__main__':

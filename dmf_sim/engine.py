@@ -94,6 +94,7 @@ from typing import Any, Callable, Mapping, Protocol, Sequence, runtime_checkable
 import numpy as np
 import yaml
 
+from dmf_sim.errors import ConfigError, OperatingRangeError
 from dmf_sim.paths import config_file
 
 __all__ = [
@@ -164,8 +165,8 @@ def engine_torque_orders(engine: EngineExcitation, speed_rpm: float, load: float
 # ----------------------------------------------------------------------------------------------
 # Validation helpers (one-line ValueError naming the field and the allowed range)
 # ----------------------------------------------------------------------------------------------
-def _err(where: str, field: str, msg: str) -> ValueError:
-    return ValueError(f'{where}: {field}: {msg}'.replace('\n', ' '))
+def _err(where: str, field: str, msg: str) -> ConfigError:
+    return ConfigError(f'{where}: {field}: {msg}'.replace('\n', ' '))
 
 
 def _check_keys(d: Any, where: str, field: str, required: Sequence[str],
@@ -349,7 +350,7 @@ def read_engine_config(path: str | Path, *, need_model: bool = True) -> EngineCo
     try:
         doc = yaml.safe_load(path.read_text())
     except yaml.YAMLError as exc:
-        raise ValueError(f'{where}: not valid YAML ({str(exc).splitlines()[0]})') from None
+        raise ConfigError(f'{where}: not valid YAML ({str(exc).splitlines()[0]})') from None
     required = ['name', 'n_cylinders', 'firing_phases_deg', 'n_max', 'geometry', 'load_sets']
     d = _check_keys(doc, where, '', required + (list(_MODEL_KEYS) if need_model else []),
                     ['description'] + ([] if need_model else list(_MODEL_KEYS)))
@@ -695,7 +696,7 @@ class Engine:
                  full_load_curve: _Table1D | None = None, model: PressureModel | None = None,
                  source: Path | None = None) -> None:
         if load_set not in cfg.load_set_shifts_rpm:
-            raise ValueError(f'{cfg.path.name}: load_set: unknown {load_set!r} '
+            raise ConfigError(f'{cfg.path.name}: load_set: unknown {load_set!r} '
                              f'(allowed: {", ".join(cfg.load_set_shifts_rpm)})')
         self.config = cfg
         self.source = source or cfg.path
@@ -725,9 +726,9 @@ class Engine:
     def _check(self, speed_rpm: float, load: float | None = None) -> None:
         lo, hi = self.speed_range_rpm
         if not (math.isfinite(speed_rpm) and lo <= speed_rpm <= hi):
-            raise ValueError(f'speed_rpm: must be in [{lo:g}, {hi:g}] rpm (got {speed_rpm!r})')
+            raise OperatingRangeError(f'speed_rpm: must be in [{lo:g}, {hi:g}] rpm (got {speed_rpm!r})')
         if load is not None and not (math.isfinite(load) and 0.0 <= load <= 1.0):
-            raise ValueError(f'load: must be in [0, 1] (got {load!r})')
+            raise OperatingRangeError(f'load: must be in [0, 1] (got {load!r})')
 
     def effective_speed(self, speed_rpm: float) -> float:
         """Speed [rpm] at which Load A's gas data is used: min(s + shift, max(s, limit))."""
@@ -957,7 +958,7 @@ def load_engine(source: str | Path = DEFAULT_ENGINE, load_set: str = 'A') -> Eng
     try:
         doc = yaml.safe_load(path.read_text())
     except yaml.YAMLError as exc:
-        raise ValueError(f'{path.name}: not valid YAML ({str(exc).splitlines()[0]})') from None
+        raise ConfigError(f'{path.name}: not valid YAML ({str(exc).splitlines()[0]})') from None
     if isinstance(doc, Mapping) and 'coefficients' in doc:
         return _engine_from_table(path, _read_table_yaml(path, doc), load_set)
     cfg = read_engine_config(path)

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from dmf_sim.errors import ConfigError
 from dmf_sim.model import ReducedModel
 
 
@@ -41,7 +42,7 @@ def solve_static(model: ReducedModel, P: np.ndarray, K: np.ndarray | None = None
     Jr = model.J @ r
     imbalance = abs(r @ P) / max(np.abs(P).max() * np.abs(r).sum(), 1e-300)
     if imbalance > 1e-8:
-        raise ValueError('static load is not balanced (it would accelerate the free driveline); '
+        raise ConfigError('static load is not balanced (it would accelerate the free driveline); '
                          'add the rear load')
     n = model.n_dof
     A = np.zeros((n + 1, n + 1), dtype=np.result_type(K, P))

@@ -5,7 +5,7 @@ Equation of motion in vibratory DOF coordinates q (model.py, eq. 7 merged):
     J q'' + C q' + K q + e g(e q) = P(psi),     P(psi) = Re( sum_n P_n exp(i n psi/2) )
 
 with ``e`` the wind-up row (w = e q, positive when the engine drives) and ``g(w)`` the extra torque
-of the two-step spring (dmf_spring.py). The base frequency is omega/2: one 720 deg engine cycle, so
+of the DMF spring (dmf_sim.spring). The base frequency is omega/2: one 720 deg engine cycle, so
 half-orders (the 1.5th order, n = 3) are representable. A periodic steady state is written
 
     w(psi) = Re( sum_{n=0}^{H} w_n exp(i n psi/2) ),   g(w(psi)) ~ Re( sum_{n=0}^{H} g_n exp(i n psi/2) )
@@ -47,10 +47,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from dmf_sim.errors import ConfigError, ConvergenceError
 from dmf_sim.continuation import solve_small
 from dmf_sim.harmonic import solve_harmonic, solve_static
 from dmf_sim.loads import RPM_TO_RAD_S, DrivelineLoads
-from dmf_sim.orders import OrderSummary
+from dmf_sim.orders import OrderSummary, summarize_orders, synthesize
 from dmf_sim.stability import FlexibleModes
 
 SUB_HARMONICS = (3, 9, 15, 21)   # half-orders n = 3 mod 6: the 1.5th-order family (1.5, 4.5, 7.5, 10.5)
@@ -196,10 +197,6 @@ class HBMPoint:
         return d
 
 
-class ConvergenceError(RuntimeError):
-    """Newton did not converge."""
-
-
 # ------------------------------------------------------------------------------------------------
 # The condensed harmonic balance problem
 # ------------------------------------------------------------------------------------------------
@@ -219,14 +216,14 @@ class CondensedHBM:
         self.options = options or HBMOptions()
         self.model = loads.model
         if self.model.spring is None:
-            raise ValueError(f'driveline {self.model.line.name!r} has no dmf section: nothing to condense on')
+            raise ConfigError(f'driveline {self.model.line.name!r} has no dmf section: nothing to condense on')
         self.spring = self.model.spring
         self.H = H = int(self.options.n_harmonics)
         if H < 1:
-            raise ValueError(f'n_harmonics={H}: must be >= 1')
+            raise ConfigError(f'n_harmonics={H}: must be >= 1')
         self.M = M = self.options.time_samples()
         if M < 2 * H + 2:
-            raise ValueError(f'n_time={M}: needs at least 2 (n_harmonics + 1) = {2 * H + 2} samples')
+            raise ConfigError(f'n_time={M}: needs at least 2 (n_harmonics + 1) = {2 * H + 2} samples')
         # AFT matrices on the base angle phi_j = psi_j / 2 = 2 pi j / M (one 720 deg cycle):
         #   w_j = E x        (E = [1, cos n phi_j, -sin n phi_j])
         #   G   = F g_j      (F = W E^T: mean and 2/M-weighted Fourier sums)
@@ -323,11 +320,13 @@ class CondensedHBM:
 
     def time_series_batch(self, C: np.ndarray, n_samples: int = 1024) -> np.ndarray:
         """(K, n_samples) wind-up over one cycle for K complex harmonic vectors (K, H+1)."""
-        spec = np.zeros((C.shape[0], n_samples // 2 + 1), dtype=complex)
-        k = min(self.H, n_samples // 2 - 1)
-        spec[:, 0] = C[:, 0].real * n_samples
-        spec[:, 1:k + 1] = C[:, 1:k + 1] * (n_samples / 2.0)
-        return np.fft.irfft(spec, n_samples, axis=1)
+        return synthesize(C, n_samples)
+
+    def static_windup(self, speed_rpm: float) -> float:
+        """Wind-up [rad] the mean torque alone causes at ``speed_rpm`` (the non-linear static
+        equilibrium; the paper's green line is theta minus it)."""
+        lp = self.linear_parts(speed_rpm)
+        return self.spring.solve_condensed(float(lp.wlin[0].real), float(lp.h[0].real))
 
     def linear_parts_direct(self, speed_rpm: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(h, wlin, u, v) by direct complex solves Z_n [u_n, v_n] = [e, P_n] (harmonic.solve_harmonic);
@@ -360,9 +359,7 @@ class CondensedHBM:
         """
         w = self.E @ x
         sp = self.spring
-        active = w > sp.theta
-        if sp.theta_coast is not None:
-            active |= w < -sp.theta_coast
+        active = sp.region_index(w) != sp.primary_index
         if not active.any():
             G = np.zeros(2 * self.H + 1)
             return (G, None) if jacobian else G
@@ -438,22 +435,13 @@ class CondensedHBM:
         """Wrap a solution vector with its Fig. 13 summary (``samples``: w over the cycle, if at hand)."""
         c = to_complex(x, self.H)
         w = self.time_series(x, 1024) if samples is None else samples
-        mean = float(c[0].real)
-        summ = OrderSummary(order_3=float(abs(c[6])) if self.H >= 6 else 0.0,
-                            order_1_5=float(abs(c[3])) if self.H >= 3 else 0.0,
-                            max_deviation=float(w.max() - mean), min_deviation=float(w.min() - mean),
-                            mean=mean, mean_minus_theta=mean - self.spring.theta)
+        summ = summarize_orders(c, w, self.spring.theta, self.static_windup(speed_rpm))
         return HBMPoint(float(speed_rpm), np.array(x, dtype=float), c, summ, float(residual), int(iterations))
 
     # ---- recovery of the whole driveline ---------------------------------------------------------
     def time_series(self, x: np.ndarray, n_samples: int = 512) -> np.ndarray:
         """w(psi) on ``n_samples`` uniform points of one cycle (psi = 0 .. 4 pi) [rad]."""
-        c = to_complex(x, self.H)
-        spec = np.zeros(n_samples // 2 + 1, dtype=complex)
-        k = min(self.H, n_samples // 2 - 1)
-        spec[0] = c[0].real * n_samples
-        spec[1:k + 1] = c[1:k + 1] * n_samples / 2.0
-        return np.fft.irfft(spec, n_samples)
+        return synthesize(to_complex(x, self.H), n_samples)
 
     def dof_harmonics(self, point: HBMPoint) -> np.ndarray:
         """(H+1, n_dof) complex DOF harmonics q_n = H_n (P_n - e g_n) [rad] (eq. 10-13), by direct
@@ -800,11 +788,8 @@ class SpeedSweep:
 
     def _in_primary(self, w: np.ndarray) -> np.ndarray:
         """Rows of w (K, N) that stay strictly inside the primary region over the whole cycle."""
-        sp = self.hbm.spring
-        ok = w.max(axis=1) < sp.theta
-        if sp.theta_coast is not None:
-            ok &= w.min(axis=1) > -sp.theta_coast
-        return ok
+        lo, hi = self.hbm.spring.primary_bounds()
+        return (w.max(axis=1) < hi) & (w.min(axis=1) > lo)
 
     def _linear_stretch(self, cp, sign: float) -> list:
         """Grid points ahead of ``cp`` where the wind-up never reaches a knee: there g = 0, the HBM
@@ -869,7 +854,7 @@ class SpeedSweep:
         t0 = time.perf_counter()
         lo, hi = float(speed_range[0]), float(speed_range[1])
         if not hi > lo:
-            raise ValueError(f'speed range [{lo}, {hi}] rpm: need TO > FROM')
+            raise ConfigError(f'speed range [{lo}, {hi}] rpm: need TO > FROM')
         self.range = (lo, hi)
         bar = _Progress(progress, hi - lo, desc)
         try:

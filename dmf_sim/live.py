@@ -37,6 +37,7 @@ import numpy as np
 from dmf_sim.loads import DrivelineLoads
 from dmf_sim.model import Driveline, load_driveline
 from dmf_sim.newmark import NewmarkIntegrator, StepRecord
+from dmf_sim.torques import TorqueOperator
 
 PACING_MODES = ('realtime', 'fast')
 OVERRUN_POLICIES = ('skip', 'catch_up')
@@ -285,92 +286,6 @@ class Samples:
 
     def __len__(self) -> int:
         return int(self.t.shape[0])
-
-
-class TorqueOperator:
-    """``ReducedModel.transmitted_torques`` as precomputed matrices (same result, ~10x faster).
-
-    The transmitted torques are linear in (q, v, a, element loads p) except for the DMF's extra
-    torque g(w), which enters at the DMF element and, through the rigid links in front of it,
-    linearly again: ``T = q Lq + v Lv + a La + p Lp + g(w) c``. The matrices are read off
-    ``transmitted_torques`` itself (columns for small unit inputs, which stay in the primary
-    region), so the model stays the single source of truth; the tests compare both.
-
-    Element loads only matter on rigidly linked elements (``Lp``'s non-zero rows). When neither
-    the cylinders nor the rear element are among them (the truck models), ``p Lp`` reduces to the
-    d'Alembert part ``omega_dot * (dal Lp)`` and the cylinder series need not be evaluated;
-    otherwise the integrator's ``element_loads`` is used.
-
-    :meth:`outputs` gives element angles, velocities and torques at once from one matrix product
-    ``[q v a] M`` (the live node's hot path).
-    """
-
-    def __init__(self, integ: NewmarkIntegrator) -> None:
-        model, L = integ.model, integ.loads
-        n, m = model.n_dof, model.n_elements
-        self.integ = integ
-        self.model = model
-        f = model.transmitted_torques
-        eps = 1e-6
-        In, Im = eps * np.eye(n), eps * np.eye(m)
-        zn, zm = np.zeros((n, n)), np.zeros((n, m))
-        self.Lq = f(In, zn, zn, zm) / eps
-        self.Lv = f(zn, In, zn, zm) / eps
-        self.La = f(zn, zn, In, zm) / eps
-        self.Lp = f(np.zeros((m, n)), np.zeros((m, n)), np.zeros((m, n)), Im) / eps
-        used = np.abs(self.Lp).max(axis=1) > 0
-        self.needs_loads = bool(used[L.cylinder_elements].any() or used[L.rear_element])
-        self.dal = L.dalembert_elements @ self.Lp
-        sp = model.spring
-        self.c = np.zeros(m)
-        self._knees = None
-        if sp is not None:
-            if sp.b > 0:
-                w = 2.0 * sp.theta
-                q = model.e * (w / float(model.e @ model.e))
-                z = np.zeros(n)
-                self.c = (f(q, z, z, np.zeros(m)) - q @ self.Lq) / float(sp.extra_torque(w))
-            self._knees = (sp.b, sp.theta, sp.b_coast, sp.theta_coast_or_inf)
-        # [q v a] (rows x 3n) @ M (3n x 3m) = [angles | velocities | torques without p, g]
-        T = model.T.T
-        M = np.zeros((3 * n, 3 * m))
-        M[:n, :m] = T
-        M[n:2 * n, m:2 * m] = T
-        M[:n, 2 * m:] = self.Lq
-        M[n:2 * n, 2 * m:] = self.Lv
-        M[2 * n:, 2 * m:] = self.La
-        self.M = M
-        self.m = m
-
-    def _extra(self, w):
-        b, th, bc, thc = self._knees
-        g = b * np.maximum(w - th, 0.0)
-        if bc:
-            g = g - bc * np.maximum(-w - thc, 0.0)
-        return g
-
-    def _add_loads(self, out, w, psi, omega_dot: float) -> None:
-        if self.needs_loads:
-            out += self.integ.element_loads(psi, omega_dot) @ self.Lp
-        elif omega_dot:
-            out += omega_dot * self.dal
-        if self._knees is not None:
-            out += np.multiply.outer(self._extra(w), self.c)
-
-    def __call__(self, q, v, a, w, psi, omega_dot: float) -> np.ndarray:
-        """Torques (rows x elements) for states q, v, a, wind-ups w at crank angles psi."""
-        out = q @ self.Lq + v @ self.Lv + a @ self.La
-        self._add_loads(out, w, psi, omega_dot)
-        return out
-
-    def outputs(self, qva, w, psi, omega_dot: float):
-        """Element angles, velocities and torques (each rows x elements) from ``qva`` =
-        [q v a] (rows x 3 n_dof)."""
-        out = qva @ self.M
-        m = self.m
-        torques = out[:, 2 * m:]
-        self._add_loads(torques, w, psi, omega_dot)
-        return out[:, :m], out[:, m:2 * m], torques
 
 
 @dataclass

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from dmf_sim.errors import ConfigError
 from dmf_sim.harmonic import solve_static
 from dmf_sim.model import ReducedModel
 
@@ -39,10 +40,10 @@ class DrivelineLoads:
     def __post_init__(self) -> None:
         line = self.model.line
         if not line.cylinders:
-            raise ValueError(f'driveline {line.name!r}: field \'cylinders\' is empty; no engine load can act')
+            raise ConfigError(f'driveline {line.name!r}: field \'cylinders\' is empty; no engine load can act')
         n_cyl_engine = int(getattr(self.engine, 'n_cylinders', len(line.cylinders)))
         if n_cyl_engine != len(line.cylinders):
-            raise ValueError(f'engine has {n_cyl_engine} cylinders but driveline field \'cylinders\' '
+            raise ConfigError(f'engine has {n_cyl_engine} cylinders but driveline field \'cylinders\' '
                              f'lists {len(line.cylinders)}')
         self.cylinder_elements = np.array([line.index(c) for c in line.cylinders], dtype=int)
         self.beta = np.radians(np.asarray(line.firing_phases_deg, dtype=float))

@@ -1,7 +1,8 @@
 """Modal analysis: the generalized eigenproblem (K, J) of the merged model (paper Fig. 12).
 
-For the DMF driveline the spring stiffness is chosen by ``region``: 'primary' uses k,
-'secondary' uses k (1 + alpha), the two linear limits of the two-step spring.
+For the DMF driveline the spring stiffness is chosen by ``region``: the tangent stiffness of one
+spring stage ('primary' = k, 'secondary' = k (1 + alpha) of the first drive stage, 'drive stage 2',
+'coast', ... or the stage number), a linear limit of the piecewise-linear spring.
 """
 from __future__ import annotations
 
@@ -10,18 +11,35 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
+from dmf_sim.errors import ConfigError
 from dmf_sim.model import ReducedModel
 
 REGIONS = ('primary', 'secondary')
 
 
-def stiffness_matrix(model: ReducedModel, region: str = 'primary') -> np.ndarray:
-    """K with the DMF at primary stiffness k or secondary stiffness k (1 + alpha) [Nm/rad]."""
-    if region not in REGIONS:
-        raise ValueError(f'region={region!r}: allowed {", ".join(REGIONS)}')
-    if region == 'secondary' and model.spring is not None:
-        return model.K + model.spring.b * np.outer(model.e, model.e)
-    return model.K
+def region_names(model: ReducedModel) -> list[str]:
+    """The spring stages of the model's DMF by name, ascending in wind-up ('primary' without DMF)."""
+    sp = model.spring
+    return [sp.region_name(st) for st in sp.stages()] if sp is not None else ['primary']
+
+
+def stiffness_matrix(model: ReducedModel, region: str | int = 'primary') -> np.ndarray:
+    """K with the DMF at the tangent stiffness of one spring stage [Nm/rad] (name or number)."""
+    sp = model.spring
+    if isinstance(region, str):
+        names = region_names(model)
+        if region not in names:
+            if region in REGIONS:          # 'secondary' of a DMF without drive stage, or no DMF
+                return model.K
+            raise ConfigError(f'region={region!r}: allowed {", ".join(names)}')
+        if sp is None:
+            return model.K
+        stage = sp.stages()[names.index(region)]
+    else:
+        stage = int(region)
+        if sp is None or stage not in sp.stages():
+            raise ConfigError(f'region={region!r}: allowed stages {sp.stages() if sp else [0]}')
+    return model.K + sp.stage_stiffness(stage) * np.outer(model.e, model.e)
 
 
 @dataclass(frozen=True)
@@ -60,7 +78,7 @@ def modes(model: ReducedModel, region: str = 'primary') -> ModalResult:
     scale = np.abs(w2).max()
     w2 = np.where(np.abs(w2) < 1e-10 * scale, 0.0, w2)
     if np.any(w2 < 0):
-        raise ValueError('stiffness matrix is not positive semi-definite')
+        raise ConfigError('stiffness matrix is not positive semi-definite')
     omega = np.sqrt(w2)
     phi = model.T @ V * model.R[:, None]
     idx = np.argmax(np.abs(phi), axis=0)

@@ -12,8 +12,8 @@ sum 1/2 c_i (d dphi_i/dt)^2).
 
 Infinite stiffness ("rigid" in YAML) is a rigid connection: rigidly connected inertias are merged
 into one degree of freedom (DOF) through the gear ratios, and every element angle is recovered by
-``phi = T q``. The DMF (if any) is the two-step spring of one element: its primary stiffness and
-damping live in K and C, its extra stiffness is the non-linear force of eq. (7)-(8).
+``phi = T q``. The DMF (if any) is the piecewise-linear spring of one element (dmf_sim.spring): its primary
+stiffness and damping live in K and C, its extra torque g is the non-linear force of eq. (7)-(8).
 """
 from __future__ import annotations
 
@@ -21,20 +21,20 @@ import math
 import os
 from dataclasses import dataclass, field, replace
 from functools import cached_property
-from pathlib import Path
-
 import numpy as np
-import yaml
 
-from dmf_sim.dmf_spring import TwoStepSpring
-from dmf_sim.paths import config_file
+from dmf_sim.errors import ConfigError
+from dmf_sim.paths import read_yaml_mapping
+from dmf_sim.spring import PiecewiseLinearSpring, Stage
 
 ELEMENT_KEYS = ('name', 'ratio', 'stiffness', 'damping', 'inertia')
 TOP_KEYS_REQUIRED = ('name', 'elements')
 TOP_KEYS_OPTIONAL = ('description', 'cylinders', 'firing_phases_deg', 'rear_load_element', 'dmf')
-DMF_KEYS_REQUIRED = ('element', 'theta_rad', 'alpha')
-DMF_KEYS_OPTIONAL = ('coast',)
+DMF_KEYS_REQUIRED = ('element',)
+DMF_KEYS_OPTIONAL = ('stiffness', 'stages', 'coast_stages', 'theta_rad', 'alpha', 'coast')
 COAST_KEYS = ('theta_rad', 'alpha')
+STAGE_KEYS = ('stiffness_factor',)
+STAGE_ANGLE_KEYS = ('angle_rad', 'angle')   # the same quantity [rad]; give one
 RIGID_WORDS = ('rigid', 'inf', '.inf', 'infinite', '∞')
 
 
@@ -55,13 +55,30 @@ class Element:
 
 @dataclass(frozen=True)
 class DMFSpec:
-    """Which element carries the two-step spring, and its knee parameters."""
+    """Which element carries the DMF spring, and its stages (dmf_sim.spring).
+
+    The element's own stiffness is the primary stiffness k, its damping the DMF damping.
+    ``stages`` / ``coast_stages``: drive / coast stages; the paper's (theta, alpha) is one drive
+    stage (:attr:`theta`, :attr:`alpha` read the first one).
+    """
 
     element: str
-    theta: float
-    alpha: float
-    theta_coast: float | None = None
-    alpha_coast: float = 0.0
+    stages: tuple[Stage, ...] = ()
+    coast_stages: tuple[Stage, ...] = ()
+
+    @property
+    def theta(self) -> float:
+        """First drive knee [rad] (inf without drive stages)."""
+        return self.stages[0].angle_rad if self.stages else math.inf
+
+    @property
+    def alpha(self) -> float:
+        """Stiffness factor of the first drive stage (0 without drive stages)."""
+        return self.stages[0].stiffness_factor if self.stages else 0.0
+
+    def spring(self, k: float) -> PiecewiseLinearSpring:
+        """The spring with primary stiffness ``k`` [Nm/rad] (validates the stages)."""
+        return PiecewiseLinearSpring(k, self.stages, self.coast_stages)
 
 
 @dataclass(frozen=True)
@@ -85,19 +102,50 @@ class Driveline:
         try:
             return self.names.index(name)
         except ValueError:
-            raise ValueError(f'unknown element {name!r}; elements are {", ".join(self.names)}') from None
+            raise ConfigError(f'unknown element {name!r}; elements are {", ".join(self.names)}') from None
 
-    def with_dmf(self, alpha: float | None = None, theta: float | None = None) -> 'Driveline':
-        """A copy with other DMF knee parameters (alpha, theta [rad])."""
+    @property
+    def dmf_element(self) -> Element | None:
+        return self.elements[self.index(self.dmf.element)] if self.dmf is not None else None
+
+    @property
+    def spring(self) -> PiecewiseLinearSpring | None:
+        """The DMF spring (primary stiffness from the DMF element), or None without a DMF."""
+        return self.dmf.spring(self.dmf_element.stiffness) if self.dmf is not None else None
+
+    def with_dmf(self, alpha: float | None = None, theta: float | None = None, *,
+                 k: float | None = None, damping: float | None = None,
+                 stages=None, coast_stages=None) -> 'Driveline':
+        """A copy with other DMF data. ``alpha``, ``theta`` [rad]: the paper's shorthand on the
+        first drive stage; ``stages`` / ``coast_stages``: sequences of :class:`Stage` (or
+        (angle_rad, stiffness_factor) pairs) replacing them; ``k`` [Nm/rad] and ``damping``
+        [Nms/rad]: the DMF element's primary stiffness and damping."""
+        given = (alpha, theta, k, damping, stages, coast_stages)
         if self.dmf is None:
-            if alpha is None and theta is None:
+            if all(v is None for v in given):
                 return self
-            raise ValueError(f'driveline {self.name!r} has no dmf section; alpha/theta do not apply')
-        dmf = replace(self.dmf,
-                      alpha=self.dmf.alpha if alpha is None else float(alpha),
-                      theta=self.dmf.theta if theta is None else float(theta))
-        _check_spring(dmf, self)
-        return replace(self, dmf=dmf)
+            raise ConfigError(f'driveline {self.name!r} has no dmf section; DMF parameters do not apply')
+        if stages is not None and (alpha is not None or theta is not None):
+            raise ConfigError('dmf: give either stages or the (alpha, theta) shorthand, not both')
+        spring = self.spring
+        if stages is not None or coast_stages is not None:
+            spring = spring.replace(drive=None if stages is None else _as_stages(stages),
+                                    coast=None if coast_stages is None else _as_stages(coast_stages))
+        spring = spring.with_first_stage(theta=theta, alpha=alpha)
+        if k is not None:
+            spring = spring.replace(k=k)
+        els = list(self.elements)
+        s = self.index(self.dmf.element)
+        el = els[s]
+        if k is not None or damping is not None:
+            d = el.damping if damping is None else float(damping)
+            if not (math.isfinite(d) and d >= 0):
+                raise ConfigError(f'dmf: damping must be finite and >= 0 Nms/rad, got {damping!r}')
+            els[s] = replace(el, stiffness=spring.k, damping=d)
+        dmf = replace(self.dmf, stages=spring.drive, coast_stages=spring.coast)
+        line = replace(self, elements=tuple(els), dmf=dmf)
+        _check_spring(dmf, line)
+        return line
 
     def reduce(self) -> 'ReducedModel':
         """Merge rigid connections into DOFs and assemble J, K, C (see ReducedModel)."""
@@ -113,23 +161,23 @@ def _num(value, where: str, field_name: str, allow_rigid: bool = False) -> float
         return math.inf
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         extra = " or 'rigid'" if allow_rigid else ''
-        raise ValueError(f'{where}: field {field_name!r} must be a number{extra}, got {value!r}')
+        raise ConfigError(f'{where}: field {field_name!r} must be a number{extra}, got {value!r}')
     v = float(value)
     if math.isnan(v) or (math.isinf(v) and not allow_rigid):
-        raise ValueError(f'{where}: field {field_name!r} must be finite, got {value!r}')
+        raise ConfigError(f'{where}: field {field_name!r} must be finite, got {value!r}')
     return v
 
 
 def _check_keys(data: dict, required, optional, where: str) -> None:
     if not isinstance(data, dict):
-        raise ValueError(f'{where}: expected a mapping, got {type(data).__name__}')
+        raise ConfigError(f'{where}: expected a mapping, got {type(data).__name__}')
     for key in required:
         if key not in data:
-            raise ValueError(f'{where}: missing key {key!r}')
+            raise ConfigError(f'{where}: missing key {key!r}')
     allowed = set(required) | set(optional)
     for key in data:
         if key not in allowed:
-            raise ValueError(f'{where}: unknown key {key!r} (allowed: {", ".join(sorted(allowed))})')
+            raise ConfigError(f'{where}: unknown key {key!r} (allowed: {", ".join(sorted(allowed))})')
 
 
 def _parse_element(raw, pos: int) -> Element:
@@ -140,38 +188,97 @@ def _parse_element(raw, pos: int) -> Element:
     name = str(raw['name'])
     ratio = _num(raw['ratio'], where, 'ratio')
     if ratio == 0:
-        raise ValueError(f'{where}: field \'ratio\' must be non-zero (allowed: any finite number != 0)')
+        raise ConfigError(f'{where}: field \'ratio\' must be non-zero (allowed: any finite number != 0)')
     stiffness = _num(raw['stiffness'], where, 'stiffness', allow_rigid=True)
     if stiffness < 0:
-        raise ValueError(f'{where}: field \'stiffness\' must be >= 0 Nm/rad or \'rigid\', got {stiffness}')
+        raise ConfigError(f'{where}: field \'stiffness\' must be >= 0 Nm/rad or \'rigid\', got {stiffness}')
     damping = _num(raw['damping'], where, 'damping')
     if damping < 0:
-        raise ValueError(f'{where}: field \'damping\' must be >= 0 Nms/rad, got {damping}')
+        raise ConfigError(f'{where}: field \'damping\' must be >= 0 Nms/rad, got {damping}')
     inertia = _num(raw['inertia'], where, 'inertia')
     if inertia <= 0:
-        raise ValueError(f'{where}: field \'inertia\' must be > 0 kg m^2, got {inertia}')
+        raise ConfigError(f'{where}: field \'inertia\' must be > 0 kg m^2, got {inertia}')
     if math.isinf(stiffness) and damping != 0:
-        raise ValueError(f'{where}: field \'damping\' must be 0 on a rigid connection, got {damping}')
+        raise ConfigError(f'{where}: field \'damping\' must be 0 on a rigid connection, got {damping}')
     return Element(name, ratio, stiffness, damping, inertia)
+
+
+def _as_stages(items) -> tuple[Stage, ...]:
+    out = []
+    for it in items:
+        out.append(it if isinstance(it, Stage) else Stage(float(it[0]), float(it[1])))
+    return tuple(out)
+
+
+def _parse_stages(raw, where: str) -> tuple[Stage, ...]:
+    if not isinstance(raw, list):
+        raise ConfigError(f'{where}: expected a list of {{angle_rad, stiffness_factor}} mappings, '
+                          f'got {type(raw).__name__}')
+    out = []
+    for i, item in enumerate(raw):
+        w = f'{where}[{i}]'
+        _check_keys(item, STAGE_KEYS, STAGE_ANGLE_KEYS, w)
+        angles = [key for key in STAGE_ANGLE_KEYS if key in item]
+        if len(angles) != 1:
+            raise ConfigError(f'{w}: give the stage angle [rad] once, as \'angle_rad\' (or \'angle\')')
+        out.append(Stage(_num(item[angles[0]], w, angles[0]),
+                         _num(item['stiffness_factor'], w, 'stiffness_factor')))
+    return tuple(out)
+
+
+def _shorthand_stage(raw: dict, where: str) -> Stage:
+    """The paper's (theta_rad, alpha) as one stage, with errors naming those fields."""
+    theta = _num(raw['theta_rad'], where, 'theta_rad')
+    alpha = _num(raw['alpha'], where, 'alpha')
+    if not theta > 0:
+        raise ConfigError(f"{where}: field 'theta_rad' must be > 0 rad, got {theta}")
+    if not alpha >= 0:
+        raise ConfigError(f"{where}: field 'alpha' must be >= 0, got {alpha}")
+    return Stage(theta, alpha)
+
+
+def _parse_dmf(raw, names: list[str]) -> DMFSpec:
+    _check_keys(raw, DMF_KEYS_REQUIRED, DMF_KEYS_OPTIONAL, 'dmf')
+    element = str(raw['element'])
+    if element not in names:
+        raise ConfigError(f'dmf: field \'element\' names unknown element {element!r}')
+    short = [key for key in ('theta_rad', 'alpha') if key in raw]
+    if 'stages' in raw:
+        if short:
+            raise ConfigError(f'dmf: give either \'stages\' or the shorthand \'theta_rad\'/\'alpha\', '
+                              f'not both (found {", ".join(short)})')
+        stages = _parse_stages(raw['stages'], 'dmf.stages')
+    elif len(short) == 2:
+        stages = (_shorthand_stage(raw, 'dmf'),)
+    elif short:
+        missing = 'alpha' if short == ['theta_rad'] else 'theta_rad'
+        raise ConfigError(f"dmf: missing key {missing!r} (the shorthand needs 'theta_rad' and 'alpha'; "
+                          "or give 'stages')")
+    else:
+        raise ConfigError('dmf: missing key \'stages\' (or the shorthand \'theta_rad\' and \'alpha\')')
+    coast = raw.get('coast')
+    if 'coast_stages' in raw:
+        if coast is not None:
+            raise ConfigError('dmf: give either \'coast_stages\' or the shorthand \'coast\', not both')
+        coast_stages = _parse_stages(raw['coast_stages'], 'dmf.coast_stages')
+    elif coast is not None:
+        _check_keys(coast, COAST_KEYS, (), 'dmf.coast')
+        coast_stages = (_shorthand_stage(coast, 'dmf.coast'),)
+    else:
+        coast_stages = ()
+    return DMFSpec(element=element, stages=stages, coast_stages=coast_stages)
 
 
 def _check_spring(dmf: DMFSpec, line: 'Driveline') -> None:
     el = line.elements[line.index(dmf.element)]
     where = f'dmf (element {dmf.element})'
     if el.rigid:
-        raise ValueError(f'{where}: the DMF cannot sit on a rigid element; field \'stiffness\' must be finite > 0')
+        raise ConfigError(f'{where}: the DMF cannot sit on a rigid element; field \'stiffness\' must be finite > 0')
     if el.stiffness <= 0:
-        raise ValueError(f'{where}: field \'stiffness\' of the DMF element must be > 0 Nm/rad, got {el.stiffness}')
+        raise ConfigError(f'{where}: field \'stiffness\' of the DMF element must be > 0 Nm/rad, got {el.stiffness}')
     if line.index(dmf.element) == 0:
-        raise ValueError(f'{where}: the DMF cannot be the first element (it needs a primary side)')
-    if not dmf.theta > 0:
-        raise ValueError(f'{where}: field \'theta_rad\' must be > 0 rad, got {dmf.theta}')
-    if not dmf.alpha >= 0:
-        raise ValueError(f'{where}: field \'alpha\' must be >= 0, got {dmf.alpha}')
-    if dmf.theta_coast is not None and not dmf.theta_coast > 0:
-        raise ValueError(f'{where}: field \'coast.theta_rad\' must be > 0 rad, got {dmf.theta_coast}')
-    if not dmf.alpha_coast >= 0:
-        raise ValueError(f'{where}: field \'coast.alpha\' must be >= 0, got {dmf.alpha_coast}')
+        raise ConfigError(f'{where}: the DMF cannot be the first element (it needs a primary side)')
+    dmf.spring(el.stiffness)          # validates the stages (one-line ConfigError)
 
 
 def driveline_from_dict(data: dict, source: str = 'driveline') -> Driveline:
@@ -179,46 +286,40 @@ def driveline_from_dict(data: dict, source: str = 'driveline') -> Driveline:
     _check_keys(data, TOP_KEYS_REQUIRED, TOP_KEYS_OPTIONAL, source)
     raw_elements = data['elements']
     if not isinstance(raw_elements, list) or len(raw_elements) < 2:
-        raise ValueError(f'{source}: field \'elements\' must be a list of at least 2 elements')
+        raise ConfigError(f'{source}: field \'elements\' must be a list of at least 2 elements')
     elements = tuple(_parse_element(raw, i) for i, raw in enumerate(raw_elements))
     names = [e.name for e in elements]
     dupes = sorted({n for n in names if names.count(n) > 1})
     if dupes:
-        raise ValueError(f'{source}: element names must be unique; repeated: {", ".join(dupes)}')
+        raise ConfigError(f'{source}: element names must be unique; repeated: {", ".join(dupes)}')
     if elements[0].rigid:
-        raise ValueError(f'element 1 ({elements[0].name}): field \'stiffness\' cannot be rigid (it connects to ground)')
+        raise ConfigError(f'element 1 ({elements[0].name}): field \'stiffness\' cannot be rigid (it connects to ground)')
 
     cylinders = tuple(str(c) for c in data.get('cylinders') or ())
     phases = tuple(_num(p, source, 'firing_phases_deg') for p in data.get('firing_phases_deg') or ())
     if len(cylinders) != len(phases):
-        raise ValueError(f'{source}: field \'firing_phases_deg\' needs one phase per cylinder '
-                         f'({len(cylinders)} cylinders, {len(phases)} phases)')
+        raise ConfigError(f'{source}: field \'firing_phases_deg\' needs one phase per cylinder '
+                          f'({len(cylinders)} cylinders, {len(phases)} phases)')
     for c in cylinders:
         if c not in names:
-            raise ValueError(f'{source}: field \'cylinders\' names unknown element {c!r}')
+            raise ConfigError(f'{source}: field \'cylinders\' names unknown element {c!r}')
     rear = data.get('rear_load_element') or names[-1]
     if rear not in names:
-        raise ValueError(f'{source}: field \'rear_load_element\' names unknown element {rear!r}')
+        raise ConfigError(f'{source}: field \'rear_load_element\' names unknown element {rear!r}')
 
     line = Driveline(name=str(data['name']), elements=elements, cylinders=cylinders,
                      firing_phases_deg=phases, rear_load_element=rear,
                      description=str(data.get('description') or ''))
     raw_dmf = data.get('dmf')
     if raw_dmf is not None:
-        _check_keys(raw_dmf, DMF_KEYS_REQUIRED, DMF_KEYS_OPTIONAL, 'dmf')
-        coast = raw_dmf.get('coast')
-        theta_c, alpha_c = None, 0.0
-        if coast is not None:
-            _check_keys(coast, COAST_KEYS, (), 'dmf.coast')
-            theta_c = _num(coast['theta_rad'], 'dmf.coast', 'theta_rad')
-            alpha_c = _num(coast['alpha'], 'dmf.coast', 'alpha')
-        element = str(raw_dmf['element'])
-        if element not in names:
-            raise ValueError(f'dmf: field \'element\' names unknown element {element!r}')
-        dmf = DMFSpec(element=element,
-                      theta=_num(raw_dmf['theta_rad'], 'dmf', 'theta_rad'),
-                      alpha=_num(raw_dmf['alpha'], 'dmf', 'alpha'),
-                      theta_coast=theta_c, alpha_coast=alpha_c)
+        dmf = _parse_dmf(raw_dmf, names)
+        if 'stiffness' in raw_dmf:
+            k = _num(raw_dmf['stiffness'], 'dmf', 'stiffness')
+            el = elements[names.index(dmf.element)]
+            if k != el.stiffness:
+                raise ConfigError(f'dmf: field \'stiffness\' = {k:g} Nm/rad differs from the stiffness '
+                                  f'{el.stiffness:g} Nm/rad of element {dmf.element!r}; give the '
+                                  'primary stiffness in one place')
         _check_spring(dmf, line)
         line = replace(line, dmf=dmf)
     return line
@@ -227,12 +328,8 @@ def driveline_from_dict(data: dict, source: str = 'driveline') -> Driveline:
 def load_driveline(source: str | os.PathLike = 'truck_dmf', *, alpha: float | None = None,
                    theta: float | None = None) -> Driveline:
     """Load and validate a driveline YAML: a config name (``truck_dmf``, ``truck_conventional``)
-    or a path. ``alpha`` and ``theta`` [rad] override the DMF knee parameters."""
-    path = config_file(source)
-    try:
-        data = yaml.safe_load(Path(path).read_text())
-    except yaml.YAMLError as exc:
-        raise ValueError(f'{path}: not valid YAML: {str(exc).splitlines()[0]}') from None
+    or a path. ``alpha`` and ``theta`` [rad] override the first drive stage of the DMF."""
+    path, data = read_yaml_mapping(source, 'driveline')
     line = driveline_from_dict(data, source=str(path))
     return line.with_dmf(alpha=alpha, theta=theta)
 
@@ -268,7 +365,7 @@ class ReducedModel:
     e: np.ndarray = field(init=False)
     R: np.ndarray = field(init=False)
     dof_of_element: np.ndarray = field(init=False)
-    spring: TwoStepSpring | None = field(init=False)
+    spring: PiecewiseLinearSpring | None = field(init=False)
     dmf_element: int | None = field(init=False)
 
     def __post_init__(self) -> None:
@@ -319,9 +416,7 @@ class ReducedModel:
             self.dmf_element = s
             row = int(np.flatnonzero(self.spring_elements == s)[0])
             self.e = -self.D[row].copy()                 # w = -dphi_s, positive when driving
-            d = self.line.dmf
-            self.spring = TwoStepSpring(k=els[s].stiffness, theta=d.theta, alpha=d.alpha,
-                                        theta_coast=d.theta_coast, alpha_coast=d.alpha_coast)
+            self.spring = self.line.spring
 
     # ---- sizes and names ------------------------------------------------------------------
     @property
@@ -362,13 +457,14 @@ class ReducedModel:
         """Element angles (..., m) from DOF vectors (..., n) through the rigid constraints."""
         return np.asarray(q) @ self.T.T
 
-    def transmitted_torques(self, q, qd, qdd, element_loads) -> np.ndarray:
+    def transmitted_torques(self, q, qd, qdd, element_loads, extra_torque=None) -> np.ndarray:
         """Torque [Nm] transmitted through every connection into element i, positive when driving.
 
         Flexible connection: T_i = -(k_i dphi_i + c_i d(dphi_i)/dt) (+ DMF non-linear part).
         Rigid connection: from element i's equation, T_i = j_i phi_i'' - p_i + T_{i+1}/r_{i+1}.
         ``element_loads`` are all external element torques (..., m), including any d'Alembert
         load of the reference motion; qdd the vibratory DOF accelerations consistent with them.
+        ``extra_torque``: the DMF's non-linear torque g [Nm] (...,); default g(e q) of the spring.
         """
         q, qd, qdd = (np.asarray(a, dtype=float) for a in (q, qd, qdd))
         p = np.asarray(element_loads, dtype=float)
@@ -377,7 +473,9 @@ class ReducedModel:
         dphi = q @ self.D.T
         dphid = qd @ self.D.T
         out[..., self.spring_elements] = -(self.spring_k * dphi + self.spring_c * dphid)
-        if self.spring is not None:
+        if extra_torque is not None:
+            out[..., self.dmf_element] += extra_torque
+        elif self.spring is not None:
             out[..., self.dmf_element] += self.spring.extra_torque(q @ self.e)
         acc = qdd @ self.T.T
         els = self.line.elements

@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from dmf_sim.errors import ConfigError
 from dmf_sim.harmonic import solve_static
 from dmf_sim.loads import RPM_TO_RAD_S, DrivelineLoads
 
@@ -267,8 +268,20 @@ def _tridiag(M: np.ndarray, name: str):
     n = M.shape[0]
     off = M - np.diag(np.diag(M)) - np.diag(np.diag(M, 1), 1) - np.diag(np.diag(M, -1), -1)
     if np.abs(off).max() > 1e-9 * max(np.abs(M).max(), 1.0):
-        raise ValueError(f'{name} is not tridiagonal: the Newmark kernel needs a series chain')
+        raise ConfigError(f'{name} is not tridiagonal: the Newmark kernel needs a series chain')
     return np.diag(M, -1).copy(), np.diag(M).copy(), np.diag(M, 1).copy()
+
+
+def _two_step_arrays(sp) -> np.ndarray:
+    """[b, theta, b_coast, theta_coast] of a spring with at most one stage per side."""
+    if sp is None:
+        return np.array([0.0, np.inf, 0.0, np.inf])
+    if len(sp.drive) > 1 or len(sp.coast) > 1:
+        raise NotImplementedError('the Newmark kernel takes one drive and one coast stage')
+    b = sp.stage_stiffness(1) if sp.drive else 0.0
+    bc = sp.stage_stiffness(-1) if sp.coast else 0.0
+    thc = sp.coast[0].angle_rad if sp.coast else np.inf
+    return np.array([b, sp.theta, bc, thc])
 
 
 @dataclass
@@ -318,16 +331,16 @@ class NewmarkIntegrator:
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.dt) and self.dt > 0):
-            raise ValueError(f'dt={self.dt}: must be > 0 s')
+            raise ConfigError(f'dt={self.dt}: must be > 0 s')
         if not (0 < self.beta <= 0.5 and 0.5 <= self.gamma <= 1.0 and self.beta >= self.gamma / 4 - 1e-12):
-            raise ValueError(f'beta={self.beta}, gamma={self.gamma}: need 0.5 <= gamma <= 1 and '
+            raise ConfigError(f'beta={self.beta}, gamma={self.gamma}: need 0.5 <= gamma <= 1 and '
                              'gamma/4 <= beta <= 0.5 (unconditionally stable Newmark)')
         m = self.loads.model
         self.model = m
         n = m.n_dof
         Jd = np.diag(m.J).copy()
         if np.abs(m.J - np.diag(Jd)).max() > 0:
-            raise ValueError('J is not diagonal')
+            raise ConfigError('J is not diagonal')
         self._Jd = Jd
         self._Clo, self._Cd, self._Cup = _tridiag(m.C, 'C')
         self._Klo, self._Kd, self._Kup = _tridiag(m.K, 'K')
@@ -338,11 +351,7 @@ class NewmarkIntegrator:
         _factor(self.dt, self.beta, self.gamma, Jd, self._Klo, self._Kd, self._Kup, self._Clo,
                 self._Cd, self._Cup, m.e, self._coef, self._f_lo, self._f_inv, self._f_cp, self._u)
         self.Khat = m.K + self._coef[1] * m.J + self._coef[2] * m.C
-        sp = m.spring
-        if sp is None:
-            self._spring = np.array([0.0, np.inf, 0.0, np.inf])
-        else:
-            self._spring = np.array([sp.b, sp.theta, sp.b_coast, sp.theta_coast_or_inf])
+        self._spring = _two_step_arrays(m.spring)
         L = self.loads
         self._cyl_dof = np.array([int(np.flatnonzero(row)[0]) for row in L.cylinder_dof_vectors])
         self._cyl_scale = np.array([row[d] for row, d in zip(L.cylinder_dof_vectors, self._cyl_dof)])

@@ -7,7 +7,7 @@ equilibrium and ``u = e.x`` the wind-up deviation:
     J x'' + K_lin x + e f(u) = 0,     K_lin = K + g'(w_s) e e^T,
     f(u) = g(w_s + u) - g(w_s) - g'(w_s) u                         (piecewise linear, f(0) = f'(0) = 0)
 
-``g`` is the DMF's extra torque (dmf_spring.py). For the drive-side knee alone: with the static point
+``g`` is the DMF's extra torque (dmf_sim.spring). For the drive-side knee alone: with the static point
 in the primary region (``w_s < theta``), ``K_lin`` has the primary stiffness and ``f(u) = b max(u - d, 0)``
 (stiffening, knee at ``d = theta - w_s`` above); in the secondary region ``K_lin`` has ``k(1+alpha)`` and
 ``f(u) = -b min(u + d, 0)`` (softening, knee at ``d = w_s - theta`` below). A coast knee, if
@@ -74,6 +74,7 @@ import scipy.linalg
 from scipy.integrate import solve_ivp
 from scipy.sparse.csgraph import connected_components
 
+from dmf_sim.errors import ConfigError
 from dmf_sim.continuation import ContinuationOptions, CorrectorFailed, continue_branch, correct
 from dmf_sim.harmonic import solve_static
 from dmf_sim.modal import stiffness_matrix
@@ -250,7 +251,7 @@ class NNMResult:
 
 def _require_dmf(model: ReducedModel) -> None:
     if model.spring is None:
-        raise ValueError(f'driveline {model.line.name!r} has no dmf section: no non-linear normal modes')
+        raise ConfigError(f'driveline {model.line.name!r} has no dmf section: no non-linear normal modes')
 
 
 def subsystem_frequencies(model: ReducedModel) -> dict[str, np.ndarray]:
@@ -285,11 +286,11 @@ def static_windup(model: ReducedModel, region: str, distance: float | None = Non
     theta (default distance theta / 2)."""
     _require_dmf(model)
     if region not in REGIONS:
-        raise ValueError(f'region={region!r}: allowed {", ".join(REGIONS)}')
+        raise ConfigError(f'region={region!r}: allowed {", ".join(REGIONS)}')
     th = model.spring.theta
     d = 0.5 * th if distance is None else float(distance)
     if not (np.isfinite(d) and d > 0):
-        raise ValueError(f'distance={distance}: must be > 0 rad (static wind-up off the knee)')
+        raise ConfigError(f'distance={distance}: must be > 0 rad (static wind-up off the knee)')
     return th - d if region == 'primary' else th + d
 
 
@@ -418,26 +419,24 @@ class ConservativeNNM:
         self.windup_static = ws
         self.region = sp.region(ws)
         # knees of the full spring: (position, slope jump right minus left)
-        knees = [(sp.theta, sp.b)]
-        if sp.theta_coast is not None:
-            knees.append((-sp.theta_coast, -sp.b_coast))
+        knees = zip(sp.knees, np.diff(sp.slopes))
         c, beta, side = [], [], []
         for wk, jump in knees:
             if jump == 0.0:
                 continue
             if abs(wk - ws) < 1e-12 * max(1.0, abs(wk)):
-                raise ValueError(f'static wind-up {ws} rad lies on a knee: the linearization is undefined')
+                raise ConfigError(f'static wind-up {ws} rad lies on a knee: the linearization is undefined')
             if wk > ws:
                 c.append(jump), beta.append(wk - ws), side.append(1.0)
             else:
                 c.append(-jump), beta.append(wk - ws), side.append(-1.0)
         if not c:
-            raise ValueError('alpha = 0: the DMF spring is linear, the normal modes are the linear ones')
+            raise ConfigError('alpha = 0: the DMF spring is linear, the normal modes are the linear ones')
         self.distance = float(min(abs(b) for b in beta))       # nearest knee
         self.b_ref = float(max(abs(x) for x in c))
         self.H = H = int(o.n_harmonics)
         if H < 1:
-            raise ValueError(f'n_harmonics={H}: must be >= 1')
+            raise ConfigError(f'n_harmonics={H}: must be >= 1')
         self.force = _RampForce(c, beta, side, H, int(o.n_grid))
         # linearized stiffness and its modes
         self.K_lin = model.K + float(sp.extra_stiffness(ws)) * np.outer(model.e, model.e)
@@ -445,19 +444,19 @@ class ConservativeNNM:
         scale = np.abs(w2).max()
         elastic = w2 > 1e-10 * scale
         if model.rigid_mode is not None and np.count_nonzero(~elastic) != 1:
-            raise ValueError('expected exactly one rigid-body mode')
+            raise ConfigError('expected exactly one rigid-body mode')
         self.w2 = w2[elastic]
         self.phi = V[:, elastic]
         self.ephi = self.phi.T @ model.e
         self.cres = self.ephi ** 2
         if not 0 <= mode < len(w2):
-            raise ValueError(f'mode={mode}: allowed 0..{len(w2) - 1}')
+            raise ConfigError(f'mode={mode}: allowed 0..{len(w2) - 1}')
         if not elastic[mode]:
-            raise ValueError(f'mode={mode} is the rigid-body mode')
+            raise ConfigError(f'mode={mode} is the rigid-body mode')
         self.mode = int(mode)
         km = int(np.flatnonzero(elastic).tolist().index(mode))
         if abs(self.ephi[km]) < 1e-9 * np.abs(self.ephi).max():
-            raise ValueError(f'mode {mode} does not move the DMF: it has no non-linear normal mode')
+            raise ConfigError(f'mode {mode} does not move the DMF: it has no non-linear normal mode')
         self.omega_lin = float(np.sqrt(self.w2[km]))
         self.e_nl = 0.5 * self.w2[km] * (self.distance / self.ephi[km]) ** 2
         self._nn2 = np.arange(H + 1) ** 2
@@ -715,11 +714,11 @@ def static_state(model: ReducedModel, windup_static: float) -> tuple[np.ndarray,
 
 def integrate_physical(model: ReducedModel, P0: np.ndarray, q0: np.ndarray, v0: np.ndarray,
                        t_end: float, rtol: float = 1e-11) -> tuple[np.ndarray, np.ndarray]:
-    """Integrate the undamped driveline J q'' + K q + e g(e.q) = P0 with the full two-step spring
+    """Integrate the undamped driveline J q'' + K q + e g(e.q) = P0 with the full DMF spring
     (no linearization about any static point) from (q0, v0) over t_end [s]."""
     sp = model.spring
-    levels = [sp.theta] + ([-sp.theta_coast] if sp.theta_coast is not None else [])
-    return integrate_chain(model.J, model.K, model.e, sp.extra_torque, levels, P0, q0, v0, t_end, rtol=rtol)
+    return integrate_chain(model.J, model.K, model.e, sp.extra_torque, list(sp.knees), P0, q0, v0, t_end,
+                           rtol=rtol)
 
 
 # ------------------------------------------------------------------------------------------------

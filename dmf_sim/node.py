@@ -589,17 +589,18 @@ def _define_node_class():
             if reason := self._check_bag_path(bag_path):
                 return None, reason
             from dmf_sim.bag import BagRecorder
+            from dmf_sim.run_metadata import RunMetadata
             path = self._bag_target(bag_path)
             sim = self.sim
-            custom = {'dmf_sim.driveline': self._driveline_name,
-                      'dmf_sim.engine': self._engine_name,
-                      'dmf_sim.load_set': str(getattr(sim.engine, 'load_set', '')),
-                      'dmf_sim.alpha': f'{self.get_parameter("alpha").value:g}',
-                      'dmf_sim.theta_rad': f'{self.get_parameter("theta").value:g}',
-                      'dmf_sim.load': f'{sim.load:g}',           # at the start of the recording
-                      'dmf_sim.speed_rpm': f'{sim.speed:g}',     # at the start of the recording
-                      'dmf_sim.dt_s': f'{sim.dt:g}',
-                      'dmf_sim.publish_rate_hz': f'{self._effective_rate():g}'}
+            spring = sim.model.spring
+            custom = RunMetadata(
+                driveline=self._driveline_name, engine=self._engine_name,
+                load_set=str(getattr(sim.engine, 'load_set', '')),
+                alpha=spring.alpha if spring else None, theta_rad=spring.theta if spring else None,
+                spring=spring.as_dict() if spring else None,
+                load=sim.load, speed_rpm=sim.speed,        # at the start of the recording
+                dt_s=sim.dt, publish_rate_hz=self._effective_rate(),
+                node=self.get_fully_qualified_name()).to_custom_data()
             try:
                 return BagRecorder(path, {self._topics[k]: t for k, (_, t) in STREAMS.items()},
                                    custom_data=custom), None

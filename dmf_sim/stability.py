@@ -5,8 +5,8 @@ Linearizing J q'' + C q' + K q + e g(e q) = P about a periodic solution q*(t) gi
 
     J dq'' + C dq' + (K + g'(w*(t)) e e^T) dq = 0,
 
-a linear system with a *piecewise-constant* stiffness: g' is b = alpha k while w* > theta (secondary
-region), b_coast while w* < -theta_coast, else 0. The force g is continuous, so no jump (saltation)
+a linear system with a *piecewise-constant* stiffness: g' is the extra stiffness of the spring stage
+w* is in (0 in the primary region; dmf_sim.spring). The force g is continuous, so no jump (saltation)
 matrix is needed at a knee crossing. Over one period T = 4 pi / omega (720 deg of crank angle) the
 state transition (monodromy) matrix is therefore the exact product of matrix exponentials
 
@@ -34,6 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
+from dmf_sim.errors import ConfigError
 from dmf_sim.model import ReducedModel
 
 
@@ -115,7 +116,7 @@ class FlexibleModes:
             Vinv = np.linalg.inv(V)
             err = np.abs((V * d) @ Vinv - self.state_matrix(key)).max()
             if err > 1e-6 * np.abs(d).max():
-                raise ValueError(f'state matrix not diagonalizable to accuracy ({err:.1e}); '
+                raise ConfigError(f'state matrix not diagonalizable to accuracy ({err:.1e}); '
                                  'check for repeated undamped modes')
             self._eig[key] = (d, V, Vinv)
         return self._eig[key]
@@ -135,7 +136,7 @@ class FloquetAnalyzer:
     def __init__(self, model: ReducedModel, n_fine: int = 1024, tol: float = 1e-7,
                  modes: FlexibleModes | None = None):
         if model.spring is None:
-            raise ValueError('model has no DMF: stability of the linear chain is trivial')
+            raise ConfigError('model has no DMF: stability of the linear chain is trivial')
         self.model = model
         self.spring = model.spring
         self.n_fine = int(n_fine)
@@ -143,9 +144,7 @@ class FloquetAnalyzer:
         self.modes = modes or FlexibleModes(model)
         self.nf = self.modes.nf
         self.er = self.modes.er
-        self._region_stiffness = {0: 0.0, 1: self.spring.b}
-        if self.spring.theta_coast is not None:
-            self._region_stiffness[-1] = self.spring.b_coast
+        self._region_stiffness = {st: self.spring.stage_stiffness(st) for st in self.spring.stages()}
         self._eig = {r: self.modes.eig(k) for r, k in self._region_stiffness.items()}
         # wind-up read-out of the first-order state y = [modal angles, modal velocities]
         self._ew = np.concatenate([self.er, np.zeros(self.nf)])
@@ -157,12 +156,8 @@ class FloquetAnalyzer:
         return np.exp(np.outer(T, self._eig[region][0]))
 
     def region_of(self, w: np.ndarray) -> np.ndarray:
-        """Region index per sample: 1 secondary (w > theta), -1 coast (w < -theta_c), 0 primary."""
-        sp = self.spring
-        r = (w > sp.theta).astype(int)
-        if sp.theta_coast is not None:
-            r -= (w < -sp.theta_coast).astype(int)
-        return r
+        """Spring stage per sample: 0 primary, +i drive stage i, -j coast stage j."""
+        return self.spring.stage(w)
 
     def segments(self, c: np.ndarray, omega: float) -> list[tuple[int, float]]:
         """[(region, duration [s]), ...] covering one 720 deg cycle, starting at a knee crossing.
@@ -196,8 +191,9 @@ class FloquetAnalyzer:
         dphi = 2.0 * np.pi / N
         nxt = (change + 1) % N
         ra, rb = reg[change], reg[nxt]
-        level = np.where((ra == 1) | (rb == 1), self.spring.theta,
-                         -(self.spring.theta_coast or 0.0))
+        # the knee between stages ra and rb (the first one crossed if a sample step spans two)
+        up = rb > ra
+        level = self.spring.knees[np.where(up, ra, ra - 1) + self.spring.primary_index]
         fa, fb = w[change] - level, w[nxt] - level
         phis = (change + fa / (fa - fb)) * dphi
         n = np.arange(len(c))

@@ -180,12 +180,13 @@ def _brute_force_multipliers(model, c, speed_rpm, nsteps=20000):
     def A(k):
         return np.block([[np.zeros((n, n)), np.eye(n)],
                          [-Jinv @ (model.K + k * np.outer(model.e, model.e)), -Jinv @ model.C]])
-    E = {0: scipy.linalg.expm(A(0.0) * dt), 1: scipy.linalg.expm(A(model.spring.b) * dt)}
+    sp = model.spring
+    E = {st: scipy.linalg.expm(A(sp.stage_stiffness(st)) * dt) for st in sp.stages()}
     psi = omega * (np.arange(nsteps) + 0.5) * dt
     w = np.real(np.exp(0.5j * np.outer(psi, np.arange(len(c)))) @ c)
     M = np.eye(2 * n)
     for wi in w:
-        M = E[int(wi > model.spring.theta)] @ M
+        M = E[int(sp.stage(wi))] @ M
     mu = np.linalg.eigvals(M)
     rigid = np.argsort(np.abs(mu - 1.0))[:2]                 # the rigid-body pair (mu = 1)
     return np.delete(mu, rigid)

@@ -1,12 +1,9 @@
 """Driveline model: YAML validation, rigid merging, J/K/C assembly (eq. 1, 5-6), DMF spring."""
 import copy
-import math
-
 import numpy as np
 import pytest
 import yaml
 
-from dmf_sim.dmf_spring import TwoStepSpring
 from dmf_sim.model import driveline_from_dict, load_driveline, load_model
 from dmf_sim.paths import config_file
 
@@ -124,28 +121,3 @@ def test_alpha_override_and_bad_alpha():
         load_driveline('truck_dmf', alpha=-1.0)
     with pytest.raises(ValueError, match='no dmf section'):
         load_driveline('truck_conventional', alpha=1.0)
-
-
-def test_two_step_spring():
-    s = TwoStepSpring(k=10890.0, theta=0.24, alpha=2.0, theta_coast=0.1, alpha_coast=1.0)
-    w = np.linspace(-0.5, 0.5, 2001)
-    T = s.torque(w)
-    # continuous, monotone, slopes k / k(1+alpha) / k(1+alpha_coast)
-    assert np.all(np.diff(T) > 0)
-    assert s.stiffness(0.0) == pytest.approx(10890.0)
-    assert s.stiffness(0.3) == pytest.approx(3 * 10890.0)
-    assert s.stiffness(-0.3) == pytest.approx(2 * 10890.0)
-    assert s.torque(0.24 + 1e-12) == pytest.approx(s.torque(0.24 - 1e-12))
-    # energy is the integral of the torque
-    E = s.energy(w)
-    np.testing.assert_allclose(np.gradient(E, w)[5:-5], T[5:-5], rtol=1e-3, atol=1.0)
-    # inverse and condensed solve
-    for torque in (-3000.0, 100.0, 2614.0, 5000.0):
-        assert s.torque(s.windup_for_torque(torque)) == pytest.approx(torque)
-    for w_lin, h in ((0.5, 1e-4), (0.1, 1e-3), (-0.4, 5e-5)):
-        w_sol = s.solve_condensed(w_lin, h)
-        assert w_sol + h * s.extra_torque(w_sol) == pytest.approx(w_lin)
-    assert s.region(0.3) == 'secondary' and s.region(0.0) == 'primary' and s.region(-0.3) == 'coast'
-    with pytest.raises(ValueError, match='theta_rad'):
-        TwoStepSpring(k=1.0, theta=0.0, alpha=1.0)
-    assert math.isinf(TwoStepSpring(k=1.0, theta=0.1, alpha=1.0).theta_coast_or_inf)

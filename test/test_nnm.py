@@ -1,6 +1,5 @@
 """Non-linear normal modes (paper Fig. 14): linear limit, periodicity in time, scaling, trends."""
 import json
-from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -146,7 +145,7 @@ def test_flat_branches_sit_at_subsystem_resonances(model, result):
 
 def test_coast_knee_and_errors():
     line = load_driveline('truck_dmf', alpha=2.0)
-    coast = replace(line, dmf=replace(line.dmf, theta_coast=0.1, alpha_coast=1.0)).reduce()
+    coast = line.with_dmf(coast_stages=[(0.1, 1.0)]).reduce()
     s = ConservativeNNM(coast, 0.12, options=NNMOptions(step_max=0.1))
     assert len(s.force.beta) == 2
     br = s.branch(xi_stop=3.0)

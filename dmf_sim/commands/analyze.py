@@ -7,6 +7,8 @@ import math
 import sys
 from pathlib import Path
 
+from dmf_sim.errors import ConfigError
+
 NAME = 'analyze'
 HELP = ('Order analysis of a recorded bag (rosbag2 MCAP directory or bare .mcap, no ROS needed): '
         'resample on the crank angle, half-order amplitudes per engine cycle or speed bin, '
@@ -79,9 +81,9 @@ def run(args) -> int:
                                  write_outputs)
 
     if args.load is not None and not (math.isfinite(args.load) and 0.0 <= args.load <= 1.0):
-        raise ValueError(f'--load {args.load}: must be within [0, 1]')
+        raise ConfigError(f'--load {args.load}: must be within [0, 1]')
     if args.bin_rpm < 0 or not math.isfinite(args.bin_rpm):
-        raise ValueError(f'--bin-rpm {args.bin_rpm}: must be >= 0 (0 = per cycle)')
+        raise ConfigError(f'--bin-rpm {args.bin_rpm}: must be >= 0 (0 = per cycle)')
     topics = {'windup': args.windup_topic, 'crank': args.crank_topic, 'speed': args.speed_topic,
               'joints': args.joints_topic}
     signals = args.signal or ['windup']

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from dmf_sim.errors import ConfigError
 from dmf_sim.engine import LOAD_SETS, engine_torque_orders, load_engine
 
 NAME = 'loads'
@@ -29,10 +30,10 @@ def add_arguments(p) -> None:
 
 def run(args) -> int:
     if not 0.0 <= args.load <= 1.0:
-        raise ValueError(f'--load={args.load}: allowed range 0..1')
+        raise ConfigError(f'--load={args.load}: allowed range 0..1')
     lo, hi, step = args.speeds
     if not (step > 0 and hi >= lo):
-        raise ValueError('--speeds FROM TO STEP: need TO >= FROM and STEP > 0 rpm')
+        raise ConfigError('--speeds FROM TO STEP: need TO >= FROM and STEP > 0 rpm')
     speeds = np.arange(lo, hi + 0.5 * step, step)
     engines = {s: load_engine(args.engine, load_set=s) for s in args.load_set}
     mean = {s: [float(e.mean_torque(v, args.load)) for v in speeds] for s, e in engines.items()}

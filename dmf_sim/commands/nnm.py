@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from dmf_sim.errors import ConfigError
 from dmf_sim.model import load_model
 from dmf_sim.nnm import REGIONS, NNMOptions, nnm_branches, scaling_check
 
@@ -46,16 +47,16 @@ def add_arguments(p) -> None:
 
 def run(args) -> int:
     if not args.xi_max > 1.0:
-        raise ValueError(f'--xi-max={args.xi_max}: must be > 1 (xi = 1 is the linear limit)')
+        raise ConfigError(f'--xi-max={args.xi_max}: must be > 1 (xi = 1 is the linear limit)')
     if args.harmonics < 1:
-        raise ValueError(f'--harmonics={args.harmonics}: must be >= 1')
+        raise ConfigError(f'--harmonics={args.harmonics}: must be >= 1')
     if not args.step_max > 0:
-        raise ValueError(f'--step-max={args.step_max}: must be > 0')
+        raise ConfigError(f'--step-max={args.step_max}: must be > 0')
     model = load_model(args.config, alpha=args.alpha, theta=args.theta)
     if model.spring is None:
-        raise ValueError(f'driveline {model.line.name!r} has no dmf section: no non-linear normal modes')
+        raise ConfigError(f'driveline {model.line.name!r} has no dmf section: no non-linear normal modes')
     if args.distance is not None and not args.distance > 0:
-        raise ValueError(f'--distance={args.distance}: must be > 0 rad')
+        raise ConfigError(f'--distance={args.distance}: must be > 0 rad')
     opts = NNMOptions(n_harmonics=args.harmonics, step_max=args.step_max, step=min(NNMOptions.step, args.step_max))
     res = nnm_branches(model, mode=args.mode, distance=args.distance, xi_max=args.xi_max, options=opts)
     data = res.as_dict(xi_max=args.xi_max)

@@ -9,6 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
+from dmf_sim.errors import ConfigError
+
 NAME = 'sweep'
 HELP = ('Speed sweep of the DMF wind-up (3rd / 1.5th order amplitude, max/min deviation, mean - theta; '
         'rad) by harmonic balance + continuation, all branches with Floquet stability (Fig. 13/15).')
@@ -53,24 +55,24 @@ def run(args) -> int:
 
     lo, hi, step = args.speeds
     if not (step > 0 and hi > lo):
-        raise ValueError('--speeds FROM TO STEP: need TO > FROM and STEP > 0 rpm')
+        raise ConfigError('--speeds FROM TO STEP: need TO > FROM and STEP > 0 rpm')
     if not 0.0 <= args.load <= 1.0:
-        raise ValueError(f'--load={args.load}: allowed range 0..1')
+        raise ConfigError(f'--load={args.load}: allowed range 0..1')
     if args.harmonics < 6:
-        raise ValueError(f'--harmonics={args.harmonics}: need >= 6 (the 3rd order is n = 6)')
+        raise ConfigError(f'--harmonics={args.harmonics}: need >= 6 (the 3rd order is n = 6)')
     line = load_driveline(args.config, theta=args.theta)
     if line.dmf is None:
-        raise ValueError(f'driveline {line.name!r} has no dmf section: nothing to sweep')
+        raise ConfigError(f'driveline {line.name!r} has no dmf section: nothing to sweep')
     alphas = args.alpha if args.alpha else [line.dmf.alpha]
     for a in alphas:
         if not a >= 0:
-            raise ValueError(f'--alpha {a}: must be >= 0')
+            raise ConfigError(f'--alpha {a}: must be >= 0')
     engines = {}
     for ls in args.load_set:
         eng = load_engine(args.engine, load_set=ls)
         rng = getattr(eng, 'speed_range_rpm', None)
         if rng is not None and not (rng[0] <= lo and hi <= rng[1]):
-            raise ValueError(f'--speeds {lo:g} {hi:g}: engine data covers {rng[0]:g}..{rng[1]:g} rpm')
+            raise ConfigError(f'--speeds {lo:g} {hi:g}: engine data covers {rng[0]:g}..{rng[1]:g} rpm')
         engines[ls] = eng
 
     hopt = HBMOptions(n_harmonics=args.harmonics)
