@@ -5,7 +5,8 @@ import csv
 import json
 from pathlib import Path
 
-from dmf_sim.modal import REGIONS, modes
+from dmf_sim.errors import ConfigError
+from dmf_sim.modal import modes, region_names
 from dmf_sim.model import load_model
 
 NAME = 'modes'
@@ -20,9 +21,10 @@ def add_arguments(p) -> None:
     p.add_argument('--config', help='driveline YAML path (overrides --variant)')
     p.add_argument('--alpha', type=float, help='DMF secondary stiffness factor: k(1+alpha)')
     p.add_argument('--theta', type=float, help='DMF stiffness change angle [rad]')
-    p.add_argument('--region', choices=REGIONS,
-                   help="DMF stiffness used: 'primary' (k) or 'secondary' (k(1+alpha)); "
-                        'default secondary when --alpha is given, else primary')
+    p.add_argument('--region',
+                   help="DMF spring stage whose stiffness is used: 'primary' (k), 'secondary' "
+                        "(k(1+alpha), the first drive stage), 'drive stage 2', 'coast', ... as the "
+                        'spring has them; default secondary when --alpha is given, else primary')
     p.add_argument('--modes', type=int, default=8, help='number of modes listed (default 8)')
     p.add_argument('--json', action='store_true', help='print one JSON object (frequencies_hz ascending)')
     p.add_argument('--out', type=Path, help='directory for modes.json, modes.csv and modes.png')
@@ -32,15 +34,18 @@ def run(args) -> int:
     source = args.config or VARIANTS[args.variant]
     model = load_model(source, alpha=args.alpha, theta=args.theta)
     region = args.region or ('secondary' if args.alpha is not None else 'primary')
+    names = region_names(model)
     if model.spring is None:
         region = 'primary'
+    elif region not in names:
+        raise ConfigError(f'--region {region!r}: allowed {", ".join(names)}')
     res = modes(model, region)
     n = min(args.modes, len(res.frequencies_hz))
     data = {'driveline': model.line.name, 'region': region,
             'alpha': model.line.dmf.alpha if model.line.dmf else None,
             **res.as_dict(n)}
     if model.spring is not None:
-        data['regions'] = {r: [float(f) for f in modes(model, r).frequencies_hz[:n]] for r in REGIONS}
+        data['regions'] = {r: [float(f) for f in modes(model, r).frequencies_hz[:n]] for r in names}
     if args.json:
         print(json.dumps(data))
     else:
