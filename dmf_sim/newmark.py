@@ -9,14 +9,12 @@ and the offline one-call API :func:`simulate` (like ``scipy.integrate.solve_ivp`
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from dmf_sim import newmark_kernel as kernel
 from dmf_sim.errors import ConfigError
-from dmf_sim.harmonic import solve_static
 from dmf_sim.loads import RPM_TO_RAD_S, DrivelineLoads
 
 # ------------------------------------------------------------------------------------------------
@@ -24,7 +22,6 @@ from dmf_sim.loads import RPM_TO_RAD_S, DrivelineLoads
 # ------------------------------------------------------------------------------------------------
 
 def _tridiag(M: np.ndarray, name: str):
-    n = M.shape[0]
     off = M - np.diag(np.diag(M)) - np.diag(np.diag(M, 1), 1) - np.diag(np.diag(M, -1), -1)
     if np.abs(off).max() > 1e-9 * max(np.abs(M).max(), 1.0):
         raise ConfigError(f'{name} is not tridiagonal: the Newmark kernel needs a series chain')

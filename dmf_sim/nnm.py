@@ -360,7 +360,6 @@ class _RampForce:
 
     def harmonics(self, a, jacobian: bool = False):
         """f_n (H+1,) [Nm] (and df_n/da_m (H+1, H+1)) of f(u(tau))."""
-        H = self.H
         ug = self.cos_grid @ a
         D_lin = np.zeros(len(self.p))      # sum over active intervals of c [F_p]_a^b
         D_off = np.zeros(len(self.p))      # same, times beta

@@ -36,6 +36,8 @@ import scipy.linalg
 
 from dmf_sim.errors import ConfigError
 from dmf_sim.model import ReducedModel
+from dmf_sim.orders import synthesize
+from dmf_sim.units import RPM_TO_RAD_S, cycle_period_s
 
 
 @dataclass
@@ -152,64 +154,55 @@ class FloquetAnalyzer:
     # ---- regions and crossings -------------------------------------------------------------
     def linear_multipliers(self, speeds_rpm: np.ndarray, region: int = 0) -> np.ndarray:
         """(K, 2 nf) multipliers exp(d T) of solutions that stay in one region for the whole cycle."""
-        T = 4.0 * np.pi / (np.asarray(speeds_rpm, dtype=float) * np.pi / 30.0)
+        T = cycle_period_s(np.asarray(speeds_rpm, dtype=float))
         return np.exp(np.outer(T, self._eig[region][0]))
-
-    def region_of(self, w: np.ndarray) -> np.ndarray:
-        """Spring stage per sample: 0 primary, +i drive stage i, -j coast stage j."""
-        return self.spring.stage(w)
-
-    def segments(self, c: np.ndarray, omega: float) -> list[tuple[int, float]]:
-        """[(region, duration [s]), ...] covering one 720 deg cycle, starting at a knee crossing.
-
-        ``c`` are the complex wind-up harmonics (w = Re sum c_n exp(i n psi/2)), omega [rad/s].
-        """
-        return self.segments_from(c, omega)[0]
 
     def segments_from(self, c: np.ndarray, omega: float, samples: np.ndarray | None = None
                       ) -> tuple[list[tuple[int, float]], float]:
-        """(segments, t_start): the segments and the time [s] after psi = 0 at which they start.
-        ``samples``: w on a uniform grid of the cycle if already at hand (any length)."""
+        """(segments, t_start): [(stage, duration [s]), ...] covering one 720 deg cycle from the
+        first knee crossing, and the time [s] after psi = 0 at which they start.
+
+        ``c`` are the complex wind-up harmonics (w = Re sum c_n exp(i n psi/2)), omega [rad/s];
+        ``samples``: w on a uniform grid of the cycle if already at hand (any length). Crossings
+        are bracketed on the grid (every knee passed between two samples, in order) and refined
+        by Newton's method on the trigonometric polynomial w(phi) - knee (all at once)."""
         c = np.asarray(c, dtype=complex)
         T = 4.0 * np.pi / omega
-        if samples is not None:
-            w = np.asarray(samples, dtype=float)
-            N = len(w)
-        else:
-            N = self.n_fine
-            spec = np.zeros(N // 2 + 1, dtype=complex)
-            k = min(len(c) - 1, N // 2 - 1)
-            spec[0] = c[0].real * N
-            spec[1:k + 1] = c[1:k + 1] * N / 2
-            w = np.fft.irfft(spec, N)
-        reg = self.region_of(w)
-        change = np.flatnonzero(reg != np.roll(reg, -1))      # between sample j and j+1
+        w = np.asarray(samples, dtype=float) if samples is not None else synthesize(c, self.n_fine)
+        N = len(w)
+        idx = self.spring.region_index(w)
+        nxt_idx = np.roll(idx, -1)
+        change = np.flatnonzero(idx != nxt_idx)                # between sample j and j+1
         if len(change) == 0:
-            return [(int(reg[0]), T)], 0.0
-        # crossing angles: linear interpolation between the samples, then a few Newton steps on
-        # the trigonometric polynomial w(phi) - level (all crossings at once)
+            return [(int(idx[0]) - self.spring.primary_index, T)], 0.0
+        # one entry per knee crossed: the knees between the two samples' regions, in order
+        ia, ib = idx[change], nxt_idx[change]
+        count = np.abs(ib - ia)
+        j = np.repeat(change, count)
+        step = np.repeat(np.sign(ib - ia), count)
+        k = np.concatenate([np.arange(m) for m in count])      # 0, 1, .. within each interval
+        start = np.repeat(ia, count)
+        knee_index = np.where(step > 0, start + k, start - 1 - k)
+        after = knee_index + (step > 0)                        # region index after the crossing
+        level = self.spring.knees[knee_index]
         dphi = 2.0 * np.pi / N
-        nxt = (change + 1) % N
-        ra, rb = reg[change], reg[nxt]
-        # the knee between stages ra and rb (the first one crossed if a sample step spans two)
-        up = rb > ra
-        level = self.spring.knees[np.where(up, ra, ra - 1) + self.spring.primary_index]
-        fa, fb = w[change] - level, w[nxt] - level
-        phis = (change + fa / (fa - fb)) * dphi
+        w0, w1 = w[j], w[(j + 1) % N]
+        phis = (j + np.clip((level - w0) / (w1 - w0), 0.0, 1.0)) * dphi
         n = np.arange(len(c))
         for _ in range(4):
             z = np.exp(1j * np.outer(phis, n)) * c
             f = z.real.sum(axis=1) - level
             df = (1j * n * z).real.sum(axis=1)
-            step = np.where(np.abs(df) > 0, f / np.where(df == 0, 1.0, df), 0.0)
-            phis = np.clip(phis - step, change * dphi, (change + 1) * dphi)
-        regions_after = reg[(change + 1) % N]
-        times = phis * 2.0 / omega                      # psi = 2 phi, t = psi / omega
+            upd = np.where(np.abs(df) > 0, f / np.where(df == 0, 1.0, df), 0.0)
+            phis = np.clip(phis - upd, j * dphi, (j + 1) * dphi)
+        phis = np.maximum.accumulate(phis)                     # crossings in time order
+        times = phis * 2.0 / omega                             # psi = 2 phi, t = psi / omega
+        stages = after - self.spring.primary_index
         segs = []
         for i in range(len(times)):
             t0 = times[i]
             t1 = times[i + 1] if i + 1 < len(times) else times[0] + T
-            segs.append((int(regions_after[i]), float(t1 - t0)))
+            segs.append((int(stages[i]), float(t1 - t0)))
         return segs, float(times[0])
 
     # ---- monodromy -------------------------------------------------------------------------
@@ -228,7 +221,7 @@ class FloquetAnalyzer:
                 samples: np.ndarray | None = None) -> FloquetResult:
         """Floquet multipliers of the periodic wind-up with harmonics ``c`` at ``speed_rpm``
         (``samples``: the wind-up on a uniform grid of the cycle, if already computed)."""
-        omega = speed_rpm * np.pi / 30.0
+        omega = speed_rpm * RPM_TO_RAD_S
         segs, _ = self.segments_from(c, omega, samples)
         if len(segs) == 1:
             # one linear region for the whole cycle: multipliers exp(lambda T) in closed form
@@ -253,7 +246,7 @@ class FloquetAnalyzer:
         ``ModeClass.coefficients`` are p's wind-up harmonics c_n in the psi convention of the
         solution (w = Re sum c_n exp(i n psi/2)): the direction to perturb for branch switching.
         """
-        omega = speed_rpm * np.pi / 30.0
+        omega = speed_rpm * RPM_TO_RAD_S
         T = 4.0 * np.pi / omega
         segs, t_start = self.segments_from(c, omega)
         M = self.monodromy(segs)

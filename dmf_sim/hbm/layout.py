@@ -1,0 +1,60 @@
+"""The real unknown layout of the condensed harmonic balance, and shift-invariant fingerprints.
+
+A wind-up harmonic vector ``c_n`` (n = 0..H, complex, ``w = Re sum c_n exp(i n psi/2)``) is stored
+as the real vector ``x = [w_0, Re w_1..Re w_H, Im w_1..Im w_H]`` [rad] for Newton and continuation.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+SUB_HARMONICS = (3, 9, 15, 21)   # half-orders n = 3 mod 6: the 1.5th-order family (1.5, 4.5, 7.5, 10.5)
+
+
+def to_complex(x: np.ndarray, H: int) -> np.ndarray:
+    """(2H+1,) real unknowns -> (H+1,) complex w_n (w_0 real)."""
+    c = np.empty(H + 1, dtype=complex)
+    c[0] = x[0]
+    c[1:] = x[1:H + 1] + 1j * x[H + 1:]
+    return c
+
+
+def to_real(c: np.ndarray, H: int) -> np.ndarray:
+    """(H+1,) complex w_n -> (2H+1,) real unknowns (Im w_0 dropped)."""
+    c = np.asarray(c)
+    x = np.empty(2 * H + 1)
+    x[0] = c[0].real
+    x[1:H + 1] = c[1:H + 1].real
+    x[H + 1:] = c[1:H + 1].imag
+    return x
+
+
+def times_h(h: np.ndarray, v: np.ndarray, H: int) -> np.ndarray:
+    """Complex product h_n * v_n written on the real layout; v is (2H+1,) or (2H+1, k)."""
+    hr, hi = h.real[1:], h.imag[1:]
+    if v.ndim == 2:
+        hr, hi = hr[:, None], hi[:, None]
+    out = np.empty_like(v)
+    re, im = v[1:H + 1], v[H + 1:]
+    out[0] = h[0].real * v[0]
+    out[1:H + 1] = hr * re - hi * im
+    out[H + 1:] = hr * im + hi * re
+    return out
+
+
+def amplitudes(x: np.ndarray, H: int) -> np.ndarray:
+    """|w_n| (n = 0..H) of real-layout vectors x (..., 2H+1): a fingerprint that ignores time
+    shifts, so the 120 deg shifted twin of a 1.5th-order solution has the same one (exactly so
+    when the excitation is exactly 120 deg periodic)."""
+    amp = np.empty(x.shape[:-1] + (H + 1,))
+    amp[..., 0] = np.abs(x[..., 0])
+    amp[..., 1:] = np.hypot(x[..., 1:H + 1], x[..., H + 1:])
+    return amp
+
+
+def sub_part(c: np.ndarray, H: int) -> np.ndarray:
+    """Real-layout vector holding only the n = 3, 9, 15, 21 harmonics of the complex ``c``."""
+    out = np.zeros(H + 1, dtype=complex)
+    for n in SUB_HARMONICS:
+        if n <= H and n < len(c):
+            out[n] = c[n]
+    return to_real(out, H)
