@@ -20,6 +20,7 @@ import numpy as np
 
 from dmf_sim.errors import ConfigError
 from dmf_sim.model import ReducedModel
+from dmf_sim.units import RPM_TO_RAD_S
 
 
 def dynamic_stiffness(model: ReducedModel, Omega: float, K: np.ndarray | None = None) -> np.ndarray:
@@ -94,10 +95,10 @@ def harmonic_response(model: ReducedModel, speeds_rpm, half_order: int, element_
     qs = []
     for s in speeds:
         p = element_loads(s) if callable(element_loads) else element_loads
-        Omega = half_order / 2.0 * s * np.pi / 30.0
+        Omega = half_order / 2.0 * s * RPM_TO_RAD_S
         qs.append(solve_harmonic(model, Omega, model.element_vector(np.asarray(p, dtype=complex)), K))
     q = np.array(qs)
-    Omegas = half_order / 2.0 * speeds * np.pi / 30.0
+    Omegas = half_order / 2.0 * speeds * RPM_TO_RAD_S
     dphi = q @ model.D.T
     torques = np.zeros((len(speeds), model.n_elements), dtype=complex)
     torques[:, model.spring_elements] = -(model.spring_k + 1j * Omegas[:, None] * model.spring_c) * dphi

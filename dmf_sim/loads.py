@@ -22,7 +22,6 @@ from dmf_sim.errors import ConfigError
 from dmf_sim.harmonic import solve_static
 from dmf_sim.model import ReducedModel
 
-RPM_TO_RAD_S = np.pi / 30.0
 
 
 @dataclass
@@ -125,6 +124,19 @@ class DrivelineLoads:
         w = m.spring.solve_condensed(float(m.e @ q_lin), h)
         q = q_lin - u * float(m.spring.extra_torque(w))
         return StaticState(q=q, windup=w, dmf_torque=float(m.spring.torque(w)), region=m.spring.region(w))
+
+
+@dataclass(frozen=True)
+class ConstantTorque:
+    """An engine excitation that is only a constant mean torque (no vibration): the engine's
+    ``torque_nm`` [Nm] times the load fraction, shared equally by ``n_cylinders`` cylinders."""
+
+    torque_nm: float
+    n_cylinders: int
+    n_max: int = 0
+
+    def coefficients(self, speed_rpm: float, load: float) -> np.ndarray:
+        return np.array([self.torque_nm * load / self.n_cylinders], dtype=complex)
 
 
 @dataclass(frozen=True)

@@ -465,11 +465,11 @@ class ReducedModel:
         ``element_loads`` are all external element torques (..., m), including any d'Alembert
         load of the reference motion; qdd the vibratory DOF accelerations consistent with them.
         ``extra_torque``: the DMF's non-linear torque g [Nm] (...,); default g(e q) of the spring.
+        Real states, or complex harmonics (q_n, i Om q_n, -Om^2 q_n, p_n, g_n) alike.
         """
-        q, qd, qdd = (np.asarray(a, dtype=float) for a in (q, qd, qdd))
-        p = np.asarray(element_loads, dtype=float)
-        shape = q.shape[:-1] + (self.n_elements,)
-        out = np.zeros(shape)
+        q, qd, qdd, p = (np.asarray(a) for a in (q, qd, qdd, element_loads))
+        dtype = np.result_type(q, qd, qdd, p, float)
+        out = np.zeros(q.shape[:-1] + (self.n_elements,), dtype=dtype)
         dphi = q @ self.D.T
         dphid = qd @ self.D.T
         out[..., self.spring_elements] = -(self.spring_k * dphi + self.spring_c * dphid)

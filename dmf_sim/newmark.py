@@ -15,7 +15,9 @@ import numpy as np
 
 from dmf_sim import newmark_kernel as kernel
 from dmf_sim.errors import ConfigError
-from dmf_sim.loads import RPM_TO_RAD_S, DrivelineLoads
+from dmf_sim.loads import DrivelineLoads
+from dmf_sim.orders import CYCLE_RAD, half_orders, resample_on_angle, summarize_orders
+from dmf_sim.units import RPM_TO_RAD_S
 
 # ------------------------------------------------------------------------------------------------
 # Integrator object (stepping API for the node; simulate() for offline use)
@@ -296,8 +298,6 @@ def simulate(loads: DrivelineLoads, speed_rpm: float, load: float, *, t_end: flo
     excitation coefficients follow the speed every ``chunk_s`` seconds.
     ``initial`` = (q, v) replaces the static equilibrium start.
     """
-    from dmf_sim.orders import CYCLE_RAD, resample_on_angle, half_order_coefficients, summarize
-
     integ = NewmarkIntegrator(loads, dt=dt, beta=beta, gamma=gamma, use_numba=use_numba)
     integ.reset(speed_rpm, load)
     if initial is not None:
@@ -370,8 +370,9 @@ def simulate(loads: DrivelineLoads, speed_rpm: float, load: float, *, t_end: flo
     psi, w = stitched(first, cyc, 'psi'), stitched(first, cyc, 'windup')
     start = (cyc - n_eval) * CYCLE_RAD
     samples = resample_on_angle(psi, w, start, n_eval, grid_pts)
-    coeffs = half_order_coefficients(samples, n_eval, n_max)
-    summ = summarize(samples, n_eval, theta, n_max)
+    coeffs = half_orders(samples, n_max, n_eval)
+    static = loads.static_state(speed_rpm, load).windup if loads.model.spring is not None else np.nan
+    summ = summarize_orders(coeffs, samples, theta, static)
     cat = lambda attr: stitched(first, cyc, attr)  # noqa: E731
     msg = (f'steady after {cyc} cycles (change {change:.2e})' if steady
            else f'not steady after {cyc} cycles (change {change:.2e} > {steady_tol:g})')

@@ -37,7 +37,7 @@ import scipy.linalg
 from dmf_sim.errors import ConfigError
 from dmf_sim.model import ReducedModel
 from dmf_sim.orders import synthesize
-from dmf_sim.units import RPM_TO_RAD_S, cycle_period_s
+from dmf_sim.units import CYCLE_RAD, RPM_TO_RAD_S, cycle_period_s
 
 
 @dataclass
@@ -167,7 +167,7 @@ class FloquetAnalyzer:
         are bracketed on the grid (every knee passed between two samples, in order) and refined
         by Newton's method on the trigonometric polynomial w(phi) - knee (all at once)."""
         c = np.asarray(c, dtype=complex)
-        T = 4.0 * np.pi / omega
+        T = CYCLE_RAD / omega
         w = np.asarray(samples, dtype=float) if samples is not None else synthesize(c, self.n_fine)
         N = len(w)
         idx = self.spring.region_index(w)
@@ -247,7 +247,7 @@ class FloquetAnalyzer:
         solution (w = Re sum c_n exp(i n psi/2)): the direction to perturb for branch switching.
         """
         omega = speed_rpm * RPM_TO_RAD_S
-        T = 4.0 * np.pi / omega
+        T = CYCLE_RAD / omega
         segs, t_start = self.segments_from(c, omega)
         M = self.monodromy(segs)
         mu, vecs = np.linalg.eig(M)

@@ -4,7 +4,8 @@ import pytest
 from fake_engine import FakeEngine
 
 from dmf_sim.harmonic import solve_harmonic
-from dmf_sim.loads import RPM_TO_RAD_S, DrivelineLoads
+from dmf_sim.loads import DrivelineLoads
+from dmf_sim.units import RPM_TO_RAD_S
 from dmf_sim.model import load_model
 from dmf_sim.newmark import NewmarkIntegrator, StepRecord, simulate
 

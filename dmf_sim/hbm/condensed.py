@@ -417,22 +417,13 @@ class CondensedHBM:
         equation T_i = -Om^2 j_i phi_i - p_i + T_{i+1} / r_{i+1}."""
         m = self.model
         qn = self.dof_harmonics(point)
-        Om = np.arange(self.H + 1) * (point.speed_rpm * RPM_TO_RAD_S / 2.0)
-        out = np.zeros((self.H + 1, m.n_elements), dtype=complex)
-        dphi = qn @ m.D.T
-        out[:, m.spring_elements] = -(m.spring_k + 1j * Om[:, None] * m.spring_c) * dphi
-        out[:, m.dmf_element] += to_complex(self.nonlinear_harmonics(point.x), self.H)
+        Om = (np.arange(self.H + 1) * (point.speed_rpm * RPM_TO_RAD_S / 2.0))[:, None]
         p = np.zeros((self.H + 1, m.n_elements), dtype=complex)
         pe = self.loads.element_harmonics(point.speed_rpm, self.load)
         k = min(len(pe), self.H + 1)
         p[:k] = pe[:k]
-        acc = -(Om ** 2)[:, None] * (qn @ m.T.T)
-        els = m.line.elements
-        for i in range(m.n_elements - 1, 0, -1):
-            if els[i].rigid:
-                nxt = out[:, i + 1] / els[i + 1].ratio if i + 1 < m.n_elements else 0.0
-                out[:, i] = els[i].inertia * acc[:, i] - p[:, i] + nxt
-        return out
+        g = to_complex(self.nonlinear_harmonics(point.x), self.H)
+        return m.transmitted_torques(qn, 1j * Om * qn, -(Om ** 2) * qn, p, extra_torque=g)
 
     def dof_state(self, point: HBMPoint, psi: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """DOF angles q [rad] and velocities q' [rad/s] at crank angle psi (e.g. to start Newmark)."""
