@@ -3,9 +3,11 @@
     python benchmarks/bench_hbm.py [--alpha 3] [--load-set A] [--load 1] [--speeds 600 2000 10]
                                    [--newmark-every 10] [--quick]
 
-1. HBM: the whole sweep (condensed HBM + pseudo-arc-length continuation landing on the speed grid,
-   Floquet stability of every point, branch switching / search for 1.5th-order branches), timed
-   end to end after one warm-up solve.
+1. HBM: the whole sweep timed end to end after one warm-up solve, in its two modes:
+   ``fast`` (condensed HBM + pseudo-arc-length continuation landing on the speed grid, Floquet
+   stability of every point, branch switching: ``dmf-sim sweep --fast``) and ``full`` (plus the
+   search for every stable state: deflated Newton seeds, Newmark shots, non-periodic speeds;
+   the default). Repeated ``--repeat`` times: min and median.
 2. Newmark (newmark.simulate, dt = 1e-4 s, average acceleration, from the static equilibrium until
    the cycle-to-cycle change is below its default tolerance): timed on a subset of the grid speeds
    (every ``--newmark-every``-th) only; the per-point mean is extrapolated to the whole grid and
@@ -35,21 +37,24 @@ def main(argv=None) -> int:
     p.add_argument('--speeds', type=float, nargs=3, default=[600.0, 2000.0, 10.0], metavar=('FROM', 'TO', 'STEP'))
     p.add_argument('--newmark-every', type=int, default=10, help='time Newmark on every k-th grid speed')
     p.add_argument('--dt', type=float, default=1e-4, help='Newmark time step [s]')
+    p.add_argument('--engine', default='engine_d13', help='engine YAML or A_n table (default engine_d13)')
+    p.add_argument('--repeat', type=int, default=3, help='timed repetitions of each sweep mode')
     p.add_argument('--quick', action='store_true', help='small run (900-1100 rpm, Newmark on 3 points) for tests')
     args = p.parse_args(argv)
     if args.quick:
         args.speeds = [900.0, 1100.0, 10.0]
         args.newmark_every = 10
+        args.repeat = 1
 
     from dmf_sim.engine import load_engine
-    from dmf_sim.hbm import CondensedHBM, sweep
+    from dmf_sim.hbm import CondensedHBM, SweepOptions, sweep
     from dmf_sim.loads import DrivelineLoads
     from dmf_sim.model import load_model
     from dmf_sim.newmark import simulate
 
     lo, hi, step = args.speeds
     model = load_model('truck_dmf', alpha=args.alpha, theta=args.theta)
-    engine = load_engine('engine_d13', load_set=args.load_set)
+    engine = load_engine(args.engine, load_set=args.load_set)
     engine.warm()                                   # engine gas-pressure grid: computed once, not timed
     loads = DrivelineLoads(model, engine)
     grid = np.arange(lo, hi + 0.5 * step, step)
@@ -58,14 +63,26 @@ def main(argv=None) -> int:
     CondensedHBM(loads, args.load).solve(lo)
     simulate(loads, lo, args.load, dt=args.dt, max_cycles=2)
 
-    t0 = time.perf_counter()
-    res = sweep(loads, args.load, (lo, hi))
-    sweep_s = time.perf_counter() - t0
+    times = {'fast': [], 'full': []}
+    for _ in range(max(args.repeat, 1)):
+        for mode in ('fast', 'full'):
+            opts = SweepOptions(step_rpm=step, search=None) if mode == 'fast' else SweepOptions(step_rpm=step)
+            t0 = time.perf_counter()
+            res = sweep(loads, args.load, (lo, hi), options=opts)
+            times[mode].append(time.perf_counter() - t0)
+            if mode == 'fast':
+                res_fast = res
+    sweep_s = float(np.median(times['full']))
+    fast_s = float(np.median(times['fast']))
     n_grid_hbm = sum(1 for b in res.branches for q in b.points
                      if abs(q.speed_rpm / step - round(q.speed_rpm / step)) < 1e-9)
     print(f'HBM sweep {lo:g}-{hi:g} rpm, grid {step:g} rpm, alpha {args.alpha:g}, theta {model.spring.theta:g} rad, '
-          f'Load {args.load_set}, load {args.load:g}: {sweep_s:.3f} s for {res.n_points} points on '
-          f'{len(res.branches)} branch(es) ({n_grid_hbm} on the grid), stability and branch switching included')
+          f'Load {args.load_set}, load {args.load:g}:')
+    print(f'  --fast (continuation, stability, branch switching): min {min(times["fast"]):.3f} s, median '
+          f'{fast_s:.3f} s; {res_fast.n_points} points on {len(res_fast.branches)} branch(es)')
+    print(f'  full search (default): min {min(times["full"]):.3f} s, median {sweep_s:.3f} s; {res.n_points} '
+          f'points on {len(res.branches)} branch(es) ({n_grid_hbm} on the grid), '
+          f'{len(res.non_periodic)} non-periodic band(s), uncovered {res.uncovered}')
 
     subset = grid[::max(args.newmark_every, 1)]
     rows, nm_times, rel = [], [], []
@@ -95,14 +112,19 @@ def main(argv=None) -> int:
         d3 = f'{r[9]:8.1e}' if np.isfinite(r[9]) else f'{"-":>8}'
         print(f'{r[0]:6.0f} {r[1]:6.3f} {r[2]:4d} {str(r[3]):>6} {r[4]:9.5f} {r[5]:9.5f} {r[6]:9.5f} {r[7]:9.5f} '
               f'{r[8]:8.1e} {d3} {r[10]:8.1e} {r[11]:4d}')
-    print(f'\nspeed-up HBM sweep vs Newmark (extrapolated): {speedup:.0f}x; max relative difference '
-          f'{max(rel):.2e} (|c6| always, |c3| where > 20 % of |c6|, mean)')
-    out = {'sweep_seconds': round(sweep_s, 4), 'speedup_vs_newmark': round(speedup, 1), 'max_rel_diff': float(max(rel)),
+    print(f'\nspeed-up HBM sweep vs Newmark (extrapolated): full search {speedup:.0f}x, --fast '
+          f'{nm_total / fast_s:.0f}x; max relative difference {max(rel):.2e} (|c6| always, |c3| where '
+          f'> 20 % of |c6|, mean)')
+    out = {'sweep_seconds': round(sweep_s, 4), 'sweep_seconds_min': round(min(times['full']), 4),
+           'sweep_seconds_fast': round(fast_s, 4), 'sweep_seconds_fast_min': round(min(times['fast']), 4),
+           'speedup_vs_newmark': round(speedup, 1), 'speedup_vs_newmark_fast': round(nm_total / fast_s, 1),
+           'max_rel_diff': float(max(rel)),
            'hbm_points': res.n_points, 'hbm_branches': len(res.branches), 'grid_points': int(len(grid)),
            'newmark_points_timed': int(len(subset)), 'newmark_seconds_per_point': round(per_point, 4),
            'newmark_seconds_extrapolated': round(nm_total, 3), 'newmark_dt': args.dt,
            'alpha': args.alpha, 'theta_rad': model.spring.theta, 'load_set': args.load_set, 'load': args.load,
-           'speeds_rpm': [lo, hi, step], 'quick': bool(args.quick)}
+           'speeds_rpm': [lo, hi, step], 'engine': args.engine, 'repeat': int(args.repeat),
+           'non_periodic_bands': len(res.non_periodic), 'quick': bool(args.quick)}
     print(json.dumps(out))
     return 0
 

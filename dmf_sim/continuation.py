@@ -24,6 +24,8 @@ from typing import Callable, Protocol
 import numpy as np
 from scipy.linalg.lapack import dgesv
 
+from dmf_sim.errors import OperatingRangeError
+
 
 def solve_small(A: np.ndarray, b: np.ndarray) -> np.ndarray:
     """LU solve (LAPACK dgesv directly: these systems are small and solved very often)."""
@@ -81,7 +83,12 @@ class ContinuationPoint:
 
 
 class CorrectorFailed(RuntimeError):
-    pass
+    """The corrector did not converge (or left the problem's data range)."""
+
+
+class LeftRange(CorrectorFailed):
+    """The corrector asked the problem for a parameter outside its data (e.g. an engine speed the
+    engine has no data for): the branch ends there."""
 
 
 def _tangent(Jx: np.ndarray, rs: np.ndarray, prev: np.ndarray, xs: float, ss: float) -> np.ndarray:
@@ -100,6 +107,14 @@ def _tangent(Jx: np.ndarray, rs: np.ndarray, prev: np.ndarray, xs: float, ss: fl
     return t
 
 
+def _evaluate(problem: ContinuationProblem, x: np.ndarray, s: float):
+    """problem.residual_and_jacobians, with a parameter outside the problem's data as LeftRange."""
+    try:
+        return problem.residual_and_jacobians(x, s)
+    except OperatingRangeError as exc:
+        raise LeftRange(f'parameter {s:g} outside the data: {exc}') from None
+
+
 def correct(problem: ContinuationProblem, y_pred: np.ndarray, normal: np.ndarray,
             xs: float, ss: float, tol: float, max_iter: int) -> tuple[np.ndarray, int, float, tuple]:
     """Newton on [r(x, s); normal . (y - y_pred)] = 0 in scaled coordinates."""
@@ -110,7 +125,7 @@ def correct(problem: ContinuationProblem, y_pred: np.ndarray, normal: np.ndarray
     res = np.inf
     for it in range(max_iter + 1):
         x, s = y[:n] * xs, y[n] * ss
-        r, Jx, rs = problem.residual_and_jacobians(x, s)
+        r, Jx, rs = _evaluate(problem, x, s)
         res = float(np.abs(r).max())
         g = float(normal @ (y - y_pred))
         if res <= tol and abs(g) <= 1e-12:
@@ -131,7 +146,7 @@ def correct(problem: ContinuationProblem, y_pred: np.ndarray, normal: np.ndarray
         y = y + dy
         if np.abs(dy).max() < 1e-13 and res < 1e3 * tol:
             x, s = y[:n] * xs, y[n] * ss
-            r, Jx, rs = problem.residual_and_jacobians(x, s)
+            r, Jx, rs = _evaluate(problem, x, s)
             return y, it + 1, float(np.abs(r).max()), (r, Jx, rs)
     raise CorrectorFailed(f'corrector: max|r| = {res:.2e} after {max_iter} iterations')
 
@@ -141,7 +156,8 @@ def continue_branch(problem: ContinuationProblem, x0: np.ndarray, s0: float, s_b
                     tangent0: np.ndarray | None = None,
                     stop: Callable[[ContinuationPoint, list[ContinuationPoint]], bool] | None = None,
                     on_point: Callable[[ContinuationPoint], None] | None = None,
-                    fast_forward: Callable[[ContinuationPoint, float], list[ContinuationPoint]] | None = None
+                    fast_forward: Callable[[ContinuationPoint, float], list[ContinuationPoint]] | None = None,
+                    on_end: Callable[[str, ContinuationPoint], None] | None = None
                     ) -> list[ContinuationPoint]:
     """Follow the solution branch through (x0, s0) (a converged solution) until s leaves
     ``s_bounds``, ``stop(point, branch)`` returns True, or ``max_steps``.
@@ -152,6 +168,9 @@ def continue_branch(problem: ContinuationProblem, x0: np.ndarray, s0: float, s_b
     further grid points (in the direction ``sign`` of s) whose solutions it knows without
     iterating (the HBM: stretches where the wind-up never reaches a knee, so the response is the
     linear one); the last one must carry the exact tangent.
+    ``on_end(reason, last_point)`` is told why the branch ended: 'bound' (s reached a bound),
+    'stop', 'left_range' (the corrector needed parameters outside the problem's data),
+    'corrector_failed' (no step, however small, converged) or 'max_steps'.
     """
     o = options or ContinuationOptions()
     xs, ss = o.x_scale, o.s_scale
@@ -174,6 +193,8 @@ def continue_branch(problem: ContinuationProblem, x0: np.ndarray, s0: float, s_b
     e_s[n] = 1.0
     force_arc = False
     done = False
+    reason = 'max_steps'
+    last_failure: CorrectorFailed | None = None
     for _ in range(o.max_steps):
         if done:
             break
@@ -184,8 +205,11 @@ def continue_branch(problem: ContinuationProblem, x0: np.ndarray, s0: float, s_b
                 pts.append(p)
                 if on_point:
                     on_point(p)
-                if p.s >= hi - 1e-9 or p.s <= lo + 1e-9 or (stop is not None and stop(p, pts)):
-                    done = True
+                if p.s >= hi - 1e-9 or p.s <= lo + 1e-9:
+                    done, reason = True, 'bound'
+                    break
+                if stop is not None and stop(p, pts):
+                    done, reason = True, 'stop'
                     break
             if jump:
                 y = np.concatenate([pts[-1].x / xs, [pts[-1].s / ss]])
@@ -222,7 +246,8 @@ def continue_branch(problem: ContinuationProblem, x0: np.ndarray, s0: float, s_b
             turn = float(np.arccos(np.clip(t_new @ t, -1.0, 1.0)))
             if turn > o.max_turn and (grid_mode or h > o.step_min * 1.01):
                 raise CorrectorFailed(f'tangent turned by {turn:.2f} rad')
-        except CorrectorFailed:
+        except CorrectorFailed as exc:
+            last_failure = exc
             if grid_mode:                  # retry the same stretch with arc-length steps
                 force_arc = True
                 h = max(min(h, 0.5 * h_grid), o.step_min)
@@ -235,6 +260,7 @@ def continue_branch(problem: ContinuationProblem, x0: np.ndarray, s0: float, s_b
             # the secant. If that fails too, the branch ends here.
             jumped = _jump(problem, y, t, xs, ss, o)
             if jumped is None:
+                reason = 'left_range' if isinstance(last_failure, LeftRange) else 'corrector_failed'
                 break
             y_new, it, res, (r, Jx, rs), t_new = jumped
             h = o.step
@@ -250,9 +276,13 @@ def continue_branch(problem: ContinuationProblem, x0: np.ndarray, s0: float, s_b
         elif it > o.easy_iter + 3:
             h = max(h * 0.6, o.step_min)
         if s_new >= hi - 1e-9 or s_new <= lo + 1e-9:
+            reason = 'bound'
             break
         if stop is not None and stop(p, pts):
+            reason = 'stop'
             break
+    if on_end is not None:
+        on_end(reason, pts[-1])
     return pts
 
 

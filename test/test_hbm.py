@@ -283,7 +283,7 @@ def test_benchmark_quick():
                          capture_output=True, text=True, timeout=300, cwd=REPO)
     assert out.returncode == 0, out.stderr
     data = json.loads(out.stdout.strip().splitlines()[-1])
-    for key in ('sweep_seconds', 'speedup_vs_newmark', 'max_rel_diff'):
+    for key in ('sweep_seconds', 'sweep_seconds_fast', 'speedup_vs_newmark', 'max_rel_diff'):
         assert key in data
     assert data['quick'] is True and data['sweep_seconds'] > 0
     assert data['max_rel_diff'] < 0.01

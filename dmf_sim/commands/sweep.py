@@ -9,15 +9,15 @@ from pathlib import Path
 
 import numpy as np
 
-from dmf_sim.errors import ConfigError
+from dmf_sim.errors import ConfigError, ConvergenceError, DmfSimError, one_line
 
 NAME = 'sweep'
 HELP = ('Speed sweep of the DMF wind-up (3rd / 1.5th order amplitude, max/min deviation, mean - theta; '
         'rad) by harmonic balance + continuation, all branches with Floquet stability (Fig. 13/15).')
 
 CSV_FIELDS = ['alpha', 'load_set', 'load', 'speed_rpm', 'branch', 'kind', 'stable', 'order_3', 'order_1_5',
-              'max_deviation', 'min_deviation', 'mean_minus_theta', 'mean', 'max_multiplier',
-              'forced_order_1_5']
+              'max_deviation', 'min_deviation', 'mean_minus_theta', 'mean', 'static_windup',
+              'theta_minus_static', 'max_multiplier', 'forced_order_1_5', 'multiplicity', 'label']
 FIG15_ALPHA = 2.5
 
 
@@ -37,6 +37,9 @@ def add_arguments(p) -> None:
     p.add_argument('--no-stability', action='store_true', help='skip Floquet stability (and branch switching)')
     p.add_argument('--no-branch-switching', action='store_true',
                    help='follow the branch from the lowest speed only')
+    p.add_argument('--fast', action='store_true',
+                   help='continuation, stability and branch switching only: skip the full search for '
+                        'every stable state (deflated Newton seeds, Newmark shots, non-periodic speeds)')
     p.add_argument('--newmark-seed', action='store_true',
                    help='when Newton seeding fails at a sub-harmonic instability, integrate in time (slower)')
     p.add_argument('--no-progress', action='store_true', help='no progress bar on stderr')
@@ -78,19 +81,30 @@ def run(args) -> int:
     hopt = HBMOptions(n_harmonics=args.harmonics)
     sopt = SweepOptions(step_rpm=step, stability=not args.no_stability,
                         branch_switching=not args.no_branch_switching, newmark_seed=args.newmark_seed)
-    results = []
+    if args.fast:
+        sopt = SweepOptions(**{**sopt.__dict__, 'search': None})
+    results, failures = [], []
     for ls, eng in engines.items():
         for a in alphas:
             model = line.with_dmf(alpha=a).reduce()
-            res = sweep(DrivelineLoads(model, eng), args.load, (lo, hi), hbm_options=hopt, options=sopt,
-                        progress=not args.no_progress, label=f'alpha={a:g}, Load {ls}')
+            try:
+                res = sweep(DrivelineLoads(model, eng), args.load, (lo, hi), hbm_options=hopt,
+                            options=sopt, progress=not args.no_progress, label=f'alpha={a:g}, Load {ls}')
+            except (DmfSimError, np.linalg.LinAlgError) as exc:     # one case lost, not the run
+                failures.append({'alpha': a, 'load_set': ls, 'error': one_line(exc)})
+                print(f'dmf-sim sweep: alpha={a:g}, Load {ls} failed: {one_line(exc)}', file=sys.stderr)
+                continue
             results.append((a, ls, res))
+    if not results:
+        raise ConvergenceError('every case failed: ' + '; '.join(
+            f'alpha={f["alpha"]:g} Load {f["load_set"]}: {f["error"]}' for f in failures))
 
     data = {
         'driveline': line.name, 'engine': str(args.engine), 'load': args.load, 'theta_rad': line.dmf.theta,
         'speeds_rpm': [lo, hi, step], 'n_harmonics': args.harmonics,
         'units': 'wind-up quantities in rad (positive when the engine drives); speed in rpm',
         'sweeps': [_sweep_dict(a, ls, r) for a, ls, r in results],
+        'failed': failures,
     }
     if args.out:
         data['files'] = _write(args.out, data, results, args)
@@ -128,6 +142,15 @@ def _print_summary(data: dict, results) -> None:
     for a, ls, r in results:
         for e in r.events:
             print(f'  alpha={a:g} Load {ls}: {e.kind} on branch {e.branch} at {e.speed_rpm:.1f} rpm  {e.detail}')
+        for b in r.non_periodic:
+            env = max(b.results, key=lambda x: x.max_deviation - x.min_deviation)
+            print(f'  alpha={a:g} Load {ls}: no stable periodic state at {b.speed_min_rpm:.0f}-'
+                  f'{b.speed_max_rpm:.0f} rpm ({b.label}, after a {b.instability} instability): '
+                  f'wind-up swings {env.max_deviation:+.4f}/{env.min_deviation:+.4f} rad (time integration)')
+        if r.uncovered:
+            print(f'  alpha={a:g} Load {ls}: no branch reached {", ".join(f"{s:g}" for s in r.uncovered)} rpm')
+    for f in data.get('failed', []):
+        print(f'  alpha={f["alpha"]:g} Load {f["load_set"]}: FAILED: {f["error"]}')
 
 
 def _write(out: Path, data: dict, results, args) -> dict:
@@ -173,6 +196,9 @@ def figure(panels, title: str, plt):
     n = len(panels)
     fig, axes = plt.subplots(n, 1, figsize=(9, 2.9 * n + 0.6), sharex=True, squeeze=False)
     for ax, (label, res) in zip(axes[:, 0], panels):
+        for band in res.non_periodic:
+            ax.axvspan(band.speed_min_rpm - band.half_width_rpm, band.speed_max_rpm + band.half_width_rpm,
+                       color='0.88', lw=0)
         for b in res.branches:
             s = b.column('speed_rpm')
             stable = b.column('stable')
@@ -187,6 +213,7 @@ def figure(panels, title: str, plt):
     handles = [plt.Line2D([], [], color=c, label=t) for c, t in
                [STYLE['order_3'], STYLE['order_1_5'], ('black', 'max / min deviation'), STYLE['mean_minus_theta']]]
     handles.append(plt.Line2D([], [], color='0.3', ls='--', label='unstable (Floquet)'))
+    handles.append(plt.Rectangle((0, 0), 1, 1, color='0.88', label='no stable periodic state'))
     axes[0, 0].legend(handles=handles, fontsize=8, ncol=5, loc='upper right')
     axes[-1, 0].set_xlabel('engine speed [rpm]')
     fig.suptitle(title, fontsize=11)

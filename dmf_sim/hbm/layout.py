@@ -58,3 +58,12 @@ def sub_part(c: np.ndarray, H: int) -> np.ndarray:
         if n <= H and n < len(c):
             out[n] = c[n]
     return to_real(out, H)
+
+
+def shift(x: np.ndarray, k: int, H: int) -> np.ndarray:
+    """The same wind-up delayed by k x 120 deg of crank angle (one firing interval of the six):
+    ``c_n -> c_n exp(-i n k pi / 3)``. For a 120 deg periodic excitation every shift of a solution
+    is a solution; a 1.5th-order state and its 120 deg shift are twins (one physical state)."""
+    c = to_complex(np.asarray(x, dtype=float), H)
+    n = np.arange(H + 1)
+    return to_real(c * np.exp(-1j * n * k * np.pi / 3.0), H)

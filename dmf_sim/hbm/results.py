@@ -7,6 +7,8 @@ import numpy as np
 
 from dmf_sim.errors import ConvergenceError
 from dmf_sim.hbm.condensed import CondensedHBM, HBMPoint
+from dmf_sim.hbm.layout import amplitudes
+
 
 @dataclass
 class Branch:
@@ -20,12 +22,15 @@ class Branch:
             without one).
         points: HBMPoints in continuation order (speed may go back and forth at turning points).
         origin: how the branch was found.
+        multiplicity: how many 120 deg shifted copies of each state exist (2 for a 1.5th-order
+            state: one physical state, reported once).
     """
 
     id: int
     kind: str
     points: list[HBMPoint]
     origin: str = ''
+    multiplicity: int = 1
 
     def column(self, name: str) -> np.ndarray:
         """One quantity of every point: a summary field, 'speed_rpm', 'stable' or 'max_multiplier'."""
@@ -55,6 +60,35 @@ class SweepEvent:
 
 
 @dataclass
+class NonPeriodicBand:
+    """Neighbouring speeds [rpm] where no periodic state is stable: what time integration shows
+    there (``results``: dmf_sim.nonperiodic.NonPeriodicResult per speed), ``label`` (quasi-periodic,
+    chaotic, long transient, periodic of k cycles) and how the periodic solution lost stability
+    (``instability``: torus, flip, fold, subharmonic)."""
+
+    speed_min_rpm: float
+    speed_max_rpm: float
+    label: str
+    instability: str
+    results: list = field(default_factory=list)
+    half_width_rpm: float = 0.0       # half the spacing of the speeds checked (for shading)
+
+    def rows(self, theta: float) -> list[dict]:
+        out = []
+        for r in self.results:
+            d = r.as_dict()
+            d.update(branch=-1, kind='non_periodic', stable=False, mean_minus_theta=r.mean - theta,
+                     instability=self.instability)
+            out.append(d)
+        return out
+
+    def as_dict(self) -> dict:
+        return {'speed_min_rpm': float(self.speed_min_rpm), 'speed_max_rpm': float(self.speed_max_rpm),
+                'label': self.label, 'instability': self.instability,
+                'envelope': [r.as_dict() for r in self.results]}
+
+
+@dataclass
 class SweepResult:
     """All branches of one sweep (one alpha, one load set, one load fraction)."""
 
@@ -71,17 +105,35 @@ class SweepResult:
     min_1_5: float = 2e-4
     hbm: 'CondensedHBM | None' = field(default=None, repr=False)
     floquet: object = field(default=None, repr=False)
+    non_periodic: list[NonPeriodicBand] = field(default_factory=list)
+    uncovered: list[float] = field(default_factory=list)
+    search: bool = False
 
     def rows(self) -> list[dict]:
         """One dict per computed point: speed_rpm, branch, kind, stable, order_3, order_1_5,
-        max_deviation, min_deviation, mean_minus_theta (wind-up, rad), mean, max_multiplier."""
+        max_deviation, min_deviation, mean_minus_theta (wind-up, rad), mean, max_multiplier,
+        multiplicity; then one per non-periodic speed (kind 'non_periodic', branch -1: the
+        envelope and averaged orders of a long time integration, and its label)."""
         out = []
         for b in self.branches:
             for p in b.points:
                 d = p.as_dict()
-                d['branch'], d['kind'] = b.id, b.kind
+                d['branch'], d['kind'], d['multiplicity'] = b.id, b.kind, b.multiplicity
                 out.append(d)
+        for band in self.non_periodic:
+            out.extend(band.rows(self.theta))
         return out
+
+    def stable_states_at(self, speed_rpm: float) -> int:
+        """Number of distinct stable states at ``speed_rpm`` (stretches of branches bracketing
+        it whose both ends are stable; 120 deg twins counted once, as one branch)."""
+        n = 0
+        for b in self.branches:
+            for p, q in zip(b.points[:-1], b.points[1:]):
+                if min(p.speed_rpm, q.speed_rpm) <= speed_rpm <= max(p.speed_rpm, q.speed_rpm) \
+                        and p.stable and q.stable:
+                    n += 1
+        return n
 
     @property
     def n_points(self) -> int:
@@ -94,9 +146,10 @@ class SweepResult:
         return [b for b in self.branches if b.kind == 'subharmonic']
 
     def solutions_at(self, speed_rpm: float) -> list[HBMPoint]:
-        """Every solution on the branches at exactly ``speed_rpm`` (several where solutions
-        coexist): for each stretch of a branch that brackets the speed, Newton at that speed from
-        the interpolated branch, duplicates removed; with stability when the sweep had it."""
+        """Every state on the branches at exactly ``speed_rpm`` (several where states coexist):
+        for each stretch of a branch that brackets the speed, Newton at that speed from the
+        interpolated branch; duplicates and 120 deg shifted twins (same order amplitudes) are
+        reported once; with stability when the sweep had it."""
         s = float(speed_rpm)
         out: list[HBMPoint] = []
         for b in self.branches:
@@ -117,7 +170,9 @@ class SweepResult:
                     if self.floquet is not None:
                         fr = self.floquet.analyze(sol.windup_orders, s)
                         sol.stable, sol.multipliers, sol.max_multiplier = fr.stable, fr.multipliers, fr.max_abs
-                if all(np.abs(sol.x - o.x).max() > 1e-6 + 1e-4 * np.abs(sol.x).max() for o in out):
+                H = (len(sol.x) - 1) // 2
+                tol = 1e-6 + 1e-4 * np.abs(sol.x).max()
+                if all(np.abs(amplitudes(sol.x, H) - amplitudes(o.x, H)).max() > tol for o in out):
                     out.append(sol)
         return out
 
@@ -148,8 +203,11 @@ class SweepResult:
                 'speed_range_rpm': list(self.speed_range), 'n_harmonics': self.n_harmonics,
                 'seconds': self.seconds, 'n_points': self.n_points,
                 'branches': [{'id': b.id, 'kind': b.kind, 'origin': b.origin, 'n_points': len(b.points),
-                              'speed_range_rpm': list(b.speed_range)} for b in self.branches],
-                'subharmonic': self.subharmonic_summary(),
+                              'speed_range_rpm': list(b.speed_range), 'multiplicity': b.multiplicity}
+                             for b in self.branches],
+                'subharmonic': self.subharmonic_summary(), 'search': self.search,
+                'non_periodic': [b.as_dict() for b in self.non_periodic],
+                'uncovered_rpm': list(self.uncovered),
                 'events': [e.as_dict() for e in self.events], 'points': self.rows()}
 
 

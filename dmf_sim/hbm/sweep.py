@@ -11,6 +11,7 @@ from dmf_sim.hbm.branches import BranchSwitching
 from dmf_sim.hbm.condensed import CondensedHBM, HBMOptions, HBMPoint
 from dmf_sim.hbm.layout import to_real
 from dmf_sim.hbm.results import Branch, SweepEvent, SweepResult
+from dmf_sim.hbm.search import SearchOptions, StateSearch
 from dmf_sim.loads import DrivelineLoads
 
 
@@ -33,6 +34,9 @@ class SweepOptions:
             1.5th-order wind-up at that speed).
         ratio_1_5: see min_subharmonic.
         max_branches: stop switching after this many extra branches.
+        search: the full steady-state search after the branch switching (deflated Newton
+            seeds, Newmark shots, non-periodic speeds, re-seeding; dmf_sim.hbm.search), or None
+            for continuation and branch switching only (the ``--fast`` sweep).
     """
 
     step_rpm: float = 10.0
@@ -45,6 +49,7 @@ class SweepOptions:
     min_subharmonic: float = 2e-4
     ratio_1_5: float = 3.0
     max_branches: int = 6
+    search: SearchOptions | None = SearchOptions()
 
 
 class _Progress:
@@ -73,13 +78,14 @@ class _Progress:
             self.bar.close()
 
 
-class SpeedSweep(BranchSwitching):
+class SpeedSweep(BranchSwitching, StateSearch):
     """Continuation over engine speed with stability and branch switching (used by :func:`sweep`).
 
     Follows the branch from the lowest speed (pseudo-arc-length continuation through turning
     points, fast-forwarding linear stretches), covers speeds no branch reached, computes the
     Floquet stability of every point and records events; the branch switching to 1.5th-order
-    and other coexisting branches is :class:`dmf_sim.hbm.branches.BranchSwitching`.
+    and other coexisting branches is :class:`dmf_sim.hbm.branches.BranchSwitching`, the full
+    search for every stable state :class:`dmf_sim.hbm.search.StateSearch`.
 
     Args:
         hbm: CondensedHBM (driveline, engine, load fraction).
@@ -95,8 +101,11 @@ class SpeedSweep(BranchSwitching):
         self.cont = ContinuationOptions(**{**base.__dict__, 'grid': self.options.step_rpm,
                                            's_scale': self.options.step_rpm, 'tol': hbm.options.tol})
         self.floquet = FloquetAnalyzer(hbm.model, modes=hbm.modes)
+        self.search = self.options.search
         self.events: list[SweepEvent] = []
         self.branches: list[Branch] = []
+        self.non_periodic: list = []
+        self.uncovered: list[float] = []
         self.range = (0.0, 0.0)
 
     # ---- one point -------------------------------------------------------------------------------
@@ -126,8 +135,14 @@ class SpeedSweep(BranchSwitching):
             bar.advance(cp.s - last[0])
             last[0] = cp.s
 
+        def on_end(reason, cp):
+            if reason == 'left_range':
+                self.events.append(SweepEvent('left_speed_range', branch, cp.s,
+                                              'the continuation needed engine speeds outside the '
+                                              'engine data: the branch ends here'))
+
         continue_branch(self.hbm, x0, s0, self.range, direction, self.cont, stop=stop, on_point=on_point,
-                        fast_forward=self._linear_stretch)
+                        fast_forward=self._linear_stretch, on_end=on_end)
         return pts
 
     def _in_primary(self, w: np.ndarray) -> np.ndarray:
@@ -201,21 +216,36 @@ class SpeedSweep(BranchSwitching):
         self.range = (lo, hi)
         bar = _Progress(progress, hi - lo, desc)
         try:
-            first = self.hbm.solve(lo, start_x)
-            pts = self._trace(first.x, lo, +1.0, 0, 'main', bar)
-            self.branches = [Branch(0, 'main', pts, f'continuation from {lo:g} rpm')]
-            self._events(self.branches[0])
+            try:
+                first = self.hbm.solve(lo, start_x)
+            except ConvergenceError:
+                first = None                    # the re-seeding below starts elsewhere
+            if first is not None:
+                pts = self._trace(first.x, lo, +1.0, 0, 'main', bar)
+                self.branches = [Branch(0, 'main', pts, f'continuation from {lo:g} rpm')]
+                self._events(self.branches[0])
             self._cover(bar)
+            if not self.branches:
+                raise ConvergenceError(f'no periodic solution converged anywhere in {lo:g}-{hi:g} rpm')
             if self.options.stability and self.options.branch_switching:
                 bar.note('branch switching')
                 self._switch_branches(bar)
+            if self.options.stability and self.search is not None:
+                self.full_search(bar)
+                for b in self.branches:
+                    if b.kind == 'subharmonic':
+                        b.multiplicity = self.multiplicity(max(b.points, key=lambda q: q.order_1_5))
+            else:
+                self.uncovered = [float(s) for s in self._uncovered()]
         finally:
             bar.close()
         sp = self.hbm.spring
         return SweepResult(self.branches, self.events, (lo, hi), self.hbm.load, sp.alpha, sp.theta,
                            seconds=time.perf_counter() - t0, n_harmonics=self.hbm.H,
                            ratio_1_5=self.options.ratio_1_5, min_1_5=self.options.min_subharmonic,
-                           hbm=self.hbm, floquet=self.floquet if self.options.stability else None)
+                           hbm=self.hbm, floquet=self.floquet if self.options.stability else None,
+                           non_periodic=self.non_periodic, uncovered=self.uncovered,
+                           search=self.search is not None and self.options.stability)
 
     def _uncovered(self) -> np.ndarray:
         """Grid speeds that no branch passes through (e.g. beyond a turning point where the branch
