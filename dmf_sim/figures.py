@@ -35,6 +35,8 @@ LOAD_SET_COLORS = {'A': 'tab:blue', 'B': 'tab:orange', 'C': 'tab:green'}
 
 _Y_MARGIN = 1.25          # wind-up axis: this times the largest vibration quantity
 _BAND_WIDTH = 4.0         # line width of the red 3rd-order band [pt]
+_LOG_XI_ABOVE = 20.0      # NNM figure: logarithmic xi axis beyond this xi_max
+_LABEL_GAP = 0.03         # NNM figure: smallest gap between flat-branch labels (axis fraction)
 _LINE_WIDTH = 1.3         # other lines [pt]
 
 
@@ -224,15 +226,23 @@ def nnm_figure(res, xi_max: float = 10.0) -> Figure:
             lo, hi = min(lo, br.frequency_hz[m].min()), max(hi, br.frequency_hz[m].max())
         ax.axhline(br.linear_frequency_hz, color=color, ls=':', lw=0.8,
                    label=f'linear mode, {region} stiffness ({br.linear_frequency_hz:.1f} Hz)')
-    for fb in res.flat_branches:
-        if fb.xi_min > xi_max:
-            continue
-        ax.annotate(str(fb.harmonic), (min(fb.xi_max, xi_max), fb.frequency_hz), xytext=(3, 1),
-                    textcoords='offset points', fontsize=8, color=COLORS[fb.region],
-                    annotation_clip=False)
     pad = 0.05 * (hi - lo) if np.isfinite(hi - lo) and hi > lo else 1.0
     ax.set_ylim(lo - pad, hi + pad)
-    ax.set_xlim(1.0 - 0.02 * (xi_max - 1), xi_max)
+    flats = sorted((fb for fb in res.flat_branches if fb.xi_min <= xi_max),
+                   key=lambda fb: fb.frequency_hz)
+    last_y = -np.inf
+    for fb in flats:           # labels at the branch ends, stacked where they would overlap
+        y = max(fb.frequency_hz, last_y + _LABEL_GAP * (hi - lo + 2 * pad))
+        ax.annotate(f' {fb.harmonic}', (min(fb.xi_max, xi_max), fb.frequency_hz),
+                    xytext=(min(fb.xi_max, xi_max), y), textcoords='data', fontsize=8,
+                    color=COLORS[fb.region], annotation_clip=False, ha='left',
+                    va='center')
+        last_y = y
+    if xi_max > _LOG_XI_ABOVE:
+        ax.set_xscale('log')
+        ax.set_xlim(0.95, xi_max)
+    else:
+        ax.set_xlim(1.0 - 0.02 * (xi_max - 1), xi_max)
     ax.set_xlabel(r'$\xi = E / E_{nl}$ [-] (energy over the energy that reaches the knee)')
     ax.set_ylabel('frequency of the fundamental [Hz]')
     ax.set_title(f'Non-linear normal modes, α = {res.alpha:g}, θ = {res.theta:g} rad '

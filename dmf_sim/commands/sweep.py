@@ -96,14 +96,14 @@ def check_dmf_options(alphas, theta) -> None:
 
 
 def run_sweep(loads, load: float, speed_range: tuple[float, float], *, hbm_options=None,
-              options=None, progress: bool = False, label: str = ''):
+              options=None, continuation=None, progress: bool = False, label: str = ''):
     """``dmf_sim.hbm.sweep``, started by continuation from the lowest speed of the engine data
     when Newton from the linear response does not converge at the first speed (inside a
     1.5th-order resonance it may not). The main branch's ``origin`` says so."""
     from dmf_sim.hbm import CondensedHBM, SpeedSweep, SweepOptions, sweep
     try:
         return sweep(loads, load, speed_range, hbm_options=hbm_options, options=options,
-                     progress=progress, label=label)
+                     continuation=continuation, progress=progress, label=label)
     except ConvergenceError as exc:
         failure = exc
     lo, hi = speed_range
@@ -114,11 +114,12 @@ def run_sweep(loads, load: float, speed_range: tuple[float, float], *, hbm_optio
     opts = options or SweepOptions()
     hb = CondensedHBM(loads, load, hbm_options)
     approach = SpeedSweep(hb, SweepOptions(step_rpm=opts.step_rpm, stability=False,
-                                           branch_switching=False, isola_scan=False))
+                                           branch_switching=False, isola_scan=False),
+                          continuation)
     last = approach.run((start, lo)).main().points[-1]
     if abs(last.speed_rpm - lo) > 1e-6:
         raise failure
-    res = SpeedSweep(hb, opts).run((lo, hi), progress=progress, start_x=last.x,
+    res = SpeedSweep(hb, opts, continuation).run((lo, hi), progress=progress, start_x=last.x,
                                    desc=label or 'HBM sweep')
     res.label = label
     res.main().origin += (f' (its start solution continued from {start:g} rpm: Newton from the '
