@@ -1,14 +1,18 @@
-"""`dmf-sim paper` (issue 11 §2) on the reduced study: figures, report.md / report.html, JSON, and
-claim rows that are computed from the study (they follow the data), with the physics verdicts
-the package reaches for the default engine."""
+"""`dmf-sim paper` (issue 11 §2) on the reduced study, run through its benchmark
+(benchmarks/bench_paper.py --quick: the last line is JSON): figures, report.md / report.html,
+claims.json, and claim rows that are computed from the study (they follow the data), with the
+physics verdicts the package reaches for the default engine."""
 from __future__ import annotations
 
 import contextlib
 import copy
 import dataclasses
+import importlib.util
 import io
 import json
+import math
 import re
+from pathlib import Path
 
 import pytest
 
@@ -17,12 +21,17 @@ from dmf_sim.cli import main as cli_main
 from dmf_sim.commands._paper_claims import NO, PARTLY, YES, claims
 
 FIGS = ('fig8.png', 'fig12.png', 'fig13.png', 'fig13_damping.png', 'fig14.png', 'fig15.png')
+BENCH = Path(__file__).resolve().parent.parent / 'benchmarks' / 'bench_paper.py'
 
 
 @pytest.fixture(scope='module')
 def run(tmp_path_factory):
-    """One reduced run of the command; the StudyResults it reported on are kept as well."""
+    """One reduced run of the command through its benchmark; the StudyResults the report was
+    made of are kept as well."""
     out = tmp_path_factory.mktemp('paper')
+    spec = importlib.util.spec_from_file_location('bench_paper', BENCH)
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
     seen = {}
 
     def keep(results):
@@ -33,10 +42,20 @@ def run(tmp_path_factory):
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(paper_cmd, 'claims', keep)
         with contextlib.redirect_stdout(so), contextlib.redirect_stderr(se):
-            rc = cli_main(['paper', '--out', str(out), '--quick', '--json'])
+            rc = bench.main(['--quick', '--out', str(out)])
     assert rc == 0, se.getvalue()
-    return {'out': out, 'summary': json.loads(so.getvalue()), 'stderr': se.getvalue(),
+    return {'out': out, 'bench': json.loads(so.getvalue().strip().splitlines()[-1]),
+            'summary': json.loads((out / 'claims.json').read_text()), 'stderr': se.getvalue(),
             'results': seen['results']}
+
+
+def test_benchmark_json(run):
+    b = run['bench']
+    assert b['quick'] is True and b['budget_seconds'] == 120.0
+    for key in ('seconds', 'cpu_seconds', 'peak_rss_mib'):
+        assert math.isfinite(b[key]) and b[key] > 0
+    assert set(b['step_seconds']) >= {'sweeps (Figs. 13, 15)', 'non-linear normal modes (Fig. 14)'}
+    assert sum(b['counts'].values()) == 14
 
 
 def _rows(run) -> dict:
@@ -56,8 +75,7 @@ def test_files_reports_and_progress(run):
     assert page.count('src="data:image/png;base64,') == len(FIGS)       # self-contained
     assert not re.search(r'src="(?!data:)', page)
     assert page.count('<tr>') == len(summary['claims']) + 1
-    stored = json.loads((out / 'claims.json').read_text())
-    assert [c['key'] for c in stored['claims']] == [c['key'] for c in summary['claims']]
+    assert all(c['package'] and c['status'] in (YES, PARTLY, NO) for c in summary['claims'])
     assert sum(summary['counts'].values()) == len(summary['claims'])
     assert summary['quick'] and summary['seconds'] > 0
     lines = run['stderr'].strip().splitlines()
