@@ -35,6 +35,8 @@ FIGURES = {
     'fig15.png': 'Fig. 15: DMF wind-up over speed, α = 2.5, Loads A, B and C',
 }
 STATUS_MARK = {YES: 'yes', PARTLY: 'partly', NO: 'no'}
+COLUMNS = ('#', 'claim', 'the paper', 'the package (computed)', 'reproduced', 'why / notes')
+STATUS_COLUMN = 4
 
 
 def add_arguments(p) -> None:
@@ -138,6 +140,12 @@ def _settings_text(r, summary: dict) -> str:
             + f'. Computed in {summary["seconds"]:.0f} s.')
 
 
+def _cells(i: int, cl) -> list[str]:
+    """The report's columns (COLUMNS) for claim ``cl``, row number ``i``."""
+    fig = f' ({cl.figure})' if cl.figure else ''
+    return [str(i), cl.topic + fig, cl.paper, cl.package, STATUS_MARK[cl.status], cl.why]
+
+
 def _md_cell(text: str) -> str:
     return ' '.join(str(text).split()).replace('|', '\\|')
 
@@ -148,14 +156,11 @@ def report_markdown(r, rows, summary: dict) -> str:
            _settings_text(r, summary), '',
            f'**Claims reproduced: {c[YES]} yes, {c[PARTLY]} partly, {c[NO]} no.** Every number '
            'below is computed by the package in this run (`claims.json` holds them all).', '',
-           '## Claims', '',
-           '| # | claim | the paper | the package (computed) | reproduced | why / notes |',
-           '|---|---|---|---|---|---|']
+           '## Claims', '', '| ' + ' | '.join(COLUMNS) + ' |', '|---' * len(COLUMNS) + '|']
     for i, cl in enumerate(rows, start=1):
-        fig = f' ({cl.figure})' if cl.figure else ''
-        out.append(f'| {i} | {_md_cell(cl.topic)}{fig} | {_md_cell(cl.paper)} | '
-                   f'{_md_cell(cl.package)} | **{STATUS_MARK[cl.status]}** | '
-                   f'{_md_cell(cl.why)} |')
+        cells = [_md_cell(c) for c in _cells(i, cl)]
+        cells[STATUS_COLUMN] = f'**{cells[STATUS_COLUMN]}**'
+        out.append('| ' + ' | '.join(cells) + ' |')
     out += ['', '## Figures', '']
     for name, caption in FIGURES.items():
         out += [f'### {caption}', '', f'![{caption}]({name})', '']
@@ -183,13 +188,11 @@ def report_html(r, rows, summary: dict, out: Path) -> str:
              f'<p>{e(_settings_text(r, summary))}</p>',
              f'<p><b>Claims reproduced: {c[YES]} yes, {c[PARTLY]} partly, {c[NO]} no.</b> Every '
              'number below is computed by the package in this run.</p>', '<h2>Claims</h2>',
-             '<table><tr><th>#</th><th>claim</th><th>the paper</th><th>the package (computed)'
-             '</th><th>reproduced</th><th>why / notes</th></tr>']
+             '<table><tr>' + ''.join(f'<th>{e(c)}</th>' for c in COLUMNS) + '</tr>']
     for i, cl in enumerate(rows, start=1):
-        fig = f' ({e(cl.figure)})' if cl.figure else ''
-        parts.append(f'<tr><td>{i}</td><td>{e(cl.topic)}{fig}</td><td>{e(cl.paper)}</td>'
-                     f'<td>{e(cl.package)}</td><td class="{cl.status}"><b>'
-                     f'{STATUS_MARK[cl.status]}</b></td><td>{e(cl.why)}</td></tr>')
+        cells = [f'<td>{e(c)}</td>' for c in _cells(i, cl)]
+        cells[STATUS_COLUMN] = f'<td class="{cl.status}"><b>{e(STATUS_MARK[cl.status])}</b></td>'
+        parts.append('<tr>' + ''.join(cells) + '</tr>')
     parts += ['</table>', '<h2>Figures</h2>']
     for name, caption in FIGURES.items():
         data = base64.b64encode((out / name).read_bytes()).decode('ascii')
