@@ -98,5 +98,6 @@ def read_yaml_mapping(source: str | os.PathLike, what: str = 'configuration') ->
     data = parse_yaml(read_text(path), str(path))
     if not isinstance(data, dict):
         got = 'nothing (empty file)' if data is None else f'a {type(data).__name__}'
-        raise ConfigError(f'{path}: not a {what} YAML mapping (the file holds {got})')
+        article = 'an' if what[:1].lower() in 'aeiou' else 'a'
+        raise ConfigError(f'{path}: not {article} {what} YAML mapping (the file holds {got})')
     return path, data

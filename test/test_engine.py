@@ -1,4 +1,5 @@
-"""Tests of the engine excitation (dmf_sim/engine.py): default pressure model, tables, Load A/B/C."""
+"""Tests of the engine excitation (dmf_sim.engine): default pressure model, ratings, tables,
+Load A/B/C, and how bad engine files are reported."""
 from __future__ import annotations
 
 import time
@@ -8,8 +9,12 @@ import numpy as np
 import pytest
 import yaml
 
-from dmf_sim.engine import (LOAD_SETS, EngineExcitation, cylinder_torque_signal, engine_torque_orders,
-                            load_engine, write_coefficient_table)
+from dmf_sim.cli import main as cli_main
+from dmf_sim.engine import (LOAD_SETS, EngineExcitation, cylinder_torque_signal,
+                            engine_from_mapping, engine_torque_orders, load_engine,
+                            write_coefficient_table)
+from dmf_sim.errors import ConfigError
+from dmf_sim.model import load_model
 from dmf_sim.paths import config_file
 
 N_MAX = 24
@@ -40,6 +45,7 @@ def base_yaml() -> dict:
 
 
 def _one_line_error(excinfo, *needles: str) -> None:
+    assert isinstance(excinfo.value, ConfigError), type(excinfo.value)   # the CLI's exit 2
     msg = str(excinfo.value)
     assert '\n' not in msg, msg
     for needle in needles:
@@ -130,8 +136,8 @@ def test_cylinder_signal_phase(engine):
     beta = np.radians(480.0)
     np.testing.assert_allclose(cylinder_torque_signal(A, psi, beta),
                                cylinder_torque_signal(A, psi - beta, 0.0), atol=1e-9)
-    assert np.mean(cylinder_torque_signal(A, np.linspace(0, 4 * np.pi, 720, endpoint=False), 0.0)) \
-        == pytest.approx(A[0].real)
+    psi = np.linspace(0, 4 * np.pi, 720, endpoint=False)
+    assert np.mean(cylinder_torque_signal(A, psi, 0.0)) == pytest.approx(A[0].real)
 
 
 def test_load_sets_shift_gas_part_only(engines):
@@ -139,22 +145,21 @@ def test_load_sets_shift_gas_part_only(engines):
     for s_b, s_a, eng in ((900, 950, b), (980, 1000, b), (1000, 1000, b), (1200, 1200, b),
                           (600, 700, c), (850, 950, c), (950, 1000, c), (1500, 1500, c)):
         for load in (0.3, 1.0):
-            np.testing.assert_allclose(eng.gas_coefficients(s_b, load), a.gas_coefficients(s_a, load),
-                                       rtol=0, atol=1e-9)
+            np.testing.assert_allclose(eng.gas_coefficients(s_b, load),
+                                       a.gas_coefficients(s_a, load), rtol=0, atol=1e-9)
         np.testing.assert_allclose(eng.inertia_coefficients(s_b), a.inertia_coefficients(s_b))
-        np.testing.assert_allclose(eng.coefficients(s_b, 1.0),
-                                   a.gas_coefficients(s_a, 1.0) + a.inertia_coefficients(s_b), atol=1e-9)
+        np.testing.assert_allclose(eng.coefficients(s_b, 1.0), a.gas_coefficients(s_a, 1.0)
+                                   + a.inertia_coefficients(s_b), atol=1e-9)
 
 
 def test_load_changes_only_gas_part(engine):
     for s in (700, 1300, 2100):
         full, zero = engine.coefficients(s, 1.0), engine.coefficients(s, 0.0)
-        np.testing.assert_allclose(full - zero,
-                                   engine.gas_coefficients(s, 1.0) - engine.gas_coefficients(s, 0.0),
-                                   atol=1e-9)
+        gas = engine.gas_coefficients
+        np.testing.assert_allclose(full - zero, gas(s, 1.0) - gas(s, 0.0), atol=1e-9)
         r0, r1 = engine.model.cycle(s, 0.0), engine.model.cycle(s, 1.0)
         np.testing.assert_array_equal(r0.inertia_torque_nm, r1.inertia_torque_nm)
-        assert np.max(np.abs(engine.gas_coefficients(s, 0.0)[1:])) > 100.0   # motored torque remains
+        assert np.max(np.abs(gas(s, 0.0)[1:])) > 100.0   # motored torque remains
         assert r1.heat_release_j > r0.heat_release_j >= 0.0
 
 
@@ -200,7 +205,7 @@ def test_example_table_matches_model(engine):
         for load in (0.0, 0.5, 1.0):
             np.testing.assert_allclose(table.coefficients(s, load), engine.coefficients(s, load),
                                        rtol=0, atol=1e-3)
-    assert table.full_load_torque(1000) == pytest.approx(2500.0, rel=1e-5)
+    assert table.full_load_torque(1000) == pytest.approx(2800.0, rel=1e-5)
     assert table.mean_torque(1250, 0.75) == pytest.approx(engine.mean_torque(1250, 0.75), rel=1e-3)
     # load sets work on tables too
     tb = load_engine('engine_table_example.csv', 'B')
@@ -211,29 +216,32 @@ def test_full_load_table_scales_gas_part(engine, tmp_path):
     path = write_coefficient_table(engine, tmp_path / 'full.csv', [600, 1000, 1500, 2000])
     tab = load_engine(path)
     for s in (600, 1000, 1500):
-        np.testing.assert_allclose(tab.coefficients(s, 1.0), engine.coefficients(s, 1.0), atol=1e-3)
-        np.testing.assert_allclose(tab.coefficients(s, 0.0), engine.inertia_coefficients(s), atol=1e-3)
-        np.testing.assert_allclose(tab.gas_coefficients(s, 0.4), 0.4 * engine.gas_coefficients(s, 1.0),
-                                   atol=1e-3)
-    assert tab.mean_torque(1000, 0.4) == pytest.approx(1000.0, rel=1e-5)
+        close = lambda a, b: np.testing.assert_allclose(a, b, atol=1e-3)  # noqa: E731
+        close(tab.coefficients(s, 1.0), engine.coefficients(s, 1.0))
+        close(tab.coefficients(s, 0.0), engine.inertia_coefficients(s))
+        close(tab.gas_coefficients(s, 0.4), 0.4 * engine.gas_coefficients(s, 1.0))
+    assert tab.mean_torque(1000, 0.4) == pytest.approx(0.4 * engine.full_load_torque(1000),
+                                                       rel=1e-5)
 
 
 def test_yaml_table(engine, tmp_path):
     speeds, loads = [800, 1200, 1600], [0.0, 1.0]
-    coeffs = [[[[float(a.real), 0.0 if n == 0 else float(a.imag)] for n, a in enumerate(engine.coefficients(s, ld))]
-               for ld in loads] for s in speeds]
+    coeffs = [[[[float(a.real), 0.0 if n == 0 else float(a.imag)]
+                for n, a in enumerate(engine.coefficients(s, ld))] for ld in loads]
+              for s in speeds]
     doc = {'engine': 'engine_d13', 'speeds_rpm': speeds, 'loads': loads,
            'orders': list(range(N_MAX + 1)), 'coefficients': coeffs}
     path = tmp_path / 'tab.yaml'
     path.write_text(yaml.safe_dump(doc))
     tab = load_engine(path, 'C')
-    np.testing.assert_allclose(tab.coefficients(1200, 1.0), engine.coefficients(1200, 1.0), atol=1e-9)
+    np.testing.assert_allclose(tab.coefficients(1200, 1.0), engine.coefficients(1200, 1.0),
+                               atol=1e-9)
     # without a load axis: full-load data
     doc2 = dict(doc, loads=None, coefficients=[c[1] for c in coeffs])
     del doc2['loads']
     path.write_text(yaml.safe_dump(doc2))
-    np.testing.assert_allclose(load_engine(path).coefficients(1600, 1.0), engine.coefficients(1600, 1.0),
-                               atol=1e-9)
+    np.testing.assert_allclose(load_engine(path).coefficients(1600, 1.0),
+                               engine.coefficients(1600, 1.0), atol=1e-9)
     doc2['orders'] = list(range(N_MAX))
     path.write_text(yaml.safe_dump(doc2))
     with pytest.raises(ValueError) as exc:
@@ -252,7 +260,8 @@ def _rows(speeds, orders=range(N_MAX + 1), value='1.0,0.5'):
 
 
 @pytest.mark.parametrize('rows, header, needles', [
-    (_rows([800, 1000], orders=[n for n in range(N_MAX + 1) if n != 7]), None, ('n', 'missing', '7')),
+    (_rows([800, 1000], orders=[n for n in range(N_MAX + 1) if n != 7]), None,
+     ('n', 'missing', '7')),
     (_rows([1000, 800]), None, ('speed_rpm', 'non-decreasing')),
     (_rows([800, 1000], value='nan,0'), None, ('re', 'finite')),
     (_rows([800, 1000], value='1,inf'), None, ('im', 'finite')),
@@ -321,7 +330,8 @@ def test_bad_engine_yaml_refused(tmp_path, base_yaml, field, value, needles):
 
 def test_bad_table_references_and_yaml_fields(tmp_path):
     path = tmp_path / 'ref.csv'
-    path.write_text('# engine: no_such_engine\n' + '\n'.join(['speed_rpm,n,re,im'] + _rows([800, 1000])))
+    path.write_text('# engine: no_such_engine\n'
+                    + '\n'.join(['speed_rpm,n,re,im'] + _rows([800, 1000])))
     with pytest.raises(ValueError) as exc:
         load_engine(path)
     _one_line_error(exc, 'ref.csv', 'engine', 'no_such_engine')
@@ -338,3 +348,97 @@ def test_bad_table_references_and_yaml_fields(tmp_path):
     with pytest.raises(ValueError) as exc:
         load_engine(ypath)
     _one_line_error(exc, 'tab.yaml', 'coefficients', 'finite')
+
+
+# ------------------------------------------------------------------------------------------------
+# Ratings: the default reaches the DMF knee, the 2500 Nm rating is the same engine otherwise
+# ------------------------------------------------------------------------------------------------
+def test_default_rating_reaches_the_dmf_knee(engine):
+    """Issue 11: the default 13-litre curve has a ~2800 Nm plateau reached by 1000 rpm, above the
+    paper DMF's knee torque k theta, so full Load A puts the mean wind-up at the knee."""
+    spring = load_model('truck_dmf').spring
+    knee_torque = spring.k * spring.theta
+    assert knee_torque == pytest.approx(2613.6)
+    plateau = [engine.full_load_torque(s) for s in np.arange(1000, 1301, 50.0)]
+    assert np.allclose(plateau, 2800.0)
+    assert max(engine.full_load_torque(s) for s in np.arange(600, 2201, 10.0)) == 2800.0
+    assert engine.full_load_torque(900) < knee_torque < engine.full_load_torque(1000)
+    r = engine.model.cycle(1200, 1.0)   # still a plausible truck diesel peak pressure
+    assert 170e5 < r.peak_pressure_pa < 240e5
+
+
+def test_2500nm_rating_shares_everything_but_the_curve(engine):
+    low = load_engine('engine_d13_2500nm', 'B')
+    assert low.config.name == 'engine_d13_2500nm'
+    assert low.config.path.name == 'engine_d13_2500nm.yaml'
+    assert low.full_load_torque(1200) == 2500.0 and low.full_load_torque(950) == 2500.0
+    assert max(low.full_load_torque(s) for s in np.arange(600, 2201, 10.0)) < 2614.0
+    assert low.config.geometry == engine.config.geometry
+    np.testing.assert_array_equal(low.config.grid.speeds_rpm, engine.config.grid.speeds_rpm)
+    for s in (700, 1250, 1900):      # load 0: no combustion, so the rating does not matter
+        np.testing.assert_allclose(low.with_load_set('A').coefficients(s, 0.0),
+                                   engine.coefficients(s, 0.0), atol=1e-9)
+    assert low.mean_torque(1200, 0.5) == pytest.approx(1250.0, rel=1e-3)
+
+
+def test_engine_from_mapping_variant(engine, base_yaml, tmp_path):
+    """A study's variant (another full-load curve) built from a mapping, no file written."""
+    doc = dict(base_yaml, name='scaled', full_load_curve={
+        'speeds_rpm': base_yaml['full_load_curve']['speeds_rpm'],
+        'torque_nm': [1.1 * t for t in base_yaml['full_load_curve']['torque_nm']]})
+    var = engine_from_mapping(doc, tmp_path / 'scaled.yaml')
+    assert var.full_load_torque(1100) == pytest.approx(3080.0)
+    assert var.mean_torque(1100, 1.0) == pytest.approx(3080.0, rel=0.01)
+
+
+# ------------------------------------------------------------------------------------------------
+# base: files and files that are not engine YAMLs (issue 14)
+# ------------------------------------------------------------------------------------------------
+def test_base_file_relative_and_override(tmp_path):
+    (tmp_path / 'mine.yaml').write_text(
+        'base: engine_d13\nname: mine\nload_sets: {limit_rpm: 1200, shift_rpm: {A: 0, D: 150}}\n')
+    (tmp_path / 'child.yaml').write_text('base: mine.yaml\nname: child\n')
+    eng = load_engine(tmp_path / 'child.yaml', 'D')
+    assert eng.config.name == 'child' and eng.limit_rpm == 1200.0 and eng.shift_rpm == 150.0
+    assert eng.full_load_torque(1000) == 2800.0    # 1000 + 150 rpm, on the plateau
+    assert eng.full_load_torque(700) == pytest.approx(0.5 * (2016.0 + 2408.0))   # at 850 rpm
+
+
+@pytest.mark.parametrize('text, needles', [
+    ('base: no_such_engine\nname: x\n', ('x.yaml', 'base', 'no_such_engine', 'not found')),
+    ('base: x.yaml\nname: x\n', ('x.yaml', 'base', 'cycle')),
+    ('base: engine_table_example.yaml\nname: x\n', ('x.yaml', 'base', 'table')),
+    ('base: 3\nname: x\n', ('x.yaml', 'base', 'name or path')),
+    ('base: engine_d13\nname: x\ngeometry: {bore_m: 0.1}\n', ('x.yaml (base engine_d13.yaml)',
+                                                             'geometry.stroke_m', 'missing')),
+])
+def test_bad_base_refused(tmp_path, text, needles):
+    (tmp_path / 'engine_table_example.yaml').write_text(
+        'speeds_rpm: [800, 1000]\norders: [0, 1]\n'
+        'coefficients: [[[1, 0], [1, 1]], [[1, 0], [1, 1]]]\n')
+    path = tmp_path / 'x.yaml'
+    path.write_text(text)
+    with pytest.raises(ValueError) as exc:
+        load_engine(path)
+    _one_line_error(exc, *needles)
+
+
+def test_files_that_are_not_engine_yamls(tmp_path, capsys):
+    bad = tmp_path / 'broken.yaml'
+    bad.write_text('name: x\ngeometry:\n  bore_m: [0.1\n')
+    empty = tmp_path / 'empty.yaml'
+    empty.write_text('')
+    cases = [('/etc/passwd', 'not an engine YAML mapping'),
+             (str(tmp_path), 'is a directory'),
+             (str(bad), f'{bad}:4:1: invalid YAML'),
+             (str(empty), 'not an engine YAML mapping (the file holds nothing'),
+             (str(tmp_path / 'missing.yaml'), 'not found')]
+    for source, needle in cases:
+        if source == '/etc/passwd' and not Path(source).is_file():
+            continue
+        with pytest.raises(ValueError) as exc:
+            load_engine(source)
+        _one_line_error(exc, needle)
+        assert cli_main(['loads', '--engine', source]) == 2
+        err = capsys.readouterr().err
+        assert err.count('\n') == 1 and needle in err, err

@@ -30,7 +30,9 @@ REPO = Path(__file__).resolve().parents[1]
 
 @pytest.fixture(scope='module')
 def engine_a():
-    eng = load_engine('engine_d13', load_set='A')
+    # the 2500 Nm rating these cases were designed around (mean wind-up below the paper knee;
+    # the default 2800 Nm engine is exercised by test_paper_regime.py)
+    eng = load_engine('engine_d13_2500nm', load_set='A')
     eng.warm()
     return eng
 
@@ -279,7 +281,10 @@ def test_cli_sweep_rejects_bad_input(capsys):
 
 
 def test_benchmark_quick():
-    out = subprocess.run([sys.executable, str(REPO / 'benchmarks' / 'bench_hbm.py'), '--quick'],
+    # dt 5e-5 s: at the default engine's 1.5th-order resonance (1000 rpm) Newmark at 1e-4 s is
+    # 1.1 % off the HBM and converges to it at 5e-5 s (README, Newmark step refinement)
+    out = subprocess.run([sys.executable, str(REPO / 'benchmarks' / 'bench_hbm.py'), '--quick',
+                          '--dt', '5e-5'],
                          capture_output=True, text=True, timeout=300, cwd=REPO)
     assert out.returncode == 0, out.stderr
     data = json.loads(out.stdout.strip().splitlines()[-1])

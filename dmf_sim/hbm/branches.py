@@ -122,6 +122,17 @@ class BranchSwitching:
         bid = len(self.branches)
         x_start, s_start = seed.x.copy(), seed.speed_rpm
         others = list(self.branches)
+        xs, ss = self.cont.x_scale, self.cont.s_scale
+        y_start = np.concatenate([x_start / xs, [s_start / ss]])
+        away = [False]
+
+        def back_at_start(cp) -> bool:
+            """Closed loop (an isolated branch): far from the start, then back within a step."""
+            d = float(np.linalg.norm(np.concatenate([cp.x / xs, [cp.s / ss]]) - y_start))
+            away[0] = away[0] or d > 3.0 * self.cont.step_max
+            return away[0] and d < 0.75 * self.cont.step_max
+
+        closed = [False]
 
         def stop(cp, cps):
             if len(cps) < 3:
@@ -129,21 +140,12 @@ class BranchSwitching:
             tol = max(0.02 * np.abs(cp.x[1:]).max(), 1e-4)
             if any(self._distance_to_branch(cp.x, cp.s, b) < tol for b in others):
                 return True       # arrived on a known branch (a turning or bifurcation point)
-            if len(cps) > 8 and abs(cp.s - s_start) < 0.5 * self.options.step_rpm and \
-                    np.abs(cp.x - x_start).max() < 0.05 * max(np.abs(x_start[1:]).max(), 1e-6):
-                return True       # closed loop (an isolated branch): back at the start
+            if back_at_start(cp):
+                closed[0] = True
+                return True
             return False
 
-        closed = [False]
-
-        def stop_mark(cp, cps):
-            res = stop(cp, cps)
-            if res and len(cps) > 8 and abs(cp.s - s_start) < 0.5 * self.options.step_rpm and \
-                    np.abs(cp.x - x_start).max() < 0.05 * max(np.abs(x_start[1:]).max(), 1e-6):
-                closed[0] = True
-            return res
-
-        up = self._trace(seed.x, s_start, +1.0, bid, 'subharmonic', bar, stop_mark)
+        up = self._trace(seed.x, s_start, +1.0, bid, 'subharmonic', bar, stop)
         if closed[0]:
             # an isolated closed branch: one direction went all the way round; start the list at
             # its lowest speed so stretches are contiguous

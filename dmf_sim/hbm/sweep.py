@@ -216,13 +216,14 @@ class SpeedSweep(BranchSwitching, StateSearch):
         self.range = (lo, hi)
         bar = _Progress(progress, hi - lo, desc)
         try:
+            origin = f'continuation from {lo:g} rpm'
             try:
-                first = self.hbm.solve(lo, start_x)
+                x0 = self.hbm.solve(lo, start_x).x
             except ConvergenceError:
-                first = None                    # the re-seeding below starts elsewhere
-            if first is not None:
-                pts = self._trace(first.x, lo, +1.0, 0, 'main', bar)
-                self.branches = [Branch(0, 'main', pts, f'continuation from {lo:g} rpm')]
+                x0, origin = self._approach(lo)   # None: the re-seeding below starts elsewhere
+            if x0 is not None:
+                pts = self._trace(x0, lo, +1.0, 0, 'main', bar)
+                self.branches = [Branch(0, 'main', pts, origin)]
                 self._events(self.branches[0])
             self._cover(bar)
             if not self.branches:
@@ -246,6 +247,26 @@ class SpeedSweep(BranchSwitching, StateSearch):
                            hbm=self.hbm, floquet=self.floquet if self.options.stability else None,
                            non_periodic=self.non_periodic, uncovered=self.uncovered,
                            search=self.search is not None and self.options.stability)
+
+    def _approach(self, lo: float) -> tuple[np.ndarray | None, str]:
+        """Newton from the linear response did not converge at ``lo`` (inside a 1.5th-order
+        resonance it may not): reach ``lo`` by continuation from the lowest speed of the engine
+        data, where the response is far from the knee."""
+        rng = getattr(self.hbm.loads.engine, 'speed_range_rpm', None)
+        if rng is None or float(rng[0]) >= lo:
+            return None, ''
+        start = float(rng[0])
+        try:
+            x = self.hbm.solve(start).x
+        except ConvergenceError:
+            return None, ''
+        from dmf_sim.continuation import continue_branch
+        pts = continue_branch(self.hbm, x, start, (start, lo), 1.0, self.cont)
+        if abs(pts[-1].s - lo) > 1e-6:
+            return None, ''
+        return pts[-1].x, (f'continuation from {lo:g} rpm (its start solution continued from '
+                           f'{start:g} rpm: Newton from the linear response did not converge at '
+                           f'{lo:g} rpm)')
 
     def _uncovered(self) -> np.ndarray:
         """Grid speeds that no branch passes through (e.g. beyond a turning point where the branch

@@ -1,0 +1,319 @@
+"""The package's figures (paper Figs. 8, 12, 13, 14, 15), one place for how they look.
+
+Used by ``dmf-sim sweep``, ``modes``, ``nnm``, ``loads`` and ``paper``. Drawn with matplotlib's
+object API (``matplotlib.figure.Figure``: no pyplot state, no GUI backend needed).
+
+Reading rules kept in every figure:
+
+* every axis names its quantity and unit; titles carry alpha, theta, load set and load;
+* legends sit outside the data (below the panels);
+* solid = stable, dashed = unstable (Floquet); unknown stability is drawn solid;
+* wind-up panels (Figs. 13/15, :func:`windup_panel`): red 3rd order drawn as a wide translucent
+  band under the thin black max/min deviation lines (the two nearly coincide where the 3rd order
+  dominates), blue 1.5th order, green = theta minus the static wind-up of the mean torque (the
+  paper's reading rule: green above both black lines -> primary region only, below both ->
+  secondary only, between -> both). The axis is scaled to the vibration; where the green line
+  leaves it (far from the knee), the panel says how far it goes.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Mapping, Sequence
+
+import numpy as np
+from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
+from matplotlib.patches import Patch
+
+DPI = 120
+"""Resolution of the PNG files [dots per inch]."""
+
+COLORS = {'order_3': 'tab:red', 'order_1_5': 'tab:blue', 'deviation': 'black',
+          'green': 'tab:green', 'conventional': 'tab:blue', 'dmf': 'tab:red',
+          'primary': 'tab:blue', 'secondary': 'tab:red'}
+LOAD_SET_COLORS = {'A': 'tab:blue', 'B': 'tab:orange', 'C': 'tab:green'}
+NO_PERIODIC_SHADE = '0.88'   # speeds without a stable periodic state
+
+_Y_MARGIN = 1.25          # wind-up axis: this times the largest vibration quantity
+_BAND_WIDTH = 4.0         # line width of the red 3rd-order band [pt]
+_LOG_XI_ABOVE = 20.0      # NNM figure: logarithmic xi axis beyond this xi_max
+_LABEL_GAP = 0.03         # NNM figure: smallest gap between flat-branch labels (axis fraction)
+_LINE_WIDTH = 1.3         # other lines [pt]
+
+
+# ------------------------------------------------------------------------------------------------
+# Fig. 13 / 15: DMF wind-up quantities over engine speed
+# ------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class WindupCurves:
+    """The paper's Fig. 13 quantities over engine speed, one solution branch or one measurement.
+
+    Arrays of equal length: speed [rpm]; 3rd- and 1.5th-order amplitude, max/min deviation from
+    the mean, theta minus the static wind-up of the mean torque [rad]; ``stable`` 1/0 per point
+    (NaN or None = unknown, drawn solid). ``marker`` draws points instead of lines (measured
+    data); ``main`` draws the lines thicker (the branch from the lowest speed)."""
+
+    speed_rpm: np.ndarray
+    order_3: np.ndarray
+    order_1_5: np.ndarray
+    max_deviation: np.ndarray
+    min_deviation: np.ndarray
+    theta_minus_static: np.ndarray
+    stable: np.ndarray | None = None
+    marker: str | None = None
+    main: bool = True
+
+    @classmethod
+    def from_branch(cls, branch, main: bool = True) -> WindupCurves:
+        """From a ``dmf_sim.hbm.Branch`` (its points' summaries and stability)."""
+        col = branch.column
+        return cls(col('speed_rpm'), col('order_3'), col('order_1_5'), col('max_deviation'),
+                   col('min_deviation'), col('theta_minus_static'), col('stable'), main=main)
+
+
+def windup_panel(ax, curves: Sequence[WindupCurves], title: str,
+                 bands: Sequence[tuple[float, float]] = ()) -> None:
+    """Draw one Fig. 13 panel (any number of branches / measurements) on ``ax``; ``bands``:
+    speed ranges [rpm] where no periodic state is stable (shaded)."""
+    for lo, hi in bands:
+        ax.axvspan(lo, hi, color=NO_PERIODIC_SHADE, lw=0, zorder=0)
+    vib_hi, vib_lo = 0.0, 0.0
+    for c in curves:
+        lw = _LINE_WIDTH if c.main else 0.7 * _LINE_WIDTH
+        s = np.asarray(c.speed_rpm, dtype=float)
+        _draw(ax, s, c.order_3, c.stable, c.marker, color=COLORS['order_3'],
+              lw=_BAND_WIDTH if c.main else 0.7 * _BAND_WIDTH, alpha=0.45, zorder=2)
+        _draw(ax, s, c.order_1_5, c.stable, c.marker, color=COLORS['order_1_5'], lw=lw, zorder=4)
+        for key in ('max_deviation', 'min_deviation'):
+            _draw(ax, s, getattr(c, key), c.stable, c.marker, color=COLORS['deviation'],
+                  lw=0.8 * lw, zorder=5)
+        _draw(ax, s, c.theta_minus_static, c.stable, c.marker, color=COLORS['green'], lw=lw,
+              zorder=3)
+        vals = [np.asarray(getattr(c, k), float)
+                for k in ('order_3', 'order_1_5', 'max_deviation')]
+        vib_hi = max(vib_hi, *(np.nanmax(v) for v in vals if v.size))
+        vib_lo = min(vib_lo, np.nanmin(np.asarray(c.min_deviation, float)))
+    top = _Y_MARGIN * max(vib_hi, 1e-6)
+    bottom = _Y_MARGIN * min(vib_lo, -1e-6)
+    ax.set_ylim(bottom, top)
+    ax.axhline(0.0, color='0.6', lw=0.6, zorder=1)
+    ax.set_title(title, fontsize=9, loc='left')
+    note = _off_scale_note(curves, bottom, top)
+    if note:
+        ax.set_title(note, fontsize=7.5, loc='right', color=COLORS['green'])
+    ax.set_ylabel('wind-up [rad]', fontsize=9)
+    ax.grid(alpha=0.3)
+
+
+def _off_scale_note(curves: Sequence[WindupCurves], bottom: float, top: float) -> str:
+    """Where the green line leaves the axis: its extreme value and the speeds it is off scale."""
+    parts = []
+    for sign, limit, word in ((1.0, top, 'above'), (-1.0, bottom, 'below')):
+        spans, extreme = [], None
+        for c in curves:
+            s = np.asarray(c.speed_rpm, float)
+            g = np.asarray(c.theta_minus_static, float)
+            off = sign * g > sign * limit
+            if not off.any():
+                continue
+            k = int(np.argmax(np.where(off, sign * g, -np.inf)))
+            if extreme is None or sign * g[k] > sign * extreme[0]:
+                extreme = (g[k], s[k])
+            cuts = np.flatnonzero(np.diff(off.astype(int))) + 1
+            for run in np.split(np.arange(len(s)), cuts):
+                if off[run[0]]:
+                    spans.append(f'{s[run].min():.0f}-{s[run].max():.0f}')
+        if extreme is not None:
+            parts.append(f'green off scale {word} at {", ".join(dict.fromkeys(spans))} rpm '
+                         f'(to {extreme[0]:+.3f} rad at {extreme[1]:.0f} rpm)')
+    return '; '.join(parts)
+
+
+def windup_legend_handles() -> list[Line2D]:
+    """Legend entries of a wind-up panel (for a figure legend outside the axes)."""
+    return [Line2D([], [], color=COLORS['order_3'], lw=_BAND_WIDTH, alpha=0.45,
+                   label='3rd order amplitude'),
+            Line2D([], [], color=COLORS['order_1_5'], lw=_LINE_WIDTH,
+                   label='1.5th order amplitude'),
+            Line2D([], [], color=COLORS['deviation'], lw=_LINE_WIDTH,
+                   label='max / min deviation from the mean'),
+            Line2D([], [], color=COLORS['green'], lw=_LINE_WIDTH,
+                   label='θ − static wind-up of the mean torque (drive +)'),
+            Line2D([], [], color='0.3', lw=_LINE_WIDTH, ls='--', label='unstable (Floquet)'),
+            Patch(color=NO_PERIODIC_SHADE, label='no stable periodic state (x: time integration)')]
+
+
+def windup_figure(panels: Sequence[tuple], title: str) -> Figure:
+    """One wind-up panel per (title, curves[, bands]), stacked over a shared speed axis, legend
+    below."""
+    n = len(panels)
+    fig = Figure(figsize=(9.5, 2.6 * n + 1.6), layout='constrained')
+    axes = fig.subplots(n, 1, sharex=True, squeeze=False)[:, 0]
+    for ax, (label, curves, *bands) in zip(axes, panels, strict=True):
+        windup_panel(ax, curves, label, *bands)
+    axes[-1].set_xlabel('engine speed [rpm]')
+    fig.suptitle(title, fontsize=11)
+    fig.legend(handles=windup_legend_handles(), loc='outside lower center', ncols=3, fontsize=8,
+               title='green above both black lines: primary region only; below both: secondary '
+                     'only; between: both', title_fontsize=8)
+    return fig
+
+
+def _draw(ax, x, y, stable, marker, **kw) -> None:
+    """Solid where stable (or unknown), dashed where unstable; segments share their end points.
+    With ``marker``: points only."""
+    x, y = np.asarray(x, float), np.asarray(y, float)
+    if marker:
+        kw.pop('lw', None)
+        ax.plot(x, y, ls='none', marker=marker, ms=3, **kw)
+        return
+    st = np.ones(len(x), bool) if stable is None else \
+        np.where(np.isnan(np.asarray(stable, float)), 1.0, np.asarray(stable, float)) > 0.5
+    start = 0
+    for i in range(1, len(x) + 1):
+        if i == len(x) or st[i] != st[start]:
+            j = min(i + 1, len(x))
+            ax.plot(x[start:j], y[start:j], ls='-' if st[start] else '--', **kw)
+            start = i
+
+
+# ------------------------------------------------------------------------------------------------
+# Fig. 12: mode shapes
+# ------------------------------------------------------------------------------------------------
+def mode_shapes_figure(conventional, dmf, n_modes: int = 4, dmf_label: str = 'DMF') -> Figure:
+    """Modes 1..n_modes (``dmf_sim.modal.ModalResult``) of the conventional driveline (blue) and
+    the DMF driveline (red dashed), angles x cumulative gear ratio; element names of the DMF
+    driveline on the axis, the conventional name below where it differs."""
+    fig = Figure(figsize=(10, 2.3 * n_modes + 2.2), layout='constrained')
+    axes = fig.subplots(n_modes, 1, sharex=True, squeeze=False)[:, 0]
+    x = np.arange(len(dmf.names))
+    for k, ax in enumerate(axes, start=1):
+        ax.plot(x, conventional.element_shapes[:, k], '-o', color=COLORS['conventional'], ms=3,
+                label=f'conventional {conventional.frequencies_hz[k]:.1f} Hz')
+        ax.plot(x, dmf.element_shapes[:, k], '--s', color=COLORS['dmf'], ms=3,
+                label=f'{dmf_label} {dmf.frequencies_hz[k]:.1f} Hz')
+        ax.axhline(0.0, color='0.6', lw=0.6)
+        ax.set_ylabel(f'mode {k}\nangle × R [-]', fontsize=9)
+        ax.legend(loc='center left', bbox_to_anchor=(1.01, 0.5), fontsize=8, frameon=False)
+        ax.grid(alpha=0.3)
+    labels = [d if d == c else f'{d}\n(conv. {c})' for d, c in zip(dmf.names, conventional.names,
+                                                                    strict=True)]
+    axes[-1].set_xticks(x)
+    axes[-1].set_xticklabels(labels, rotation=70, fontsize=7)
+    axes[-1].set_xlabel('element (Table 1; DMF driveline names)')
+    fig.suptitle('Mode shapes: element angle × cumulative gear ratio, normalized to max |.| = 1 '
+                 '(paper Fig. 12)', fontsize=10)
+    return fig
+
+
+# ------------------------------------------------------------------------------------------------
+# Fig. 14: non-linear normal modes
+# ------------------------------------------------------------------------------------------------
+def nnm_figure(res, xi_max: float = 10.0) -> Figure:
+    """Frequency [Hz] against xi like the paper's Fig. 14 (``dmf_sim.nnm.NNMResult``): blue
+    primary-region branch, red secondary-region branch, dotted linear frequencies, flat branches
+    labelled with their multiple n."""
+    fig = Figure(figsize=(8.5, 6.0), layout='constrained')
+    ax = fig.subplots()
+    labels = {'primary': 'static wind-up in the primary region',
+              'secondary': 'static wind-up in the secondary region'}
+    lo, hi = np.inf, -np.inf
+    for region, br in res.branches.items():
+        color = COLORS[region]
+        first = True
+        for seg in np.unique(br.segment):
+            s = br.segment == seg
+            m = s & (br.xi <= xi_max)
+            if not m.any():
+                continue
+            ax.plot(br.xi[s], br.frequency_hz[s], '-', color=color, lw=0.8, alpha=0.6)
+            ax.plot(br.xi[m], br.frequency_hz[m], 'o', color=color, ms=2.5,
+                    label=labels[region] if first else None)
+            first = False
+            lo, hi = min(lo, br.frequency_hz[m].min()), max(hi, br.frequency_hz[m].max())
+        ax.axhline(br.linear_frequency_hz, color=color, ls=':', lw=0.8,
+                   label=f'linear mode, {region} stiffness ({br.linear_frequency_hz:.1f} Hz)')
+    pad = 0.05 * (hi - lo) if np.isfinite(hi - lo) and hi > lo else 1.0
+    ax.set_ylim(lo - pad, hi + pad)
+    flats = sorted((fb for fb in res.flat_branches if fb.xi_min <= xi_max),
+                   key=lambda fb: fb.frequency_hz)
+    last_y = -np.inf
+    for fb in flats:           # labels at the branch ends, stacked where they would overlap
+        y = max(fb.frequency_hz, last_y + _LABEL_GAP * (hi - lo + 2 * pad))
+        ax.annotate(f' {fb.harmonic}', (min(fb.xi_max, xi_max), fb.frequency_hz),
+                    xytext=(min(fb.xi_max, xi_max), y), textcoords='data', fontsize=8,
+                    color=COLORS[fb.region], annotation_clip=False, ha='left',
+                    va='center')
+        last_y = y
+    if xi_max > _LOG_XI_ABOVE:
+        ax.set_xscale('log')
+        ax.set_xlim(0.95, xi_max)
+    else:
+        ax.set_xlim(1.0 - 0.02 * (xi_max - 1), xi_max)
+    ax.set_xlabel(r'$\xi = E / E_{nl}$ [-] (energy over the energy that reaches the knee)')
+    ax.set_ylabel('frequency of the fundamental [Hz]')
+    ax.set_title(f'Non-linear normal modes, α = {res.alpha:g}, θ = {res.theta:g} rad '
+                 f'(mode {res.mode}; paper Fig. 14)\nnumbers: n of flat branches, '
+                 'n × frequency = a resonance in front of / behind the DMF', fontsize=9)
+    ax.grid(alpha=0.3)
+    fig.legend(loc='outside lower center', ncols=2, fontsize=8)
+    return fig
+
+
+# ------------------------------------------------------------------------------------------------
+# Fig. 8 and the engine loads
+# ------------------------------------------------------------------------------------------------
+def mean_torque_panel(ax, speeds_rpm: np.ndarray, mean_nm: Mapping[str, Sequence[float]],
+                      load: float) -> None:
+    """Engine mean torque [Nm] over speed, one line per load set (paper Fig. 8 left)."""
+    for name, values in mean_nm.items():
+        ax.plot(speeds_rpm, values, color=LOAD_SET_COLORS.get(name), label=f'Load {name}')
+    ax.set_xlabel('engine speed [rpm]')
+    ax.set_ylabel('engine mean torque [Nm]')
+    ax.set_title(f'Engine mean torque, load {load:g} (Fig. 8 left)', fontsize=10)
+    ax.legend(loc='center left', bbox_to_anchor=(1.01, 0.5), fontsize=8, frameon=False)
+    ax.grid(alpha=0.3)
+
+
+def order_bars_panel(ax, orders: Sequence[Mapping[str, float]], speed_rpm: float,
+                     load_set: str, load: float) -> None:
+    """Amplitudes [Nm] of the engine orders on a rigid crank and of one cylinder."""
+    o = np.array([r['order'] for r in orders])
+    ax.bar(o, [r['engine_nm'] for r in orders], width=0.35, label='engine (rigid crank)')
+    ax.bar(o + 0.2, [r['cylinder_nm'] for r in orders], width=0.2, label='one cylinder')
+    ax.set_xlabel('engine order [-]')
+    ax.set_ylabel('torque amplitude [Nm]')
+    ax.set_title(f'Order content at {speed_rpm:g} rpm, Load {load_set}, load {load:g}',
+                 fontsize=10)
+    ax.legend(loc='center left', bbox_to_anchor=(1.01, 0.5), fontsize=8, frameon=False)
+    ax.grid(alpha=0.3)
+
+
+def torque_over_angle_panel(ax, psi_deg: np.ndarray, torque_nm: Mapping[float, np.ndarray],
+                            what: str) -> None:
+    """Torque [Nm] over one 720 deg engine cycle, one line per engine speed [rpm]."""
+    for speed, tq in torque_nm.items():
+        ax.plot(psi_deg, tq, lw=1.0, label=f'{speed:g} rpm')
+    ax.set_xlabel('crank angle [deg] (0 = cylinder 1 firing TDC)')
+    ax.set_ylabel('torque [Nm]')
+    ax.set_xlim(0.0, 720.0)
+    ax.set_xticks(np.arange(0, 721, 120))
+    ax.set_title(what, fontsize=10)
+    ax.legend(loc='center left', bbox_to_anchor=(1.01, 0.5), fontsize=8, frameon=False)
+    ax.grid(alpha=0.3)
+
+
+def two_panel_figure(title: str, width: float = 12.0) -> tuple[Figure, object, object]:
+    """An empty figure with two side-by-side panels (left, right)."""
+    fig = Figure(figsize=(width, 4.4), layout='constrained')
+    left, right = fig.subplots(1, 2)
+    fig.suptitle(title, fontsize=11)
+    return fig, left, right
+
+
+def save(fig: Figure, path: str | Path) -> Path:
+    """Write the figure as PNG and return the path."""
+    path = Path(path)
+    fig.savefig(path, dpi=DPI)
+    return path
