@@ -434,7 +434,7 @@ def test_node_end_to_end_killed_recording(tmp_path, capsys):
     pytest.importorskip('dmf_sim.node')
     bag = tmp_path / 'nodebag'
     env = {**os.environ, 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST',
-           'ROS_DOMAIN_ID': str(random.randint(120, 200))}
+           'ROS_DOMAIN_ID': str(random.randint(101, 140))}
     proc = subprocess.Popen(
         [sys.executable, '-m', 'dmf_sim.node', '--ros-args', '-p', 'pacing:=fast', '-p',
          'record:=true', '-p', f'bag_path:={bag}', '-p', 'initial_speed_rpm:=1100.0', '-p',
