@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ['plot_campbell', 'plot_fig13']
+__all__ = ['fig13_figure', 'plot_campbell', 'plot_fig13']
 
 _DPI = 120
 _ORDER_STYLE = {'order_3': ('3rd order', 'tab:red'), 'order_1_5': ('1.5th order', 'tab:blue'),
@@ -81,7 +81,16 @@ def _title(res, sig) -> str:
 
 
 def plot_fig13(res, sig, path: Path) -> Path:
-    """The paper's Fig. 13 quantities over speed (see the module docstring)."""
+    """Save :func:`fig13_figure` as ``path`` (PNG)."""
+    plt = _pyplot()
+    fig = fig13_figure(res, sig)
+    fig.savefig(path, dpi=_DPI)
+    plt.close(fig)
+    return path
+
+
+def fig13_figure(res, sig):
+    """The paper's Fig. 13 quantities over speed (see the module docstring): a Figure."""
     plt = _pyplot()
     t = sig.table
     unit = sig.signal.unit
@@ -122,9 +131,7 @@ def plot_fig13(res, sig, path: Path) -> Path:
     _legend_outside(ax)
     axes[-1, 0].set_xlabel('engine speed [rpm]')
     fig.suptitle(_title(res, sig) + ' (paper Fig. 13 quantities)', fontsize=10)
-    fig.savefig(path, dpi=_DPI)
-    plt.close(fig)
-    return path
+    return fig
 
 
 def _edges(values: np.ndarray, half_width: float) -> np.ndarray:

@@ -1,15 +1,11 @@
 """Order analysis of bags (dmf_sim.analyze, ``dmf-sim analyze``).
 
-Synthetic bags are written with real CDR (rclpy's serializer, or mcap_ros2's for the
-``ros2 bag record``-style bag) and carry known half-order content on a speed ramp, so resampling on
-the crank angle matters. The "node recording" is produced offline, without DDS: the node's own
-simulation core (dmf_sim.live.LiveSimulation, what driveline_node steps) is advanced in chunks and
-its samples are serialized and recorded exactly as dmf_sim/node.py does (same topics, same
-messages, BagRecorder, same custom_data).
+Bags with known content come from ``synthetic_bags`` (BagRecorder + rclpy CDR, or mcap_ros2's
+writer for the ``ros2 bag record``-style bag); the "node recording" is the node's simulation
+core stepped offline and recorded as the node does.
 """
 from __future__ import annotations
 
-import array
 import json
 import math
 import shutil
@@ -22,105 +18,21 @@ import pytest
 
 pytest.importorskip('rclpy')
 
-from builtin_interfaces.msg import Time  # noqa: E402
-from rclpy.serialization import serialize_message  # noqa: E402
-from sensor_msgs.msg import JointState  # noqa: E402
-from std_msgs.msg import Float64, String  # noqa: E402
+from synthetic_bags import (CYL1, NAMES, RATE, T0, TOL, TOPICS, TORQUE, WINDUP,  # noqa: E402
+                            check_table, ramp, record_node_run_up, synth, write_synthetic)
 
-from dmf_sim.analyze import (SignalSpec, analyze_bag, model_settings, overlay_all,  # noqa: E402
-                             read_bag_series)
-from dmf_sim.bag import BagRecorder  # noqa: E402
+from dmf_sim.analyze import SignalSpec, analyze_bag, read_bag_series  # noqa: E402
 from dmf_sim.cli import main as cli_main  # noqa: E402
-from dmf_sim.model import load_driveline  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
-NAMES = load_driveline('truck_dmf').names
-T0 = 1_700_000_000_000_000_000
-RATE = 1000.0
-TOL = 0.005                       # synthetic content must come back within 0.5 %
-# x(psi) = mean + sum_n a_n cos(n psi / 2 + phase_n): n = 6 is the 3rd order, n = 3 the 1.5th
-WINDUP = {'mean': 0.21, 3: (0.0015, 0.7), 6: (0.012, -1.2), 9: (0.0008, 0.1), 12: (0.002, 2.0)}
-CYL1 = {'mean': 2e-3, 6: (5e-4, 0.3), 12: (1.5e-4, -0.4)}
-TORQUE = {'mean': 1800.0, 3: (50.0, 1.0), 6: (350.0, -0.5)}
-TOPICS = {'/driveline/joint_states': 'sensor_msgs/msg/JointState',
-          '/driveline/dmf_windup': 'std_msgs/msg/Float64',
-          '/engine/speed': 'std_msgs/msg/Float64',
-          '/engine/crank_angle': 'std_msgs/msg/Float64'}
-
-
-def synth(spec: dict, psi: np.ndarray) -> np.ndarray:
-    x = np.full_like(psi, spec['mean'])
-    for n, (a, ph) in ((k, v) for k, v in spec.items() if k != 'mean'):
-        x += a * np.cos(n * psi / 2 + ph)
-    return x
-
-
-def ramp(duration: float = 16.0, v0: float = 700.0, v1: float = 1500.0):
-    """Time [s], speed [rpm] (linear ramp, 50 rpm/s) and crank angle [rad] at RATE."""
-    t = np.arange(int(duration * RATE)) / RATE
-    rpm = v0 + (v1 - v0) * t / duration
-    omega = rpm * math.pi / 30
-    psi = 0.3 + np.concatenate(([0.0], np.cumsum(0.5 * (omega[1:] + omega[:-1]) / RATE)))
-    return t, rpm, psi
-
-
-def joint_state(stamp_ns: int, position, effort, names=NAMES, frame='driveline') -> JointState:
-    msg = JointState()
-    msg.header.stamp = Time(sec=stamp_ns // 1_000_000_000, nanosec=stamp_ns % 1_000_000_000)
-    msg.header.frame_id = frame
-    msg.name = list(names)
-    msg.position = array.array('d', position)
-    msg.velocity = array.array('d', np.zeros(len(names)))
-    msg.effort = array.array('d', effort)
-    return msg
-
-
-def write_synthetic(path: Path, topics=('joints', 'windup', 'speed', 'crank'), **kw) -> Path:
-    """A bag like the node's (BagRecorder, rclpy CDR) with known content on a speed ramp."""
-    t, rpm, psi = ramp(**kw)
-    w, cyl, tq = synth(WINDUP, psi), synth(CYL1, psi), synth(TORQUE, psi)
-    i_cyl, i_in = NAMES.index('CYL1'), NAMES.index('INPUT SHAFT')
-    keys = dict(zip(('joints', 'windup', 'speed', 'crank'), TOPICS))
-    declared = {keys[k]: TOPICS[keys[k]] for k in topics}
-    declared['/rosout_like'] = 'std_msgs/msg/String'       # an extra topic nobody asked for
-    declared['/late'] = 'std_msgs/msg/Float64'             # wind-up again, only after 5 s
-    with BagRecorder(path, declared) as rec:
-        for i in range(len(t)):
-            ns = T0 + int(round(t[i] * 1e9))
-            if 'joints' in topics:
-                pos = np.zeros(len(NAMES))
-                pos[i_cyl] = cyl[i]
-                eff = np.zeros(len(NAMES))
-                eff[i_in] = tq[i]
-                rec.write(keys['joints'], ns, serialize_message(joint_state(ns, pos, eff)))
-            for key, val in (('windup', w[i]), ('speed', rpm[i]), ('crank', psi[i])):
-                if key in topics:
-                    rec.write(keys[key], ns, serialize_message(Float64(data=float(val))))
-            if i % 500 == 0:
-                rec.write('/rosout_like', ns, serialize_message(String(data=f'tick {i}')))
-            if t[i] >= 5.0:
-                rec.write('/late', ns, serialize_message(Float64(data=float(w[i]))))
-    return path
-
-
-def check_table(table, spec: dict, tol: float = TOL, orders=(3, 6)) -> None:
-    """Every speed bin recovers the amplitudes of ``spec`` within ``tol``."""
-    assert len(table) > 0
-    for n in orders:
-        if n not in spec:
-            continue
-        a = spec[n][0]
-        got = table.amplitudes[:, n]
-        assert np.all(np.isfinite(got))
-        assert np.max(np.abs(got - a)) / a < tol, (n, got.min(), got.max(), a)
-    assert np.allclose(table.mean, spec['mean'], rtol=tol, atol=1e-12)
 
 
 @pytest.fixture(scope='module')
 def bags(tmp_path_factory):
     root = tmp_path_factory.mktemp('analyze')
     return {'full': write_synthetic(root / 'full'),
-            'no_crank': write_synthetic(root / 'no_crank', topics=('windup', 'speed')),
+            'no_crank': write_synthetic(root / 'no_crank', topics=('windup', 'speed'),
+                                   max_duration_s=3.0),         # 6 split files
             'neither': write_synthetic(root / 'neither', topics=('windup',)),
             'root': root}
 
@@ -352,45 +264,8 @@ def test_cli_text_report(bags, tmp_path, capsys, monkeypatch):
     assert (tmp_path / 'no_crank_analysis' / 'windup_orders.csv').exists()
 
 
+
 # ------------------------------------------------------------- node run-up against the HBM
-
-def record_node_run_up(path: Path, v0: float, v1: float, ramp_rpm_s: float, hold_s: float,
-                       load: float = 1.0, chunk_steps: int = 100) -> Path:
-    """Offline 'node recording' without DDS: the node's simulation core (LiveSimulation) steps in
-    chunks; every published sample is serialized and recorded as dmf_sim/node.py does."""
-    from dmf_sim.live import LiveSimulation
-
-    sim = LiveSimulation.from_config('truck_dmf', 'engine_d13', load_set='A', speed_rpm=v0,
-                                     load=load, speed_ramp_rpm_per_s=ramp_rpm_s, stride=10)
-    custom = {'dmf_sim.driveline': 'truck_dmf', 'dmf_sim.engine': 'engine_d13',
-              'dmf_sim.load_set': 'A', 'dmf_sim.alpha': f'{sim.line.dmf.alpha:g}',
-              'dmf_sim.theta_rad': f'{sim.line.dmf.theta:g}', 'dmf_sim.dt_s': f'{sim.dt:g}',
-              'dmf_sim.publish_rate_hz': '1000'}
-    js, f = JointState(), Float64()
-    js.name = sim.names
-    n_total = int(round((hold_s + abs(v1 - v0) / ramp_rpm_s + 0.3) / sim.dt))
-    with BagRecorder(path, {**TOPICS, '/diagnostics': 'diagnostic_msgs/msg/DiagnosticArray'},
-                     custom_data=custom) as rec:
-        done = 0
-        while done < n_total:
-            if done * sim.dt >= hold_s and sim.speed_setpoint != v1:
-                assert sim.set_speed_setpoint(v1) is None
-            s = sim.advance(chunk_steps)
-            done += chunk_steps
-            for i in range(len(s)):
-                ns = T0 + int(round(float(s.t[i]) * 1e9))
-                js.header.stamp = Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
-                js.position = array.array('d', s.position[i].tobytes())
-                js.velocity = array.array('d', s.velocity[i].tobytes())
-                js.effort = array.array('d', s.effort[i].tobytes())
-                rec.write('/driveline/joint_states', ns, serialize_message(js))
-                for topic, val in (('/driveline/dmf_windup', s.windup[i]),
-                                   ('/engine/speed', s.speed_rpm[i]),
-                                   ('/engine/crank_angle', s.psi[i])):
-                    f.data = float(val)
-                    rec.write(topic, ns, serialize_message(f))
-    return path
-
 
 # Tolerances the README states for a run-up at <= 20 rpm/s against the steady-state HBM:
 RUNUP_TOL = {'order_3': ('rel', 0.01), 'order_1_5': ('peak', 0.15),
