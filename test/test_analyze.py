@@ -345,15 +345,22 @@ def test_node_end_to_end_killed_recording(tmp_path, capsys):
 # ------------------------------------------------------------------------------------ benchmark
 
 def test_bench_analyze_quick():
+    """The benchmark on a small bag: figures sane, the fast reader agrees with the libraries
+    alone and is faster, and reading + orders take far less memory than the bag's size
+    (issue 14: the reader streams chunk by chunk; before, RSS grew by the bag's size)."""
     out = subprocess.run([sys.executable, str(REPO / 'benchmarks' / 'bench_analyze.py'),
-                          '--minutes', '0.5'], capture_output=True, text=True, check=True,
-                         timeout=300).stdout.strip().splitlines()
+                          '--minutes', '0.5', '--no-plots'], capture_output=True, text=True,
+                         check=True, timeout=300).stdout.strip().splitlines()
     data = json.loads(out[-1])
-    assert data['messages'] == 4 * 30000
-    for key in ('analyze_seconds', 'read_seconds', 'joint_analyze_seconds', 'write_seconds'):
+    assert data['messages'] == 4 * 30000 and data['bag_mib'] > 25
+    for key in ('analyze_seconds', 'read_seconds', 'library_read_seconds',
+                'joint_analyze_seconds', 'write_seconds'):
         assert math.isfinite(data[key]) and data[key] > 0
     assert data['analyze_seconds'] < 20
-    assert data['reader'] == 'fast'
+    assert data['reader'] == 'fast' and data['readers_agree']
+    assert data['fast_reader_speedup'] > 1
+    assert data['analyze_rss_growth_mib'] < 0.4 * data['bag_mib']
+    assert data['joint_rss_growth_mib'] < 0.4 * data['bag_mib']
     for key in ('order_3_max_rel_error', 'order_1_5_max_rel_error', 'cyl1_order_3_max_rel_error',
                 'input_torque_order_3_max_rel_error'):
         assert data[key] < TOL
