@@ -10,7 +10,8 @@ readers open it.
 Splits: like ``ros2 bag record --max-bag-duration``, :class:`BagRecorder` starts a new file once
 the current one spans ``max_duration_s`` of log time. Each finished file is closed with its
 complete MCAP summary and footer, and ``metadata.yaml`` is rewritten listing the closed files
-(message counts, durations, ``custom_data``). So after a crash (even SIGKILL) every split but
+(message counts, durations, ``custom_data``) -- by a helper thread, so the writing thread does not
+wait for it. So after a crash (even SIGKILL) every split but
 the last is a complete file that rosbags, ``mcap`` and ``ros2 bag`` read; the last one, not yet
 listed, is a valid MCAP prefix that :func:`read_messages` and ``dmf-sim analyze`` read up to its
 last complete chunk and :func:`recover_bag` (``dmf-sim bag-recover``) completes.
@@ -178,7 +179,10 @@ class BagRecorder:
             refuse_existing(self.path)
             raise
         self.message_count = 0
-        self.closed_files: list[FileInfo] = []
+        self.closed_files: list[FileInfo] = []   # finished splits, in order
+        self._next_index = 0
+        self._finisher: threading.Thread | None = None
+        self._finisher_error: BaseException | None = None
         self._closed = False
         self._lock = threading.Lock()
         self._write_metadata()          # provisional: topics and custom_data, no file yet
@@ -186,7 +190,8 @@ class BagRecorder:
 
     # ---- files -------------------------------------------------------------------------------
     def _open_file(self) -> None:
-        self._file = FileInfo(f'{self.path.name}_{len(self.closed_files)}.mcap')
+        self._file = FileInfo(f'{self.path.name}_{self._next_index}.mcap')
+        self._next_index += 1
         self._stream = (self.path / self._file.path).open('xb')
         self._writer = Writer(self._stream, chunk_size=2**62, compression=self._compression)
         self._writer.start(profile='ros2', library=LIBRARY)
@@ -204,17 +209,43 @@ class BagRecorder:
         self._chunk_t0 = 0
         self._chunk_wall0 = 0.0
 
-    def _finish_file(self) -> None:
-        """Write the open file's last chunk, summary and footer, close it, list it."""
-        self._flush()
-        files = [*self.closed_files, self._file]
-        info = self._metadata(files)['rosbag2_bagfile_information']
-        self._writer.add_metadata('rosbag2', {'serialized_metadata': dump_metadata(info),
-                                              'ROS_DISTRO': ROS_DISTRO})
-        self._writer.finish()
-        self._stream.close()
-        self.closed_files.append(self._file)
+    def _finish(self, writer: Writer, stream, file: FileInfo) -> None:
+        """Write a file's summary and footer, close it, list it in ``metadata.yaml``."""
+        info = self._metadata([*self.closed_files, file])['rosbag2_bagfile_information']
+        writer.add_metadata('rosbag2', {'serialized_metadata': dump_metadata(info),
+                                        'ROS_DISTRO': ROS_DISTRO})
+        writer.finish()
+        stream.close()
+        self.closed_files.append(file)
         self._write_metadata()
+
+    def _finish_in_background(self, writer: Writer, stream, file: FileInfo) -> None:
+        def run() -> None:
+            try:
+                self._finish(writer, stream, file)
+            except BaseException as exc:  # noqa: BLE001 - reported by the next write/close
+                self._finisher_error = exc
+
+        self._join_finisher()
+        self._finisher = threading.Thread(target=run, name=f'bag split {file.path}', daemon=True)
+        self._finisher.start()
+
+    def _join_finisher(self) -> None:
+        """Wait for the previous split to be finished; re-raise what it failed with."""
+        if self._finisher is not None:
+            self._finisher.join()
+            self._finisher = None
+        if self._finisher_error is not None:
+            exc, self._finisher_error = self._finisher_error, None
+            raise exc
+
+    def _split(self) -> None:
+        """Start the next file; the full one is finished by a helper thread, so the writing
+        thread (the node's tick) does not wait for its summary and metadata."""
+        self._flush()
+        old = (self._writer, self._stream, self._file)
+        self._open_file()
+        self._finish_in_background(*old)
 
     def _metadata(self, files: list[FileInfo]) -> dict[str, Any]:
         return bag_metadata(self._infos, files, custom_data=self._custom_data)
@@ -237,10 +268,11 @@ class BagRecorder:
             raise BagError(f'topic {topic!r} was not declared when the bag was opened') from None
         if timestamp_ns < 0:
             raise BagError(f'timestamp must be non-negative, got {timestamp_ns}')
+        if self._finisher_error is not None:
+            self._join_finisher()
         f = self._file
         if f.count and timestamp_ns - f.start >= self._max_duration_ns:
-            self._finish_file()
-            self._open_file()
+            self._split()
             f = self._file
         self._writer.add_message(cid, timestamp_ns, data, timestamp_ns, info.count & 0xFFFFFFFF)
         info.count += 1
@@ -266,7 +298,11 @@ class BagRecorder:
             self._flush()
 
     def _flush(self) -> None:
-        if self._closed or self._pending == 0:
+        if not self._closed:
+            self._flush_chunk()
+
+    def _flush_chunk(self) -> None:
+        if self._pending == 0:
             return
         self._writer.flush()  # finalizes the chunk + message indexes, flushes the stream
         self._pending = 0
@@ -278,8 +314,12 @@ class BagRecorder:
         with self._lock:
             if self._closed:
                 return
-            self._finish_file()
             self._closed = True
+            self._flush_chunk()
+            try:
+                self._join_finisher()
+            finally:
+                self._finish(self._writer, self._stream, self._file)
 
     # ---- state -------------------------------------------------------------------------------
     @property
@@ -289,11 +329,8 @@ class BagRecorder:
 
     @property
     def files(self) -> list[Path]:
-        """The bag's MCAP files so far (closed splits, then the open one)."""
-        names = [f.path for f in self.closed_files]
-        if not self._closed:
-            names.append(self._file.path)
-        return [self.path / n for n in names]
+        """The bag's MCAP files so far (finished splits, then the open one)."""
+        return [self.path / f'{self.path.name}_{i}.mcap' for i in range(self._next_index)]
 
     def __enter__(self) -> BagRecorder:
         return self

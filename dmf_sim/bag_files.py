@@ -19,6 +19,7 @@ start with the MCAP magic (random bytes, an empty file) is "not an MCAP file".
 """
 from __future__ import annotations
 
+import functools
 import os
 import re
 from collections.abc import Mapping, Sequence
@@ -46,6 +47,7 @@ ROSBAG2_VERSION = 9
 ROS_DISTRO = 'jazzy'
 STORAGE_ID = 'mcap'
 _SPLIT = re.compile(r'^(.*?)(?:_(\d+))?\.mcap$')
+_DUMPER = getattr(yaml, 'CSafeDumper', yaml.SafeDumper)
 
 
 # ------------------------------------------------------------------------- metadata.yaml
@@ -59,6 +61,11 @@ class TopicInfo:
     qos: str = ''
     type_hash: str = ''
     count: int = 0
+
+    @functools.cached_property
+    def qos_profiles(self) -> list[dict[str, Any]]:
+        """The offered QoS as a list of profiles (rosbag2 v9 metadata form)."""
+        return _parse_qos(self.qos)
 
 
 @dataclass
@@ -111,7 +118,7 @@ def bag_metadata(topics: Sequence[TopicInfo], files: Sequence[FileInfo], *,
         'message_count': sum(f.count for f in files),
         'topics_with_message_count': [
             {'topic_metadata': {'name': t.name, 'type': t.msgtype, 'serialization_format': 'cdr',
-                                'offered_qos_profiles': _parse_qos(t.qos),
+                                'offered_qos_profiles': t.qos_profiles,
                                 'type_description_hash': t.type_hash},
              'message_count': counts[t.name]}
             for t in topics],
@@ -127,8 +134,9 @@ def bag_metadata(topics: Sequence[TopicInfo], files: Sequence[FileInfo], *,
 
 
 def dump_metadata(meta: Mapping[str, Any]) -> str:
-    """YAML text of a metadata mapping, keys in rosbag2's order."""
-    return yaml.safe_dump(dict(meta), sort_keys=False, default_flow_style=False)
+    """YAML text of a metadata mapping, keys in rosbag2's order (libyaml's emitter if present:
+    the recorder writes it at every split)."""
+    return yaml.dump(dict(meta), Dumper=_DUMPER, sort_keys=False, default_flow_style=False)
 
 
 def write_metadata(directory: Path, meta: Mapping[str, Any]) -> None:
