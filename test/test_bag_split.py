@@ -38,6 +38,14 @@ def info_of(bag: Path) -> dict:
     return yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
 
 
+def wait_listed(bag: Path, n: int, timeout_s: float = 10.0) -> dict:
+    """metadata.yaml once it lists ``n`` files (a helper thread finishes each split)."""
+    deadline = time.monotonic() + timeout_s
+    while len((info := info_of(bag))['relative_file_paths']) < n and time.monotonic() < deadline:
+        time.sleep(0.01)
+    return info
+
+
 def env_with_repo() -> dict:
     return {**os.environ, 'PYTHONPATH': os.pathsep.join([str(REPO),
                                                          os.environ.get('PYTHONPATH', '')])}
@@ -56,7 +64,7 @@ def test_splits_closed_listed_and_in_order(tmp_path: Path) -> None:
             rec.write('/a', t, float64(i))
             rec.write('/b', t, float64(-i))
             if i == 150:                # mid-recording: one split closed and listed
-                mid = info_of(bag)
+                mid = wait_listed(bag, 1)
     assert mid['relative_file_paths'] == ['run_0.mcap']
     assert mid['message_count'] == 200 and mid['custom_data'] == {'k': 'v'}
     info = info_of(bag)
