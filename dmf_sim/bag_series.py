@@ -186,15 +186,15 @@ def bag_topic_names(listed: Mapping[str, str], topics: Mapping[str, str] | None 
 
 # ---------------------------------------------------------------------------- time stamps
 
-def monotonic_times(t_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
-    """Stamps in file order -> (stamps running forward, order to apply to the values, number of
-    re-anchored clock jumps unrolled). See the module docstring."""
+def monotonic_times(t_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray | None, int]:
+    """Stamps in file order -> (stamps running forward, order to apply to the values or None if
+    they are in order, number of re-anchored clock jumps unrolled). See the module docstring."""
     t = np.asarray(t_ns, np.int64)
     if len(t) < 2:
-        return t, np.arange(len(t)), 0
+        return t, None, 0
     d = np.diff(t)
     if not (d < 0).any():
-        return t, np.arange(len(t)), 0
+        return t, None, 0
     forward = d[d > 0]
     step = int(np.median(forward)) if len(forward) else 1
     jumps = np.flatnonzero(d < -BACK_JUMP_STEPS * step)
@@ -316,14 +316,20 @@ def read_bag_series(path: str | os.PathLike | BagFiles, *, signals: Sequence[Sig
     series: dict[str, Series] = {}
     jumps: dict[str, int] = {}
 
+    joined: dict[str, tuple[np.ndarray, np.ndarray] | None] = {}
+
     def assemble(topic: str) -> tuple[np.ndarray, np.ndarray] | None:
-        got = parts.get(topic)
-        if not got:
-            return None
-        t, order, n = monotonic_times(np.concatenate([p[0] for p in got]))
-        if n:
-            jumps[topic] = n
-        return t, np.concatenate([p[1] for p in got])[order]
+        if topic in joined:
+            return joined[topic]
+        got = parts.pop(topic, None)       # freed as it is joined: peak ~ one copy of a topic
+        joined[topic] = None
+        if got:
+            t, order, n = monotonic_times(np.concatenate([p[0] for p in got]))
+            if n:
+                jumps[topic] = n
+            values = np.concatenate([p[1] for p in got])
+            joined[topic] = (t, values if order is None else values[order])
+        return joined[topic]
 
     for key, topic in scalar.items():
         if (tv := assemble(topic)) is not None:

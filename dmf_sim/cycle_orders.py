@@ -11,7 +11,8 @@ smear the orders, whatever the ramp rate.
 For a recording, :func:`cycle_orders` first gives each signal sample its crank angle (linear
 interpolation of psi(t); samples published together with a crank-angle sample but stamped with
 receive-time jitter take that sample's angle, see :func:`_psi_at`), splits the data at gaps
-(lost messages, a truncated tail) and runs :func:`angle_cycle_orders` on each piece.
+(lost messages, a truncated tail) and runs :func:`angle_cycle_orders` on each piece, block by
+block of ``BLOCK_CYCLES`` cycles.
 
 Same numbers live and offline: the spline's end conditions reach only a few samples into the
 data, so a live caller that passes each cycle with ``EDGE_SAMPLES`` samples on both sides gets
@@ -31,6 +32,7 @@ __all__ = ['GAP_FACTOR', 'EDGE_SAMPLES', 'CycleOrders', 'angle_cycle_orders', 'c
 
 GAP_FACTOR = 5.0          # a time step > GAP_FACTOR x the median step is a gap (segment break)
 EDGE_SAMPLES = 8          # samples beyond a cycle's ends that make its spline edge-independent
+BLOCK_CYCLES = 64         # cycles resampled per spline (bounds the memory of long recordings)
 _PAIRING_JITTER = 0.3     # a signal stamp within this fraction of a step of a crank stamp pairs
 _SECONDS_PER_CYCLE_RPM = 120.0   # one 720 deg cycle lasts 120 / speed[rpm] seconds
 
@@ -217,7 +219,23 @@ def cycle_orders(t_ns: np.ndarray, x: np.ndarray, crank_t_ns: np.ndarray,
     psi, _ = _psi_at(ts, tc, psi_c)
     breaks = (dts > thr_s) | (np.diff(psi) <= 0) | crank_gap[1:] | crank_gap[:-1]
     fs = 1.0 / float(np.median(dts)) if np.median(dts) > 0 else None
-    parts = [angle_cycle_orders(psi[a:b], x[a:b], t_s=ts[a:b], points_per_cycle=points_per_cycle,
-                                n_max=n_max, sample_rate_hz=fs)
-             for a, b in _segments(breaks) if b - a >= 4]
+    parts = [angle_cycle_orders(psi[lo:hi], x[lo:hi], t_s=ts[lo:hi],
+                                points_per_cycle=points_per_cycle, n_max=n_max,
+                                sample_rate_hz=fs)
+             for a, b in _segments(breaks) if b - a >= 4
+             for lo, hi in _blocks(psi[a:b], a)]
     return CycleOrders.concatenate([p for p in parts if len(p)], n_max)
+
+
+def _blocks(psi: np.ndarray, offset: int) -> list[tuple[int, int]]:
+    """Sample ranges holding ``BLOCK_CYCLES`` whole cycles each (plus EDGE_SAMPLES on both
+    sides, within the segment): one spline per block, so memory does not grow with the
+    recording and every cycle gets the same numbers as from a spline over the whole segment."""
+    k0 = math.ceil(psi[0] / CYCLE_RAD - 1e-12)
+    k1 = math.floor(psi[-1] / CYCLE_RAD + 1e-12)
+    out = []
+    for k in range(k0, k1, BLOCK_CYCLES):
+        lo = int(np.searchsorted(psi, k * CYCLE_RAD)) - EDGE_SAMPLES
+        hi = int(np.searchsorted(psi, min(k + BLOCK_CYCLES, k1) * CYCLE_RAD)) + EDGE_SAMPLES
+        out.append((offset + max(lo, 0), offset + min(hi, len(psi))))
+    return out
