@@ -105,7 +105,7 @@ def analysis_dict(res, extra: Mapping[str, Any] | None = None) -> dict[str, Any]
 
 
 def write_csv(sig, path: Path) -> Path:
-    """One row per speed bin (or cycle): speed, Fig. 13 quantities, HBM columns, all half orders."""
+    """One row per speed bin (or cycle): speed, Fig. 13 quantities, HBM columns, half orders."""
     rows = table_rows(sig)
     orders = [f'o{n / 2:g}' for n in range(sig.table.amplitudes.shape[1])]
     fixed = [k for k in rows[0] if k != 'amplitudes'] if rows else []

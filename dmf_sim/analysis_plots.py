@@ -160,15 +160,15 @@ def plot_campbell(res, sig, path: Path, natural: Mapping[str, Sequence[float]] |
     norm = LogNorm(vmin=max(1e-3 * top, 1e-300), vmax=top)
     fmax = min(res.sample_rate_hz / 2 if math.isfinite(res.sample_rate_hz) else np.inf,
                orders[-1] * speeds.max() / 60.0 * 1.05)
-    S, O = np.meshgrid(speeds, orders, indexing='ij')
+    S, Ord = np.meshgrid(speeds, orders, indexing='ij')
     ok = np.isfinite(amp) & (amp > 1e-4 * top)
     ramp = ok & ~steady[:, None]
     ok &= steady[:, None]
     sizes = 4 + 120 * (amp / top)
-    sc = ax.scatter(S[ok], (O * S / 60.0)[ok], s=sizes[ok], c=amp[ok], cmap='viridis',
+    sc = ax.scatter(S[ok], (Ord * S / 60.0)[ok], s=sizes[ok], c=amp[ok], cmap='viridis',
                     norm=norm, alpha=0.85, lw=0)
     if ramp.any():
-        ax.scatter(S[ramp], (O * S / 60.0)[ramp], s=sizes[ramp], facecolors='none',
+        ax.scatter(S[ramp], (Ord * S / 60.0)[ramp], s=sizes[ramp], facecolors='none',
                    edgecolors=plt.get_cmap('viridis')(norm(amp[ramp])), lw=0.6,
                    label='ramp bins (few cycles)')
     fig.colorbar(sc, ax=ax, label=f'half-order amplitude [{unit}]')

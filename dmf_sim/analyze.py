@@ -103,7 +103,8 @@ def _signal_topic(spec: SignalSpec, names: Mapping[str, str]) -> str:
     return {'windup': names['windup'], 'topic': spec.element}.get(spec.kind, names['joints'])
 
 
-def analyze_bag(path: str | os.PathLike | BagFiles, signals: Iterable[str | SignalSpec] = ('windup',), *,
+def analyze_bag(path: str | os.PathLike | BagFiles,
+                signals: Iterable[str | SignalSpec] = ('windup',), *,
                 bin_rpm: float = DEFAULT_BIN_RPM, min_cycles: int = DEFAULT_MIN_CYCLES,
                 points_per_cycle: int = 256, n_max: int = 24, theta: float | None = None,
                 topics: Mapping[str, str] | None = None, namespace: str | None = None,

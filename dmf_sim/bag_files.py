@@ -37,8 +37,9 @@ from dmf_sim.errors import BagError, BagExistsError, BagFileError, ConfigError, 
 from dmf_sim.paths import parse_yaml, read_text
 from dmf_sim.run_metadata import RunMetadata
 
-__all__ = ['LIBRARY', 'METADATA_FILE', 'ROSBAG2_VERSION', 'ROS_DISTRO', 'STORAGE_ID', 'BagFiles', 'FileInfo',
-           'TopicInfo', 'bag_metadata', 'dump_metadata', 'is_mcap', 'refuse_existing', 'resolve_bag',
+__all__ = ['LIBRARY', 'METADATA_FILE', 'ROSBAG2_VERSION', 'ROS_DISTRO', 'STORAGE_ID', 'BagFiles',
+           'FileInfo', 'TopicInfo', 'bag_metadata', 'dump_metadata', 'is_mcap',
+           'refuse_existing', 'resolve_bag',
            'split_number', 'write_metadata']
 
 LIBRARY = f'dmf_sim-{__version__}'   # the MCAP header's library field

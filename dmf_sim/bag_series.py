@@ -175,8 +175,9 @@ def bag_topic_names(listed: Mapping[str, str], topics: Mapping[str, str] | None 
     if namespace is None:
         spaces = driveline_namespaces(list(listed))
         if len(spaces) > 1:
-            raise BagError(f'the bag holds several drivelines ({", ".join(s or "/" for s in spaces)}'
-                           '); choose one with --namespace')
+            names = ', '.join(s or '/' for s in spaces)
+            raise BagError(f'the bag holds several drivelines ({names}); choose one with '
+                           '--namespace')
         namespace = spaces[0] if spaces else ''
     ns = '/' + namespace.strip('/') if namespace.strip('/') else ''
     out = {key: ns + topic for key, topic in DEFAULT_TOPICS.items()}

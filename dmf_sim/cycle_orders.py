@@ -95,7 +95,7 @@ class CycleOrders:
 
 
 def _check_grid(points_per_cycle: int, n_max: int) -> None:
-    if not (isinstance(n_max, (int, np.integer)) and ORDER_3 <= n_max):
+    if not (isinstance(n_max, (int, np.integer)) and n_max >= ORDER_3):
         raise ConfigError(f'n_max={n_max!r} must be an integer >= {ORDER_3} (the 3rd order)')
     if points_per_cycle < 2 * n_max + 2:
         raise ConfigError(f'points_per_cycle={points_per_cycle} must be >= 2 n_max + 2 = '

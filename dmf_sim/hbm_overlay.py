@@ -85,7 +85,8 @@ def model_settings(metadata: Mapping[str, Any] | None = None, *, config: str | N
                 line = line.with_dmf(alpha=stored.alpha, theta=stored.theta_rad)
                 spring_src = 'bag'
         except (ConfigError, KeyError, TypeError, ValueError) as exc:
-            raise BagError(f'the DMF spring stored in the bag is invalid: {one_line(exc)}') from None
+            raise BagError('the DMF spring stored in the bag is invalid: '
+                           f'{one_line(exc)}') from None
         line = line.with_dmf(alpha=alpha, theta=theta)
     spring = line.spring
     out['alpha'] = spring.alpha if spring is not None else None

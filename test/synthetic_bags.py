@@ -92,7 +92,8 @@ def write_synthetic(path: Path, topics=('joints', 'windup', 'speed', 'crank'), *
                               serialize_message(joint_state(ns_t, pos, eff)))
                 for key, val in (('windup', w[i]), ('speed', rpm[i]), ('crank', psi[i])):
                     if key in topics:
-                        rec.write(ns + keys[key], ns_t, serialize_message(Float64(data=float(val))))
+                        rec.write(ns + keys[key], ns_t,
+                                  serialize_message(Float64(data=float(val))))
             if i % 500 == 0:
                 rec.write('/rosout_like', ns_t, serialize_message(String(data=f'tick {i}')))
             if t[i] >= 5.0:

@@ -155,8 +155,8 @@ def test_clock_re_anchored_while_recording(root):
     w = res.signal('windup')
     check_table(w.table, WINDUP)
     assert len(w.cycles) >= len(plain.signal('windup').cycles) - 1
-    np.testing.assert_allclose(w.cycles.speed_rpm[-5:], plain.signal('windup').cycles.speed_rpm[-5:],
-                               rtol=1e-6)
+    np.testing.assert_allclose(w.cycles.speed_rpm[-5:],
+                               plain.signal('windup').cycles.speed_rpm[-5:], rtol=1e-6)
 
 
 def test_live_per_cycle_orders_equal_the_bag_analysis():

@@ -124,8 +124,9 @@ def test_ramp_bins_marked_and_not_compared(tmp_path, capsys):
     res = analyze_bag(bag, start_s=0.5)
     res.signal('windup').table.theta = data['theta_rad']
     fig = fig13_figure(res, res.signal('windup'))
-    hollow = [ln for ln in fig.axes[0].lines if ln.get_label() == '3rd order (bag, ramp: few cycles)']
-    filled = [ln for ln in fig.axes[0].lines if ln.get_label() == '3rd order (bag)']
+    lines = {ln.get_label(): ln for ln in fig.axes[0].lines}
+    hollow = [lines['3rd order (bag, ramp: few cycles)']]
+    filled = [lines['3rd order (bag)']]
     assert hollow[0].get_markerfacecolor() == 'none'
     np.testing.assert_array_equal(hollow[0].get_xdata(), [r['speed_rpm'] for r in ramp])
     np.testing.assert_array_equal(filled[0].get_xdata(), [960.0, 1040.0])

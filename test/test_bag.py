@@ -396,7 +396,8 @@ def test_rosbag2_style_bag_with_extra_topics(tmp_path: Path) -> None:
         w.finish()
     meta = {'rosbag2_bagfile_information': {
         'version': 8, 'storage_identifier': 'mcap', 'relative_file_paths': [fname],
-        'duration': {'nanoseconds': 299 * PERIOD}, 'starting_time': {'nanoseconds_since_epoch': T0},
+        'duration': {'nanoseconds': 299 * PERIOD},
+        'starting_time': {'nanoseconds_since_epoch': T0},
         'message_count': 303, 'compression_format': '', 'compression_mode': '',
         'topics_with_message_count': [
             {'topic_metadata': {'name': n, 'type': t, 'serialization_format': 'cdr',

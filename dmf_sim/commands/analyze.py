@@ -69,9 +69,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help=f'highest half-order index n (order n/2) reported, {N_MAX_RANGE[0]} .. '
                         f'{N_MAX_RANGE[1]} (default %(default)d = 12th order)')
     p.add_argument('--out', type=Path,
-                   help='output directory (analysis.json, <signal>_orders.csv, <signal>_cycles.csv, '
-                        '<signal>_campbell.png, <signal>_fig13.png); default <BAG name>_analysis '
-                        'unless --json')
+                   help='output directory (analysis.json, <signal>_orders.csv, '
+                        '<signal>_cycles.csv, <signal>_campbell.png, <signal>_fig13.png); '
+                        'default <BAG name>_analysis unless --json')
     p.add_argument('--json', action='store_true',
                    help='print one JSON object (order amplitudes per speed bin, Fig. 13 '
                         'quantities, HBM comparison) on stdout')
@@ -99,7 +99,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument('--speed-topic', help='engine speed topic [rpm] (default /engine/speed)')
     p.add_argument('--joints-topic', help='joint states topic (default /driveline/joint_states)')
     p.add_argument('--stamp', choices=('log', 'publish'), default='log',
-                   help='message time stamp used: log (receive) time or publish time (default log)')
+                   help='message time stamp used: log (receive) time or publish time '
+                        '(default log)')
     p.add_argument('--progress', action='store_true', help='tqdm progress bar while reading')
 
 
