@@ -3,8 +3,6 @@ from __future__ import annotations
 
 import os
 import shutil
-import signal
-import subprocess
 import sys
 import textwrap
 import time
@@ -22,6 +20,8 @@ from rclpy.serialization import serialize_message  # noqa: E402
 from rosbags.highlevel import AnyReader  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 from std_msgs.msg import Float64, String  # noqa: E402
+
+from crash import sigkill_when_ready  # noqa: E402
 
 from dmf_sim.bag import BagRecorder, bag_topics, read_messages, recover_bag  # noqa: E402
 from dmf_sim.cli import main as cli_main  # noqa: E402
@@ -291,21 +291,15 @@ def test_sigkill_loses_little_and_recovers(tmp_path: Path) -> None:
     script = tmp_path / 'child.py'
     script.write_text(CHILD)
     path = tmp_path / 'crash'
-    pythonpath = os.pathsep.join([str(REPO), os.environ.get('PYTHONPATH', '')])
-    env = {**os.environ, 'PYTHONPATH': pythonpath}
-    proc = subprocess.Popen([sys.executable, str(script), str(path)], stdout=subprocess.PIPE,
-                            text=True, env=env)
-    try:
+    started = []
+
+    def recording_for_a_while(proc) -> None:
         assert proc.stdout.readline().strip() == 'started'
-        t_start = time.time_ns()
+        started.append(time.time_ns())
         time.sleep(1.5)
-        t_kill = time.time_ns()
-        proc.send_signal(signal.SIGKILL)
-        proc.wait(timeout=10)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-    assert proc.returncode == -signal.SIGKILL
+
+    t_kill = sigkill_when_ready(script, [str(path)], recording_for_a_while)
+    t_start = started[0]
 
     msgs = list(read_messages(path))
     js = [m for m in msgs if m.topic == '/joint_states']

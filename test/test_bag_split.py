@@ -8,7 +8,6 @@ also bounds the ``mcap`` writer's per-chunk index memory, which grew without bou
 from __future__ import annotations
 
 import os
-import signal
 import subprocess
 import sys
 import textwrap
@@ -18,6 +17,8 @@ from pathlib import Path
 import pytest
 import yaml
 from mcap.reader import make_reader
+
+from crash import sigkill_when_ready
 
 from dmf_sim.bag import BagRecorder, read_messages, recover_bag
 from dmf_sim.bag_files import resolve_bag
@@ -124,18 +125,13 @@ def test_sigkill_leaves_every_closed_split_readable(tmp_path: Path) -> None:
     script = tmp_path / 'child.py'
     script.write_text(CHILD)
     bag = tmp_path / 'crash'
-    proc = subprocess.Popen([sys.executable, str(script), str(bag)], stdout=subprocess.PIPE,
-                            text=True, env=env_with_repo())
-    try:
+
+    def three_splits(proc) -> None:
         while int(proc.stdout.readline() or 99) < 3:
             pass
         time.sleep(0.3)                               # some chunks into the next split
-        proc.send_signal(signal.SIGKILL)
-        proc.wait(timeout=10)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-    assert proc.returncode == -signal.SIGKILL
+
+    sigkill_when_ready(script, [str(bag)], three_splits)
     info = info_of(bag)
     listed = info['relative_file_paths']
     assert len(listed) >= 3
