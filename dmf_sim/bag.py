@@ -46,7 +46,7 @@ from dmf_sim.bag_files import (LIBRARY, ROS_DISTRO, FileInfo, TopicInfo, bag_met
                                dump_metadata, refuse_existing, write_metadata)
 from dmf_sim.bag_read import BagMessage, bag_topics, read_messages
 from dmf_sim.bag_recovery import RecoverReport, recover_bag
-from dmf_sim.errors import BagError
+from dmf_sim.errors import BagError, BagExistsError
 
 __all__ = [
     'BagMessage', 'BagRecorder', 'RecoverReport', 'bag_topics', 'read_messages', 'recover_bag',
@@ -102,8 +102,13 @@ def _schemas(topics: Mapping[str, str], msgdefs: Mapping[str, str]) -> dict[str,
     result: dict[str, tuple[str, str]] = {}
     for msgtype in dict.fromkeys(topics.values()):
         if msgtype in msgdefs:
-            store.register(get_types_from_msg(msgdefs[msgtype], msgtype))
-            result[msgtype] = (msgdefs[msgtype], store.hash_rihs01(msgtype))
+            try:
+                store.register(get_types_from_msg(msgdefs[msgtype], msgtype))
+                result[msgtype] = (msgdefs[msgtype], store.hash_rihs01(msgtype))
+            except Exception as exc:  # noqa: BLE001 - rosbags' parser errors vary by version
+                raise BagError(f'msgdefs[{msgtype!r}] is not a valid ros2msg definition '
+                               f'(with its dependencies): {type(exc).__name__} '
+                               f'{" ".join(str(exc).split())}') from None
         elif msgtype in store.types:
             result[msgtype] = (store.generate_msgdef(msgtype, ros_version=2)[0],
                                store.hash_rihs01(msgtype))
@@ -117,7 +122,8 @@ class BagRecorder:
     """Write pre-serialized CDR messages to a new rosbag2 MCAP bag directory.
 
     Args:
-        path: Bag directory to create; it must not exist (missing parents are created).
+        path: Bag directory to create; it must not exist. Missing parents are created, as
+            rosbag2 does, and listed in ``created_dirs`` (for the caller to log).
         topics: Topic name -> ROS type name, e.g. ``'sensor_msgs/msg/JointState'``.
         max_duration_s: Start a new file once the current one spans this much log time [s]
             (``ros2 bag record --max-bag-duration``), within ``MAX_DURATION_RANGE_S``.
@@ -173,11 +179,12 @@ class BagRecorder:
         self._chunk_bytes = int(chunk_bytes)
 
         refuse_existing(self.path)
+        #: parent directories that did not exist and were created (rosbag2 does the same)
+        self.created_dirs = [p for p in reversed(self.path.parents) if not p.exists()]
         try:
             self.path.mkdir(parents=True)
         except FileExistsError:
-            refuse_existing(self.path)
-            raise
+            raise BagExistsError(f'{self.path} exists already, not overwriting') from None
         self.message_count = 0
         self.closed_files: list[FileInfo] = []   # finished splits, in order
         self._next_index = 0

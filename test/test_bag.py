@@ -184,6 +184,15 @@ def test_existing_path_refused(tmp_path: Path) -> None:
         BagRecorder(existing / 'keep.txt', TOPICS)
 
 
+def test_missing_parents_created_and_reported(tmp_path: Path) -> None:
+    """Issue 14: like rosbag2, missing parent directories are created; the recorder lists
+    them so the node can log what it created."""
+    with BagRecorder(tmp_path / 'a' / 'b' / 'run', TOPICS) as rec:
+        assert rec.created_dirs == [tmp_path / 'a', tmp_path / 'a' / 'b']
+    with BagRecorder(tmp_path / 'a' / 'run2', TOPICS) as rec:
+        assert rec.created_dirs == []
+
+
 def test_bad_arguments(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match='(?i)unknown message type'):
         BagRecorder(tmp_path / 'a', {'/x': 'sensor_msgs/JointStat'})
@@ -191,6 +200,8 @@ def test_bad_arguments(tmp_path: Path) -> None:
         BagRecorder(tmp_path / 'b', {'x': 'std_msgs/msg/Float64'})
     with pytest.raises(ValueError, match='QoS'):
         BagRecorder(tmp_path / 'c', {'/x': 'std_msgs/msg/Float64'}, qos={'/x': 'fast'})
+    with pytest.raises(BagError, match='not a valid ros2msg definition'):
+        BagRecorder(tmp_path / 'e', {'/x': 'my_msgs/msg/T'}, msgdefs={'my_msgs/msg/T': 'floatx y'})
     assert not any(tmp_path.iterdir())  # nothing created on bad arguments
     with BagRecorder(tmp_path / 'd', {'/x': 'std_msgs/msg/Float64'}) as rec:
         with pytest.raises(ValueError, match='not declared'):
