@@ -201,7 +201,8 @@ def test_bad_arguments(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match='QoS'):
         BagRecorder(tmp_path / 'c', {'/x': 'std_msgs/msg/Float64'}, qos={'/x': 'fast'})
     with pytest.raises(BagError, match='not a valid ros2msg definition'):
-        BagRecorder(tmp_path / 'e', {'/x': 'my_msgs/msg/T'}, msgdefs={'my_msgs/msg/T': 'floatx y'})
+        BagRecorder(tmp_path / 'e', {'/x': 'my_msgs/msg/T'},
+                    msgdefs={'my_msgs/msg/T': 'floatx y'})
     assert not any(tmp_path.iterdir())  # nothing created on bad arguments
     with BagRecorder(tmp_path / 'd', {'/x': 'std_msgs/msg/Float64'}) as rec:
         with pytest.raises(ValueError, match='not declared'):
