@@ -23,7 +23,7 @@ __all__ = ['fig13_figure', 'plot_campbell', 'plot_fig13']
 
 _DPI = 120
 _ORDER_STYLE = {'order_3': ('3rd order', 'tab:red'), 'order_1_5': ('1.5th order', 'tab:blue'),
-                'max_deviation': ('max deviation', 'k'), 'min_deviation': ('min deviation', 'k')}
+                'max_deviation': ('max / min deviation', 'k'), 'min_deviation': (None, 'k')}
 _GREEN = 'tab:green'
 _MARGIN = 1.25            # the vibration panel spans the measured/HBM extremes x this
 
@@ -39,12 +39,16 @@ def _legend_outside(ax) -> None:
     ax.legend(loc='upper left', bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
 
 
+def _label(label: str | None, what: str) -> str | None:
+    return None if label is None else f'{label} ({what})'
+
+
 def _measured(ax, speed, y, steady, color, label) -> None:
-    """Markers: filled for steady bins, hollow for ramp bins."""
-    ax.plot(speed[steady], y[steady], 'o', ms=4, color=color, label=f'{label} (bag)')
+    """Markers: filled for steady bins, hollow for ramp bins (``label`` None: no legend)."""
+    ax.plot(speed[steady], y[steady], 'o', ms=4, color=color, label=_label(label, 'bag'))
     if (~steady).any():
         ax.plot(speed[~steady], y[~steady], 'o', ms=4, mfc='none', mec=color, alpha=0.6,
-                label=f'{label} (bag, ramp: few cycles)')
+                label=_label(label, 'bag, ramp: few cycles'))
 
 
 def _hbm_lines(ax, curve, key, color, label) -> None:
@@ -60,10 +64,10 @@ def _hbm_lines(ax, curve, key, color, label) -> None:
         order = np.argsort(sp[sel], kind='stable') if b == 0 else np.arange(sel.sum())
         s, yy, un = sp[sel][order], y[sel][order], unstable[sel][order]
         ax.plot(s, np.where(~un, yy, np.nan), '-', color=color, lw=1.2,
-                label=f'{label} (HBM)' if first else None)
+                label=_label(label, 'HBM') if first else None)
         if un.any():
             ax.plot(s, np.where(un, yy, np.nan), '--', color=color, lw=1.0,
-                    label=f'{label} (HBM, unstable)' if first else None)
+                    label=_label(label, 'HBM, unstable') if first else None)
         first = False
 
 
@@ -105,8 +109,7 @@ def fig13_figure(res, sig):
     extremes = []
     for key, (label, color) in _ORDER_STYLE.items():
         y = getattr(t, key)
-        _measured(ax, t.speed_rpm, y, steady, color, label if key != 'min_deviation' else
-                  'min deviation')
+        _measured(ax, t.speed_rpm, y, steady, color, label)
         extremes.append(y[np.isfinite(y)])
         if curve is not None and curve.get(key):
             _hbm_lines(ax, curve, key, color, label)
