@@ -233,7 +233,6 @@ class BagRecorder:
             except BaseException as exc:  # noqa: BLE001 - reported by the next write/close
                 self._finisher_error = exc
 
-        self._join_finisher()
         self._finisher = threading.Thread(target=run, name=f'bag split {file.path}', daemon=True)
         self._finisher.start()
 
@@ -248,7 +247,10 @@ class BagRecorder:
 
     def _split(self) -> None:
         """Start the next file; the full one is finished by a helper thread, so the writing
-        thread (the node's tick) does not wait for its summary and metadata."""
+        thread (the node's tick) does not wait for its summary and metadata. The previous one
+        is finished first (long since, at any real-time rate), so at most two files are ever
+        unlisted: the one being finished and the one being written."""
+        self._join_finisher()
         self._flush()
         old = (self._writer, self._stream, self._file)
         self._open_file()
