@@ -1,19 +1,25 @@
-"""Benchmark: order analysis of a long bag (``dmf-sim analyze``).
+"""Benchmark: order analysis of a long bag (``dmf-sim analyze``), its reader and its memory.
 
-Writes a synthetic bag like the node records it -- ``/driveline/joint_states`` (sensor_msgs/JointState,
-22 elements), ``/driveline/dmf_windup``, ``/engine/speed``, ``/engine/crank_angle`` (std_msgs/Float64),
-all at 1 kHz, with a speed run-up and run-down 600 -> 2000 -> 600 rpm and known half-order content --
-then times the analysis only (the bag writing is reported separately):
+Writes a synthetic bag as the node records it -- ``/driveline/joint_states`` (sensor_msgs/
+JointState, 22 elements), ``/driveline/dmf_windup``, ``/engine/speed``, ``/engine/crank_angle``
+(std_msgs/Float64), all at 1 kHz, with BagRecorder's defaults (64 KiB / 0.1 s chunks, 60 s
+splits), a run-up and run-down 600 -> 2000 -> 600 rpm and known half-order content -- then
+measures, in a fresh process (so its peak RSS is the analysis' own):
 
-* ``analyze_seconds``: what ``dmf-sim analyze BAG --json`` does, in process: read the wind-up,
-  speed and crank-angle topics, resample on the crank angle, half orders per cycle, 20 rpm bins,
-  modes, HBM overlay, JSON;
+* ``analyze_seconds``: what ``dmf-sim analyze BAG --json`` does: read the wind-up, speed and
+  crank-angle topics, resample on the crank angle, half orders per cycle, 20 rpm bins, modes,
+  static wind-up, HBM overlay, JSON; ``analyze_rss_growth_mib`` / ``analyze_peak_rss_mib``: the
+  memory it took (it must not grow with the bag's size beyond the signals kept);
+* ``read_seconds`` (the fast reader, dmf_sim.mcap_columns) against ``library_read_seconds``
+  (the same three topics through the libraries alone: mcap's StreamReader + rosbags decoding,
+  dmf_sim.bag_read) -- ``fast_reader_speedup`` is why the fast path exists; both must give the
+  same values (``readers_agree``);
 * ``joint_analyze_seconds``: element signals from the JointState stream (``--signal angle:CYL1
   --signal torque:INPUT SHAFT``, every one of its messages read), without HBM;
 * ``plots_seconds``: the PNG plots.
 
-The recovered 3rd / 1.5th order amplitudes are checked against the synthetic truth. Last line: one
-JSON object.
+The recovered 3rd / 1.5th order amplitudes are checked against the synthetic truth. Last line:
+one JSON object.
 
     python benchmarks/bench_analyze.py [--minutes 10] [--rate 1000] [--keep DIR]
 """
@@ -24,6 +30,7 @@ import json
 import math
 import shutil
 import struct
+import subprocess
 import sys
 import tempfile
 import time
@@ -32,10 +39,9 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from dmf_sim.analyze import (analysis_dict, analyze_bag, model_settings, overlay_all,
-                             write_outputs)
 from dmf_sim.bag import BagRecorder
 from dmf_sim.model import load_driveline
+from dmf_sim.units import RPM_TO_RAD_S
 
 TOPICS = {'/driveline/joint_states': 'sensor_msgs/msg/JointState',
           '/driveline/dmf_windup': 'std_msgs/msg/Float64',
@@ -78,7 +84,7 @@ def joint_template(names: list[str]) -> tuple[bytes, int, int, int]:
 
 
 def write_bag(path: Path, minutes: float, rate_hz: float = 1000.0) -> dict:
-    """Write the synthetic bag (BagRecorder, 4 MB chunks); returns what was written."""
+    """Write the synthetic bag (BagRecorder with its defaults); returns what was written."""
     names = load_driveline('truck_dmf').names
     i_cyl, i_in = names.index('CYL1'), names.index('INPUT SHAFT')
     tmpl, off_p, off_v, off_e = joint_template(names)
@@ -87,7 +93,7 @@ def write_bag(path: Path, minutes: float, rate_hz: float = 1000.0) -> dict:
     n = int(round(duration * rate_hz))
     t = np.arange(n) / rate_hz
     rpm = speed_profile(t, duration)
-    omega = rpm * math.pi / 30.0
+    omega = rpm * RPM_TO_RAD_S
     psi = np.concatenate(([0.0], np.cumsum(0.5 * (omega[1:] + omega[:-1]) / rate_hz)))
     w = signal(WINDUP, psi)
     pos_cyl = signal(CYL1, psi)
@@ -96,7 +102,7 @@ def write_bag(path: Path, minutes: float, rate_hz: float = 1000.0) -> dict:
     block = 2000
     base = np.frombuffer(tmpl, np.uint8)
     t0 = time.perf_counter()
-    with BagRecorder(path, TOPICS, chunk_bytes=4 << 20, chunk_seconds=1e9) as rec, \
+    with BagRecorder(path, TOPICS) as rec, \
             tqdm(total=n, desc='writing bag', unit='sample', unit_scale=True, leave=False) as bar:
         write = rec.write
         for s in range(0, n, block):
@@ -123,8 +129,7 @@ def write_bag(path: Path, minutes: float, rate_hz: float = 1000.0) -> dict:
                 write('/engine/speed', ns, CDR_LE + rb[sl])
                 write('/engine/crank_angle', ns, CDR_LE + pb[sl])
             bar.update(k)
-    return {'samples': n, 'messages': 4 * n, 'write_seconds': time.perf_counter() - t0,
-            'bag_bytes': sum(f.stat().st_size for f in path.glob('*.mcap'))}
+    return {'samples': n, 'messages': 4 * n, 'write_seconds': time.perf_counter() - t0}
 
 
 def max_rel_error(table, n: int, amplitude: float) -> float:
@@ -133,15 +138,107 @@ def max_rel_error(table, n: int, amplitude: float) -> float:
     return float(np.max(np.abs(a - amplitude)) / amplitude)
 
 
+# ------------------------------------------------------------- the measuring child process
+
+def _rss_mib(field: str) -> float:
+    """VmRSS (now) or VmHWM (peak) of this process [MiB]."""
+    for line in Path('/proc/self/status').read_text().splitlines():
+        if line.startswith(field + ':'):
+            return int(line.split()[1]) / 1024.0
+    return math.nan
+
+
+def _reset_peak() -> None:
+    """Restart the VmHWM peak from the current RSS (Linux: clear_refs 5)."""
+    try:
+        Path('/proc/self/clear_refs').write_text('5')
+    except OSError:
+        pass
+
+
+def measure(bag: Path, plots_dir: Path | None) -> dict:
+    """Everything timed and measured on an existing bag (runs in a fresh process)."""
+    from dmf_sim.analyze import (SignalSpec, analysis_dict, analyze_bag, model_settings,
+                                 overlay_all, read_bag_series, write_outputs)
+    from dmf_sim.mcap_columns import _record_offsets
+
+    settings = model_settings(None)
+    _record_offsets(np.zeros(64, np.uint8))           # the jitted walker loaded (cache)
+    t0 = time.perf_counter()
+    res = analyze_bag(bag, ['windup'], bin_rpm=20.0, theta=settings['theta_rad'])
+    t_orders = time.perf_counter()
+    natural = overlay_all(res, settings, hbm=True)
+    t_hbm = time.perf_counter()
+    text = json.dumps(analysis_dict(res, {'natural_frequencies_hz': natural}))
+    analyze_seconds = time.perf_counter() - t0
+    peak = _rss_mib('VmHWM')                          # the whole `analyze --json` process
+    sig = res.signal('windup')
+    kept_mib = sum(s.t_ns.nbytes + s.values.nbytes for s in res.series.series.values()) / 2**20
+    # what reading + orders take on top of a warm process (imports and JIT caches loaded)
+    base = _rss_mib('VmRSS')
+    _reset_peak()
+    again = analyze_bag(bag, ['windup'], bin_rpm=20.0, theta=settings['theta_rad'])
+    growth = _rss_mib('VmHWM') - base
+    del again
+
+    base_j = _rss_mib('VmRSS')
+    _reset_peak()
+    t1 = time.perf_counter()
+    res_j = analyze_bag(bag, ['angle:CYL1', 'torque:INPUT SHAFT'], bin_rpm=20.0)
+    joint_seconds = time.perf_counter() - t1
+    joint_growth = _rss_mib('VmHWM') - base_j
+
+    specs = [SignalSpec.parse('windup')]
+    t2 = time.perf_counter()
+    fast = read_bag_series(bag, signals=specs)
+    fast_seconds = time.perf_counter() - t2
+    t3 = time.perf_counter()
+    lib = read_bag_series(bag, signals=specs, reader='reference')
+    library_seconds = time.perf_counter() - t3
+    agree = all(np.array_equal(fast.series[k].values, lib.series[k].values)
+                and np.array_equal(fast.series[k].t_ns, lib.series[k].t_ns)
+                for k in ('crank', 'speed', 'windup'))
+    plots_seconds = None
+    if plots_dir is not None:
+        t4 = time.perf_counter()
+        write_outputs(res, plots_dir, natural=natural)
+        plots_seconds = time.perf_counter() - t4
+    return {
+        'files': len(res.files), 'analyze_seconds': analyze_seconds,
+        'read_seconds': fast_seconds, 'library_read_seconds': library_seconds,
+        'fast_reader_speedup': library_seconds / fast_seconds, 'readers_agree': agree,
+        'orders_seconds': t_orders - t0, 'hbm_seconds': t_hbm - t_orders,
+        'json_bytes': len(text), 'analyze_peak_rss_mib': peak,
+        'analyze_rss_growth_mib': growth, 'kept_signals_mib': kept_mib,
+        'joint_analyze_seconds': joint_seconds, 'joint_read_seconds': res_j.read_seconds,
+        'joint_rss_growth_mib': joint_growth, 'plots_seconds': plots_seconds,
+        'cycles': len(sig.cycles), 'bins': len(sig.table), 'reader': res.reader,
+        'order_3_max_rel_error': max_rel_error(sig.table, 6, WINDUP[6][0]),
+        'order_1_5_max_rel_error': max_rel_error(sig.table, 3, WINDUP[3][0]),
+        'cyl1_order_3_max_rel_error': max_rel_error(res_j.signal('angle:CYL1').table, 6,
+                                                    CYL1[6][0]),
+        'input_torque_order_3_max_rel_error': max_rel_error(
+            res_j.signal('torque:INPUT SHAFT').table, 6, INPUT_TORQUE[6][0]),
+    }
+
+
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('--minutes', type=float, default=10.0, help='bag length [min] (default 10)')
     ap.add_argument('--rate', type=float, default=1000.0, help='sample rate of every topic [Hz]')
     ap.add_argument('--keep', type=Path, help='write the bag (and plots) here and keep them; an '
                                               'existing bag there is reused')
+    ap.add_argument('--no-plots', action='store_true', help='skip timing the plots')
+    ap.add_argument('--measure', type=Path, help=argparse.SUPPRESS)   # the child process
     args = ap.parse_args(argv)
-    if not args.minutes > 0:
-        ap.error('--minutes must be > 0')
+    if args.measure is not None:
+        plots = None if args.no_plots else args.measure.parent / 'plots'
+        print(json.dumps(measure(args.measure, plots)))
+        return {}
+    if not (math.isfinite(args.minutes) and 0 < args.minutes <= 600):
+        ap.error('--minutes must be within (0, 600]')
+    if not (math.isfinite(args.rate) and 10 <= args.rate <= 10000):
+        ap.error('--rate must be within [10, 10000] Hz')
     tmp = None
     if args.keep is not None:
         work = args.keep
@@ -152,58 +249,29 @@ def main(argv=None) -> dict:
     bag = work / 'bench_bag'
     try:
         if bag.exists():
-            info = {'samples': None, 'messages': None, 'write_seconds': None, 'reused_bag': True,
-                    'bag_bytes': sum(f.stat().st_size for f in bag.glob('*.mcap'))}
+            info = {'samples': None, 'messages': None, 'write_seconds': None, 'reused_bag': True}
         else:
             info = write_bag(bag, args.minutes, args.rate)
-        print(f'bag: {bag} ({info["bag_bytes"] / 1e6:.0f} MB, {info["messages"]} messages, written in '
-              f'{info["write_seconds"] or 0:.1f} s)', file=sys.stderr)
-
-        # --- what `dmf-sim analyze BAG --json` does -------------------------------------------
-        t0 = time.perf_counter()
-        settings = model_settings(None)
-        res = analyze_bag(bag, ['windup'], bin_rpm=20.0, theta=settings['theta_rad'], progress=True)
-        t_orders = time.perf_counter()
-        natural = overlay_all(res, settings, hbm=True)
-        t_hbm = time.perf_counter()
-        text = json.dumps(analysis_dict(res, {'natural_frequencies_hz': natural}))
-        analyze_seconds = time.perf_counter() - t0
-        sig = res.signal('windup')
-
-        # --- element signals from the JointState stream ---------------------------------------
-        t1 = time.perf_counter()
-        res_j = analyze_bag(bag, ['angle:CYL1', 'torque:INPUT SHAFT'], bin_rpm=20.0, progress=True)
-        joint_seconds = time.perf_counter() - t1
-
-        t2 = time.perf_counter()
-        plots_dir = work / 'plots'
-        write_outputs(res, plots_dir, natural=natural)
-        plots_seconds = time.perf_counter() - t2
-
-        out = {
-            'minutes': args.minutes, 'rate_hz': args.rate, **info,
-            'analyze_seconds': analyze_seconds,
-            'read_seconds': res.read_seconds,
-            'orders_seconds': t_orders - t0,
-            'hbm_seconds': t_hbm - t_orders,
-            'json_bytes': len(text),
-            'joint_analyze_seconds': joint_seconds,
-            'joint_read_seconds': res_j.read_seconds,
-            'plots_seconds': plots_seconds,
-            'cycles': len(sig.cycles), 'bins': len(sig.table),
-            'reader': res.reader,
-            'order_3_max_rel_error': max_rel_error(sig.table, 6, WINDUP[6][0]),
-            'order_1_5_max_rel_error': max_rel_error(sig.table, 3, WINDUP[3][0]),
-            'cyl1_order_3_max_rel_error': max_rel_error(res_j.signal('angle:CYL1').table, 6, CYL1[6][0]),
-            'input_torque_order_3_max_rel_error': max_rel_error(
-                res_j.signal('torque:INPUT SHAFT').table, 6, INPUT_TORQUE[6][0]),
-        }
+        info['bag_bytes'] = sum(f.stat().st_size for f in bag.glob('*.mcap'))
+        print(f'bag: {bag} ({info["bag_bytes"] / 1e6:.0f} MB, {info["messages"]} messages, '
+              f'written in {info["write_seconds"] or 0:.1f} s)', file=sys.stderr)
+        child = [sys.executable, str(Path(__file__).resolve()), '--measure', str(bag)]
+        run = subprocess.run(child + (['--no-plots'] if args.no_plots else []),
+                             capture_output=True, text=True, check=True)
+        out = {'minutes': args.minutes, 'rate_hz': args.rate, **info,
+               'bag_mib': info['bag_bytes'] / 2**20, **json.loads(run.stdout.splitlines()[-1])}
     finally:
         if tmp is not None:
             shutil.rmtree(tmp, ignore_errors=True)
-    print(f'analysis of {args.minutes:g} min: {out["analyze_seconds"]:.2f} s (read '
-          f'{out["read_seconds"]:.2f} s, HBM {out["hbm_seconds"]:.2f} s); JointState signals '
-          f'{out["joint_analyze_seconds"]:.2f} s; plots {out["plots_seconds"]:.2f} s', file=sys.stderr)
+    print(f'analysis of {args.minutes:g} min ({out["bag_mib"]:.0f} MiB, {out["files"]} files): '
+          f'{out["analyze_seconds"]:.2f} s (read {out["read_seconds"]:.2f} s, HBM '
+          f'{out["hbm_seconds"]:.2f} s), peak RSS {out["analyze_peak_rss_mib"]:.0f} MiB, reading '
+          f'+ orders +{out["analyze_rss_growth_mib"]:.1f} MiB (kept signals '
+          f'{out["kept_signals_mib"]:.1f} MiB); libraries alone read in '
+          f'{out["library_read_seconds"]:.2f} s (fast reader x{out["fast_reader_speedup"]:.1f}); '
+          f'JointState signals {out["joint_analyze_seconds"]:.2f} s'
+          + (f'; plots {out["plots_seconds"]:.2f} s' if out['plots_seconds'] else ''),
+          file=sys.stderr)
     print(json.dumps(out))
     return out
 

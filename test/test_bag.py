@@ -3,13 +3,12 @@ from __future__ import annotations
 
 import os
 import shutil
-import signal
-import subprocess
 import sys
 import textwrap
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 
@@ -22,8 +21,11 @@ from rosbags.highlevel import AnyReader  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 from std_msgs.msg import Float64, String  # noqa: E402
 
+from crash import sigkill_when_ready  # noqa: E402
+
 from dmf_sim.bag import BagRecorder, bag_topics, read_messages, recover_bag  # noqa: E402
 from dmf_sim.cli import main as cli_main  # noqa: E402
+from dmf_sim.errors import BagError  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 TOPICS = {'/joint_states': 'sensor_msgs/msg/JointState', '/dmf/windup': 'std_msgs/msg/Float64'}
@@ -182,13 +184,25 @@ def test_existing_path_refused(tmp_path: Path) -> None:
         BagRecorder(existing / 'keep.txt', TOPICS)
 
 
+def test_missing_parents_created_and_reported(tmp_path: Path) -> None:
+    """Issue 14: like rosbag2, missing parent directories are created; the recorder lists
+    them so the node can log what it created."""
+    with BagRecorder(tmp_path / 'a' / 'b' / 'run', TOPICS) as rec:
+        assert rec.created_dirs == [tmp_path / 'a', tmp_path / 'a' / 'b']
+    with BagRecorder(tmp_path / 'a' / 'run2', TOPICS) as rec:
+        assert rec.created_dirs == []
+
+
 def test_bad_arguments(tmp_path: Path) -> None:
-    with pytest.raises(ValueError, match='Unknown message type'):
+    with pytest.raises(ValueError, match='(?i)unknown message type'):
         BagRecorder(tmp_path / 'a', {'/x': 'sensor_msgs/JointStat'})
     with pytest.raises(ValueError, match='absolute'):
         BagRecorder(tmp_path / 'b', {'x': 'std_msgs/msg/Float64'})
     with pytest.raises(ValueError, match='QoS'):
         BagRecorder(tmp_path / 'c', {'/x': 'std_msgs/msg/Float64'}, qos={'/x': 'fast'})
+    with pytest.raises(BagError, match='not a valid ros2msg definition'):
+        BagRecorder(tmp_path / 'e', {'/x': 'my_msgs/msg/T'},
+                    msgdefs={'my_msgs/msg/T': 'floatx y'})
     assert not any(tmp_path.iterdir())  # nothing created on bad arguments
     with BagRecorder(tmp_path / 'd', {'/x': 'std_msgs/msg/Float64'}) as rec:
         with pytest.raises(ValueError, match='not declared'):
@@ -208,7 +222,7 @@ def truncated_copy(bag: Path, dst: Path, fraction: float) -> Path:
     return dst
 
 
-@pytest.mark.parametrize('fraction', [0.0, 0.003, 0.37, 0.9999])
+@pytest.mark.parametrize('fraction', [0.003, 0.37, 0.9999])
 def test_truncated_read_and_recover(bag: Path, tmp_path: Path, fraction: float) -> None:
     cut = truncated_copy(bag, tmp_path / 'cut', fraction)
     with mcap_file(cut).open('rb') as f, pytest.raises(Exception):
@@ -232,6 +246,26 @@ def test_truncated_read_and_recover(bag: Path, tmp_path: Path, fraction: float) 
         assert sum(1 for _ in make_reader(f).iter_messages()) == len(msgs)
     with pytest.raises(FileExistsError):
         recover_bag(cut)
+
+
+def test_empty_or_random_file_is_not_mcap(bag: Path, tmp_path: Path,
+                                          capsys: pytest.CaptureFixture[str]) -> None:
+    """Issue 14: an empty file and random bytes are both "not an MCAP file"; bag-recover
+    refuses them (exit 2, one line) and writes nothing."""
+    cut = truncated_copy(bag, tmp_path / 'cut', 0.0)
+    empty = tmp_path / 'x.mcap'
+    empty.write_bytes(b'')
+    noise = tmp_path / 'noise.mcap'
+    noise.write_bytes(np.random.default_rng(0).bytes(1 << 20))
+    for path in (cut, empty, noise):
+        with pytest.raises(BagError, match='is not an MCAP file'):
+            list(read_messages(path))
+        with pytest.raises(BagError, match='is not an MCAP file'):
+            recover_bag(path)
+        assert cli_main(['bag-recover', str(path)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and 'not an MCAP file' in err[0], err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['cut', 'noise.mcap', 'x.mcap']
 
 
 CHILD = textwrap.dedent('''
@@ -269,21 +303,15 @@ def test_sigkill_loses_little_and_recovers(tmp_path: Path) -> None:
     script = tmp_path / 'child.py'
     script.write_text(CHILD)
     path = tmp_path / 'crash'
-    pythonpath = os.pathsep.join([str(REPO), os.environ.get('PYTHONPATH', '')])
-    env = {**os.environ, 'PYTHONPATH': pythonpath}
-    proc = subprocess.Popen([sys.executable, str(script), str(path)], stdout=subprocess.PIPE,
-                            text=True, env=env)
-    try:
+    started = []
+
+    def recording_for_a_while(proc) -> None:
         assert proc.stdout.readline().strip() == 'started'
-        t_start = time.time_ns()
+        started.append(time.time_ns())
         time.sleep(1.5)
-        t_kill = time.time_ns()
-        proc.send_signal(signal.SIGKILL)
-        proc.wait(timeout=10)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-    assert proc.returncode == -signal.SIGKILL
+
+    t_kill = sigkill_when_ready(script, [str(path)], recording_for_a_while)
+    t_start = started[0]
 
     msgs = list(read_messages(path))
     js = [m for m in msgs if m.topic == '/joint_states']
@@ -374,7 +402,8 @@ def test_rosbag2_style_bag_with_extra_topics(tmp_path: Path) -> None:
         w.finish()
     meta = {'rosbag2_bagfile_information': {
         'version': 8, 'storage_identifier': 'mcap', 'relative_file_paths': [fname],
-        'duration': {'nanoseconds': 299 * PERIOD}, 'starting_time': {'nanoseconds_since_epoch': T0},
+        'duration': {'nanoseconds': 299 * PERIOD},
+        'starting_time': {'nanoseconds_since_epoch': T0},
         'message_count': 303, 'compression_format': '', 'compression_mode': '',
         'topics_with_message_count': [
             {'topic_metadata': {'name': n, 'type': t, 'serialization_format': 'cdr',

@@ -2,11 +2,11 @@
 from __future__ import annotations
 
 import argparse
-import sys
 
 NAME = 'bag-recover'
-HELP = ('Rewrite a truncated MCAP bag (recorder crashed or was killed) as a complete rosbag2 bag '
-        'with summary, index and metadata.yaml, keeping every complete chunk.')
+HELP = ('Complete a bag a crash left behind (recorder killed): every complete split is kept as '
+        'it is, each truncated file is rewritten with every complete chunk plus summary and '
+        'index, and metadata.yaml lists them all. A file that is not MCAP is refused.')
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -17,21 +17,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                        help='output bag (never overwritten); a name ending in .mcap gives a bare '
                             'MCAP file, anything else a bag directory. Default: BAG_recovered')
     where.add_argument('--in-place', action='store_true',
-                       help='replace BAG by the repaired bag once the rewrite succeeded')
+                       help='replace the truncated files of BAG (and its metadata.yaml) once '
+                            'the rewrite succeeded')
 
 
 def run(args: argparse.Namespace) -> int:
     """Recover the bag and print what was kept."""
-    from dmf_sim.bag import recover_bag
+    from dmf_sim.bag_recovery import recover_bag
 
-    try:
-        report = recover_bag(args.bag, args.output, in_place=args.in_place)
-    except FileExistsError as exc:
-        print(f'dmf-sim {NAME}: error: {exc}', file=sys.stderr)
-        return 2
+    report = recover_bag(args.bag, args.output, in_place=args.in_place)
     print(report)
     for topic, count in sorted(report.topics.items()):
         print(f'  {topic}: {count}')
+    if report.rewritten:
+        print(f'  rewritten: {", ".join(report.rewritten)}')
     for error in report.errors:
         print(f'  reading stopped at: {error}')
     return 0

@@ -1,0 +1,155 @@
+"""Bags with known content for the analysis tests (helpers, not tests).
+
+Synthetic bags are written with real CDR (rclpy's serializer) through BagRecorder and carry known
+half-order content on a speed ramp, so resampling on the crank angle matters. The "node
+recording" is produced offline, without DDS: the node's own simulation core
+(dmf_sim.live.LiveSimulation, what driveline_node steps) is advanced in chunks and its samples
+are serialized and recorded as dmf_sim/node.py does (same topics, messages, custom_data).
+"""
+from __future__ import annotations
+
+import array
+import math
+from pathlib import Path
+
+import numpy as np
+from builtin_interfaces.msg import Time
+from rclpy.serialization import serialize_message
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64, String
+
+from dmf_sim.bag import BagRecorder
+from dmf_sim.model import load_driveline
+from dmf_sim.run_metadata import RunMetadata
+
+NAMES = load_driveline('truck_dmf').names
+T0 = 1_700_000_000_000_000_000
+RATE = 1000.0
+TOL = 0.005                       # synthetic content must come back within 0.5 %
+# x(psi) = mean + sum_n a_n cos(n psi / 2 + phase_n): n = 6 is the 3rd order, n = 3 the 1.5th
+WINDUP = {'mean': 0.21, 3: (0.0015, 0.7), 6: (0.012, -1.2), 9: (0.0008, 0.1), 12: (0.002, 2.0)}
+CYL1 = {'mean': 2e-3, 6: (5e-4, 0.3), 12: (1.5e-4, -0.4)}
+TORQUE = {'mean': 1800.0, 3: (50.0, 1.0), 6: (350.0, -0.5)}
+TOPICS = {'/driveline/joint_states': 'sensor_msgs/msg/JointState',
+          '/driveline/dmf_windup': 'std_msgs/msg/Float64',
+          '/engine/speed': 'std_msgs/msg/Float64',
+          '/engine/crank_angle': 'std_msgs/msg/Float64'}
+
+
+def synth(spec: dict, psi: np.ndarray) -> np.ndarray:
+    x = np.full_like(psi, spec['mean'])
+    for n, (a, ph) in ((k, v) for k, v in spec.items() if k != 'mean'):
+        x += a * np.cos(n * psi / 2 + ph)
+    return x
+
+
+def ramp(duration: float = 16.0, v0: float = 700.0, v1: float = 1500.0):
+    """Time [s], speed [rpm] (linear ramp) and crank angle [rad] at RATE."""
+    t = np.arange(int(duration * RATE)) / RATE
+    rpm = v0 + (v1 - v0) * t / duration
+    omega = rpm * math.pi / 30
+    psi = 0.3 + np.concatenate(([0.0], np.cumsum(0.5 * (omega[1:] + omega[:-1]) / RATE)))
+    return t, rpm, psi
+
+
+def joint_state(stamp_ns: int, position, effort, names=NAMES, frame='driveline') -> JointState:
+    msg = JointState()
+    msg.header.stamp = Time(sec=stamp_ns // 1_000_000_000, nanosec=stamp_ns % 1_000_000_000)
+    msg.header.frame_id = frame
+    msg.name = list(names)
+    msg.position = array.array('d', position)
+    msg.velocity = array.array('d', np.zeros(len(names)))
+    msg.effort = array.array('d', effort)
+    return msg
+
+
+def write_synthetic(path: Path, topics=('joints', 'windup', 'speed', 'crank'), *,
+                    namespaces=('',), jump_back_s: float = 0.0, custom_data=None,
+                    max_duration_s: float | None = None, **kw) -> Path:
+    """A bag like the node's (BagRecorder, rclpy CDR) with known content on a speed ramp.
+
+    ``namespaces``: the node's topics under each of these ('' = none); ``jump_back_s``: stamps
+    jump back by this much half-way (a clock re-anchored while recording)."""
+    t, rpm, psi = ramp(**kw)
+    w, cyl, tq = synth(WINDUP, psi), synth(CYL1, psi), synth(TORQUE, psi)
+    i_cyl, i_in = NAMES.index('CYL1'), NAMES.index('INPUT SHAFT')
+    keys = dict(zip(('joints', 'windup', 'speed', 'crank'), TOPICS))
+    declared = {ns + keys[k]: TOPICS[keys[k]] for k in topics for ns in namespaces}
+    declared['/rosout_like'] = 'std_msgs/msg/String'       # an extra topic nobody asked for
+    declared['/late'] = 'std_msgs/msg/Float64'             # wind-up again, only after 5 s
+    shift = np.where(np.arange(len(t)) >= len(t) // 2, -int(jump_back_s * 1e9), 0)
+    split = {} if max_duration_s is None else {'max_duration_s': max_duration_s}
+    with BagRecorder(path, declared, custom_data=custom_data, **split) as rec:
+        for i in range(len(t)):
+            ns_t = T0 + int(round(t[i] * 1e9)) + int(shift[i])
+            for ns in namespaces:
+                if 'joints' in topics:
+                    pos = np.zeros(len(NAMES))
+                    pos[i_cyl] = cyl[i]
+                    eff = np.zeros(len(NAMES))
+                    eff[i_in] = tq[i]
+                    rec.write(ns + keys['joints'], ns_t,
+                              serialize_message(joint_state(ns_t, pos, eff)))
+                for key, val in (('windup', w[i]), ('speed', rpm[i]), ('crank', psi[i])):
+                    if key in topics:
+                        rec.write(ns + keys[key], ns_t,
+                                  serialize_message(Float64(data=float(val))))
+            if i % 500 == 0:
+                rec.write('/rosout_like', ns_t, serialize_message(String(data=f'tick {i}')))
+            if t[i] >= 5.0:
+                rec.write('/late', ns_t, serialize_message(Float64(data=float(w[i]))))
+    return path
+
+
+def check_table(table, spec: dict, tol: float = TOL, orders=(3, 6)) -> None:
+    """Every speed bin recovers the amplitudes of ``spec`` within ``tol``."""
+    assert len(table) > 0
+    for n in orders:
+        if n not in spec:
+            continue
+        a = spec[n][0]
+        got = table.amplitudes[:, n]
+        assert np.all(np.isfinite(got))
+        assert np.max(np.abs(got - a)) / a < tol, (n, got.min(), got.max(), a)
+    assert np.allclose(table.mean, spec['mean'], rtol=tol, atol=1e-12)
+
+
+def record_node_run_up(path: Path, v0: float, v1: float, ramp_rpm_s: float, hold_s: float,
+                       load: float = 1.0, chunk_steps: int = 100, hold_end_s: float = 0.3,
+                       store_load: bool = False) -> Path:
+    """Offline 'node recording' without DDS: the node's simulation core (LiveSimulation) steps in
+    chunks; every published sample is serialized and recorded as dmf_sim/node.py does, with its
+    RunMetadata as custom_data (the load only with ``store_load``)."""
+    from dmf_sim.live import LiveSimulation
+
+    sim = LiveSimulation.from_config('truck_dmf', 'engine_d13', load_set='A', speed_rpm=v0,
+                                     load=load, speed_ramp_rpm_per_s=ramp_rpm_s, stride=10)
+    spring = sim.model.spring
+    custom = RunMetadata(driveline='truck_dmf', engine='engine_d13', load_set='A',
+                         alpha=spring.alpha, theta_rad=spring.theta, spring=spring.as_dict(),
+                         load=load if store_load else None, speed_rpm=v0, dt_s=sim.dt,
+                         publish_rate_hz=1000.0).to_custom_data()
+    js, f = JointState(), Float64()
+    js.name = sim.names
+    n_total = int(round((hold_s + abs(v1 - v0) / ramp_rpm_s + hold_end_s) / sim.dt))
+    with BagRecorder(path, {**TOPICS, '/diagnostics': 'diagnostic_msgs/msg/DiagnosticArray'},
+                     custom_data=custom) as rec:
+        done = 0
+        while done < n_total:
+            if done * sim.dt >= hold_s and sim.speed_setpoint != v1:
+                assert sim.set_speed_setpoint(v1) is None
+            s = sim.advance(chunk_steps)
+            done += chunk_steps
+            for i in range(len(s)):
+                ns = T0 + int(round(float(s.t[i]) * 1e9))
+                js.header.stamp = Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+                js.position = array.array('d', s.position[i].tobytes())
+                js.velocity = array.array('d', s.velocity[i].tobytes())
+                js.effort = array.array('d', s.effort[i].tobytes())
+                rec.write('/driveline/joint_states', ns, serialize_message(js))
+                for topic, val in (('/driveline/dmf_windup', s.windup[i]),
+                                   ('/engine/speed', s.speed_rpm[i]),
+                                   ('/engine/crank_angle', s.psi[i])):
+                    f.data = float(val)
+                    rec.write(topic, ns, serialize_message(f))
+    return path
