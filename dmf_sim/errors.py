@@ -42,3 +42,7 @@ class OperatingRangeError(ConfigError):
 def one_line(exc: BaseException) -> str:
     """The exception's message on one line (whitespace runs collapsed)."""
     return ' '.join(str(exc).split()) or type(exc).__name__
+
+
+class NoResponseError(DmfSimError, TimeoutError):
+    """No ROS node answered within the timeout (``dmf-sim setpoint`` / ``monitor``)."""
