@@ -92,7 +92,8 @@ def main(argv=None) -> int:
     print(f'{"variant":8s} {"ticks":>6s} {"lag p50":>8s} {"p99":>7s} {"max":>7s} {"cycles":>6s} '
           f'{"predictions":>11s} {"latency median/max":>19s} {"start":>6s}')
     for r in rows:
-        print(f'{r["variant"]:8s} {r["ticks"]:6d} {r["lag_p50_ms"]:7.3f}ms {r["lag_p99_ms"]:6.3f}ms '
+        print(f'{r["variant"]:8s} {r["ticks"]:6d} {r["lag_p50_ms"]:7.3f}ms '
+              f'{r["lag_p99_ms"]:6.3f}ms '
               f'{r["lag_max_ms"]:6.2f}ms {r["cycles"]:6d} {r["predictions"]:11d} '
               f'{r["prediction_latency_median_s"]:8.3f}s /{r["prediction_latency_max_s"]:6.3f}s '
               f'{r["worker_start_s"]:5.2f}s')

@@ -123,7 +123,7 @@ def _job_predict(key, payload, solver, point: OperatingPoint) -> Prediction:
 
 def _job_cycles(key, payload, window: CycleWindow) -> list[CycleResult]:
     loads = _loads(key, payload)
-    return analyze_window(window, lambda s, l: loads.static_state(s, l).windup)
+    return analyze_window(window, lambda speed, load: loads.static_state(speed, load).windup)
 
 
 class _Worker:

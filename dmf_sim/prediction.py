@@ -58,7 +58,8 @@ def predict_states(loads, speed_rpm: float, load: float) -> list:
             raise ConvergenceError(f'{s:g} rpm is outside the engine data [{lo_data:g}, '
                                    f'{hi_data:g}] rpm')
         try:
-            res = sweep(loads, float(load), (lo, hi), options=SweepOptions(step_rpm=SWEEP_STEP_RPM))
+            res = sweep(loads, float(load), (lo, hi),
+                        options=SweepOptions(step_rpm=SWEEP_STEP_RPM))
         except (ConvergenceError, np.linalg.LinAlgError, FloatingPointError) as exc:
             errors.append(f'+-{half:g} rpm: {exc}')
             continue
@@ -194,10 +195,11 @@ def compare(cycle, prediction: Prediction | None, speed_tolerance_rpm: float,
     if (abs(cycle.speed_rpm - pt.speed_rpm) > speed_tolerance_rpm
             or abs(cycle.load - pt.load) > load_tolerance):
         return Comparison(False, None, nan,
-                          f'cycle at {cycle.speed_rpm:.0f} rpm / load {cycle.load:.2f}, prediction '
+                          f'cycle at {cycle.speed_rpm:.0f} rpm / load {cycle.load:.2f}, '
+                          'prediction '
                           f'at {pt.speed_rpm:g} rpm / {pt.load:g}')
     live = np.array([getattr(cycle.summary, q) for q in QUANTITIES])
     weights = np.array([1.0 if q in ('order_3', 'order_1_5', 'mean') else 0.0 for q in QUANTITIES])
     state = min(prediction.states, key=lambda s: float(np.sum(weights * (live - s.vector()) ** 2)))
-    diff = {q: float(v) for q, v in zip(QUANTITIES, live - state.vector())}
+    diff = {q: float(v) for q, v in zip(QUANTITIES, live - state.vector(), strict=True)}
     return Comparison(True, state, diff)

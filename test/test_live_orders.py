@@ -55,7 +55,7 @@ def _feed(tracker, t, psi, w, load, stamps=None, seed=1):
 
 def test_known_orders_regions_and_static_windup_recovered():
     t, psi, w, true = _synthetic()
-    static = lambda s, l: 0.2 + 1e-5 * s * l  # noqa: E731 - a known function of the cycle's point
+    static = lambda speed, load: 0.2 + 1e-5 * speed * load  # noqa: E731 - known function
     tracker = CycleOrderTracker(SPRING, static)
     cycles = _feed(tracker, t, psi, w, lambda tt: 0.5 + 0.1 * tt)
     # every whole cycle of the run, except the last one (no samples after it yet)
@@ -119,7 +119,7 @@ def test_live_cycles_equal_dmf_sim_analyze_of_a_bag_of_the_same_run(tmp_path):
     sim.set_speed_setpoint(1000.0)
     spring = sim.model.spring
     loads = sim.integ.loads
-    tracker = CycleOrderTracker(spring, lambda s, l: loads.static_state(s, l).windup)
+    tracker = CycleOrderTracker(spring, lambda speed, ld: loads.static_state(speed, ld).windup)
     epoch = 1_700_000_000_000_000_000
     live = []
     bag = tmp_path / 'run'

@@ -111,8 +111,8 @@ def _cycle(order_1_5=0.0163, speed=950.0, load=1.0, mean=0.1989, max_dev=0.03, m
 
 def _prediction(*order_1_5, speed=950.0, load=1.0, error=''):
     pt = OperatingPoint(speed, load, 'A', None)
-    states = tuple(PredictedState(0.015, a, 0.03, -0.03, 0.1985 + 0.1 * a, 0.1 * a - 0.0015, 0.19, 0.01,
-                                  'main') for a in order_1_5)
+    states = tuple(PredictedState(0.015, a, 0.03, -0.03, 0.1985 + 0.1 * a, 0.1 * a - 0.0015,
+                                  0.19, 0.01, 'main') for a in order_1_5)
     return Prediction(pt, states, 0.1, error)
 
 

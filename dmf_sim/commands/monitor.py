@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import sys
 import time
 from dataclasses import dataclass, field
 
@@ -25,6 +24,7 @@ SIM_STATUS = 'driveline simulation'     # the node's health status name ends wit
 MONITOR_STATUS = 'DMF monitor'          # dmf_sim.monitor_messages.MONITOR_NAME
 LEVELS = {0: 'OK', 1: 'WARN', 2: 'ERROR', 3: 'STALE'}
 STYLES = {0: 'green', 1: 'yellow', 2: 'bold red', 3: 'dim'}
+STALE_S = 3.0                           # diagnostics older than this [s] are shown as stale
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -108,11 +108,13 @@ class MonitorView:
         v = self.sim.values
         age = now - self.received['sim']
         out.append(('node', f'{self.sim.name.split(":", 1)[0]}  {LEVELS.get(self.sim.level)}  '
-                    f'{self.sim.message}' + (f'  (diagnostics {age:.0f} s old)' if age > 3 else ''),
-                    self.sim.level if age <= 3 else 3))
+                    f'{self.sim.message}'
+                    + (f'  (diagnostics {age:.0f} s old)' if age > STALE_S else ''),
+                    self.sim.level if age <= STALE_S else 3))
         out.append(('time', f'sim {_num(v, "sim_time_s", "{:.1f}")} s  real-time factor '
-                    f'{_num(v, "real_time_factor", "{:.3f}")}  lag {_num(v, "lag_ms", "{:.2f}")} ms'
-                    f' (p99 {_num(v, "lag_p99_ms", "{:.2f}")} ms)  overruns '
+                    f'{_num(v, "real_time_factor", "{:.3f}")}  lag '
+                    f'{_num(v, "lag_ms", "{:.2f}")} ms (p99 {_num(v, "lag_p99_ms", "{:.2f}")} ms)'
+                    f'  overruns '
                     f'{v.get("overruns", "?")}', 0))
         out.append(('speed', f'{_num(v, "speed_rpm", "{:.1f}")} rpm (setpoint '
                     f'{v.get("speed_setpoint_rpm", "?")} rpm)   load {_num(v, "load", "{:.3f}")} '

@@ -6,8 +6,9 @@ Publishes std_msgs/Float64 on ``<namespace>/engine/speed_setpoint`` [rpm] and
 publisher so the message is not lost, and repeats it until every subscriber has acknowledged it
 (setpoints are idempotent; the node's reader can discover this publisher seconds after this
 publisher discovered it, and acknowledges only from then on). Exit 0 when delivered to every
-subscriber; one line and exit 2 when no node subscribes or acknowledges within ``--timeout``. The node applies its own limits (speed_min_rpm/speed_max_rpm): a refused
-setpoint is counted in its /diagnostics (``rejected_setpoints``) and logged by the node.
+subscriber; one line and exit 2 when no node subscribes or acknowledges within ``--timeout``.
+The node applies its own limits (speed_min_rpm/speed_max_rpm): a refused setpoint is counted
+in its /diagnostics (``rejected_setpoints``) and logged by the node.
 """
 from __future__ import annotations
 
