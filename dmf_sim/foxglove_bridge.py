@@ -18,10 +18,18 @@ from collections.abc import Mapping
 
 from dmf_sim.errors import ConfigError
 
-__all__ = ['SUBPROTOCOL', 'FoxgloveBridge', 'message_definition']
+__all__ = ['SUBPROTOCOL', 'FOXGLOVE_PARAMETERS', 'FoxgloveBridge', 'message_definition']
 
 SUBPROTOCOL = 'foxglove.sdk.v1'      # what the SDK's server accepts (checked by the tests)
 SERVER_NAME = 'dmf_sim'
+
+# Node parameters: name -> (default, description, (lo, hi) or None). Read-only (start-up).
+FOXGLOVE_PARAMETERS: dict[str, tuple] = {
+    'foxglove_port': (0, 'Serve the streams over the Foxglove WebSocket protocol on this TCP '
+                      'port (0 = off)', (0, 65535)),
+    'foxglove_host': ('127.0.0.1', 'Address the Foxglove server listens on (0.0.0.0: every '
+                      'interface)', None),
+}
 
 
 def message_definition(msgtype: str) -> str:
