@@ -4,8 +4,8 @@ One :class:`LiveMonitor` per node. The tick thread hands it the published sample
 (:meth:`LiveMonitor.add_samples`, a few microseconds: :meth:`CycleOrderTracker.collect`); the
 order analysis of completed cycles (~1 ms each) and the harmonic-balance prediction at the
 setpoint (:func:`dmf_sim.prediction.predict_states`, 5 ms .. 0.3 s) run in worker processes
-(``worker='process'``, default: no GIL shared with the tick thread, and the workers run at a
-lower scheduling priority) or threads (``worker='thread'``). :meth:`LiveMonitor.poll`, called
+(``worker='process'``, default: no GIL shared with the tick thread; ``niceness`` can lower
+their scheduling priority) or threads (``worker='thread'``). :meth:`LiveMonitor.poll`, called
 from the node's loop, returns what finished: per-cycle reports (the cycle, live minus predicted,
 alarms, the message content) and a new prediction when the setpoint's changed. Predictions are
 cached per operating point (speed and load rounded, load set, spring). ``benchmarks/
@@ -69,7 +69,7 @@ class MonitorSettings:
     compare_speed_tolerance_rpm: float = MONITOR_PARAMETERS['compare_speed_tolerance_rpm'][0]
     compare_load_tolerance: float = MONITOR_PARAMETERS['compare_load_tolerance'][0]
     worker: str = MONITOR_PARAMETERS['monitor_worker'][0]
-    niceness: int = 10            # added to the worker processes' nice value
+    niceness: int = 0             # added to the worker processes' nice value (see the README)
 
     def __post_init__(self) -> None:
         if self.worker not in WORKER_MODES:

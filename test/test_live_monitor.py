@@ -46,7 +46,7 @@ def test_monitor_predicts_compares_and_alarms(worker):
     try:
         mon.wait_ready(TIMEOUT_S)
         mon.set_setpoint(sim.speed_setpoint, sim.load_setpoint)
-        cycles, preds = _run(sim, mon, 2.5)          # settle from static equilibrium
+        cycles, preds = _run(sim, mon, 4.0)          # settle from static equilibrium
         _drain(sim, mon, lambda: preds and len(cycles) > 10, cycles, preds)
         pred = preds[0].prediction
         assert pred.point.speed_rpm == 1200.0 and len(pred.states) == 1
@@ -56,7 +56,7 @@ def test_monitor_predicts_compares_and_alarms(worker):
         # settled: live equals predicted within 1 % (HBM vs Newmark, design.md section 3)
         assert last.comparison.applies
         assert abs(last.comparison.difference['order_3']) < 0.01 * pred.states[0].order_3
-        assert abs(last.comparison.difference['mean']) < 1e-4
+        assert abs(last.comparison.difference['mean']) < 3e-4      # of a 0.207 rad mean
         assert last.alarms.keys == [] and last.status.level == 0
         v = values_of(last.status)
         assert float(v['predicted_order_3_rad']) == pytest.approx(pred.states[0].order_3)
