@@ -16,6 +16,7 @@ from __future__ import annotations
 import itertools
 import math
 import os
+import signal
 import time
 from collections import OrderedDict
 from concurrent.futures import Future, ProcessPoolExecutor, ThreadPoolExecutor
@@ -94,6 +95,9 @@ _MODELS: OrderedDict = OrderedDict()
 
 
 def _init_worker(niceness: int) -> None:
+    # Ctrl-C in a terminal reaches the whole process group: the node decides when its workers
+    # stop (LiveMonitor.close), a worker must not die of the node's SIGINT
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     if niceness:
         os.nice(niceness)
 
@@ -220,7 +224,8 @@ class LiveMonitor:
         self.last_cycle: CycleResult | None = None
         self.last_report: AlarmReport = evaluate(self.settings.alarms)
         self.counters = {'cycles_analysed': 0, 'predictions_computed': 0,
-                         'prediction_latency_s': math.nan, 'monitor_worker': s.worker}
+                         'prediction_latency_s': math.nan, 'worker_failures': 0,
+                         'monitor_worker': s.worker}
         self.set_model(line, engine)
 
     # ---- configuration ---------------------------------------------------------------------
@@ -271,7 +276,11 @@ class LiveMonitor:
         up = MonitorUpdate()
         self._poll_prediction(up)
         while self._cycle_jobs and self._cycle_jobs[0].done():
-            for cycle in self._cycle_jobs.pop(0).result():
+            fut = self._cycle_jobs.pop(0)
+            if fut.exception() is not None:       # the worker died: these cycles are lost
+                self.counters['worker_failures'] += 1
+                continue
+            for cycle in fut.result():
                 up.cycles.append(self._report(cycle))
         return up
 
@@ -279,8 +288,11 @@ class LiveMonitor:
         if self._job is not None and self._job[1].done():
             point, fut = self._job
             self._job = None
-            self._cache[point] = fut.result()
-            self.counters['predictions_computed'] += 1
+            if fut.exception() is not None:       # the worker died: computed again below
+                self.counters['worker_failures'] += 1
+            else:
+                self._cache[point] = fut.result()
+                self.counters['predictions_computed'] += 1
             while len(self._cache) > PREDICTION_CACHE_SIZE:
                 self._cache.popitem(last=False)
         want = self._want

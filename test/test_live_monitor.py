@@ -102,3 +102,24 @@ def test_monitor_settings_refuse_bad_values():
         MonitorSettings(subharmonic_alarm_rad=-1.0)
     with pytest.raises(ConfigError, match='prediction_speed_step_rpm'):
         MonitorSettings(prediction_speed_step_rpm=0.0)
+
+
+def test_monitor_survives_a_killed_worker():
+    """A worker process that dies (killed) costs the cycles in flight, not the monitor: the
+    next jobs start a new worker and the prediction is computed again."""
+    import os
+    import signal
+
+    sim = LiveSimulation.from_config(speed_rpm=1200.0, load=0.5)
+    mon = LiveMonitor(sim.line, sim.engine, MonitorSettings(worker='process'))
+    try:
+        mon.wait_ready(TIMEOUT_S)
+        pid = mon._predict_worker.ready.result()
+        os.kill(pid, signal.SIGKILL)
+        mon.set_setpoint(1200.0, 0.5)
+        cycles, preds = _run(sim, mon, 1.0)
+        _drain(sim, mon, lambda: preds and len(cycles) >= 3, cycles, preds)
+        assert preds[-1].prediction.point.speed_rpm == 1200.0 and preds[-1].prediction.states
+        assert mon.counters['worker_failures'] >= 1
+    finally:
+        mon.close()
