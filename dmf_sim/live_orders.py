@@ -3,7 +3,9 @@
 The node hands every chunk of published samples (:class:`dmf_sim.live.Samples`: stamps, crank
 angle psi, wind-up) to a :class:`CycleOrderTracker`; whenever the crank angle has passed the end
 of an engine cycle (720 deg = 4 pi rad, cycles starting at whole multiples of 4 pi as in
-``dmf-sim analyze``) the tracker returns that cycle's :class:`CycleResult`:
+``dmf-sim analyze``) :meth:`CycleOrderTracker.collect` returns a :class:`CycleWindow` and
+:func:`analyze_window` (in a worker, see :mod:`dmf_sim.live_monitor`; or both at once with
+:meth:`CycleOrderTracker.add`) gives that cycle's :class:`CycleResult`:
 
 * the paper's Fig. 13 quantities of the wind-up (:class:`dmf_sim.orders.OrderSummary`): 3rd and
   1.5th order amplitude, max/min deviation from the cycle mean, the mean, mean - theta, the
