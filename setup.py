@@ -12,7 +12,8 @@ setup(
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE]),
         ('share/' + PACKAGE, ['package.xml']),
-        ('share/' + PACKAGE + '/config', sorted(glob('config/*.yaml')) + sorted(glob('config/*.csv'))),
+        ('share/' + PACKAGE + '/config', sorted(glob('config/*.yaml')) + sorted(glob('config/*.csv'))
+         + sorted(glob('config/*.json'))),
     ],
     python_requires='>=3.11',
     install_requires=[
@@ -25,10 +26,12 @@ setup(
         'tqdm>=4.66',
         'rosbags>=0.10',
         'mcap>=1.1',
+        'rich>=13',
+        'foxglove-sdk>=0.30',
     ],
     extras_require={
         'ros': ['ros-jazzy-rclpy[fastrtps]', 'ros-jazzy-common-interfaces'],
-        'test': ['pytest>=7', 'mcap-ros2-support>=0.5'],
+        'test': ['pytest>=7', 'mcap-ros2-support>=0.5', 'websockets>=12'],
     },
     zip_safe=True,
     maintainer='dmf_sim developers',

@@ -46,3 +46,7 @@ def one_line(exc: BaseException) -> str:
 
 class BagExistsError(BagError, FileExistsError):
     """A bag (or recovery output) path that exists already: bags are never overwritten."""
+
+
+class NoResponseError(DmfSimError, TimeoutError):
+    """No ROS node answered within the timeout (``dmf-sim setpoint`` / ``monitor``)."""

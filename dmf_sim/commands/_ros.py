@@ -1,0 +1,67 @@
+"""rclpy session for the ``dmf-sim`` commands that talk to a running node (setpoint, monitor).
+
+rclpy is imported only when a session starts, so ``dmf-sim --help`` and the offline commands
+work without ROS. The session uses its own rclpy context and the environment's ROS_DOMAIN_ID /
+ROS_AUTOMATIC_DISCOVERY_RANGE, like ``ros2`` commands do.
+"""
+from __future__ import annotations
+
+import os
+from contextlib import contextmanager
+
+from dmf_sim.errors import ConfigError
+
+RELIABLE_DEPTH = 10     # the node's stream QoS: reliable, volatile, keep-last 10
+
+
+def check_namespace(namespace: str) -> str:
+    """'' (no namespace) or an absolute ROS namespace like '/truck1'; one-line error else."""
+    ns = (namespace or '').rstrip('/')
+    if ns and not ns.startswith('/'):
+        raise ConfigError(f"--namespace must be absolute (start with '/'), got {namespace!r}")
+    return ns
+
+
+def topic(namespace: str, name: str) -> str:
+    """Absolute topic of a node-relative name inside ``namespace``."""
+    return f'{namespace}/{name}' if not name.startswith('/') else name
+
+
+@contextmanager
+def ros_session(node_name: str, namespace: str = ''):
+    """Yield (rclpy, node, executor) on a fresh context; everything is shut down on exit."""
+    try:
+        import rclpy
+        from rclpy.executors import SingleThreadedExecutor
+    except ImportError as exc:
+        raise ConfigError(f'ROS 2 Python packages missing ({exc}); source a Jazzy installation '
+                          'or pip install "dmf_sim[ros]"') from None
+    ns = check_namespace(namespace)
+    ctx = rclpy.context.Context()
+    rclpy.init(context=ctx, args=[])
+    node = None
+    try:
+        try:
+            node = rclpy.create_node(f'{node_name}_{os.getpid()}', namespace=ns or '/',
+                                     context=ctx)
+        except Exception as exc:  # noqa: BLE001 - rclpy's InvalidNamespaceException and kin
+            raise ConfigError(f'--namespace {namespace!r}: {" ".join(str(exc).split())}') from None
+        executor = SingleThreadedExecutor(context=ctx)
+        executor.add_node(node)
+        try:
+            yield rclpy, node, executor
+        finally:
+            executor.shutdown(timeout_sec=1.0)
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown(context=ctx)
+
+
+def reliable_qos(depth: int = RELIABLE_DEPTH, latched: bool = False):
+    """QoS matching the node's publishers (reliable, volatile or transient-local)."""
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
+                      reliability=ReliabilityPolicy.RELIABLE,
+                      durability=(DurabilityPolicy.TRANSIENT_LOCAL if latched
+                                  else DurabilityPolicy.VOLATILE))

@@ -1,0 +1,91 @@
+"""``dmf-sim setpoint --speed RPM [--load L] [--namespace /truck1]``: setpoints to a live node.
+
+Publishes std_msgs/Float64 on ``<namespace>/engine/speed_setpoint`` [rpm] and
+``<namespace>/engine/load_setpoint`` [0..1] (the node's subscriptions), the way
+``ros2 topic pub`` would, but first waits until the node's subscription has matched this
+publisher so the message is not lost, and repeats it until every subscriber has acknowledged it
+(setpoints are idempotent; the node's reader can discover this publisher seconds after this
+publisher discovered it, and acknowledges only from then on). Exit 0 when delivered to every
+subscriber; one line and exit 2 when no node subscribes or acknowledges within ``--timeout``.
+The node applies its own limits (speed_min_rpm/speed_max_rpm): a refused setpoint is counted
+in its /diagnostics (``rejected_setpoints``) and logged by the node.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import time
+
+from dmf_sim.errors import ConfigError, NoResponseError
+
+NAME = 'setpoint'
+HELP = ('Send an engine speed [rpm] and/or load [0..1] setpoint to a running driveline_node '
+        '(waits until its subscription matched; needs rclpy)')
+REPEAT_EVERY_S = 0.2    # publish again at this interval until acknowledged
+ACK_TIMEOUT_S = 5.0     # for the last acknowledgement
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument('--speed', type=float, metavar='RPM', help='engine speed setpoint [rpm]')
+    parser.add_argument('--load', type=float, metavar='L', help='load setpoint, fraction 0..1')
+    parser.add_argument('--namespace', default='', metavar='NS',
+                        help="the node's namespace, e.g. /truck1 (default: none)")
+    parser.add_argument('--timeout', type=float, default=10.0, metavar='S',
+                        help='seconds to wait for the node (default 10)')
+
+
+def check(args: argparse.Namespace) -> list[tuple[str, float, str]]:
+    """(topic name relative to the namespace, value, text) per setpoint; one-line errors."""
+    if args.speed is None and args.load is None:
+        raise ConfigError('give --speed RPM and/or --load L')
+    out = []
+    if args.speed is not None:
+        if not (math.isfinite(args.speed) and args.speed > 0):
+            raise ConfigError(f'--speed must be a finite speed > 0 rpm, got {args.speed!r}')
+        out.append(('engine/speed_setpoint', float(args.speed), f'{args.speed:g} rpm'))
+    if args.load is not None:
+        if not (math.isfinite(args.load) and 0.0 <= args.load <= 1.0):
+            raise ConfigError(f'--load must be in [0, 1], got {args.load!r}')
+        out.append(('engine/load_setpoint', float(args.load), f'load {args.load:g}'))
+    if not (math.isfinite(args.timeout) and args.timeout > 0):
+        raise ConfigError(f'--timeout must be > 0 s, got {args.timeout!r}')
+    return out
+
+
+def run(args: argparse.Namespace) -> int:
+    from dmf_sim.commands._ros import reliable_qos, ros_session
+
+    setpoints = check(args)
+    with ros_session('dmf_sim_setpoint', args.namespace) as (rclpy, node, executor):
+        from rclpy.duration import Duration
+        from std_msgs.msg import Float64
+
+        pubs = [(node.create_publisher(Float64, name, reliable_qos()), value, text)
+                for name, value, text in setpoints]
+        end = time.monotonic() + args.timeout
+        while not all(p.get_subscription_count() > 0 for p, _, _ in pubs):
+            if time.monotonic() > end:
+                missing = [p.topic_name for p, _, _ in pubs if p.get_subscription_count() == 0]
+                raise NoResponseError(
+                    f'no node subscribes to {", ".join(missing)} within {args.timeout:g} s (is '
+                    'driveline_node running with this ROS_DOMAIN_ID and namespace?)')
+            executor.spin_once(timeout_sec=0.02)
+        # The node's reader may discover this publisher seconds after this publisher matched
+        # it; it acknowledges samples only from then on. Publish until every subscriber has
+        # acknowledged, then once more (that one certainly reaches a matched reader).
+        acked = False
+        while not acked and time.monotonic() < end:
+            for pub, value, _ in pubs:
+                pub.publish(Float64(data=value))
+            acked = all(p.wait_for_all_acked(Duration(seconds=REPEAT_EVERY_S)) for p, _, _ in pubs)
+        if not acked:
+            raise NoResponseError(f'the node did not acknowledge the setpoint within '
+                                  f'{args.timeout:g} s')
+        for pub, value, _ in pubs:
+            pub.publish(Float64(data=value))
+        if not all(p.wait_for_all_acked(Duration(seconds=ACK_TIMEOUT_S)) for p, _, _ in pubs):
+            raise NoResponseError('the node did not acknowledge the setpoint')
+        for pub, _, text in pubs:
+            n = pub.get_subscription_count()
+            print(f'{pub.topic_name}: {text} delivered to {n} subscriber{"s" if n != 1 else ""}')
+    return 0

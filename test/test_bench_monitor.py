@@ -1,0 +1,22 @@
+"""benchmarks/bench_monitor.py runs at a small size and reports its figures as JSON."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+BENCH = Path(__file__).resolve().parents[1] / 'benchmarks' / 'bench_monitor.py'
+
+
+def test_bench_monitor_quick():
+    out = subprocess.run([sys.executable, str(BENCH), '--seconds', '4', '--hold', '1',
+                          '--variants', 'process'], capture_output=True, text=True,
+                         timeout=300, check=True).stdout
+    res = json.loads(out.strip().splitlines()[-1])
+    assert set(res) == {'process'}
+    proc = res['process']
+    # counts only (timing figures depend on the machine's load; they are the benchmark's output)
+    assert proc['ticks'] > 2000 and proc['cycles'] >= 5 and proc['predictions'] >= 1
+    assert 0 < proc['lag_p50_ms'] <= proc['lag_p99_ms'] <= proc['lag_max_ms']
+    assert proc['prediction_latency_max_s'] > 0 and proc['worker_start_s'] > 0

@@ -1,0 +1,198 @@
+"""Foxglove: the WebSocket server of dmf_sim.foxglove_bridge (a real client connects, subscribes,
+decodes the CDR messages) and the shipped layout config/foxglove_layout.json."""
+from __future__ import annotations
+
+import asyncio
+import json
+import re
+import struct
+from pathlib import Path
+
+import pytest
+
+from dmf_sim.errors import ConfigError
+from dmf_sim.foxglove_bridge import SUBPROTOCOL, FoxgloveBridge, message_definition
+
+websockets = pytest.importorskip('websockets')
+REPO = Path(__file__).resolve().parents[1]
+LAYOUT = REPO / 'config' / 'foxglove_layout.json'
+STREAMS = {'/driveline/dmf_windup': 'std_msgs/msg/Float64',
+           '/driveline/dmf_orders': 'diagnostic_msgs/msg/DiagnosticArray'}
+
+
+def _store():
+    from rosbags.typesys import Stores, get_typestore
+    return get_typestore(Stores.ROS2_JAZZY)
+
+
+def _diag_cdr(store, values: dict) -> bytes:
+    """A DiagnosticArray with one status, CDR-serialized (as the node's serialize_message)."""
+    T = store.types
+    Time = T['builtin_interfaces/msg/Time']
+    hdr = T['std_msgs/msg/Header'](stamp=Time(sec=12, nanosec=5), frame_id='')
+    kvs = [T['diagnostic_msgs/msg/KeyValue'](key=k, value=v) for k, v in values.items()]
+    st = T['diagnostic_msgs/msg/DiagnosticStatus'](level=1, name='n: DMF cycle orders',
+                                                  message='m', hardware_id='dmf_sim', values=kvs)
+    msg = T['diagnostic_msgs/msg/DiagnosticArray'](header=hdr, status=[st])
+    return bytes(store.serialize_cdr(msg, 'diagnostic_msgs/msg/DiagnosticArray'))
+
+
+async def _client(bridge: FoxgloveBridge, store):
+    async with websockets.connect(bridge.url, subprotocols=[SUBPROTOCOL]) as ws:
+        assert ws.subprotocol == SUBPROTOCOL
+        info = json.loads(await ws.recv())
+        assert info['op'] == 'serverInfo' and info['name'] == 'dmf_sim'
+        channels = {}
+        while len(channels) < len(STREAMS):
+            adv = json.loads(await ws.recv())
+            assert adv['op'] == 'advertise'
+            channels.update({c['topic']: c for c in adv['channels']})
+        for topic, msgtype in STREAMS.items():
+            c = channels[topic]
+            assert (c['encoding'], c['schemaEncoding'], c['schemaName']) == ('cdr', 'ros2msg',
+                                                                             msgtype)
+            assert c['schema'] == message_definition(msgtype)
+        assert 'diagnostic_msgs/KeyValue' in channels['/driveline/dmf_orders']['schema']
+        # published before anyone subscribed: goes nowhere
+        assert not bridge.has_subscribers('/driveline/dmf_orders')
+        bridge.publish('/driveline/dmf_windup', b'\x00\x01\x00\x00' + struct.pack('<d', -1.0), 1)
+        subs = {7: '/driveline/dmf_windup', 8: '/driveline/dmf_orders'}
+        await ws.send(json.dumps({'op': 'subscribe', 'subscriptions': [
+            {'id': i, 'channelId': channels[t]['id']} for i, t in subs.items()]}))
+        for _ in range(100):
+            if all(bridge.has_subscribers(t) for t in subs.values()):
+                break
+            await asyncio.sleep(0.02)
+        windup = b'\x00\x01\x00\x00' + struct.pack('<d', 0.2345)
+        bridge.publish('/driveline/dmf_windup', windup, 1_700_000_000_123_456_789)
+        bridge.publish('/driveline/dmf_orders', _diag_cdr(store, {'order_3_rad': '0.0123'}),
+                       1_700_000_000_200_000_000)
+        got = {}
+        while len(got) < 2:
+            data = await asyncio.wait_for(ws.recv(), 10)
+            assert isinstance(data, bytes) and data[0] == 0x01      # Message Data
+            sub_id, log_time = struct.unpack_from('<IQ', data, 1)
+            got[subs[sub_id]] = (log_time, data[13:])
+        return got
+
+
+def test_foxglove_server_streams_cdr_messages_a_client_decodes():
+    store = _store()
+    bridge = FoxgloveBridge(STREAMS, port=0)
+    try:
+        assert bridge.port > 0
+        got = asyncio.run(_client(bridge, store))
+    finally:
+        bridge.close()
+    t, payload = got['/driveline/dmf_windup']
+    assert t == 1_700_000_000_123_456_789
+    assert store.deserialize_cdr(payload, 'std_msgs/msg/Float64').data == 0.2345
+    t, payload = got['/driveline/dmf_orders']
+    msg = store.deserialize_cdr(payload, 'diagnostic_msgs/msg/DiagnosticArray')
+    assert t == 1_700_000_000_200_000_000
+    assert msg.status[0].values[0].key == 'order_3_rad'
+    assert msg.status[0].values[0].value == '0.0123' and msg.status[0].level == 1
+
+
+def test_foxglove_refuses_other_subprotocols_and_bad_settings():
+    bridge = FoxgloveBridge(STREAMS, port=0)
+
+    async def old_client():
+        async with websockets.connect(bridge.url, subprotocols=['foxglove.websocket.v1']):
+            pass
+    try:
+        with pytest.raises(Exception, match='400|sec-websocket-protocol|InvalidStatus'):
+            asyncio.run(old_client())
+        with pytest.raises(ConfigError, match='foxglove server on 127.0.0.1'):
+            FoxgloveBridge(STREAMS, port=bridge.port)          # the port is taken
+    finally:
+        bridge.close()
+    with pytest.raises(ConfigError, match='absolute'):
+        FoxgloveBridge({'driveline/dmf_windup': 'std_msgs/msg/Float64'}, port=0)
+    with pytest.raises(ConfigError, match='unknown message type'):
+        FoxgloveBridge({'/x': 'no_msgs/msg/Nothing'}, port=0)
+    with pytest.raises(ConfigError, match='foxglove_port'):
+        FoxgloveBridge(STREAMS, port=70000)
+
+
+# ------------------------------------------------------------------------------------------------
+# The layout
+# ------------------------------------------------------------------------------------------------
+
+def _panel_ids(tree) -> list[str]:
+    if isinstance(tree, str):
+        return [tree]
+    return _panel_ids(tree['first']) + _panel_ids(tree['second'])
+
+
+def test_layout_is_a_foxglove_layout_of_the_node_s_topics_and_keys():
+    """The layout file as Foxglove exports/imports it (configById + mosaic layout tree): every
+    panel in the tree is configured, every message path names a topic the node publishes with
+    the right type, and every key filter a key the monitor's messages carry."""
+    from types import SimpleNamespace
+
+    from dmf_sim.alarms import AlarmReport
+    from dmf_sim.monitor_messages import (TOPIC_CYCLE, TOPIC_PREDICTED, cycle_status,
+                                          prediction_statuses, values_of)
+    from dmf_sim.node import STREAMS as NODE_STREAMS
+    from dmf_sim.orders import OrderSummary
+    from dmf_sim.prediction import OperatingPoint, Prediction, PredictedState
+
+    layout = json.loads(LAYOUT.read_text())
+    assert set(layout) >= {'configById', 'layout', 'globalVariables', 'userNodes',
+                           'playbackConfig'}
+    ids = _panel_ids(layout['layout'])
+    assert sorted(ids) == sorted(layout['configById'])
+    kinds = {i.split('!')[0] for i in ids}
+    assert kinds >= {'Plot', 'DiagnosticSummary', 'DiagnosticStatusPanel'}
+
+    topics = {'/' + t.lstrip('/'): msgtype for t, msgtype in
+              [(v[0], v[1]) for v in NODE_STREAMS.values()]}
+    topics['/' + TOPIC_CYCLE] = topics['/' + TOPIC_PREDICTED] = \
+        'diagnostic_msgs/msg/DiagnosticArray'
+    # keys the messages really carry (built by the same functions as the node)
+    summ = OrderSummary(0.01, 0.002, 0.02, -0.02, 0.2, 0.0, 0.19, 0.2)
+    cyc = SimpleNamespace(index=1, speed_rpm=1000.0, load=0.5, summary=summ,
+                          max_windup=0.22, min_windup=0.18,
+                          values=lambda: {'cycle': 1.0, 'speed_rpm': 1000.0, 'load': 0.5,
+                                          'order_3_rad': 0.01, 'order_1_5_rad': 0.002,
+                                          'mean_rad': 0.2, 'max_windup_rad': 0.22,
+                                          'min_windup_rad': 0.18, 'max_deviation_rad': 0.02,
+                                          'min_deviation_rad': -0.02,
+                                          'mean_minus_theta_rad': 0.0,
+                                          'theta_minus_static_rad': 0.01,
+                                          'static_windup_rad': 0.19, 'cycle_duration_s': 0.12,
+                                          'share_primary': 1.0, 'share_secondary': 0.0})
+    pred = Prediction(OperatingPoint(1000.0, 0.5, 'A', None),
+                      (PredictedState(0.01, 0.002, 0.02, -0.02, 0.2, 0.0, 0.19, 0.01),), 0.1)
+    keys = {'/' + TOPIC_CYCLE: set(values_of(cycle_status('n', cyc, None, pred,
+                                                          AlarmReport(0, ())))),
+            '/' + TOPIC_PREDICTED: set().union(*(values_of(s) for s in
+                                                 prediction_statuses('n', pred, 2.5, 0.24)))}
+    diag_keys = {'speed_rpm', 'speed_setpoint_rpm', 'load', 'load_setpoint', 'windup_rad',
+                 'lag_ms', 'lag_p99_ms', 'real_time_factor'}   # the node's health status
+
+    paths = []
+    for pid, cfg in layout['configById'].items():
+        kind = pid.split('!')[0]
+        if kind == 'Plot':
+            assert cfg['paths'], pid
+            paths += [p['value'] for p in cfg['paths']]
+        elif kind in ('DiagnosticSummary', 'DiagnosticStatusPanel'):
+            assert topics[cfg['topicToRender']] == 'diagnostic_msgs/msg/DiagnosticArray'
+        elif kind == 'RawMessages':
+            paths.append(cfg['topicPath'])
+    assert len(paths) >= 8
+    for path in paths:
+        m = re.match(r'^(/[\w/]+?)(\.|$)(.*)$', path)
+        assert m and m.group(1) in topics, path
+        topic, rest = m.group(1), m.group(3)
+        if topics[topic] == 'std_msgs/msg/Float64':
+            assert rest in ('data', ''), path
+        elif topics[topic] == 'diagnostic_msgs/msg/DiagnosticArray' and rest:
+            km = re.fullmatch(r'status(?:\[0\]|\[:\]\{hardware_id=="dmf_sim"\})'
+                              r'\.values\[:\]\{key=="(\w+)"\}\.value', rest)
+            assert km, path
+            key = km.group(1)
+            allowed = keys.get(topic, diag_keys)
+            assert key in allowed, path
