@@ -14,7 +14,7 @@ of an engine cycle (720 deg = 4 pi rad, cycles starting at whole multiples of 4 
   ``spring.region_name``), i.e. the share of the cycle's time;
 * the cycle's engine speed (120 / cycle duration, as the bag analysis) and its mean load.
 
-Same numbers as the bag analysis: the orders come from :func:`dmf_sim.analyze.cycle_orders`, the
+Same numbers as the bag analysis: the orders come from :func:`dmf_sim.cycle_orders.cycle_orders`, the
 function ``dmf-sim analyze`` applies to a recording (cubic spline over the crank angle, 256 points
 per cycle, FFT scaled by :mod:`dmf_sim.orders`' convention). The tracker passes it the samples of
 the cycle plus :data:`MARGIN_SAMPLES` samples on either side; a cubic spline's dependence on data
@@ -30,16 +30,16 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.interpolate  # noqa: F401 - loaded now, not on the first cycle of a live run
+import scipy.interpolate  # noqa: F401  (loaded now, not on the first cycle of a live run)
 
-from dmf_sim.analyze import Series, cycle_orders
+from dmf_sim.cycle_orders import EDGE_SAMPLES, cycle_orders
 from dmf_sim.orders import ORDER_1_5, ORDER_3, OrderSummary
 from dmf_sim.units import CYCLE_RAD
 
 __all__ = ['MARGIN_SAMPLES', 'CycleResult', 'CycleWindow', 'CycleOrderTracker', 'analyze_window',
            'region_key']
 
-MARGIN_SAMPLES = 32          # samples kept before and after a cycle for the spline (see above)
+MARGIN_SAMPLES = EDGE_SAMPLES   # samples kept before and after a cycle for the spline (see above)
 POINTS_PER_CYCLE = 256       # crank-angle grid per cycle: the bag analysis' default
 N_MAX = 24                   # highest half-order index: the bag analysis' default
 _INITIAL_CAPACITY = 4096     # samples; the buffer doubles when needed
@@ -124,11 +124,11 @@ class CycleWindow:
 def analyze_window(window: CycleWindow, static_windup: Callable[[float, float], float] | None
                    = None, *, points_per_cycle: int = POINTS_PER_CYCLE,
                    n_max: int = N_MAX) -> list[CycleResult]:
-    """Order analysis of the window's cycles (:func:`dmf_sim.analyze.cycle_orders`, the bag
+    """Order analysis of the window's cycles (:func:`dmf_sim.cycle_orders.cycle_orders`, the bag
     analysis' function); cycles across a gap in the stamps are left out, as in the bag analysis.
     ``static_windup(speed_rpm, load)`` [rad] gives the static wind-up of the mean torque."""
     t, psi, w = window.t_ns, window.psi, window.windup
-    cyc = cycle_orders(t, w, Series(t, psi), points_per_cycle=points_per_cycle, n_max=n_max,
+    cyc = cycle_orders(t, w, t, psi, points_per_cycle=points_per_cycle, n_max=n_max,
                        t0_ns=int(t[0]))
     spring = window.spring
     regions = [(st, spring.region_name(st)) for st in spring.stages()]

@@ -116,16 +116,16 @@ def check_table(table, spec: dict, tol: float = TOL, orders=(3, 6)) -> None:
 
 def record_node_run_up(path: Path, v0: float, v1: float, ramp_rpm_s: float, hold_s: float,
                        load: float = 1.0, chunk_steps: int = 100, hold_end_s: float = 0.3,
-                       store_load: bool = False) -> Path:
+                       store_load: bool = False, engine: str = 'engine_d13') -> Path:
     """Offline 'node recording' without DDS: the node's simulation core (LiveSimulation) steps in
     chunks; every published sample is serialized and recorded as dmf_sim/node.py does, with its
     RunMetadata as custom_data (the load only with ``store_load``)."""
     from dmf_sim.live import LiveSimulation
 
-    sim = LiveSimulation.from_config('truck_dmf', 'engine_d13', load_set='A', speed_rpm=v0,
+    sim = LiveSimulation.from_config('truck_dmf', engine, load_set='A', speed_rpm=v0,
                                      load=load, speed_ramp_rpm_per_s=ramp_rpm_s, stride=10)
     spring = sim.model.spring
-    custom = RunMetadata(driveline='truck_dmf', engine='engine_d13', load_set='A',
+    custom = RunMetadata(driveline='truck_dmf', engine=engine, load_set='A',
                          alpha=spring.alpha, theta_rad=spring.theta, spring=spring.as_dict(),
                          load=load if store_load else None, speed_rpm=v0, dt_s=sim.dt,
                          publish_rate_hz=1000.0).to_custom_data()

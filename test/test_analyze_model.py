@@ -96,9 +96,11 @@ def test_green_line_is_theta_minus_static_windup(tmp_path):
 def test_ramp_bins_marked_and_not_compared(tmp_path, capsys):
     """Issue 11: a fast speed step (500 rpm/s) between two holds: the bins it sweeps through
     hold few cycles; they are drawn hollow and the text summary compares only the steady bins,
-    so no ramp bin reports hundreds of percent of the HBM peak."""
+    so no ramp bin reports hundreds of percent of the HBM peak. (The 2500 Nm engine: with the
+    2800 Nm default the wind-up at 960 rpm sits in a 1.5th-order resonance that takes longer
+    than these 1.5 s holds to settle.)"""
     bag = record_node_run_up(tmp_path / 'step', 960.0, 1040.0, 500.0, hold_s=1.5,
-                             hold_end_s=1.5, store_load=True)
+                             hold_end_s=1.5, store_load=True, engine='engine_d13_2500nm')
     out = tmp_path / 'out'
     assert cli_main(['analyze', str(bag), '--out', str(out), '--start', '0.5']) == 0
     text = capsys.readouterr().out

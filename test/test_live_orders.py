@@ -149,7 +149,7 @@ def test_live_cycles_equal_dmf_sim_analyze_of_a_bag_of_the_same_run(tmp_path):
         assert s.mean == pytest.approx(table.mean[i], rel=1e-12)
         assert s.mean_minus_theta == pytest.approx(table.mean_minus_theta[i], rel=1e-9)
         assert c.speed_rpm == pytest.approx(table.speed_rpm[i], rel=1e-9)
-        np.testing.assert_allclose(c.coeffs, cyc.coeffs[i], rtol=1e-9, atol=1e-14)
+        np.testing.assert_allclose(c.coeffs, cyc.coeffs[i], rtol=1e-9, atol=1e-11)
         assert s.static_windup == pytest.approx(loads.static_state(c.speed_rpm, c.load).windup)
     # the run crosses the knee (theta = 0.2 at full load), so the region shares are informative
     assert any(0.0 < c.region_share['secondary'] < 1.0 for c in live)
