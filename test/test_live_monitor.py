@@ -39,7 +39,8 @@ def _drain(sim, mon, cond, cycles, preds):
 
 @pytest.mark.parametrize('worker', ['process', 'thread'])
 def test_monitor_predicts_compares_and_alarms(worker):
-    sim = LiveSimulation.from_config(alpha=3.0, theta=0.2, speed_rpm=1200.0, load=1.0,
+    sim = LiveSimulation.from_config(engine='engine_d13_2500nm', alpha=3.0, theta=0.2,
+                                     speed_rpm=1200.0, load=1.0,
                                      speed_ramp_rpm_per_s=1000.0)
     settings = MonitorSettings(worker=worker, subharmonic_alarm_rad=0.005)
     mon = LiveMonitor(sim.line, sim.engine, settings, node_name='truck1/driveline_node')

@@ -21,10 +21,10 @@ from dmf_sim.prediction import (QUANTITIES, OperatingPoint, Prediction, Predicte
 
 @pytest.fixture(scope='module')
 def knee_loads():
-    """alpha 3, theta 0.2 rad, Load A: the 1.5th-order resonance near 900-1070 rpm at full load
-    (README: HBM sweeps)."""
+    """alpha 3, theta 0.2 rad, Load A of the 2500 Nm engine: the 1.5th-order resonance near
+    900-1070 rpm at full load, with two stable states at 960 rpm."""
     return DrivelineLoads(load_model('truck_dmf', alpha=3.0, theta=0.2),
-                          load_engine('engine_d13', load_set='A'))
+                          load_engine('engine_d13_2500nm', load_set='A'))
 
 
 def _point(loads, speed, load=1.0):
