@@ -426,7 +426,7 @@ def test_recording_lifecycle(tmp_path, monkeypatch):
 
 def test_params_file_matches_parameter_table():
     cfg = yaml.safe_load((REPO / 'config' / 'driveline_node.yaml').read_text())
-    params = cfg['driveline_node']['ros__parameters']
+    params = cfg['/**/driveline_node']['ros__parameters']
     assert set(params) == set(PARAMETERS)
     for name, value in params.items():
         spec = PARAMETERS[name]
@@ -523,3 +523,57 @@ def test_node_module_imports_and_refuses_cleanly_without_ros():
                          timeout=120)
     assert res.returncode == 2, res.stderr
     assert 'ROS 2 Python packages missing' in res.stderr and 'Traceback' not in res.stderr
+
+
+# ================================================================================================
+# The launch file (the launch / launch_ros packages are not on the package index: their API is
+# recorded by small stand-ins, which checks how the file wires its arguments into the node)
+# ================================================================================================
+
+def test_launch_file_declares_namespace_params_record_and_wires_them(monkeypatch):
+    import runpy
+    import types
+
+    class Recorded:
+        def __init__(self, *args, **kwargs):
+            self.args, self.kwargs = args, kwargs
+
+        def __eq__(self, other):
+            return (type(self) is type(other) and self.args == other.args
+                    and self.kwargs == other.kwargs)
+
+    modules = {}
+    for mod, names in {'launch': ['LaunchDescription'],
+                       'launch.actions': ['DeclareLaunchArgument'],
+                       'launch.substitutions': ['LaunchConfiguration', 'PathJoinSubstitution'],
+                       'launch_ros': [], 'launch_ros.actions': ['Node'],
+                       'launch_ros.parameter_descriptions': ['ParameterValue'],
+                       'launch_ros.substitutions': ['FindPackageShare']}.items():
+        m = modules[mod] = types.ModuleType(mod)
+        for name in names:
+            setattr(m, name, type(name, (Recorded,), {}))
+        monkeypatch.setitem(sys.modules, mod, m)
+    ns = runpy.run_path(str(REPO / 'launch' / 'driveline.launch.py'))
+    desc = ns['generate_launch_description']()
+    (entities,) = desc.args
+    arguments = {a.args[0]: a.kwargs for a in entities[:-1]}
+    assert set(arguments) == {'namespace', 'params_file', 'record', 'bag_path'}
+    assert arguments['namespace']['default_value'] == ''
+    assert arguments['record']['default_value'] == 'false'
+    assert arguments['record']['choices'] == ['true', 'false']
+    default_params = arguments['params_file']['default_value']
+    (parts,) = default_params.args
+    assert parts[0].args == ('dmf_sim',) and parts[1:] == ['config', 'driveline_node.yaml']
+    node = entities[-1]
+    config = modules['launch.substitutions'].LaunchConfiguration
+    value = modules['launch_ros.parameter_descriptions'].ParameterValue
+    assert node.kwargs['package'] == 'dmf_sim' and node.kwargs['executable'] == 'driveline_node'
+    assert node.kwargs['namespace'] == config('namespace')
+    params_file, overrides = node.kwargs['parameters']
+    assert params_file == config('params_file')
+    assert overrides == {'record': value(config('record'), value_type=bool),
+                         'bag_path': value(config('bag_path'), value_type=str)}
+    assert set(overrides) <= set(PARAMETERS)
+    # the installed params file's key matches the node in any namespace
+    cfg = yaml.safe_load((REPO / 'config' / 'driveline_node.yaml').read_text())
+    assert list(cfg) == ['/**/driveline_node']
