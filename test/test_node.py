@@ -547,3 +547,32 @@ def test_bench_node_quick_prints_json():
         assert isinstance(data[key], float) and math.isfinite(data[key]) and data[key] > 0, key
     assert 0.8 < data['rtf_mean'] < 1.2
     assert data['bag_complete'] and data['node_exit_code'] == 0
+
+
+def test_bench_node_two_trucks_quick():
+    res = subprocess.run([sys.executable, str(BENCH), '--nodes', '2', '--duration', '2',
+                          '--warmup', '0.5', '--domain', str(new_domain())],
+                         capture_output=True, text=True, timeout=300, cwd=REPO)
+    assert res.returncode == 0, res.stdout + res.stderr
+    data = json.loads(res.stdout.strip().splitlines()[-1])
+    assert data['nodes'] == 2 and [n['node'] for n in data['per_node']] == \
+        ['/truck1/driveline_node', '/truck2/driveline_node']
+    for n in data['per_node']:
+        assert n['joint_states_received'] > 500 and 0.5 < n['rtf_mean'] < 1.5
+    assert isinstance(data['realtime_ok'], bool) and data['cpu_pct_total'] > data['cpu_pct']
+    assert data['bag_complete'] and data['node_exit_code'] == 0
+
+
+def test_bench_soak_quick_prints_json():
+    res = subprocess.run([sys.executable, str(SOAK), '--minutes', '0.3', '--warmup-minutes',
+                          '0.1', '--domain', str(new_domain())],
+                         capture_output=True, text=True, timeout=300, cwd=REPO)
+    assert res.returncode == 0, res.stdout + res.stderr
+    data = json.loads(res.stdout.strip().splitlines()[-1])
+    for key in ('rss_growth_mib_per_h', 'cpu_pct', 'rtf_mean', 'lag_p99_ms_total',
+                'lag_max_ms_total'):
+        assert isinstance(data[key], float) and math.isfinite(data[key]), key
+    assert data['rss_samples'] >= 15 and data['setpoints_sent'] >= 12
+    assert data['setpoints_lost'] == 0 and data['joint_states_lost'] >= 0
+    assert data['joint_states_received'] > 5000
+    assert data['bag_complete'] and data['node_exit_code'] == 0
