@@ -385,8 +385,8 @@ def report(r: dict) -> None:
         print(f'{label} real-time factor  mean {n["rtf_mean"]:.4f}  min {n["rtf_min"]:.4f}  max '
               f'{n["rtf_max"]:.4f}  ({n["rtf_windows"]} windows of 1 s), overall '
               f'{n["rtf_overall"]:.5f}')
-        print(f'{label} lag end-to-end    p50 {n["lag_p50_ms"]:.2f} ms  p99 {n["lag_p99_ms"]:.2f} ms'
-              f'  max {n["lag_max_ms"]:.2f} ms  ({n["joint_states_received"]} of '
+        print(f'{label} lag end-to-end    p50 {n["lag_p50_ms"]:.2f} ms  p99 '
+              f'{n["lag_p99_ms"]:.2f} ms  max {n["lag_max_ms"]:.2f} ms  ({n["joint_states_received"]} of '
               f'{r["joint_states_expected"]} JointState received)')
         print(f'{label} node-side lag     p99 {n["node_lag_p99_ms_run"]:.2f} ms (run), max '
               f'{n["node_lag_max_ms_run"]:.2f} ms, worst 1-s window p99 '

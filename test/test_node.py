@@ -83,9 +83,9 @@ def test_setpoints_outputs_fast_spell_and_a_bag_that_analyses(tmp_path, capsys):
     domain = new_domain()
     bag = tmp_path / 'run_bag'
     # max_lag 5 s: a VM hiccup must not skip ahead here (gaps in the stamps are tested below)
-    node = NodeProcess(['--ros-args', '--params-file', str(REPO / 'config' / 'driveline_node.yaml'),
-                        '-p', 'record:=true', '-p', f'bag_path:={bag}', '-p', 'max_lag:=5.0'],
-                       tmp_path, domain)
+    params = str(REPO / 'config' / 'driveline_node.yaml')
+    node = NodeProcess(['--ros-args', '--params-file', params, '-p', 'record:=true',
+                        '-p', f'bag_path:={bag}', '-p', 'max_lag:=5.0'], tmp_path, domain)
     peer = Peer(domain)
     try:
         peer.subscribe('/engine/speed', Float64, keep=True)
@@ -490,7 +490,8 @@ def test_installed_layout_runs_like_ros2_run(tmp_path):
         '.pytest_cache', 'out'))
     prefix = tmp_path / 'prefix'
     subprocess.run([sys.executable, 'setup.py', '-q', 'install', '--prefix', str(prefix),
-                    '--single-version-externally-managed', '--record', str(tmp_path / 'files.txt')],
+                    '--single-version-externally-managed',
+                    '--record', str(tmp_path / 'files.txt')],
                    cwd=src, check=True, capture_output=True, timeout=300)
     exe = prefix / 'lib' / 'dmf_sim' / 'driveline_node'
     assert exe.is_file() and os.access(exe, os.X_OK)
@@ -537,12 +538,16 @@ def test_installed_layout_runs_like_ros2_run(tmp_path):
     assert rc == 0, node.output()
 
 
-def test_bench_node_quick_prints_json():
-    res = subprocess.run([sys.executable, str(BENCH), '--duration', '3', '--fast-duration', '1.5',
-                          '--warmup', '1', '--domain', str(new_domain())],
-                         capture_output=True, text=True, timeout=240, cwd=REPO)
+def _bench_json(script: Path, *args: str) -> dict:
+    """Run a benchmark on its own domain; its last line of output as JSON."""
+    res = subprocess.run([sys.executable, str(script), *args, '--domain', str(new_domain())],
+                         capture_output=True, text=True, timeout=300, cwd=REPO)
     assert res.returncode == 0, res.stdout + res.stderr
-    data = json.loads(res.stdout.strip().splitlines()[-1])
+    return json.loads(res.stdout.strip().splitlines()[-1])
+
+
+def test_bench_node_quick_prints_json():
+    data = _bench_json(BENCH, '--duration', '3', '--fast-duration', '1.5', '--warmup', '1')
     for key in ('rtf_mean', 'lag_p99_ms', 'cpu_pct', 'max_rtf_fast'):
         assert isinstance(data[key], float) and math.isfinite(data[key]) and data[key] > 0, key
     assert 0.8 < data['rtf_mean'] < 1.2
@@ -550,11 +555,7 @@ def test_bench_node_quick_prints_json():
 
 
 def test_bench_node_two_trucks_quick():
-    res = subprocess.run([sys.executable, str(BENCH), '--nodes', '2', '--duration', '2',
-                          '--warmup', '0.5', '--domain', str(new_domain())],
-                         capture_output=True, text=True, timeout=300, cwd=REPO)
-    assert res.returncode == 0, res.stdout + res.stderr
-    data = json.loads(res.stdout.strip().splitlines()[-1])
+    data = _bench_json(BENCH, '--nodes', '2', '--duration', '2', '--warmup', '0.5')
     assert data['nodes'] == 2 and [n['node'] for n in data['per_node']] == \
         ['/truck1/driveline_node', '/truck2/driveline_node']
     for n in data['per_node']:
@@ -564,11 +565,7 @@ def test_bench_node_two_trucks_quick():
 
 
 def test_bench_soak_quick_prints_json():
-    res = subprocess.run([sys.executable, str(SOAK), '--minutes', '0.3', '--warmup-minutes',
-                          '0.1', '--domain', str(new_domain())],
-                         capture_output=True, text=True, timeout=300, cwd=REPO)
-    assert res.returncode == 0, res.stdout + res.stderr
-    data = json.loads(res.stdout.strip().splitlines()[-1])
+    data = _bench_json(SOAK, '--minutes', '0.3', '--warmup-minutes', '0.1')
     for key in ('rss_growth_mib_per_h', 'cpu_pct', 'rtf_mean', 'lag_p99_ms_total',
                 'lag_max_ms_total'):
         assert isinstance(data[key], float) and math.isfinite(data[key]), key
