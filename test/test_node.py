@@ -565,11 +565,11 @@ def test_bench_node_two_trucks_quick():
 
 
 def test_bench_soak_quick_prints_json():
-    data = _bench_json(SOAK, '--minutes', '0.3', '--warmup-minutes', '0.1')
+    data = _bench_json(SOAK, '--minutes', '0.2', '--warmup-minutes', '0.05')
     for key in ('rss_growth_mib_per_h', 'cpu_pct', 'rtf_mean', 'lag_p99_ms_total',
                 'lag_max_ms_total'):
         assert isinstance(data[key], float) and math.isfinite(data[key]), key
-    assert data['rss_samples'] >= 15 and data['setpoints_sent'] >= 12
+    assert data['rss_samples'] >= 10 and data['setpoints_sent'] >= 8
     assert data['setpoints_lost'] == 0 and data['joint_states_lost'] >= 0
-    assert data['joint_states_received'] > 5000
+    assert data['joint_states_received'] > 3000
     assert data['bag_complete'] and data['node_exit_code'] == 0
