@@ -191,15 +191,14 @@ class DrivelineNode(Node):
         rt = self.runtime
         report = rt.health.report(now)
         msg = DiagnosticArray()
-        t = rt.sim.t
-        msg.header.stamp = Time(sec=rt.loop.time.stamp_ns(t) // 1_000_000_000,
-                                nanosec=rt.loop.time.stamp_ns(t) % 1_000_000_000)
+        stamp_ns = rt.loop.time.stamp_ns(rt.sim.t)
+        msg.header.stamp = Time(sec=stamp_ns // 1_000_000_000, nanosec=stamp_ns % 1_000_000_000)
         status = DiagnosticStatus(level=bytes([report.level]),
                                   name=f'{self.fqn}: driveline simulation',
                                   hardware_id=self.fqn, message=report.message)
         status.values = [KeyValue(key=k, value=v) for k, v in report.values.items()]
         msg.status = [status]
-        self._emit('diagnostics', msg, rt.loop.time.stamp_ns(t) + rt.loop.time.log_offset_ns)
+        self._emit('diagnostics', msg, stamp_ns + rt.loop.time.log_offset_ns)
         rt.recording.flush()
 
     # ---- setpoints and services (executor thread) ---------------------------------------

@@ -352,7 +352,7 @@ def test_setpoint_flood_applies_the_last_valid_one_and_counts_every_one(tmp_path
             if delay > 0:
                 time.sleep(delay)
         rate = len(msgs) / (time.monotonic() - t0)
-        assert rate > 2000.0, rate
+        assert rate > 1500.0, rate                        # nominal 2.5k msg/s
         total = str(2 * n_per_topic)
         assert peer.spin_until(lambda: peer.diagnostics().get('setpoints_received') == total,
                                30.0), peer.diagnostics()
