@@ -139,10 +139,13 @@ def run(args) -> dict:
         'setpoints_rejected': int(last['rejected_setpoints']),
         'joint_states_received': int(len(received_js)),
         'joint_states_lost': js_lost,
+        'recording_at_end': last.get('recording') == 'true',
         'node_exit_code': code, **check,
     }
     if not args.keep:
         shutil.rmtree(tmp, ignore_errors=True)
+    else:
+        result['bag_dir'] = str(tmp)
     return result
 
 
@@ -170,7 +173,7 @@ def main(argv=None) -> dict:
     print(f'  lost: {r["setpoints_lost"]} of {r["setpoints_sent"]} setpoints, '
           f'{r["joint_states_lost"]} of {r["joint_states_received"]} JointState; bag '
           f'{r["bag_messages"]} messages in {r["bag_files"]} file(s), complete '
-          f'{r["bag_complete"]}')
+          f'{r["bag_complete"]}, still recording at the end: {r["recording_at_end"]}')
     print(json.dumps(clean_json(r)))
     return r
 

@@ -571,5 +571,5 @@ def test_bench_soak_quick_prints_json():
         assert isinstance(data[key], float) and math.isfinite(data[key]), key
     assert data['rss_samples'] >= 10 and data['setpoints_sent'] >= 8
     assert data['setpoints_lost'] == 0 and data['joint_states_lost'] >= 0
-    assert data['joint_states_received'] > 3000
+    assert data['joint_states_received'] > 3000 and data['recording_at_end']
     assert data['bag_complete'] and data['node_exit_code'] == 0
