@@ -14,6 +14,7 @@ setup(
         ('share/' + PACKAGE, ['package.xml']),
         ('share/' + PACKAGE + '/config', sorted(glob('config/*.yaml')) + sorted(glob('config/*.csv'))
          + sorted(glob('config/*.json'))),
+        ('share/' + PACKAGE + '/launch', sorted(glob('launch/*.launch.py'))),
     ],
     python_requires='>=3.11',
     install_requires=[

@@ -15,10 +15,17 @@ and measures from a second process, over real DDS:
   with recording still on (and once more with recording off), publishing at the same rate.
   The JointState subscription is dropped first, so the figure is the node's own speed.
 
-The bag is closed by SIGTERM and checked (message counts in metadata.yaml vs the MCAP summary).
+With ``--nodes N`` (several trucks on one machine) N nodes run at once in namespaces /truck1 ..
+/truckN, each recording its own bag; every figure is measured per node (``per_node``), the
+top-level ones are the mean (rtf_mean, cpu_pct), the worst (rtf_min, lag_*) or the sum
+(cpu_pct_total, overruns), and ``realtime_ok`` says whether every node kept real time (every
+1-s window within 2 % of factor 1, no overrun, end-to-end lag p99 below max_lag 50 ms). The
+fast-mode part runs only with one node.
+
+Each bag is closed by SIGTERM and checked (message counts in metadata.yaml vs the MCAP summary).
 Last line: one JSON object.
 
-    python benchmarks/bench_node.py [--duration 60] [--fast-duration 10] [--warmup 3]
+    python benchmarks/bench_node.py [--duration 60] [--fast-duration 10] [--warmup 3] [--nodes N]
 """
 from __future__ import annotations
 
@@ -38,6 +45,9 @@ from pathlib import Path
 
 import numpy as np
 
+MAX_LAG_MS = 50.0            # the node's default max_lag: above it a lag is an overrun
+REALTIME_TOLERANCE = 0.02    # every 1-s window within 2 % of factor 1 counts as real time
+
 
 def proc_cpu_seconds(pid: int) -> float:
     """utime + stime [s] of a process (all threads), from /proc/<pid>/stat."""
@@ -46,15 +56,76 @@ def proc_cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
 
 
-class Probe:
-    """rclpy peer on the node's domain: JointState stamps (raw CDR) and diagnostics."""
+def proc_rss_mib(pid: int) -> float:
+    """Resident set size [MiB] of a process, from /proc/<pid>/status."""
+    with open(f'/proc/{pid}/status') as f:
+        for line in f:
+            if line.startswith('VmRSS:'):
+                return int(line.split()[1]) / 1024.0
+    return float('nan')
 
-    def __init__(self, domain: int, cap: int) -> None:
+
+def default_domain() -> int:
+    """A ROS_DOMAIN_ID from DMF_SIM_TEST_DOMAINS ('LO-HI', default 1-100) and the pid."""
+    lo, hi = (int(x) for x in os.environ.get('DMF_SIM_TEST_DOMAINS', '1-100').split('-'))
+    return lo + (os.getpid() * 7 + 3) % (hi - lo + 1)
+
+
+class NodeRun:
+    """One driveline_node process (namespace ``ns``, '' = none) recording to ``bag``."""
+
+    def __init__(self, ns: str, bag: Path, workdir: Path, extra: list[str]) -> None:
+        self.ns, self.bag = ns, bag
+        self.fqn = f'{ns}/driveline_node'
+        cmd = [sys.executable, '-m', 'dmf_sim.node', '--ros-args', '-p', 'record:=true',
+               '-p', f'bag_path:={bag}', *extra]
+        if ns:
+            cmd += ['-r', f'__ns:={ns}']
+        self.log = open(workdir / f'node{ns.replace("/", "_")}.log', 'w')
+        self.proc = subprocess.Popen(cmd, env=dict(os.environ, PYTHONUNBUFFERED='1'),
+                                     stdout=self.log, stderr=subprocess.STDOUT, cwd=workdir)
+
+    def stop(self) -> int:
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        self.log.close()
+        return self.proc.returncode
+
+    def bag_check(self) -> dict:
+        """Message counts of the closed bag: metadata.yaml vs the MCAP summaries."""
+        import yaml
+        from mcap.reader import make_reader
+
+        meta = yaml.safe_load((self.bag / 'metadata.yaml').read_text())
+        meta = meta['rosbag2_bagfile_information']
+        mcap_count, complete = 0, True
+        for rel in meta['relative_file_paths']:
+            with open(self.bag / rel, 'rb') as f:
+                summary = make_reader(f).get_summary()
+            if summary is None:
+                complete = False
+            else:
+                mcap_count += sum(summary.statistics.channel_message_counts.values())
+        return {'bag_messages': int(meta['message_count']),
+                'bag_complete': complete and mcap_count == meta['message_count'],
+                'bag_files': len(meta['relative_file_paths']),
+                'bag_mb': sum(p.stat().st_size for p in self.bag.iterdir()) / 1e6}
+
+
+class Probe:
+    """rclpy peer on the nodes' domain: JointState stamps (raw CDR) and diagnostics per node."""
+
+    def __init__(self, domain: int, cap: int, fqns: list[str]) -> None:
         import rclpy
-        from rclpy.executors import SingleThreadedExecutor
-        from rclpy.qos import QoSProfile, ReliabilityPolicy
         from diagnostic_msgs.msg import DiagnosticArray
         from rcl_interfaces.srv import SetParameters
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.qos import QoSProfile, ReliabilityPolicy
         from sensor_msgs.msg import JointState
 
         self.rclpy = rclpy
@@ -62,16 +133,18 @@ class Probe:
         rclpy.init(context=self.ctx, domain_id=domain)
         self.node = rclpy.create_node('bench_probe', context=self.ctx)
         qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
-        self.recv = np.zeros(cap, dtype=np.int64)
-        self.stamp = np.zeros(cap, dtype=np.int64)
-        self.n = 0
+        self.fqns = fqns
+        self.recv = {f: np.zeros(cap, dtype=np.int64) for f in fqns}
+        self.stamp = {f: np.zeros(cap, dtype=np.int64) for f in fqns}
+        self.n = dict.fromkeys(fqns, 0)
         self.recording = False
-        self.diags: list[tuple[float, dict]] = []
-        self.js_sub = self.node.create_subscription(JointState, '/driveline/joint_states',
-                                                    self._on_js, qos, raw=True)
+        self.diags: dict[str, list[tuple[float, dict]]] = {f: [] for f in fqns}
+        self.js_subs = [self.node.create_subscription(
+            JointState, f'{f.rsplit("/", 1)[0]}/driveline/joint_states',
+            lambda data, f=f: self._on_js(f, data), qos, raw=True) for f in fqns]
         self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, qos)
-        self.param_client = self.node.create_client(SetParameters,
-                                                    '/driveline_node/set_parameters')
+        self.param_clients = {f: self.node.create_client(SetParameters, f'{f}/set_parameters')
+                              for f in fqns}
         self.executor = SingleThreadedExecutor(context=self.ctx)
         self.executor.add_node(self.node)
         self.thread = threading.Thread(target=self._spin, daemon=True)
@@ -83,18 +156,20 @@ class Probe:
         except Exception:  # noqa: BLE001 - shutdown races
             pass
 
-    def _on_js(self, data: bytes) -> None:
+    def _on_js(self, fqn: str, data: bytes) -> None:
         now = time.time_ns()
-        if self.recording and self.n < self.recv.shape[0]:
+        n = self.n[fqn]
+        if self.recording and n < self.recv[fqn].shape[0]:
             sec, nsec = struct.unpack_from('<iI', data, 4)   # CDR header, then header.stamp
-            self.recv[self.n] = now
-            self.stamp[self.n] = sec * 1_000_000_000 + nsec
-            self.n += 1
+            self.recv[fqn][n] = now
+            self.stamp[fqn][n] = sec * 1_000_000_000 + nsec
+            self.n[fqn] = n + 1
 
     def _on_diag(self, msg) -> None:
         for st in msg.status:
-            if st.name.endswith('driveline simulation'):
-                self.diags.append((time.monotonic(), {kv.key: kv.value for kv in st.values}))
+            if st.hardware_id in self.diags:
+                self.diags[st.hardware_id].append(
+                    (time.monotonic(), {kv.key: kv.value for kv in st.values}))
 
     def wait(self, cond, timeout: float) -> bool:
         end = time.monotonic() + timeout
@@ -104,18 +179,23 @@ class Probe:
             time.sleep(0.02)
         return cond()
 
-    def set_params(self, **values) -> list:
+    def set_params(self, fqn: str, **values) -> list:
         from rcl_interfaces.srv import SetParameters
         from rclpy.parameter import Parameter
 
-        if not self.param_client.wait_for_service(timeout_sec=10.0):
-            raise RuntimeError('parameter service of the node not found')
+        client = self.param_clients[fqn]
+        if not client.wait_for_service(timeout_sec=10.0):
+            raise RuntimeError(f'parameter service of {fqn} not found')
         req = SetParameters.Request()
         req.parameters = [Parameter(k, value=v).to_parameter_msg() for k, v in values.items()]
-        fut = self.param_client.call_async(req)
+        fut = client.call_async(req)
         if not self.wait(fut.done, 10.0):
             raise RuntimeError('set_parameters timed out')
         return fut.result().results
+
+    def drop_joint_states(self) -> None:
+        for sub in self.js_subs:
+            self.node.destroy_subscription(sub)
 
     def close(self) -> None:
         self.executor.shutdown(timeout_sec=2.0)
@@ -123,7 +203,7 @@ class Probe:
         self.rclpy.try_shutdown(context=self.ctx)
 
 
-def _diag_values(diags, t0: float, t1: float, key: str) -> list[float]:
+def diag_values(diags, t0: float, t1: float, key: str) -> list[float]:
     out = []
     for t, d in diags:
         if t0 <= t <= t1 and key in d:
@@ -134,12 +214,108 @@ def _diag_values(diags, t0: float, t1: float, key: str) -> list[float]:
     return out
 
 
-def _rate_between(diags, t0: float, t1: float) -> float:
+def rate_between(diags, t0: float, t1: float) -> float:
     """Simulated seconds per wall second between the first and last diagnostics in [t0, t1]."""
     pts = [(t, float(d['sim_time_s'])) for t, d in diags if t0 <= t <= t1]
     if len(pts) < 2:
         return float('nan')
     return (pts[-1][1] - pts[0][1]) / (pts[-1][0] - pts[0][0])
+
+
+def _stat(fn, values) -> float:
+    return float(fn(values)) if len(values) else float('nan')
+
+
+def measure_realtime(probe: Probe, runs: list[NodeRun], duration: float) -> list[dict]:
+    """Per node: real-time factor, end-to-end and node-side lag, overruns, CPU."""
+    ovr0 = {r.fqn: int(probe.diags[r.fqn][-1][1]['overruns']) for r in runs}
+    c0 = {r.fqn: proc_cpu_seconds(r.proc.pid) for r in runs}
+    w0 = time.monotonic()
+    probe.recording = True
+    time.sleep(duration)
+    probe.recording = False
+    c1 = {r.fqn: proc_cpu_seconds(r.proc.pid) for r in runs}
+    w1 = time.monotonic()
+    time.sleep(1.2)                                   # the diagnostics of the last window
+    out = []
+    for r in runs:
+        f, n = r.fqn, probe.n[r.fqn]
+        lat = (probe.recv[f][:n] - probe.stamp[f][:n]) / 1e6    # ms
+        diags = probe.diags[f]
+        rtf_w = diag_values(diags, w0 + 0.5, w1 + 0.5, 'real_time_factor')
+        node_p99 = diag_values(diags, w0 + 0.5, w1 + 0.5, 'lag_p99_ms')
+        last = diags[-1][1]
+        span_stamp = (probe.stamp[f][n - 1] - probe.stamp[f][0]) / 1e9 if n > 1 else math.nan
+        span_recv = (probe.recv[f][n - 1] - probe.recv[f][0]) / 1e9 if n > 1 else math.nan
+        out.append({
+            'node': f,
+            'rtf_mean': _stat(np.mean, rtf_w), 'rtf_min': _stat(np.min, rtf_w),
+            'rtf_max': _stat(np.max, rtf_w), 'rtf_windows': len(rtf_w),
+            'rtf_overall': span_stamp / span_recv,
+            'lag_p50_ms': _stat(lambda x: np.percentile(x, 50), lat),
+            'lag_p99_ms': _stat(lambda x: np.percentile(x, 99), lat),
+            'lag_max_ms': _stat(np.max, lat),
+            'joint_states_received': int(n),
+            'node_lag_p99_ms_worst_window': _stat(np.nanmax, node_p99),
+            'node_lag_p99_ms_run': float(last['lag_p99_ms_total']),
+            'node_lag_max_ms_run': float(last['lag_max_ms_total']),
+            'overruns': int(last['overruns']) - ovr0[f],
+            'cpu_pct': 100.0 * (c1[f] - c0[f]) / (w1 - w0),
+        })
+    return out
+
+
+def realtime_ok(node: dict) -> bool:
+    return (node['rtf_windows'] > 0 and abs(node['rtf_min'] - 1.0) <= REALTIME_TOLERANCE
+            and abs(node['rtf_max'] - 1.0) <= REALTIME_TOLERANCE and node['overruns'] == 0
+            and node['lag_p99_ms'] < MAX_LAG_MS)
+
+
+def measure_fast(probe: Probe, run: NodeRun, fast_duration: float) -> dict:
+    """Fastest real-time factor (and CPU) with recording on, then off."""
+    probe.drop_joint_states()
+    fast = {}
+    for label, record in (('max_rtf_fast', True), ('max_rtf_fast_no_record', False)):
+        if not record:
+            probe.set_params(run.fqn, record=False)
+        res = probe.set_params(run.fqn, real_time_factor=0.0)
+        if not res[0].successful:
+            raise RuntimeError(f'switching to fast mode refused: {res[0].reason}')
+        t0 = time.monotonic()
+        cf0 = proc_cpu_seconds(run.proc.pid)
+        time.sleep(fast_duration + 1.5)
+        t1 = time.monotonic()
+        fast[label] = rate_between(probe.diags[run.fqn], t0 + 1.2, t1)
+        fast[label + '_cpu_pct'] = 100.0 * (proc_cpu_seconds(run.proc.pid) - cf0) / (t1 - t0)
+        probe.set_params(run.fqn, real_time_factor=1.0)
+        time.sleep(0.5)
+    return fast
+
+
+def summarize(per_node: list[dict], args) -> dict:
+    """Top-level figures: one node's as they are; several: mean / worst / sum."""
+    def worst(key, fn=max):
+        return float(fn(n[key] for n in per_node))
+
+    return {
+        'nodes': len(per_node), 'duration_s': args.duration, 'dt_s': 1e-4,
+        'publish_rate_hz': args.publish_rate, 'recording': True,
+        'rtf_mean': float(np.mean([n['rtf_mean'] for n in per_node])),
+        'rtf_min': worst('rtf_min', min), 'rtf_max': worst('rtf_max'),
+        'rtf_windows': min(n['rtf_windows'] for n in per_node),
+        'rtf_overall': worst('rtf_overall', min),
+        'lag_p50_ms': worst('lag_p50_ms'), 'lag_p99_ms': worst('lag_p99_ms'),
+        'lag_max_ms': worst('lag_max_ms'),
+        'joint_states_received': min(n['joint_states_received'] for n in per_node),
+        'joint_states_expected': int(round(args.duration * args.publish_rate)),
+        'node_lag_p99_ms_worst_window': worst('node_lag_p99_ms_worst_window'),
+        'node_lag_p99_ms_run': worst('node_lag_p99_ms_run'),
+        'node_lag_max_ms_run': worst('node_lag_max_ms_run'),
+        'overruns': sum(n['overruns'] for n in per_node),
+        'cpu_pct': float(np.mean([n['cpu_pct'] for n in per_node])),
+        'cpu_pct_total': float(sum(n['cpu_pct'] for n in per_node)),
+        'realtime_ok': all(realtime_ok(n) for n in per_node),
+    }
 
 
 def main(argv=None) -> dict:
@@ -149,133 +325,94 @@ def main(argv=None) -> dict:
                     help='as-fast-as-possible measurement [s] (each of: recording on, off)')
     ap.add_argument('--warmup', type=float, default=3.0, help='discarded start [s]')
     ap.add_argument('--publish-rate', type=float, default=1000.0)
-    ap.add_argument('--domain', type=int, default=None, help='ROS_DOMAIN_ID (default: from pid)')
-    ap.add_argument('--keep', action='store_true', help='keep the bag directory')
+    ap.add_argument('--nodes', type=int, default=1, help='trucks at once (namespaces /truckI)')
+    ap.add_argument('--domain', type=int, default=None,
+                    help='ROS_DOMAIN_ID (default: from DMF_SIM_TEST_DOMAINS and the pid)')
+    ap.add_argument('--keep', action='store_true', help='keep the bag directories')
     args = ap.parse_args(argv)
+    if args.nodes < 1:
+        ap.error('--nodes must be >= 1')
 
-    domain = args.domain or 1 + (os.getpid() * 7 + 3) % 100
+    domain = args.domain or default_domain()
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     os.environ['ROS_DOMAIN_ID'] = str(domain)
     tmp = Path(tempfile.mkdtemp(prefix='bench_node_'))
-    bag = tmp / 'bench_bag'
-    env = dict(os.environ, PYTHONUNBUFFERED='1')
-    cmd = [sys.executable, '-m', 'dmf_sim.node', '--ros-args', '-p', 'record:=true',
-           '-p', f'bag_path:={bag}', '-p', f'publish_rate:={args.publish_rate!r}',
-           '-p', 'dt:=0.0001', '-p', 'diagnostics_rate:=1.0']
-    log = open(tmp / 'node.log', 'w')
-    proc = subprocess.Popen(cmd, env=env, stdout=log, stderr=subprocess.STDOUT, cwd=tmp)
+    extra = ['-p', f'publish_rate:={args.publish_rate!r}', '-p', 'dt:=0.0001',
+             '-p', 'diagnostics_rate:=1.0']
+    namespaces = [''] if args.nodes == 1 else [f'/truck{i + 1}' for i in range(args.nodes)]
+    runs = [NodeRun(ns, tmp / f'bench_bag{ns.replace("/", "_")}', tmp, extra)
+            for ns in namespaces]
     probe = None
     result: dict = {}
     try:
         cap = int((args.duration + 5) * args.publish_rate * 1.2) + 1000
-        probe = Probe(domain, cap)
-        if not probe.wait(lambda: len(probe.diags) > 0, 90.0):
-            raise RuntimeError(f'node did not publish diagnostics; log: {tmp / "node.log"}')
+        probe = Probe(domain, cap, [r.fqn for r in runs])
+        if not probe.wait(lambda: all(probe.diags[r.fqn] for r in runs), 90.0 + 30 * len(runs)):
+            raise RuntimeError(f'a node did not publish diagnostics; logs in {tmp}')
         time.sleep(args.warmup)
-
-        # ---- real time ----------------------------------------------------------------
-        ovr0 = int(probe.diags[-1][1]['overruns'])
-        c0, w0 = proc_cpu_seconds(proc.pid), time.monotonic()
-        probe.recording = True
-        time.sleep(args.duration)
-        probe.recording = False
-        c1, w1 = proc_cpu_seconds(proc.pid), time.monotonic()
-        time.sleep(1.2)                                   # the diagnostics of the last window
-        n = probe.n
-        lat = (probe.recv[:n] - probe.stamp[:n]) / 1e6    # ms
-        rtf_w = _diag_values(probe.diags, w0 + 0.5, w1 + 0.5, 'real_time_factor')
-        node_p99 = _diag_values(probe.diags, w0 + 0.5, w1 + 0.5, 'lag_p99_ms')
-        last = probe.diags[-1][1]
-        span_stamp = (probe.stamp[n - 1] - probe.stamp[0]) / 1e9 if n > 1 else float('nan')
-        span_recv = (probe.recv[n - 1] - probe.recv[0]) / 1e9 if n > 1 else float('nan')
-        result.update({
-            'duration_s': args.duration, 'dt_s': 1e-4, 'publish_rate_hz': args.publish_rate,
-            'recording': True,
-            'rtf_mean': float(np.mean(rtf_w)) if rtf_w else float('nan'),
-            'rtf_min': float(np.min(rtf_w)) if rtf_w else float('nan'),
-            'rtf_max': float(np.max(rtf_w)) if rtf_w else float('nan'),
-            'rtf_windows': len(rtf_w),
-            'rtf_overall': span_stamp / span_recv,
-            'lag_p50_ms': float(np.percentile(lat, 50)) if n else float('nan'),
-            'lag_p99_ms': float(np.percentile(lat, 99)) if n else float('nan'),
-            'lag_max_ms': float(lat.max()) if n else float('nan'),
-            'joint_states_received': int(n),
-            'joint_states_expected': int(round(args.duration * args.publish_rate)),
-            'node_lag_p99_ms_worst_window': (float(np.nanmax(node_p99)) if node_p99
-                                             else float('nan')),
-            'node_lag_p99_ms_run': float(last['lag_p99_ms_total']),
-            'overruns': int(last['overruns']) - ovr0,
-            'cpu_pct': 100.0 * (c1 - c0) / (w1 - w0),
-        })
-
-        # ---- as fast as possible -----------------------------------------------------
-        probe.node.destroy_subscription(probe.js_sub)
-        fast = {}
-        for label, record in (('max_rtf_fast', True), ('max_rtf_fast_no_record', False)):
-            if not record:
-                probe.set_params(record=False)
-            res = probe.set_params(real_time_factor=0.0)
-            if not res[0].successful:
-                raise RuntimeError(f'switching to fast mode refused: {res[0].reason}')
-            t0 = time.monotonic()
-            cf0 = proc_cpu_seconds(proc.pid)
-            time.sleep(args.fast_duration + 1.5)
-            t1 = time.monotonic()
-            fast[label] = _rate_between(probe.diags, t0 + 1.2, t1)
-            fast[label + '_cpu_pct'] = 100.0 * (proc_cpu_seconds(proc.pid) - cf0) / (t1 - t0)
-            probe.set_params(real_time_factor=1.0)
-            time.sleep(0.5)
-        result.update(fast)
+        per_node = measure_realtime(probe, runs, args.duration)
+        result.update(summarize(per_node, args))
+        if len(runs) == 1:
+            result.update(measure_fast(probe, runs[0], args.fast_duration))
+        else:
+            result['per_node'] = per_node
     finally:
         if probe is not None:
             probe.close()
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGTERM)
-            try:
-                proc.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
-        log.close()
+        codes = [r.stop() for r in runs]
 
-    # ---- the bag: closed by SIGTERM, counts consistent --------------------------------
-    import yaml
-    from mcap.reader import make_reader
-
-    meta = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
-    with open(bag / meta['relative_file_paths'][0], 'rb') as f:
-        summary = make_reader(f).get_summary()
-    mcap_count = sum(summary.statistics.channel_message_counts.values()) if summary else -1
+    checks = [r.bag_check() for r in runs]
     result.update({
-        'node_exit_code': proc.returncode,
-        'bag_messages': int(meta['message_count']),
-        'bag_complete': bool(summary is not None and mcap_count == meta['message_count']),
-        'bag_mb': sum(p.stat().st_size for p in bag.iterdir()) / 1e6,
+        'node_exit_code': max(codes, key=abs),
+        'bag_messages': sum(c['bag_messages'] for c in checks),
+        'bag_complete': all(c['bag_complete'] for c in checks),
+        'bag_files': sum(c['bag_files'] for c in checks),
+        'bag_mb': sum(c['bag_mb'] for c in checks),
     })
     if not args.keep:
         shutil.rmtree(tmp, ignore_errors=True)
     else:
-        result['bag_path'] = str(bag)
+        result['bag_dir'] = str(tmp)
+    report(result)
+    return result
 
-    r = result
-    print(f'real time, {r["duration_s"]:g} s, dt 1e-4 s, {r["publish_rate_hz"]:g} Hz, recording:')
-    print(f'  real-time factor  mean {r["rtf_mean"]:.4f}  min {r["rtf_min"]:.4f}  max '
-          f'{r["rtf_max"]:.4f}  ({r["rtf_windows"]} windows of 1 s), overall '
-          f'{r["rtf_overall"]:.5f}')
-    print(f'  lag end-to-end    p50 {r["lag_p50_ms"]:.2f} ms  p99 {r["lag_p99_ms"]:.2f} ms  max '
-          f'{r["lag_max_ms"]:.2f} ms  ({r["joint_states_received"]} of '
-          f'{r["joint_states_expected"]} JointState received)')
-    print(f'  node-side lag     p99 {r["node_lag_p99_ms_run"]:.2f} ms (run), worst 1-s window '
-          f'{r["node_lag_p99_ms_worst_window"]:.2f} ms; overruns {r["overruns"]}')
-    print(f'  node CPU          {r["cpu_pct"]:.1f} % of one core')
-    print(f'as fast as possible: x{r.get("max_rtf_fast", float("nan")):.2f} recording '
-          f'(CPU {r.get("max_rtf_fast_cpu_pct", float("nan")):.0f} %), '
-          f'x{r.get("max_rtf_fast_no_record", float("nan")):.2f} not recording')
-    print(f'bag: {r["bag_messages"]} messages, {r["bag_mb"]:.1f} MB, complete: {r["bag_complete"]}'
-          f', node exit code {r["node_exit_code"]}')
-    print(json.dumps({k: (round(v, 6) if isinstance(v, float) and math.isfinite(v) else v)
-                      for k, v in r.items()}))
-    return r
+
+def report(r: dict) -> None:
+    print(f'real time, {r["duration_s"]:g} s, dt 1e-4 s, {r["publish_rate_hz"]:g} Hz, recording, '
+          f'{r["nodes"]} node(s) at once:')
+    for n in r.get('per_node', [r]):
+        label = f'  {n["node"]}:' if 'node' in n else ' '
+        print(f'{label} real-time factor  mean {n["rtf_mean"]:.4f}  min {n["rtf_min"]:.4f}  max '
+              f'{n["rtf_max"]:.4f}  ({n["rtf_windows"]} windows of 1 s), overall '
+              f'{n["rtf_overall"]:.5f}')
+        print(f'{label} lag end-to-end    p50 {n["lag_p50_ms"]:.2f} ms  p99 '
+              f'{n["lag_p99_ms"]:.2f} ms  max {n["lag_max_ms"]:.2f} ms  ({n["joint_states_received"]} of '
+              f'{r["joint_states_expected"]} JointState received)')
+        print(f'{label} node-side lag     p99 {n["node_lag_p99_ms_run"]:.2f} ms (run), max '
+              f'{n["node_lag_max_ms_run"]:.2f} ms, worst 1-s window p99 '
+              f'{n["node_lag_p99_ms_worst_window"]:.2f} ms; overruns {n["overruns"]}')
+        print(f'{label} node CPU          {n["cpu_pct"]:.1f} % of one core')
+    print(f'every node kept real time: {r["realtime_ok"]}')
+    if 'max_rtf_fast' in r:
+        print(f'as fast as possible: x{r["max_rtf_fast"]:.2f} recording '
+              f'(CPU {r["max_rtf_fast_cpu_pct"]:.0f} %), '
+              f'x{r["max_rtf_fast_no_record"]:.2f} not recording')
+    print(f'bags: {r["bag_messages"]} messages in {r["bag_files"]} file(s), {r["bag_mb"]:.1f} MB, '
+          f'complete: {r["bag_complete"]}, node exit code {r["node_exit_code"]}')
+    print(json.dumps(clean_json(r)))
+
+
+def clean_json(r: dict) -> dict:
+    """Floats rounded; non-finite ones as null (strict JSON)."""
+    def clean(v):
+        if isinstance(v, float):
+            return round(v, 6) if math.isfinite(v) else None
+        if isinstance(v, dict):
+            return {k: clean(x) for k, x in v.items()}
+        if isinstance(v, list):
+            return [clean(x) for x in v]
+        return v
+    return clean(r)
 
 
 if __name__ == '__main__':

@@ -1,26 +1,10 @@
-"""The live simulation behind ``driveline_node``, without ROS: setpoints, ramps, pacing, samples.
+"""The live simulation behind ``driveline_node``, without ROS: setpoints, ramps, samples.
 
-``dmf_sim.node`` is a thin rclpy shell over this module; everything here is importable and
-testable without DDS.
+Importable and testable without DDS; pacing and stamps are in :mod:`dmf_sim.pacing`, the tick
+loop in :mod:`dmf_sim.run_loop`.
 
-* :func:`check_setpoint`, :func:`ramp_toward`, :func:`publish_stride`, :func:`split_steps` —
-  small pure functions (setpoint validation, rate limiting, publish decimation, phase-exact
-  chunking of the Newmark stepper).
-* :class:`Pacer` — locks simulated time to the wall clock scaled by the real-time factor. On every
-  tick the node integrates *up to the wall clock* (``floor((wall - wall0) * rtf / dt)`` steps since
-  the anchor, minus the steps already done), so timer jitter never makes the simulation drift:
-  a late tick integrates more steps. The lag (wall minus simulated time, in wall seconds) is
-  measured at every tick; above ``max_lag`` an *overrun* is counted and the policy applies:
-
-  - ``skip`` (default): skip ahead — the backlog is dropped and the pacing re-anchored at (now,
-    current step). The node is live again at once. The physics (state, crank angle) continues
-    from where it was, as if paused for the skipped interval; the published time (stamps,
-    /clock, bag log times) jumps ahead by it so it stays locked to the wall clock, leaving a gap
-    in the stamps. Every skip is counted and its length reported (``skipped_s``).
-  - ``catch_up``: the backlog is integrated, at most ``max_lag`` worth of simulated time per
-    tick (so the node stays responsive), until the lag is back under ``max_lag``.
-
-* :class:`LagStats` — per-sample lag statistics (window and since start, histogram based).
+* :func:`check_setpoint`, :func:`ramp_toward`, :func:`split_steps` — small pure functions
+  (setpoint validation, rate limiting, phase-exact chunking of the Newmark stepper).
 * :class:`LiveSimulation` — owns the model, the engine and the Newmark integrator:
   setpoints with ramps (the speed ramp runs inside the Newmark kernel, the load ramp here, one
   increment per chunk), excitation update per chunk, rebuild on alpha/theta/load-set changes
@@ -34,13 +18,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from dmf_sim.errors import ConfigError, OperatingRangeError
 from dmf_sim.loads import DrivelineLoads
 from dmf_sim.model import Driveline, load_driveline
 from dmf_sim.newmark import NewmarkIntegrator, StepRecord
+from dmf_sim.pacing import fmt_num
 from dmf_sim.torques import TorqueOperator
+from dmf_sim.units import RAD_S_TO_RPM
 
-PACING_MODES = ('realtime', 'fast')
-OVERRUN_POLICIES = ('skip', 'catch_up')
 LOAD_RANGE = (0.0, 1.0)
 
 
@@ -59,7 +44,7 @@ def check_setpoint(value, lo: float, hi: float, name: str, unit: str = '') -> st
     if math.isinf(v):
         return f'{name} is {"+" if v > 0 else "-"}inf'
     if not lo <= v <= hi:
-        return f'{name} {v:g}{u} outside [{lo:g}, {hi:g}]{u}'
+        return f'{name} {fmt_num(v)}{u} outside [{fmt_num(lo)}, {fmt_num(hi)}]{u}'
     return None
 
 
@@ -69,20 +54,6 @@ def ramp_toward(current: float, target: float, rate: float, dt: float) -> float:
     if target > current:
         return min(target, current + step)
     return max(target, current - step)
-
-
-def publish_stride(publish_rate_hz: float, dt: float) -> int:
-    """Newmark steps between published samples: ``round(1 / (publish_rate * dt))`` (>= 1).
-
-    Raises ValueError if the rate is not positive or faster than one sample per step.
-    """
-    if not (math.isfinite(publish_rate_hz) and publish_rate_hz > 0):
-        raise ValueError(f'publish_rate must be > 0 Hz, got {publish_rate_hz!r}')
-    ratio = 1.0 / (publish_rate_hz * dt)
-    if ratio < 1.0 - 1e-9:
-        raise ValueError(f'publish_rate {publish_rate_hz:g} Hz is faster than the step rate '
-                         f'1/dt = {1.0 / dt:g} Hz')
-    return max(int(round(ratio)), 1)
 
 
 def split_steps(nsteps: int, phase: int, stride: int) -> tuple[list[tuple[int, int, int]], int]:
@@ -107,158 +78,6 @@ def split_steps(nsteps: int, phase: int, stride: int) -> tuple[list[tuple[int, i
     if rest:
         calls.append((rest, stride, rest // stride))
     return calls, rest % stride
-
-
-# ------------------------------------------------------------------------------------------------
-# Pacing
-# ------------------------------------------------------------------------------------------------
-
-@dataclass
-class TickPlan:
-    """What one tick integrates: ``nsteps`` steps; ``lag`` [wall s] before integrating;
-    ``overrun`` when this tick started a new overrun; ``skipped`` [wall s] dropped by this tick
-    (the caller moves its published time ahead by ``skipped * real_time_factor``)."""
-
-    nsteps: int
-    lag: float
-    overrun: bool = False
-    skipped: float = 0.0
-
-
-class Pacer:
-    """Simulated time locked to a scaled wall clock (``real_time_factor``), or as fast as possible.
-
-    Args:
-        dt: Newmark step [s].
-        real_time_factor: simulated seconds per wall second; 0 = as fast as possible.
-        max_lag: lag [wall s] above which a tick counts as an overrun.
-        policy: ``'skip'`` or ``'catch_up'`` (module docstring).
-    """
-
-    def __init__(self, dt: float, real_time_factor: float = 1.0, max_lag: float = 0.05,
-                 policy: str = 'skip') -> None:
-        if policy not in OVERRUN_POLICIES:
-            raise ValueError(f'overrun_policy must be one of {OVERRUN_POLICIES}, got {policy!r}')
-        self.dt = float(dt)
-        self.rtf = float(real_time_factor)
-        self.max_lag = float(max_lag)
-        self.policy = policy
-        self.wall0 = 0.0
-        self.step0 = 0
-        self.overruns = 0
-        self.skipped = 0.0        # wall seconds of backlog dropped (policy 'skip')
-        self.behind = False
-
-    @property
-    def fast(self) -> bool:
-        return self.rtf <= 0.0
-
-    def anchor(self, now: float, steps: int) -> None:
-        """Lock simulated step ``steps`` to wall time ``now``."""
-        self.wall0 = float(now)
-        self.step0 = int(steps)
-        self.behind = False
-
-    def set_rate(self, real_time_factor: float, now: float, steps: int) -> None:
-        """Change the real-time factor without a jump (re-anchor at the current state)."""
-        self.rtf = float(real_time_factor)
-        self.anchor(now, steps)
-
-    def due_steps(self, now: float) -> int:
-        """Step count the simulation should have reached at wall time ``now``."""
-        return self.step0 + int(math.floor((now - self.wall0) * self.rtf / self.dt + 1e-6))
-
-    def due_wall(self, step):
-        """Wall time at which simulated step ``step`` (scalar or array) is due."""
-        return self.wall0 + (np.asarray(step, dtype=float) - self.step0) * self.dt / self.rtf
-
-    def due_wall_scalar(self, step: int) -> float:
-        """:meth:`due_wall` for one step, in plain Python (hot path)."""
-        return self.wall0 + (step - self.step0) * self.dt / self.rtf
-
-    def lag(self, now: float, steps: int) -> float:
-        """Wall minus simulated time [wall s] (0 in fast mode)."""
-        if self.fast:
-            return 0.0
-        return (now - self.wall0) - (steps - self.step0) * self.dt / self.rtf
-
-    def plan(self, now: float, steps: int) -> TickPlan:
-        """Steps to integrate on a real-time tick at wall time ``now`` having done ``steps``."""
-        if self.fast:
-            raise RuntimeError('plan() is for real-time pacing; fast mode integrates chunks')
-        lag = self.lag(now, steps)
-        n = max(self.due_steps(now) - steps, 0)
-        if lag <= self.max_lag:
-            self.behind = False
-            return TickPlan(n, lag)
-        new = not self.behind
-        if new:
-            self.overruns += 1
-        if self.policy == 'skip':
-            self.skipped += lag
-            self.anchor(now, steps)
-            return TickPlan(0, lag, overrun=True, skipped=lag)
-        self.behind = True
-        cap = max(int(math.ceil(self.max_lag * self.rtf / self.dt)), 1)
-        return TickPlan(min(n, cap), lag, overrun=new)
-
-    def next_tick(self, now: float, next_sample_step: int, min_period: float = 5e-4,
-                  max_period: float = 1e-2) -> float:
-        """Wall time of the next tick: when the next sample is due, clamped to
-        [now + min_period, now + max_period] (ticks keep ramps and excitation fresh)."""
-        if self.fast:
-            return now
-        due = float(self.due_wall(next_sample_step))
-        return min(max(due, now + min_period), now + max_period)
-
-
-class LagStats:
-    """Lag statistics [s] of published samples: a window (reset on read) and a histogram since
-    start (0.05 ms bins up to 1 s, then an overflow bin) for percentiles over the whole run."""
-
-    BIN = 5e-5
-    NBINS = 20000
-
-    def __init__(self) -> None:
-        self.hist = np.zeros(self.NBINS + 1, dtype=np.int64)
-        self.count = 0
-        self.max = 0.0
-        self._window: list[float] = []
-
-    def add(self, lags) -> None:
-        if isinstance(lags, float):   # the usual case: one sample per tick
-            x = max(lags, 0.0)
-            self.hist[min(int(x / self.BIN), self.NBINS)] += 1
-            self.count += 1
-            if x > self.max:
-                self.max = x
-            self._window.append(x)
-            return
-        lags = np.asarray(lags, dtype=float)
-        if lags.size == 0:
-            return
-        lags = np.maximum(lags.reshape(-1), 0.0)
-        idx = np.minimum((lags / self.BIN).astype(np.int64), self.NBINS)
-        np.add.at(self.hist, idx, 1)
-        self.count += lags.size
-        self.max = max(self.max, float(lags.max()))
-        self._window.extend(lags.tolist())
-
-    def total_percentile(self, p: float) -> float:
-        """p-th percentile [s] since start (bin upper edge; nan if empty)."""
-        if self.count == 0:
-            return float('nan')
-        k = int(np.searchsorted(np.cumsum(self.hist), math.ceil(p / 100.0 * self.count)))
-        return (k + 1) * self.BIN if k < self.NBINS else self.max
-
-    def take_window(self) -> dict[str, float]:
-        """Stats of the samples since the last call: n, p50, p99, max [s]."""
-        if not self._window:
-            return {'n': 0, 'p50': float('nan'), 'p99': float('nan'), 'max': float('nan')}
-        w = np.asarray(self._window)
-        self._window = []
-        return {'n': int(w.size), 'p50': float(np.percentile(w, 50)),
-                'p99': float(np.percentile(w, 99)), 'max': float(w.max())}
 
 
 # ------------------------------------------------------------------------------------------------
@@ -293,7 +112,7 @@ class LiveSimulation:
     """Newmark integration of a driveline with ramped setpoints, stepped in chunks.
 
     Build with :meth:`from_config`. Setpoint setters return None on success or the reason for
-    refusing (the previous setpoint stays); structural changes raise ValueError and leave the
+    refusing (the previous setpoint stays); structural changes raise ConfigError and leave the
     simulation unchanged.
     """
 
@@ -324,17 +143,17 @@ class LiveSimulation:
                                        else (0.0, math.inf))
         lo, hi = self.speed_limits_rpm
         if reason := self.check_speed_limits(lo, hi):
-            raise ValueError(reason)
+            raise OperatingRangeError(reason)
         self.speed_limits_rpm = (float(lo), float(hi))
         for name, value, (a, b), unit in (
                 ('initial_speed_rpm', self.speed_rpm, self.speed_limits_rpm, 'rpm'),
                 ('initial_load', self.load, LOAD_RANGE, '')):
             if reason := check_setpoint(value, a, b, name, unit):
-                raise ValueError(reason)
+                raise ConfigError(reason)
         for name, value in (('speed_ramp_rpm_per_s', self.speed_ramp_rpm_per_s),
                             ('load_ramp_per_s', self.load_ramp_per_s), ('dt', self.dt)):
             if not (math.isfinite(value) and value > 0):
-                raise ValueError(f'{name} must be > 0, got {value!r}')
+                raise ConfigError(f'{name} must be > 0, got {value!r}')
         self.speed_setpoint = float(self.speed_rpm)
         self.load_setpoint = float(self.load)
         self.load = float(self.load)
@@ -370,7 +189,7 @@ class LiveSimulation:
         new, torques = self._make_integrator(line, engine)
         old = self.integ
         if new.model.n_dof != old.model.n_dof:
-            raise ValueError('the new driveline has another DOF layout; restart the node instead')
+            raise ConfigError('the new driveline has another DOF layout; restart the node instead')
         new.reset(old.speed_rpm, self.load, psi=old.psi, t=old.t)
         new.q[:] = old.q
         new.v[:] = old.v
@@ -382,39 +201,48 @@ class LiveSimulation:
         self._exc_key = None
 
     def set_dmf(self, alpha: float | None = None, theta: float | None = None) -> None:
-        """New DMF knee parameters (alpha, theta [rad]); ValueError if invalid."""
+        """New DMF knee parameters (alpha, theta [rad]); ConfigError if invalid."""
         self._swap(self.line.with_dmf(alpha=alpha, theta=theta), self.engine)
 
     def set_load_set(self, load_set: str) -> None:
-        """Switch the engine's load set (A, B, C); ValueError if unknown."""
+        """Switch the engine's load set (A, B, C); ConfigError if unknown."""
         if getattr(self.engine, 'load_set', None) == load_set:
             return
         if not hasattr(self.engine, 'with_load_set'):
-            raise ValueError('this engine has no load sets')
+            raise ConfigError('this engine has no load sets')
         self._swap(self.line, self.engine.with_load_set(load_set))
 
     # ---- setpoints --------------------------------------------------------------------------
     def check_speed_limits(self, lo: float, hi: float) -> str | None:
         elo, ehi = self.engine_speed_range_rpm
         if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
-            return f'speed limits need speed_min_rpm < speed_max_rpm, got [{lo:g}, {hi:g}]'
+            return (f'speed limits need speed_min_rpm < speed_max_rpm, got '
+                    f'[{fmt_num(lo)}, {fmt_num(hi)}]')
         if lo < elo or hi > ehi:
-            return (f'speed limits [{lo:g}, {hi:g}] rpm must lie within the engine data range '
-                    f'[{elo:g}, {ehi:g}] rpm')
+            return (f'speed limits [{fmt_num(lo)}, {fmt_num(hi)}] rpm must lie within the engine '
+                    f'data range [{fmt_num(elo)}, {fmt_num(ehi)}] rpm')
         return None
 
     def set_speed_limits(self, lo: float, hi: float) -> str | None:
         if reason := self.check_speed_limits(lo, hi):
             return reason
         if not lo <= self.speed_setpoint <= hi:
-            return (f'the current speed setpoint {self.speed_setpoint:g} rpm is outside '
-                    f'[{lo:g}, {hi:g}]')
+            return (f'the current speed setpoint {fmt_num(self.speed_setpoint)} rpm is outside '
+                    f'[{fmt_num(lo)}, {fmt_num(hi)}]')
         self.speed_limits_rpm = (float(lo), float(hi))
         return None
 
+    def check_speed_setpoint(self, value) -> str | None:
+        """Why ``value`` is not an acceptable speed setpoint now, or None."""
+        return check_setpoint(value, *self.speed_limits_rpm, 'speed setpoint', 'rpm')
+
+    def check_load_setpoint(self, value) -> str | None:
+        """Why ``value`` is not an acceptable load setpoint, or None."""
+        return check_setpoint(value, *LOAD_RANGE, 'load setpoint')
+
     def set_speed_setpoint(self, value) -> str | None:
         """Engine speed setpoint [rpm]; ramped at ``speed_ramp_rpm_per_s``."""
-        if reason := check_setpoint(value, *self.speed_limits_rpm, 'speed setpoint', 'rpm'):
+        if reason := self.check_speed_setpoint(value):
             return reason
         self.speed_setpoint = float(value)
         self.integ.set_target(self.speed_setpoint, self.speed_ramp_rpm_per_s)
@@ -422,7 +250,7 @@ class LiveSimulation:
 
     def set_load_setpoint(self, value) -> str | None:
         """Load setpoint (fraction of full load, 0..1); ramped at ``load_ramp_per_s``."""
-        if reason := check_setpoint(value, *LOAD_RANGE, 'load setpoint'):
+        if reason := self.check_load_setpoint(value):
             return reason
         self.load_setpoint = float(value)
         return None
@@ -533,5 +361,5 @@ class LiveSimulation:
         # the speed is constant or ramping; a ramp that ends inside the chunk is off for <= 1 row)
         position, velocity, effort = self._torques.outputs(qva, w, psi, it.omega_dot)
         return Samples(step=first + self.stride * np.arange(row, dtype=np.int64),
-                       t=rec.t[:row], psi=psi, speed_rpm=rec.omega[:row] * (30.0 / math.pi),
+                       t=rec.t[:row], psi=psi, speed_rpm=rec.omega[:row] * RAD_S_TO_RPM,
                        windup=w, position=position, velocity=velocity, effort=effort)
