@@ -20,7 +20,7 @@ from typing import Mapping
 from dmf_sim.errors import ConfigError, one_line
 from dmf_sim.health import HealthMonitor
 from dmf_sim.live import LiveSimulation
-from dmf_sim.node_parameters import choice_reason
+from dmf_sim.node_parameters import MONITOR_SETTINGS, choice_reason
 from dmf_sim.pacing import Pacer, fmt_num, publish_stride
 from dmf_sim.recording import RecordingControl, run_metadata
 
@@ -89,6 +89,12 @@ class LiveRuntime:
                             diagnostics_period_s=1.0 / p['diagnostics_rate'])
         self.recording = RecordingControl(topics, log, max_duration_s=p['bag_max_duration_s'])
         self.health = HealthMonitor(self.loop, self.recording)
+        self.monitor = self._start_monitor(sink) if p['monitor'] and self.has_dmf else None
+        self.foxglove = None
+        if p['foxglove_port']:
+            from dmf_sim.foxglove_bridge import FoxgloveBridge
+            self.foxglove = FoxgloveBridge(topics, host=p['foxglove_host'],
+                                           port=int(p['foxglove_port']))
         self.lock = threading.RLock()
         self._pending_recorder = None
         if p['record']:
@@ -100,6 +106,31 @@ class LiveRuntime:
             # load the message type store now: the first recording then starts in ~10 ms
             from rosbags.typesys import Stores, get_typestore
             get_typestore(Stores.ROS2_JAZZY)
+
+    # ---- the DMF monitor: live orders, prediction, alarms (dmf_sim.live_monitor) -------------
+    def _monitor_settings(self, values: Mapping):
+        from dmf_sim.live_monitor import MonitorSettings
+        return MonitorSettings(worker=values['monitor_worker'],
+                               **{k: values[k] for k in MONITOR_SETTINGS if k != 'monitor_worker'})
+
+    def _start_monitor(self, sink):
+        from dmf_sim.live_monitor import LiveMonitor
+        sim = self.sim
+        monitor = LiveMonitor(sim.line, sim.engine, self._monitor_settings(self.values),
+                              node_name=self.node_name)
+        monitor.set_setpoint(sim.speed_setpoint, sim.load_setpoint)
+        self.loop.setpoint_listeners.append(monitor.set_setpoint)
+
+        def observe(samples, stamps_ns) -> None:      # tick thread: a few microseconds
+            monitor.add_samples(samples, sim.load, stamps_ns)
+            up = monitor.poll()
+            for report in up.cycles:
+                sink.publish_statuses('dmf_orders', [report.status], report.cycle.stamp_ns)
+            if up.prediction is not None:
+                sink.publish_statuses('dmf_predicted', list(up.prediction_statuses),
+                                      int(stamps_ns[-1]))
+        self.loop.observers.append(observe)
+        return monitor
 
     def describe(self) -> str:
         """One start-up line: model, rates, pacing, recording."""
@@ -129,8 +160,13 @@ class LiveRuntime:
         self.recording.start(recorder)
 
     def close(self) -> str:
-        """Stop recording (shutdown: SIGINT/SIGTERM); returns what happened."""
+        """Stop recording, the monitor's workers and the Foxglove server (shutdown:
+        SIGINT/SIGTERM); returns what happened to the recording."""
         with self.lock:
+            if self.monitor is not None:
+                self.monitor.close()
+            if self.foxglove is not None:
+                self.foxglove.close()
             return self.recording.stop()
 
     def reset(self) -> str:
@@ -187,6 +223,11 @@ class LiveRuntime:
             allowed = getattr(getattr(sim.engine, 'config', None), 'load_set_shifts_rpm', None)
             if allowed is not None and new['load_set'] not in allowed:
                 return f'load_set must be one of {sorted(allowed)}, got {new["load_set"]!r}'
+        if self.monitor is not None and any(k in new for k in MONITOR_SETTINGS):
+            try:
+                self._monitor_settings(cur)
+            except ConfigError as exc:
+                return one_line(exc)
         if new.get('record') and not self.recording.active:
             return self.recording.check(cur['bag_path'])
         return None
@@ -214,6 +255,10 @@ class LiveRuntime:
             self.log.info(msgs[-1])
         if 'load_set' in new:
             sim.set_load_set(new['load_set'])
+        if self.monitor is not None and ({'alpha', 'theta', 'load_set'} & set(new)):
+            self.monitor.set_model(sim.line, sim.engine)
+        if self.monitor is not None and any(k in new for k in MONITOR_SETTINGS):
+            self.monitor.set_settings(self._monitor_settings(cur))
         if 'speed_min_rpm' in new or 'speed_max_rpm' in new:
             sim.set_speed_limits(cur['speed_min_rpm'], cur['speed_max_rpm'])
         if 'speed_ramp_rpm_per_s' in new or 'load_ramp_per_s' in new:

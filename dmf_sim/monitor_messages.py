@@ -60,7 +60,8 @@ def format_value(v) -> str:
 @dataclass(frozen=True)
 class StatusData:
     """One diagnostic_msgs/DiagnosticStatus without ROS: level (0 OK, 1 WARN, 2 ERROR), name,
-    message, hardware_id and the (key, value text) pairs."""
+    message, hardware_id (the node's fully qualified name: two trucks stay apart) and the
+    (key, value text) pairs."""
 
     level: int
     name: str
@@ -105,7 +106,7 @@ def cycle_status(node: str, cycle, comparison: Comparison | None,
     s = cycle.summary
     text = report.message or (f'cycle {cycle.index}: 3rd order {s.order_3:.4f} rad, 1.5th order '
                               f'{s.order_1_5:.4f} rad at {cycle.speed_rpm:.0f} rpm')
-    return StatusData(report.level, f'{node}: {CYCLE_NAME}', text, _pairs(values))
+    return StatusData(report.level, f'{node}: {CYCLE_NAME}', text, _pairs(values), node)
 
 
 def prediction_statuses(node: str, prediction: Prediction, alpha: float,
@@ -124,7 +125,7 @@ def prediction_statuses(node: str, prediction: Prediction, alpha: float,
         level, text = WARN, f'no stable periodic state predicted at {where}'
     else:
         level, text = OK, f'{n} stable state(s) at {where}'
-    out = [StatusData(level, f'{node}: {PREDICTION_NAME}', text, _pairs(head))]
+    out = [StatusData(level, f'{node}: {PREDICTION_NAME}', text, _pairs(head), node)]
     for i, st in enumerate(prediction.states, 1):
         vals = {f'{q}_rad': getattr(st, q) for q in QUANTITIES}
         vals.update({'static_windup_rad': st.static_windup,
@@ -134,7 +135,7 @@ def prediction_statuses(node: str, prediction: Prediction, alpha: float,
                      'speed_rpm': pt.speed_rpm, 'load': pt.load})
         out.append(StatusData(OK, f'{node}: {STATE_NAME} {i}/{n}',
                               f'{st.kind or "state"}: 3rd order {st.order_3:.4f} rad, 1.5th '
-                              f'order {st.order_1_5:.4f} rad', _pairs(vals)))
+                              f'order {st.order_1_5:.4f} rad', _pairs(vals), node))
     return out
 
 
@@ -161,7 +162,7 @@ def monitor_status(node: str, report: AlarmReport, cycle, prediction: Prediction
     values['alarms'] = ','.join(report.keys)
     text = report.message or (f'no alarm ({LEVEL_NAMES[OK]})' if cycle is not None
                               else 'waiting for the first engine cycle')
-    return StatusData(report.level, f'{node}: {MONITOR_NAME}', text, _pairs(values))
+    return StatusData(report.level, f'{node}: {MONITOR_NAME}', text, _pairs(values), node)
 
 
 def values_of(status) -> dict[str, str]:

@@ -40,6 +40,7 @@ import threading
 import time
 
 from dmf_sim.errors import ConfigError, DmfSimError, one_line
+from dmf_sim.monitor_messages import TOPIC_CYCLE, TOPIC_PREDICTED
 from dmf_sim.node_parameters import DMF_PARAMETERS, PARAMETERS, coerce
 from dmf_sim.pacing import fmt_num
 
@@ -49,7 +50,10 @@ STREAMS = {  # key -> (default topic, ROS type)
     'speed': ('engine/speed', 'std_msgs/msg/Float64'),
     'crank_angle': ('engine/crank_angle', 'std_msgs/msg/Float64'),
     'diagnostics': ('/diagnostics', 'diagnostic_msgs/msg/DiagnosticArray'),
+    'dmf_orders': (TOPIC_CYCLE, 'diagnostic_msgs/msg/DiagnosticArray'),
+    'dmf_predicted': (TOPIC_PREDICTED, 'diagnostic_msgs/msg/DiagnosticArray'),
 }
+STATUS_STREAMS = ('diagnostics', 'dmf_orders', 'dmf_predicted')     # keep-last 10 (latched: 1)
 STREAM_DEPTH = 100          # 0.1 s of samples at 1 kHz for a subscriber that falls behind
 DIAGNOSTICS_DEPTH = 10
 EXIT_CONFIG_ERROR = 2
@@ -57,8 +61,8 @@ EXIT_CONFIG_ERROR = 2
 try:
     from builtin_interfaces.msg import Time
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-    from rcl_interfaces.msg import (FloatingPointRange, ParameterDescriptor, ParameterType,
-                                    SetParametersResult)
+    from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
+                                    ParameterType, SetParametersResult)
     from rclpy.event_handler import SubscriptionEventCallbacks
     from rclpy.exceptions import ParameterException
     from rclpy.node import Node
@@ -75,19 +79,29 @@ except ImportError as _exc:      # no ROS: PARAMETERS, STREAMS and main()'s mess
     ROS_IMPORT_ERROR = _exc
 
 
-def _qos(depth: int = 0):
-    """Reliable, volatile; keep last ``depth`` (0 = keep all)."""
+def _qos(depth: int = 0, latched: bool = False):
+    """Reliable, volatile (``latched``: transient local); keep last ``depth`` (0 = keep all)."""
     history = HistoryPolicy.KEEP_LAST if depth else HistoryPolicy.KEEP_ALL
+    durability = DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE
     return QoSProfile(history=history, depth=depth, reliability=ReliabilityPolicy.RELIABLE,
-                      durability=DurabilityPolicy.VOLATILE)
+                      durability=durability)
+
+
+def _stream_qos(key: str):
+    if key == 'dmf_predicted':
+        return _qos(1, latched=True)            # the latest prediction for late joiners
+    return _qos(DIAGNOSTICS_DEPTH if key in STATUS_STREAMS else STREAM_DEPTH)
 
 
 def _descriptor(name: str, default, spec) -> ParameterDescriptor:
     types = {bool: ParameterType.PARAMETER_BOOL, float: ParameterType.PARAMETER_DOUBLE,
-             str: ParameterType.PARAMETER_STRING}
+             str: ParameterType.PARAMETER_STRING, int: ParameterType.PARAMETER_INTEGER}
     d = ParameterDescriptor(name=name, type=types[type(default)], description=spec.description,
                             read_only=spec.read_only)
-    if spec.range is not None:
+    if spec.range is not None and isinstance(default, int) and not isinstance(default, bool):
+        d.integer_range = [IntegerRange(from_value=int(spec.range[0]),
+                                        to_value=int(spec.range[1]), step=1)]
+    elif spec.range is not None:
         d.floating_point_range = [FloatingPointRange(from_value=float(spec.range[0]),
                                                      to_value=float(spec.range[1]), step=0.0)]
     return d
@@ -113,9 +127,8 @@ class DrivelineNode(Node):
 
         types = {'sensor_msgs/msg/JointState': JointState, 'std_msgs/msg/Float64': Float64,
                  'diagnostic_msgs/msg/DiagnosticArray': DiagnosticArray}
-        self._pubs = {k: self.create_publisher(
-            types[t], topic, _qos(DIAGNOSTICS_DEPTH if k == 'diagnostics' else STREAM_DEPTH))
-            for k, (topic, t) in STREAMS.items()}
+        self._pubs = {k: self.create_publisher(types[t], topic, _stream_qos(k))
+                      for k, (topic, t) in STREAMS.items()}
         self._topics = {k: pub.topic_name for k, pub in self._pubs.items()}
         self._js = JointState()
         self._f64 = Float64()
@@ -151,9 +164,18 @@ class DrivelineNode(Node):
 
     # ---- sink of the run loop (tick thread) ---------------------------------------------
     def _emit(self, key: str, msg, log_ns: int) -> None:
-        data = serialize_message(msg)       # serialized once: published and recorded
+        data = serialize_message(msg)       # serialized once: published, recorded, served
         self._pubs[key].publish(data)
-        self.runtime.recording.write(self._topics[key], log_ns, data)
+        rt = self.runtime
+        rt.recording.write(self._topics[key], log_ns, data)
+        if rt.foxglove is not None:
+            rt.foxglove.publish(self._topics[key], data, log_ns)
+
+    def publish_statuses(self, key: str, statuses, stamp_ns: int) -> None:
+        msg = DiagnosticArray()
+        msg.header.stamp = Time(sec=stamp_ns // 1_000_000_000, nanosec=stamp_ns % 1_000_000_000)
+        msg.status = [s.to_msg(DiagnosticStatus, KeyValue) for s in statuses]
+        self._emit(key, msg, stamp_ns + self.runtime.loop.time.log_offset_ns)
 
     def publish_samples(self, s, stamps_ns, log_ns) -> None:
         js, f = self._js, self._f64
@@ -198,6 +220,8 @@ class DrivelineNode(Node):
                                   hardware_id=self.fqn, message=report.message)
         status.values = [KeyValue(key=k, value=v) for k, v in report.values.items()]
         msg.status = [status]
+        if rt.monitor is not None:                # the DMF monitor: orders, prediction, alarms
+            msg.status.append(rt.monitor.diagnostics().to_msg(DiagnosticStatus, KeyValue))
         self._emit('diagnostics', msg, stamp_ns + rt.loop.time.log_offset_ns)
         rt.recording.flush()
 

@@ -13,6 +13,8 @@ from __future__ import annotations
 
 from typing import Any, NamedTuple
 
+from dmf_sim.foxglove_bridge import FOXGLOVE_PARAMETERS
+from dmf_sim.live_monitor import MONITOR_PARAMETERS
 from dmf_sim.pacing import OVERRUN_POLICIES
 from dmf_sim.run_loop import PACING_MODES
 
@@ -70,6 +72,14 @@ PARAMETERS: dict[str, ParameterSpec] = {
                                         'seconds (as ros2 bag record --max-bag-duration); '
                                         'applies to the next recording', (1.0, 86400.0)),
 }
+# The monitor's and the Foxglove server's parameters, defined beside what they configure
+# (dmf_sim.live_monitor, dmf_sim.foxglove_bridge); which of them are fixed at start-up:
+_FIXED = ('monitor', 'monitor_worker', 'foxglove_port', 'foxglove_host')
+PARAMETERS.update({name: ParameterSpec(default, text, rng, name in _FIXED)
+                   for name, (default, text, rng) in {**MONITOR_PARAMETERS,
+                                                      **FOXGLOVE_PARAMETERS}.items()})
+MONITOR_SETTINGS = tuple(n for n in MONITOR_PARAMETERS if n != 'monitor')
+
 DMF_PARAMETERS: dict[str, ParameterSpec] = {   # default: from the driveline YAML
     'alpha': ParameterSpec(None, 'DMF secondary stiffness factor: secondary stiffness '
                            'k(1+alpha) (default: driveline YAML)', (0.0, 50.0)),

@@ -18,8 +18,9 @@ testable with a fake clock and a list as the sink.
   stamps are re-anchored to the wall clock and the loop says so (log and diagnostics).
 
 Hook points (for per-cycle order analysis, predictions, alarms): ``observers`` are called in the
-tick thread with every chunk of published :class:`dmf_sim.live.Samples` (views: copy what you
-keep, return within ~0.1 ms, hand heavy work to a worker); ``setpoint_listeners`` are called with
+tick thread with every chunk of published :class:`dmf_sim.live.Samples` and their stamps [ns]
+(views: copy what you keep, return within ~0.1 ms, hand heavy work to a worker: the node's DMF
+monitor, :class:`dmf_sim.live_monitor.LiveMonitor`, is one); ``setpoint_listeners`` are called with
 ``(speed_setpoint_rpm, load_setpoint)`` whenever an applied setpoint changes. Health contributors
 live in :class:`dmf_sim.health.HealthMonitor`.
 """
@@ -77,6 +78,10 @@ class SampleSink(Protocol):
                         log_ns: np.ndarray) -> None: ...
 
     def publish_clock(self, stamp_ns: int) -> None: ...
+
+    def publish_statuses(self, key: str, statuses: list, stamp_ns: int) -> None:
+        """A DiagnosticArray of ``statuses`` (dmf_sim.monitor_messages.StatusData) on stream
+        ``key`` ('dmf_orders', 'dmf_predicted'), stamped ``stamp_ns``."""
 
 
 # ------------------------------------------------------------------------------------------------
@@ -155,7 +160,7 @@ class RunLoop:
         self.throttle = Throttle()
         self.publish_clock_param = bool(publish_clock)
         self.diagnostics_period_s = float(diagnostics_period_s)
-        self.observers: list[Callable[[Samples], None]] = []
+        self.observers: list[Callable[[Samples, np.ndarray], None]] = []
         self.setpoint_listeners: list[Callable[[float, float], None]] = []
         self.last_lag = 0.0
         self.next_tick = self.next_diag = 0.0
@@ -266,7 +271,7 @@ class RunLoop:
         stamps = self.time.stamps_ns(samples.t)
         self.sink.publish_samples(samples, stamps, stamps + self.time.log_offset_ns)
         for observe in self.observers:
-            observe(samples)
+            observe(samples, stamps)
 
     # ---- the thread -------------------------------------------------------------------------
     def run(self, should_stop: Callable[[], bool], lock: threading.RLock,

@@ -13,7 +13,7 @@ import pytest
 from dmf_sim.errors import ConfigError
 from dmf_sim.foxglove_bridge import SUBPROTOCOL, FoxgloveBridge, message_definition
 
-websockets = pytest.importorskip('websockets')
+import websockets
 REPO = Path(__file__).resolve().parents[1]
 LAYOUT = REPO / 'config' / 'foxglove_layout.json'
 STREAMS = {'/driveline/dmf_windup': 'std_msgs/msg/Float64',
@@ -183,6 +183,9 @@ def test_layout_is_a_foxglove_layout_of_the_node_s_topics_and_keys():
         elif kind == 'RawMessages':
             paths.append(cfg['topicPath'])
     assert len(paths) >= 8
+    # the node's health status is picked by its hardware_id, the node's fully qualified name:
+    # a layout variable (edit it in Foxglove for a namespaced node)
+    assert layout['globalVariables'] == {'node': '/driveline_node'}
     for path in paths:
         m = re.match(r'^(/[\w/]+?)(\.|$)(.*)$', path)
         assert m and m.group(1) in topics, path
@@ -190,7 +193,7 @@ def test_layout_is_a_foxglove_layout_of_the_node_s_topics_and_keys():
         if topics[topic] == 'std_msgs/msg/Float64':
             assert rest in ('data', ''), path
         elif topics[topic] == 'diagnostic_msgs/msg/DiagnosticArray' and rest:
-            km = re.fullmatch(r'status(?:\[0\]|\[:\]\{hardware_id=="dmf_sim"\})'
+            km = re.fullmatch(r'status(?:\[0\]|\[:\]\{hardware_id==\$node\})'
                               r'\.values\[:\]\{key=="(\w+)"\}\.value', rest)
             assert km, path
             key = km.group(1)

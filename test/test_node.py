@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 import yaml
 
-pytest.importorskip('rclpy')
+import rclpy  # noqa: F401  (the ROS tests need it; make test installs it)
 from dds_peer import START_TIMEOUT, NodeProcess, Peer, new_domain  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
@@ -118,7 +118,8 @@ def test_setpoints_outputs_fast_spell_and_a_bag_that_analyses(tmp_path, capsys):
         d = peer.diagnostics()
         assert d['recording'] == 'true' and d['state_finite'] == 'true'
         assert d['_hardware_id'] == '/driveline_node'
-        assert peer.diags.keys() == {'/driveline_node: driveline simulation'}
+        assert {n for n in peer.diags if 'driveline simulation' in n} == {
+            '/driveline_node: driveline simulation'}
         for key in ('real_time_factor', 'lag_p99_ms', 'overruns', 'dmf_region', 'knee_crossings'):
             assert key in d
 
@@ -389,7 +390,7 @@ def test_two_trucks_keep_topics_and_diagnostics_apart(tmp_path):
             peer.subscribe(f'/truck{i}/engine/speed', Float64, keep=True)
         peer.subscribe('/diagnostics', DiagnosticArray)
         names = {f'/truck{i}/driveline_node: driveline simulation' for i in (1, 2)}
-        assert peer.spin_until(lambda: set(peer.diags) == names, START_TIMEOUT), \
+        assert peer.spin_until(lambda: names <= set(peer.diags), START_TIMEOUT), \
             [n.output() for n in nodes]
         assert {d['_hardware_id'] for d in peer.diags.values()} == \
             {'/truck1/driveline_node', '/truck2/driveline_node'}

@@ -216,7 +216,7 @@ def test_time_base_reanchors_stamps_and_keeps_log_times_continuous():
 def test_run_loop_publishes_due_samples_with_wall_clock_stamps():
     loop, clock, sink, _ = new_loop()
     seen = []
-    loop.observers.append(lambda s: seen.extend(s.step.tolist()))     # hook: every chunk
+    loop.observers.append(lambda s, stamps: seen.extend(s.step.tolist()))   # hook: every chunk
     for k in range(1, 51):
         clock.now = k * 0.002
         loop.tick(clock.now)
