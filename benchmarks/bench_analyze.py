@@ -158,8 +158,15 @@ def _reset_peak() -> None:
 
 def measure(bag: Path, plots_dir: Path | None) -> dict:
     """Everything timed and measured on an existing bag (runs in a fresh process)."""
-    from dmf_sim.analyze import (SignalSpec, analysis_dict, analyze_bag, model_settings,
-                                 overlay_all, read_bag_series, write_outputs)
+    from dmf_sim.analyze import (
+        SignalSpec,
+        analysis_dict,
+        analyze_bag,
+        model_settings,
+        overlay_all,
+        read_bag_series,
+        write_outputs,
+    )
     from dmf_sim.mcap_columns import _record_offsets
 
     settings = model_settings(None)

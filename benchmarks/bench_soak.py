@@ -32,8 +32,15 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_node import (NodeRun, Probe, clean_json, default_domain, diag_values,  # noqa: E402
-                        proc_cpu_seconds, proc_rss_mib)
+from bench_node import (  # noqa: E402
+    NodeRun,
+    Probe,
+    clean_json,
+    default_domain,
+    diag_values,
+    proc_cpu_seconds,
+    proc_rss_mib,
+)
 
 SPEED_RANGE_RPM = (800.0, 1800.0)
 LOAD_RANGE = (0.2, 1.0)

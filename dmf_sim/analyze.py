@@ -29,16 +29,36 @@ from pathlib import Path
 
 import numpy as np
 
-from dmf_sim.analysis_output import (analysis_dict, table_rows, to_jsonable, write_csv,
-                                     write_cycles_csv, write_outputs)
+from dmf_sim.analysis_output import (
+    analysis_dict,
+    table_rows,
+    to_jsonable,
+    write_csv,
+    write_cycles_csv,
+    write_outputs,
+)
 from dmf_sim.bag_files import BagFiles
-from dmf_sim.bag_series import (DEFAULT_TOPICS, TOPIC_CRANK, TOPIC_JOINTS, TOPIC_SPEED,
-                                TOPIC_WINDUP, BagSeries, Series, SignalSpec, crank_angle,
-                                read_bag_series)
+from dmf_sim.bag_series import (
+    DEFAULT_TOPICS,
+    TOPIC_CRANK,
+    TOPIC_JOINTS,
+    TOPIC_SPEED,
+    TOPIC_WINDUP,
+    BagSeries,
+    Series,
+    SignalSpec,
+    crank_angle,
+    read_bag_series,
+)
 from dmf_sim.cycle_orders import CycleOrders, angle_cycle_orders, cycle_orders
 from dmf_sim.errors import BagError
-from dmf_sim.hbm_overlay import (HBMOverlay, hbm_overlay, model_settings, natural_frequencies,
-                                 overlay_all)
+from dmf_sim.hbm_overlay import (
+    HBMOverlay,
+    hbm_overlay,
+    model_settings,
+    natural_frequencies,
+    overlay_all,
+)
 from dmf_sim.order_bins import DEFAULT_BIN_RPM, DEFAULT_MIN_CYCLES, OrderTable, bin_cycles
 
 __all__ = [

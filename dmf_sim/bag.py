@@ -42,8 +42,16 @@ from typing import Any
 import yaml
 from mcap.writer import CompressionType, Writer
 
-from dmf_sim.bag_files import (LIBRARY, ROS_DISTRO, FileInfo, TopicInfo, bag_metadata,
-                               dump_metadata, refuse_existing, write_metadata)
+from dmf_sim.bag_files import (
+    LIBRARY,
+    ROS_DISTRO,
+    FileInfo,
+    TopicInfo,
+    bag_metadata,
+    dump_metadata,
+    refuse_existing,
+    write_metadata,
+)
 from dmf_sim.bag_read import BagMessage, bag_topics, read_messages
 from dmf_sim.bag_recovery import RecoverReport, recover_bag
 from dmf_sim.errors import BagError, BagExistsError

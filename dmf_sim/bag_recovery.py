@@ -19,8 +19,18 @@ from mcap.reader import make_reader
 from mcap.records import Attachment, Channel, Header, Message, Metadata, Schema
 from mcap.writer import CompressionType, Writer
 
-from dmf_sim.bag_files import (LIBRARY, ROS_DISTRO, BagFiles, FileInfo, TopicInfo, bag_metadata,
-                               dump_metadata, refuse_existing, resolve_bag, write_metadata)
+from dmf_sim.bag_files import (
+    LIBRARY,
+    ROS_DISTRO,
+    BagFiles,
+    FileInfo,
+    TopicInfo,
+    bag_metadata,
+    dump_metadata,
+    refuse_existing,
+    resolve_bag,
+    write_metadata,
+)
 from dmf_sim.bag_read import TRUNCATION_ERRORS, Scan, iter_records, normalize_type
 from dmf_sim.errors import BagError
 

@@ -26,10 +26,15 @@ from dataclasses import dataclass, field, replace
 from dmf_sim.alarms import AlarmReport, AlarmSettings, evaluate
 from dmf_sim.errors import ConfigError
 from dmf_sim.live_orders import CycleOrderTracker, CycleResult, CycleWindow, analyze_window
-from dmf_sim.monitor_messages import (StatusData, cycle_status, monitor_status,
-                                      prediction_statuses)
-from dmf_sim.prediction import (Comparison, OperatingPoint, Prediction, compare,
-                                predict_states, solve_prediction)
+from dmf_sim.monitor_messages import StatusData, cycle_status, monitor_status, prediction_statuses
+from dmf_sim.prediction import (
+    Comparison,
+    OperatingPoint,
+    Prediction,
+    compare,
+    predict_states,
+    solve_prediction,
+)
 
 __all__ = ['WORKER_MODES', 'MONITOR_PARAMETERS', 'MonitorSettings', 'CycleReport',
            'MonitorUpdate', 'LiveMonitor']

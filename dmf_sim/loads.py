@@ -23,7 +23,6 @@ from dmf_sim.harmonic import solve_static
 from dmf_sim.model import ReducedModel
 
 
-
 @dataclass
 class DrivelineLoads:
     """Loads of one engine on one driveline model.

@@ -21,6 +21,7 @@ import math
 import os
 from dataclasses import dataclass, field, replace
 from functools import cached_property
+
 import numpy as np
 
 from dmf_sim.errors import ConfigError

@@ -61,8 +61,13 @@ EXIT_CONFIG_ERROR = 2
 try:
     from builtin_interfaces.msg import Time
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-    from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
-                                    ParameterType, SetParametersResult)
+    from rcl_interfaces.msg import (
+        FloatingPointRange,
+        IntegerRange,
+        ParameterDescriptor,
+        ParameterType,
+        SetParametersResult,
+    )
     from rclpy.event_handler import SubscriptionEventCallbacks
     from rclpy.exceptions import ParameterException
     from rclpy.node import Node

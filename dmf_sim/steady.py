@@ -27,7 +27,7 @@ from dmf_sim.hbm.layout import amplitudes, to_real
 from dmf_sim.loads import DrivelineLoads
 from dmf_sim.newmark import simulate
 from dmf_sim.nonperiodic import NonPeriodicResult
-from dmf_sim.stability import FloquetAnalyzer, FlexibleModes
+from dmf_sim.stability import FlexibleModes, FloquetAnalyzer
 
 Z_95 = 1.959963984540054      # two-sided 95 % normal quantile (Wilson interval)
 MATCH_HARMONICS = 12          # half orders compared when matching a run to a state (to 6th order)

@@ -10,12 +10,13 @@ driveline_node`` matches the node in any namespace), ``record`` (true/false) and
 ('' = dmf_bag_<YYYYmmdd_HHMMSS> in the working directory). ``record`` and ``bag_path`` override
 the params file. Installed to share/dmf_sim/launch by setup.py.
 """
-from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument
 from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
 from launch_ros.actions import Node
 from launch_ros.parameter_descriptions import ParameterValue
 from launch_ros.substitutions import FindPackageShare
+
+from launch import LaunchDescription
 
 
 def generate_launch_description() -> LaunchDescription:

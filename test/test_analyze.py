@@ -15,11 +15,22 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 import rclpy  # noqa: F401  (the ROS tests need it; make test installs it)
-
-from synthetic_bags import (CYL1, NAMES, RATE, T0, TOL, TOPICS, TORQUE, WINDUP,  # noqa: E402
-                            check_table, ramp, record_node_run_up, synth, write_synthetic)
+from synthetic_bags import (  # noqa: E402
+    CYL1,
+    NAMES,
+    RATE,
+    T0,
+    TOL,
+    TOPICS,
+    TORQUE,
+    WINDUP,
+    check_table,
+    ramp,
+    record_node_run_up,
+    synth,
+    write_synthetic,
+)
 
 from dmf_sim.analyze import SignalSpec, analyze_bag, read_bag_series  # noqa: E402
 from dmf_sim.cli import main as cli_main  # noqa: E402

@@ -10,10 +10,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import yaml
-
 import rclpy  # noqa: F401  (the ROS tests need it; make test installs it)
-
+import yaml
 from synthetic_bags import WINDUP, check_table, ramp, synth, write_synthetic  # noqa: E402
 
 from dmf_sim.analyze import SignalSpec, analyze_bag, read_bag_series  # noqa: E402

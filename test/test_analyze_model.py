@@ -10,9 +10,7 @@ import re
 import matplotlib
 import numpy as np
 import pytest
-
 import rclpy  # noqa: F401  (the ROS tests need it; make test installs it)
-
 from synthetic_bags import WINDUP, record_node_run_up, write_synthetic  # noqa: E402
 
 from dmf_sim.analysis_plots import fig13_figure  # noqa: E402

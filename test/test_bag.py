@@ -10,18 +10,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import yaml
-
 import rclpy  # noqa: F401  (the ROS tests need it; make test installs it)
-
+import yaml
+from crash import sigkill_when_ready  # noqa: E402
 from mcap.reader import make_reader  # noqa: E402
 from mcap_ros2.decoder import DecoderFactory  # noqa: E402
 from rclpy.serialization import serialize_message  # noqa: E402
 from rosbags.highlevel import AnyReader  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 from std_msgs.msg import Float64, String  # noqa: E402
-
-from crash import sigkill_when_ready  # noqa: E402
 
 from dmf_sim.bag import BagRecorder, bag_topics, read_messages, recover_bag  # noqa: E402
 from dmf_sim.cli import main as cli_main  # noqa: E402

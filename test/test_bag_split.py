@@ -16,9 +16,8 @@ from pathlib import Path
 
 import pytest
 import yaml
-from mcap.reader import make_reader
-
 from crash import sigkill_when_ready
+from mcap.reader import make_reader
 
 from dmf_sim.bag import BagRecorder, read_messages, recover_bag
 from dmf_sim.bag_files import resolve_bag

@@ -12,8 +12,6 @@ import sysconfig
 import time
 from pathlib import Path
 
-import pytest
-
 from dmf_sim.commands.monitor import MonitorView, Status, render_plain
 
 _seq = itertools.count()
@@ -53,10 +51,11 @@ def _frames(text: str) -> list[dict[str, str]]:
 # ------------------------------------------------------------------------------------------------
 
 def test_monitor_view_shows_every_quantity():
+    from test_prediction import _cycle
+
     from dmf_sim.alarms import AlarmSettings, evaluate
     from dmf_sim.monitor_messages import cycle_status, prediction_statuses
-    from dmf_sim.prediction import OperatingPoint, Prediction, PredictedState, compare
-    from test_prediction import _cycle
+    from dmf_sim.prediction import OperatingPoint, PredictedState, Prediction, compare
 
     view = MonitorView()
     assert 'waiting' in render_plain(view, 0.0)
@@ -173,13 +172,17 @@ def _monitor_with_monitor_topics(domain: int) -> str:
     the monitor's output."""
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
     from rclpy.executors import SingleThreadedExecutor
+    from test_prediction import _cycle
 
     from dmf_sim.alarms import AlarmSettings, evaluate
     from dmf_sim.commands._ros import reliable_qos
-    from dmf_sim.monitor_messages import (TOPIC_CYCLE, TOPIC_PREDICTED, cycle_status,
-                                          prediction_statuses)
-    from dmf_sim.prediction import OperatingPoint, Prediction, PredictedState, compare
-    from test_prediction import _cycle
+    from dmf_sim.monitor_messages import (
+        TOPIC_CYCLE,
+        TOPIC_PREDICTED,
+        cycle_status,
+        prediction_statuses,
+    )
+    from dmf_sim.prediction import OperatingPoint, PredictedState, Prediction, compare
 
     ctx = rclpy.context.Context()
     rclpy.init(context=ctx, domain_id=domain)

@@ -10,9 +10,15 @@ import pytest
 import yaml
 
 from dmf_sim.cli import main as cli_main
-from dmf_sim.engine import (LOAD_SETS, EngineExcitation, cylinder_torque_signal,
-                            engine_from_mapping, engine_torque_orders, load_engine,
-                            write_coefficient_table)
+from dmf_sim.engine import (
+    LOAD_SETS,
+    EngineExcitation,
+    cylinder_torque_signal,
+    engine_from_mapping,
+    engine_torque_orders,
+    load_engine,
+    write_coefficient_table,
+)
 from dmf_sim.errors import ConfigError
 from dmf_sim.model import load_model
 from dmf_sim.paths import config_file

@@ -9,11 +9,11 @@ import struct
 from pathlib import Path
 
 import pytest
+import websockets
 
 from dmf_sim.errors import ConfigError
 from dmf_sim.foxglove_bridge import SUBPROTOCOL, FoxgloveBridge, message_definition
 
-import websockets
 REPO = Path(__file__).resolve().parents[1]
 LAYOUT = REPO / 'config' / 'foxglove_layout.json'
 STREAMS = {'/driveline/dmf_windup': 'std_msgs/msg/Float64',
@@ -132,11 +132,16 @@ def test_layout_is_a_foxglove_layout_of_the_node_s_topics_and_keys():
     from types import SimpleNamespace
 
     from dmf_sim.alarms import AlarmReport
-    from dmf_sim.monitor_messages import (TOPIC_CYCLE, TOPIC_PREDICTED, cycle_status,
-                                          prediction_statuses, values_of)
+    from dmf_sim.monitor_messages import (
+        TOPIC_CYCLE,
+        TOPIC_PREDICTED,
+        cycle_status,
+        prediction_statuses,
+        values_of,
+    )
     from dmf_sim.node import STREAMS as NODE_STREAMS
     from dmf_sim.orders import OrderSummary
-    from dmf_sim.prediction import OperatingPoint, Prediction, PredictedState
+    from dmf_sim.prediction import OperatingPoint, PredictedState, Prediction
 
     layout = json.loads(LAYOUT.read_text())
     assert set(layout) >= {'configById', 'layout', 'globalVariables', 'userNodes',

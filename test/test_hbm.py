@@ -12,7 +12,6 @@ import numpy as np
 import pytest
 import scipy.linalg
 import yaml
-
 from fake_engine import FakeEngine
 
 from dmf_sim.cli import main as cli_main

@@ -1,5 +1,6 @@
 """Driveline model: YAML validation, rigid merging, J/K/C assembly (eq. 1, 5-6), DMF spring."""
 import copy
+
 import numpy as np
 import pytest
 import yaml

@@ -17,7 +17,7 @@ from dmf_sim.loads import DrivelineLoads
 from dmf_sim.model import load_driveline
 from dmf_sim.newmark import NewmarkIntegrator, StepRecord, simulate
 from dmf_sim.paths import config_file
-from dmf_sim.stability import FloquetAnalyzer, FlexibleModes
+from dmf_sim.stability import FlexibleModes, FloquetAnalyzer
 from dmf_sim.units import CYCLE_RAD, RPM_TO_RAD_S
 
 STAGES = [{'angle_rad': 0.10, 'stiffness_factor': 1.0}, {'angle_rad': 0.14, 'stiffness_factor': 2.5},

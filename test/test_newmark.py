@@ -5,9 +5,9 @@ from fake_engine import FakeEngine
 
 from dmf_sim.harmonic import solve_harmonic
 from dmf_sim.loads import DrivelineLoads
-from dmf_sim.units import RPM_TO_RAD_S
 from dmf_sim.model import load_model
 from dmf_sim.newmark import NewmarkIntegrator, StepRecord, simulate
+from dmf_sim.units import RPM_TO_RAD_S
 
 # mean 400 Nm per cylinder (2400 Nm engine: wind-up just below the 0.24 rad knee), 1.5th/3rd/6th orders
 ENGINE = FakeEngine({0: 400.0, 3: 150 + 50j, 6: 700 - 300j, 12: 250 + 100j})

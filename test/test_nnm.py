@@ -7,8 +7,16 @@ import pytest
 from dmf_sim.cli import main
 from dmf_sim.modal import modes
 from dmf_sim.model import load_driveline, load_model
-from dmf_sim.nnm import (ConservativeNNM, NNMOptions, integrate_physical, nnm_branches, scaling_check,
-                         static_state, static_windup, subsystem_frequencies)
+from dmf_sim.nnm import (
+    ConservativeNNM,
+    NNMOptions,
+    integrate_physical,
+    nnm_branches,
+    scaling_check,
+    static_state,
+    static_windup,
+    subsystem_frequencies,
+)
 
 
 @pytest.fixture(scope='module')

@@ -20,9 +20,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import yaml
-
 import rclpy  # noqa: F401  (the ROS tests need it; make test installs it)
+import yaml
 from dds_peer import START_TIMEOUT, NodeProcess, Peer, new_domain  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]

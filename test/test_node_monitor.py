@@ -10,11 +10,8 @@ import struct
 from pathlib import Path
 
 import pytest
-
-from dds_peer import NodeProcess, Peer, new_domain
-
 import websockets
-import rclpy
+from dds_peer import NodeProcess, Peer, new_domain
 
 
 def _free_port() -> int:

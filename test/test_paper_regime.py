@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from dmf_sim.commands._paper_study import stable_peak_1_5
-from dmf_sim.hbm import sweep as run_sweep
 from dmf_sim.engine import load_engine
 from dmf_sim.hbm import SweepOptions
+from dmf_sim.hbm import sweep as run_sweep
 from dmf_sim.loads import DrivelineLoads
 from dmf_sim.model import load_model
 

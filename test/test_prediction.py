@@ -15,8 +15,15 @@ from dmf_sim.model import load_model
 from dmf_sim.monitor_messages import cycle_status, monitor_status, prediction_statuses, values_of
 from dmf_sim.newmark import simulate
 from dmf_sim.orders import OrderSummary
-from dmf_sim.prediction import (QUANTITIES, OperatingPoint, Prediction, PredictedState, compare,
-                                predict_states, solve_prediction)
+from dmf_sim.prediction import (
+    QUANTITIES,
+    OperatingPoint,
+    PredictedState,
+    Prediction,
+    compare,
+    predict_states,
+    solve_prediction,
+)
 
 
 @pytest.fixture(scope='module')

@@ -126,8 +126,8 @@ def check_arguments(args) -> None:
 
 
 def run(args) -> int:
-    from dmf_sim.analyze import analysis_dict, analyze_bag, model_settings, overlay_all
     from dmf_sim.analysis_output import write_outputs
+    from dmf_sim.analyze import analysis_dict, analyze_bag, model_settings, overlay_all
     from dmf_sim.bag_files import resolve_bag
 
     check_arguments(args)

@@ -80,11 +80,21 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from dmf_sim.engine.config import EngineConfig, Geometry, engine_config, read_engine_config
-from dmf_sim.engine.excitation import (Engine, EngineExcitation, GasGrid, cylinder_torque_signal,
-                                       engine_torque_orders)
+from dmf_sim.engine.excitation import (
+    Engine,
+    EngineExcitation,
+    GasGrid,
+    cylinder_torque_signal,
+    engine_torque_orders,
+)
 from dmf_sim.engine.pressure import CycleResult, PressureModel
-from dmf_sim.engine.tables import (DEFAULT_ENGINE, engine_from_table, read_table_csv,
-                                   read_table_yaml, write_coefficient_table)
+from dmf_sim.engine.tables import (
+    DEFAULT_ENGINE,
+    engine_from_table,
+    read_table_csv,
+    read_table_yaml,
+    write_coefficient_table,
+)
 from dmf_sim.paths import config_file, read_yaml_mapping
 
 __all__ = [

@@ -15,8 +15,15 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from dmf_sim.engine.fields import (Table1D, check_keys, field_error, integer, number, number_list,
-                                   table_1d)
+from dmf_sim.engine.fields import (
+    Table1D,
+    check_keys,
+    field_error,
+    integer,
+    number,
+    number_list,
+    table_1d,
+)
 from dmf_sim.errors import ConfigError, ConfigFileError
 from dmf_sim.orders import half_orders
 from dmf_sim.paths import config_file, read_yaml_mapping

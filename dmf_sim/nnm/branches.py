@@ -9,8 +9,12 @@ from dmf_sim.modal import stiffness_matrix
 from dmf_sim.model import ReducedModel
 from dmf_sim.nnm.conservative import ConservativeNNM
 from dmf_sim.nnm.results import REGIONS, TWO_PI, FlatBranch, NNMOptions, NNMResult
-from dmf_sim.nnm.subsystems import (clamped_frequencies, require_dmf, static_windup,
-                                    subsystem_frequencies)
+from dmf_sim.nnm.subsystems import (
+    clamped_frequencies,
+    require_dmf,
+    static_windup,
+    subsystem_frequencies,
+)
 from dmf_sim.nnm.time_domain import energy_norm, integrate_physical, static_state
 
 
