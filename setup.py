@@ -32,7 +32,7 @@ setup(
     ],
     extras_require={
         'ros': ['ros-jazzy-rclpy[fastrtps]', 'ros-jazzy-common-interfaces'],
-        'test': ['pytest>=7', 'mcap-ros2-support>=0.5', 'websockets>=12'],
+        'test': ['pytest>=7', 'mcap-ros2-support>=0.5', 'websockets>=12', 'ruff>=0.5'],
     },
     zip_safe=True,
     maintainer='dmf_sim developers',
