@@ -135,8 +135,7 @@ class LiveRuntime:
     def describe(self) -> str:
         """One start-up line: model, rates, pacing, recording."""
         sim, spring = self.sim, self.sim.model.spring
-        dmf = (f'alpha={fmt_num(spring.alpha)} theta={fmt_num(spring.theta)} rad'
-               if spring is not None else 'none')
+        dmf = spring.describe() if spring is not None else 'none'
         pacing = ('fast' if self.loop.pacer.fast
                   else f'real time x{fmt_num(self.loop.pacer.rtf)}')
         text = (f'{sim.line.name} ({len(sim.names)} elements, DMF {dmf}), engine '

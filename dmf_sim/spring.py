@@ -215,6 +215,17 @@ class PiecewiseLinearSpring:
                 'coast_stages': [{'angle_rad': s.angle_rad, 'stiffness_factor': s.stiffness_factor}
                                  for s in self.coast]}
 
+    def describe(self) -> str:
+        """One line for people: the paper's ``alpha=.. theta=.. rad`` for a two-step spring,
+        every stage (angle rad x stiffness factor) otherwise."""
+        if len(self.drive) == 1 and not self.coast:
+            return f'alpha={self.alpha:g} theta={self.theta:g} rad'
+        if not self.drive and not self.coast:
+            return f'linear k={self.k:g} Nm/rad'
+        st = ', '.join(f'{s.angle_rad:g} rad: +{s.stiffness_factor:g}k' for s in self.drive)
+        co = ', '.join(f'-{s.angle_rad:g} rad: +{s.stiffness_factor:g}k' for s in self.coast)
+        return f'k={self.k:g} Nm/rad, drive stages [{st}], coast stages [{co}]'
+
     def __repr__(self) -> str:
         st = ', '.join(f'{s.angle_rad:g}:{s.stiffness_factor:g}' for s in self.drive)
         co = ', '.join(f'{s.angle_rad:g}:{s.stiffness_factor:g}' for s in self.coast)

@@ -131,3 +131,13 @@ def test_config_file_errors_say_what_is_wrong(tmp_path):
         load_driveline(str(binary))
     with pytest.raises(ConfigError, match='config file not found'):
         load_driveline('no_such_driveline')
+
+
+def test_describe_names_every_stage():
+    from dmf_sim.spring import PiecewiseLinearSpring, Stage
+    assert PiecewiseLinearSpring(10890.0, [Stage(0.24, 2.5)]).describe() == \
+        'alpha=2.5 theta=0.24 rad'
+    text = PiecewiseLinearSpring(10890.0, [Stage(0.1, 1.0), Stage(0.14, 2.5)],
+                                 [Stage(0.02, 1.5)]).describe()
+    assert text == ('k=10890 Nm/rad, drive stages [0.1 rad: +1k, 0.14 rad: +2.5k], '
+                    'coast stages [-0.02 rad: +1.5k]')

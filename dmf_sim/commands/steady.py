@@ -9,7 +9,7 @@ NAME = 'steady'
 HELP = ('Every steady state of the DMF wind-up at one engine speed and load (harmonic balance '
         'search: continuation, deflated Newton, Newmark shots), with orders, Fig. 13 quantities, '
         'Floquet stability and a basin estimate: the share of random initial states that Newmark '
-        'carries to each state, with a 95 %% confidence interval.')
+        'carries to each state, with a Wilson 95 per cent confidence interval.')
 
 LIMITS = {'samples': (0, 10000), 'harmonics': (6, 60), 'window': (1.0, 300.0),
           'amplitude': (1e-4, 1.0), 'max_cycles': (10, 5000)}
