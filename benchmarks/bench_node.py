@@ -45,6 +45,8 @@ from pathlib import Path
 
 import numpy as np
 
+from dmf_sim.health import status_name
+
 MAX_LAG_MS = 50.0            # the node's default max_lag: above it a lag is an overrun
 REALTIME_TOLERANCE = 0.02    # every 1-s window within 2 % of factor 1 counts as real time
 
@@ -166,8 +168,8 @@ class Probe:
             self.n[fqn] = n + 1
 
     def _on_diag(self, msg) -> None:
-        for st in msg.status:
-            if st.hardware_id in self.diags:
+        for st in msg.status:     # the node's health status (its monitor shares hardware_id)
+            if st.hardware_id in self.diags and st.name == status_name(st.hardware_id):
                 self.diags[st.hardware_id].append(
                     (time.monotonic(), {kv.key: kv.value for kv in st.values}))
 

@@ -19,6 +19,12 @@ from dmf_sim.pacing import fmt_num
 
 OK, WARN, ERROR, STALE = 0, 1, 2, 3
 LEVEL_NAMES = {OK: 'OK', WARN: 'WARN', ERROR: 'ERROR', STALE: 'STALE'}
+STATUS_SUFFIX = 'driveline simulation'      # the health status is '<node FQN>: ' + this
+
+
+def status_name(node_fqn: str) -> str:
+    """Name of the node's health status on /diagnostics (hardware_id is the FQN itself)."""
+    return f'{node_fqn}: {STATUS_SUFFIX}'
 
 
 @dataclass

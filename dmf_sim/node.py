@@ -40,6 +40,7 @@ import threading
 import time
 
 from dmf_sim.errors import ConfigError, DmfSimError, one_line
+from dmf_sim.health import status_name
 from dmf_sim.monitor_messages import TOPIC_CYCLE, TOPIC_PREDICTED
 from dmf_sim.node_parameters import DMF_PARAMETERS, PARAMETERS, coerce
 from dmf_sim.pacing import fmt_num
@@ -221,7 +222,7 @@ class DrivelineNode(Node):
         stamp_ns = rt.loop.time.stamp_ns(rt.sim.t)
         msg.header.stamp = Time(sec=stamp_ns // 1_000_000_000, nanosec=stamp_ns % 1_000_000_000)
         status = DiagnosticStatus(level=bytes([report.level]),
-                                  name=f'{self.fqn}: driveline simulation',
+                                  name=status_name(self.fqn),
                                   hardware_id=self.fqn, message=report.message)
         status.values = [KeyValue(key=k, value=v) for k, v in report.values.items()]
         msg.status = [status]

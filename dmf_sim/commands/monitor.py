@@ -16,13 +16,13 @@ import time
 from dataclasses import dataclass, field
 
 from dmf_sim.errors import ConfigError, NoResponseError
+from dmf_sim.health import LEVEL_NAMES as LEVELS
+from dmf_sim.health import STATUS_SUFFIX as SIM_STATUS
+from dmf_sim.monitor_messages import MONITOR_NAME as MONITOR_STATUS
 
 NAME = 'monitor'
 HELP = ('Live terminal view of a running driveline_node: speed, load, wind-up, live and '
         'predicted orders, DMF region, lag and alarms (needs rclpy)')
-SIM_STATUS = 'driveline simulation'     # the node's health status name ends with this
-MONITOR_STATUS = 'DMF monitor'          # dmf_sim.monitor_messages.MONITOR_NAME
-LEVELS = {0: 'OK', 1: 'WARN', 2: 'ERROR', 3: 'STALE'}
 STYLES = {0: 'green', 1: 'yellow', 2: 'bold red', 3: 'dim'}
 STALE_S = 3.0                           # diagnostics older than this [s] are shown as stale
 
