@@ -47,6 +47,8 @@ import numpy as np
 
 from dmf_sim.health import status_name
 
+# speed setpoints of --setpoint-period: through the default DMF's 1.5th-order resonance
+SETPOINT_SPEEDS_RPM = (960.0, 1010.0, 905.0, 1100.0, 940.0, 1050.0, 980.0, 920.0, 1200.0, 870.0)
 MAX_LAG_MS = 50.0            # the node's default max_lag: above it a lag is an overrun
 REALTIME_TOLERANCE = 0.02    # every 1-s window within 2 % of factor 1 counts as real time
 
@@ -195,6 +197,20 @@ class Probe:
             raise RuntimeError('set_parameters timed out')
         return fut.result().results
 
+    def setpoint_publishers(self, namespace: str = '') -> dict:
+        """Reliable keep-all publishers of the speed and load setpoints of the node in
+        ``namespace``, once the node subscribes (setpoints are commands: none may be lost)."""
+        from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+        from std_msgs.msg import Float64
+
+        keep_all = QoSProfile(history=HistoryPolicy.KEEP_ALL,
+                              reliability=ReliabilityPolicy.RELIABLE)
+        pubs = {k: self.node.create_publisher(Float64, f'{namespace}/engine/{k}_setpoint',
+                                              keep_all) for k in ('speed', 'load')}
+        if not self.wait(lambda: all(p.get_subscription_count() for p in pubs.values()), 20.0):
+            raise RuntimeError('the node does not subscribe to the setpoints')
+        return pubs
+
     def drop_joint_states(self) -> None:
         for sub in self.js_subs:
             self.node.destroy_subscription(sub)
@@ -228,13 +244,27 @@ def _stat(fn, values) -> float:
     return float(fn(values)) if len(values) else float('nan')
 
 
-def measure_realtime(probe: Probe, runs: list[NodeRun], duration: float) -> list[dict]:
-    """Per node: real-time factor, end-to-end and node-side lag, overruns, CPU."""
+def measure_realtime(probe: Probe, runs: list[NodeRun], duration: float,
+                     setpoint_period: float = 0.0) -> list[dict]:
+    """Per node: real-time factor, end-to-end and node-side lag, overruns, CPU. With
+    ``setpoint_period`` > 0 [s] every node gets the next speed of :data:`SETPOINT_SPEEDS_RPM` at
+    that period (each one a new operating point for the monitor's prediction)."""
+    from std_msgs.msg import Float64
+
+    pubs = ([probe.setpoint_publishers(r.ns)['speed'] for r in runs]
+            if setpoint_period > 0 else [])
     ovr0 = {r.fqn: int(probe.diags[r.fqn][-1][1]['overruns']) for r in runs}
     c0 = {r.fqn: proc_cpu_seconds(r.proc.pid) for r in runs}
     w0 = time.monotonic()
     probe.recording = True
-    time.sleep(duration)
+    k = 0
+    while (now := time.monotonic()) < w0 + duration:
+        if pubs and now >= w0 + k * setpoint_period:
+            for pub in pubs:
+                pub.publish(Float64(data=SETPOINT_SPEEDS_RPM[k % len(SETPOINT_SPEEDS_RPM)]))
+            k += 1
+        wake = w0 + (k * setpoint_period if pubs else duration)
+        time.sleep(max(0.0, min(wake, w0 + duration) - time.monotonic()))
     probe.recording = False
     c1 = {r.fqn: proc_cpu_seconds(r.proc.pid) for r in runs}
     w1 = time.monotonic()
@@ -302,6 +332,7 @@ def summarize(per_node: list[dict], args) -> dict:
     return {
         'nodes': len(per_node), 'duration_s': args.duration, 'dt_s': 1e-4,
         'publish_rate_hz': args.publish_rate, 'recording': True,
+        'monitor': args.monitor == 'on', 'setpoint_period_s': args.setpoint_period,
         'rtf_mean': float(np.mean([n['rtf_mean'] for n in per_node])),
         'rtf_min': worst('rtf_min', min), 'rtf_max': worst('rtf_max'),
         'rtf_windows': min(n['rtf_windows'] for n in per_node),
@@ -331,16 +362,24 @@ def main(argv=None) -> dict:
     ap.add_argument('--domain', type=int, default=None,
                     help='ROS_DOMAIN_ID (default: from DMF_SIM_TEST_DOMAINS and the pid)')
     ap.add_argument('--keep', action='store_true', help='keep the bag directories')
+    ap.add_argument('--monitor', choices=('on', 'off'), default='on',
+                    help="the node's DMF monitor (per-cycle orders, prediction, alarms; "
+                         'default on, as the node)')
+    ap.add_argument('--setpoint-period', type=float, default=0.0,
+                    help='send a new speed setpoint every this many seconds during the '
+                         'real-time measurement (0 = none)')
     args = ap.parse_args(argv)
     if args.nodes < 1:
         ap.error('--nodes must be >= 1')
+    if args.setpoint_period < 0:
+        ap.error('--setpoint-period must be >= 0')
 
     domain = args.domain or default_domain()
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     os.environ['ROS_DOMAIN_ID'] = str(domain)
     tmp = Path(tempfile.mkdtemp(prefix='bench_node_'))
     extra = ['-p', f'publish_rate:={args.publish_rate!r}', '-p', 'dt:=0.0001',
-             '-p', 'diagnostics_rate:=1.0']
+             '-p', 'diagnostics_rate:=1.0', '-p', f'monitor:={args.monitor == "on"}'.lower()]
     namespaces = [''] if args.nodes == 1 else [f'/truck{i + 1}' for i in range(args.nodes)]
     runs = [NodeRun(ns, tmp / f'bench_bag{ns.replace("/", "_")}', tmp, extra)
             for ns in namespaces]
@@ -352,7 +391,7 @@ def main(argv=None) -> dict:
         if not probe.wait(lambda: all(probe.diags[r.fqn] for r in runs), 90.0 + 30 * len(runs)):
             raise RuntimeError(f'a node did not publish diagnostics; logs in {tmp}')
         time.sleep(args.warmup)
-        per_node = measure_realtime(probe, runs, args.duration)
+        per_node = measure_realtime(probe, runs, args.duration, args.setpoint_period)
         result.update(summarize(per_node, args))
         if len(runs) == 1:
             result.update(measure_fast(probe, runs[0], args.fast_duration))
@@ -380,8 +419,10 @@ def main(argv=None) -> dict:
 
 
 def report(r: dict) -> None:
+    setpoints = (f'a speed setpoint every {r["setpoint_period_s"]:g} s'
+                 if r['setpoint_period_s'] else 'fixed setpoints')
     print(f'real time, {r["duration_s"]:g} s, dt 1e-4 s, {r["publish_rate_hz"]:g} Hz, recording, '
-          f'{r["nodes"]} node(s) at once:')
+          f'monitor {"on" if r["monitor"] else "off"}, {setpoints}, {r["nodes"]} node(s) at once:')
     for n in r.get('per_node', [r]):
         label = f'  {n["node"]}:' if 'node' in n else ' '
         print(f'{label} real-time factor  mean {n["rtf_mean"]:.4f}  min {n["rtf_min"]:.4f}  max '

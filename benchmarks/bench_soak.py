@@ -74,18 +74,12 @@ def run(args) -> dict:
     rss_t, rss = [], []
     sent = 0
     try:
-        from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
         from std_msgs.msg import Float64
 
         probe = Probe(domain, int((duration + 10) * 1000 * 1.2) + 1000, [node.fqn])
         if not probe.wait(lambda: probe.diags[node.fqn], 120.0):
             raise RuntimeError(f'node did not publish diagnostics; log in {tmp}')
-        keep_all = QoSProfile(history=HistoryPolicy.KEEP_ALL,
-                              reliability=ReliabilityPolicy.RELIABLE)
-        pubs = {k: probe.node.create_publisher(Float64, f'/engine/{k}_setpoint', keep_all)
-                for k in ('speed', 'load')}
-        if not probe.wait(lambda: all(p.get_subscription_count() for p in pubs.values()), 20.0):
-            raise RuntimeError('the node does not subscribe to the setpoints')
+        pubs = probe.setpoint_publishers()
         ovr0 = int(probe.diags[node.fqn][-1][1]['overruns'])
         t0 = time.monotonic()
         c0 = proc_cpu_seconds(node.proc.pid)
