@@ -12,8 +12,8 @@ setup(
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE]),
         ('share/' + PACKAGE, ['package.xml']),
-        ('share/' + PACKAGE + '/config', sorted(glob('config/*.yaml')) + sorted(glob('config/*.csv'))
-         + sorted(glob('config/*.json'))),
+        ('share/' + PACKAGE + '/config', sorted(glob('config/*.yaml'))
+         + sorted(glob('config/*.csv')) + sorted(glob('config/*.json'))),
         ('share/' + PACKAGE + '/launch', sorted(glob('launch/*.launch.py'))),
     ],
     python_requires='>=3.11',

@@ -16,7 +16,8 @@
    1.5th-order amplitude |c_3| where it is significant (> 20 % of |c_6|), and of the mean, between
    Newmark and the HBM solution it settled on (the nearest one where solutions coexist).
 
-The last line of the output is one JSON object: sweep_seconds, speedup_vs_newmark, max_rel_diff, ...
+The last line of the output is one JSON object: sweep_seconds,
+speedup_vs_newmark, max_rel_diff, ...
 """
 from __future__ import annotations
 
@@ -33,13 +34,18 @@ def main(argv=None) -> int:
     p.add_argument('--alpha', type=float, default=3.0)
     p.add_argument('--load-set', default='A')
     p.add_argument('--load', type=float, default=1.0)
-    p.add_argument('--theta', type=float, help='DMF knee angle [rad] (default: the YAML value, 0.24)')
-    p.add_argument('--speeds', type=float, nargs=3, default=[600.0, 2000.0, 10.0], metavar=('FROM', 'TO', 'STEP'))
-    p.add_argument('--newmark-every', type=int, default=10, help='time Newmark on every k-th grid speed')
+    p.add_argument('--theta', type=float,
+                   help='DMF knee angle [rad] (default: the YAML value, 0.24)')
+    p.add_argument('--speeds', type=float, nargs=3, default=[600.0, 2000.0, 10.0],
+                   metavar=('FROM', 'TO', 'STEP'))
+    p.add_argument('--newmark-every', type=int, default=10,
+                   help='time Newmark on every k-th grid speed')
     p.add_argument('--dt', type=float, default=1e-4, help='Newmark time step [s]')
-    p.add_argument('--engine', default='engine_d13', help='engine YAML or A_n table (default engine_d13)')
+    p.add_argument('--engine', default='engine_d13',
+                   help='engine YAML or A_n table (default engine_d13)')
     p.add_argument('--repeat', type=int, default=3, help='timed repetitions of each sweep mode')
-    p.add_argument('--quick', action='store_true', help='small run (900-1100 rpm, Newmark on 3 points) for tests')
+    p.add_argument('--quick', action='store_true',
+                   help='small run (900-1100 rpm, Newmark on 3 points) for tests')
     args = p.parse_args(argv)
     if args.quick:
         args.speeds = [900.0, 1100.0, 10.0]
@@ -55,7 +61,7 @@ def main(argv=None) -> int:
     lo, hi, step = args.speeds
     model = load_model('truck_dmf', alpha=args.alpha, theta=args.theta)
     engine = load_engine(args.engine, load_set=args.load_set)
-    engine.warm()                                   # engine gas-pressure grid: computed once, not timed
+    engine.warm()  # engine gas-pressure grid: computed once, not timed
     loads = DrivelineLoads(model, engine)
     grid = np.arange(lo, hi + 0.5 * step, step)
 
@@ -66,7 +72,8 @@ def main(argv=None) -> int:
     times = {'fast': [], 'full': []}
     for _ in range(max(args.repeat, 1)):
         for mode in ('fast', 'full'):
-            opts = SweepOptions(step_rpm=step, search=None) if mode == 'fast' else SweepOptions(step_rpm=step)
+            opts = (SweepOptions(step_rpm=step, search=None) if mode == 'fast'
+                    else SweepOptions(step_rpm=step))
             t0 = time.perf_counter()
             res = sweep(loads, args.load, (lo, hi), options=opts)
             times[mode].append(time.perf_counter() - t0)
@@ -76,12 +83,13 @@ def main(argv=None) -> int:
     fast_s = float(np.median(times['fast']))
     n_grid_hbm = sum(1 for b in res.branches for q in b.points
                      if abs(q.speed_rpm / step - round(q.speed_rpm / step)) < 1e-9)
-    print(f'HBM sweep {lo:g}-{hi:g} rpm, grid {step:g} rpm, alpha {args.alpha:g}, theta {model.spring.theta:g} rad, '
-          f'Load {args.load_set}, load {args.load:g}:')
-    print(f'  --fast (continuation, stability, branch switching): min {min(times["fast"]):.3f} s, median '
+    print(f'HBM sweep {lo:g}-{hi:g} rpm, grid {step:g} rpm, alpha {args.alpha:g}, '
+          f'theta {model.spring.theta:g} rad, Load {args.load_set}, load {args.load:g}:')
+    print(f'  --fast (continuation, stability, branch switching): '
+          f'min {min(times["fast"]):.3f} s, median '
           f'{fast_s:.3f} s; {res_fast.n_points} points on {len(res_fast.branches)} branch(es)')
-    print(f'  full search (default): min {min(times["full"]):.3f} s, median {sweep_s:.3f} s; {res.n_points} '
-          f'points on {len(res.branches)} branch(es) ({n_grid_hbm} on the grid), '
+    print(f'  full search (default): min {min(times["full"]):.3f} s, median {sweep_s:.3f} s; '
+          f'{res.n_points} points on {len(res.branches)} branch(es) ({n_grid_hbm} on the grid), '
           f'{len(res.non_periodic)} non-periodic band(s), uncovered {res.uncovered}')
 
     subset = grid[::max(args.newmark_every, 1)]
@@ -99,30 +107,36 @@ def main(argv=None) -> int:
         d3 = abs(abs(c[3]) - hb.order_1_5) / hb.order_1_5 if sig3 else float('nan')
         worst = max(d6, d0, d3 if sig3 else 0.0)
         rel.append(worst)
-        rows.append((s, nm_times[-1], nm.cycles, nm.steady, hb.order_3, abs(c[6]), hb.order_1_5, abs(c[3]), d6, d3, d0,
-                     len(sols)))
+        rows.append((s, nm_times[-1], nm.cycles, nm.steady, hb.order_3, abs(c[6]), hb.order_1_5,
+                     abs(c[3]), d6, d3, d0, len(sols)))
     per_point = float(np.mean(nm_times))
     nm_total = per_point * len(grid)
     speedup = nm_total / sweep_s
-    print(f'\nNewmark (dt {args.dt:g} s) timed on {len(subset)} of the {len(grid)} grid speeds (every '
-          f'{args.newmark_every}th); mean {per_point:.3f} s per point, extrapolated to the grid: {nm_total:.2f} s')
-    print(f'{"rpm":>6} {"NM s":>6} {"cyc":>4} {"steady":>6} {"HBM |c6|":>9} {"NM |c6|":>9} {"HBM |c3|":>9} '
-          f'{"NM |c3|":>9} {"d|c6|":>8} {"d|c3|":>8} {"d mean":>8} {"sols":>4}')
+    print(f'\nNewmark (dt {args.dt:g} s) timed on {len(subset)} of the {len(grid)} grid speeds '
+          f'(every {args.newmark_every}th); mean {per_point:.3f} s per point, extrapolated to the '
+          f'grid: {nm_total:.2f} s')
+    print(f'{"rpm":>6} {"NM s":>6} {"cyc":>4} {"steady":>6} {"HBM |c6|":>9} {"NM |c6|":>9} '
+          f'{"HBM |c3|":>9} {"NM |c3|":>9} {"d|c6|":>8} {"d|c3|":>8} {"d mean":>8} {"sols":>4}')
     for r in rows:
         d3 = f'{r[9]:8.1e}' if np.isfinite(r[9]) else f'{"-":>8}'
-        print(f'{r[0]:6.0f} {r[1]:6.3f} {r[2]:4d} {str(r[3]):>6} {r[4]:9.5f} {r[5]:9.5f} {r[6]:9.5f} {r[7]:9.5f} '
-              f'{r[8]:8.1e} {d3} {r[10]:8.1e} {r[11]:4d}')
+        print(f'{r[0]:6.0f} {r[1]:6.3f} {r[2]:4d} {str(r[3]):>6} {r[4]:9.5f} {r[5]:9.5f} '
+              f'{r[6]:9.5f} {r[7]:9.5f} {r[8]:8.1e} {d3} {r[10]:8.1e} {r[11]:4d}')
     print(f'\nspeed-up HBM sweep vs Newmark (extrapolated): full search {speedup:.0f}x, --fast '
-          f'{nm_total / fast_s:.0f}x; max relative difference {max(rel):.2e} (|c6| always, |c3| where '
-          f'> 20 % of |c6|, mean)')
+          f'{nm_total / fast_s:.0f}x; max relative difference {max(rel):.2e} '
+          f'(|c6| always, |c3| where > 20 % of |c6|, mean)')
     out = {'sweep_seconds': round(sweep_s, 4), 'sweep_seconds_min': round(min(times['full']), 4),
-           'sweep_seconds_fast': round(fast_s, 4), 'sweep_seconds_fast_min': round(min(times['fast']), 4),
-           'speedup_vs_newmark': round(speedup, 1), 'speedup_vs_newmark_fast': round(nm_total / fast_s, 1),
+           'sweep_seconds_fast': round(fast_s, 4),
+           'sweep_seconds_fast_min': round(min(times['fast']), 4),
+           'speedup_vs_newmark': round(speedup, 1),
+           'speedup_vs_newmark_fast': round(nm_total / fast_s, 1),
            'max_rel_diff': float(max(rel)),
-           'hbm_points': res.n_points, 'hbm_branches': len(res.branches), 'grid_points': int(len(grid)),
-           'newmark_points_timed': int(len(subset)), 'newmark_seconds_per_point': round(per_point, 4),
+           'hbm_points': res.n_points, 'hbm_branches': len(res.branches),
+           'grid_points': int(len(grid)),
+           'newmark_points_timed': int(len(subset)),
+           'newmark_seconds_per_point': round(per_point, 4),
            'newmark_seconds_extrapolated': round(nm_total, 3), 'newmark_dt': args.dt,
-           'alpha': args.alpha, 'theta_rad': model.spring.theta, 'load_set': args.load_set, 'load': args.load,
+           'alpha': args.alpha, 'theta_rad': model.spring.theta, 'load_set': args.load_set,
+           'load': args.load,
            'speeds_rpm': [lo, hi, step], 'engine': args.engine, 'repeat': int(args.repeat),
            'non_periodic_bands': len(res.non_periodic), 'quick': bool(args.quick)}
     print(json.dumps(out))

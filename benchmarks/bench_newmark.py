@@ -67,8 +67,10 @@ def ivp_windup(L, t_eval: np.ndarray, rtol: float) -> tuple[np.ndarray, float, i
 
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument('--steps', type=int, default=2_000_000, help='Newmark steps timed (default 2e6 = 200 s)')
-    ap.add_argument('--ivp-seconds', type=float, default=0.2, help='simulated seconds for the accuracy race')
+    ap.add_argument('--steps', type=int, default=2_000_000,
+                    help='Newmark steps timed (default 2e6 = 200 s)')
+    ap.add_argument('--ivp-seconds', type=float, default=0.2,
+                    help='simulated seconds for the accuracy race')
     ap.add_argument('--quick', action='store_true', help='small sizes (used by the test suite)')
     args = ap.parse_args(argv)
     if args.quick:
@@ -81,7 +83,7 @@ def main(argv=None) -> dict:
     integ.reset(SPEED_RPM, LOAD)
     rec = StepRecord.allocate(1000, L.model.n_dof)
     integ.advance(1000, rec, 1)                              # compile / warm up
-    stride = 100                                            # record at 100 Hz like a light consumer
+    stride = 100                                           # record at 100 Hz like a light consumer
     rec = StepRecord.allocate(args.steps // stride + 1, L.model.n_dof)
     t0 = time.perf_counter()
     integ.advance(args.steps, rec, stride)
@@ -121,9 +123,12 @@ def main(argv=None) -> dict:
         'simulated_seconds_compared': T,
         'targets': {'steps_per_s': 1e6, 'realtime_factor': 100, 'speedup_vs_solve_ivp': 50},
     }
-    print(f'Newmark (numba, 1 core): {steps_per_s:,.0f} steps/s = {rtf:.0f}x real time at dt={DT} s')
-    print(f'accuracy over {T} s vs dt/8 reference: Newmark {err_nm:.2e}, solve_ivp RK45 rtol={rtol_used:g} {err_ivp:.2e}')
-    print(f'wall: Newmark {nm_wall*1e3:.1f} ms, solve_ivp {ivp_wall*1e3:.0f} ms -> speed-up {ivp_wall/nm_wall:.0f}x')
+    print(f'Newmark (numba, 1 core): {steps_per_s:,.0f} steps/s = {rtf:.0f}x real time '
+          f'at dt={DT} s')
+    print(f'accuracy over {T} s vs dt/8 reference: Newmark {err_nm:.2e}, '
+          f'solve_ivp RK45 rtol={rtol_used:g} {err_ivp:.2e}')
+    print(f'wall: Newmark {nm_wall*1e3:.1f} ms, solve_ivp {ivp_wall*1e3:.0f} ms '
+          f'-> speed-up {ivp_wall/nm_wall:.0f}x')
     print(json.dumps(result))
     return result
 

@@ -429,8 +429,9 @@ def report(r: dict) -> None:
               f'{n["rtf_max"]:.4f}  ({n["rtf_windows"]} windows of 1 s), overall '
               f'{n["rtf_overall"]:.5f}')
         print(f'{label} lag end-to-end    p50 {n["lag_p50_ms"]:.2f} ms  p99 '
-              f'{n["lag_p99_ms"]:.2f} ms  max {n["lag_max_ms"]:.2f} ms  ({n["joint_states_received"]} of '
-              f'{r["joint_states_expected"]} JointState received)')
+              f'{n["lag_p99_ms"]:.2f} ms  max {n["lag_max_ms"]:.2f} ms  '
+              f'({n["joint_states_received"]} of {r["joint_states_expected"]} '
+              f'JointState received)')
         print(f'{label} node-side lag     p99 {n["node_lag_p99_ms_run"]:.2f} ms (run), max '
               f'{n["node_lag_max_ms_run"]:.2f} ms, worst 1-s window p99 '
               f'{n["node_lag_p99_ms_worst_window"]:.2f} ms; overruns {n["overruns"]}')

@@ -9,9 +9,9 @@ augmented Jacobian [r_X r_S]):
 
 with n = t_k (pseudo-arc-length: passes turning points, where ds/da changes sign) or, where the
 branch runs mainly along s, n = e_S and h chosen so that s_p lands on the next speed of the output
-grid (natural-parameter stepping on a regular grid, so tables come out at round speeds). The tangent
-keeps its orientation (t_{k+1} . t_k > 0), which is what carries the continuation around a fold
-and onto the coexisting solutions behind it.
+grid (natural-parameter stepping on a regular grid, so tables come out at round speeds). The
+tangent keeps its orientation (t_{k+1} . t_k > 0), which is what carries the continuation around a
+fold and onto the coexisting solutions behind it.
 
 Step control: the step h grows after easy corrections (few Newton iterations) and is halved after a
 failed one or a sharp turn of the tangent, between ``step_min`` and ``step_max``.
@@ -36,7 +36,8 @@ def solve_small(A: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 class ContinuationProblem(Protocol):
-    def residual_and_jacobians(self, x: np.ndarray, s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def residual_and_jacobians(self, x: np.ndarray, s: float
+                               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(r, dr/dx, dr/ds)."""
 
 
@@ -51,7 +52,8 @@ class ContinuationOptions:
         grid: output grid spacing in s [rpm] for natural-parameter landing (None: pure arc-length).
         grid_mode_min_ts: use grid landing only while |dS/da| exceeds this (away from folds).
         tol: corrector tolerance on max|r| [rad]; max_iter: corrector iterations.
-        max_turn: largest accepted angle between successive tangents [rad] (else the step is halved).
+        max_turn: largest accepted angle between successive tangents [rad] (else the step is
+            halved).
         max_correction: largest accepted corrector displacement, relative to the step (guards
             against jumping onto another branch).
         max_steps: safety limit of steps per branch.
@@ -116,7 +118,8 @@ def _evaluate(problem: ContinuationProblem, x: np.ndarray, s: float):
 
 
 def correct(problem: ContinuationProblem, y_pred: np.ndarray, normal: np.ndarray,
-            xs: float, ss: float, tol: float, max_iter: int) -> tuple[np.ndarray, int, float, tuple]:
+            xs: float, ss: float, tol: float, max_iter: int
+            ) -> tuple[np.ndarray, int, float, tuple]:
     """Newton on [r(x, s); normal . (y - y_pred)] = 0 in scaled coordinates."""
     y = y_pred.copy()
     n = len(y) - 1
@@ -151,12 +154,15 @@ def correct(problem: ContinuationProblem, y_pred: np.ndarray, normal: np.ndarray
     raise CorrectorFailed(f'corrector: max|r| = {res:.2e} after {max_iter} iterations')
 
 
-def continue_branch(problem: ContinuationProblem, x0: np.ndarray, s0: float, s_bounds: tuple[float, float],
+def continue_branch(problem: ContinuationProblem, x0: np.ndarray, s0: float,
+                    s_bounds: tuple[float, float],
                     direction: float = 1.0, options: ContinuationOptions | None = None,
                     tangent0: np.ndarray | None = None,
-                    stop: Callable[[ContinuationPoint, list[ContinuationPoint]], bool] | None = None,
+                    stop: (Callable[[ContinuationPoint, list[ContinuationPoint]], bool]
+                           | None) = None,
                     on_point: Callable[[ContinuationPoint], None] | None = None,
-                    fast_forward: Callable[[ContinuationPoint, float], list[ContinuationPoint]] | None = None,
+                    fast_forward: (Callable[[ContinuationPoint, float], list[ContinuationPoint]]
+                                   | None) = None,
                     on_end: Callable[[str, ContinuationPoint], None] | None = None
                     ) -> list[ContinuationPoint]:
     """Follow the solution branch through (x0, s0) (a converged solution) until s leaves
@@ -199,7 +205,8 @@ def continue_branch(problem: ContinuationProblem, x0: np.ndarray, s0: float, s_b
         if done:
             break
         s = pts[-1].s
-        if fast_forward is not None and pts[-1].on_grid and not force_arc and abs(t[n]) >= o.grid_mode_min_ts:
+        if (fast_forward is not None and pts[-1].on_grid and not force_arc
+                and abs(t[n]) >= o.grid_mode_min_ts):
             jump = fast_forward(pts[-1], 1.0 if t[n] > 0 else -1.0)
             for p in jump:
                 pts.append(p)
@@ -236,7 +243,8 @@ def continue_branch(problem: ContinuationProblem, x0: np.ndarray, s0: float, s_b
                 y_pred[n] = bound / ss
                 normal = e_s
         try:
-            y_new, it, res, (r, Jx, rs) = correct(problem, y_pred, normal, xs, ss, o.tol, o.max_iter)
+            y_new, it, res, (r, Jx, rs) = correct(problem, y_pred, normal, xs, ss, o.tol,
+                                                  o.max_iter)
             step_len = abs(h_grid) if grid_mode else h
             if np.linalg.norm(y_new - y_pred) > o.max_correction * max(step_len, o.step_min):
                 # converged far from the prediction: maybe onto another branch (e.g. a grid
@@ -260,7 +268,8 @@ def continue_branch(problem: ContinuationProblem, x0: np.ndarray, s0: float, s_b
             # the secant. If that fails too, the branch ends here.
             jumped = _jump(problem, y, t, xs, ss, o)
             if jumped is None:
-                reason = 'left_range' if isinstance(last_failure, LeftRange) else 'corrector_failed'
+                reason = ('left_range' if isinstance(last_failure, LeftRange)
+                          else 'corrector_failed')
                 break
             y_new, it, res, (r, Jx, rs), t_new = jumped
             h = o.step

@@ -20,7 +20,8 @@ class ConfigError(DmfSimError, ValueError):
 
 
 class ConfigFileError(ConfigError, FileNotFoundError):
-    """A configuration file that cannot be used: missing, a directory, unreadable, not a mapping."""
+    """A configuration file that cannot be used: missing, a directory, unreadable, not a
+    mapping."""
 
 
 class BagError(DmfSimError, ValueError):

@@ -23,7 +23,8 @@ from dmf_sim.model import ReducedModel
 from dmf_sim.units import RPM_TO_RAD_S
 
 
-def dynamic_stiffness(model: ReducedModel, Omega: float, K: np.ndarray | None = None) -> np.ndarray:
+def dynamic_stiffness(model: ReducedModel, Omega: float, K: np.ndarray | None = None
+                      ) -> np.ndarray:
     """Z(Omega) = K - Omega^2 J + i Omega C  [Nm/rad] (complex, n x n)."""
     K = model.K if K is None else K
     return K - Omega**2 * model.J + 1j * Omega * model.C
@@ -96,12 +97,14 @@ def harmonic_response(model: ReducedModel, speeds_rpm, half_order: int, element_
     for s in speeds:
         p = element_loads(s) if callable(element_loads) else element_loads
         Omega = half_order / 2.0 * s * RPM_TO_RAD_S
-        qs.append(solve_harmonic(model, Omega, model.element_vector(np.asarray(p, dtype=complex)), K))
+        qs.append(solve_harmonic(model, Omega,
+                                 model.element_vector(np.asarray(p, dtype=complex)), K))
     q = np.array(qs)
     Omegas = half_order / 2.0 * speeds * RPM_TO_RAD_S
     dphi = q @ model.D.T
     torques = np.zeros((len(speeds), model.n_elements), dtype=complex)
-    torques[:, model.spring_elements] = -(model.spring_k + 1j * Omegas[:, None] * model.spring_c) * dphi
+    torques[:, model.spring_elements] = (-(model.spring_k + 1j * Omegas[:, None] * model.spring_c)
+                                         * dphi)
     return HarmonicResponse(speeds_rpm=speeds, half_order=half_order, q=q,
                             angles=q @ model.T.T, spring_torques=torques, windup=q @ model.e)
 

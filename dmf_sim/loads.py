@@ -1,4 +1,5 @@
-"""Driveline loads from the engine: cylinder torques, rear load, d'Alembert load, static equilibrium.
+"""Driveline loads from the engine: cylinder torques, rear load, d'Alembert load, static
+equilibrium.
 
 Cylinder k carries (eq. 16-17)
 
@@ -38,11 +39,12 @@ class DrivelineLoads:
     def __post_init__(self) -> None:
         line = self.model.line
         if not line.cylinders:
-            raise ConfigError(f'driveline {line.name!r}: field \'cylinders\' is empty; no engine load can act')
+            raise ConfigError(f'driveline {line.name!r}: field \'cylinders\' is empty; '
+                              'no engine load can act')
         n_cyl_engine = int(getattr(self.engine, 'n_cylinders', len(line.cylinders)))
         if n_cyl_engine != len(line.cylinders):
-            raise ConfigError(f'engine has {n_cyl_engine} cylinders but driveline field \'cylinders\' '
-                             f'lists {len(line.cylinders)}')
+            raise ConfigError(f'engine has {n_cyl_engine} cylinders but driveline field '
+                             f'\'cylinders\' lists {len(line.cylinders)}')
         self.cylinder_elements = np.array([line.index(c) for c in line.cylinders], dtype=int)
         self.beta = np.radians(np.asarray(line.firing_phases_deg, dtype=float))
         self.rear_element = line.index(line.rear_load_element)
@@ -65,7 +67,8 @@ class DrivelineLoads:
 
     # ---- frequency domain ------------------------------------------------------------------
     def cylinder_coefficients(self, speed_rpm: float, load: float) -> np.ndarray:
-        """(n_cyl, N+1) complex amplitudes A_n exp(-i n beta_k/2) [Nm] of each cylinder's torque."""
+        """(n_cyl, N+1) complex amplitudes A_n exp(-i n beta_k/2) [Nm] of each cylinder's
+        torque."""
         return self.cylinder_coefficients_for(self.engine.coefficients(speed_rpm, load))
 
     def cylinder_coefficients_for(self, A: np.ndarray) -> np.ndarray:
@@ -122,7 +125,8 @@ class DrivelineLoads:
         h = float(m.e @ u)
         w = m.spring.solve_condensed(float(m.e @ q_lin), h)
         q = q_lin - u * float(m.spring.extra_torque(w))
-        return StaticState(q=q, windup=w, dmf_torque=float(m.spring.torque(w)), region=m.spring.region(w))
+        return StaticState(q=q, windup=w, dmf_torque=float(m.spring.torque(w)),
+                           region=m.spring.region(w))
 
 
 @dataclass(frozen=True)

@@ -18,7 +18,8 @@ REGIONS = ('primary', 'secondary')
 
 
 def region_names(model: ReducedModel) -> list[str]:
-    """The spring stages of the model's DMF by name, ascending in wind-up ('primary' without DMF)."""
+    """The spring stages of the model's DMF by name, ascending in wind-up ('primary' without
+    DMF)."""
     sp = model.spring
     return [sp.region_name(st) for st in sp.stages()] if sp is not None else ['primary']
 
@@ -66,7 +67,8 @@ class ModalResult:
         return {
             'frequencies_hz': [float(f) for f in self.frequencies_hz[:k]],
             'elements': list(self.names),
-            'mode_shapes_scaled': [[float(v) for v in self.element_shapes[:, i]] for i in range(k)],
+            'mode_shapes_scaled': [[float(v) for v in self.element_shapes[:, i]]
+                                   for i in range(k)],
         }
 
 

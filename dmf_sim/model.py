@@ -12,8 +12,9 @@ sum 1/2 c_i (d dphi_i/dt)^2).
 
 Infinite stiffness ("rigid" in YAML) is a rigid connection: rigidly connected inertias are merged
 into one degree of freedom (DOF) through the gear ratios, and every element angle is recovered by
-``phi = T q``. The DMF (if any) is the piecewise-linear spring of one element (dmf_sim.spring): its primary
-stiffness and damping live in K and C, its extra torque g is the non-linear force of eq. (7)-(8).
+``phi = T q``. The DMF (if any) is the piecewise-linear spring of one element (dmf_sim.spring): its
+primary stiffness and damping live in K and C, its extra torque g is the non-linear force of
+eq. (7)-(8).
 """
 from __future__ import annotations
 
@@ -103,7 +104,8 @@ class Driveline:
         try:
             return self.names.index(name)
         except ValueError:
-            raise ConfigError(f'unknown element {name!r}; elements are {", ".join(self.names)}') from None
+            raise ConfigError(f'unknown element {name!r}; elements are '
+                              f'{", ".join(self.names)}') from None
 
     @property
     def dmf_element(self) -> Element | None:
@@ -125,13 +127,15 @@ class Driveline:
         if self.dmf is None:
             if all(v is None for v in given):
                 return self
-            raise ConfigError(f'driveline {self.name!r} has no dmf section; DMF parameters do not apply')
+            raise ConfigError(f'driveline {self.name!r} has no dmf section; '
+                              'DMF parameters do not apply')
         if stages is not None and (alpha is not None or theta is not None):
             raise ConfigError('dmf: give either stages or the (alpha, theta) shorthand, not both')
         spring = self.spring
         if stages is not None or coast_stages is not None:
             spring = spring.replace(drive=None if stages is None else _as_stages(stages),
-                                    coast=None if coast_stages is None else _as_stages(coast_stages))
+                                    coast=(None if coast_stages is None
+                                           else _as_stages(coast_stages)))
         spring = spring.with_first_stage(theta=theta, alpha=alpha)
         if k is not None:
             spring = spring.replace(k=k)
@@ -178,7 +182,8 @@ def _check_keys(data: dict, required, optional, where: str) -> None:
     allowed = set(required) | set(optional)
     for key in data:
         if key not in allowed:
-            raise ConfigError(f'{where}: unknown key {key!r} (allowed: {", ".join(sorted(allowed))})')
+            raise ConfigError(f'{where}: unknown key {key!r} '
+                              f'(allowed: {", ".join(sorted(allowed))})')
 
 
 def _parse_element(raw, pos: int) -> Element:
@@ -189,10 +194,12 @@ def _parse_element(raw, pos: int) -> Element:
     name = str(raw['name'])
     ratio = _num(raw['ratio'], where, 'ratio')
     if ratio == 0:
-        raise ConfigError(f'{where}: field \'ratio\' must be non-zero (allowed: any finite number != 0)')
+        raise ConfigError(f'{where}: field \'ratio\' must be non-zero '
+                          '(allowed: any finite number != 0)')
     stiffness = _num(raw['stiffness'], where, 'stiffness', allow_rigid=True)
     if stiffness < 0:
-        raise ConfigError(f'{where}: field \'stiffness\' must be >= 0 Nm/rad or \'rigid\', got {stiffness}')
+        raise ConfigError(f'{where}: field \'stiffness\' must be >= 0 Nm/rad or \'rigid\', '
+                          f'got {stiffness}')
     damping = _num(raw['damping'], where, 'damping')
     if damping < 0:
         raise ConfigError(f'{where}: field \'damping\' must be >= 0 Nms/rad, got {damping}')
@@ -200,7 +207,8 @@ def _parse_element(raw, pos: int) -> Element:
     if inertia <= 0:
         raise ConfigError(f'{where}: field \'inertia\' must be > 0 kg m^2, got {inertia}')
     if math.isinf(stiffness) and damping != 0:
-        raise ConfigError(f'{where}: field \'damping\' must be 0 on a rigid connection, got {damping}')
+        raise ConfigError(f'{where}: field \'damping\' must be 0 on a rigid connection, '
+                          f'got {damping}')
     return Element(name, ratio, stiffness, damping, inertia)
 
 
@@ -221,7 +229,8 @@ def _parse_stages(raw, where: str) -> tuple[Stage, ...]:
         _check_keys(item, STAGE_KEYS, STAGE_ANGLE_KEYS, w)
         angles = [key for key in STAGE_ANGLE_KEYS if key in item]
         if len(angles) != 1:
-            raise ConfigError(f'{w}: give the stage angle [rad] once, as \'angle_rad\' (or \'angle\')')
+            raise ConfigError(f'{w}: give the stage angle [rad] once, '
+                              'as \'angle_rad\' (or \'angle\')')
         out.append(Stage(_num(item[angles[0]], w, angles[0]),
                          _num(item['stiffness_factor'], w, 'stiffness_factor')))
     return tuple(out)
@@ -246,21 +255,23 @@ def _parse_dmf(raw, names: list[str]) -> DMFSpec:
     short = [key for key in ('theta_rad', 'alpha') if key in raw]
     if 'stages' in raw:
         if short:
-            raise ConfigError(f'dmf: give either \'stages\' or the shorthand \'theta_rad\'/\'alpha\', '
-                              f'not both (found {", ".join(short)})')
+            raise ConfigError(f'dmf: give either \'stages\' or the shorthand '
+                              f'\'theta_rad\'/\'alpha\', not both (found {", ".join(short)})')
         stages = _parse_stages(raw['stages'], 'dmf.stages')
     elif len(short) == 2:
         stages = (_shorthand_stage(raw, 'dmf'),)
     elif short:
         missing = 'alpha' if short == ['theta_rad'] else 'theta_rad'
-        raise ConfigError(f"dmf: missing key {missing!r} (the shorthand needs 'theta_rad' and 'alpha'; "
-                          "or give 'stages')")
+        raise ConfigError(f"dmf: missing key {missing!r} (the shorthand needs 'theta_rad' and "
+                          "'alpha'; or give 'stages')")
     else:
-        raise ConfigError('dmf: missing key \'stages\' (or the shorthand \'theta_rad\' and \'alpha\')')
+        raise ConfigError('dmf: missing key \'stages\' '
+                          '(or the shorthand \'theta_rad\' and \'alpha\')')
     coast = raw.get('coast')
     if 'coast_stages' in raw:
         if coast is not None:
-            raise ConfigError('dmf: give either \'coast_stages\' or the shorthand \'coast\', not both')
+            raise ConfigError('dmf: give either \'coast_stages\' or the shorthand \'coast\', '
+                              'not both')
         coast_stages = _parse_stages(raw['coast_stages'], 'dmf.coast_stages')
     elif coast is not None:
         _check_keys(coast, COAST_KEYS, (), 'dmf.coast')
@@ -274,16 +285,20 @@ def _check_spring(dmf: DMFSpec, line: 'Driveline') -> None:
     el = line.elements[line.index(dmf.element)]
     where = f'dmf (element {dmf.element})'
     if el.rigid:
-        raise ConfigError(f'{where}: the DMF cannot sit on a rigid element; field \'stiffness\' must be finite > 0')
+        raise ConfigError(f'{where}: the DMF cannot sit on a rigid element; '
+                          'field \'stiffness\' must be finite > 0')
     if el.stiffness <= 0:
-        raise ConfigError(f'{where}: field \'stiffness\' of the DMF element must be > 0 Nm/rad, got {el.stiffness}')
+        raise ConfigError(f'{where}: field \'stiffness\' of the DMF element must be > 0 Nm/rad, '
+                          f'got {el.stiffness}')
     if line.index(dmf.element) == 0:
-        raise ConfigError(f'{where}: the DMF cannot be the first element (it needs a primary side)')
+        raise ConfigError(f'{where}: the DMF cannot be the first element '
+                          '(it needs a primary side)')
     dmf.spring(el.stiffness)          # validates the stages (one-line ConfigError)
 
 
 def driveline_from_dict(data: dict, source: str = 'driveline') -> Driveline:
-    """Validate a parsed YAML mapping and build a Driveline. Errors are one line naming the field."""
+    """Validate a parsed YAML mapping and build a Driveline. Errors are one line naming the
+    field."""
     _check_keys(data, TOP_KEYS_REQUIRED, TOP_KEYS_OPTIONAL, source)
     raw_elements = data['elements']
     if not isinstance(raw_elements, list) or len(raw_elements) < 2:
@@ -294,10 +309,12 @@ def driveline_from_dict(data: dict, source: str = 'driveline') -> Driveline:
     if dupes:
         raise ConfigError(f'{source}: element names must be unique; repeated: {", ".join(dupes)}')
     if elements[0].rigid:
-        raise ConfigError(f'element 1 ({elements[0].name}): field \'stiffness\' cannot be rigid (it connects to ground)')
+        raise ConfigError(f'element 1 ({elements[0].name}): field \'stiffness\' cannot be rigid '
+                          '(it connects to ground)')
 
     cylinders = tuple(str(c) for c in data.get('cylinders') or ())
-    phases = tuple(_num(p, source, 'firing_phases_deg') for p in data.get('firing_phases_deg') or ())
+    phases = tuple(_num(p, source, 'firing_phases_deg')
+                   for p in data.get('firing_phases_deg') or ())
     if len(cylinders) != len(phases):
         raise ConfigError(f'{source}: field \'firing_phases_deg\' needs one phase per cylinder '
                           f'({len(cylinders)} cylinders, {len(phases)} phases)')
@@ -318,9 +335,9 @@ def driveline_from_dict(data: dict, source: str = 'driveline') -> Driveline:
             k = _num(raw_dmf['stiffness'], 'dmf', 'stiffness')
             el = elements[names.index(dmf.element)]
             if k != el.stiffness:
-                raise ConfigError(f'dmf: field \'stiffness\' = {k:g} Nm/rad differs from the stiffness '
-                                  f'{el.stiffness:g} Nm/rad of element {dmf.element!r}; give the '
-                                  'primary stiffness in one place')
+                raise ConfigError(f'dmf: field \'stiffness\' = {k:g} Nm/rad differs from the '
+                                  f'stiffness {el.stiffness:g} Nm/rad of element '
+                                  f'{dmf.element!r}; give the primary stiffness in one place')
         _check_spring(dmf, line)
         line = replace(line, dmf=dmf)
     return line

@@ -1,4 +1,5 @@
-"""Newmark time integration of the non-linear driveline (design.md §3): integrator and ``simulate()``.
+"""Newmark time integration of the non-linear driveline (design.md §3): integrator and
+``simulate()``.
 
 The step itself (the numba kernel, exact condensed DMF solve region by region of the spring, knee
 crossings on step boundaries) and its readable numpy reference live in
@@ -78,7 +79,8 @@ class NewmarkIntegrator:
     def __post_init__(self) -> None:
         if not (np.isfinite(self.dt) and self.dt > 0):
             raise ConfigError(f'dt={self.dt}: must be > 0 s')
-        if not (0 < self.beta <= 0.5 and 0.5 <= self.gamma <= 1.0 and self.beta >= self.gamma / 4 - 1e-12):
+        if not (0 < self.beta <= 0.5 and 0.5 <= self.gamma <= 1.0
+                and self.beta >= self.gamma / 4 - 1e-12):
             raise ConfigError(f'beta={self.beta}, gamma={self.gamma}: need 0.5 <= gamma <= 1 and '
                              'gamma/4 <= beta <= 0.5 (unconditionally stable Newmark)')
         m = self.loads.model
@@ -93,14 +95,16 @@ class NewmarkIntegrator:
         self._system = (Jd, Klo, Kd, Kup, Clo, Cd, Cup, np.ascontiguousarray(m.e, dtype=float),
                         np.array([self.beta, self.gamma]))
         # Newmark constants, Thomas factors of Khat = K + a0 J + a1 C and u = Khat^-1 e for dt
-        self._factors = (np.zeros(9), np.zeros(max(n - 1, 1)), np.zeros(n), np.zeros(max(n - 1, 1)),
-                         np.zeros(n))
+        self._factors = (np.zeros(9), np.zeros(max(n - 1, 1)), np.zeros(n),
+                         np.zeros(max(n - 1, 1)), np.zeros(n))
         kernel.factor(self.dt, *self._system, *self._factors)
         sp = m.spring
-        knees, slopes, offsets = sp.arrays() if sp is not None else (np.zeros(0), np.zeros(1), np.zeros(1))
+        knees, slopes, offsets = (sp.arrays() if sp is not None
+                                  else (np.zeros(0), np.zeros(1), np.zeros(1)))
         self._spring = (knees, slopes, offsets, sp.primary_index if sp is not None else 0)
         L = self.loads
-        cyl_dof = np.array([int(np.flatnonzero(row)[0]) for row in L.cylinder_dof_vectors], dtype=np.int64)
+        cyl_dof = np.array([int(np.flatnonzero(row)[0]) for row in L.cylinder_dof_vectors],
+                           dtype=np.int64)
         cyl_scale = np.array([row[d] for row, d in zip(L.cylinder_dof_vectors, cyl_dof)])
         self._rear_vec = L.rear_dof_vector.copy()
         self._B = np.zeros((len(cyl_dof), L.n_max + 1), dtype=complex)
@@ -206,7 +210,8 @@ class NewmarkIntegrator:
         L = self.loads
         n = np.arange(self._B.shape[1])
         cyl = np.real(np.exp(1j * np.multiply.outer(psi, n) / 2) @ self._B.T)
-        p = np.multiply.outer(np.asarray(omega_dot, float) * np.ones_like(psi), L.dalembert_elements)
+        p = np.multiply.outer(np.asarray(omega_dot, float) * np.ones_like(psi),
+                              L.dalembert_elements)
         p[..., L.cylinder_elements] += cyl
         p[..., L.rear_element] += self._rear_torque
         return p
@@ -225,8 +230,8 @@ class NewmarkIntegrator:
                                            self._counters)
         else:
             rows = kernel.advance_reference(int(nsteps), int(stride), self._state, self._system,
-                                            self._factors, self.model.spring, self._excitation, out,
-                                            self._counters)
+                                            self._factors, self.model.spring, self._excitation,
+                                            out, self._counters)
         record.count = rows
         self.knee_crossings, self.steps_secondary, self.steps_coast, self.split_steps = (
             int(c) for c in self._counters)
@@ -354,7 +359,8 @@ def simulate(loads: DrivelineLoads, speed_rpm: float, load: float, *, t_end: flo
         nsteps = int(np.ceil((cyc * CYCLE_RAD - integ.psi) / (omega * dt))) + 1
         integ.advance(nsteps, ring[cyc % keep], 1)
         if cyc >= 2:
-            cur = resample_on_angle(stitched(cyc - 1, cyc, 'psi'), stitched(cyc - 1, cyc, 'windup'),
+            cur = resample_on_angle(stitched(cyc - 1, cyc, 'psi'),
+                                    stitched(cyc - 1, cyc, 'windup'),
                                     (cyc - 1) * CYCLE_RAD, 1, grid_pts)
             if prev is not None:
                 change = float(np.max(np.abs(cur - prev))) / max(float(np.ptp(cur)), 1e-9)
@@ -371,7 +377,8 @@ def simulate(loads: DrivelineLoads, speed_rpm: float, load: float, *, t_end: flo
     start = (cyc - n_eval) * CYCLE_RAD
     samples = resample_on_angle(psi, w, start, n_eval, grid_pts)
     coeffs = half_orders(samples, n_max, n_eval)
-    static = loads.static_state(speed_rpm, load).windup if loads.model.spring is not None else np.nan
+    static = (loads.static_state(speed_rpm, load).windup if loads.model.spring is not None
+              else np.nan)
     summ = summarize_orders(coeffs, samples, theta, static)
     cat = lambda attr: stitched(first, cyc, attr)  # noqa: E731
     msg = (f'steady after {cyc} cycles (change {change:.2e})' if steady

@@ -85,7 +85,8 @@ def thomas(f_lo, f_inv, f_cp, rhs, x):
 
 def factor(h, Jd, Klo, Kd, Kup, Clo, Cd, Cup, e, params, coef, f_lo, f_inv, f_cp, u):
     """Newmark constants for a step h [s], Thomas factors of Khat = K + a0 J + a1 C, u = Khat^-1 e
-    and h_c = e.u (into coef[8]), all in place (``system`` unpacked: Jd..e, params = [beta, gamma])."""
+    and h_c = e.u (into coef[8]), all in place (``system`` unpacked: Jd..e,
+    params = [beta, gamma])."""
     n = Jd.shape[0]
     newmark_constants(h, params[0], params[1], coef)
     a0 = coef[1]
@@ -318,7 +319,8 @@ else:  # pragma: no cover
 # The readable reference: dense numpy solves and the spring object itself
 # ------------------------------------------------------------------------------------------------
 
-def advance_reference(nsteps, stride, state, system, factors, spring_obj, excitation, out, counters):
+def advance_reference(nsteps, stride, state, system, factors, spring_obj, excitation, out,
+                      counters):
     """Readable numpy version of :func:`advance_kernel` (same packed arguments, but the spring
     object instead of its arrays): dense matrices, ``numpy.linalg.solve`` and Newton on the
     condensed DMF equation with the spring's own torque and tangent."""

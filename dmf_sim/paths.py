@@ -45,7 +45,8 @@ def config_dir() -> Path:
 
 
 def config_file(name_or_path: str | os.PathLike) -> Path:
-    """Resolve a config name (``truck_dmf`` or ``truck_dmf.yaml``, in :func:`config_dir`) or a path.
+    """Resolve a config name (``truck_dmf`` or ``truck_dmf.yaml``, in :func:`config_dir`) or a
+    path.
 
     Raises ConfigFileError (one line) if it is missing, a directory or unreadable."""
     raw = os.fspath(name_or_path)

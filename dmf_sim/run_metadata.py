@@ -1,4 +1,5 @@
-"""What a recording node stores about its model in a bag, and how analysis reads it back (one schema).
+"""What a recording node stores about its model in a bag, and how analysis reads it back (one
+schema).
 
 rosbag2's ``metadata.yaml`` has a free ``custom_data`` string map. The live node writes a
 :class:`RunMetadata` there when it starts a recording; ``dmf-sim analyze`` reads it back to

@@ -112,7 +112,8 @@ class PiecewiseLinearSpring:
         coast = () if theta_coast is None else (Stage(theta_coast, alpha_coast),)
         return cls(k, (Stage(theta, alpha),), coast)
 
-    def replace(self, *, k: float | None = None, drive=None, coast=None) -> 'PiecewiseLinearSpring':
+    def replace(self, *, k: float | None = None, drive=None, coast=None
+                ) -> 'PiecewiseLinearSpring':
         """A copy with some of k, drive, coast replaced."""
         return PiecewiseLinearSpring(self.k if k is None else k,
                                      self.drive if drive is None else drive,
@@ -125,9 +126,11 @@ class PiecewiseLinearSpring:
         if theta is None and alpha is None:
             return self
         if theta is not None and not (math.isfinite(theta) and theta > 0):
-            raise ConfigError(f'dmf: theta must be finite and > 0 rad (first drive stage angle), got {theta!r}')
+            raise ConfigError(f'dmf: theta must be finite and > 0 rad (first drive stage angle), '
+                              f'got {theta!r}')
         if alpha is not None and not (math.isfinite(alpha) and alpha >= 0):
-            raise ConfigError(f'dmf: alpha must be finite and >= 0 (first drive stage stiffness factor), '
+            raise ConfigError(f'dmf: alpha must be finite and >= 0 '
+                              '(first drive stage stiffness factor), '
                               f'got {alpha!r}')
         if self.drive:
             first = self.drive[0]
@@ -162,7 +165,8 @@ class PiecewiseLinearSpring:
         return np.asarray(index) - self.primary_index
 
     def region_name(self, stage: int) -> str:
-        """'primary', 'secondary' (first drive stage), 'drive stage i', 'coast', 'coast stage j'."""
+        """'primary', 'secondary' (first drive stage), 'drive stage i', 'coast', 'coast stage
+        j'."""
         stage = int(stage)
         if stage == 0:
             return 'primary'
@@ -282,10 +286,12 @@ class PiecewiseLinearSpring:
         p = self.primary_index
         for r in range(p + 1, len(s)):
             xr = x[r - 1]
-            C[r] = (0.5 * s[r - 1] * xr**2 + o[r - 1] * xr + C[r - 1]) - (0.5 * s[r] * xr**2 + o[r] * xr)
+            C[r] = ((0.5 * s[r - 1] * xr**2 + o[r - 1] * xr + C[r - 1])
+                    - (0.5 * s[r] * xr**2 + o[r] * xr))
         for r in range(p - 1, -1, -1):
             xr = x[r]
-            C[r] = (0.5 * s[r + 1] * xr**2 + o[r + 1] * xr + C[r + 1]) - (0.5 * s[r] * xr**2 + o[r] * xr)
+            C[r] = ((0.5 * s[r + 1] * xr**2 + o[r + 1] * xr + C[r + 1])
+                    - (0.5 * s[r] * xr**2 + o[r] * xr))
         return C
 
     def extra_energy(self, w):

@@ -5,10 +5,11 @@ Linearizing J q'' + C q' + K q + e g(e q) = P about a periodic solution q*(t) gi
 
     J dq'' + C dq' + (K + g'(w*(t)) e e^T) dq = 0,
 
-a linear system with a *piecewise-constant* stiffness: g' is the extra stiffness of the spring stage
-w* is in (0 in the primary region; dmf_sim.spring). The force g is continuous, so no jump (saltation)
-matrix is needed at a knee crossing. Over one period T = 4 pi / omega (720 deg of crank angle) the
-state transition (monodromy) matrix is therefore the exact product of matrix exponentials
+a linear system with a *piecewise-constant* stiffness: g' is the extra stiffness of the spring
+stage w* is in (0 in the primary region; dmf_sim.spring). The force g is continuous, so no jump
+(saltation) matrix is needed at a knee crossing. Over one period T = 4 pi / omega (720 deg of crank
+angle) the state transition (monodromy) matrix is therefore the exact product of matrix
+exponentials
 
     Phi(T) = exp(A_{r_k} tau_k) ... exp(A_{r_2} tau_2) exp(A_{r_1} tau_1),
 
@@ -18,9 +19,10 @@ once per model: exp(A_r tau) = V_r diag(exp(lambda_r tau)) V_r^-1 — a monodrom
 matrix products.
 
 The rigid-body rotation of the free-free chain (K r = C r = 0, e.r = 0) is decoupled and carries a
-double multiplier 1 (neutral drift of the mean angle); it is removed by working in the J-orthonormal
-flexible modes of (K, J). The Floquet multipliers reported are those of the 2 (n_dof - 1) flexible
-states; the solution is asymptotically stable when all lie inside the unit circle.
+double multiplier 1 (neutral drift of the mean angle); it is removed by working in the
+J-orthonormal flexible modes of (K, J). The Floquet multipliers reported are those of the
+2 (n_dof - 1) flexible states; the solution is asymptotically stable when all lie inside the unit
+circle.
 
 The base period is the 720 deg cycle, so a period-doubling of a 120-deg-periodic 3rd-order solution
 (multiplier -1 over 120 deg) shows up as a multiplier crossing +1 over 720 deg (like a fold); the
@@ -107,11 +109,13 @@ class FlexibleModes:
 
     def state_matrix(self, k_extra: float = 0.0) -> np.ndarray:
         nf = self.nf
-        Z, I = np.zeros((nf, nf)), np.eye(nf)
-        return np.block([[Z, I], [-(np.diag(self.lam) + k_extra * np.outer(self.er, self.er)), -self.Cr]])
+        Z, identity = np.zeros((nf, nf)), np.eye(nf)
+        return np.block([[Z, identity],
+                         [-(np.diag(self.lam) + k_extra * np.outer(self.er, self.er)), -self.Cr]])
 
     def eig(self, k_extra: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(d, V, V^-1) with A = V diag(d) V^-1 for the extra DMF stiffness ``k_extra`` [Nm/rad]."""
+        """(d, V, V^-1) with A = V diag(d) V^-1 for the extra DMF stiffness ``k_extra``
+        [Nm/rad]."""
         key = float(k_extra)
         if key not in self._eig:
             d, V = scipy.linalg.eig(self.state_matrix(key))
@@ -146,14 +150,16 @@ class FloquetAnalyzer:
         self.modes = modes or FlexibleModes(model)
         self.nf = self.modes.nf
         self.er = self.modes.er
-        self._region_stiffness = {st: self.spring.stage_stiffness(st) for st in self.spring.stages()}
+        self._region_stiffness = {st: self.spring.stage_stiffness(st)
+                                  for st in self.spring.stages()}
         self._eig = {r: self.modes.eig(k) for r, k in self._region_stiffness.items()}
         # wind-up read-out of the first-order state y = [modal angles, modal velocities]
         self._ew = np.concatenate([self.er, np.zeros(self.nf)])
 
     # ---- regions and crossings -------------------------------------------------------------
     def linear_multipliers(self, speeds_rpm: np.ndarray, region: int = 0) -> np.ndarray:
-        """(K, 2 nf) multipliers exp(d T) of solutions that stay in one region for the whole cycle."""
+        """(K, 2 nf) multipliers exp(d T) of solutions that stay in one region for the whole
+        cycle."""
         T = cycle_period_s(np.asarray(speeds_rpm, dtype=float))
         return np.exp(np.outer(T, self._eig[region][0]))
 
@@ -234,10 +240,12 @@ class FloquetAnalyzer:
         mu = mu[np.argsort(-np.abs(mu))]
         mx = float(np.abs(mu[0]))
         n_cross = 0 if len(segs) == 1 else len(segs)
-        return FloquetResult(mu, mx, mx < 1.0 + self.tol, n_cross, M if keep_monodromy else None, segs)
+        return FloquetResult(mu, mx, mx < 1.0 + self.tol, n_cross,
+                             M if keep_monodromy else None, segs)
 
     # ---- what kind of instability --------------------------------------------------------
-    def classify(self, c: np.ndarray, speed_rpm: float, which: int = 0, n_grid: int = 512) -> ModeClass:
+    def classify(self, c: np.ndarray, speed_rpm: float, which: int = 0, n_grid: int = 512
+                 ) -> ModeClass:
         """Harmonic content of the wind-up perturbation of the ``which``-th largest multiplier.
 
         The eigen-solution is dy(t) = exp(t log(mu)/T) p(t) with p periodic over 720 deg; the
@@ -277,7 +285,8 @@ class FloquetAnalyzer:
         for n, pw in zip(n_idx, power):
             spec[abs(n)] += pw
         dominant = int(np.argmax(spec))
-        # real part of p as a half-order series from psi = 0: c_n = 2 X_n exp(-i n omega t_start / 2)
+        # real part of p as a half-order series from psi = 0:
+        # c_n = 2 X_n exp(-i n omega t_start / 2)
         Xr = np.fft.rfft(p.real) / n_grid
         nn = np.arange(len(Xr))
         coeffs = 2.0 * Xr * np.exp(-1j * nn * omega * t_start / 2.0)

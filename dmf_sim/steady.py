@@ -9,9 +9,10 @@
 2. Basins of attraction: N initial states around the static equilibrium — wind-up offsets and
    rates drawn uniformly in [-A, A] / 2 and [-Omega A, Omega A] / 2 along each of the two modes
    with the most strain energy in the DMF (:func:`dmf_modes`, Omega their angular frequency) —
-   are integrated by Newmark until the cycle-to-cycle change settles. Each run is matched to a state by its order amplitudes; a settled run that
-   matches none is polished by harmonic balance Newton and added (found by time integration).
-   The share of runs per state is reported with a 95 % Wilson score interval.
+   are integrated by Newmark until the cycle-to-cycle change settles. Each run is matched to a
+   state by its order amplitudes; a settled run that matches none is polished by harmonic balance
+   Newton and added (found by time integration). The share of runs per state is reported with a
+   95 % Wilson score interval.
 """
 from __future__ import annotations
 
@@ -116,10 +117,12 @@ class SteadyStateSet:
                 'states': [s.as_dict(self.samples) for s in self.states],
                 'non_periodic': [r.as_dict() for r in self.non_periodic],
                 'basin_sampling': {'samples': self.samples,
-                                   'windup_offset_range_rad': [-self.amplitude_rad, self.amplitude_rad],
+                                   'windup_offset_range_rad': [-self.amplitude_rad,
+                                                               self.amplitude_rad],
                                    'windup_rate_range_rad_s': [-self.rate_rad_s, self.rate_rad_s],
                                    'unsettled': self.unsettled,
-                                   'unsettled_share': self.unsettled / self.samples if self.samples else 0.0,
+                                   'unsettled_share': (self.unsettled / self.samples
+                                                       if self.samples else 0.0),
                                    'unsettled_ci95': [lo, hi] if self.samples else None},
                 'units': 'wind-up quantities in rad, positive when the engine drives'}
 
@@ -151,7 +154,8 @@ class _Matcher:
 def find_steady_states(loads: DrivelineLoads, speed_rpm: float, load: float, *,
                        window_rpm: float = 30.0, hbm_options: HBMOptions | None = None,
                        sweep_options: SweepOptions | None = None,
-                       basin: BasinOptions | None = None, progress: bool = False) -> SteadyStateSet:
+                       basin: BasinOptions | None = None, progress: bool = False
+                       ) -> SteadyStateSet:
     """Every steady state at ``speed_rpm`` and load fraction ``load`` with basin estimates (see
     the module docstring)."""
     t0 = time.perf_counter()
@@ -161,7 +165,8 @@ def find_steady_states(loads: DrivelineLoads, speed_rpm: float, load: float, *,
     lo, hi = s - window_rpm, s + window_rpm
     if rng is not None:
         if not rng[0] <= s <= rng[1]:
-            raise ConfigError(f'speed {s:g} rpm: the engine data covers {rng[0]:g}..{rng[1]:g} rpm')
+            raise ConfigError(f'speed {s:g} rpm: the engine data covers '
+                              f'{rng[0]:g}..{rng[1]:g} rpm')
         lo, hi = max(lo, float(rng[0])), min(hi, float(rng[1]))
     step = max(window_rpm / 6.0, 1.0)
     base = sweep_options or SweepOptions()

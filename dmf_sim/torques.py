@@ -50,7 +50,8 @@ class TorqueOperator:
         self.dal = L.dalembert_elements @ self.Lp
         # torques of a unit DMF extra torque g (at the DMF element and through rigid links)
         self.spring = model.spring
-        self.c = f(np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(m), 1.0) if self.spring else np.zeros(m)
+        self.c = (f(np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(m), 1.0) if self.spring
+                  else np.zeros(m))
         # [q v a] (rows x 3n) @ M (3n x 3m) = [angles | velocities | torques without p, g]
         T = model.T.T
         M = np.zeros((3 * n, 3 * m))

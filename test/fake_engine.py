@@ -1,4 +1,5 @@
-"""A minimal EngineExcitation with fixed coefficients, for solver tests independent of engine.py."""
+"""A minimal EngineExcitation with fixed coefficients, for solver tests independent of
+engine.py."""
 import numpy as np
 
 

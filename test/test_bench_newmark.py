@@ -15,6 +15,7 @@ def test_bench_newmark_quick_prints_json():
     for key in ('steps_per_s', 'realtime_factor', 'speedup_vs_solve_ivp'):
         assert math.isfinite(data[key]) and data[key] > 0
     # same accuracy: solve_ivp's error is no larger than Newmark's (or the tightest rtol tried)
-    assert data['solve_ivp_rel_error'] <= data['newmark_rel_error'] or data['solve_ivp_rtol'] == 1e-8
+    assert (data['solve_ivp_rel_error'] <= data['newmark_rel_error']
+            or data['solve_ivp_rtol'] == 1e-8)
     assert data['realtime_factor'] == data['steps_per_s'] * data['dt_s'] or \
         abs(data['realtime_factor'] - data['steps_per_s'] * data['dt_s']) < 0.1

@@ -12,6 +12,8 @@ import sysconfig
 import time
 from pathlib import Path
 
+import rclpy
+
 from dmf_sim.commands.monitor import MonitorView, Status, render_plain
 
 _seq = itertools.count()
@@ -87,8 +89,6 @@ def test_monitor_view_shows_every_quantity():
 # ================================================================================================
 # Over DDS with a real node
 # ================================================================================================
-
-import rclpy
 
 
 class Node:

@@ -67,14 +67,16 @@ def test_alpha_zero_equals_linear_harmonic_response(engine_a):
         P = loads.element_harmonics(speed, 1.0)
         for n in range(hb.H + 1):
             ref = harmonic_response(loads.model, [speed], n, P[n] if n else P[0].real)
-            assert abs(point.windup_orders[n] - ref.windup[0]) <= 1e-9 * max(abs(ref.windup[0]), 1e-6)
+            assert (abs(point.windup_orders[n] - ref.windup[0])
+                    <= 1e-9 * max(abs(ref.windup[0]), 1e-6))
             qn = hb.dof_harmonics(point)[n]
             assert np.abs(qn - ref.q[0]).max() <= 1e-9 * np.abs(ref.q[0]).max() + 1e-15
             if n:
                 Tn = hb.torque_harmonics(point)[n][loads.model.spring_elements]
                 Tref = ref.spring_torques[0][loads.model.spring_elements]
                 assert np.abs(Tn - Tref).max() <= 1e-9 * np.abs(Tref).max() + 1e-12
-        assert point.summary.mean == pytest.approx(loads.static_state(speed, 1.0).windup, rel=1e-12)
+        assert point.summary.mean == pytest.approx(loads.static_state(speed, 1.0).windup,
+                                                   rel=1e-12)
 
 
 def test_modal_receptances_equal_direct_solves(engine_a):
@@ -90,7 +92,7 @@ def test_modal_receptances_equal_direct_solves(engine_a):
 
 def test_jacobians_match_finite_differences(engine_a):
     hb = CondensedHBM(paper_loads(engine_a), 1.0)
-    speed = 1023.7                              # inside an engine grid cell (piecewise-linear data)
+    speed = 1023.7  # inside an engine grid cell (piecewise-linear data)
     x = hb.solve(speed).x + 1e-3 * np.random.default_rng(1).standard_normal(2 * hb.H + 1)
     r, Jx, rs = hb.residual_and_jacobians(x, speed)
     assert np.any(hb.nonlinear_harmonics(x))  # the knee is crossed: a non-trivial Jacobian
@@ -100,7 +102,8 @@ def test_jacobians_match_finite_differences(engine_a):
                            for e in np.eye(len(x))])
     assert np.abs(Jfd - Jx).max() <= 1e-6 * np.abs(Jx).max()
     ds = 1e-3
-    rs_fd = (hb.residual_and_jacobians(x, speed + ds)[0] - hb.residual_and_jacobians(x, speed - ds)[0]) / (2 * ds)
+    rs_fd = (hb.residual_and_jacobians(x, speed + ds)[0]
+             - hb.residual_and_jacobians(x, speed - ds)[0]) / (2 * ds)
     assert np.abs(rs_fd - rs).max() <= 1e-4 * np.abs(rs).max()
 
 
@@ -167,7 +170,8 @@ def test_stability_agrees_with_time_integration(fold_sweep):
     assert rel(after[0], sols[0].order_3) < 0.01          # stable: stays
     assert rel(after[2], sols[2].order_3) < 0.01          # stable: stays
     assert rel(after[1], sols[1].order_3) > 0.2           # unstable: left ...
-    assert min(rel(after[1], sols[0].order_3), rel(after[1], sols[2].order_3)) < 0.01   # ... for a stable one
+    assert min(rel(after[1], sols[0].order_3),
+               rel(after[1], sols[2].order_3)) < 0.01   # ... for a stable one
 
 
 def _brute_force_multipliers(model, c, speed_rpm, nsteps=20000):
@@ -196,7 +200,8 @@ def _brute_force_multipliers(model, c, speed_rpm, nsteps=20000):
 def test_floquet_multipliers_match_brute_force_monodromy(fold_sweep):
     loads, res = fold_sweep
     fa = FloquetAnalyzer(loads.model)
-    for q in sorted(res.solutions_at(370.0), key=lambda q: q.order_3)[1:]:   # unstable and stable, both crossing
+    # unstable and stable, both crossing
+    for q in sorted(res.solutions_at(370.0), key=lambda q: q.order_3)[1:]:
         fr = fa.analyze(q.windup_orders, q.speed_rpm)
         assert fr.n_crossings >= 2
         bf = _brute_force_multipliers(loads.model, q.windup_orders, q.speed_rpm)
@@ -213,12 +218,13 @@ def test_period_doubling_and_branch_switching_symmetric_excitation():
     """Exactly 120-deg-periodic excitation (pure 3rd order): the 3rd-order branch loses stability
     by period doubling (multiplier through +1 over 720 deg, n = 3 eigen-solution), and the
     1.5th-order branch is found by branch switching and followed."""
-    loads = DrivelineLoads(load_model('truck_dmf', alpha=3.0, theta=0.02), FakeEngine({0: 0.0, 6: 500.0}))
+    loads = DrivelineLoads(load_model('truck_dmf', alpha=3.0, theta=0.02),
+                           FakeEngine({0: 0.0, 6: 500.0}))
     res = sweep(loads, 1.0, (250.0, 500.0))
     losses = [e for e in res.events if e.kind == 'stability_loss' and e.branch == 0]
     assert losses and losses[0].detail.startswith('subharmonic')
     main_sub = max(q.order_1_5 for q in res.main().points)
-    assert main_sub < 1e-9                                  # symmetric: no 1.5th order on the main branch
+    assert main_sub < 1e-9  # symmetric: no 1.5th order on the main branch
     subs = res.subharmonic_branches()
     assert len(subs) == 1 and 'branch switching' in subs[0].origin
     peak = max(q.order_1_5 for q in subs[0].points)
@@ -249,7 +255,8 @@ def test_paper_case_sweep_runs_fast_on_the_grid(engine_a):
     grid = {round(q.speed_rpm, 6) for q in res.main().points}
     assert set(np.round(np.arange(600.0, 2000.1, 10.0), 6)) <= grid
     assert all(q.stable for q in res.main().points)
-    crossing = [q.speed_rpm for q in res.main().points if q.summary.mean + q.summary.max_deviation > 0.24]
+    crossing = [q.speed_rpm for q in res.main().points
+                if q.summary.mean + q.summary.max_deviation > 0.24]
     assert crossing and 950.0 < min(crossing) and max(crossing) < 1200.0
 
 
@@ -258,20 +265,21 @@ def test_paper_case_sweep_runs_fast_on_the_grid(engine_a):
 # ------------------------------------------------------------------------------------------------
 
 def test_cli_sweep_json_csv_png(tmp_path, capsys):
-    rc = cli_main(['sweep', '--alpha', '2.5', '3', '--load-set', 'A', 'B', '--speeds', '900', '1100', '10',
-                   '--json', '--no-progress', '--out', str(tmp_path)])
+    rc = cli_main(['sweep', '--alpha', '2.5', '3', '--load-set', 'A', 'B', '--speeds', '900',
+                   '1100', '10', '--json', '--no-progress', '--out', str(tmp_path)])
     assert rc == 0
     data = json.loads(capsys.readouterr().out)
     assert len(data['sweeps']) == 4
     row = data['sweeps'][0]['points'][0]
-    for key in ('speed_rpm', 'branch', 'stable', 'order_3', 'order_1_5', 'max_deviation', 'min_deviation',
-                'mean_minus_theta'):
+    for key in ('speed_rpm', 'branch', 'stable', 'order_3', 'order_1_5', 'max_deviation',
+                'min_deviation', 'mean_minus_theta'):
         assert key in row
     for name in ('sweep.csv', 'sweep.json', 'fig13.png', 'fig15.png'):
         assert (tmp_path / name).stat().st_size > 0
     with open(tmp_path / 'sweep.csv') as fh:
         rows = list(csv.DictReader(fh))
-    assert {r['alpha'] for r in rows} == {'2.5', '3.0'} and {r['load_set'] for r in rows} == {'A', 'B'}
+    assert ({r['alpha'] for r in rows} == {'2.5', '3.0'}
+            and {r['load_set'] for r in rows} == {'A', 'B'})
 
 
 def test_cli_sweep_rejects_bad_input(capsys):

@@ -1,4 +1,5 @@
-"""Driveline loads: cylinder phasing, balanced rear and d'Alembert loads, static equilibrium, CLI."""
+"""Driveline loads: cylinder phasing, balanced rear and d'Alembert loads, static equilibrium,
+CLI."""
 import json
 import subprocess
 import sys
@@ -73,8 +74,9 @@ def test_cylinder_count_mismatch_refused():
 
 
 def test_cli_loads_json_and_png(tmp_path):
-    out = subprocess.run([sys.executable, '-m', 'dmf_sim.cli', 'loads', '--json', '--speeds', '600', '1200',
-                          '100', '--out', str(tmp_path)], capture_output=True, text=True, check=True).stdout
+    out = subprocess.run([sys.executable, '-m', 'dmf_sim.cli', 'loads', '--json', '--speeds',
+                          '600', '1200', '100', '--out', str(tmp_path)],
+                         capture_output=True, text=True, check=True).stdout
     data = json.loads(out)
     a, b, c = (np.array(data['mean_torque_nm'][s]) for s in 'ABC')
     # B and C give more torque at low speed (Load A's data moved down by 50 / 100 rpm)

@@ -43,7 +43,8 @@ def test_harmonic_response_equals_dense_solve():
     for s, q in zip(speeds, r.q):
         Om = 3 * s * np.pi / 30
         # dense solve of the element-level equations through the constraint matrix
-        Z = m.T.T @ (np.diag([e.inertia for e in m.line.elements]) * -Om**2) @ m.T + m.K + 1j * Om * m.C
+        Z = (m.T.T @ (np.diag([e.inertia for e in m.line.elements]) * -Om**2) @ m.T + m.K
+             + 1j * Om * m.C)
         np.testing.assert_allclose(q, np.linalg.solve(Z, m.T.T @ p), rtol=1e-10)
     np.testing.assert_allclose(r.windup, r.q @ m.e)
     # receptance between wind-up directions
@@ -64,17 +65,20 @@ def test_single_dof_analytic():
     expected = 10.0 / (1000.0 - Om**2 * 0.5 + 1j * Om * 3.0)
     np.testing.assert_allclose(r.angles[:, 1], expected, rtol=1e-6)
     # transmitted torque through the spring: -(k + i Om c) dphi
-    np.testing.assert_allclose(r.spring_torques[:, 1], -(1000 + 1j * Om * 3) * (r.angles[:, 1] - r.angles[:, 0] / 2),
+    np.testing.assert_allclose(r.spring_torques[:, 1],
+                               -(1000 + 1j * Om * 3) * (r.angles[:, 1] - r.angles[:, 0] / 2),
                                rtol=1e-9)
 
 
 def test_cli_modes_json():
-    out = subprocess.run([sys.executable, '-m', 'dmf_sim.cli', 'modes', '--variant', 'dmf', '--alpha', '3',
-                          '--json'], capture_output=True, text=True, check=True).stdout
+    out = subprocess.run([sys.executable, '-m', 'dmf_sim.cli', 'modes', '--variant', 'dmf',
+                          '--alpha', '3', '--json'],
+                         capture_output=True, text=True, check=True).stdout
     data = json.loads(out)
     f = data['frequencies_hz']
     assert f == sorted(f) and round(f[2]) == 27      # --alpha selects the secondary stiffness
     assert round(data['regions']['primary'][2]) == 18
-    conv = json.loads(subprocess.run([sys.executable, '-m', 'dmf_sim.cli', 'modes', '--variant', 'conventional',
-                                      '--json'], capture_output=True, text=True, check=True).stdout)
+    conv = json.loads(subprocess.run([sys.executable, '-m', 'dmf_sim.cli', 'modes', '--variant',
+                                      'conventional', '--json'],
+                                     capture_output=True, text=True, check=True).stdout)
     assert conv['frequencies_hz'][0] == 0.0

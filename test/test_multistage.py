@@ -20,7 +20,8 @@ from dmf_sim.paths import config_file
 from dmf_sim.stability import FlexibleModes, FloquetAnalyzer
 from dmf_sim.units import CYCLE_RAD, RPM_TO_RAD_S
 
-STAGES = [{'angle_rad': 0.10, 'stiffness_factor': 1.0}, {'angle_rad': 0.14, 'stiffness_factor': 2.5},
+STAGES = [{'angle_rad': 0.10, 'stiffness_factor': 1.0},
+          {'angle_rad': 0.14, 'stiffness_factor': 2.5},
           {'angle_rad': 0.18, 'stiffness_factor': 5.0}]
 COAST = [{'angle_rad': 0.02, 'stiffness_factor': 1.5}]
 # mean 1080 Nm, strong 3rd order: at 850 rpm the wind-up visits every stage (-0.05 .. 0.19 rad)
@@ -198,7 +199,8 @@ def test_live_simulation_multistage(yaml_path):
     w2 = q2 @ it.model.e
     assert it.model.spring.stage(w2[0]) == 3
     np.testing.assert_allclose(sim._torques(q2, v, a, w2, psi, it.omega_dot),
-                               it.model.transmitted_torques(q2, v, a, it.element_loads(psi, it.omega_dot)),
+                               it.model.transmitted_torques(q2, v, a,
+                                                            it.element_loads(psi, it.omega_dot)),
                                rtol=1e-9, atol=1e-6)
 
 

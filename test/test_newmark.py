@@ -1,4 +1,5 @@
-"""Newmark integration: linear limit, energy balance, step refinement, statics, ramps, kernel vs reference."""
+"""Newmark integration: linear limit, energy balance, step refinement, statics, ramps, kernel vs
+reference."""
 import numpy as np
 import pytest
 from fake_engine import FakeEngine
@@ -9,7 +10,8 @@ from dmf_sim.model import load_model
 from dmf_sim.newmark import NewmarkIntegrator, StepRecord, simulate
 from dmf_sim.units import RPM_TO_RAD_S
 
-# mean 400 Nm per cylinder (2400 Nm engine: wind-up just below the 0.24 rad knee), 1.5th/3rd/6th orders
+# mean 400 Nm per cylinder (2400 Nm engine: wind-up just below the 0.24 rad knee), 1.5th/3rd/6th
+# orders
 ENGINE = FakeEngine({0: 400.0, 3: 150 + 50j, 6: 700 - 300j, 12: 250 + 100j})
 
 
@@ -45,7 +47,8 @@ def test_energy_balance_over_steady_cycles():
     # stored energy change over the interval (kinetic + linear springs + DMF extra)
     def stored(i):
         q, v = r.q[i], r.v[i]
-        return 0.5 * v @ m.J @ v + 0.5 * q @ m.K @ q + float(m.spring.energy(r.windup[i]) - 0.5 * m.spring.k * r.windup[i]**2)
+        return (0.5 * v @ m.J @ v + 0.5 * q @ m.K @ q
+                + float(m.spring.energy(r.windup[i]) - 0.5 * m.spring.k * r.windup[i]**2))
     dE = stored(-1) - stored(0)
     assert E_d > 0
     assert E_in == pytest.approx(E_d + dE, rel=5e-3)
@@ -101,7 +104,8 @@ def test_kernel_equals_reference_path():
 
 def test_run_up_600_to_2000_stays_bounded():
     L = loads(alpha=2.5)
-    r = simulate(L, 600, 1.0, t_end=8.0, target_speed_rpm=2000, ramp_rpm_per_s=200.0, record_stride=10)
+    r = simulate(L, 600, 1.0, t_end=8.0, target_speed_rpm=2000, ramp_rpm_per_s=200.0,
+                 record_stride=10)
     assert r.speed_rpm[-1] == pytest.approx(2000.0)
     # crank angle is the integral of the speed (trapezoid of the linear ramp)
     t_ramp = 1400 / 200.0
@@ -126,13 +130,16 @@ def test_bad_newmark_parameters():
 
 
 def test_step_refinement_real_engine_at_knee_grazing_point():
-    """Real engine (2500 Nm rating), alpha 3, Load A at 1000 rpm: the swing just grazes the knee and the small
-    1.5th order is coupled to a lightly damped 125 Hz crank mode (7.5th order). At dt = 1e-4 s the
-    Newmark period error there shifts the 1.5th order by ~3 %; at dt = 5e-5 s halving the step
-    changes both orders by < 0.5 % (README: use dt <= 5e-5 s offline near such points)."""
+    """Real engine (2500 Nm rating), alpha 3, Load A at 1000 rpm: the swing just grazes the knee
+    and the small 1.5th order is coupled to a lightly damped 125 Hz crank mode (7.5th order). At
+    dt = 1e-4 s the Newmark period error there shifts the 1.5th order by ~3 %; at dt = 5e-5 s
+    halving the step changes both orders by < 0.5 % (README: use dt <= 5e-5 s offline near such
+    points)."""
     from dmf_sim.engine import load_engine
     L = DrivelineLoads(load_model('truck_dmf', alpha=3.0), load_engine('engine_d13_2500nm'))
-    runs = [simulate(L, 1000, 1.0, dt=dt, steady_tol=1e-9, max_cycles=120) for dt in (5e-5, 2.5e-5)]
+    runs = [simulate(L, 1000, 1.0, dt=dt, steady_tol=1e-9, max_cycles=120)
+            for dt in (5e-5, 2.5e-5)]
     assert runs[0].knee_crossings > 0
     for n in (3, 6):
-        assert abs(runs[0].windup_orders[n]) == pytest.approx(abs(runs[1].windup_orders[n]), rel=5e-3)
+        assert abs(runs[0].windup_orders[n]) == pytest.approx(abs(runs[1].windup_orders[n]),
+                                                              rel=5e-3)

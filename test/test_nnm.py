@@ -60,7 +60,8 @@ def test_periodic_solutions_return_after_one_period(model, result):
     for region in ('primary', 'secondary'):
         br = result.branches[region]
         solver = ConservativeNNM(model, br.windup_static)
-        picks = [int(np.argmin(np.abs(np.where(br.backbone, br.xi, np.inf) - x))) for x in (2.0, 6.0)]
+        picks = [int(np.argmin(np.abs(np.where(br.backbone, br.xi, np.inf) - x)))
+                 for x in (2.0, 6.0)]
         tongue = np.flatnonzero((br.tongue_harmonic > 0) & (br.xi < 10))
         if len(tongue):
             picks.append(int(tongue[len(tongue) // 2]))
@@ -77,7 +78,8 @@ def test_periodic_solutions_return_after_one_period(model, result):
 def test_time_integration_error_shrinks_with_harmonics(model):
     errs = []
     for H in (10, 40):
-        s = ConservativeNNM(model, static_windup(model, 'primary'), options=NNMOptions(n_harmonics=H, step_max=0.1))
+        s = ConservativeNNM(model, static_windup(model, 'primary'),
+                            options=NNMOptions(n_harmonics=H, step_max=0.1))
         br = s.branch(xi_stop=4.5)
         i = int(np.argmin(np.abs(br.xi - 4.0)))
         errs.append(s.periodicity_error(br.coefficients[i], 2 * np.pi * br.frequency_hz[i]))
@@ -88,7 +90,8 @@ def test_time_integration_error_shrinks_with_harmonics(model):
 def test_frequency_converged_in_harmonics(model):
     f = []
     for H in (15, 30):
-        s = ConservativeNNM(model, static_windup(model, 'secondary'), options=NNMOptions(n_harmonics=H, step_max=0.1))
+        s = ConservativeNNM(model, static_windup(model, 'secondary'),
+                            options=NNMOptions(n_harmonics=H, step_max=0.1))
         f.append(s.branch(xi_stop=3.2).frequency_at([1.5, 3.0]))
     np.testing.assert_allclose(f[0], f[1], rtol=1e-5)
 
@@ -103,7 +106,8 @@ def test_scaling_claim_frequency_independent_of_theta_and_distance(model):
         assert v['max_time_domain_error'] < 1e-3
         assert v['min_control_error'] > 5 * v['max_time_domain_error']
         for row in v['rows']:
-            np.testing.assert_allclose(row['xi_scaled_orbit'], sc[region]['rows'][0]['xi_scaled_orbit'], rtol=1e-9)
+            np.testing.assert_allclose(row['xi_scaled_orbit'],
+                                       sc[region]['rows'][0]['xi_scaled_orbit'], rtol=1e-9)
 
 
 def test_static_state_holds_the_requested_windup(model):
@@ -125,7 +129,8 @@ def test_residual_jacobian_and_exact_force_harmonics(model):
     W = 1.07 * s.omega_lin
     r, Ja, rW = s.residual_and_jacobians(a, W)
     eps = 1e-7
-    Jfd = np.array([(s.residual(a + eps * e, W) - s.residual(a - eps * e, W)) / (2 * eps) for e in np.eye(9)]).T
+    Jfd = np.array([(s.residual(a + eps * e, W) - s.residual(a - eps * e, W)) / (2 * eps)
+                    for e in np.eye(9)]).T
     np.testing.assert_allclose(Ja, Jfd, atol=1e-7)
     rWfd = (s.residual(a, W * (1 + 1e-7)) - s.residual(a, W * (1 - 1e-7))) / (2e-7 * W)
     np.testing.assert_allclose(rW, rWfd, atol=1e-9)
@@ -145,7 +150,8 @@ def test_flat_branches_sit_at_subsystem_resonances(model, result):
     assert subs['front'].min() > 100 and subs['rear'].min() < 20
     for fb in result.flat_branches:
         assert fb.harmonic >= 2
-        assert abs(fb.harmonic * fb.frequency_hz - fb.subsystem_frequency_hz) < 0.02 * fb.subsystem_frequency_hz
+        assert (abs(fb.harmonic * fb.frequency_hz - fb.subsystem_frequency_hz)
+                < 0.02 * fb.subsystem_frequency_hz)
         assert abs(fb.harmonic * fb.frequency_hz - fb.resonance_hz) < 0.01 * fb.resonance_hz
     regions = {fb.region for fb in result.flat_branches}
     assert regions == {'primary', 'secondary'}
@@ -169,7 +175,8 @@ def test_coast_knee_and_errors():
 
 def test_cli_writes_csv_json_png(tmp_path, capsys):
     out = tmp_path / 'nnm'
-    assert main(['nnm', '--alpha', '2', '--xi-max', '4', '--harmonics', '12', '--json', '--out', str(out)]) == 0
+    assert main(['nnm', '--alpha', '2', '--xi-max', '4', '--harmonics', '12', '--json',
+                 '--out', str(out)]) == 0
     data = json.loads(capsys.readouterr().out)
     assert data['alpha'] == 2.0 and data['summary']['xi'][0] == 1.0
     fp, fs = data['summary']['primary'], data['summary']['secondary']

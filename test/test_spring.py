@@ -30,7 +30,8 @@ def test_two_step_shorthand_is_the_paper_spring():
     # eq. (3)/(8) with the (dphi - theta) factor: g = alpha k (w - theta) beyond the knee
     assert s.extra_torque(0.34) == pytest.approx(2.0 * K * 0.10)
     assert s.extra_torque(-0.15) == pytest.approx(-1.0 * K * 0.05)
-    assert s.region(0.3) == 'secondary' and s.region(0.0) == 'primary' and s.region(-0.3) == 'coast'
+    assert (s.region(0.3) == 'secondary' and s.region(0.0) == 'primary'
+            and s.region(-0.3) == 'coast')
     assert s.theta == 0.24 and s.alpha == 2.0
 
 
@@ -63,9 +64,11 @@ def test_multi_stage_law_continuous_monotone_energy_and_inverses():
 
 
 def test_stage_validation_one_line_errors():
-    with pytest.raises(ConfigError, match=r'dmf.stages\[1\].angle_rad must be finite and > the previous'):
+    with pytest.raises(ConfigError,
+                       match=r'dmf.stages\[1\].angle_rad must be finite and > the previous'):
         PiecewiseLinearSpring(K, (Stage(0.24, 2.5), Stage(0.20, 3.0)))
-    with pytest.raises(ConfigError, match=r'dmf.coast_stages\[0\].stiffness_factor must be finite and >= 0'):
+    with pytest.raises(ConfigError,
+                       match=r'dmf.coast_stages\[0\].stiffness_factor must be finite and >= 0'):
         PiecewiseLinearSpring(K, (), (Stage(0.1, -2.0),))
     with pytest.raises(ConfigError, match='> 0 rad'):
         PiecewiseLinearSpring.two_step(K, 0.0, 1.0)
@@ -83,30 +86,35 @@ def test_yaml_stages_and_shorthand_agree():
     d['dmf']['stiffness'] = 10890
     long = driveline_from_dict(d)
     assert long.spring == short.spring
-    d['dmf']['stages'] = [{'angle': 0.24, 'stiffness_factor': 2.5}, {'angle': 0.30, 'stiffness_factor': 5}]
+    d['dmf']['stages'] = [{'angle': 0.24, 'stiffness_factor': 2.5},
+                          {'angle': 0.30, 'stiffness_factor': 5}]
     d['dmf']['coast_stages'] = [{'angle_rad': 0.12, 'stiffness_factor': 1.5}]
     line = driveline_from_dict(d)
     assert line.spring.knees.tolist() == [-0.12, 0.24, 0.30]
     # the (alpha, theta) shorthand acts on the first drive stage
     line2 = line.with_dmf(alpha=3.0, theta=0.22)
-    assert [(s.angle_rad, s.stiffness_factor) for s in line2.dmf.stages] == [(0.22, 3.0), (0.30, 5.0)]
+    assert ([(s.angle_rad, s.stiffness_factor) for s in line2.dmf.stages]
+            == [(0.22, 3.0), (0.30, 5.0)])
     assert line2.dmf.coast_stages == line.dmf.coast_stages
     line3 = line.with_dmf(k=12000.0, damping=10.0)
     assert line3.spring.k == 12000.0 and line3.dmf_element.damping == 10.0
 
 
 @pytest.mark.parametrize('mutate, message', [
-    (lambda d: d.update(stages=[{'angle_rad': 0.2, 'stiffness_factor': 1}]), "either 'stages' or the shorthand"),
+    (lambda d: d.update(stages=[{'angle_rad': 0.2, 'stiffness_factor': 1}]),
+     "either 'stages' or the shorthand"),
     (lambda d: (d.pop('theta_rad'), d.pop('alpha'), d.update(stages=[{'angle_rad': 0.2}])),
      "missing key 'stiffness_factor'"),
     (lambda d: (d.pop('theta_rad'), d.pop('alpha'), d.update(stages={'a': 1})), 'expected a list'),
     (lambda d: d.update(stiffness=12000), "differs from the stiffness 10890"),
     (lambda d: (d.pop('alpha'), d.pop('theta_rad')), "missing key 'stages'"),
     (lambda d: d.pop('alpha'), "missing key 'alpha'"),
-    (lambda d: d.update(coast={'theta_rad': 0.1, 'alpha': 1}, coast_stages=[]), "either 'coast_stages'"),
+    (lambda d: d.update(coast={'theta_rad': 0.1, 'alpha': 1}, coast_stages=[]),
+     "either 'coast_stages'"),
     (lambda d: (d.pop('theta_rad'), d.pop('alpha'),
                 d.update(stages=[{'angle_rad': 0.3, 'stiffness_factor': 1},
-                                 {'angle_rad': 0.2, 'stiffness_factor': 1}])), 'stages[1].angle_rad'),
+                                 {'angle_rad': 0.2, 'stiffness_factor': 1}])),
+     'stages[1].angle_rad'),
 ])
 def test_bad_dmf_yaml_one_line(mutate, message):
     d = _raw()

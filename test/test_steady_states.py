@@ -119,7 +119,8 @@ def test_poincare_labels():
     scale = np.array([1.0, 1.0])
     k = np.arange(150)
     period3 = np.column_stack([np.cos(2 * np.pi * k / 3), np.sin(2 * np.pi * k / 3)])
-    assert classify_section(period3 + 1e-7 * rng.standard_normal(period3.shape), scale) == ('periodic', 3)
+    assert (classify_section(period3 + 1e-7 * rng.standard_normal(period3.shape), scale)
+            == ('periodic', 3))
     rot = 2 * np.pi * (np.sqrt(5) - 1) / 2
     circle = np.column_stack([np.cos(rot * k), 0.5 * np.sin(rot * k)])
     assert classify_section(circle, scale)[0] == 'quasi-periodic'
@@ -138,7 +139,8 @@ def test_low_damping_sweep_completes_and_covers_the_range():
     assert res.uncovered == []
     grid = np.arange(600.0, 1201.0, 10.0)
     covered = [any(min(p.speed_rpm, q.speed_rpm) <= s <= max(p.speed_rpm, q.speed_rpm)
-                   for b in res.branches for p, q in zip(b.points[:-1], b.points[1:])) for s in grid]
+                   for b in res.branches for p, q in zip(b.points[:-1], b.points[1:]))
+               for s in grid]
     assert all(covered)
     assert res.stable_states_at(1050.0) >= 1
 

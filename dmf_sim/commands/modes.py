@@ -24,8 +24,9 @@ def add_arguments(p) -> None:
     p.add_argument('--theta', type=float, help='DMF stiffness change angle [rad]')
     p.add_argument('--region',
                    help="DMF spring stage whose stiffness is used: 'primary' (k), 'secondary' "
-                        "(k(1+alpha), the first drive stage), 'drive stage 2', 'coast', ... as the "
-                        'spring has them; default secondary when --alpha is given, else primary')
+                        "(k(1+alpha), the first drive stage), 'drive stage 2', 'coast', ... as "
+                        'the spring has them; default secondary when --alpha is given, '
+                        'else primary')
     p.add_argument('--modes', type=int, default=8,
                    help='number of modes listed, 1..number of DOFs (default 8)')
     p.add_argument('--json', action='store_true',

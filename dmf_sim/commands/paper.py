@@ -118,7 +118,8 @@ def write_figures(r, out: Path) -> dict[str, str]:
                 'peak at 720 rpm ... for lower damping")'), out / 'fig13_damping.png')
     files['fig14.png'] = save(nnm_figure(r.nnm, xi_max=s.nnm_xi_max), out / 'fig14.png')
     panels = [(panel_title(s.fig15_alpha, r.theta, ls, 1.0),
-               sweep_curves(r.sweeps[(s.fig15_alpha, ls)]), sweep_bands(r.sweeps[(s.fig15_alpha, ls)]))
+               sweep_curves(r.sweeps[(s.fig15_alpha, ls)]),
+               sweep_bands(r.sweeps[(s.fig15_alpha, ls)]))
               for ls in s.load_sets]
     files['fig15.png'] = save(windup_figure(panels, f'DMF wind-up over engine speed, α = '
                                                     f'{s.fig15_alpha:g}, Loads '

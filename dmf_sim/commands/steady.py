@@ -18,10 +18,13 @@ LIMITS = {'samples': (0, 10000), 'harmonics': (6, 60), 'window': (1.0, 300.0),
 def add_arguments(p) -> None:
     p.add_argument('--speed', type=float, required=True, help='engine speed [rpm]')
     p.add_argument('--load', type=float, default=1.0, help='load fraction 0..1 (default 1)')
-    p.add_argument('--config', default='truck_dmf', help='driveline YAML name or path (default truck_dmf)')
-    p.add_argument('--engine', default='engine_d13', help='engine YAML or A_n table (default engine_d13)')
+    p.add_argument('--config', default='truck_dmf',
+                   help='driveline YAML name or path (default truck_dmf)')
+    p.add_argument('--engine', default='engine_d13',
+                   help='engine YAML or A_n table (default engine_d13)')
     p.add_argument('--load-set', default='A', help='load set A/B/C (default A)')
-    p.add_argument('--alpha', type=float, help='first drive stage stiffness factor (default: the YAML)')
+    p.add_argument('--alpha', type=float,
+                   help='first drive stage stiffness factor (default: the YAML)')
     p.add_argument('--theta', type=float, help='first drive stage angle [rad] (default: the YAML)')
     p.add_argument('--samples', type=int, default=200,
                    help='random initial states for the basin estimate (default 200; 0 = none)')
@@ -29,9 +32,11 @@ def add_arguments(p) -> None:
                    help='half-range A [rad] of the random wind-up offsets (default: twice the '
                         'largest 3rd-order amplitude, at least 0.02 rad)')
     p.add_argument('--seed', type=int, default=0, help='random generator seed (default 0)')
-    p.add_argument('--max-cycles', type=int, default=200, help='engine cycles per basin run (default 200)')
+    p.add_argument('--max-cycles', type=int, default=200,
+                   help='engine cycles per basin run (default 200)')
     p.add_argument('--window', type=float, default=30.0,
-                   help='half-width [rpm] of the speed window the search continues over (default 30)')
+                   help='half-width [rpm] of the speed window the search continues over '
+                        '(default 30)')
     p.add_argument('--harmonics', type=int, default=24, help='half-orders kept, H (default 24)')
     p.add_argument('--no-progress', action='store_true', help='no progress bar on stderr')
     p.add_argument('--json', action='store_true', help='print one JSON object to stdout')
@@ -41,7 +46,8 @@ def _check(args) -> None:
     for name, (lo, hi) in LIMITS.items():
         value = getattr(args, name)
         if value is not None and not lo <= value <= hi:
-            raise ConfigError(f'--{name.replace("_", "-")} {value!r}: allowed range {lo:g}..{hi:g}')
+            raise ConfigError(f'--{name.replace("_", "-")} {value!r}: '
+                              f'allowed range {lo:g}..{hi:g}')
     if not 0.0 <= args.load <= 1.0:
         raise ConfigError(f'--load {args.load!r}: allowed range 0..1')
 
@@ -70,7 +76,8 @@ def run(args) -> int:
     if args.json:
         print(json.dumps(data))
         return 0
-    print(f'{line.name}, {args.engine} Load {args.load_set}: {args.speed:g} rpm, load {args.load:g}, '
+    print(f'{line.name}, {args.engine} Load {args.load_set}: {args.speed:g} rpm, '
+          f'load {args.load:g}, '
           f'alpha {line.spring.alpha:g}, theta {line.spring.theta:g} rad ({res.seconds:.1f} s); '
           'wind-up in mrad')
     print(f'{"state":>11} {"stable":>6} {"twins":>5} {"3rd":>7} {"1.5th":>7} {"max dev":>8} '
@@ -82,15 +89,17 @@ def run(args) -> int:
             d = st.as_dict(res.samples)['basin']
             basin = f'{d["share"]:5.1%} [{d["ci95"][0]:.1%}, {d["ci95"][1]:.1%}]'
         print(f'{st.kind:>11} {str(p.stable):>6} {st.multiplicity:5d} {s.order_3 * 1e3:7.2f} '
-              f'{s.order_1_5 * 1e3:7.2f} {s.max_deviation * 1e3:8.2f} {s.min_deviation * 1e3:8.2f} '
-              f'{s.mean_minus_theta * 1e3:8.2f}  {basin}')
+              f'{s.order_1_5 * 1e3:7.2f} {s.max_deviation * 1e3:8.2f} '
+              f'{s.min_deviation * 1e3:8.2f} {s.mean_minus_theta * 1e3:8.2f}  {basin}')
     if res.samples:
-        print(f'basin: {res.samples} runs from wind-up offsets within +-{res.amplitude_rad * 1e3:.1f} mrad '
+        print(f'basin: {res.samples} runs from wind-up offsets '
+              f'within +-{res.amplitude_rad * 1e3:.1f} mrad '
               f'(rates within +-{res.rate_rad_s:.2f} rad/s); {res.unsettled} did not settle')
     for r in res.non_periodic:
         print(f'no stable periodic state: {r.label}; wind-up {r.mean * 1e3:.1f} mrad '
               f'{r.max_deviation * 1e3:+.1f}/{r.min_deviation * 1e3:+.1f} mrad, '
-              f'3rd order {r.order_3 * 1e3:.2f}, 1.5th {r.order_1_5 * 1e3:.2f} mrad (time integration)')
+              f'3rd order {r.order_3 * 1e3:.2f}, 1.5th {r.order_1_5 * 1e3:.2f} mrad '
+              '(time integration)')
     if not res.stable:
         print('no stable periodic steady state at this operating point')
     return 0

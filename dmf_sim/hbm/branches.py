@@ -34,7 +34,7 @@ class BranchSwitching:
     (it uses the sweep's ``hbm``, ``options``, ``floquet``, ``branches``, ``events``, ``_trace``
     and ``_events``)."""
 
-    # ---- is a solution already on a branch? --------------------------------------------------------
+    # ---- is a solution already on a branch? -----------------------------------------------------
     def _amplitudes(self, x: np.ndarray) -> np.ndarray:
         return amplitudes(x, self.hbm.H)
 
@@ -44,7 +44,8 @@ class BranchSwitching:
         S = np.array([q.speed_rpm for q in b.points])
         a0 = self._amplitudes(x)
         if len(S) == 1:
-            return float(np.abs(a0 - self._amplitudes(b.points[0].x)).max()) if abs(S[0] - s) < 1e-9 else np.inf
+            return (float(np.abs(a0 - self._amplitudes(b.points[0].x)).max())
+                    if abs(S[0] - s) < 1e-9 else np.inf)
         a, c = S[:-1], S[1:]
         idx = np.flatnonzero((np.minimum(a, c) - 1e-9 <= s) & (s <= np.maximum(a, c) + 1e-9))
         if len(idx) == 0:
@@ -69,7 +70,7 @@ class BranchSwitching:
             return None
         return None if self._known(q, self._novelty_tol(q)) else q
 
-    # ---- seeds -------------------------------------------------------------------------------------
+    # ---- seeds ----------------------------------------------------------------------------------
     def _sub_part(self, c: np.ndarray) -> np.ndarray:
         return sub_part(c, self.hbm.H)
 
@@ -84,13 +85,14 @@ class BranchSwitching:
             for sign in (1.0, -1.0):
                 q = self._try(p.speed_rpm, p.x + sign * a * scale * d)
                 if q is not None:
-                    return q, (f'branch switching at {p.speed_rpm:.1f} rpm: Newton from the unstable solution '
-                               f'+ its sub-harmonic Floquet eigen-solution (multiplier {mc.multiplier.real:+.3f})')
+                    return q, (f'branch switching at {p.speed_rpm:.1f} rpm: Newton from the '
+                               f'unstable solution + its sub-harmonic Floquet eigen-solution '
+                               f'(multiplier {mc.multiplier.real:+.3f})')
         if self.options.newmark_seed:
             q = self._newmark_seed(p, d)
             if q is not None:
-                return q, (f'branch switching at {p.speed_rpm:.1f} rpm: Newmark from the perturbed '
-                           f'unstable solution, then Newton')
+                return q, (f'branch switching at {p.speed_rpm:.1f} rpm: Newmark from the '
+                           f'perturbed unstable solution, then Newton')
         return None, ''
 
     def _hump_seeds(self, p: HBMPoint) -> tuple[HBMPoint | None, str]:
@@ -100,11 +102,13 @@ class BranchSwitching:
                         ('n = 3 mod 6 harmonics set to the forced response', p.x - sub + forced)):
             q = self._try(p.speed_rpm, x0)
             if q is not None:
-                return q, f'branch switching at {p.speed_rpm:.1f} rpm from the 1.5th-order hump: {how}'
+                return q, (f'branch switching at {p.speed_rpm:.1f} rpm '
+                           f'from the 1.5th-order hump: {how}')
         return None, ''
 
     def _newmark_seed(self, p: HBMPoint, direction: np.ndarray) -> HBMPoint | None:
-        """Time integration from the perturbed (unstable) solution, then Newton from the attractor."""
+        """Time integration from the perturbed (unstable) solution, then Newton from the
+        attractor."""
         H = self.hbm.H
         _, _, u, _ = self.hbm.linear_parts_direct(p.speed_rpm)
         c = to_complex(direction, H)
@@ -117,7 +121,7 @@ class BranchSwitching:
             return None
         return self._try(p.speed_rpm, to_real(res.windup_orders[:H + 1], H))
 
-    # ---- following a new branch ----------------------------------------------------------------------
+    # ---- following a new branch -----------------------------------------------------------------
     def _follow(self, seed: HBMPoint, origin: str, bar) -> Branch:
         bid = len(self.branches)
         x_start, s_start = seed.x.copy(), seed.speed_rpm
@@ -155,7 +159,7 @@ class BranchSwitching:
             origin += ' (closed branch)'
         else:
             down = self._trace(seed.x, s_start, -1.0, bid, 'subharmonic', bar, stop)
-            for q in down:                     # reversed list: the arc parameter runs the other way
+            for q in down:  # reversed list: the arc parameter runs the other way
                 q.tangent_speed = -q.tangent_speed
             pts = down[::-1] + up[1:]
         kind = 'subharmonic' if self._humps(pts) else 'harmonic'
@@ -196,7 +200,8 @@ class BranchSwitching:
             self._scan(bar)
 
     def _scan(self, bar) -> None:
-        """Seed n = 3 perturbations where the main branch comes near the knee (isolated branches)."""
+        """Seed n = 3 perturbations where the main branch comes near the knee (isolated
+        branches)."""
         o = self.options
         theta = self.hbm.spring.theta
         H = self.hbm.H
@@ -217,11 +222,11 @@ class BranchSwitching:
                 c = np.zeros(H + 1, dtype=complex)
                 c[3] = 2.0 * scale * np.exp(1j * phase)
                 q = self._try(p.speed_rpm, p.x + to_real(c, H))
-                if q is not None and q.subharmonic_amplitude() > max(o.ratio_1_5 * p.subharmonic_amplitude(),
-                                                                     o.min_subharmonic):
+                if q is not None and q.subharmonic_amplitude() > max(
+                        o.ratio_1_5 * p.subharmonic_amplitude(), o.min_subharmonic):
                     found = q
                     break
             if found is not None:
-                self._follow(found, f'n = 3 seed at {p.speed_rpm:.0f} rpm (search for a branch not '
-                                    'connected to the main one)', bar)
+                self._follow(found, f'n = 3 seed at {p.speed_rpm:.0f} rpm (search for a branch '
+                                    'not connected to the main one)', bar)
 

@@ -8,12 +8,13 @@ with ``e`` the wind-up row (w = e q, positive when the engine drives) and ``g(w)
 of the DMF spring (dmf_sim.spring). The base frequency is omega/2: one 720 deg engine cycle, so
 half-orders (the 1.5th order, n = 3) are representable. A periodic steady state is written
 
-    w(psi) = Re( sum_{n=0}^{H} w_n exp(i n psi/2) ),   g(w(psi)) ~ Re( sum_{n=0}^{H} g_n exp(i n psi/2) )
+    w(psi) = Re( sum_{n=0}^{H} w_n exp(i n psi/2) ),
+    g(w(psi)) ~ Re( sum_{n=0}^{H} g_n exp(i n psi/2) )
 
 (eq. 9: the non-linear torque tau of the paper is e g, truncated to the same H harmonics).
 
-Condensation (the paper's split at the non-linear element, eq. 10-14). Balancing each harmonic of the
-linear chain with the non-linear torque as an extra load (eq. 10-13) gives
+Condensation (the paper's split at the non-linear element, eq. 10-14). Balancing each harmonic of
+the linear chain with the non-linear torque as an extra load (eq. 10-13) gives
 
     q_n = H_n (P_n - e g_n),        H_n = (K - Om_n^2 J + i Om_n C)^-1,   Om_n = n omega / 2
 
@@ -143,7 +144,8 @@ class HBMPoint:
         return self.summary.order_1_5
 
     def subharmonic_amplitude(self) -> float:
-        """rms of the n = 3, 9, 15, 21 wind-up harmonics [rad] (zero on a 120-deg-periodic state)."""
+        """rms of the n = 3, 9, 15, 21 wind-up harmonics [rad] (zero on a 120-deg-periodic
+        state)."""
         c = self.windup_orders
         return float(np.sqrt(np.sum(np.abs(c[[n for n in SUB_HARMONICS if n < len(c)]]) ** 2)))
 
@@ -176,20 +178,23 @@ class CondensedHBM:
         self.options = options or HBMOptions()
         self.model = loads.model
         if self.model.spring is None:
-            raise ConfigError(f'driveline {self.model.line.name!r} has no dmf section: nothing to condense on')
+            raise ConfigError(f'driveline {self.model.line.name!r} has no dmf section: '
+                              'nothing to condense on')
         self.spring = self.model.spring
         self.H = H = int(self.options.n_harmonics)
         if H < 1:
             raise ConfigError(f'n_harmonics={H}: must be >= 1')
         self.M = M = self.options.time_samples()
         if M < 2 * H + 2:
-            raise ConfigError(f'n_time={M}: needs at least 2 (n_harmonics + 1) = {2 * H + 2} samples')
+            raise ConfigError(f'n_time={M}: needs at least 2 (n_harmonics + 1) = '
+                              f'{2 * H + 2} samples')
         # AFT matrices on the base angle phi_j = psi_j / 2 = 2 pi j / M (one 720 deg cycle):
         #   w_j = E x        (E = [1, cos n phi_j, -sin n phi_j])
         #   G   = F g_j      (F = W E^T: mean and 2/M-weighted Fourier sums)
         self.phi = 2.0 * np.pi * np.arange(M) / M
         n = np.arange(1, H + 1)
-        self.E = np.hstack([np.ones((M, 1)), np.cos(np.outer(self.phi, n)), -np.sin(np.outer(self.phi, n))])
+        self.E = np.hstack([np.ones((M, 1)), np.cos(np.outer(self.phi, n)),
+                            -np.sin(np.outer(self.phi, n))])
         weights = np.full(2 * H + 1, 2.0 / M)
         weights[0] = 1.0 / M
         self.F = weights[:, None] * self.E.T
@@ -198,10 +203,11 @@ class CondensedHBM:
         self._u0 = solve_static(m, m.e.astype(float))
         self._h0 = float(m.e @ self._u0)
         # Receptances of the flexible chain by its complex modes (computed once per model):
-        # with the J-orthonormal flexible modes Phi, the first-order matrix A = [[0, I], [-Lam, -Cr]]
-        # = V diag(d) V^-1, and for Om > 0
+        # with the J-orthonormal flexible modes Phi, the first-order matrix
+        # A = [[0, I], [-Lam, -Cr]] = V diag(d) V^-1, and for Om > 0
         #     e.H(Om) f = sum_k (e.Phi V_top)_k (V^-1_bottom Phi^T f)_k / (i Om - d_k).
-        # The rigid-body part of H(Om) (-r r^T / (Om^2 r.J r)) does not reach the wind-up (e.r = 0).
+        # The rigid-body part of H(Om) (-r r^T / (Om^2 r.J r)) does not reach the wind-up
+        # (e.r = 0).
         self.modes = FlexibleModes(m)
         d, V, Vinv = self.modes.eig(0.0)
         self._d = d
@@ -222,7 +228,8 @@ class CondensedHBM:
         return P
 
     def linear_parts(self, speed_rpm: float) -> LinearParts:
-        """h_n, wlin_n and their speed derivatives at ``speed_rpm`` (a few most recent are cached)."""
+        """h_n, wlin_n and their speed derivatives at ``speed_rpm`` (a few most recent are
+        cached)."""
         key = float(speed_rpm)
         lp = self._cache.get(key)
         if lp is not None:
@@ -230,7 +237,8 @@ class CondensedHBM:
         H = self.H
         omega = key * RPM_TO_RAD_S
         P = self.dof_loads(key)
-        # engine load derivative by a forward difference (backward at the top of the engine's range)
+        # engine load derivative by a forward difference (backward at the top of the engine's
+        # range)
         ds = self.options.speed_fd_rpm
         if key + ds > self._speed_range()[1]:
             ds = -ds
@@ -245,7 +253,8 @@ class CondensedHBM:
         dh = np.zeros(H + 1, dtype=complex)
         dw = np.empty(H + 1, dtype=complex)
         h[0] = self._h0                                          # static: e.K^+ e
-        wlin[0] = self._u0 @ P[0].real                           # static: e.K^+ P_0 (rigid mode removed)
+        # static: e.K^+ P_0 (rigid mode removed)
+        wlin[0] = self._u0 @ P[0].real
         dw[0] = self._u0 @ dP[0].real
         h[1:] = pole @ self._a
         wlin[1:] = (Q * pole) @ self._ell
@@ -260,7 +269,8 @@ class CondensedHBM:
 
     def linear_response(self, speeds_rpm) -> np.ndarray:
         """(K, H+1) complex linear wind-up harmonics wlin_n at K speeds at once (same modal
-        receptances as :meth:`linear_parts`): the solution wherever the wind-up stays below the knee."""
+        receptances as :meth:`linear_parts`): the solution wherever the wind-up stays below the
+        knee."""
         speeds = np.atleast_1d(np.asarray(speeds_rpm, dtype=float))
         P = np.stack([self.dof_loads(s) for s in speeds])                       # (K, H+1, n_dof)
         Om = np.outer(speeds * (RPM_TO_RAD_S / 2.0), np.arange(1, self.H + 1))  # (K, H)
@@ -282,9 +292,11 @@ class CondensedHBM:
             wlin0 = float(self.linear_parts(speed_rpm).wlin[0].real)
         return self.spring.solve_condensed(float(wlin0), self._h0)
 
-    def linear_parts_direct(self, speed_rpm: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """(h, wlin, u, v) by direct complex solves Z_n [u_n, v_n] = [e, P_n] (harmonic.solve_harmonic);
-        u_n = H_n e, v_n = H_n P_n are DOF vectors (H+1, n_dof). Used for recovery and as a check."""
+    def linear_parts_direct(self, speed_rpm: float
+                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(h, wlin, u, v) by direct complex solves Z_n [u_n, v_n] = [e, P_n]
+        (harmonic.solve_harmonic); u_n = H_n e, v_n = H_n P_n are DOF vectors (H+1, n_dof). Used
+        for recovery and as a check."""
         m = self.model
         P = self.dof_loads(speed_rpm)
         omega = float(speed_rpm) * RPM_TO_RAD_S
@@ -381,7 +393,8 @@ class CondensedHBM:
             x, r, Jx, nr = xn, rn, Jn, nn
         if nr <= self.options.tol:
             return x, self.options.max_iter, nr
-        raise ConvergenceError(f'HBM Newton: residual {nr:.2e} rad after {self.options.max_iter} iterations '
+        raise ConvergenceError(f'HBM Newton: residual {nr:.2e} rad after '
+                               f'{self.options.max_iter} iterations '
                                f'at {lp.speed_rpm:.1f} rpm')
 
     def make_point(self, speed_rpm: float, x: np.ndarray, residual: float = 0.0,
@@ -392,9 +405,10 @@ class CondensedHBM:
         c = to_complex(x, self.H)
         w = self.time_series(x, 1024) if samples is None else samples
         summ = summarize_orders(c, w, self.spring.theta, self.static_windup(speed_rpm, wlin0))
-        return HBMPoint(float(speed_rpm), np.array(x, dtype=float), c, summ, float(residual), int(iterations))
+        return HBMPoint(float(speed_rpm), np.array(x, dtype=float), c, summ, float(residual),
+                        int(iterations))
 
-    # ---- recovery of the whole driveline ---------------------------------------------------------
+    # ---- recovery of the whole driveline --------------------------------------------------------
     def time_series(self, x: np.ndarray, n_samples: int = 512) -> np.ndarray:
         """w(psi) on ``n_samples`` uniform points of one cycle (psi = 0 .. 4 pi) [rad]."""
         return synthesize(to_complex(x, self.H), n_samples)
@@ -426,7 +440,8 @@ class CondensedHBM:
         return m.transmitted_torques(qn, 1j * Om * qn, -(Om ** 2) * qn, p, extra_torque=g)
 
     def dof_state(self, point: HBMPoint, psi: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
-        """DOF angles q [rad] and velocities q' [rad/s] at crank angle psi (e.g. to start Newmark)."""
+        """DOF angles q [rad] and velocities q' [rad/s] at crank angle psi (e.g. to start
+        Newmark)."""
         qn = self.dof_harmonics(point)
         n = np.arange(self.H + 1)
         z = np.exp(1j * n * psi / 2.0)
@@ -435,7 +450,7 @@ class CondensedHBM:
         v = np.real((1j * n * omega / 2.0 * z) @ qn)
         return q, v
 
-    # ---- interface for the continuation (continuation.ContinuationProblem) ------------------------
+    # ---- interface for the continuation (continuation.ContinuationProblem) ----------------------
     def residual_and_jacobians(self, x: np.ndarray, speed_rpm: float):
         """(r, dr/dx, dr/ds) at wind-up harmonics x and speed [rpm]."""
         lp = self.linear_parts(speed_rpm)

@@ -53,7 +53,8 @@ class DeflatedNewton:
         coef = -o.power * dist2 ** (-0.5 * o.power - 1.0) / (m * o.scale)
         return float(np.log(m).sum()), coef @ d
 
-    def solve(self, lp: LinearParts, x0: np.ndarray, known: np.ndarray) -> tuple[np.ndarray, int, float] | None:
+    def solve(self, lp: LinearParts, x0: np.ndarray, known: np.ndarray
+              ) -> tuple[np.ndarray, int, float] | None:
         """Solution (x, iterations, max|r|) reached from ``x0`` avoiding the rows of ``known``,
         or None if Newton does not converge."""
         hb, o = self.hbm, self.options

@@ -7,7 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
-SUB_HARMONICS = (3, 9, 15, 21)   # half-orders n = 3 mod 6: the 1.5th-order family (1.5, 4.5, 7.5, 10.5)
+# half-orders n = 3 mod 6: the 1.5th-order family (1.5, 4.5, 7.5, 10.5)
+SUB_HARMONICS = (3, 9, 15, 21)
 
 
 def to_complex(x: np.ndarray, H: int) -> np.ndarray:

@@ -1,4 +1,5 @@
-"""Results of harmonic balance speed sweeps: branches of steady states, events, the sweep result."""
+"""Results of harmonic balance speed sweeps: branches of steady states, events, the sweep
+result."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -33,7 +34,8 @@ class Branch:
     multiplicity: int = 1
 
     def column(self, name: str) -> np.ndarray:
-        """One quantity of every point: a summary field, 'speed_rpm', 'stable' or 'max_multiplier'."""
+        """One quantity of every point: a summary field, 'speed_rpm', 'stable' or
+        'max_multiplier'."""
         if name in ('speed_rpm', 'stable', 'max_multiplier'):
             return np.array([getattr(p, name) for p in self.points], dtype=float)
         return np.array([getattr(p.summary, name) for p in self.points], dtype=float)
@@ -56,15 +58,16 @@ class SweepEvent:
     detail: str = ''
 
     def as_dict(self) -> dict:
-        return {'kind': self.kind, 'branch': self.branch, 'speed_rpm': float(self.speed_rpm), 'detail': self.detail}
+        return {'kind': self.kind, 'branch': self.branch, 'speed_rpm': float(self.speed_rpm),
+                'detail': self.detail}
 
 
 @dataclass
 class NonPeriodicBand:
     """Neighbouring speeds [rpm] where no periodic state is stable: what time integration shows
-    there (``results``: dmf_sim.nonperiodic.NonPeriodicResult per speed), ``label`` (quasi-periodic,
-    chaotic, long transient, periodic of k cycles) and how the periodic solution lost stability
-    (``instability``: torus, flip, fold, subharmonic)."""
+    there (``results``: dmf_sim.nonperiodic.NonPeriodicResult per speed), ``label``
+    (quasi-periodic, chaotic, long transient, periodic of k cycles) and how the periodic solution
+    lost stability (``instability``: torus, flip, fold, subharmonic)."""
 
     speed_min_rpm: float
     speed_max_rpm: float
@@ -83,7 +86,8 @@ class NonPeriodicBand:
         return out
 
     def as_dict(self) -> dict:
-        return {'speed_min_rpm': float(self.speed_min_rpm), 'speed_max_rpm': float(self.speed_max_rpm),
+        return {'speed_min_rpm': float(self.speed_min_rpm),
+                'speed_max_rpm': float(self.speed_max_rpm),
                 'label': self.label, 'instability': self.instability,
                 'envelope': [r.as_dict() for r in self.results]}
 
@@ -169,7 +173,8 @@ class SweepResult:
                     sol.forced_order_1_5 = float(abs(self.hbm.linear_parts(s).wlin[3]))
                     if self.floquet is not None:
                         fr = self.floquet.analyze(sol.windup_orders, s)
-                        sol.stable, sol.multipliers, sol.max_multiplier = fr.stable, fr.multipliers, fr.max_abs
+                        sol.stable, sol.multipliers, sol.max_multiplier = (
+                            fr.stable, fr.multipliers, fr.max_abs)
                 H = (len(sol.x) - 1) // 2
                 tol = 1e-6 + 1e-4 * np.abs(sol.x).max()
                 if all(np.abs(amplitudes(sol.x, H) - amplitudes(o.x, H)).max() > tol for o in out):
@@ -190,7 +195,8 @@ class SweepResult:
                 st = [q.speed_rpm for q in run if q.stable]
                 out.append({'branch': b.id, 'branch_kind': b.kind,
                             'speed_min_rpm': float(s.min()), 'speed_max_rpm': float(s.max()),
-                            'peak_order_1_5_rad': float(run[k].order_1_5), 'peak_speed_rpm': float(s[k]),
+                            'peak_order_1_5_rad': float(run[k].order_1_5),
+                            'peak_speed_rpm': float(s[k]),
                             'order_3_at_peak_rad': float(run[k].order_3),
                             'peak_stable': None if run[k].stable is None else bool(run[k].stable),
                             'stable_speed_min_rpm': float(min(st)) if st else None,
@@ -199,11 +205,14 @@ class SweepResult:
         return out
 
     def as_dict(self) -> dict:
-        return {'label': self.label, 'alpha': self.alpha, 'theta_rad': self.theta, 'load': self.load,
+        return {'label': self.label, 'alpha': self.alpha, 'theta_rad': self.theta,
+                'load': self.load,
                 'speed_range_rpm': list(self.speed_range), 'n_harmonics': self.n_harmonics,
                 'seconds': self.seconds, 'n_points': self.n_points,
-                'branches': [{'id': b.id, 'kind': b.kind, 'origin': b.origin, 'n_points': len(b.points),
-                              'speed_range_rpm': list(b.speed_range), 'multiplicity': b.multiplicity}
+                'branches': [{'id': b.id, 'kind': b.kind, 'origin': b.origin,
+                              'n_points': len(b.points),
+                              'speed_range_rpm': list(b.speed_range),
+                              'multiplicity': b.multiplicity}
                              for b in self.branches],
                 'subharmonic': self.subharmonic_summary(), 'search': self.search,
                 'non_periodic': [b.as_dict() for b in self.non_periodic],

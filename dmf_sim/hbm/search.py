@@ -89,7 +89,7 @@ class StateSearch:
     ``hbm``, ``options``, ``floquet``, ``branches``, ``events``, ``range``, ``_point``,
     ``_follow``, ``_known``, ``_novelty_tol`` and ``_trace``)."""
 
-    # ---- known states at one speed ----------------------------------------------------------------
+    # ---- known states at one speed --------------------------------------------------------------
     def states_at(self, s: float) -> list[tuple[np.ndarray, bool | None]]:
         """(x, stable) of every branch at speed s (interpolated between computed points)."""
         return [st for b in self.branches for st in _interp_states(b, s)]
@@ -110,10 +110,11 @@ class StateSearch:
         knees = self.hbm.spring.knees
         if len(knees) == 0:
             return np.inf
-        gaps = np.where(knees > w.max(), knees - w.max(), np.where(knees < w.min(), w.min() - knees, 0.0))
+        gaps = np.where(knees > w.max(), knees - w.max(),
+                        np.where(knees < w.min(), w.min() - knees, 0.0))
         return float(gaps.min())
 
-    # ---- seeds ------------------------------------------------------------------------------------
+    # ---- seeds ----------------------------------------------------------------------------------
     def _seeds(self, x: np.ndarray) -> list[tuple[str, np.ndarray]]:
         H = self.hbm.H
         c = to_complex(x, H)
@@ -123,7 +124,8 @@ class StateSearch:
             for ph in self.search.phases:
                 d = np.zeros(H + 1, dtype=complex)
                 d[3] = a * ref * np.exp(1j * ph)
-                out.append((f'n = 3 seed {a:g} x {ref * 1e3:.1f} mrad, phase {np.degrees(ph):.0f} deg',
+                out.append((f'n = 3 seed {a:g} x {ref * 1e3:.1f} mrad, '
+                            f'phase {np.degrees(ph):.0f} deg',
                             x + to_real(d, H)))
         if H >= 6:
             for f in self.search.scale_3rd:
@@ -160,7 +162,7 @@ class StateSearch:
         return new
         return new
 
-    # ---- Newmark where no stable state is known ---------------------------------------------------
+    # ---- Newmark where no stable state is known -------------------------------------------------
     def _shot(self, s: float, x: np.ndarray, bar) -> bool:
         """A Newmark shot from the (unstable) state x perturbed; True if it led to a new branch."""
         hb = self.hbm
@@ -169,7 +171,8 @@ class StateSearch:
         u = hb.model.e / float(hb.model.e @ hb.model.e)
         q = q + 0.05 * max(p.order_3, 1e-3) * u
         try:
-            res = simulate(hb.loads, s, hb.load, initial=(q, v), max_cycles=self.search.shot_cycles)
+            res = simulate(hb.loads, s, hb.load, initial=(q, v),
+                           max_cycles=self.search.shot_cycles)
         except OperatingRangeError:
             return False
         if not res.steady or res.windup_orders is None:
@@ -183,8 +186,8 @@ class StateSearch:
             return False
         if self._known(found, self._novelty_tol(found)):
             return False
-        self._follow(found, f'Newmark shot at {s:.0f} rpm from the perturbed unstable state, then Newton',
-                     bar)
+        self._follow(found, f'Newmark shot at {s:.0f} rpm from the perturbed unstable state, '
+                            'then Newton', bar)
         return True
 
     def _nonperiodic(self, s: float, x: np.ndarray):
@@ -197,7 +200,7 @@ class StateSearch:
         mc = self.floquet.classify(p.windup_orders, s)
         return res, mc.kind
 
-    # ---- the search -------------------------------------------------------------------------------
+    # ---- the search -----------------------------------------------------------------------------
     @property
     def _new_branches(self) -> int:
         return sum(1 for b in self.branches if b.origin.startswith(('deflated', 'Newmark shot')))
@@ -243,10 +246,12 @@ class StateSearch:
                 continue                              # a periodic state after all (see events)
             results.append((res, kind))
         for res, kind in results:
-            band = next((b for b in self.non_periodic if abs(b.speed_max_rpm - res.speed_rpm) <= step + 1e-6
+            band = next((b for b in self.non_periodic
+                         if abs(b.speed_max_rpm - res.speed_rpm) <= step + 1e-6
                          and b.label == res.label), None)
             if band is None:
-                band = NonPeriodicBand(res.speed_rpm, res.speed_rpm, res.label, kind, [], 0.5 * step)
+                band = NonPeriodicBand(res.speed_rpm, res.speed_rpm, res.label, kind, [],
+                                       0.5 * step)
                 self.non_periodic.append(band)
                 self.events.append(SweepEvent('non_periodic', -1, res.speed_rpm,
                                               f'no stable periodic state: {res.label} '
@@ -262,11 +267,11 @@ class StateSearch:
                 except (ConvergenceError, OperatingRangeError):
                     continue
                 if not self._known(first, self._novelty_tol(first)):
-                    self._follow(first, f'continuation from {s:g} rpm (re-seeded: no branch reached it)',
-                                 bar)
+                    self._follow(first, f'continuation from {s:g} rpm '
+                                        '(re-seeded: no branch reached it)', bar)
         self.uncovered = [float(s) for s in self._uncovered()]
 
-    # ---- twins ------------------------------------------------------------------------------------
+    # ---- twins ----------------------------------------------------------------------------------
     def multiplicity(self, p: HBMPoint) -> int:
         """Number of distinct 120 deg shifts of the state p that are solutions (Newton from each
         shift; 1 for a 120 deg periodic 3rd-order state, 2 for a 1.5th-order state)."""

@@ -1,4 +1,5 @@
-"""Harmonic balance speed sweeps: continuation over engine speed, stability, events (paper Fig. 13/15)."""
+"""Harmonic balance speed sweeps: continuation over engine speed, stability, events
+(paper Fig. 13/15)."""
 from __future__ import annotations
 
 import time
@@ -20,13 +21,14 @@ class SweepOptions:
     """What a sweep does besides following the main branch.
 
     Attributes:
-        step_rpm: output grid (continuation lands on multiples of it where the branch runs along speed).
+        step_rpm: output grid (continuation lands on multiples of it where the branch runs along
+            speed).
         stability: compute Floquet multipliers of every point.
         branch_switching: at a sub-harmonic loss of stability or a 1.5th-order hump, seed and
             follow the other 1.5th-order / 3rd-order branches (see SpeedSweep).
         isola_scan: if no bifurcation leads to one, also try n = 3 seeds where the main branch
-            reaches within ``scan_margin`` x its peak-to-peak of the knee (a branch not connected to
-            the main one), every ``scan_step_rpm``.
+            reaches within ``scan_margin`` x its peak-to-peak of the knee (a branch not connected
+            to the main one), every ``scan_step_rpm``.
         newmark_seed: when Newton seeding fails, integrate in time from the perturbed unstable
             solution and start Newton from the attractor reached (slower).
         min_subharmonic: smallest 1.5th-order wind-up amplitude [rad] that counts as a
@@ -99,7 +101,8 @@ class SpeedSweep(BranchSwitching, StateSearch):
         self.options = options or SweepOptions()
         base = continuation or ContinuationOptions()
         self.cont = ContinuationOptions(**{**base.__dict__, 'grid': self.options.step_rpm,
-                                           's_scale': self.options.step_rpm, 'tol': hbm.options.tol})
+                                           's_scale': self.options.step_rpm,
+                                           'tol': hbm.options.tol})
         self.floquet = FloquetAnalyzer(hbm.model, modes=hbm.modes)
         self.search = self.options.search
         self.events: list[SweepEvent] = []
@@ -108,13 +111,14 @@ class SpeedSweep(BranchSwitching, StateSearch):
         self.uncovered: list[float] = []
         self.range = (0.0, 0.0)
 
-    # ---- one point -------------------------------------------------------------------------------
+    # ---- one point ------------------------------------------------------------------------------
     def _point(self, x: np.ndarray, s: float, branch: int, kind: str, residual=0.0, iterations=0,
                tangent_speed=float('nan')) -> HBMPoint:
         w = self.hbm.time_series(x, self.floquet.n_fine)
         p = self.hbm.make_point(s, x, residual, iterations, samples=w)
         p.branch, p.kind, p.tangent_speed = branch, kind, float(tangent_speed)
-        p.forced_order_1_5 = float(abs(self.hbm.linear_parts(s).wlin[3])) if self.hbm.H >= 3 else 0.0
+        p.forced_order_1_5 = (float(abs(self.hbm.linear_parts(s).wlin[3])) if self.hbm.H >= 3
+                              else 0.0)
         if self.options.stability:
             fr = self.floquet.analyze(p.windup_orders, p.speed_rpm, samples=w)
             p.stable, p.multipliers, p.max_multiplier = fr.stable, fr.multipliers, fr.max_abs
@@ -131,7 +135,8 @@ class SpeedSweep(BranchSwitching, StateSearch):
                 pre.branch, pre.kind = branch, kind
                 pts.append(pre)
             else:
-                pts.append(self._point(cp.x, cp.s, branch, kind, cp.residual, cp.iterations, cp.tangent[-1]))
+                pts.append(self._point(cp.x, cp.s, branch, kind, cp.residual, cp.iterations,
+                                       cp.tangent[-1]))
             bar.advance(cp.s - last[0])
             last[0] = cp.s
 
@@ -141,8 +146,8 @@ class SpeedSweep(BranchSwitching, StateSearch):
                                               'the continuation needed engine speeds outside the '
                                               'engine data: the branch ends here'))
 
-        continue_branch(self.hbm, x0, s0, self.range, direction, self.cont, stop=stop, on_point=on_point,
-                        fast_forward=self._linear_stretch, on_end=on_end)
+        continue_branch(self.hbm, x0, s0, self.range, direction, self.cont, stop=stop,
+                        on_point=on_point, fast_forward=self._linear_stretch, on_end=on_end)
         return pts
 
     def _in_primary(self, w: np.ndarray) -> np.ndarray:
@@ -206,9 +211,9 @@ class SpeedSweep(BranchSwitching, StateSearch):
             last.point.tangent_speed = float(last.tangent[-1])
         return out
 
-    # ---- the sweep -------------------------------------------------------------------------------
-    def run(self, speed_range: tuple[float, float], progress=False, start_x: np.ndarray | None = None,
-            desc: str = 'HBM sweep') -> SweepResult:
+    # ---- the sweep ------------------------------------------------------------------------------
+    def run(self, speed_range: tuple[float, float], progress=False,
+            start_x: np.ndarray | None = None, desc: str = 'HBM sweep') -> SweepResult:
         t0 = time.perf_counter()
         lo, hi = float(speed_range[0]), float(speed_range[1])
         if not hi > lo:
@@ -227,7 +232,8 @@ class SpeedSweep(BranchSwitching, StateSearch):
                 self._events(self.branches[0])
             self._cover(bar)
             if not self.branches:
-                raise ConvergenceError(f'no periodic solution converged anywhere in {lo:g}-{hi:g} rpm')
+                raise ConvergenceError('no periodic solution converged anywhere in '
+                                       f'{lo:g}-{hi:g} rpm')
             if self.options.stability and self.options.branch_switching:
                 bar.note('branch switching')
                 self._switch_branches(bar)
@@ -235,7 +241,8 @@ class SpeedSweep(BranchSwitching, StateSearch):
                 self.full_search(bar)
                 for b in self.branches:
                     if b.kind == 'subharmonic':
-                        b.multiplicity = self.multiplicity(max(b.points, key=lambda q: q.order_1_5))
+                        b.multiplicity = self.multiplicity(max(b.points,
+                                                               key=lambda q: q.order_1_5))
             else:
                 self.uncovered = [float(s) for s in self._uncovered()]
         finally:
@@ -297,7 +304,8 @@ class SpeedSweep(BranchSwitching, StateSearch):
                 return
             bid = len(self.branches)
             down = self._trace(first.x, s0, -1.0, bid, 'main', bar)
-            up = self._trace(first.x, s0, +1.0, bid, 'main', bar) if s0 < self.range[1] - 1e-9 else down[:1]
+            up = (self._trace(first.x, s0, +1.0, bid, 'main', bar) if s0 < self.range[1] - 1e-9
+                  else down[:1])
             for q in down:
                 q.tangent_speed = -q.tangent_speed
             b = Branch(bid, 'main', down[::-1] + up[1:],
@@ -305,7 +313,7 @@ class SpeedSweep(BranchSwitching, StateSearch):
             self.branches.append(b)
             self._events(b)
 
-    # ---- events along a branch -------------------------------------------------------------------
+    # ---- events along a branch ------------------------------------------------------------------
     def _events(self, b: Branch) -> None:
         pts = b.points
         for a, c in zip(pts[:-1], pts[1:]):
@@ -314,16 +322,19 @@ class SpeedSweep(BranchSwitching, StateSearch):
                                               'turning point: solutions coexist on one side'))
             if a.stable is not None and c.stable is not None and a.stable != c.stable:
                 unstable = c if a.stable else a
-                self.events.append(SweepEvent('stability_loss' if a.stable else 'stability_gain', b.id,
-                                              0.5 * (a.speed_rpm + c.speed_rpm), self._instability_kind(unstable)))
+                self.events.append(SweepEvent('stability_loss' if a.stable else 'stability_gain',
+                                              b.id, 0.5 * (a.speed_rpm + c.speed_rpm),
+                                              self._instability_kind(unstable)))
 
     def _instability_kind(self, p: HBMPoint) -> str:
         mc = self.floquet.classify(p.windup_orders, p.speed_rpm)
         return (f'{mc.kind}: multiplier {mc.multiplier.real:+.3f}{mc.multiplier.imag:+.3f}j, '
-                f'dominant half-order n={mc.dominant_n}, n=3 mod 6 share {mc.sub_harmonic_share:.2f}')
+                f'dominant half-order n={mc.dominant_n}, '
+                f'n=3 mod 6 share {mc.sub_harmonic_share:.2f}')
 
 
-def sweep(loads: DrivelineLoads, load: float, speed_range: tuple[float, float] = (600.0, 2000.0), *,
+def sweep(loads: DrivelineLoads, load: float,
+          speed_range: tuple[float, float] = (600.0, 2000.0), *,
           hbm_options: HBMOptions | None = None, options: SweepOptions | None = None,
           continuation=None, progress=False, label: str = '') -> SweepResult:
     """Steady-state wind-up over engine speed by condensed HBM + pseudo-arc-length continuation.
@@ -340,6 +351,7 @@ def sweep(loads: DrivelineLoads, load: float, speed_range: tuple[float, float] =
         label: free text stored in the result (e.g. 'alpha=3 Load A').
     """
     hb = CondensedHBM(loads, load, hbm_options)
-    res = SpeedSweep(hb, options, continuation).run(speed_range, progress=progress, desc=label or 'HBM sweep')
+    res = SpeedSweep(hb, options, continuation).run(speed_range, progress=progress,
+                                                    desc=label or 'HBM sweep')
     res.label = label
     return res

@@ -17,6 +17,7 @@ from dmf_sim.nnm.results import REGIONS, FlatBranch, NNMBranch, NNMOptions, NNMR
 from dmf_sim.nnm.subsystems import clamped_frequencies, static_windup, subsystem_frequencies
 from dmf_sim.nnm.time_domain import integrate_chain, integrate_physical, static_state
 
-__all__ = ['nnm_branches', 'scaling_check', 'ConservativeNNM', 'REGIONS', 'FlatBranch', 'NNMBranch',
-           'NNMOptions', 'NNMResult', 'clamped_frequencies', 'static_windup', 'subsystem_frequencies',
+__all__ = ['nnm_branches', 'scaling_check', 'ConservativeNNM', 'REGIONS', 'FlatBranch',
+           'NNMBranch', 'NNMOptions', 'NNMResult', 'clamped_frequencies', 'static_windup',
+           'subsystem_frequencies',
            'integrate_chain', 'integrate_physical', 'static_state']

@@ -64,21 +64,23 @@ def nnm_branches(model: ReducedModel, *, mode: int = 2, distance: float | None =
                  xi_max: float = 10.0, options: NNMOptions | None = None,
                  regions=REGIONS) -> NNMResult:
     """Both NNM branches of linear mode ``mode``: static wind-up ``distance`` [rad] below the knee
-    ('primary', frequency rises with xi) and above it ('secondary', frequency falls), each continued
-    from xi = 1 to beyond ``xi_max`` (options.xi_stop, default 1.5 xi_max)."""
+    ('primary', frequency rises with xi) and above it ('secondary', frequency falls), each
+    continued from xi = 1 to beyond ``xi_max`` (options.xi_stop, default 1.5 xi_max)."""
     require_dmf(model)
     o = options or NNMOptions()
     xi_stop = o.xi_stop if o.xi_stop is not None else 1.5 * xi_max
     branches = {}
     for region in regions:
-        solver = ConservativeNNM(model, static_windup(model, region, distance), mode=mode, options=o)
+        solver = ConservativeNNM(model, static_windup(model, region, distance), mode=mode,
+                                 options=o)
         branches[region] = solver.branch(xi_stop=xi_stop)
     lin = {}
     for region in REGIONS:
         K = stiffness_matrix(model, region)
         w2 = scipy.linalg.eigh(K, model.J, eigvals_only=True)
         lin[region] = np.sqrt(np.clip(w2, 0.0, None)) / TWO_PI
-    res = NNMResult(driveline=model.line.name, alpha=float(model.spring.alpha), theta=float(model.spring.theta),
+    res = NNMResult(driveline=model.line.name, alpha=float(model.spring.alpha),
+                    theta=float(model.spring.theta),
                     mode=int(mode), branches=branches, linear_frequencies_hz=lin,
                     subsystem_frequencies_hz=subsystem_frequencies(model),
                     clamped_frequencies_hz=clamped_frequencies(model), n_harmonics=o.n_harmonics)
@@ -88,7 +90,8 @@ def nnm_branches(model: ReducedModel, *, mode: int = 2, distance: float | None =
 
 def scaling_check(model: ReducedModel, xi_values=(2.0, 5.0), *,
                   cases=((0.24, 0.5), (0.12, 0.1), (0.5, 0.9), (0.05, 0.3)), mode: int = 2,
-                  options: NNMOptions | None = None, regions=REGIONS, time_domain: bool = True) -> dict:
+                  options: NNMOptions | None = None, regions=REGIONS, time_domain: bool = True
+                  ) -> dict:
     """The paper's scaling claim: for fixed alpha and xi the frequency does not depend on theta nor
     on the static wind-up's distance d to the knee.
 
@@ -96,8 +99,9 @@ def scaling_check(model: ReducedModel, xi_values=(2.0, 5.0), *,
       * frequency_hz: the HBM backbone frequency at ``xi_values`` for that (theta, d);
       * time_domain_error: the reference orbit (theta of ``model``, d = theta / 2) at the backbone
         point nearest each xi, scaled by d / d_ref and started from that case's own static
-        equilibrium (engine torque and rear load, full two-step spring, no linearization), integrated
-        over the reference period: energy-norm periodicity error (see periodicity_error);
+        equilibrium (engine torque and rear load, full two-step spring, no linearization),
+        integrated over the reference period: energy-norm periodicity error (see
+        periodicity_error);
       * control_error: the same with the period 0.1 % longer (what a 0.1 % frequency change costs).
     """
     o = options or NNMOptions()
@@ -116,7 +120,8 @@ def scaling_check(model: ReducedModel, xi_values=(2.0, 5.0), *,
             ws = static_windup(m, region, d)
             solver = ConservativeNNM(m, ws, mode=mode, options=o)
             br = solver.branch(xi_stop=xi_stop)
-            row = {'theta_rad': float(th), 'distance_rad': float(d), 'windup_static_rad': float(ws),
+            row = {'theta_rad': float(th), 'distance_rad': float(d),
+                   'windup_static_rad': float(ws),
                    'frequency_hz': [float(v) for v in br.frequency_at(xi_values)]}
             if time_domain:
                 q_s, P0 = static_state(m, ws)

@@ -1,46 +1,48 @@
-"""The conservative condensed harmonic balance about one static point (design.md §3, paper Fig. 14).
+"""The conservative condensed harmonic balance about one static point (design.md §3,
+paper Fig. 14).
 
 The conservative system is the driveline without damping and without excitation, held at the static
 equilibrium of a mean torque (static wind-up ``w_s``). With ``x`` the DOF deviation from that
 equilibrium and ``u = e.x`` the wind-up deviation:
 
     J x'' + K_lin x + e f(u) = 0,     K_lin = K + g'(w_s) e e^T,
-    f(u) = g(w_s + u) - g(w_s) - g'(w_s) u                         (piecewise linear, f(0) = f'(0) = 0)
+    f(u) = g(w_s + u) - g(w_s) - g'(w_s) u                    (piecewise linear, f(0) = f'(0) = 0)
 
-``g`` is the DMF's extra torque (dmf_sim.spring). For the drive-side knee alone: with the static point
-in the primary region (``w_s < theta``), ``K_lin`` has the primary stiffness and ``f(u) = b max(u - d, 0)``
-(stiffening, knee at ``d = theta - w_s`` above); in the secondary region ``K_lin`` has ``k(1+alpha)`` and
-``f(u) = -b min(u + d, 0)`` (softening, knee at ``d = w_s - theta`` below). A coast knee, if
-configured, is one more ramp term of the same kind.
+``g`` is the DMF's extra torque (dmf_sim.spring). For the drive-side knee alone: with the static
+point in the primary region (``w_s < theta``), ``K_lin`` has the primary stiffness and
+``f(u) = b max(u - d, 0)`` (stiffening, knee at ``d = theta - w_s`` above); in the secondary
+region ``K_lin`` has ``k(1+alpha)`` and ``f(u) = -b min(u + d, 0)`` (softening, knee at
+``d = w_s - theta`` below). A coast knee, if configured, is one more ramp term of the same kind.
 
 Harmonic balance condensed on the wind-up. The NNMs followed here are the synchronous (symmetric)
-periodic orbits: all velocities vanish at t = 0, so every DOF is a cosine series in ``tau = Omega t``,
+periodic orbits: all velocities vanish at t = 0, so every DOF is a cosine series in
+``tau = Omega t``,
 
     u(tau) = sum_{n=0}^{H} a_n cos(n tau),     x(tau) = sum_n x_n cos(n tau).
 
 This fixes the phase (time-shift invariance; stronger than "sine part of the 1st harmonic = 0").
-Balancing harmonic n of the linear chain with the DMF force as a load gives ``x_n = -H_n e f_n`` with
-``H_n = (K_lin - (n Omega)^2 J)^-1`` and, on the wind-up row, ``a_n = -h_n f_n`` with the wind-up
-receptance ``h_n = e.H_n e = sum_k (e.phi_k)^2 / (omega_k^2 - (n Omega)^2)`` (modal sum over the elastic
-modes of (K_lin, J); at n = 0 this is the static flexibility with the rigid mode removed, as
-harmonic.solve_static). The residual is written in a form that stays finite at the poles of h_n
-(the linear resonances, where the branch starts: a_1 is free and f_1 = 0):
+Balancing harmonic n of the linear chain with the DMF force as a load gives ``x_n = -H_n e f_n``
+with ``H_n = (K_lin - (n Omega)^2 J)^-1`` and, on the wind-up row, ``a_n = -h_n f_n`` with the
+wind-up receptance ``h_n = e.H_n e = sum_k (e.phi_k)^2 / (omega_k^2 - (n Omega)^2)`` (modal sum
+over the elastic modes of (K_lin, J); at n = 0 this is the static flexibility with the rigid mode
+removed, as harmonic.solve_static). The residual is written in a form that stays finite at the
+poles of h_n (the linear resonances, where the branch starts: a_1 is free and f_1 = 0):
 
     r_n = c_n a_n + s_n f_n / b,     (c_n, s_n) = sign * (1, b h_n) / sqrt(1 + (b h_n)^2),
 
 with ``b`` the knee's stiffness jump and the sign of det(K_lin - (n Omega)^2 J) making (c_n, s_n)
 continuous through the poles. The force harmonics f_n are exact Galerkin integrals, not sampled:
 the knee crossings of u(tau) on the half period are located (grid + Newton on the trigonometric
-polynomial) and ``f_n = (2/pi) int_{active} c (u - beta) cos(n tau) dtau`` is integrated in closed form,
-with the exact Jacobian ``df_n/da_m = (2/pi) c int_{active} cos(m tau) cos(n tau) dtau``. (hbm.py's AFT
-is a sampled FFT on a complex, forced, 720-degree layout; this autonomous cosine problem has its own
-small version.) Unknowns: a_0..a_H plus Omega; the one-parameter family is followed with
-continuation.py's pseudo-arc-length continuation, started on the linear mode exactly at the knee
-(xi = 1, tangent along a_1) and stopped once xi exceeds ``xi_stop``. Where the branch climbs a flat
-branch (below) beyond ``xi_stop``, the backbone is restarted on the far side of that internal
-resonance (Newton at fixed Omega), and the tongue's far side is traced back up to ``xi_stop``;
-``NNMBranch.segment`` numbers the pieces. Tongues narrower than a continuation step are stepped over
-(``NNMOptions.step_max`` decides how thin a tongue is still resolved).
+polynomial) and ``f_n = (2/pi) int_{active} c (u - beta) cos(n tau) dtau`` is integrated in closed
+form, with the exact Jacobian ``df_n/da_m = (2/pi) c int_{active} cos(m tau) cos(n tau) dtau``.
+(hbm.py's AFT is a sampled FFT on a complex, forced, 720-degree layout; this autonomous cosine
+problem has its own small version.) Unknowns: a_0..a_H plus Omega; the one-parameter family is
+followed with continuation.py's pseudo-arc-length continuation, started on the linear mode exactly
+at the knee (xi = 1, tangent along a_1) and stopped once xi exceeds ``xi_stop``. Where the branch
+climbs a flat branch (below) beyond ``xi_stop``, the backbone is restarted on the far side of that
+internal resonance (Newton at fixed Omega), and the tongue's far side is traced back up to
+``xi_stop``; ``NNMBranch.segment`` numbers the pieces. Tongues narrower than a continuation step
+are stepped over (``NNMOptions.step_max`` decides how thin a tongue is still resolved).
 
 Energy (relative to the static equilibrium, evaluated at t = 0 where all velocities vanish):
 
@@ -51,19 +53,20 @@ Energy (relative to the static equilibrium, evaluated at t = 0 where all velocit
 and ``xi = E / E_nl`` with ``E_nl = 1/2 omega_m^2 (d / e.phi_m)^2`` the energy of the linear mode m
 (mass-normalized phi_m, mode of (K_lin, J)) whose wind-up amplitude just reaches the knee.
 
-Scaling (paper, after eq. 19): ``f`` is positively homogeneous in (u, d), so every orbit scales with d,
-E and E_nl with d^2; frequency against xi does not depend on theta nor on the static point's distance
-to the knee (exactly, without a coast knee). :func:`scaling_check` confirms it numerically.
+Scaling (paper, after eq. 19): ``f`` is positively homogeneous in (u, d), so every orbit scales
+with d, E and E_nl with d^2; frequency against xi does not depend on theta nor on the static
+point's distance to the knee (exactly, without a coast knee). :func:`scaling_check` confirms it
+numerically.
 
-Flat branches (paper: "close to a multiple of one of the linear resonances of the systems to the rear
-and front of the non-linearity"): where n Omega meets a linear resonance with little DMF motion, the
-branch runs into an internal-resonance tongue: the energy of harmonic n grows at almost constant
-Omega. Such points are those where a harmonic n >= 2 carries more than ``tongue_share`` (25 %) of the
-kinetic energy; they are labelled with n and with the subsystem resonance (front or rear of the DMF,
-each free at the DMF, DMF spring removed) nearest to n Omega. On the truck these agree with n Omega
-to ~1 % (with the driveline's own resonance at K_lin to ~0.1 %); the natural frequencies with the
-wind-up clamped (flywheels rigidly joined, the zeros of h) lie 1-7 % away and are reported only for
-reference.
+Flat branches (paper: "close to a multiple of one of the linear resonances of the systems to the
+rear and front of the non-linearity"): where n Omega meets a linear resonance with little DMF
+motion, the branch runs into an internal-resonance tongue: the energy of harmonic n grows at almost
+constant Omega. Such points are those where a harmonic n >= 2 carries more than ``tongue_share``
+(25 %) of the kinetic energy; they are labelled with n and with the subsystem resonance (front or
+rear of the DMF, each free at the DMF, DMF spring removed) nearest to n Omega. On the truck these
+agree with n Omega to ~1 % (with the driveline's own resonance at K_lin to ~0.1 %); the natural
+frequencies with the wind-up clamped (flywheels rigidly joined, the zeros of h) lie 1-7 % away and
+are reported only for reference.
 """
 from __future__ import annotations
 
@@ -106,13 +109,15 @@ class ConservativeNNM:
             if jump == 0.0:
                 continue
             if abs(wk - ws) < 1e-12 * max(1.0, abs(wk)):
-                raise ConfigError(f'static wind-up {ws} rad lies on a knee: the linearization is undefined')
+                raise ConfigError(f'static wind-up {ws} rad lies on a knee: '
+                                  'the linearization is undefined')
             if wk > ws:
                 c.append(jump), beta.append(wk - ws), side.append(1.0)
             else:
                 c.append(-jump), beta.append(wk - ws), side.append(-1.0)
         if not c:
-            raise ConfigError('alpha = 0: the DMF spring is linear, the normal modes are the linear ones')
+            raise ConfigError('alpha = 0: the DMF spring is linear, '
+                              'the normal modes are the linear ones')
         self.distance = float(min(abs(b) for b in beta))       # nearest knee
         self.b_ref = float(max(abs(x) for x in c))
         self.H = H = int(o.n_harmonics)
@@ -137,14 +142,16 @@ class ConservativeNNM:
         self.mode = int(mode)
         km = int(np.flatnonzero(elastic).tolist().index(mode))
         if abs(self.ephi[km]) < 1e-9 * np.abs(self.ephi).max():
-            raise ConfigError(f'mode {mode} does not move the DMF: it has no non-linear normal mode')
+            raise ConfigError(f'mode {mode} does not move the DMF: '
+                              'it has no non-linear normal mode')
         self.omega_lin = float(np.sqrt(self.w2[km]))
         self.e_nl = 0.5 * self.w2[km] * (self.distance / self.ephi[km]) ** 2
         self._nn2 = np.arange(H + 1) ** 2
 
     # ---- linear parts per harmonic --------------------------------------------------------------
     def _modal(self, Omega: float):
-        """Per harmonic: dominant pole k, delta = w_k^2 - lam, A = c_k + delta R, dA/dlam terms, sign."""
+        """Per harmonic: dominant pole k, delta = w_k^2 - lam, A = c_k + delta R, dA/dlam terms,
+        sign."""
         lam = self._nn2 * Omega ** 2                                  # (H+1,)
         dw = self.w2[None, :] - lam[:, None]                          # (H+1, modes)
         with np.errstate(divide='ignore'):
@@ -173,7 +180,7 @@ class ConservativeNNM:
         dpsi = dpsi_dlam * 2.0 * self._nn2 * Omega
         return c, s, dpsi
 
-    # ---- residual -----------------------------------------------------------------------------------
+    # ---- residual -------------------------------------------------------------------------------
     def residual_and_jacobians(self, a: np.ndarray, Omega: float):
         """(r, dr/da, dr/dOmega) of the condensed balance; r in rad."""
         c, s, dpsi = self._unit(Omega)
@@ -187,14 +194,15 @@ class ConservativeNNM:
     def residual(self, a: np.ndarray, Omega: float) -> np.ndarray:
         return self.residual_and_jacobians(a, Omega)[0]
 
-    # ---- recovery --------------------------------------------------------------------------------------
+    # ---- recovery -------------------------------------------------------------------------------
     def dof_harmonics(self, a: np.ndarray, Omega: float) -> np.ndarray:
         """(H+1, n_dof) cosine coefficients x_n of the DOF deviation [rad] (rigid part zero)."""
         lam, k, delta, A, ck, Rp, sig = self._modal(Omega)
         f = self.force.harmonics(a)
         b = self.b_ref
-        # x_n = B_n X_n with B_n = phi_k e.phi_k + delta Y_rest and X_n = a_n / A_n = -f_n / delta_n,
-        # combined in least squares so it is well-defined at poles (delta = 0) and zeros (A = 0) of h.
+        # x_n = B_n X_n with B_n = phi_k e.phi_k + delta Y_rest and X_n = a_n / A_n =
+        # -f_n / delta_n, combined in least squares so it is well-defined at poles (delta = 0) and
+        # zeros (A = 0) of h.
         X = (A * a - (delta / b) * (f / b)) / (A ** 2 + (delta / b) ** 2)
         out = np.empty((self.H + 1, self.model.n_dof))
         for n in range(self.H + 1):
@@ -223,7 +231,7 @@ class ConservativeNNM:
         tot = ke.sum()
         return ke / tot if tot > 0 else ke
 
-    # ---- the branch -----------------------------------------------------------------------------------
+    # ---- the branch -----------------------------------------------------------------------------
     def start(self) -> tuple[np.ndarray, float]:
         """The linear mode exactly at the knee: a_1 = d, Omega = omega_m (xi = 1)."""
         a = np.zeros(self.H + 1)
@@ -233,15 +241,16 @@ class ConservativeNNM:
     def _continue(self, a0, W0, tangent0, xi_stop):
         o = self.options
         d = self.distance
-        copt = ContinuationOptions(s_scale=self.omega_lin, x_scale=d, step=o.step, step_min=o.step_min,
+        copt = ContinuationOptions(s_scale=self.omega_lin, x_scale=d, step=o.step,
+                                   step_min=o.step_min,
                                    step_max=o.step_max, grid=None, tol=o.tol * d, max_iter=15,
                                    easy_iter=4, max_turn=0.5, max_steps=o.max_steps)
 
         def stop(p, pts):
             return self.energy(p.x, p.s) / self.e_nl > xi_stop
 
-        pts = continue_branch(self, a0, W0, (0.05 * self.omega_lin, 20.0 * self.omega_lin), options=copt,
-                              tangent0=tangent0, stop=stop)
+        pts = continue_branch(self, a0, W0, (0.05 * self.omega_lin, 20.0 * self.omega_lin),
+                              options=copt, tangent0=tangent0, stop=stop)
         A = np.array([p.x for p in pts])
         W = np.array([p.s for p in pts])
         shares = np.array([self.kinetic_shares(x, w) for x, w in zip(A, W)])
@@ -306,24 +315,29 @@ class ConservativeNNM:
             tb[-1] = -sign
             Ab, Wb, Eb, sb, rb = self._continue(a0, W0, tb, xi_stop)
             if len(Wb) > 1:
-                parts.append(tuple(z[:0:-1] for z in (Ab, Wb, Eb, sb, rb)) + (np.full(len(Wb) - 1, -1 - seg),))
+                parts.append(tuple(z[:0:-1] for z in (Ab, Wb, Eb, sb, rb))
+                             + (np.full(len(Wb) - 1, -1 - seg),))
             t0 = np.zeros(self.H + 2)
             t0[-1] = sign
         A, W, E, shares, res, segs = (np.concatenate(z) for z in zip(*parts))
         return NNMBranch(region=self.region, mode=self.mode, windup_static=self.windup_static,
                          distance=self.distance, linear_frequency_hz=self.omega_lin / TWO_PI,
-                         e_nl=float(self.e_nl), xi=E / self.e_nl, frequency_hz=W / TWO_PI, energy=E,
+                         e_nl=float(self.e_nl), xi=E / self.e_nl, frequency_hz=W / TWO_PI,
+                         energy=E,
                          coefficients=A, shares=shares, residual=res, segment=segs,
                          tongue_share=self.options.tongue_share)
 
-    # ---- time-domain verification ------------------------------------------------------------------
+    # ---- time-domain verification ---------------------------------------------------------------
     def integrate(self, x0: np.ndarray, v0: np.ndarray, t_end: float, rtol: float = 1e-11
                   ) -> tuple[np.ndarray, np.ndarray]:
-        """Integrate J x'' + K_lin x + e f(e.x) = 0 from (x0, v0) over t_end [s] (see integrate_chain)."""
-        return integrate_chain(self.model.J, self.K_lin, self.model.e, self.force.value, self.force.beta,
+        """Integrate J x'' + K_lin x + e f(e.x) = 0 from (x0, v0) over t_end [s] (see
+        integrate_chain)."""
+        return integrate_chain(self.model.J, self.K_lin, self.model.e, self.force.value,
+                               self.force.beta,
                                np.zeros(self.model.n_dof), x0, v0, t_end, rtol=rtol)
 
-    def periodicity_error(self, a: np.ndarray, Omega: float, period_factor: float = 1.0, **kw) -> float:
+    def periodicity_error(self, a: np.ndarray, Omega: float, period_factor: float = 1.0, **kw
+                          ) -> float:
         """Start from the HBM solution's x(0), v(0) = 0, integrate one period 2 pi / Omega (times
         ``period_factor``) in time and return the energy norm of the state change relative to the
         orbit's energy: sqrt((dx.K_lin.dx + dv.J.dv) / (2 E))."""

@@ -6,7 +6,8 @@ import numpy as np
 
 
 class RampForce:
-    """f(u) = sum_j c_j (u - beta_j) on {side_j (u - beta_j) > 0}: piecewise linear, f(0) = f'(0) = 0.
+    """f(u) = sum_j c_j (u - beta_j) on {side_j (u - beta_j) > 0}: piecewise linear,
+    f(0) = f'(0) = 0.
 
     Fourier coefficients of f(u(tau)) for u = sum a_n cos(n tau), exact over the half period."""
 

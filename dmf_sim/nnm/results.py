@@ -17,7 +17,8 @@ class NNMOptions:
         n_harmonics: H, highest harmonic of the base frequency kept.
         n_grid: grid intervals on the half period used to bracket the knee crossings.
         tol: corrector tolerance on max|r| relative to the knee distance d.
-        step, step_min, step_max: arc-length steps (unknowns scaled by d, Omega by the linear mode).
+        step, step_min, step_max: arc-length steps (unknowns scaled by d, Omega by the linear
+            mode).
         max_steps: safety limit of continuation steps per branch.
         xi_stop: continuation stops once xi exceeds this (default: 1.5 * xi_max of the caller).
         tongue_share: a point is on a flat branch (tongue) when one harmonic n >= 2 carries more
@@ -101,7 +102,8 @@ class NNMBranch:
         f0, f1 = self.frequency_hz[:-1], self.frequency_hz[1:]
         for j, v in enumerate(xi):
             tol = 1e-9 * max(abs(v), 1.0)
-            hit = np.flatnonzero(pair & (np.minimum(x0, x1) <= v + tol) & (np.maximum(x0, x1) >= v - tol))
+            hit = np.flatnonzero(pair & (np.minimum(x0, x1) <= v + tol)
+                                 & (np.maximum(x0, x1) >= v - tol))
             if len(hit):
                 purity = np.minimum(self.shares[hit, 1], self.shares[hit + 1, 1])
                 i = hit[int(np.argmax(purity))]
@@ -114,7 +116,8 @@ class FlatBranch:
     """A flat branch (internal-resonance tongue) of an NNM branch."""
 
     region: str
-    harmonic: int                 # n: n * base frequency ~ subsystem resonance (the figure's label)
+    # n: n * base frequency ~ subsystem resonance (the figure's label)
+    harmonic: int
     frequency_hz: float           # base frequency on the tongue (median) [Hz]
     xi_min: float
     xi_max: float
@@ -124,7 +127,8 @@ class FlatBranch:
     clamped_frequency_hz: float   # nearest natural frequency with the DMF wind-up clamped
 
     def as_dict(self) -> dict:
-        return {k: (float(v) if isinstance(v, (float, np.floating)) else v) for k, v in self.__dict__.items()}
+        return {k: (float(v) if isinstance(v, (float, np.floating)) else v)
+                for k, v in self.__dict__.items()}
 
 
 @dataclass
@@ -144,10 +148,13 @@ class NNMResult:
 
     def as_dict(self, xi_max: float | None = None) -> dict:
         out = {
-            'driveline': self.driveline, 'alpha': self.alpha, 'theta_rad': self.theta, 'mode': self.mode,
+            'driveline': self.driveline, 'alpha': self.alpha, 'theta_rad': self.theta,
+            'mode': self.mode,
             'n_harmonics': self.n_harmonics,
-            'linear_frequencies_hz': {r: [float(f) for f in v] for r, v in self.linear_frequencies_hz.items()},
-            'subsystem_frequencies_hz': {r: [float(f) for f in v] for r, v in self.subsystem_frequencies_hz.items()},
+            'linear_frequencies_hz': {r: [float(f) for f in v]
+                                      for r, v in self.linear_frequencies_hz.items()},
+            'subsystem_frequencies_hz': {r: [float(f) for f in v]
+                                         for r, v in self.subsystem_frequencies_hz.items()},
             'clamped_frequencies_hz': [float(f) for f in self.clamped_frequencies_hz],
             'flat_branches': [fb.as_dict() for fb in self.flat_branches],
             'branches': {},
@@ -155,7 +162,8 @@ class NNMResult:
         for name, br in self.branches.items():
             m = np.ones(len(br.xi), bool) if xi_max is None else br.xi <= xi_max
             out['branches'][name] = {
-                'region': br.region, 'windup_static_rad': br.windup_static, 'distance_rad': br.distance,
+                'region': br.region, 'windup_static_rad': br.windup_static,
+                'distance_rad': br.distance,
                 'linear_frequency_hz': br.linear_frequency_hz, 'e_nl_J': br.e_nl,
                 'xi': [float(v) for v in br.xi[m]],
                 'frequency_hz': [float(v) for v in br.frequency_hz[m]],

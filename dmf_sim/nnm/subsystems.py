@@ -12,7 +12,8 @@ from dmf_sim.nnm.results import REGIONS, TWO_PI
 
 def require_dmf(model: ReducedModel) -> None:
     if model.spring is None:
-        raise ConfigError(f'driveline {model.line.name!r} has no dmf section: no non-linear normal modes')
+        raise ConfigError(f'driveline {model.line.name!r} has no dmf section: '
+                          'no non-linear normal modes')
 
 
 def subsystem_frequencies(model: ReducedModel) -> dict[str, np.ndarray]:
@@ -20,8 +21,9 @@ def subsystem_frequencies(model: ReducedModel) -> dict[str, np.ndarray]:
     each on its own with the DMF spring removed (free at the DMF); rigid-body modes dropped."""
     require_dmf(model)
     K0 = model.K - model.spring.k * np.outer(model.e, model.e)
-    _, labels = connected_components((np.abs(K0) > 0) | np.eye(model.n_dof, dtype=bool), directed=False)
-    primary_dof = int(np.argmax(model.e))       # e = +1 on the primary side, -1 on the secondary side
+    _, labels = connected_components((np.abs(K0) > 0) | np.eye(model.n_dof, dtype=bool),
+                                     directed=False)
+    primary_dof = int(np.argmax(model.e))  # e = +1 on the primary side, -1 on the secondary side
     secondary_dof = int(np.argmin(model.e))
     out = {}
     for name, dof in (('front', primary_dof), ('rear', secondary_dof)):

@@ -69,5 +69,5 @@ def integrate_physical(model: ReducedModel, P0: np.ndarray, q0: np.ndarray, v0: 
     """Integrate the undamped driveline J q'' + K q + e g(e.q) = P0 with the full DMF spring
     (no linearization about any static point) from (q0, v0) over t_end [s]."""
     sp = model.spring
-    return integrate_chain(model.J, model.K, model.e, sp.extra_torque, list(sp.knees), P0, q0, v0, t_end,
-                           rtol=rtol)
+    return integrate_chain(model.J, model.K, model.e, sp.extra_torque, list(sp.knees), P0, q0, v0,
+                           t_end, rtol=rtol)
