@@ -25,6 +25,8 @@ setup(
         'tqdm>=4.66',
         'rosbags>=0.10',
         'mcap>=1.1',
+        'dask[distributed]>=2024.1',   # dmf-sim design: studies on a LocalCluster or a real cluster
+        'pyarrow>=14',                 # dmf-sim design: the Parquet result table
     ],
     extras_require={
         'ros': ['ros-jazzy-rclpy[fastrtps]', 'ros-jazzy-common-interfaces'],
