@@ -7,9 +7,10 @@ points, Floquet stability, branch switching to 1.5th-order branches); when the s
 
 A design that cannot be built (e.g. stage angles out of order) or whose solver fails is recorded
 with its reason and never stops the study. :class:`StudyContext` is what a worker needs (base
-driveline, engines per load set, conditions, solver settings); the runner sends it to every
-worker process once, and each unpickling is counted per process (:data:`context_loads`), so a
-test and the summary can show that a worker loads the model once, not once per task.
+driveline, engines per load set, conditions, solver settings). The runner installs it once in
+every worker process (a Dask WorkerPlugin calls :func:`install_context`); tasks name it by key
+and carry only their designs. :func:`context_loads` counts the installs per process, so a test
+and the summary can show that a worker loads the model once, not once per task.
 """
 from __future__ import annotations
 
@@ -21,11 +22,22 @@ from dmf_sim.design.metrics import condition_metrics, design_summary
 from dmf_sim.design.parameters import Parameter, design_driveline
 from dmf_sim.errors import one_line
 
-_CONTEXT_LOADS = [0]      # StudyContext objects unpickled in this process
+_CONTEXTS: dict[str, 'StudyContext'] = {}     # key -> context installed in this process
+_CONTEXT_LOADS = [0]                           # contexts installed in this process so far
+
+
+def install_context(key: str, ctx: 'StudyContext') -> None:
+    """Make ``ctx`` available to :func:`evaluate_batch` in this process under ``key``."""
+    _CONTEXTS[key] = ctx
+    _CONTEXT_LOADS[0] += 1
+
+
+def drop_context(key: str) -> None:
+    _CONTEXTS.pop(key, None)
 
 
 def context_loads() -> int:
-    """How many study contexts this process has unpickled (received from the scheduler)."""
+    """How many study contexts this process has installed."""
     return _CONTEXT_LOADS[0]
 
 
@@ -63,10 +75,6 @@ class StudyContext:
         values = dict(self.fixed)
         values.update({p: float(v) for p, v in zip(self.params, row)})
         return values
-
-    def __setstate__(self, state: dict) -> None:
-        self.__dict__.update(state)
-        _CONTEXT_LOADS[0] += 1
 
 
 def solve_condition(line, engine, load: float, settings: SolverSettings):
@@ -133,9 +141,13 @@ class BatchResult:
     seconds: float
 
 
-def evaluate_batch(ctx: StudyContext, items: list[tuple[int, list[float]]]) -> BatchResult:
-    """Evaluate (design_id, values) items one after another (one Dask task)."""
+def evaluate_batch(key: str, items: list[tuple[int, list[float]]]) -> BatchResult:
+    """Evaluate (design_id, values) items one after another with the context installed under
+    ``key`` (one Dask task)."""
     t0 = time.perf_counter()
+    ctx = _CONTEXTS.get(key)
+    if ctx is None:
+        raise RuntimeError(f'study context {key!r} is not installed in process {os.getpid()}')
     rows = []
     for design_id, row in items:
         rows += evaluate_design(ctx, design_id, row)

@@ -4,8 +4,8 @@
   each: the solvers hold the GIL), listening on 127.0.0.1 only, without a dashboard.
 * :func:`connect`: a client of an existing scheduler (``tcp://HOST:8786``); an address that does
   not answer is a one-line ConfigError naming ``--scheduler``.
-* :func:`run_study`: sends the study context (base driveline, engines, settings) to every worker
-  once (``scatter(broadcast=True)``: each worker process unpickles it once and keeps it), submits
+* :func:`run_study`: installs the study context (base driveline, engines, settings) once in
+  every worker process with a WorkerPlugin (also on workers that join later), submits
   the designs in batches (one Dask task each), takes the results as they finish
   (``as_completed``), writes each batch to the store at once, and shows a progress bar with ETA.
   A batch whose task is lost (a worker died) is recorded as 'lost' and recomputed on resume.
@@ -18,7 +18,10 @@ import re
 import time
 import uuid
 
-from dmf_sim.design.evaluate import BatchResult, StudyContext, evaluate_batch
+from distributed.diagnostics.plugin import WorkerPlugin
+
+from dmf_sim.design.evaluate import (BatchResult, StudyContext, drop_context, evaluate_batch,
+                                     install_context)
 from dmf_sim.design.result import StudyResult
 from dmf_sim.design.study import load_study
 from dmf_sim.design.table import ResultStore
@@ -31,6 +34,20 @@ DEFAULT_BATCH_SIZE = 4
 BATCHES_PER_WORKER = 4
 """Smaller batches when a study is short, so that every worker gets work until the end."""
 _ADDRESS = re.compile(r'^(tcp|tls)://[^\s/:]+:\d{1,5}$')
+
+
+class StudyPlugin(WorkerPlugin):
+    """Installs a study context in a worker process when the worker starts (or at once)."""
+
+    def __init__(self, key: str, context: StudyContext):
+        self.key = key
+        self.context = context
+
+    def setup(self, worker) -> None:
+        install_context(self.key, self.context)
+
+    def teardown(self, worker) -> None:
+        drop_context(self.key)
 
 
 def available_cores() -> int:
@@ -46,8 +63,9 @@ def local_cluster(workers: int | None = None):
     n = workers or available_cores()
     if not (isinstance(n, int) and n >= 1):
         raise ConfigError(f'--workers {n!r}: must be an integer >= 1')
+    # every listener on 127.0.0.1 (the scheduler's HTTP routes on a free port, not 8787)
     return LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host=LOOPBACK,
-                        dashboard_address=None)
+                        dashboard_address=f'{LOOPBACK}:0', worker_dashboard_address=None)
 
 
 def connect(address: str, timeout_s: float = CONNECT_TIMEOUT_S):
@@ -62,6 +80,17 @@ def connect(address: str, timeout_s: float = CONNECT_TIMEOUT_S):
         raise ConfigError(f'--scheduler {address}: no Dask scheduler answers there within '
                           f'{timeout_s:g} s ({one_line(exc)}); start one with `dask scheduler` '
                           'or leave out --scheduler to use a local cluster') from None
+
+
+def wait_for_workers(client, timeout_s: float = CONNECT_TIMEOUT_S) -> int:
+    """Number of workers of the client's cluster, after waiting for at least one."""
+    try:
+        client.wait_for_workers(1, timeout=timeout_s)
+    except TimeoutError:
+        raise ConfigError(f'--scheduler {client.scheduler.address}: the scheduler has no workers '
+                          f'(waited {timeout_s:g} s); start some with `dask worker '
+                          f'{client.scheduler.address}`') from None
+    return len(client.scheduler_info().get('workers', {}))
 
 
 def batch_size_for(n_designs: int, n_workers: int, batch_size: int | None = None) -> int:
@@ -95,67 +124,93 @@ def run_study(study, client=None, *, out=None, resume: bool = False, workers: in
     done = store.finished() if store else set()
     todo = [i for i in range(len(designs)) if i not in done]
     own = client is None
-    cluster = local_cluster(workers) if own else None
+    if store:
+        store.lock()
     t0 = time.perf_counter()
-    new_rows: list[dict] = []
-    loads: dict[int, int] = {}
-    bar = None
+    run = _Run(study, designs, store, on_batch)
+    cluster, n_workers, size = None, 0, 0
     try:
-        if own:
-            from distributed import Client
-            client = Client(cluster)
-        n_workers = max(1, len(client.scheduler_info().get('workers', {})))
-        size = batch_size_for(len(todo), n_workers, batch_size)
         if store:
             store.start()
         if todo:
-            ctx = client.scatter(StudyContext.from_study(study), broadcast=True, hash=False)
-            futures = {}
-            for k in range(0, len(todo), size):
-                ids = todo[k:k + size]
-                items = [(i, designs[i].tolist()) for i in ids]
-                key = f'dmf-design-{ids[0]}-{uuid.uuid4().hex[:8]}'
-                futures[client.submit(evaluate_batch, ctx, items, key=key, pure=False)] = ids
-            bar = _bar(progress, len(designs), len(done))
-            from distributed import as_completed
-            for fut in as_completed(futures):
-                ids = futures.pop(fut)
-                rows = _rows_of(fut, ids, designs, study, loads)
-                fut.release()
-                if store:
-                    store.append(rows)
-                new_rows += rows
-                if bar is not None:
-                    bar.update(len(ids))
-                if on_batch is not None:
-                    on_batch(len(designs) - len(todo) + _n_designs(new_rows), len(designs))
+            if own:
+                from distributed import Client
+                cluster = local_cluster(workers)
+                client = Client(cluster)
+                client.wait_for_workers(len(cluster.workers))
+            n_workers = wait_for_workers(client)
+            size = batch_size_for(len(todo), n_workers, batch_size)
+            run.compute(client, todo, size, _bar(progress, len(designs), len(done)))
+        rows = (store.rows if store else []) + run.rows
+        result = StudyResult.from_rows(study, rows, n_computed=_n_designs(run.rows),
+                                       seconds=time.perf_counter() - t0, workers=n_workers,
+                                       batch_size=size, context_loads=run.loads)
+        if store:
+            result.files.update(store.finalize(result.table))
+        return result
     finally:
-        if bar is not None:
-            bar.close()
         if own:
             if client is not None:
                 client.close()
-            cluster.close()
-    rows = (store.rows if store else []) + new_rows
-    result = StudyResult.from_rows(study, rows, n_computed=_n_designs(new_rows),
-                                   seconds=time.perf_counter() - t0, workers=n_workers,
-                                   batch_size=size, context_loads=loads)
-    if store:
-        result.files.update(store.finalize(result.table))
-    return result
+            if cluster is not None:
+                cluster.close()
+        if store:
+            store.close()
 
 
-def _rows_of(fut, ids, designs, study, loads: dict) -> list[dict]:
-    """The batch's rows, or 'lost' summary rows (with the reason) if its task failed."""
-    try:
-        br: BatchResult = fut.result()
-    except Exception as exc:      # noqa: BLE001 - a lost task never stops the study
-        reason = f'task lost: {type(exc).__name__}: {one_line(exc)}'
-        return [{'design_id': i, 'kind': 'design', 'status': 'lost', 'error': reason,
-                 'condition': 'all', **dict(zip(study.variable_names, designs[i].tolist()))}
-                for i in ids]
-    loads[br.pid] = br.context_loads
-    return br.rows
+class _Run:
+    """Submitting the batches of one run and collecting their rows as they finish."""
+
+    def __init__(self, study, designs, store, on_batch):
+        self.study, self.designs, self.store, self.on_batch = study, designs, store, on_batch
+        self.rows: list[dict] = []
+        self.loads: dict[int, int] = {}        # worker pid -> contexts installed there
+
+    def compute(self, client, todo: list[int], size: int, bar) -> None:
+        if not todo:
+            return
+        from distributed import as_completed
+        key = f'dmf-study-{self.study.fingerprint()}-{uuid.uuid4().hex[:8]}'
+        client.register_plugin(StudyPlugin(key, StudyContext.from_study(self.study)), name=key)
+        futures = {}
+        n_total, n_before = len(self.designs), len(self.designs) - len(todo)
+        try:
+            for k in range(0, len(todo), size):
+                ids = todo[k:k + size]
+                items = [(i, self.designs[i].tolist()) for i in ids]
+                task = f'dmf-design-{ids[0]}-{uuid.uuid4().hex[:8]}'
+                futures[client.submit(evaluate_batch, key, items, key=task, pure=False)] = ids
+            for fut in as_completed(list(futures)):
+                ids = futures.pop(fut)
+                rows = self._rows_of(fut, ids)
+                fut.release()
+                if self.store:
+                    self.store.append(rows)
+                self.rows += rows
+                if bar is not None:
+                    bar.update(len(ids))
+                if self.on_batch is not None:
+                    self.on_batch(n_before + _n_designs(self.rows), n_total)
+        finally:
+            if bar is not None:
+                bar.close()
+            if futures and client.status == 'running':    # interrupted: stop what is queued
+                client.cancel(list(futures))
+            if client.status == 'running':
+                client.unregister_worker_plugin(key)
+
+    def _rows_of(self, fut, ids) -> list[dict]:
+        """The batch's rows, or 'lost' summary rows (with the reason) if its task failed."""
+        try:
+            br: BatchResult = fut.result()
+        except Exception as exc:      # noqa: BLE001 - a lost task never stops the study
+            reason = f'task lost: {type(exc).__name__}: {one_line(exc)}'
+            names = self.study.variable_names
+            return [{'design_id': i, 'kind': 'design', 'status': 'lost', 'error': reason,
+                     'condition': 'all', **dict(zip(names, self.designs[i].tolist()))}
+                    for i in ids]
+        self.loads[br.pid] = br.context_loads
+        return br.rows
 
 
 def _n_designs(rows: list[dict]) -> int:

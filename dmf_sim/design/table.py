@@ -15,6 +15,7 @@ into ``DIR/results.parquet`` and ``DIR/results.csv``.
 """
 from __future__ import annotations
 
+import fcntl
 import json
 import os
 from pathlib import Path
@@ -27,6 +28,7 @@ from dmf_sim.design.metrics import WORST
 from dmf_sim.errors import ConfigError
 
 STUDY_FILE = 'study.json'
+LOCK_FILE = '.lock'
 PARTS = 'parts'
 RESULTS = 'results'
 
@@ -88,6 +90,24 @@ class ResultStore:
                                   'files); choose another --out')
             self.rows = self._read_parts()
         self._seq = len(self._part_files())
+        self._lock = None
+
+    # ---- one run at a time ------------------------------------------------------------------------
+    def lock(self) -> None:
+        """Create ``out`` and hold its lock file for this run (another run there is refused)."""
+        self.dir.mkdir(parents=True, exist_ok=True)
+        fh = open(self.dir / LOCK_FILE, 'a+')
+        try:
+            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            fh.close()
+            raise ConfigError(f'--out {self.dir}: another study run is using this directory') from None
+        self._lock = fh
+
+    def close(self) -> None:
+        if self._lock is not None:
+            self._lock.close()          # releases the lock
+            self._lock = None
 
     # ---- reading --------------------------------------------------------------------------------
     def _part_files(self) -> list[Path]:
