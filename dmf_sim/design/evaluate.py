@@ -81,13 +81,18 @@ def solve_condition(line, engine, load: float, settings: SolverSettings):
     """Every steady state of driveline ``line`` under ``engine`` at load fraction ``load``, on
     the speed grid, as :class:`~dmf_sim.design.states.GridStates` (continuation today)."""
     from dmf_sim.design.states import grid_states
+    res = sweep_condition(line, engine, load, settings)
+    return grid_states(res, settings.speeds_rpm, settings.torque_element)
+
+
+def sweep_condition(line, engine, load: float, settings: SolverSettings):
+    """The harmonic-balance sweep (``dmf_sim.hbm.sweep``) of one design at one condition."""
     from dmf_sim.hbm import HBMOptions, SweepOptions, sweep
     from dmf_sim.loads import DrivelineLoads
     lo, hi, step = settings.speeds_rpm
-    res = sweep(DrivelineLoads(line.reduce(), engine), load, (lo, hi),
-                hbm_options=HBMOptions(n_harmonics=settings.harmonics),
-                options=SweepOptions(step_rpm=step, branch_switching=settings.branch_switching))
-    return grid_states(res, settings.speeds_rpm, settings.torque_element)
+    return sweep(DrivelineLoads(line.reduce(), engine), load, (lo, hi),
+                 hbm_options=HBMOptions(n_harmonics=settings.harmonics),
+                 options=SweepOptions(step_rpm=step, branch_switching=settings.branch_switching))
 
 
 def _failure(exc: BaseException) -> str:

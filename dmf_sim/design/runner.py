@@ -12,6 +12,7 @@
 """
 from __future__ import annotations
 
+import logging
 import math
 import os
 import re
@@ -63,9 +64,12 @@ def local_cluster(workers: int | None = None):
     n = workers or available_cores()
     if not (isinstance(n, int) and n >= 1):
         raise ConfigError(f'--workers {n!r}: must be an integer >= 1')
-    # every listener on 127.0.0.1 (the scheduler's HTTP routes on a free port, not 8787)
+    # every listener on 127.0.0.1 (the scheduler's HTTP routes on a free port, not 8787);
+    # the workers' own log lines stay quiet (a heartbeat racing the shutdown is logged as an
+    # error): every failure of a design or a task is in the result table with its reason
     return LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host=LOOPBACK,
-                        dashboard_address=f'{LOOPBACK}:0', worker_dashboard_address=None)
+                        dashboard_address=f'{LOOPBACK}:0', worker_dashboard_address=None,
+                        silence_logs=logging.CRITICAL)
 
 
 def connect(address: str, timeout_s: float = CONNECT_TIMEOUT_S):

@@ -17,7 +17,7 @@ A study (YAML mapping; ``config/study_example.yaml`` shows every key)::
     objectives: [worst_order_1_5, worst_torque_3]   # minimized; the first two span the Pareto front
     torque_element: INPUT SHAFT       # optional: where the 3rd-order torque is taken
     solver: {harmonics: 24, branch_switching: true}  # optional
-    plots: {map_variables: [alpha, theta]}           # optional: axes of the objective maps
+    plots: {map_variables: [alpha, theta], reference: {alpha: 3, theta: 0.24}}   # optional
 
 Everything is checked, and the driveline and engine are loaded, before any design is evaluated.
 """
@@ -45,6 +45,8 @@ DEFAULT_HARMONICS = 24
 MIN_HARMONICS = 6            # the 3rd order is half-order n = 6
 MAX_DESIGNS = 1_000_000
 MAX_GRID_SPEEDS = 20_000
+PAPER_REFERENCE = {'alpha': 3.0, 'theta': 0.24}
+"""The paper's design (Fig. 13: alpha 3, theta 0.24 rad), drawn beside the best design."""
 
 
 @dataclass(frozen=True)
@@ -81,6 +83,7 @@ class Study:
     harmonics: int
     branch_switching: bool
     map_variables: tuple[str, ...]
+    reference: dict[Parameter, float] = field(default_factory=dict)
     description: str = ''
     base: Driveline = field(default=None, repr=False)
     engines: dict = field(default_factory=dict, repr=False)
@@ -119,15 +122,17 @@ class Study:
                            'speeds_rpm': {'from': lo, 'to': hi, 'step': step}},
             'objectives': list(self.objectives), 'torque_element': self.torque_element,
             'solver': {'harmonics': self.harmonics, 'branch_switching': self.branch_switching},
-            'plots': {'map_variables': list(self.map_variables)},
+            'plots': {'map_variables': list(self.map_variables),
+                      'reference': {p.name: v for p, v in self.reference.items()}},
             'n_designs': self.n_designs,
         }
 
     def fingerprint(self) -> str:
-        """Hash of what determines the results: the normalized study (less its name, text and
-        file location) and the driveline and engine file contents."""
+        """Hash of what determines the stored rows: the normalized study (less its name, text,
+        file location, objectives and plots, which only shape the final Pareto front and
+        figures) and the driveline and engine file contents."""
         d = self.as_dict()
-        for key in ('name', 'description', 'source'):
+        for key in ('name', 'description', 'source', 'objectives', 'plots'):
             d.pop(key)
         text = json.dumps(d, sort_keys=True) + self.file_digest
         return hashlib.sha256(text.encode()).hexdigest()[:16]
@@ -157,10 +162,14 @@ class _Where:
     def error(self, field_name: str, msg: str) -> ConfigError:
         return ConfigError(f'{self.source}: {field_name}: {msg}')
 
-    def mapping(self, data, field_name: str, required=(), optional=()) -> dict:
+    def mapping(self, data, field_name: str, required=(), optional=None) -> dict:
+        """``data`` as a mapping with the ``required`` keys and, unless ``optional`` is None
+        (any key), no keys beyond ``required`` + ``optional``."""
         if not isinstance(data, dict):
             got = 'nothing' if data is None else f'a {type(data).__name__}'
             raise self.error(field_name, f'must be a mapping, got {got}')
+        if optional is None:
+            return data
         for key in required:
             if key not in data:
                 raise self.error(field_name, f'missing key {key!r}')
@@ -237,7 +246,12 @@ def study_from_dict(data: dict, source: str = 'study', *, base_dir: Path | None 
     switching = solver.get('branch_switching', True)
     if not isinstance(switching, bool):
         raise w.error('solver.branch_switching', f'must be true or false, got {switching!r}')
-    plots = w.mapping(data.get('plots') or {}, 'plots', (), ('map_variables',))
+    plots = w.mapping(data.get('plots') or {}, 'plots', (), ('map_variables', 'reference'))
+    reference = {}
+    for key, value in w.mapping(plots.get('reference', PAPER_REFERENCE), 'plots.reference').items():
+        p = parse_parameter(key, f'{source}: plots.reference')
+        reference[p] = p.check_value(value, f'{source}: plots.reference.{key}')
+    check_parameter_set(list(reference), base, f'{source}: plots.reference')
     names = [p.name for p in params]
     map_vars = tuple(plots.get('map_variables', names[:2]))
     for i, v in enumerate(map_vars):
@@ -252,7 +266,7 @@ def study_from_dict(data: dict, source: str = 'study', *, base_dir: Path | None 
                  params=params, ranges=ranges, grid_points=points, fixed=fixed,
                  conditions=conditions, speeds_rpm=speeds, objectives=objectives,
                  torque_element=torque_element, harmonics=harmonics,
-                 branch_switching=switching, map_variables=map_vars,
+                 branch_switching=switching, map_variables=map_vars, reference=reference,
                  description=str(data.get('description') or ''), base=base, engines=engines,
                  file_digest=_digest(base_dir, data['driveline'], data['engine']))
 
@@ -317,11 +331,11 @@ def _variables(w: _Where, raw, method: str):
 
 def _conditions(w: _Where, raw, engine_source, base_dir: Path):
     from dmf_sim.engine import load_engine
-    w.mapping(raw, 'conditions', ('load_sets', 'loads', 'speeds_rpm'))
+    w.mapping(raw, 'conditions', ('load_sets', 'loads', 'speeds_rpm'), ())
     load_sets = w.nonempty_list(raw['load_sets'], 'conditions.load_sets')
     loads = w.nonempty_list(raw['loads'], 'conditions.loads')
     loads = [w.number(x, f'conditions.loads[{i}]', 0.0, 1.0) for i, x in enumerate(loads)]
-    sp = w.mapping(raw['speeds_rpm'], 'conditions.speeds_rpm', ('from', 'to', 'step'))
+    sp = w.mapping(raw['speeds_rpm'], 'conditions.speeds_rpm', ('from', 'to', 'step'), ())
     lo = w.number(sp['from'], 'conditions.speeds_rpm.from', 0.0, unit='rpm')
     hi = w.number(sp['to'], 'conditions.speeds_rpm.to', 0.0, unit='rpm')
     step = w.number(sp['step'], 'conditions.speeds_rpm.step', 0.0, unit='rpm')

@@ -72,7 +72,7 @@ class ResultStore:
         self.dir = Path(out)
         self.study = study
         self.names = study.variable_names
-        self.rows: list[dict] = []
+        self._rows: list[dict] | None = []
         meta = self.dir / STUDY_FILE
         if self.dir.exists() and not self.dir.is_dir():
             raise ConfigError(f'--out {self.dir}: exists and is not a directory')
@@ -88,7 +88,7 @@ class ResultStore:
                 raise ConfigError(f'--resume: {self.dir} holds the results of a different study '
                                   f'({stored.get("name")!r}: other variables, conditions or '
                                   'files); choose another --out')
-            self.rows = self._read_parts()
+            self._rows = None                # read from the parts when first needed
         self._seq = len(self._part_files())
         self._lock = None
 
@@ -120,6 +120,13 @@ class ResultStore:
         rows = [r for r in rows if r['status'] != 'lost']
         done = {r['design_id'] for r in rows if r['kind'] == 'design'}
         return [r for r in rows if r['design_id'] in done]
+
+    @property
+    def rows(self) -> list[dict]:
+        """Rows stored by earlier runs (resume), lost designs left out."""
+        if self._rows is None:
+            self._rows = self._read_parts()
+        return self._rows
 
     def finished(self) -> set[int]:
         """Design ids whose rows are stored (ok or failed; lost ones are computed again)."""
