@@ -57,15 +57,16 @@ def _label(name: str) -> str:
 
 
 def _axis(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(cell edges, cell index of every value): one cell per level when there are few levels
-    (a grid), else MAX_CELLS equal bins."""
+    """(cell edges, cell index of every value): one cell per level for grid levels (values
+    repeat, at most MAX_CELLS levels), else about sqrt(n) equal bins (4..MAX_CELLS)."""
     levels = np.unique(values)
-    if len(levels) <= MAX_CELLS:
+    if len(levels) < len(values) and len(levels) <= MAX_CELLS:
         mid = 0.5 * (levels[1:] + levels[:-1])
         pad = (levels[-1] - levels[0]) / (2 * max(len(levels) - 1, 1)) or 0.5 * abs(levels[0]) or 1
         edges = np.concatenate([[levels[0] - pad], mid, [levels[-1] + pad]])
     else:
-        edges = np.linspace(values.min(), values.max(), MAX_CELLS + 1)
+        n_bins = int(np.clip(np.sqrt(len(values)), 4, MAX_CELLS))
+        edges = np.linspace(values.min(), values.max(), n_bins + 1)
     idx = np.clip(np.searchsorted(edges, values, side='right') - 1, 0, len(edges) - 2)
     return edges, idx
 
