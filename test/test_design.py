@@ -289,3 +289,18 @@ def test_cli_on_an_existing_scheduler_json_and_files(client, tmp_path, capsys):
     assert '--resume' in capsys.readouterr().err
     assert cli_main(args + ['--resume', '--no-plots']) == 0       # nothing left to compute
     assert json.loads(capsys.readouterr().out)['n_resumed'] == 2
+
+
+def test_benchmark_quick():
+    import subprocess
+    import sys
+    out = subprocess.run([sys.executable, str(REPO / 'benchmarks' / 'bench_design.py'), '--quick'],
+                         capture_output=True, text=True, timeout=600, cwd=REPO)
+    assert out.returncode == 0, out.stderr[-2000:]
+    data = json.loads(out.stdout.strip().splitlines()[-1])
+    assert data['quick'] is True
+    for key in ('designs_per_s_1', 'designs_per_s_2', 'scaling_2', 'task_overhead_ms',
+                'chosen_batch_size', 'serial_designs_per_s', 'mixed_designs_per_s_2'):
+        assert data[key] > 0, key
+    assert data['rss_failed'] == 0 and len(data['peak_rss_mb_per_worker']) == 2
+    assert set(data['designs_per_s_2_by_batch']) == {'1', '2', '4', '8'}

@@ -103,7 +103,8 @@ def test_repeated_states_are_merged():
 
 
 def test_speed_ranges_and_pareto():
-    assert speed_ranges(np.array([900.0, 910, 920, 1000, 1020, 1030]), 10.0) == '900-920, 1000, 1020-1030'
+    speeds = np.array([900.0, 910, 920, 1000, 1020, 1030])
+    assert speed_ranges(speeds, 10.0) == '900-920, 1000, 1020-1030'
     assert speed_ranges(np.array([]), 10.0) == ''
     f1 = np.array([1.0, 2.0, 4.0, 2.0, np.nan, 1.0])
     f2 = np.array([4.0, 2.0, 1.0, 3.0, 0.0, 4.0])      # NaN: never on the front

@@ -1,4 +1,4 @@
-"""What a study reports per design and operating condition, from the steady states on the speed grid.
+"""What a study reports per design and condition, from the steady states on the speed grid.
 
 All "worst" values are over the *stable* steady states (the states a truck can sit in; an unstable
 solution is never the answer, design.md §4), at every grid speed and on every branch:
@@ -37,7 +37,7 @@ WORST = ('worst_order_1_5', 'worst_order_3', 'worst_torque_3', 'max_dmf_torque')
 
 
 def condition_metrics(states, spring, step_rpm: float) -> dict:
-    """Metrics of one design at one condition from its :class:`~dmf_sim.design.states.GridStates`."""
+    """Metrics of one design at one condition from its grid states (states.GridStates)."""
     st = states.stable
     s = states.speed_rpm[st]
     hi = states.mean[st] + states.max_dev[st]

@@ -7,7 +7,8 @@ A design is a mapping ``{name: value}`` (SI units) applied to the study's base d
 ``k``                                     primary stiffness [Nm/rad] (> 0)
 ``damping``                               DMF damping [Nms/rad] (>= 0)
 ``theta``                                 first drive knee [rad] (> 0), = ``stages[0].angle_rad``
-``alpha``                                 first drive stage factor (>= 0), = ``stages[0].stiffness_factor``
+``alpha``                                 first drive stage factor (>= 0),
+                                          = ``stages[0].stiffness_factor``
 ``stages[i].angle_rad``                   drive stage i: knee [rad] (> 0, increasing with i)
 ``stages[i].stiffness_factor``            drive stage i: stiffness k (1 + factor) (>= 0)
 ``coast_stages[j].angle_rad``             coast stage j: knee at -angle [rad] (> 0)

@@ -119,7 +119,8 @@ def _pareto(result, ref, plt):
             label=f'non-dominated ({len(front)})')
     if result.best_id is not None:
         b = result.design(result.best_id)
-        ax.plot(b[o1], b[o2], '*', color='tab:orange', ms=14, label=f'best: design {b["design_id"]}')
+        ax.plot(b[o1], b[o2], '*', color='tab:orange', ms=14,
+                label=f'best: design {b["design_id"]}')
     if ref['status'] == 'ok':
         ax.plot(ref[o1], ref[o2], 's', color='tab:red', ms=8, label=_ref_text(study))
     ax.set_xlabel(f'{o1}: {_label(o1)}', fontsize=8)
@@ -144,10 +145,10 @@ def _fig13(result, ref, plt):
     cond = study.conditions[0]
     best = result.design(result.best_id)
     panels = []
+    best_text = ', '.join(f'{v} = {best[v]:.4g}' for v in study.variable_names)
     for values, text in ((study.reference, _ref_text(study)),
                          (ctx.design_values([best[v] for v in study.variable_names]),
-                          f'best: design {best["design_id"]} ('
-                          + ', '.join(f'{v} = {best[v]:.4g}' for v in study.variable_names) + ')')):
+                          f'best: design {best["design_id"]} ({best_text})')):
         line = design_driveline(study.base, values)
         res = sweep_condition(line, study.engines[cond.load_set], cond.load, ctx.settings)
         panels.append((text, res))

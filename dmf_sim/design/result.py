@@ -1,4 +1,4 @@
-"""What a study returns: the table, the Pareto front and the run's figures (:class:`StudyResult`)."""
+"""What a study returns (:class:`StudyResult`): the table, the Pareto front, run figures."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field

@@ -121,8 +121,9 @@ def grid_states(res, speeds_rpm: tuple[float, float, float], torque_element: int
 def _distinct(grid_index: np.ndarray, stable: np.ndarray, values: np.ndarray) -> np.ndarray:
     """Indices of the distinct states: at one grid speed, states of equal stability whose
     wind-up quantities (columns of ``values`` [rad]: order_3, order_1_5, mean, max_dev,
-    min_dev) agree within SAME_STATE_REL of the oscillation's size are one state (a branch that passes the same speed twice on the same solution, e.g.
-    a continuation going round a closed loop more than once)."""
+    min_dev) agree within SAME_STATE_REL of the oscillation's size are one state (a branch
+    that passes the same speed twice on the same solution, e.g. a continuation going round a
+    closed loop more than once)."""
     counts = np.bincount(grid_index)
     keep = list(np.flatnonzero(counts[grid_index] == 1))
     for g in np.flatnonzero(counts > 1):

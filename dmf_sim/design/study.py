@@ -14,7 +14,7 @@ A study (YAML mapping; ``config/study_example.yaml`` shows every key)::
       load_sets: [A, B]
       loads: [1.0]
       speeds_rpm: {from: 600, to: 2000, step: 10}
-    objectives: [worst_order_1_5, worst_torque_3]   # minimized; the first two span the Pareto front
+    objectives: [worst_order_1_5, worst_torque_3]   # minimized; the first two: Pareto front
     torque_element: INPUT SHAFT       # optional: where the 3rd-order torque is taken
     solver: {harmonics: 24, branch_switching: true}  # optional
     plots: {map_variables: [alpha, theta], reference: {alpha: 3, theta: 0.24}}   # optional
@@ -181,7 +181,8 @@ class _Where:
         return data
 
     def number(self, value, field_name: str, lo=-math.inf, hi=math.inf, unit='') -> float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        if isinstance(value, bool) or not isinstance(value, (int, float)) \
+                or not math.isfinite(value):
             raise self.error(field_name, f'must be a finite number, got {value!r}')
         if not lo <= value <= hi:
             raise self.error(field_name, f'must be in [{lo:g}, {hi:g}] {unit}'.rstrip()
@@ -216,7 +217,8 @@ def study_from_dict(data: dict, source: str = 'study', *, base_dir: Path | None 
     n_samples = None
     if method == 'grid':
         if 'n' in samp:
-            raise w.error('sampling.n', 'not used by the grid method (give n or values per variable)')
+            raise w.error('sampling.n', 'not used by the grid method (give n or values per '
+                          'variable)')
     else:
         if 'n' not in samp:
             raise w.error('sampling', f"missing key 'n' (number of {method} designs)")
@@ -248,7 +250,8 @@ def study_from_dict(data: dict, source: str = 'study', *, base_dir: Path | None 
         raise w.error('solver.branch_switching', f'must be true or false, got {switching!r}')
     plots = w.mapping(data.get('plots') or {}, 'plots', (), ('map_variables', 'reference'))
     reference = {}
-    for key, value in w.mapping(plots.get('reference', PAPER_REFERENCE), 'plots.reference').items():
+    ref_raw = w.mapping(plots.get('reference', PAPER_REFERENCE), 'plots.reference')
+    for key, value in ref_raw.items():
         p = parse_parameter(key, f'{source}: plots.reference')
         reference[p] = p.check_value(value, f'{source}: plots.reference.{key}')
     check_parameter_set(list(reference), base, f'{source}: plots.reference')
@@ -290,13 +293,15 @@ def _load_driveline(w: _Where, value, base_dir: Path) -> Driveline:
     except ConfigError as exc:
         raise w.error('driveline', str(exc)) from None
     if line.dmf is None:
-        raise w.error('driveline', f'driveline {line.name!r} has no dmf section: nothing to design')
+        raise w.error('driveline', f'driveline {line.name!r} has no dmf section: nothing to '
+                      'design')
     return line
 
 
 def _variables(w: _Where, raw, method: str):
     if not isinstance(raw, dict) or not raw:
-        raise w.error('variables', f'must be a non-empty mapping of design parameters, got {raw!r}')
+        raise w.error('variables', f'must be a non-empty mapping of design parameters, '
+                      f'got {raw!r}')
     params, ranges, points = [], [], []
     for name, spec in raw.items():
         where = f'variables.{name}'
@@ -346,7 +351,8 @@ def _conditions(w: _Where, raw, engine_source, base_dir: Path):
         raise w.error('conditions.speeds_rpm.step', f'{(hi - lo) / step:.0f} speeds; at most '
                       f'{MAX_GRID_SPEEDS}')
     if not isinstance(engine_source, str) or not engine_source.strip():
-        raise w.error('engine', f'must be an engine YAML or table name or path, got {engine_source!r}')
+        raise w.error('engine', f'must be an engine YAML or table name or path, '
+                      f'got {engine_source!r}')
     src = _resolve(engine_source, base_dir)
     engines: dict = {}
     for i, ls in enumerate(load_sets):

@@ -92,7 +92,7 @@ class ResultStore:
         self._seq = len(self._part_files())
         self._lock = None
 
-    # ---- one run at a time ------------------------------------------------------------------------
+    # ---- one run at a time -----------------------------------------------------------------
     def lock(self) -> None:
         """Create ``out`` and hold its lock file for this run (another run there is refused)."""
         self.dir.mkdir(parents=True, exist_ok=True)
@@ -101,7 +101,8 @@ class ResultStore:
             fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:
             fh.close()
-            raise ConfigError(f'--out {self.dir}: another study run is using this directory') from None
+            raise ConfigError(f'--out {self.dir}: another study run is using this '
+                              'directory') from None
         self._lock = fh
 
     def close(self) -> None:
