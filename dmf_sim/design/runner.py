@@ -34,6 +34,7 @@ DEFAULT_BATCH_SIZE = 4
 """Designs per Dask task (benchmarks/bench_design.py measures the task overhead it amortizes)."""
 BATCHES_PER_WORKER = 4
 """Smaller batches when a study is short, so that every worker gets work until the end."""
+WORKER_PROFILER = 'distributed.worker.profile.enabled'
 _ADDRESS = re.compile(r'^(tcp|tls)://[^\s/:]+:\d{1,5}$')
 
 
@@ -66,10 +67,15 @@ def local_cluster(workers: int | None = None):
         raise ConfigError(f'--workers {n!r}: must be an integer >= 1')
     # every listener on 127.0.0.1 (the scheduler's HTTP routes on a free port, not 8787);
     # the workers' own log lines stay quiet (a heartbeat racing the shutdown is logged as an
-    # error): every failure of a design or a task is in the result table with its reason
-    return LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host=LOOPBACK,
-                        dashboard_address=f'{LOOPBACK}:0', worker_dashboard_address=None,
-                        silence_logs=logging.CRITICAL)
+    # error): every failure of a design or a task is in the result table with its reason.
+    # The workers' statistical profiler is off: it keeps an hour of stack samples, and its
+    # tree of the solvers' call paths made worker memory grow by ~10 kB per design
+    # (benchmarks/bench_design.py measures the RSS over a long study).
+    import dask
+    with dask.config.set({WORKER_PROFILER: False}):
+        return LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host=LOOPBACK,
+                            dashboard_address=f'{LOOPBACK}:0', worker_dashboard_address=None,
+                            silence_logs=logging.CRITICAL)
 
 
 def connect(address: str, timeout_s: float = CONNECT_TIMEOUT_S):
