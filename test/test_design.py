@@ -36,11 +36,18 @@ STUDY = {   # 12 designs x 2 load sets; knee reached or not, 1.5th-order states 
 }
 
 
+def _listening(pid: int) -> set:
+    return {c.laddr for c in psutil.Process(pid).net_connections('inet')
+            if c.status == psutil.CONN_LISTEN}
+
+
 @pytest.fixture(scope='module')
 def client():
     from distributed import Client
+    before = _listening(os.getpid())          # the scheduler runs in this process
     with local_cluster(2) as cluster, Client(cluster) as c:
         c.wait_for_workers(2)
+        c.listening_before = before
         yield c
 
 
@@ -135,10 +142,13 @@ def test_every_worker_loads_the_model_once(full_run):
 
 
 def test_local_cluster_listens_on_loopback_only(client):
-    pids = [os.getpid()] + list(client.run(os.getpid).values())
-    listening = [c.laddr for pid in pids for c in psutil.Process(pid).net_connections('inet')
-                 if c.status == psutil.CONN_LISTEN]
-    assert len(listening) >= 3 and {a.ip for a in listening} == {'127.0.0.1'}
+    ours = _listening(os.getpid()) - client.listening_before        # scheduler + its HTTP
+    for pid in client.run(os.getpid).values():                      # workers and nannies
+        ours |= _listening(pid)
+    nanny_pids = {psutil.Process(pid).ppid() for pid in client.run(os.getpid).values()}
+    for pid in nanny_pids - {os.getpid()}:
+        ours |= _listening(pid)
+    assert len(ours) >= 4 and {a.ip for a in ours} == {'127.0.0.1'}
 
 
 def test_outputs_table_and_pareto_front(full_run, study):
