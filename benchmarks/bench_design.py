@@ -83,15 +83,25 @@ def serial(study, n: int) -> dict:
 
 
 def throughput(client, study, repeats: int, batch_size=None, failures_ok=False) -> list[float]:
+    """Designs per second of ``repeats`` runs; also keeps the workers' CPU use of the last run
+    (``throughput.cpu_use``: worker CPU time / (wall time x workers), below 1 when the workers
+    wait or the machine's cores are taken by other jobs)."""
+    import psutil
+
     from dmf_sim.design import run_study
+    procs = [psutil.Process(pid) for pid in client.run(os.getpid).values()]
     rates = []
     for _ in range(repeats):
+        cpu0 = sum(p.cpu_times().user + p.cpu_times().system for p in procs)
         t0 = time.perf_counter()
         res = run_study(study, client, batch_size=batch_size)
         dt = time.perf_counter() - t0
+        cpu = sum(p.cpu_times().user + p.cpu_times().system for p in procs) - cpu0
         assert failures_ok or not res.failed(), res.failed()[:3]
         rates.append(res.n_designs / dt)
         throughput.failed = len(res.failed())
+        throughput.cpu_use = cpu / (dt * len(procs))
+        throughput.cpu_s_per_design = cpu / res.n_designs
     return rates
 
 
@@ -223,8 +233,12 @@ def main(argv=None) -> int:
             out[f'designs_per_s_{n_workers}'] = statistics.median(r)
             out[f'designs_per_s_{n_workers}_min'] = min(r)
             out[f'designs_per_s_{n_workers}_max'] = max(r)
+            out[f'worker_cpu_use_{n_workers}'] = throughput.cpu_use
+            out[f'worker_cpu_s_per_design_{n_workers}'] = throughput.cpu_s_per_design
             print(f'{n_workers} worker(s): {statistics.median(r):.1f} designs/s (median of '
-                  f'{len(r)}; min {min(r):.1f}, max {max(r):.1f}), {args.designs} designs')
+                  f'{len(r)}; min {min(r):.1f}, max {max(r):.1f}), {args.designs} designs; '
+                  f'workers busy {throughput.cpu_use:.0%} of the wall time, '
+                  f'{throughput.cpu_s_per_design * 1e3:.0f} ms CPU per design')
             if n_workers == 2:
                 oh = task_overhead(client, 100 if args.quick else 400)
                 out['task_overhead_ms'] = oh * 1e3
