@@ -1,0 +1,94 @@
+"""``dmf-sim design``: a DMF design study (many designs x operating conditions) on Dask."""
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+from dmf_sim.errors import ConfigError
+
+NAME = 'design'
+HELP = ('DMF design study: every design of a study file (k, theta, alpha, damping, spring stages) '
+        'swept over its operating conditions on Dask; table, Pareto front and plots.')
+
+
+def add_arguments(p) -> None:
+    p.add_argument('study', help='study YAML (see config/study_example.yaml)')
+    p.add_argument('--out', type=Path, required=True,
+                   help='directory for results.parquet, results.csv, summary.json and the plots; '
+                        'finished designs are stored there as they arrive')
+    p.add_argument('--resume', action='store_true',
+                   help='continue the study stored in --out (finished designs are not recomputed)')
+    p.add_argument('--scheduler', metavar='ADDRESS',
+                   help='use an existing Dask cluster, e.g. tcp://HOST:8786 (default: a local '
+                        'cluster on this machine)')
+    p.add_argument('--workers', type=int,
+                   help='worker processes of the local cluster (default: one per core)')
+    p.add_argument('--batch-size', type=int, help='designs per Dask task (default: measured, '
+                   'see the README)')
+    p.add_argument('--connect-timeout', type=float, default=5.0,
+                   help='seconds to wait for --scheduler to answer (default 5)')
+    p.add_argument('--no-plots', action='store_true', help='skip the PNG figures')
+    p.add_argument('--no-progress', action='store_true', help='no progress bar on stderr')
+    p.add_argument('--json', action='store_true', help='print the summary as one JSON object')
+
+
+def run(args) -> int:
+    from dmf_sim.design.runner import connect, run_study
+    from dmf_sim.design.study import load_study
+    from dmf_sim.design.table import ResultStore
+
+    if args.workers is not None and args.workers < 1:
+        raise ConfigError(f'--workers {args.workers}: must be >= 1')
+    if args.workers is not None and args.scheduler:
+        raise ConfigError('--workers sizes the local cluster; with --scheduler the cluster '
+                          'brings its own workers (leave out one of them)')
+    if args.batch_size is not None and args.batch_size < 1:
+        raise ConfigError(f'--batch-size {args.batch_size}: must be >= 1')
+    if not args.connect_timeout > 0:
+        raise ConfigError(f'--connect-timeout {args.connect_timeout}: must be > 0 s')
+    study = load_study(args.study)
+    ResultStore(args.out, study, args.resume)          # --out / --resume problems, before work
+    client = connect(args.scheduler, args.connect_timeout) if args.scheduler else None
+    done = [0, study.n_designs]
+    try:
+        result = run_study(study, client, out=args.out, resume=args.resume,
+                           workers=args.workers, batch_size=args.batch_size,
+                           progress=not args.no_progress,
+                           on_batch=lambda n, total: done.__setitem__(0, n))
+    except KeyboardInterrupt:
+        print(f'dmf-sim design: interrupted; {done[0]} of {done[1]} designs are stored in '
+              f'{args.out}; continue with --resume', file=sys.stderr)
+        return 130
+    finally:
+        if client is not None:
+            client.close()
+    if not args.no_plots:
+        from dmf_sim.design.plots import write_plots
+        result.files.update(write_plots(result, args.out))
+    summary = result.summary()
+    (Path(args.out) / 'summary.json').write_text(json.dumps(summary, indent=1))
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        _print(summary)
+    return 0
+
+
+def _print(s: dict) -> None:
+    rate = f'{s["designs_per_s"]:.1f} designs/s' if s['designs_per_s'] else 'nothing computed'
+    print(f'study {s["study"]}: {s["n_designs"]} designs ({s["n_ok"]} ok, {s["n_failed"]} failed, '
+          f'{s["n_resumed"]} resumed) x conditions {", ".join(s["conditions"])}; '
+          f'{s["seconds"]:.1f} s on {s["workers"]} worker(s), {rate}')
+    o1, o2 = s['pareto_objectives']
+    print(f'Pareto front of {o1} and {o2} (both minimized): {len(s["pareto"])} designs')
+    for d in s['pareto'][:20]:
+        print('  ' + ', '.join(f'{k} = {v:.5g}' if isinstance(v, float) else f'{k} = {v}'
+                               for k, v in d.items()))
+    if s['best']:
+        print('best (compromise): ' + ', '.join(f'{k} = {v:.5g}' if isinstance(v, float)
+                                                else f'{k} = {v}' for k, v in s['best'].items()))
+    for f in s['failed'][:10]:
+        print(f'  design {f["design_id"]} failed: {f["error"]}')
+    for k, v in s['files'].items():
+        print(f'{k}: {v}')

@@ -1,0 +1,113 @@
+"""Parts of the design studies: parameters -> spring, sampling, the torque read-out at an element,
+merging repeated states, speed ranges, the Pareto front."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from dmf_sim.design.metrics import speed_ranges
+from dmf_sim.design.pareto import compromise, pareto_mask
+from dmf_sim.design.parameters import check_parameter_set, design_driveline, parse_parameter
+from dmf_sim.design.sampling import VariableRange, grid, latin_hypercube, uniform_random
+from dmf_sim.design.states import _distinct, order_torques
+from dmf_sim.engine import load_engine
+from dmf_sim.errors import ConfigError
+from dmf_sim.hbm import SweepOptions, sweep
+from dmf_sim.loads import DrivelineLoads
+from dmf_sim.model import load_driveline
+from dmf_sim.orders import ORDER_3
+from dmf_sim.spring import Stage
+
+
+def test_parameters_build_the_design_spring():
+    base = load_driveline('truck_dmf')
+    params = {parse_parameter(n, 'test'): v for n, v in {
+        'theta': 0.2, 'alpha': 2.0, 'stages[1].angle_rad': 0.3, 'stages[1].stiffness_factor': 5.0,
+        'coast_stages[0].angle_rad': 0.1, 'coast_stages[0].stiffness_factor': 1.5,
+        'k': 9000.0, 'damping': 30.0}.items()}
+    check_parameter_set(list(params), base, 'test')
+    line = design_driveline(base, params)
+    sp = line.spring
+    assert sp.k == 9000.0 and line.dmf_element.damping == 30.0
+    assert sp.drive == (Stage(0.2, 2.0), Stage(0.3, 5.0)) and sp.coast == (Stage(0.1, 1.5),)
+    # torque law: beyond the second knee the stiffness is k (1 + 5)
+    w = np.array([0.35, 0.36])
+    assert np.diff(sp.torque(w))[0] == pytest.approx(9000.0 * 6.0 * 0.01)
+    # untouched parameters keep the base values
+    only = design_driveline(base, {parse_parameter('alpha', 't'): 4.0})
+    assert only.spring.drive == (Stage(base.spring.theta, 4.0),)
+    assert only.dmf_element == base.dmf_element
+
+
+def test_parameter_names_checked():
+    base = load_driveline('truck_dmf')
+    with pytest.raises(ConfigError, match='same quantity'):
+        check_parameter_set([parse_parameter('theta', 't'),
+                             parse_parameter('stages[0].angle_rad', 't')], base, 't')
+    with pytest.raises(ConfigError, match='unknown design parameter'):
+        parse_parameter('stages[0].angle', 't')
+    with pytest.raises(ConfigError, match='>= 0'):
+        parse_parameter('damping', 't').check_value(-1.0, 't')
+    # stage angles out of order: that one design is invalid, with the spring's own message
+    with pytest.raises(ConfigError, match=r'stages\[1\]\.angle_rad'):
+        design_driveline(base, {parse_parameter('theta', 't'): 0.3,
+                                parse_parameter('stages[1].angle_rad', 't'): 0.25,
+                                parse_parameter('stages[1].stiffness_factor', 't'): 5.0})
+
+
+def test_sampling():
+    r = [VariableRange('a', 1.0, 2.0), VariableRange('b', 0.0, 10.0, (0.0, 5.0, 10.0))]
+    g = grid(r, [3, 3])
+    assert g.shape == (9, 2) and set(g[:, 1]) == {0.0, 5.0, 10.0}
+    assert list(g[:3, 0]) == [1.0, 1.0, 1.0]           # last variable fastest
+    n = 20
+    lhs = latin_hypercube(r, n, seed=4)
+    assert np.array_equal(lhs, latin_hypercube(r, n, seed=4))        # resumable: same designs
+    for j, (lo, hi) in enumerate(((1.0, 2.0), (0.0, 10.0))):      # one sample per stratum
+        strata = np.floor((lhs[:, j] - lo) / (hi - lo) * n).astype(int)
+        assert sorted(strata) == list(range(n))
+    u = uniform_random(r, 50, seed=1)
+    assert (u[:, 0] >= 1.0).all() and (u[:, 0] <= 2.0).all() and len(np.unique(u[:, 1])) == 50
+
+
+@pytest.fixture(scope='module')
+def knee_sweep():
+    eng = load_engine('engine_d13', load_set='A')
+    line = load_driveline('truck_dmf').with_dmf(alpha=3.0, theta=0.2)
+    return line, sweep(DrivelineLoads(line.reduce(), eng), 1.0, (900.0, 1100.0),
+                       options=SweepOptions(step_rpm=10.0))
+
+
+@pytest.mark.parametrize('element', ['INPUT SHAFT', 'SECONDARY FLYWHEEL', 'HUB', 'CYL3', 'DIFF'])
+def test_order_torques_equal_whole_chain_recovery(knee_sweep, element):
+    """Batched 3rd-order torque into an element (flexible, the DMF itself, rigid links, a
+    cylinder) = CondensedHBM.torque_harmonics, on both branches (the knee is crossed)."""
+    line, res = knee_sweep
+    pts = [p for b in res.branches for p in b.points][::4]
+    assert len(res.branches) >= 2
+    i = line.index(element)
+    got = order_torques(res.hbm, pts, i)
+    want = np.array([res.hbm.torque_harmonics(p)[ORDER_3, i] for p in pts])
+    assert np.max(np.abs(got - want)) <= 1e-9 * np.abs(want).max()
+
+
+def test_repeated_states_are_merged():
+    gi = np.array([0, 0, 0, 1, 1])
+    stable = np.array([True, True, True, True, False])
+    v = np.array([[0.010, 0.002, 0.25, 0.012, -0.011],
+                  [0.010, 0.002, 0.25, 0.0121, -0.011],      # the same state again
+                  [0.010, 0.015, 0.25, 0.020, -0.020],      # a 1.5th-order state
+                  [0.010, 0.002, 0.25, 0.012, -0.011],
+                  [0.010, 0.002, 0.25, 0.012, -0.011]])     # unstable: kept apart
+    assert list(_distinct(gi, stable, v)) == [0, 2, 3, 4]
+
+
+def test_speed_ranges_and_pareto():
+    speeds = np.array([900.0, 910, 920, 1000, 1020, 1030])
+    assert speed_ranges(speeds, 10.0) == '900-920, 1000, 1020-1030'
+    assert speed_ranges(np.array([]), 10.0) == ''
+    f1 = np.array([1.0, 2.0, 4.0, 2.0, np.nan, 1.0])
+    f2 = np.array([4.0, 2.0, 1.0, 3.0, 0.0, 4.0])      # NaN: never on the front
+    mask = pareto_mask(f1, f2)
+    assert list(mask) == [True, True, True, False, False, True]
+    assert compromise(f1, f2, mask) == 1
