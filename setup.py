@@ -29,7 +29,7 @@ setup(
         'mcap>=1.1',
         'rich>=13',
         'foxglove-sdk>=0.30',
-        'dask[distributed]>=2024.1',   # dmf-sim design: studies on a LocalCluster or a real cluster
+        'dask[distributed]>=2024.1',   # dmf-sim design: a LocalCluster or a real cluster
         'pyarrow>=14',                 # dmf-sim design: the Parquet result table
     ],
     extras_require={

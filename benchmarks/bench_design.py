@@ -122,10 +122,11 @@ def study_fixed_cost(client, speeds, design_s: float) -> float:
 
 def task_overhead(client, n_tasks: int) -> float:
     """Seconds of Dask overhead per task: round trips of tasks that evaluate no design."""
+    from distributed import wait
+
     from dmf_sim.design.evaluate import StudyContext, evaluate_batch
     from dmf_sim.design.runner import StudyPlugin
     from dmf_sim.design.study import load_study
-    from distributed import wait
     study = load_study(paper_study(2))
     client.register_plugin(StudyPlugin('bench-empty', StudyContext.from_study(study)),
                            name='bench-empty')

@@ -130,6 +130,32 @@ def _off_scale_note(curves: Sequence[WindupCurves], bottom: float, top: float) -
     return '; '.join(parts)
 
 
+def panel_title(alpha: float, theta: float, load_set: str, load: float) -> str:
+    """The parameters of one wind-up panel."""
+    return f'α = {alpha:g}, θ = {theta:g} rad, Load {load_set}, load {load:g}'
+
+
+def sweep_curves(res) -> list:
+    """WindupCurves of every branch of a SweepResult (the branch from the lowest speed first),
+    then the time-integration envelope of its non-periodic speeds (markers)."""
+    curves = [WindupCurves.from_branch(b, main=(b.kind == 'main' and b.id == 0))
+              for b in res.branches]
+    rows = [r for band in res.non_periodic for r in band.results]
+    if rows:
+        col = {k: np.array([getattr(r, k) for r in rows]) for k in
+               ('speed_rpm', 'order_3', 'order_1_5', 'max_deviation', 'min_deviation')}
+        curves.append(WindupCurves(col['speed_rpm'], col['order_3'], col['order_1_5'],
+                                   col['max_deviation'], col['min_deviation'],
+                                   np.full(len(rows), np.nan), marker='x', main=False))
+    return curves
+
+
+def sweep_bands(res) -> list[tuple[float, float]]:
+    """Speed ranges [rpm] without a stable periodic state (shaded in the figures)."""
+    return [(b.speed_min_rpm - b.half_width_rpm, b.speed_max_rpm + b.half_width_rpm)
+            for b in res.non_periodic]
+
+
 def windup_legend_handles() -> list[Line2D]:
     """Legend entries of a wind-up panel (for a figure legend outside the axes)."""
     return [Line2D([], [], color=COLORS['order_3'], lw=_BAND_WIDTH, alpha=0.45,

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from dmf_sim.design.metrics import speed_ranges
-from dmf_sim.design.pareto import compromise, pareto_mask
 from dmf_sim.design.parameters import check_parameter_set, design_driveline, parse_parameter
+from dmf_sim.design.pareto import compromise, pareto_mask
 from dmf_sim.design.sampling import VariableRange, grid, latin_hypercube, uniform_random
 from dmf_sim.design.states import _distinct, order_torques
 from dmf_sim.engine import load_engine

@@ -10,9 +10,8 @@ import numpy as np
 import pytest
 
 from dmf_sim.cli import main as cli_main
-from dmf_sim.commands.sweep import sweep_curves
 from dmf_sim.engine import load_engine
-from dmf_sim.figures import WindupCurves, mode_shapes_figure, windup_figure
+from dmf_sim.figures import WindupCurves, mode_shapes_figure, sweep_curves, windup_figure
 from dmf_sim.hbm import CondensedHBM
 from dmf_sim.hbm import sweep as run_sweep
 from dmf_sim.loads import DrivelineLoads

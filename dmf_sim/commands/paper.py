@@ -96,8 +96,15 @@ def run(args) -> int:
 # ------------------------------------------------------------------------------------------------
 def write_figures(r, out: Path) -> dict[str, str]:
     from dmf_sim.commands.loads import fig8
-    from dmf_sim.commands.sweep import panel_title, sweep_bands, sweep_curves
-    from dmf_sim.figures import mode_shapes_figure, nnm_figure, save, windup_figure
+    from dmf_sim.figures import (
+        mode_shapes_figure,
+        nnm_figure,
+        panel_title,
+        save,
+        sweep_bands,
+        sweep_curves,
+        windup_figure,
+    )
     s = r.settings
     files = {}
     files['fig8.png'] = save(fig8(r.mean_torque_speeds, r.mean_torque, 1.0, r.fig8_psi_deg,

@@ -211,35 +211,8 @@ def _print_summary(data: dict, results) -> None:
         print(f'  alpha={f["alpha"]:g} Load {f["load_set"]}: FAILED: {f["error"]}')
 
 
-def panel_title(alpha: float, theta: float, load_set: str, load: float) -> str:
-    """The parameters of one wind-up panel."""
-    return f'α = {alpha:g}, θ = {theta:g} rad, Load {load_set}, load {load:g}'
-
-
-def sweep_curves(res) -> list:
-    """WindupCurves of every branch of a SweepResult (the branch from the lowest speed first),
-    then the time-integration envelope of its non-periodic speeds (markers)."""
-    from dmf_sim.figures import WindupCurves
-    curves = [WindupCurves.from_branch(b, main=(b.kind == 'main' and b.id == 0))
-              for b in res.branches]
-    rows = [r for band in res.non_periodic for r in band.results]
-    if rows:
-        col = {k: np.array([getattr(r, k) for r in rows]) for k in
-               ('speed_rpm', 'order_3', 'order_1_5', 'max_deviation', 'min_deviation')}
-        curves.append(WindupCurves(col['speed_rpm'], col['order_3'], col['order_1_5'],
-                                   col['max_deviation'], col['min_deviation'],
-                                   np.full(len(rows), np.nan), marker='x', main=False))
-    return curves
-
-
-def sweep_bands(res) -> list[tuple[float, float]]:
-    """Speed ranges [rpm] without a stable periodic state (shaded in the figures)."""
-    return [(b.speed_min_rpm - b.half_width_rpm, b.speed_max_rpm + b.half_width_rpm)
-            for b in res.non_periodic]
-
-
 def _write(out: Path, data: dict, results) -> dict:
-    from dmf_sim.figures import save, windup_figure
+    from dmf_sim.figures import panel_title, save, sweep_bands, sweep_curves, windup_figure
     out.mkdir(parents=True, exist_ok=True)
     files = {'csv': str(out / 'sweep.csv'), 'json': str(out / 'sweep.json')}
     with open(out / 'sweep.csv', 'w', newline='') as fh:

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import os
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from dmf_sim.design.metrics import condition_metrics, design_summary
 from dmf_sim.design.parameters import Parameter, design_driveline
@@ -43,12 +43,15 @@ def context_loads() -> int:
 
 @dataclass(frozen=True)
 class SolverSettings:
-    """Speed grid [rpm] (from, to, step), harmonics H, branch switching, torque element index."""
+    """Speed grid [rpm] (from, to, step), harmonics H, branch switching, torque element index,
+    and the full steady-state search (``dmf_sim.hbm.search``; off: continuation, stability and
+    branch switching only, as ``dmf-sim sweep --fast``)."""
 
     speeds_rpm: tuple[float, float, float]
     harmonics: int
     branch_switching: bool
     torque_element: int
+    search: bool = True
 
 
 @dataclass
@@ -66,7 +69,7 @@ class StudyContext:
     @classmethod
     def from_study(cls, study) -> 'StudyContext':
         settings = SolverSettings(study.speeds_rpm, study.harmonics, study.branch_switching,
-                                  study.base.index(study.torque_element))
+                                  study.base.index(study.torque_element), study.search)
         return cls(study.base, study.engines, study.conditions, study.params, study.fixed,
                    settings, study.variable_names)
 
@@ -86,13 +89,16 @@ def solve_condition(line, engine, load: float, settings: SolverSettings):
 
 
 def sweep_condition(line, engine, load: float, settings: SolverSettings):
-    """The harmonic-balance sweep (``dmf_sim.hbm.sweep``) of one design at one condition."""
+    """The harmonic-balance sweep (``dmf_sim.hbm.sweep``) of one design at one condition: the
+    solution finder (every stable state, non-periodic speeds) unless ``settings.search`` is off."""
     from dmf_sim.hbm import HBMOptions, SweepOptions, sweep
     from dmf_sim.loads import DrivelineLoads
     lo, hi, step = settings.speeds_rpm
+    options = SweepOptions(step_rpm=step, branch_switching=settings.branch_switching)
+    if not settings.search:
+        options = replace(options, search=None)
     return sweep(DrivelineLoads(line.reduce(), engine), load, (lo, hi),
-                 hbm_options=HBMOptions(n_harmonics=settings.harmonics),
-                 options=SweepOptions(step_rpm=step, branch_switching=settings.branch_switching))
+                 hbm_options=HBMOptions(n_harmonics=settings.harmonics), options=options)
 
 
 def _failure(exc: BaseException) -> str:

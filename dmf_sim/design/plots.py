@@ -14,33 +14,26 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+from matplotlib.figure import Figure
 
 from dmf_sim.design.evaluate import StudyContext, evaluate_design, sweep_condition
 from dmf_sim.design.metrics import OBJECTIVES
 from dmf_sim.design.parameters import design_driveline
 
 MAX_CELLS = 40            # bins per map axis for scattered samples
-DPI = 110
 
 
 def write_plots(result, out) -> dict[str, str]:
     """Write the three figures of ``result`` (a StudyResult) into ``out``; returns their paths."""
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
+    from dmf_sim.figures import save
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    study = result.study
-    ref = reference_row(study)
+    ref = reference_row(result.study)
     files = {}
     for name, draw in (('objective_maps', _maps), ('pareto', _pareto), ('fig13_best', _fig13)):
-        fig = draw(result, ref, plt)
-        if fig is None:
-            continue
-        path = out / f'{name}.png'
-        fig.savefig(path, dpi=DPI)
-        plt.close(fig)
-        files[name] = str(path)
+        fig = draw(result, ref)
+        if fig is not None:
+            files[name] = str(save(fig, out / f'{name}.png'))
     return files
 
 
@@ -71,13 +64,14 @@ def _axis(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return edges, idx
 
 
-def _maps(result, ref, plt):
+def _maps(result, ref):
     study = result.study
     rows = result.rows('design')
     ok = [r for r in rows if r['status'] == 'ok']
     bad = [r for r in rows if r['status'] != 'ok']
     objs = study.objectives
-    fig, axes = plt.subplots(1, len(objs), figsize=(4.6 * len(objs), 4.0), squeeze=False)
+    fig = Figure(figsize=(4.6 * len(objs), 4.0), layout='constrained')
+    axes = fig.subplots(1, len(objs), squeeze=False)
     xv = study.map_variables[0]
     yv = study.map_variables[1] if len(study.map_variables) > 1 else None
     x = np.array([r[xv] for r in ok], dtype=float)
@@ -104,15 +98,15 @@ def _maps(result, ref, plt):
         ax.set_title(f'{obj}\n{_label(obj)}', fontsize=8)
     fig.suptitle(f'{study.name}: objectives over {", ".join(study.map_variables)} '
                  '(each cell: best over the other variables; x = failed design)', fontsize=9)
-    fig.tight_layout()
     return fig
 
 
-def _pareto(result, ref, plt):
+def _pareto(result, ref):
     study = result.study
     o1, o2 = study.objectives[:2]
     ok = [r for r in result.rows('design') if r['status'] == 'ok']
-    fig, ax = plt.subplots(figsize=(6.5, 5.0))
+    fig = Figure(figsize=(6.5, 5.0), layout='constrained')
+    ax = fig.subplots()
     ax.plot([r[o1] for r in ok], [r[o2] for r in ok], '.', color='0.6', label='designs')
     front = sorted((r for r in ok if r['pareto']), key=lambda r: (r[o1], r[o2]))
     ax.plot([r[o1] for r in front], [r[o2] for r in front], 'o-', color='tab:blue', ms=4,
@@ -128,7 +122,6 @@ def _pareto(result, ref, plt):
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     ax.set_title(f'{study.name}: Pareto front (both minimized)', fontsize=10)
-    fig.tight_layout()
     return fig
 
 
@@ -136,8 +129,8 @@ def _ref_text(study) -> str:
     return 'reference: ' + ', '.join(f'{p.name} = {v:g}' for p, v in study.reference.items())
 
 
-def _fig13(result, ref, plt):
-    from dmf_sim.commands.sweep import figure
+def _fig13(result, ref):
+    from dmf_sim.figures import sweep_bands, sweep_curves, windup_figure
     study = result.study
     if result.best_id is None:
         return None
@@ -151,6 +144,6 @@ def _fig13(result, ref, plt):
                           f'best: design {best["design_id"]} ({best_text})')):
         line = design_driveline(study.base, values)
         res = sweep_condition(line, study.engines[cond.load_set], cond.load, ctx.settings)
-        panels.append((text, res))
-    return figure(panels, f'DMF wind-up, Load {cond.load_set}, load {cond.load:g} '
-                          '(paper Fig. 13): reference vs best design', plt)
+        panels.append((text, sweep_curves(res), sweep_bands(res)))
+    return windup_figure(panels, f'DMF wind-up, Load {cond.load_set}, load {cond.load:g} '
+                                 '(paper Fig. 13): reference vs best design')

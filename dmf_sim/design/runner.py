@@ -21,8 +21,13 @@ import uuid
 
 from distributed.diagnostics.plugin import WorkerPlugin
 
-from dmf_sim.design.evaluate import (BatchResult, StudyContext, drop_context, evaluate_batch,
-                                     install_context)
+from dmf_sim.design.evaluate import (
+    BatchResult,
+    StudyContext,
+    drop_context,
+    evaluate_batch,
+    install_context,
+)
 from dmf_sim.design.result import StudyResult
 from dmf_sim.design.study import load_study
 from dmf_sim.design.table import ResultStore

@@ -16,7 +16,8 @@ A study (YAML mapping; ``config/study_example.yaml`` shows every key)::
       speeds_rpm: {from: 600, to: 2000, step: 10}
     objectives: [worst_order_1_5, worst_torque_3]   # minimized; the first two: Pareto front
     torque_element: INPUT SHAFT       # optional: where the 3rd-order torque is taken
-    solver: {harmonics: 24, branch_switching: true}  # optional
+    solver: {harmonics: 24, branch_switching: true, search: true}  # optional; search: the
+                                      # full steady-state search (false: continuation only)
     plots: {map_variables: [alpha, theta], reference: {alpha: 3, theta: 0.24}}   # optional
 
 Everything is checked, and the driveline and engine are loaded, before any design is evaluated.
@@ -83,6 +84,7 @@ class Study:
     harmonics: int
     branch_switching: bool
     map_variables: tuple[str, ...]
+    search: bool = True
     reference: dict[Parameter, float] = field(default_factory=dict)
     description: str = ''
     base: Driveline = field(default=None, repr=False)
@@ -121,7 +123,8 @@ class Study:
                            'loads': sorted({c.load for c in self.conditions}),
                            'speeds_rpm': {'from': lo, 'to': hi, 'step': step}},
             'objectives': list(self.objectives), 'torque_element': self.torque_element,
-            'solver': {'harmonics': self.harmonics, 'branch_switching': self.branch_switching},
+            'solver': {'harmonics': self.harmonics, 'branch_switching': self.branch_switching,
+                       'search': self.search},
             'plots': {'map_variables': list(self.map_variables),
                       'reference': {p.name: v for p, v in self.reference.items()}},
             'n_designs': self.n_designs,
@@ -242,12 +245,16 @@ def study_from_dict(data: dict, source: str = 'study', *, base_dir: Path | None 
     if torque_element not in base.names:
         raise w.error('torque_element', f'no element {torque_element!r} in driveline '
                       f'{base.name!r} (elements: {", ".join(base.names)})')
-    solver = w.mapping(data.get('solver') or {}, 'solver', (), ('harmonics', 'branch_switching'))
+    solver = w.mapping(data.get('solver') or {}, 'solver', (),
+                       ('harmonics', 'branch_switching', 'search'))
     harmonics = w.integer(solver.get('harmonics', DEFAULT_HARMONICS), 'solver.harmonics',
                           MIN_HARMONICS, 64)
     switching = solver.get('branch_switching', True)
     if not isinstance(switching, bool):
         raise w.error('solver.branch_switching', f'must be true or false, got {switching!r}')
+    search = solver.get('search', True)
+    if not isinstance(search, bool):
+        raise w.error('solver.search', f'must be true or false, got {search!r}')
     plots = w.mapping(data.get('plots') or {}, 'plots', (), ('map_variables', 'reference'))
     reference = {}
     ref_raw = w.mapping(plots.get('reference', PAPER_REFERENCE), 'plots.reference')
@@ -269,7 +276,8 @@ def study_from_dict(data: dict, source: str = 'study', *, base_dir: Path | None 
                  params=params, ranges=ranges, grid_points=points, fixed=fixed,
                  conditions=conditions, speeds_rpm=speeds, objectives=objectives,
                  torque_element=torque_element, harmonics=harmonics,
-                 branch_switching=switching, map_variables=map_vars, reference=reference,
+                 branch_switching=switching, search=search, map_variables=map_vars,
+                 reference=reference,
                  description=str(data.get('description') or ''), base=base, engines=engines,
                  file_digest=_digest(base_dir, data['driveline'], data['engine']))
 

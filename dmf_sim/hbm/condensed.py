@@ -66,6 +66,10 @@ class HBMOptions:
         n_time: M, AFT samples per 720 deg cycle (default: 8 (H+1) rounded up to a power of 2).
         tol: Newton tolerance on the residual's max norm [rad].
         max_iter: Newton iterations per solve.
+        stall_iter, stall_ratio: Newton gives up when the residual has not fallen below
+            ``stall_ratio`` x its value ``stall_iter`` iterations earlier (a seed outside the
+            basin stalls at a kink of the piecewise-linear residual with ever shorter steps;
+            converging solves take full steps and need at most ~6 iterations).
         speed_fd_rpm: finite-difference step for the speed derivative of the engine load [rpm].
     """
 
@@ -73,6 +77,8 @@ class HBMOptions:
     n_time: int | None = None
     tol: float = 1e-10
     max_iter: int = 40
+    stall_iter: int = 8
+    stall_ratio: float = 0.5
     speed_fd_rpm: float = 0.05
 
     def time_samples(self) -> int:
@@ -378,9 +384,16 @@ class CondensedHBM:
         x = np.array(x0, dtype=float)
         r, Jx = self.residual_and_jacobian(x, lp)
         nr = np.abs(r).max()
-        for it in range(1, self.options.max_iter + 1):
-            if nr <= self.options.tol:
+        history = [nr]
+        opt = self.options
+        for it in range(1, opt.max_iter + 1):
+            if nr <= opt.tol:
                 return x, it - 1, nr
+            stalled = (len(history) > opt.stall_iter
+                       and nr > opt.stall_ratio * history[-1 - opt.stall_iter])
+            if stalled:
+                raise ConvergenceError(f'HBM Newton: stalled at residual {nr:.2e} rad after '
+                                       f'{it - 1} iterations at {lp.speed_rpm:.1f} rpm')
             dx = solve_small(Jx, -r)
             lam = 1.0
             while True:   # backtracking on the max norm (the residual is only piecewise smooth)
@@ -391,6 +404,7 @@ class CondensedHBM:
                     break
                 lam *= 0.5
             x, r, Jx, nr = xn, rn, Jn, nn
+            history.append(nr)
         if nr <= self.options.tol:
             return x, self.options.max_iter, nr
         raise ConvergenceError(f'HBM Newton: residual {nr:.2e} rad after '
