@@ -1,10 +1,12 @@
 """Benchmark: design-study throughput on Dask (issue 16).
 
-    python benchmarks/bench_design.py [--designs 300] [--repeats 3] [--rss-designs 2000] [--quick]
+    python benchmarks/bench_design.py [--designs 300] [--repeats 3] [--rss-designs 2000]
+                                       [--engine engine_d13] [--search] [--quick]
 
 The paper case: every design is the paper's DMF (alpha 3, theta 0.24 rad) with its damping
 varied within +-1 % (so each design costs what the paper case costs), evaluated at Load A, full
-load, 600-2000 rpm at 10 rpm (141 speeds), continuation + Floquet stability + branch search,
+load, 600-2000 rpm at 10 rpm (141 speeds), continuation + Floquet stability + branch switching
+(`--search`: and the full steady-state search; its serial cost is printed either way),
 plus the study's metrics (3rd-order torque at the input shaft, 1.5th-order and non-periodic
 speeds, coexisting states).
 
@@ -39,15 +41,20 @@ OVERHEAD_BUDGET = 0.02          # task overhead allowed per batch, relative to i
 BATCH_SIZES = (1, 2, 4, 8)
 
 
+# what the benchmark's studies run on: set from the command line (--engine, --search)
+CASE = {'engine': 'engine_d13', 'search': False}
+
+
 def paper_study(n: int, speeds=(600.0, 2000.0, 10.0), seed: int = 1) -> dict:
     lo, hi, step = speeds
-    return {'name': 'bench_paper_case', 'driveline': 'truck_dmf', 'engine': 'engine_d13',
+    return {'name': 'bench_paper_case', 'driveline': 'truck_dmf', 'engine': CASE['engine'],
             'sampling': {'method': 'lhs', 'n': n, 'seed': seed},
             'variables': {'damping': {'min': 49.0, 'max': 50.0}},
             'fixed': {'alpha': 3.0, 'theta': 0.24},
             'conditions': {'load_sets': ['A'], 'loads': [1.0],
                            'speeds_rpm': {'from': lo, 'to': hi, 'step': step}},
-            'objectives': ['worst_order_1_5', 'worst_torque_3']}
+            'objectives': ['worst_order_1_5', 'worst_torque_3'],
+            'solver': {'search': CASE['search']}}
 
 
 def mixed_study(n: int, speeds=(600.0, 2000.0, 10.0)) -> dict:
@@ -202,7 +209,14 @@ def main(argv=None) -> int:
     p.add_argument('--repeats', type=int, default=3)
     p.add_argument('--rss-designs', type=int, default=2000)
     p.add_argument('--quick', action='store_true', help='small run for the test suite')
+    p.add_argument('--engine', default='engine_d13',
+                   help='engine of the paper case (default engine_d13, 2800 Nm: the paper\'s '
+                        'regime, crossing the knee; engine_d13_2500nm stays below it)')
+    p.add_argument('--search', action='store_true',
+                   help='the full steady-state search in every sweep (default: continuation, '
+                        'stability and branch switching, the issue\'s throughput definition)')
     args = p.parse_args(argv)
+    CASE.update(engine=args.engine, search=args.search)
     speeds = (600.0, 2000.0, 10.0)
     if args.quick:
         args.designs, args.repeats, args.rss_designs = 8, 1, 16
@@ -215,9 +229,17 @@ def main(argv=None) -> int:
 
     load0 = os.getloadavg()
     out: dict = {'quick': args.quick, 'speeds_rpm': list(speeds), 'designs': args.designs,
-                 'repeats': args.repeats, 'cores': os.cpu_count(), 'load_avg_before': load0}
+                 'repeats': args.repeats, 'cores': os.cpu_count(), 'load_avg_before': load0,
+                 'engine': args.engine, 'search': args.search}
     study = load_study(paper_study(args.designs, speeds))
     out.update(serial(study, min(args.designs, 20)))
+    if not args.search:               # what the solution finder costs on top, per design
+        CASE['search'] = True
+        full = serial(load_study(paper_study(args.designs, speeds)), min(args.designs, 5))
+        CASE['search'] = False
+        out['serial_s_per_design_full_search_median'] = full['serial_s_per_design_median']
+        print(f'serial with the full steady-state search: '
+              f'{full["serial_s_per_design_median"] * 1e3:.1f} ms per design (median)')
     print(f'serial (no Dask): {out["serial_s_per_design_median"] * 1e3:.1f} ms per design '
           f'(median; sweep {out["sweep_s_per_design_median"] * 1e3:.1f} ms, study metrics '
           f'{out["study_overhead_s_per_design"] * 1e3:.1f} ms) = '

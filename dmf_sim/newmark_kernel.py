@@ -304,7 +304,7 @@ def advance_kernel(nsteps, stride, state, system, factors, spring, excitation, o
 
 
 if HAVE_NUMBA:
-    _jit = numba.njit(cache=True, nogil=True)
+    _jit = numba.njit(cache=True, nogil=True, error_model='numpy')
     newmark_constants = _jit(newmark_constants)
     thomas = _jit(thomas)
     factor = _jit(factor)
