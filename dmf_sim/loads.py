@@ -54,6 +54,7 @@ class DrivelineLoads:
         R = self.model.R
         # rear load = -R_rear * sum_k (mean torque of cylinder k reflected to element 1)
         self._rear_factor = R[self.rear_element] / R[self.cylinder_elements]
+        self._rear_factor_sum = float(np.sum(self._rear_factor))
         # d'Alembert load per unit reference acceleration, element level [Nm per rad/s^2]
         m = self.model.n_elements
         dal = -np.array([el.inertia for el in line.elements]) / R
@@ -86,7 +87,7 @@ class DrivelineLoads:
 
     def rear_load_for(self, A: np.ndarray) -> float:
         """Rear element torque [Nm] for engine coefficients A_n (only the mean A_0 counts)."""
-        return -float(np.real(A[0])) * float(np.sum(self._rear_factor))
+        return -float(np.real(A[0])) * self._rear_factor_sum
 
     def element_harmonics(self, speed_rpm: float, load: float) -> np.ndarray:
         """(N+1, m) complex element-load amplitudes per half-order n [Nm]; row 0 is the mean."""
@@ -97,8 +98,13 @@ class DrivelineLoads:
         return P
 
     def dof_harmonics(self, speed_rpm: float, load: float) -> np.ndarray:
-        """(N+1, n_dof) complex generalized load amplitudes per half-order n [Nm]."""
-        return self.model.element_vector(self.element_harmonics(speed_rpm, load))
+        """(N+1, n_dof) complex generalized load amplitudes per half-order n [Nm]: the element
+        loads of :meth:`element_harmonics` through ``T^T`` (only the cylinders' and the rear
+        element's rows of T carry load)."""
+        A = self.engine.coefficients(speed_rpm, load)          # one engine query
+        P = self.cylinder_coefficients_for(A).T @ self.cylinder_dof_vectors
+        P[0] += self.rear_load_for(A) * self.rear_dof_vector
+        return P
 
     # ---- time domain -----------------------------------------------------------------------
     def element_loads(self, psi, speed_rpm: float, load: float) -> np.ndarray:

@@ -69,18 +69,18 @@ def synthesize(c: np.ndarray, n_samples: int) -> np.ndarray:
 
 
 def fig13_rows(c: np.ndarray, samples: np.ndarray) -> dict[str, np.ndarray]:
-    """The paper's Fig. 13 quantities for rows of cycles: ``c`` (rows, N+1) half orders and
-    ``samples`` (rows, M) the signal over each row's cycle(s). Returns arrays order_3,
-    order_1_5, mean, max_deviation, min_deviation (the mean is c_0)."""
-    c = np.atleast_2d(np.asarray(c))
-    samples = np.atleast_2d(np.asarray(samples, dtype=float))
-    mean = c[:, 0].real.astype(float)
-    n = c.shape[1]
-    return {'order_3': np.abs(c[:, ORDER_3]) if n > ORDER_3 else np.zeros(len(c)),
-            'order_1_5': np.abs(c[:, ORDER_1_5]) if n > ORDER_1_5 else np.zeros(len(c)),
+    """The paper's Fig. 13 quantities of one cycle or of rows of cycles: ``c`` (..., N+1) half
+    orders and ``samples`` (..., M) the signal over each row's cycle(s). Returns order_3,
+    order_1_5, mean, max_deviation, min_deviation (the mean is c_0), arrays of shape (...)."""
+    c = np.asarray(c)
+    samples = np.asarray(samples, dtype=float)
+    mean = c[..., 0].real.astype(float)
+    n = c.shape[-1]
+    return {'order_3': np.abs(c[..., ORDER_3]) if n > ORDER_3 else np.zeros(c.shape[:-1]),
+            'order_1_5': np.abs(c[..., ORDER_1_5]) if n > ORDER_1_5 else np.zeros(c.shape[:-1]),
             'mean': mean,
-            'max_deviation': samples.max(axis=1) - mean,
-            'min_deviation': samples.min(axis=1) - mean}
+            'max_deviation': samples.max(axis=-1) - mean,
+            'min_deviation': samples.min(axis=-1) - mean}
 
 
 @dataclass(frozen=True)
@@ -117,11 +117,11 @@ def summarize_orders(c: np.ndarray, samples: np.ndarray, theta: float,
                      static_windup: float = math.nan) -> OrderSummary:
     """Fig. 13 summary of one signal from its half orders ``c`` and its ``samples`` over whole
     cycles; ``theta`` the first knee [rad], ``static_windup`` [rad] if known."""
-    r = fig13_rows(np.asarray(c)[None], np.asarray(samples)[None])
-    mean = float(r['mean'][0])
-    return OrderSummary(order_3=float(r['order_3'][0]), order_1_5=float(r['order_1_5'][0]),
-                        max_deviation=float(r['max_deviation'][0]),
-                        min_deviation=float(r['min_deviation'][0]), mean=mean,
+    r = fig13_rows(c, samples)
+    mean = float(r['mean'])
+    return OrderSummary(order_3=float(r['order_3']), order_1_5=float(r['order_1_5']),
+                        max_deviation=float(r['max_deviation']),
+                        min_deviation=float(r['min_deviation']), mean=mean,
                         mean_minus_theta=mean - theta, static_windup=float(static_windup),
                         theta=float(theta))
 

@@ -221,6 +221,7 @@ class CondensedHBM:
         self._B = self.modes.Phi @ Vinv[:, self.modes.nf:].T                   # (n_dof, 2nf)
         self._a = self._ell * (self.modes.er @ Vinv[:, self.modes.nf:].T)      # residues of h
         self._cache: OrderedDict[float, LinearParts] = OrderedDict()
+        self._primary = self.spring.primary_bounds()           # (lower, upper) wind-up [rad]
         self._eye = np.eye(2 * H + 1)
 
     # ---- loads and linear parts -------------------------------------------------------------
@@ -228,6 +229,8 @@ class CondensedHBM:
         """(H+1, n_dof) complex generalized load harmonics P_n [Nm] (DrivelineLoads.dof_harmonics
         truncated or zero-padded to H)."""
         Pe = self.loads.dof_harmonics(speed_rpm, self.load)
+        if len(Pe) == self.H + 1:
+            return Pe
         P = np.zeros((self.H + 1, self.model.n_dof), dtype=complex)
         k = min(len(Pe), self.H + 1)
         P[:k] = Pe[:k]
@@ -331,17 +334,17 @@ class CondensedHBM:
         """
         w = self.E @ x
         sp = self.spring
-        active = sp.region_index(w) != sp.primary_index
-        if not active.any():
+        lo, hi = self._primary
+        if w.max() <= hi and w.min() >= lo:          # primary region only (knees tie to it)
             G = np.zeros(2 * self.H + 1)
             return (G, None) if jacobian else G
-        idx = np.flatnonzero(active)
-        wa = w[idx]
+        idx = np.flatnonzero((w > hi) | (w < lo))
         Fa = self.F[:, idx]
-        G = Fa @ sp.extra_torque(wa)
+        g, dg = sp.extra_torque_and_stiffness(w[idx])
+        G = Fa @ g
         if not jacobian:
             return G
-        return G, (Fa * sp.extra_stiffness(wa)) @ self.E[idx]
+        return G, (Fa * dg) @ self.E[idx]
 
     # ---- residual (eq. 15) -------------------------------------------------------------------
     def residual(self, x: np.ndarray, lp: LinearParts) -> np.ndarray:

@@ -285,10 +285,12 @@ class SpeedSweep(BranchSwitching, StateSearch):
         covered = np.zeros(len(grid), dtype=bool)
         for b in self.branches:
             S = np.array([q.speed_rpm for q in b.points])
-            for a, c in zip(S[:-1], S[1:]):
-                covered |= (grid >= min(a, c) - 1e-6) & (grid <= max(a, c) + 1e-6)
             if len(S) == 1:
                 covered |= np.abs(grid - S[0]) < 1e-6
+                continue
+            lo_seg = np.minimum(S[:-1], S[1:])[:, None] - 1e-6     # every segment of the branch
+            hi_seg = np.maximum(S[:-1], S[1:])[:, None] + 1e-6
+            covered |= ((grid >= lo_seg) & (grid <= hi_seg)).any(axis=0)
         return grid[~covered]
 
     def _cover(self, bar) -> None:
