@@ -111,3 +111,29 @@ def test_speed_ranges_and_pareto():
     mask = pareto_mask(f1, f2)
     assert list(mask) == [True, True, True, False, False, True]
     assert compromise(f1, f2, mask) == 1
+
+
+def test_non_periodic_speeds_count_in_the_worst_values(tmp_path):
+    """Where no periodic state is stable (the pure-3rd-order table at 600-640 rpm, alpha 2.5: a
+    torus instability) the study reports the speeds as non-periodic and takes the worst values
+    from the time-integration envelope there, not from the unstable periodic solution."""
+    from dmf_sim.design.evaluate import SolverSettings, solve_condition
+    from dmf_sim.design.metrics import condition_metrics
+    rows = ['speed_rpm,n,re,im']
+    for s in range(600, 1201, 20):
+        for n in range(25):
+            re = 2650 / 6 if n == 0 else (2500 / 6 if n == 6 else 0.0)
+            rows.append(f'{s},{n},{re!r},0.0')
+    table = tmp_path / 'pure3.csv'
+    table.write_text('\n'.join(rows) + '\n')
+    line = load_driveline('truck_dmf', alpha=2.5)
+    engine = load_engine(table)
+    settings = SolverSettings((600.0, 640.0, 20.0), 24, True, line.index('INPUT SHAFT'))
+    states = solve_condition(line, engine, 1.0, settings)
+    m = condition_metrics(states, line.spring, 20.0)
+    res = sweep(DrivelineLoads(line.reduce(), engine), 1.0, (600.0, 640.0),
+                options=SweepOptions(step_rpm=20.0))
+    envelope = [r for band in res.non_periodic for r in band.results if r.speed_rpm == 620.0]
+    assert envelope and m['rpm_nonperiodic'] >= 20.0 and m['speeds_nonperiodic']
+    assert m['max_windup'] >= envelope[0].mean + envelope[0].max_deviation - 1e-12
+    assert m['worst_order_1_5'] >= envelope[0].order_1_5

@@ -82,7 +82,8 @@ class StudyContext:
 
 def solve_condition(line, engine, load: float, settings: SolverSettings):
     """Every steady state of driveline ``line`` under ``engine`` at load fraction ``load``, on
-    the speed grid, as :class:`~dmf_sim.design.states.GridStates` (continuation today)."""
+    the speed grid, as :class:`~dmf_sim.design.states.GridStates` (the sweep's solution finder,
+    or continuation alone with ``settings.search`` off)."""
     from dmf_sim.design.states import grid_states
     res = sweep_condition(line, engine, load, settings)
     return grid_states(res, settings.speeds_rpm, settings.torque_element)

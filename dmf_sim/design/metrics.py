@@ -1,7 +1,9 @@
 """What a study reports per design and condition, from the steady states on the speed grid.
 
 All "worst" values are over the *stable* steady states (the states a truck can sit in; an unstable
-solution is never the answer, design.md §4), at every grid speed and on every branch:
+solution is never the answer, design.md §4), at every grid speed and on every branch, and over
+the time-integration envelopes where no periodic state is stable (averaged orders and max/min
+over many cycles: what the driveline does there):
 
 * ``worst_order_1_5`` / ``worst_order_3``: largest 1.5th / 3rd-order wind-up amplitude [rad];
 * ``worst_torque_3``: largest 3rd-order torque amplitude [Nm] transmitted into the study's torque
@@ -38,7 +40,7 @@ WORST = ('worst_order_1_5', 'worst_order_3', 'worst_torque_3', 'max_dmf_torque')
 
 def condition_metrics(states, spring, step_rpm: float) -> dict:
     """Metrics of one design at one condition from its grid states (states.GridStates)."""
-    st = states.stable
+    st = states.stable | ~states.periodic          # what the driveline settles in or does
     s = states.speed_rpm[st]
     hi = states.mean[st] + states.max_dev[st]
     lo = states.mean[st] + states.min_dev[st]
@@ -50,7 +52,7 @@ def condition_metrics(states, spring, step_rpm: float) -> dict:
         out[name], out[f'{name}_rpm'] = _worst(values, s)
     out['max_windup'] = float(hi.max()) if len(hi) else math.nan
     grid = states.grid
-    n_stable = np.bincount(states.grid_index[st], minlength=len(grid))
+    n_stable = np.bincount(states.grid_index[states.stable], minlength=len(grid))
     sub = np.zeros(len(grid), dtype=bool)
     sub[states.grid_index[st & states.is_1_5]] = True
     out['rpm_1_5'] = float(sub.sum() * step_rpm)
@@ -84,9 +86,9 @@ def design_summary(rows: list[dict]) -> dict:
 
 
 def _worst(values: np.ndarray, speeds: np.ndarray) -> tuple[float, float]:
-    if len(values) == 0:
+    if len(values) == 0 or np.all(np.isnan(values)):
         return math.nan, math.nan
-    k = int(np.argmax(values))
+    k = int(np.nanargmax(values))
     return float(values[k]), float(speeds[k])
 
 

@@ -39,8 +39,12 @@ class GridStates:
         Repeated visits of one state (see ``_distinct``) are merged.
         stable: Floquet-stable; is_1_5: a 1.5th-order resonance state (sweep criterion).
         order_3, order_1_5, mean, max_dev, min_dev: wind-up quantities [rad] (paper Fig. 13).
-        torque_3: 3rd-order torque amplitude into the torque element [Nm] (NaN if unstable).
+        torque_3: 3rd-order torque amplitude into the torque element [Nm] (NaN if unstable or
+            non-periodic).
         n_branches: branches the solver found.
+        periodic: False for the time-integration envelopes of grid speeds without a stable
+            periodic state (the sweep's non-periodic results: averaged orders, max/min
+            deviation over many cycles); those entries are not stable states.
     """
 
     grid: np.ndarray
@@ -55,6 +59,11 @@ class GridStates:
     min_dev: np.ndarray
     torque_3: np.ndarray
     n_branches: int
+    periodic: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.periodic is None:
+            self.periodic = np.ones(len(self.grid_index), dtype=bool)
 
 
 def speed_grid(lo: float, hi: float, step: float) -> np.ndarray:
@@ -114,8 +123,37 @@ def grid_states(res, speeds_rpm: tuple[float, float, float], torque_element: int
     ta = np.array([tq.get(id(p), np.nan) for p in pa])
     tb = np.array([tq.get(id(p), np.nan) for p in pb])
     torque_3 = np.where(f == 0.0, ta, ta + f * (tb - ta))
-    return GridStates(grid=grid, grid_index=gi, speed_rpm=grid[gi], stable=stable, is_1_5=is_1_5,
-                      torque_3=torque_3, n_branches=len(res.branches), **q)
+    out = GridStates(grid=grid, grid_index=gi, speed_rpm=grid[gi], stable=stable, is_1_5=is_1_5,
+                     torque_3=torque_3, n_branches=len(res.branches), **q)
+    return _with_nonperiodic(out, res, lo, step)
+
+
+def _with_nonperiodic(states: GridStates, res, lo: float, step: float) -> GridStates:
+    """Append the sweep's time-integration envelopes at grid speeds without a stable periodic
+    state (``periodic`` False)."""
+    rows = [r for band in getattr(res, 'non_periodic', ()) for r in band.results]
+    k = np.rint((np.array([r.speed_rpm for r in rows]) - lo) / step).astype(int)
+    on = [(i, r) for i, r in zip(k, rows)
+          if 0 <= i < len(states.grid) and abs(r.speed_rpm - states.grid[i]) < _ON_GRID_RPM]
+    if not on:
+        return states
+    gi = np.array([i for i, _ in on], dtype=int)
+
+    def cat(old, new):
+        return np.concatenate([old, np.asarray(new, dtype=old.dtype)])
+
+    n = len(on)
+    return GridStates(
+        grid=states.grid, grid_index=cat(states.grid_index, gi),
+        speed_rpm=cat(states.speed_rpm, states.grid[gi]),
+        stable=cat(states.stable, np.zeros(n, bool)), is_1_5=cat(states.is_1_5, np.zeros(n, bool)),
+        order_3=cat(states.order_3, [r.order_3 for _, r in on]),
+        order_1_5=cat(states.order_1_5, [r.order_1_5 for _, r in on]),
+        mean=cat(states.mean, [r.mean for _, r in on]),
+        max_dev=cat(states.max_dev, [r.max_deviation for _, r in on]),
+        min_dev=cat(states.min_dev, [r.min_deviation for _, r in on]),
+        torque_3=cat(states.torque_3, np.full(n, np.nan)), n_branches=states.n_branches,
+        periodic=cat(states.periodic, np.zeros(n, bool)))
 
 
 def _distinct(grid_index: np.ndarray, stable: np.ndarray, values: np.ndarray) -> np.ndarray:
