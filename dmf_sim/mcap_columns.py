@@ -15,7 +15,8 @@ framing and decompression and replaces only the per-message work with array oper
    ``rosbags``' decoding of it; each message whose fixed bytes (frame id, names, array lengths)
    differ from that layout is decoded with ``rosbags``. Any other type: ``rosbags`` per message.
 
-Memory: one chunk at a time plus the kept columns; the file is read, not mapped.
+Memory: a batch of decompressed chunks (about 1 MiB) at a time plus the kept columns; the file
+is read, not mapped.
 """
 from __future__ import annotations
 
@@ -45,6 +46,9 @@ _RECORD_HEAD = 9          # opcode (1) + record length (8)
 _LOG_TIME, _PUBLISH_TIME = 15, 23   # message record offsets: head 9, channel 2, sequence 4
 _MSG_DATA = 31            # message data after log and publish time
 _LOOSE_BATCH = 4096       # unchunked messages gathered per batch
+_CHUNK_BATCH_BYTES = 1 << 20   # decompressed chunks gathered per batch (the recorder's chunks
+                               # are small for crash tolerance: numpy's per-call cost would
+                               # dominate chunk by chunk)
 _ARANGE8 = np.arange(8)
 
 
@@ -303,6 +307,8 @@ class McapColumns:
         self._schemas: dict[int, Schema] = {}
         self._channels: dict[int, tuple[str, Column | None]] = {}
         self._loose: list[Message] = []
+        self._pending: list[bytes] = []        # decompressed chunks not gathered yet
+        self._pending_bytes = 0
 
     # ---- records -----------------------------------------------------------------------------
     def _channel(self, channel: Channel) -> None:
@@ -349,14 +355,29 @@ class McapColumns:
 
     # ---- chunks ------------------------------------------------------------------------------
     def _chunk(self, chunk: Chunk) -> bool:
-        """Read one chunk; False if it cannot be decompressed (damaged: the file ends there)."""
+        """Decompress one chunk into the pending batch (gathered by :meth:`_flush_chunks`);
+        False if it cannot be decompressed (damaged: the file ends there)."""
         try:
             stream, size = get_chunk_data_stream(chunk)
-            buf = np.frombuffer(stream.read(size), np.uint8)
+            data = stream.read(size)
         except Exception as exc:  # noqa: BLE001 - zstd/lz4 errors of a damaged chunk vary
+            self._flush_chunks()
             self.truncated = True
             self.error = f'damaged chunk: {type(exc).__name__}: {" ".join(str(exc).split())}'
             return False
+        self._pending.append(data)
+        self._pending_bytes += len(data)
+        if self._pending_bytes >= _CHUNK_BATCH_BYTES:
+            self._flush_chunks()
+        return True
+
+    def _flush_chunks(self) -> None:
+        """Gather the pending chunks at once: a chunk's records are a complete record sequence,
+        so chunks read back to back are one."""
+        if not self._pending:
+            return
+        buf = np.frombuffer(b''.join(self._pending), np.uint8)
+        self._pending, self._pending_bytes = [], 0
         offs = _record_offsets(buf)
         ops = buf[offs]
         lengths = _u64(buf, offs + 1).astype(np.int64)
@@ -367,12 +388,11 @@ class McapColumns:
         msg = ops == _OP_MESSAGE
         m_offs, m_len = offs[msg], lengths[msg]
         if not len(m_offs):
-            return True
+            return
         cids = buf[m_offs + _RECORD_HEAD].astype(np.int64) \
             | (buf[m_offs + _RECORD_HEAD + 1].astype(np.int64) << 8)
         times = _u64(buf, m_offs + self._stamp_at)
         self._gather(buf, cids, times, m_offs + _MSG_DATA, m_len - (_MSG_DATA - _RECORD_HEAD))
-        return True
 
     def _flush_loose(self) -> None:
         """Messages outside chunks (unchunked files), gathered like a chunk's."""
@@ -398,6 +418,7 @@ class McapColumns:
                 if not self._chunk(record):
                     return self
             elif isinstance(record, Message):
+                self._flush_chunks()           # file order: the chunks before this message
                 if self._column(record.channel_id) is not None:
                     self._loose.append(record)
                     if len(self._loose) >= _LOOSE_BATCH:
@@ -406,10 +427,12 @@ class McapColumns:
                 ended = True           # the summary section follows: nothing more to read
                 break
             else:
+                self._flush_chunks()           # e.g. a channel declared after these chunks
                 self._record(record)
             if self.progress is not None:
                 self.progress(scan.valid_end - done)
                 done = scan.valid_end
+        self._flush_chunks()
         self._flush_loose()
         if not ended and not scan.complete:
             self.truncated = True
