@@ -57,6 +57,11 @@ class ContinuationOptions:
         max_correction: largest accepted corrector displacement, relative to the step (guards
             against jumping onto another branch).
         max_steps: safety limit of steps per branch.
+        loop_skip, loop_tol: the branch has closed on itself (an isola, or a loop back onto its
+            own earlier part) when a new point lies within ``loop_tol`` x step_max of the
+            polyline through the points more than ``loop_skip`` back, moving the same way; it
+            ends there (reason 'closed') instead of going round until ``max_steps``. (Distinct
+            coexisting solutions at one speed are farther apart than that in scaled units.)
     """
 
     s_scale: float = 10.0
@@ -72,6 +77,8 @@ class ContinuationOptions:
     max_turn: float = 0.6
     max_correction: float = 0.5
     max_steps: int = 5000
+    loop_skip: int = 20
+    loop_tol: float = 0.05
 
 
 @dataclass
@@ -175,8 +182,10 @@ def continue_branch(problem: ContinuationProblem, x0: np.ndarray, s0: float,
     iterating (the HBM: stretches where the wind-up never reaches a knee, so the response is the
     linear one); the last one must carry the exact tangent.
     ``on_end(reason, last_point)`` is told why the branch ended: 'bound' (s reached a bound),
-    'stop', 'left_range' (the corrector needed parameters outside the problem's data),
-    'corrector_failed' (no step, however small, converged) or 'max_steps'.
+    'stop', 'closed' (the branch came back onto its own earlier part: see
+    ``ContinuationOptions.loop_skip``), 'left_range' (the corrector needed parameters outside
+    the problem's data), 'corrector_failed' (no step, however small, converged) or
+    'max_steps'.
     """
     o = options or ContinuationOptions()
     xs, ss = o.x_scale, o.s_scale
@@ -197,6 +206,25 @@ def continue_branch(problem: ContinuationProblem, x0: np.ndarray, s0: float,
     h = o.step
     e_s = np.zeros(n + 1)
     e_s[n] = 1.0
+    visited = [y.copy()]                   # scaled (x, s) of every point, for loop detection
+
+    def closes(p: ContinuationPoint) -> bool:
+        """The new point lies on the polyline of the branch's earlier part (more than loop_skip
+        points back), travelling the same way along it."""
+        q = np.concatenate([p.x / xs, [p.s / ss]])
+        visited.append(q)
+        if len(visited) <= o.loop_skip + 2:
+            return False
+        a = np.asarray(visited[:-1 - o.loop_skip])
+        seg = a[1:] - a[:-1]
+        a = a[:-1]
+        length2 = np.einsum('ij,ij->i', seg, seg)
+        u = np.clip(np.einsum('ij,ij->i', q - a, seg) / np.where(length2 > 0, length2, 1.0),
+                    0.0, 1.0)
+        gap = np.linalg.norm(a + u[:, None] * seg - q, axis=1)
+        along = seg @ p.tangent / np.sqrt(np.where(length2 > 0, length2, 1.0))
+        return bool(np.any((gap < o.loop_tol * o.step_max) & (along > 0.9)))
+
     force_arc = False
     done = False
     reason = 'max_steps'
@@ -217,6 +245,9 @@ def continue_branch(problem: ContinuationProblem, x0: np.ndarray, s0: float,
                     break
                 if stop is not None and stop(p, pts):
                     done, reason = True, 'stop'
+                    break
+                if closes(p):
+                    done, reason = True, 'closed'
                     break
             if jump:
                 y = np.concatenate([pts[-1].x / xs, [pts[-1].s / ss]])
@@ -289,6 +320,9 @@ def continue_branch(problem: ContinuationProblem, x0: np.ndarray, s0: float,
             break
         if stop is not None and stop(p, pts):
             reason = 'stop'
+            break
+        if closes(p):
+            reason = 'closed'
             break
     if on_end is not None:
         on_end(reason, pts[-1])

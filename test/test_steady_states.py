@@ -223,3 +223,14 @@ def test_steady_cli_rejects_bad_options(capsys):
     assert '--samples' in capsys.readouterr().err
     assert cli_main(['steady', '--speed', '30', '--samples', '0']) == 2
     assert 'engine data covers' in capsys.readouterr().err
+
+
+def test_a_branch_that_closes_on_itself_ends_instead_of_circling():
+    """alpha 3.626, theta 0.2343 (default engine, Load A): continuation from 600 rpm runs onto a
+    closed loop between two folds (919 and 1064 rpm). It used to go round it until max_steps
+    (about 3,900 points, 9 s); now the branch ends with a closed_loop event, the rest of the range
+    is re-seeded, and every grid speed is covered."""
+    L = loads_for(load_engine('engine_d13'), 3.626, theta=0.2343)
+    res = sweep(L, 1.0, (600.0, 2000.0), options=SweepOptions(search=None))
+    assert any(e.kind == 'closed_loop' for e in res.events)
+    assert res.n_points < 600 and not res.uncovered

@@ -145,6 +145,10 @@ class SpeedSweep(BranchSwitching, StateSearch):
                 self.events.append(SweepEvent('left_speed_range', branch, cp.s,
                                               'the continuation needed engine speeds outside the '
                                               'engine data: the branch ends here'))
+            elif reason == 'closed':
+                self.events.append(SweepEvent('closed_loop', branch, cp.s,
+                                              'the branch came back onto its own earlier part '
+                                              '(a closed loop): it ends here'))
 
         continue_branch(self.hbm, x0, s0, self.range, direction, self.cont, stop=stop,
                         on_point=on_point, fast_forward=self._linear_stretch, on_end=on_end)
