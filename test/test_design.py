@@ -12,6 +12,7 @@ import numpy as np
 import psutil
 import pytest
 import yaml
+from nested_edit import DELETE, edited
 
 from dmf_sim.cli import main as cli_main
 from dmf_sim.design import load_study, run_study
@@ -218,22 +219,13 @@ def test_a_failing_design_is_reported_and_the_rest_complete(client):
 # ------------------------------------------------------------------------------------------------
 
 def _mutate(path: str, value):
-    data = json.loads(json.dumps(STUDY))
-    keys = path.split('/')
-    node = data
-    for k in keys[:-1]:
-        node = node[k]
-    if value is KeyError:
-        del node[keys[-1]]
-    else:
-        node[keys[-1]] = value
-    return data
+    return edited(STUDY, path.split('/'), value)
 
 
 @pytest.mark.parametrize('path, value, field', [
-    ('variables', KeyError, "missing key 'variables'"),
-    ('conditions/speeds_rpm', KeyError, "conditions: missing key 'speeds_rpm'"),
-    ('objectives', KeyError, "missing key 'objectives'"),
+    ('variables', DELETE, "missing key 'variables'"),
+    ('conditions/speeds_rpm', DELETE, "conditions: missing key 'speeds_rpm'"),
+    ('objectives', DELETE, "missing key 'objectives'"),
     ('variables/alpha', {'min': 3.0, 'max': 3.0, 'n': 4}, 'variables.alpha: empty range'),
     ('variables/alpha', {'values': []}, 'variables.alpha.values'),
     ('variables/beta', {'min': 1, 'max': 2, 'n': 2}, "unknown design parameter 'beta'"),

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from nested_edit import DELETE, edited
 
 from dmf_sim.cli import main as cli_main
 from dmf_sim.engine import (
@@ -292,31 +293,18 @@ def test_minimal_good_csv(tmp_path):
 # ------------------------------------------------------------------------------------------------
 # Engine YAML validation
 # ------------------------------------------------------------------------------------------------
-def _edit(doc: dict, dotted: str, value) -> dict:
-    keys = dotted.split('.')
-    node = doc
-    for k in keys[:-1]:
-        node = node[k]
-    if value is _DELETE:
-        del node[keys[-1]]
-    else:
-        node[keys[-1]] = value
-    return doc
-
-
-_DELETE = object()
 
 
 @pytest.mark.parametrize('field, value, needles', [
     ('geometry.bore_m', -0.131, ('geometry.bore_m', '(0, 2]')),
-    ('geometry.bore_m', _DELETE, ('geometry.bore_m', 'missing')),
+    ('geometry.bore_m', DELETE, ('geometry.bore_m', 'missing')),
     ('geometry.piston_mass', 3.0, ('geometry.piston_mass', 'unknown')),
     ('geometry.conrod_m', 0.05, ('geometry.conrod_m', 'crank radius')),
     ('geometry.compression_ratio', 'high', ('geometry.compression_ratio', 'number')),
     ('n_cylinders', 0, ('n_cylinders', '[1, 24]')),
     ('firing_phases_deg', [0, 480, 240], ('firing_phases_deg', '6')),
     ('n_max', 100, ('n_max', '[1, 48]')),
-    ('combustion', _DELETE, ('combustion', 'missing')),
+    ('combustion', DELETE, ('combustion', 'missing')),
     ('combustion.polytropic_exponent', 0.9, ('combustion.polytropic_exponent', '1.67')),
     ('full_load_curve.speeds_rpm', [1000, 800], ('full_load_curve.speeds_rpm', 'increasing')),
     ('grid.loads', [0.25, 1.0], ('grid.loads', 'start at 0')),
@@ -328,7 +316,7 @@ _DELETE = object()
 ])
 def test_bad_engine_yaml_refused(tmp_path, base_yaml, field, value, needles):
     path = tmp_path / 'engine_bad.yaml'
-    path.write_text(yaml.safe_dump(_edit(base_yaml, field, value)))
+    path.write_text(yaml.safe_dump(edited(base_yaml, field.split('.'), value)))
     with pytest.raises(ValueError) as exc:
         load_engine(path)
     _one_line_error(exc, 'engine_bad.yaml', *needles)
