@@ -161,6 +161,54 @@ def correct(problem: ContinuationProblem, y_pred: np.ndarray, normal: np.ndarray
     raise CorrectorFailed(f'corrector: max|r| = {res:.2e} after {max_iter} iterations')
 
 
+class _LoopDetector:
+    """Tells when a branch has come back onto its own earlier part (see
+    ``ContinuationOptions.loop_skip``): the new point lies within ``loop_tol`` x step_max of the
+    polyline through the points more than ``loop_skip`` back, travelling the same way along it.
+
+    Points are kept scaled, (x / x_scale, s / s_scale), in one growing array. A point can only lie
+    that close to the earlier polyline if its s lies within that part's s-range widened by the
+    tolerance, so a branch that has not turned back in s (most of them) costs two float
+    comparisons per point; the polyline distances are computed only inside that range.
+    """
+
+    def __init__(self, y0: np.ndarray, o: ContinuationOptions):
+        self.o = o
+        self.tol = o.loop_tol * o.step_max
+        self.points = np.empty((64, y0.size))
+        self.points[0] = y0
+        self.count = 1
+        self.s_lo = self.s_hi = float(y0[-1])   # s-range of the points that are far enough back
+        self.ranged = 0                         # how many points s_lo/s_hi cover
+
+    def __call__(self, p: ContinuationPoint) -> bool:
+        o = self.o
+        if self.count == len(self.points):
+            self.points = np.concatenate([self.points, np.empty_like(self.points)])
+        q = self.points[self.count]
+        q[:-1] = p.x / o.x_scale
+        q[-1] = p.s / o.s_scale
+        self.count += 1
+        far = self.count - 1 - o.loop_skip      # points[:far] form the earlier part
+        if far < 2:
+            return False
+        while self.ranged < far:
+            s_k = float(self.points[self.ranged, -1])
+            self.s_lo, self.s_hi = min(self.s_lo, s_k), max(self.s_hi, s_k)
+            self.ranged += 1
+        if not self.s_lo - self.tol <= q[-1] <= self.s_hi + self.tol:
+            return False
+        a = self.points[:far]
+        seg = a[1:] - a[:-1]
+        a = a[:-1]
+        length2 = np.einsum('ij,ij->i', seg, seg)
+        safe = np.where(length2 > 0, length2, 1.0)
+        u = np.clip(np.einsum('ij,ij->i', q - a, seg) / safe, 0.0, 1.0)
+        gap = np.linalg.norm(a + u[:, None] * seg - q, axis=1)
+        along = seg @ p.tangent / np.sqrt(safe)
+        return bool(np.any((gap < self.tol) & (along > 0.9)))
+
+
 def continue_branch(problem: ContinuationProblem, x0: np.ndarray, s0: float,
                     s_bounds: tuple[float, float],
                     direction: float = 1.0, options: ContinuationOptions | None = None,
@@ -206,24 +254,7 @@ def continue_branch(problem: ContinuationProblem, x0: np.ndarray, s0: float,
     h = o.step
     e_s = np.zeros(n + 1)
     e_s[n] = 1.0
-    visited = [y.copy()]                   # scaled (x, s) of every point, for loop detection
-
-    def closes(p: ContinuationPoint) -> bool:
-        """The new point lies on the polyline of the branch's earlier part (more than loop_skip
-        points back), travelling the same way along it."""
-        q = np.concatenate([p.x / xs, [p.s / ss]])
-        visited.append(q)
-        if len(visited) <= o.loop_skip + 2:
-            return False
-        a = np.asarray(visited[:-1 - o.loop_skip])
-        seg = a[1:] - a[:-1]
-        a = a[:-1]
-        length2 = np.einsum('ij,ij->i', seg, seg)
-        u = np.clip(np.einsum('ij,ij->i', q - a, seg) / np.where(length2 > 0, length2, 1.0),
-                    0.0, 1.0)
-        gap = np.linalg.norm(a + u[:, None] * seg - q, axis=1)
-        along = seg @ p.tangent / np.sqrt(np.where(length2 > 0, length2, 1.0))
-        return bool(np.any((gap < o.loop_tol * o.step_max) & (along > 0.9)))
+    closes = _LoopDetector(y, o)
 
     force_arc = False
     done = False
