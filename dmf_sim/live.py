@@ -312,10 +312,12 @@ class LiveSimulation:
 
     @property
     def finite(self) -> bool:
-        """Solver health: the state holds only finite numbers (a NaN/inf anywhere makes the
-        sum non-finite; the tridiagonal solve spreads a NaN to every DOF within one step)."""
-        it = self.integ
-        return math.isfinite(float(it.q.sum() + it.v.sum()))
+        """Solver health: the state holds only finite numbers. The tridiagonal solve spreads a
+        NaN/inf in any load, angle or rate to every DOF's angle within one step (and the rates
+        follow from the angles), so the end DOFs' angle and rate tell, at the cost of four scalar
+        reads instead of two array sums per chunk."""
+        q, v = self.integ.q, self.integ.v
+        return math.isfinite(q[0] + q[-1] + v[0] + v[-1])
 
     @property
     def next_sample_step(self) -> int:

@@ -234,7 +234,7 @@ class NewmarkIntegrator:
                                             out, self._counters)
         record.count = rows
         self.knee_crossings, self.steps_secondary, self.steps_coast, self.split_steps = (
-            int(c) for c in self._counters)
+            self._counters.tolist())
         return rows
 
     def _scratch(self, rows: int) -> StepRecord:

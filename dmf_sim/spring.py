@@ -100,8 +100,14 @@ class PiecewiseLinearSpring:
             x = self.knees[r]
             off[r] = (self.slopes[r + 1] * x + off[r + 1]) - self.slopes[r] * x
         self.offsets = off
-        for a in (self.knees, self.slopes, self.offsets):
+        # region lookup: a wind-up exactly at a coast knee belongs to the primary (inner) side,
+        # exactly at a drive knee too: count coast knees <= w and drive knees < w
+        self._coast_knees = self.knees[:nc]
+        self._drive_knees = self.knees[nc:]
+        for a in (self.knees, self.slopes, self.offsets, self._coast_knees, self._drive_knees):
             a.setflags(write=False)
+        #: True when no stage changes the stiffness (g = 0 everywhere); the spring is immutable
+        self.is_linear = not np.any(self.slopes)
 
     # ---- construction shorthands -------------------------------------------------------------
     @classmethod
@@ -156,10 +162,6 @@ class PiecewiseLinearSpring:
     def n_regions(self) -> int:
         return len(self.slopes)
 
-    @property
-    def is_linear(self) -> bool:
-        """True when no stage changes the stiffness (g = 0 everywhere)."""
-        return not np.any(self.slopes)
 
     def stage_of_index(self, index):
         return np.asarray(index) - self.primary_index
@@ -246,11 +248,9 @@ class PiecewiseLinearSpring:
     def region_index(self, w):
         """Region index 0..n_knees of wind-up(s) w (ascending in w; ties to the primary side)."""
         w = np.asarray(w, dtype=float)
-        idx = np.searchsorted(self.knees, w, side='left')
-        if len(self.coast):
-            # coast knees: w exactly at -thetac belongs to the primary (inner) side
-            on = np.isin(w, self.knees[:self.primary_index])
-            idx = np.where(on, idx + 1, idx)
+        idx = np.searchsorted(self._drive_knees, w, side='left')
+        if self.primary_index:
+            idx = idx + np.searchsorted(self._coast_knees, w, side='right')
         return idx if idx.ndim else int(idx)
 
     def stage(self, w):

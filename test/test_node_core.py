@@ -131,6 +131,24 @@ def test_publish_stride_refuses_rates_the_step_cannot_divide():
             publish_stride(bad, 1e-4)
 
 
+@pytest.mark.parametrize('where', [('q', 7), ('v', 11), ('q', 0), ('v', -1)])
+def test_a_non_finite_state_anywhere_is_never_published_and_restarts_the_solver(where):
+    """A NaN in any one DOF's angle or rate (here put there by hand; in practice bad data) is
+    caught within the next chunk: nothing non-finite is published, the solver restarts from
+    static equilibrium at the setpoints and counts it, time goes on."""
+    sim = new_sim()
+    sim.advance(2000)
+    t0 = sim.t
+    name, dof = where
+    getattr(sim.integ, name)[dof] = np.nan
+    s = sim.advance(50)
+    assert sim.solver_resets == 1 and sim.finite
+    assert all(np.all(np.isfinite(getattr(s, f))) for f in ('position', 'velocity', 'effort'))
+    assert sim.t == pytest.approx(t0 + 50 * sim.dt)
+    s = sim.advance(500)
+    assert sim.solver_resets == 1 and len(s) > 0 and np.all(np.isfinite(s.position))
+
+
 def test_split_steps_records_exactly_every_stride():
     """Chunks of any size record the same absolute steps as one long run would."""
     for stride in range(1, 6):
