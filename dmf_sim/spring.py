@@ -286,6 +286,11 @@ class PiecewiseLinearSpring:
         return self.k + self.extra_stiffness(w)
 
     @cached_property
+    def _g_at_knees(self) -> np.ndarray:
+        """g at each knee [Nm] (from the region below it; g is continuous)."""
+        return self.slopes[:-1] * self.knees + self.offsets[:-1]
+
+    @cached_property
     def _energy_constants(self) -> np.ndarray:
         """Per region: constant C_r with G(w) = s_r w^2 / 2 + o_r w + C_r, G(0) = 0 (G' = g)."""
         s, o, x = self.slopes, self.offsets, self.knees
@@ -314,7 +319,7 @@ class PiecewiseLinearSpring:
     # ---- inverses ----------------------------------------------------------------------------
     def windup_for_torque(self, torque: float) -> float:
         """Inverse of T(w): the static wind-up [rad] carrying ``torque`` [Nm] (T is monotone)."""
-        Tk = self.k * self.knees + self.slopes[:-1] * self.knees + self.offsets[:-1]
+        Tk = self.k * self.knees + self._g_at_knees
         r = int(np.searchsorted(Tk, torque, side='left'))
         return float((torque - self.offsets[r]) / (self.k + self.slopes[r]))
 
@@ -324,6 +329,5 @@ class PiecewiseLinearSpring:
         ``F(w) = w + h g(w)`` is increasing and linear per region: find the region whose image
         holds ``w_lin`` and invert there (Newton's method on the piecewise-linear g converges in
         one step from inside the right region)."""
-        Fk = self.knees + h * (self.slopes[:-1] * self.knees + self.offsets[:-1])
-        r = int(np.searchsorted(Fk, w_lin, side='left'))
+        r = int(np.searchsorted(self.knees + h * self._g_at_knees, w_lin, side='left'))
         return float((w_lin - h * self.offsets[r]) / (1.0 + h * self.slopes[r]))
