@@ -36,6 +36,11 @@ class ConvergenceError(DmfSimError, RuntimeError):
     """A solver did not converge (Newton, continuation corrector)."""
 
 
+class TimeLimitError(DmfSimError, TimeoutError):
+    """A solver stopped at the wall-clock time limit it was given (e.g. a design study's
+    ``solver.time_limit_s``); the message names the limit, the phase and the speed reached."""
+
+
 class OperatingRangeError(ConfigError):
     """An operating point outside the data: engine speed or load beyond the engine's tables."""
 

@@ -214,6 +214,22 @@ def test_a_failing_design_is_reported_and_the_rest_complete(client):
     assert [f['design_id'] for f in res.summary()['failed']] == [1]
 
 
+def test_a_design_past_its_time_limit_is_recorded_as_failed_and_the_study_completes(client):
+    """solver.time_limit_s bounds every design x condition sweep: one that reaches it is a
+    failed row whose reason names the limit, the phase and the speed; the study finishes."""
+    data = dict(STUDY, variables={'alpha': {'values': [2.0, 3.0]}},
+                conditions={**STUDY['conditions'], 'load_sets': ['A']},
+                solver={'time_limit_s': 0.001})
+    res = run_study(data, client, batch_size=1)
+    rows = res.rows('condition')
+    assert len(rows) == 2 and all(r['status'] == 'failed' for r in rows)
+    assert all(r['error'].startswith('TimeLimitError: sweep time limit 0.001 s reached during')
+               and 'rpm' in r['error'] for r in rows)
+    assert all(r['seconds'] < 5.0 for r in rows)
+    assert sorted(f['design_id'] for f in res.summary()['failed']) == [0, 1]
+    assert load_study(data).as_dict()['solver']['time_limit_s'] == 0.001
+
+
 # ------------------------------------------------------------------------------------------------
 # bad input: one line naming the field, before any work
 # ------------------------------------------------------------------------------------------------
@@ -239,6 +255,8 @@ def _mutate(path: str, value):
     ('sampling', {'method': 'lhs'}, "sampling: missing key 'n'"),
     ('sampling', {'method': 'sobol'}, 'sampling.method'),
     ('torque_element', 'GEARBOX', 'torque_element'),
+    ('solver', {'time_limit_s': 0}, 'solver.time_limit_s: must be in [0.001, 86400] s'),
+    ('solver', {'time_limit_s': 'soon'}, 'solver.time_limit_s'),
 ])
 def test_bad_study_is_one_line_naming_the_field(path, value, field):
     with pytest.raises(ConfigError) as err:

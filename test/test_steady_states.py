@@ -4,12 +4,14 @@ stable 1.5th-order states continuation alone missed, non-periodic speeds, no los
 from __future__ import annotations
 
 import json
+import math
 
 import numpy as np
 import pytest
 
 from dmf_sim.cli import main as cli_main
 from dmf_sim.engine import load_engine
+from dmf_sim.errors import ConfigError
 from dmf_sim.hbm import CondensedHBM, SweepOptions, sweep
 from dmf_sim.hbm.deflation import DeflatedNewton
 from dmf_sim.hbm.layout import amplitudes, shift, to_real
@@ -234,3 +236,60 @@ def test_a_branch_that_closes_on_itself_ends_instead_of_circling():
     res = sweep(L, 1.0, (600.0, 2000.0), options=SweepOptions(search=None))
     assert any(e.kind == 'closed_loop' for e in res.events)
     assert res.n_points < 600 and not res.uncovered
+
+
+def _paper_loads():
+    return loads_for(load_engine('engine_d13'), 3.0, theta=0.24)
+
+
+def test_a_sweep_stops_at_its_time_limit_naming_phase_and_speed():
+    """SweepOptions.time_limit_s bounds the wall time: reached during continuation it raises
+    TimeLimitError at once (one point late at most), naming the limit, the phase and the speed;
+    a generous limit changes nothing."""
+    import time
+
+    from dmf_sim.errors import TimeLimitError
+    L = _paper_loads()
+    t0 = time.perf_counter()
+    with pytest.raises(TimeLimitError, match=r'time limit 0.001 s reached during continuation '
+                                             r'at \d+ rpm'):
+        sweep(L, 1.0, (600.0, 2000.0), options=SweepOptions(search=None, time_limit_s=1e-3))
+    assert time.perf_counter() - t0 < 1.0
+    free = sweep(L, 1.0, (600.0, 2000.0), options=SweepOptions(search=None))
+    bound = sweep(L, 1.0, (600.0, 2000.0), options=SweepOptions(search=None, time_limit_s=600.0))
+    assert bound.n_points == free.n_points
+    assert np.allclose([p.order_1_5 for b in bound.branches for p in b.points],
+                       [p.order_1_5 for b in free.branches for p in b.points])
+    for bad in (0.0, -1.0, float('nan'), True, '5'):
+        with pytest.raises(ConfigError, match=r'time_limit_s: must be a number in \[0.001, '):
+            sweep(L, 1.0, (600.0, 2000.0), options=SweepOptions(time_limit_s=bad))
+
+
+def test_the_time_limit_also_stops_the_full_search():
+    """Past the continuation and branch switching, every search step checks the limit too: a
+    sweep whose time runs out as the deflated search starts stops there, with that phase named."""
+    from dmf_sim.errors import TimeLimitError
+    from dmf_sim.hbm import CondensedHBM
+    from dmf_sim.hbm.sweep import SpeedSweep
+
+    class RunsOutAtTheSearch(SpeedSweep):
+        def full_search(self, bar):
+            self._deadline = -math.inf
+            return super().full_search(bar)
+
+    sw = RunsOutAtTheSearch(CondensedHBM(_paper_loads(), 1.0),
+                            SweepOptions(step_rpm=50.0, time_limit_s=600.0))
+    with pytest.raises(TimeLimitError, match='during the deflated Newton search at'):
+        sw.run((800.0, 1200.0))
+
+
+def test_sweep_cli_time_limit(capsys):
+    """`dmf-sim sweep --time-limit`: a case that reaches it is reported and the run goes on;
+    out of range, one line and exit code 2."""
+    assert cli_main(['sweep', '--time-limit', '0', '--no-progress']) == 2
+    assert '--time-limit: must be a number in [0.001, 86400] s' in capsys.readouterr().err
+    code = cli_main(['sweep', '--alpha', '3', '--speeds', '600', '2000', '10', '--fast',
+                     '--time-limit', '0.001', '--no-progress', '--json'])
+    err = capsys.readouterr().err
+    assert code == 2 and 'sweep time limit 0.001 s reached during continuation' in err
+    assert 'Traceback' not in err

@@ -62,6 +62,9 @@ def add_arguments(p) -> None:
     p.add_argument('--newmark-seed', action='store_true',
                    help='when Newton seeding fails at a sub-harmonic instability, integrate in '
                         'time (slower)')
+    p.add_argument('--time-limit', type=float, metavar='S',
+                   help='wall-clock limit of each sweep [s]; a case that reaches it is reported '
+                        'as failed (phase and speed reached) and the others go on')
     p.add_argument('--no-progress', action='store_true', help='no progress bar on stderr')
     p.add_argument('--json', action='store_true', help='print one JSON object to stdout')
     p.add_argument('--out', type=Path,
@@ -103,11 +106,13 @@ def check_dmf_options(alphas, theta) -> None:
 def run(args) -> int:
     from dmf_sim.engine import load_engine
     from dmf_sim.hbm import HBMOptions, SweepOptions, sweep
+    from dmf_sim.hbm.sweep import check_time_limit
     from dmf_sim.loads import DrivelineLoads
     from dmf_sim.model import load_driveline
 
     lo, hi, step = args.speeds
     check_grid(lo, hi, step)
+    time_limit = check_time_limit(args.time_limit, '--time-limit')
     if not 0.0 <= args.load <= 1.0:
         raise ConfigError(f'--load={args.load}: allowed range 0..1')
     check_harmonics(args.harmonics)
@@ -127,7 +132,7 @@ def run(args) -> int:
     hopt = HBMOptions(n_harmonics=args.harmonics)
     sopt = SweepOptions(step_rpm=step, stability=not args.no_stability,
                         branch_switching=not args.no_branch_switching,
-                        newmark_seed=args.newmark_seed)
+                        newmark_seed=args.newmark_seed, time_limit_s=time_limit)
     if args.fast:
         sopt = SweepOptions(**{**sopt.__dict__, 'search': None})
     results, failures = [], []

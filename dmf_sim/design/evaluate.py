@@ -45,13 +45,15 @@ def context_loads() -> int:
 class SolverSettings:
     """Speed grid [rpm] (from, to, step), harmonics H, branch switching, torque element index,
     and the full steady-state search (``dmf_sim.hbm.search``; off: continuation, stability and
-    branch switching only, as ``dmf-sim sweep --fast``)."""
+    branch switching only, as ``dmf-sim sweep --fast``); ``time_limit_s``: wall-clock limit of
+    one design x condition sweep (None: none), past which the condition is recorded as failed."""
 
     speeds_rpm: tuple[float, float, float]
     harmonics: int
     branch_switching: bool
     torque_element: int
     search: bool = True
+    time_limit_s: float | None = None
 
 
 @dataclass
@@ -69,7 +71,8 @@ class StudyContext:
     @classmethod
     def from_study(cls, study) -> 'StudyContext':
         settings = SolverSettings(study.speeds_rpm, study.harmonics, study.branch_switching,
-                                  study.base.index(study.torque_element), study.search)
+                                  study.base.index(study.torque_element), study.search,
+                                  study.time_limit_s)
         return cls(study.base, study.engines, study.conditions, study.params, study.fixed,
                    settings, study.variable_names)
 
@@ -95,7 +98,8 @@ def sweep_condition(line, engine, load: float, settings: SolverSettings):
     from dmf_sim.hbm import HBMOptions, SweepOptions, sweep
     from dmf_sim.loads import DrivelineLoads
     lo, hi, step = settings.speeds_rpm
-    options = SweepOptions(step_rpm=step, branch_switching=settings.branch_switching)
+    options = SweepOptions(step_rpm=step, branch_switching=settings.branch_switching,
+                           time_limit_s=settings.time_limit_s)
     if not settings.search:
         options = replace(options, search=None)
     return sweep(DrivelineLoads(line.reduce(), engine), load, (lo, hi),

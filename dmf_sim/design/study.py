@@ -17,7 +17,9 @@ A study (YAML mapping; ``config/study_example.yaml`` shows every key)::
     objectives: [worst_order_1_5, worst_torque_3]   # minimized; the first two: Pareto front
     torque_element: INPUT SHAFT       # optional: where the 3rd-order torque is taken
     solver: {harmonics: 24, branch_switching: true, search: true}  # optional; search: the
-                                      # full steady-state search (false: continuation only)
+                                      # full steady-state search (false: continuation only);
+                                      # time_limit_s: 30 -> a condition whose sweep takes
+                                      # longer is recorded as failed (reason: the time limit)
     plots: {map_variables: [alpha, theta], reference: {alpha: 3, theta: 0.24}}   # optional
 
 Everything is checked, and the driveline and engine are loaded, before any design is evaluated.
@@ -37,6 +39,7 @@ from dmf_sim.design import sampling
 from dmf_sim.design.metrics import OBJECTIVES
 from dmf_sim.design.parameters import Parameter, check_parameter_set, parse_parameter
 from dmf_sim.errors import ConfigError
+from dmf_sim.hbm.sweep import TIME_LIMIT_RANGE_S
 from dmf_sim.model import Driveline
 
 REQUIRED = ('driveline', 'engine', 'sampling', 'variables', 'conditions', 'objectives')
@@ -85,6 +88,7 @@ class Study:
     branch_switching: bool
     map_variables: tuple[str, ...]
     search: bool = True
+    time_limit_s: float | None = None
     reference: dict[Parameter, float] = field(default_factory=dict)
     description: str = ''
     base: Driveline = field(default=None, repr=False)
@@ -124,7 +128,7 @@ class Study:
                            'speeds_rpm': {'from': lo, 'to': hi, 'step': step}},
             'objectives': list(self.objectives), 'torque_element': self.torque_element,
             'solver': {'harmonics': self.harmonics, 'branch_switching': self.branch_switching,
-                       'search': self.search},
+                       'search': self.search, 'time_limit_s': self.time_limit_s},
             'plots': {'map_variables': list(self.map_variables),
                       'reference': {p.name: v for p, v in self.reference.items()}},
             'n_designs': self.n_designs,
@@ -246,7 +250,7 @@ def study_from_dict(data: dict, source: str = 'study', *, base_dir: Path | None 
         raise w.error('torque_element', f'no element {torque_element!r} in driveline '
                       f'{base.name!r} (elements: {", ".join(base.names)})')
     solver = w.mapping(data.get('solver') or {}, 'solver', (),
-                       ('harmonics', 'branch_switching', 'search'))
+                       ('harmonics', 'branch_switching', 'search', 'time_limit_s'))
     harmonics = w.integer(solver.get('harmonics', DEFAULT_HARMONICS), 'solver.harmonics',
                           MIN_HARMONICS, 64)
     switching = solver.get('branch_switching', True)
@@ -255,6 +259,9 @@ def study_from_dict(data: dict, source: str = 'study', *, base_dir: Path | None 
     search = solver.get('search', True)
     if not isinstance(search, bool):
         raise w.error('solver.search', f'must be true or false, got {search!r}')
+    time_limit = solver.get('time_limit_s')
+    if time_limit is not None:
+        time_limit = w.number(time_limit, 'solver.time_limit_s', *TIME_LIMIT_RANGE_S, 's')
     plots = w.mapping(data.get('plots') or {}, 'plots', (), ('map_variables', 'reference'))
     reference = {}
     ref_raw = w.mapping(plots.get('reference', PAPER_REFERENCE), 'plots.reference')
@@ -276,7 +283,8 @@ def study_from_dict(data: dict, source: str = 'study', *, base_dir: Path | None 
                  params=params, ranges=ranges, grid_points=points, fixed=fixed,
                  conditions=conditions, speeds_rpm=speeds, objectives=objectives,
                  torque_element=torque_element, harmonics=harmonics,
-                 branch_switching=switching, search=search, map_variables=map_vars,
+                 branch_switching=switching, search=search, time_limit_s=time_limit,
+                 map_variables=map_vars,
                  reference=reference,
                  description=str(data.get('description') or ''), base=base, engines=engines,
                  file_digest=_digest(base_dir, data['driveline'], data['engine']))

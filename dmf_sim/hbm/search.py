@@ -87,7 +87,8 @@ def _interp_states(b: Branch, s: float) -> list[tuple[np.ndarray, bool | None]]:
 class StateSearch:
     """The full search: a mixin of :class:`dmf_sim.hbm.sweep.SpeedSweep` (it uses the sweep's
     ``hbm``, ``options``, ``floquet``, ``branches``, ``events``, ``range``, ``_point``,
-    ``_follow``, ``_known``, ``_novelty_tol`` and ``_trace``)."""
+    ``_follow``, ``_known``, ``_novelty_tol``, ``_trace``, and ``check_time`` with the
+    ``_phase`` it names)."""
 
     # ---- known states at one speed --------------------------------------------------------------
     def states_at(self, s: float) -> list[tuple[np.ndarray, bool | None]]:
@@ -160,7 +161,6 @@ class StateSearch:
             if self._new_branches >= self.search.max_new_branches:
                 return new
         return new
-        return new
 
     # ---- Newmark where no stable state is known -------------------------------------------------
     def _shot(self, s: float, x: np.ndarray, bar) -> bool:
@@ -216,13 +216,17 @@ class StateSearch:
         ``non_periodic`` and ``uncovered``."""
         grid = self._seed_grid()
         bar.note('deflated Newton search')
+        self._phase = 'the deflated Newton search'
         for s in grid:
             if self._new_branches >= self.search.max_new_branches:
                 break
+            self.check_time(s)
             self._deflated_pass(float(s), bar)
         bar.note('stable states check')
+        self._phase = 'the stable-states check (Newmark shots)'
         unstable_speeds = []
         for s in grid:
+            self.check_time(s)
             states = self.states_at(float(s))
             if states and not any(st for _, st in states):
                 x = max(states, key=lambda t: np.abs(t[0]).max())[0]
@@ -230,13 +234,16 @@ class StateSearch:
                     continue
                 unstable_speeds.append(float(s))
         if self.search.nonperiodic:
+            self._phase = 'the non-periodic classification'
             self._label_nonperiodic(unstable_speeds)
+        self._phase = 're-seeding uncovered speeds'
         self._reseed_uncovered(bar)
 
     def _label_nonperiodic(self, speeds: list[float]) -> None:
         step = self.search.seed_step_rpm
         results = []
         for s in speeds:
+            self.check_time(s)
             states = self.states_at(s)
             if any(st for _, st in states):
                 continue                              # a shot elsewhere found a stable state here
@@ -261,6 +268,7 @@ class StateSearch:
 
     def _reseed_uncovered(self, bar) -> None:
         for s in list(self._uncovered()):
+            self.check_time(s)
             if any(abs(s - t) < 1e-9 for t in self._uncovered()):
                 try:
                     first = self.hbm.solve(float(s))

@@ -2,18 +2,32 @@
 (paper Fig. 13/15)."""
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass
 
 import numpy as np
 
-from dmf_sim.errors import ConfigError, ConvergenceError
+from dmf_sim.errors import ConfigError, ConvergenceError, TimeLimitError
 from dmf_sim.hbm.branches import BranchSwitching
 from dmf_sim.hbm.condensed import CondensedHBM, HBMOptions, HBMPoint
 from dmf_sim.hbm.layout import to_real
 from dmf_sim.hbm.results import Branch, SweepEvent, SweepResult
 from dmf_sim.hbm.search import SearchOptions, StateSearch
 from dmf_sim.loads import DrivelineLoads
+
+TIME_LIMIT_RANGE_S = (1e-3, 86400.0)   # allowed SweepOptions.time_limit_s [s]
+
+
+def check_time_limit(value, field_name: str = 'time_limit_s') -> float | None:
+    """A sweep time limit [s] in TIME_LIMIT_RANGE_S, or None; else a one-line ConfigError."""
+    if value is None:
+        return None
+    lo, hi = TIME_LIMIT_RANGE_S
+    if (isinstance(value, bool) or not isinstance(value, (int, float))
+            or not (math.isfinite(value) and lo <= value <= hi)):
+        raise ConfigError(f'{field_name}: must be a number in [{lo:g}, {hi:g}] s, got {value!r}')
+    return float(value)
 
 
 @dataclass(frozen=True)
@@ -39,6 +53,11 @@ class SweepOptions:
         search: the full steady-state search after the branch switching (deflated Newton
             seeds, Newmark shots, non-periodic speeds, re-seeding; dmf_sim.hbm.search), or None
             for continuation and branch switching only (the ``--fast`` sweep).
+        time_limit_s: wall-clock limit [s] of the whole sweep, or None. Reaching it raises
+            :class:`dmf_sim.errors.TimeLimitError` naming the phase and the speed reached (a
+            design study records that design as failed with this reason and goes on). Checked at
+            every continuation point and before every search step, so the overrun is at most one
+            point's or one Newmark shot's time.
     """
 
     step_rpm: float = 10.0
@@ -52,6 +71,7 @@ class SweepOptions:
     ratio_1_5: float = 3.0
     max_branches: int = 6
     search: SearchOptions | None = SearchOptions()
+    time_limit_s: float | None = None
 
 
 class _Progress:
@@ -110,6 +130,15 @@ class SpeedSweep(BranchSwitching, StateSearch):
         self.non_periodic: list = []
         self.uncovered: list[float] = []
         self.range = (0.0, 0.0)
+        self._deadline = math.inf          # perf_counter() value of the time limit
+        self._phase = 'continuation'
+
+    # ---- time limit -----------------------------------------------------------------------------
+    def check_time(self, speed_rpm: float) -> None:
+        """Raise TimeLimitError once the sweep's wall-clock limit has passed."""
+        if time.perf_counter() > self._deadline:
+            raise TimeLimitError(f'sweep time limit {self.options.time_limit_s:g} s reached '
+                                 f'during {self._phase} at {speed_rpm:.0f} rpm')
 
     # ---- one point ------------------------------------------------------------------------------
     def _point(self, x: np.ndarray, s: float, branch: int, kind: str, residual=0.0, iterations=0,
@@ -139,6 +168,7 @@ class SpeedSweep(BranchSwitching, StateSearch):
                                        cp.tangent[-1]))
             bar.advance(cp.s - last[0])
             last[0] = cp.s
+            self.check_time(cp.s)
 
         def on_end(reason, cp):
             if reason == 'left_range':
@@ -222,6 +252,9 @@ class SpeedSweep(BranchSwitching, StateSearch):
         lo, hi = float(speed_range[0]), float(speed_range[1])
         if not hi > lo:
             raise ConfigError(f'speed range [{lo}, {hi}] rpm: need TO > FROM')
+        limit = check_time_limit(self.options.time_limit_s)
+        if limit is not None:
+            self._deadline = t0 + limit
         self.range = (lo, hi)
         bar = _Progress(progress, hi - lo, desc)
         try:
@@ -240,6 +273,7 @@ class SpeedSweep(BranchSwitching, StateSearch):
                                        f'{lo:g}-{hi:g} rpm')
             if self.options.stability and self.options.branch_switching:
                 bar.note('branch switching')
+                self._phase = 'branch switching'
                 self._switch_branches(bar)
             if self.options.stability and self.search is not None:
                 self.full_search(bar)
