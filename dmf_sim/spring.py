@@ -162,7 +162,6 @@ class PiecewiseLinearSpring:
     def n_regions(self) -> int:
         return len(self.slopes)
 
-
     def stage_of_index(self, index):
         return np.asarray(index) - self.primary_index
 
@@ -263,8 +262,7 @@ class PiecewiseLinearSpring:
 
     def extra_torque(self, w):
         """Non-linear part g(w) [Nm] of the spring torque (array or scalar wind-up [rad])."""
-        r = self.region_index(w)
-        return self.slopes[r] * np.asarray(w, dtype=float) + self.offsets[r]
+        return self.extra_torque_and_stiffness(w)[0]
 
     def extra_stiffness(self, w):
         """Tangent dg/dw [Nm/rad]."""
