@@ -10,9 +10,9 @@ measures, in a fresh process (so its peak RSS is the analysis' own):
   crank-angle topics, resample on the crank angle, half orders per cycle, 20 rpm bins, modes,
   static wind-up, HBM overlay, JSON; ``analyze_rss_growth_mib`` / ``analyze_peak_rss_mib``: the
   memory it took (it must not grow with the bag's size beyond the signals kept);
-* ``read_seconds`` (the fast reader, dmf_sim.mcap_columns) against ``library_read_seconds``
+* ``read_seconds`` (the fast reader, dmf_sim.bags.columns) against ``library_read_seconds``
   (the same three topics through the libraries alone: mcap's StreamReader + rosbags decoding,
-  dmf_sim.bag_read) -- ``fast_reader_speedup`` is why the fast path exists; both must give the
+  dmf_sim.bags.read) -- ``fast_reader_speedup`` is why the fast path exists; both must give the
   same values (``readers_agree``);
 * ``joint_analyze_seconds``: element signals from the JointState stream (``--signal angle:CYL1
   --signal torque:INPUT SHAFT``, every one of its messages read), without HBM;
@@ -39,9 +39,9 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from dmf_sim.bag import BagRecorder
-from dmf_sim.model import load_driveline
-from dmf_sim.units import RPM_TO_RAD_S
+from dmf_sim.bags.writer import BagRecorder
+from dmf_sim.core.units import RPM_TO_RAD_S
+from dmf_sim.physics.model import load_driveline
 
 TOPICS = {'/driveline/joint_states': 'sensor_msgs/msg/JointState',
           '/driveline/dmf_windup': 'std_msgs/msg/Float64',
@@ -158,7 +158,7 @@ def _reset_peak() -> None:
 
 def measure(bag: Path, plots_dir: Path | None) -> dict:
     """Everything timed and measured on an existing bag (runs in a fresh process)."""
-    from dmf_sim.analyze import (
+    from dmf_sim.analysis.pipeline import (
         SignalSpec,
         analysis_dict,
         analyze_bag,
@@ -167,7 +167,7 @@ def measure(bag: Path, plots_dir: Path | None) -> dict:
         read_bag_series,
         write_outputs,
     )
-    from dmf_sim.mcap_columns import _record_offsets
+    from dmf_sim.bags.columns import _record_offsets
 
     settings = model_settings(None)
     _record_offsets(np.zeros(64, np.uint8))           # the jitted walker loaded (cache)

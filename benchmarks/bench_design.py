@@ -10,7 +10,8 @@ load, 600-2000 rpm at 10 rpm (141 speeds), continuation + Floquet stability + br
 plus the study's metrics (3rd-order torque at the input shaft, 1.5th-order and non-periodic
 speeds, coexisting states).
 
-1. Serial, no Dask: seconds per design, split into the sweep (dmf_sim.hbm.sweep) and what the
+1. Serial, no Dask: seconds per design, split into the sweep (dmf_sim.solvers.hbm.sweep) and what
+the
    study adds (grid states, torque at the element, metrics).
 2. ``designs_per_s_1`` / ``designs_per_s_2``: the study on a LocalCluster of 1 and 2 worker
    processes (127.0.0.1), cluster start excluded; min and median of ``--repeats`` runs;

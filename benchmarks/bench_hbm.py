@@ -52,11 +52,11 @@ def main(argv=None) -> int:
         args.newmark_every = 10
         args.repeat = 1
 
-    from dmf_sim.engine import load_engine
-    from dmf_sim.hbm import CondensedHBM, SweepOptions, sweep
-    from dmf_sim.loads import DrivelineLoads
-    from dmf_sim.model import load_model
-    from dmf_sim.newmark import simulate
+    from dmf_sim.physics.engine import load_engine
+    from dmf_sim.physics.loads import DrivelineLoads
+    from dmf_sim.physics.model import load_model
+    from dmf_sim.solvers.hbm import CondensedHBM, SweepOptions, sweep
+    from dmf_sim.solvers.newmark import simulate
 
     lo, hi, step = args.speeds
     model = load_model('truck_dmf', alpha=args.alpha, theta=args.theta)

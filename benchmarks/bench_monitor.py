@@ -21,8 +21,8 @@ import time
 
 import numpy as np
 
-from dmf_sim.live import LiveSimulation
-from dmf_sim.live_monitor import LiveMonitor, MonitorSettings
+from dmf_sim.live.simulation import LiveSimulation
+from dmf_sim.monitor.worker import LiveMonitor, MonitorSettings
 
 SPEEDS_RPM = (960.0, 1010.0, 905.0, 1100.0, 940.0, 1050.0, 980.0, 920.0, 1200.0, 870.0)
 TICK_S = 1e-3          # wall time per tick (the node's 1 kHz publish rate)

@@ -18,10 +18,10 @@ import time
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from dmf_sim.engine import load_engine
-from dmf_sim.loads import DrivelineLoads
-from dmf_sim.model import load_model
-from dmf_sim.newmark import NewmarkIntegrator, StepRecord
+from dmf_sim.physics.engine import load_engine
+from dmf_sim.physics.loads import DrivelineLoads
+from dmf_sim.physics.model import load_model
+from dmf_sim.solvers.newmark import NewmarkIntegrator, StepRecord
 
 SPEED_RPM = 900.0      # 1.5th-order region of the paper (knee crossings happen)
 LOAD = 1.0

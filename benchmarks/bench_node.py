@@ -45,7 +45,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dmf_sim.health import status_name
+from dmf_sim.live.health import status_name
 
 # speed setpoints of --setpoint-period: through the default DMF's 1.5th-order resonance
 SETPOINT_SPEEDS_RPM = (960.0, 1010.0, 905.0, 1100.0, 940.0, 1050.0, 980.0, 920.0, 1200.0, 870.0)

@@ -2,7 +2,8 @@
 
 Each module in ``dmf_sim/commands`` defines ``NAME``, ``HELP``, ``add_arguments(parser)`` and
 ``run(args) -> int``; they are discovered automatically. Errors a user causes are
-:class:`dmf_sim.errors.DmfSimError` and are reported as one line with exit code 2; anything else
+:class:`dmf_sim.core.errors.DmfSimError` and are reported as one line with exit code 2; anything
+else
 is a bug and keeps its traceback.
 """
 from __future__ import annotations
@@ -13,7 +14,7 @@ import pkgutil
 import sys
 
 from dmf_sim import __version__, commands
-from dmf_sim.errors import DmfSimError, one_line
+from dmf_sim.core.errors import DmfSimError, one_line
 
 UNITS = """units (SI throughout unless a name says otherwise):
   angles rad, angular speed rad/s (engine speed on the command line in rpm),

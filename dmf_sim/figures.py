@@ -66,7 +66,7 @@ class WindupCurves:
 
     @classmethod
     def from_branch(cls, branch, main: bool = True) -> WindupCurves:
-        """From a ``dmf_sim.hbm.Branch`` (its points' summaries and stability)."""
+        """From a ``dmf_sim.solvers.hbm.Branch`` (its points' summaries and stability)."""
         col = branch.column
         return cls(col('speed_rpm'), col('order_3'), col('order_1_5'), col('max_deviation'),
                    col('min_deviation'), col('theta_minus_static'), col('stable'), main=main)
@@ -208,7 +208,8 @@ def _draw(ax, x, y, stable, marker, **kw) -> None:
 # Fig. 12: mode shapes
 # ------------------------------------------------------------------------------------------------
 def mode_shapes_figure(conventional, dmf, n_modes: int = 4, dmf_label: str = 'DMF') -> Figure:
-    """Modes 1..n_modes (``dmf_sim.modal.ModalResult``) of the conventional driveline (blue) and
+    """Modes 1..n_modes (``dmf_sim.physics.modal.ModalResult``) of the conventional driveline
+    (blue) and
     the DMF driveline (red dashed), angles x cumulative gear ratio; element names of the DMF
     driveline on the axis, the conventional name below where it differs."""
     fig = Figure(figsize=(10, 2.3 * n_modes + 2.2), layout='constrained')
@@ -237,7 +238,7 @@ def mode_shapes_figure(conventional, dmf, n_modes: int = 4, dmf_label: str = 'DM
 # Fig. 14: non-linear normal modes
 # ------------------------------------------------------------------------------------------------
 def nnm_figure(res, xi_max: float = 10.0) -> Figure:
-    """Frequency [Hz] against xi like the paper's Fig. 14 (``dmf_sim.nnm.NNMResult``): blue
+    """Frequency [Hz] against xi like the paper's Fig. 14 (``dmf_sim.solvers.nnm.NNMResult``): blue
     primary-region branch, red secondary-region branch, dotted linear frequencies, flat branches
     labelled with their multiple n."""
     fig = Figure(figsize=(8.5, 6.0), layout='constrained')

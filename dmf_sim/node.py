@@ -4,7 +4,7 @@
     ros2 launch dmf_sim driveline.launch.py namespace:=truck1 record:=true
     python -m dmf_sim.node [--ros-args ...]
 
-What runs is :class:`dmf_sim.live_runtime.LiveRuntime` (simulation, tick loop, recording,
+What runs is :class:`dmf_sim.live.runtime.LiveRuntime` (simulation, tick loop, recording,
 health); this module declares the parameters, creates the topics and services, serializes the
 samples and spins. Importing it needs no ROS installation (the rclpy imports are guarded).
 
@@ -28,8 +28,9 @@ and hand the value to the tick thread (no lock), and the last valid setpoint rec
 applied. Services: ``~/reset`` (std_srvs/Trigger): static equilibrium at the current setpoints;
 ``~/record`` (std_srvs/SetBool): start/stop recording (same as setting parameter ``record``).
 
-Stamps: see :class:`dmf_sim.pacing.TimeBase` (wall clock at real-time factor 1, re-anchored when
-pacing returns to it). Parameters: :mod:`dmf_sim.node_parameters`, ``config/driveline_node.yaml``.
+Stamps: see :class:`dmf_sim.live.pacing.TimeBase` (wall clock at real-time factor 1, re-anchored
+when
+pacing returns to it). Parameters: :mod:`dmf_sim.live.parameters`, ``config/driveline_node.yaml``.
 """
 from __future__ import annotations
 
@@ -39,11 +40,11 @@ import sys
 import threading
 import time
 
-from dmf_sim.errors import ConfigError, DmfSimError, one_line
-from dmf_sim.health import status_name
-from dmf_sim.monitor_messages import TOPIC_CYCLE, TOPIC_PREDICTED
-from dmf_sim.node_parameters import DMF_PARAMETERS, PARAMETERS, coerce
-from dmf_sim.pacing import fmt_num
+from dmf_sim.core.errors import ConfigError, DmfSimError, one_line
+from dmf_sim.live.health import status_name
+from dmf_sim.live.pacing import fmt_num
+from dmf_sim.live.parameters import DMF_PARAMETERS, PARAMETERS, coerce
+from dmf_sim.monitor.messages import TOPIC_CYCLE, TOPIC_PREDICTED
 
 STREAMS = {  # key -> (default topic, ROS type)
     'joint_states': ('driveline/joint_states', 'sensor_msgs/msg/JointState'),
@@ -117,7 +118,7 @@ class DrivelineNode(Node):
     """The rclpy shell: parameters, topics, services; the work is in ``self.runtime``."""
 
     def __init__(self, node_name: str = 'driveline_node') -> None:
-        from dmf_sim.live_runtime import LiveRuntime, load_line
+        from dmf_sim.live.runtime import LiveRuntime, load_line
 
         super().__init__(node_name)
         self.fqn = self.get_fully_qualified_name()

@@ -3,7 +3,8 @@
 Synthetic bags are written with real CDR (rclpy's serializer) through BagRecorder and carry known
 half-order content on a speed ramp, so resampling on the crank angle matters. The "node
 recording" is produced offline, without DDS: the node's own simulation core
-(dmf_sim.live.LiveSimulation, what driveline_node steps) is advanced in chunks and its samples
+(dmf_sim.live.simulation.LiveSimulation, what driveline_node steps) is advanced in chunks and its
+samples
 are serialized and recorded as dmf_sim/node.py does (same topics, messages, custom_data).
 """
 from __future__ import annotations
@@ -18,9 +19,9 @@ from rclpy.serialization import serialize_message
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, String
 
-from dmf_sim.bag import BagRecorder
-from dmf_sim.model import load_driveline
-from dmf_sim.run_metadata import RunMetadata
+from dmf_sim.bags.metadata import RunMetadata
+from dmf_sim.bags.writer import BagRecorder
+from dmf_sim.physics.model import load_driveline
 
 NAMES = load_driveline('truck_dmf').names
 T0 = 1_700_000_000_000_000_000
@@ -120,7 +121,7 @@ def record_node_run_up(path: Path, v0: float, v1: float, ramp_rpm_s: float, hold
     """Offline 'node recording' without DDS: the node's simulation core (LiveSimulation) steps in
     chunks; every published sample is serialized and recorded as dmf_sim/node.py does, with its
     RunMetadata as custom_data (the load only with ``store_load``)."""
-    from dmf_sim.live import LiveSimulation
+    from dmf_sim.live.simulation import LiveSimulation
 
     sim = LiveSimulation.from_config('truck_dmf', engine, load_set='A', speed_rpm=v0,
                                      load=load, speed_ramp_rpm_per_s=ramp_rpm_s, stride=10)

@@ -1,4 +1,4 @@
-"""Order analysis of bags (dmf_sim.analyze, ``dmf-sim analyze``).
+"""Order analysis of bags (dmf_sim.analysis.pipeline, ``dmf-sim analyze``).
 
 Bags with known content come from ``synthetic_bags`` (BagRecorder + rclpy CDR, or mcap_ros2's
 writer for the ``ros2 bag record``-style bag); the "node recording" is the node's simulation
@@ -32,7 +32,7 @@ from synthetic_bags import (  # noqa: E402
     write_synthetic,
 )
 
-from dmf_sim.analyze import SignalSpec, analyze_bag, read_bag_series  # noqa: E402
+from dmf_sim.analysis.pipeline import SignalSpec, analyze_bag, read_bag_series  # noqa: E402
 from dmf_sim.cli import main as cli_main  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
@@ -366,7 +366,7 @@ def test_node_end_to_end_killed_recording(tmp_path, capsys):
 MEASURE_ANALYSIS = """
 import sys
 from pathlib import Path
-from dmf_sim.analyze import analyze_bag
+from dmf_sim.analysis.pipeline import analyze_bag
 
 def kib(field):
     for line in Path('/proc/self/status').read_text().splitlines():

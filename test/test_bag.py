@@ -20,9 +20,9 @@ from rosbags.highlevel import AnyReader  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 from std_msgs.msg import Float64, String  # noqa: E402
 
-from dmf_sim.bag import BagRecorder, bag_topics, read_messages, recover_bag  # noqa: E402
+from dmf_sim.bags.writer import BagRecorder, bag_topics, read_messages, recover_bag  # noqa: E402
 from dmf_sim.cli import main as cli_main  # noqa: E402
-from dmf_sim.errors import BagError  # noqa: E402
+from dmf_sim.core.errors import BagError  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 TOPICS = {'/joint_states': 'sensor_msgs/msg/JointState', '/dmf/windup': 'std_msgs/msg/Float64'}
@@ -270,7 +270,7 @@ CHILD = textwrap.dedent('''
     from rclpy.serialization import serialize_message
     from sensor_msgs.msg import JointState
     from std_msgs.msg import Float64
-    from dmf_sim.bag import BagRecorder
+    from dmf_sim.bags.writer import BagRecorder
 
     topics = {'/joint_states': 'sensor_msgs/msg/JointState', '/dmf/windup': 'std_msgs/msg/Float64'}
     rec = BagRecorder(sys.argv[1], topics)

@@ -19,9 +19,9 @@ import yaml
 from crash import sigkill_when_ready
 from mcap.reader import make_reader
 
-from dmf_sim.bag import BagRecorder, read_messages, recover_bag
-from dmf_sim.bag_files import resolve_bag
-from dmf_sim.errors import BagError
+from dmf_sim.bags.layout import resolve_bag
+from dmf_sim.bags.writer import BagRecorder, read_messages, recover_bag
+from dmf_sim.core.errors import BagError
 
 REPO = Path(__file__).resolve().parents[1]
 TOPICS = {'/a': 'std_msgs/msg/Float64', '/b': 'std_msgs/msg/Float64'}
@@ -98,7 +98,7 @@ def test_split_duration_is_bounded(tmp_path: Path) -> None:
 
 CHILD = textwrap.dedent('''
     import struct, sys
-    from dmf_sim.bag import BagRecorder
+    from dmf_sim.bags.writer import BagRecorder
 
     rec = BagRecorder(sys.argv[1], {'/a': 'std_msgs/msg/Float64', '/b': 'std_msgs/msg/Float64'},
                       max_duration_s=1.0)
@@ -161,7 +161,7 @@ def test_sigkill_leaves_every_closed_split_readable(tmp_path: Path) -> None:
 
 SOAK = textwrap.dedent('''
     import os, struct, sys
-    from dmf_sim.bag import BagRecorder
+    from dmf_sim.bags.writer import BagRecorder
 
     def rss_mib():
         with open('/proc/self/statm') as f:

@@ -36,7 +36,7 @@ from dmf_sim.cli import main as cli_main
 def test_size_like_options_refused_in_one_line(argv, needles, capsys, monkeypatch):
     def no_compute(*args, **kwargs):
         raise AssertionError('computation started before the options were checked')
-    monkeypatch.setattr('dmf_sim.hbm.sweep', no_compute)
+    monkeypatch.setattr('dmf_sim.solvers.hbm.sweep', no_compute)
     monkeypatch.setattr('dmf_sim.commands.nnm.nnm_branches', no_compute)
     assert cli_main([*argv, '--no-progress'] if argv[0] == 'sweep' else argv) == 2
     err = capsys.readouterr().err

@@ -55,9 +55,9 @@ def _frames(text: str) -> list[dict[str, str]]:
 def test_monitor_view_shows_every_quantity():
     from test_prediction import _cycle
 
-    from dmf_sim.alarms import AlarmSettings, evaluate
-    from dmf_sim.monitor_messages import cycle_status, prediction_statuses
-    from dmf_sim.prediction import OperatingPoint, PredictedState, Prediction, compare
+    from dmf_sim.monitor.alarms import AlarmSettings, evaluate
+    from dmf_sim.monitor.messages import cycle_status, prediction_statuses
+    from dmf_sim.monitor.prediction import OperatingPoint, PredictedState, Prediction, compare
 
     view = MonitorView()
     assert 'waiting' in render_plain(view, 0.0)
@@ -174,15 +174,15 @@ def _monitor_with_monitor_topics(domain: int) -> str:
     from rclpy.executors import SingleThreadedExecutor
     from test_prediction import _cycle
 
-    from dmf_sim.alarms import AlarmSettings, evaluate
     from dmf_sim.commands._ros import reliable_qos
-    from dmf_sim.monitor_messages import (
+    from dmf_sim.monitor.alarms import AlarmSettings, evaluate
+    from dmf_sim.monitor.messages import (
         TOPIC_CYCLE,
         TOPIC_PREDICTED,
         cycle_status,
         prediction_statuses,
     )
-    from dmf_sim.prediction import OperatingPoint, PredictedState, Prediction, compare
+    from dmf_sim.monitor.prediction import OperatingPoint, PredictedState, Prediction, compare
 
     ctx = rclpy.context.Context()
     rclpy.init(context=ctx, domain_id=domain)

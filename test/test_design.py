@@ -15,14 +15,14 @@ import yaml
 from nested_edit import DELETE, edited
 
 from dmf_sim.cli import main as cli_main
+from dmf_sim.core.errors import ConfigError
 from dmf_sim.design import load_study, run_study
 from dmf_sim.design.evaluate import StudyContext, evaluate_design
 from dmf_sim.design.runner import connect, local_cluster
 from dmf_sim.design.states import speed_grid
-from dmf_sim.errors import ConfigError
-from dmf_sim.hbm import SweepOptions, sweep
-from dmf_sim.loads import DrivelineLoads
-from dmf_sim.orders import ORDER_3
+from dmf_sim.physics.loads import DrivelineLoads
+from dmf_sim.physics.orders import ORDER_3
+from dmf_sim.solvers.hbm import SweepOptions, sweep
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -5,18 +5,18 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from dmf_sim.core.errors import ConfigError
 from dmf_sim.design.metrics import speed_ranges
 from dmf_sim.design.parameters import check_parameter_set, design_driveline, parse_parameter
 from dmf_sim.design.pareto import compromise, pareto_mask
 from dmf_sim.design.sampling import VariableRange, grid, latin_hypercube, uniform_random
 from dmf_sim.design.states import _distinct, order_torques
-from dmf_sim.engine import load_engine
-from dmf_sim.errors import ConfigError
-from dmf_sim.hbm import SweepOptions, sweep
-from dmf_sim.loads import DrivelineLoads
-from dmf_sim.model import load_driveline
-from dmf_sim.orders import ORDER_3
-from dmf_sim.spring import Stage
+from dmf_sim.physics.engine import load_engine
+from dmf_sim.physics.loads import DrivelineLoads
+from dmf_sim.physics.model import load_driveline
+from dmf_sim.physics.orders import ORDER_3
+from dmf_sim.physics.spring import Stage
+from dmf_sim.solvers.hbm import SweepOptions, sweep
 
 
 def test_parameters_build_the_design_spring():

@@ -1,4 +1,5 @@
-"""Tests of the engine excitation (dmf_sim.engine): default pressure model, ratings, tables,
+"""Tests of the engine excitation (dmf_sim.physics.engine): default pressure model, ratings,
+tables,
 Load A/B/C, and how bad engine files are reported."""
 from __future__ import annotations
 
@@ -11,7 +12,9 @@ import yaml
 from nested_edit import DELETE, edited
 
 from dmf_sim.cli import main as cli_main
-from dmf_sim.engine import (
+from dmf_sim.core.errors import ConfigError
+from dmf_sim.core.paths import config_file
+from dmf_sim.physics.engine import (
     LOAD_SETS,
     EngineExcitation,
     cylinder_torque_signal,
@@ -20,9 +23,7 @@ from dmf_sim.engine import (
     load_engine,
     write_coefficient_table,
 )
-from dmf_sim.errors import ConfigError
-from dmf_sim.model import load_model
-from dmf_sim.paths import config_file
+from dmf_sim.physics.model import load_model
 
 N_MAX = 24
 THIRD, SIXTH = 6, 12      # half-order indices of the 3rd and 6th engine orders

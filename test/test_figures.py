@@ -10,13 +10,13 @@ import numpy as np
 import pytest
 
 from dmf_sim.cli import main as cli_main
-from dmf_sim.engine import load_engine
 from dmf_sim.figures import WindupCurves, mode_shapes_figure, sweep_curves, windup_figure
-from dmf_sim.hbm import CondensedHBM
-from dmf_sim.hbm import sweep as run_sweep
-from dmf_sim.loads import DrivelineLoads
-from dmf_sim.modal import modes
-from dmf_sim.model import load_model
+from dmf_sim.physics.engine import load_engine
+from dmf_sim.physics.loads import DrivelineLoads
+from dmf_sim.physics.modal import modes
+from dmf_sim.physics.model import load_model
+from dmf_sim.solvers.hbm import CondensedHBM
+from dmf_sim.solvers.hbm import sweep as run_sweep
 
 
 def _curves(stable=None) -> WindupCurves:

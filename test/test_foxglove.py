@@ -1,4 +1,5 @@
-"""Foxglove: the WebSocket server of dmf_sim.foxglove_bridge (a real client connects, subscribes,
+"""Foxglove: the WebSocket server of dmf_sim.live.foxglove_bridge (a real client connects,
+subscribes,
 decodes the CDR messages) and the shipped layout config/foxglove_layout.json."""
 from __future__ import annotations
 
@@ -11,8 +12,8 @@ from pathlib import Path
 import pytest
 import websockets
 
-from dmf_sim.errors import ConfigError
-from dmf_sim.foxglove_bridge import SUBPROTOCOL, FoxgloveBridge, message_definition
+from dmf_sim.core.errors import ConfigError
+from dmf_sim.live.foxglove_bridge import SUBPROTOCOL, FoxgloveBridge, message_definition
 
 REPO = Path(__file__).resolve().parents[1]
 LAYOUT = REPO / 'config' / 'foxglove_layout.json'
@@ -131,17 +132,17 @@ def test_layout_is_a_foxglove_layout_of_the_node_s_topics_and_keys():
     the right type, and every key filter a key the monitor's messages carry."""
     from types import SimpleNamespace
 
-    from dmf_sim.alarms import AlarmReport
-    from dmf_sim.monitor_messages import (
+    from dmf_sim.monitor.alarms import AlarmReport
+    from dmf_sim.monitor.messages import (
         TOPIC_CYCLE,
         TOPIC_PREDICTED,
         cycle_status,
         prediction_statuses,
         values_of,
     )
+    from dmf_sim.monitor.prediction import OperatingPoint, PredictedState, Prediction
     from dmf_sim.node import STREAMS as NODE_STREAMS
-    from dmf_sim.orders import OrderSummary
-    from dmf_sim.prediction import OperatingPoint, PredictedState, Prediction
+    from dmf_sim.physics.orders import OrderSummary
 
     layout = json.loads(LAYOUT.read_text())
     assert set(layout) >= {'configById', 'layout', 'globalVariables', 'userNodes',

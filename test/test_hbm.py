@@ -15,14 +15,14 @@ import yaml
 from fake_engine import FakeEngine
 
 from dmf_sim.cli import main as cli_main
-from dmf_sim.engine import load_engine
-from dmf_sim.harmonic import harmonic_response
-from dmf_sim.hbm import CondensedHBM, sweep
-from dmf_sim.loads import DrivelineLoads
-from dmf_sim.model import driveline_from_dict, load_model
-from dmf_sim.newmark import simulate
-from dmf_sim.paths import config_file
-from dmf_sim.stability import FloquetAnalyzer
+from dmf_sim.core.paths import config_file
+from dmf_sim.physics.engine import load_engine
+from dmf_sim.physics.harmonic import harmonic_response
+from dmf_sim.physics.loads import DrivelineLoads
+from dmf_sim.physics.model import driveline_from_dict, load_model
+from dmf_sim.solvers.hbm import CondensedHBM, sweep
+from dmf_sim.solvers.newmark import simulate
+from dmf_sim.solvers.stability import FloquetAnalyzer
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -1,4 +1,4 @@
-"""LiveMonitor (dmf_sim.live_monitor): a simulated run fed as the node feeds it, the analysis and
+"""LiveMonitor (dmf_sim.monitor.worker): a simulated run fed as the node feeds it, the analysis and
 prediction in worker processes (and threads), live minus predicted, alarms. No ROS."""
 from __future__ import annotations
 
@@ -6,10 +6,10 @@ import time
 
 import pytest
 
-from dmf_sim.errors import ConfigError
-from dmf_sim.live import LiveSimulation
-from dmf_sim.live_monitor import LiveMonitor, MonitorSettings
-from dmf_sim.monitor_messages import values_of
+from dmf_sim.core.errors import ConfigError
+from dmf_sim.live.simulation import LiveSimulation
+from dmf_sim.monitor.messages import values_of
+from dmf_sim.monitor.worker import LiveMonitor, MonitorSettings
 
 TIMEOUT_S = 120.0   # generous: the machine is shared; latency figures are in the benchmark
 

@@ -1,4 +1,4 @@
-"""Live per-cycle order analysis (dmf_sim.live_orders): known orders recovered, and the same
+"""Live per-cycle order analysis (dmf_sim.monitor.orders): known orders recovered, and the same
 numbers as ``dmf-sim analyze`` on a bag of the same samples. No ROS needed."""
 from __future__ import annotations
 
@@ -9,11 +9,11 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from dmf_sim.analyze import analyze_bag
-from dmf_sim.bag import BagRecorder
-from dmf_sim.live_orders import CycleOrderTracker, region_key
-from dmf_sim.spring import PiecewiseLinearSpring
-from dmf_sim.units import CYCLE_RAD, RPM_TO_RAD_S
+from dmf_sim.analysis.pipeline import analyze_bag
+from dmf_sim.bags.writer import BagRecorder
+from dmf_sim.core.units import CYCLE_RAD, RPM_TO_RAD_S
+from dmf_sim.monitor.orders import CycleOrderTracker, region_key
+from dmf_sim.physics.spring import PiecewiseLinearSpring
 
 THETA = 0.24
 SPRING = PiecewiseLinearSpring.two_step(10890.0, THETA, 2.5, theta_coast=0.05, alpha_coast=1.0)
@@ -112,7 +112,7 @@ def test_live_cycles_equal_dmf_sim_analyze_of_a_bag_of_the_same_run(tmp_path):
     """The simulated run (LiveSimulation, as the node steps it, chunks of any size) analysed live
     and recorded to a bag analysed by ``analyze_bag`` (what ``dmf-sim analyze`` runs): the same
     numbers per cycle."""
-    from dmf_sim.live import LiveSimulation
+    from dmf_sim.live.simulation import LiveSimulation
 
     sim = LiveSimulation.from_config(alpha=3.0, theta=0.2, speed_rpm=950.0, load=1.0,
                                      speed_limits_rpm=(500.0, 2200.0), stride=10)

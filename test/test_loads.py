@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from fake_engine import FakeEngine
 
-from dmf_sim.engine import load_engine
-from dmf_sim.loads import DrivelineLoads
-from dmf_sim.model import load_model
+from dmf_sim.physics.engine import load_engine
+from dmf_sim.physics.loads import DrivelineLoads
+from dmf_sim.physics.model import load_model
 
 
 @pytest.fixture(scope='module')

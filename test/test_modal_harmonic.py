@@ -6,9 +6,9 @@ import sys
 import numpy as np
 import pytest
 
-from dmf_sim.harmonic import harmonic_response, receptance, solve_harmonic
-from dmf_sim.modal import modes
-from dmf_sim.model import driveline_from_dict, load_model
+from dmf_sim.physics.harmonic import harmonic_response, receptance, solve_harmonic
+from dmf_sim.physics.modal import modes
+from dmf_sim.physics.model import driveline_from_dict, load_model
 
 
 def test_dmf_second_mode_matches_paper():

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 import yaml
 
-from dmf_sim.model import driveline_from_dict, load_driveline, load_model
-from dmf_sim.paths import config_file
+from dmf_sim.core.paths import config_file
+from dmf_sim.physics.model import driveline_from_dict, load_driveline, load_model
 
 
 def raw(name='truck_dmf'):
@@ -69,7 +69,7 @@ def test_K_C_symmetric_psd_and_energy_consistent(name):
 
 
 def test_rigid_merge_equals_limit_of_growing_stiffness():
-    from dmf_sim.modal import modes
+    from dmf_sim.physics.modal import modes
     base = raw('truck_conventional')
     merged = modes(driveline_from_dict(base).reduce()).frequencies_hz[:6]
     prev_err = np.inf

@@ -12,13 +12,13 @@ import yaml
 from fake_engine import FakeEngine
 
 from dmf_sim.cli import main as cli_main
-from dmf_sim.hbm import CondensedHBM
-from dmf_sim.loads import DrivelineLoads
-from dmf_sim.model import load_driveline
-from dmf_sim.newmark import NewmarkIntegrator, StepRecord, simulate
-from dmf_sim.paths import config_file
-from dmf_sim.stability import FlexibleModes, FloquetAnalyzer
-from dmf_sim.units import CYCLE_RAD, RPM_TO_RAD_S
+from dmf_sim.core.paths import config_file
+from dmf_sim.core.units import CYCLE_RAD, RPM_TO_RAD_S
+from dmf_sim.physics.loads import DrivelineLoads
+from dmf_sim.physics.model import load_driveline
+from dmf_sim.solvers.hbm import CondensedHBM
+from dmf_sim.solvers.newmark import NewmarkIntegrator, StepRecord, simulate
+from dmf_sim.solvers.stability import FlexibleModes, FloquetAnalyzer
 
 STAGES = [{'angle_rad': 0.10, 'stiffness_factor': 1.0},
           {'angle_rad': 0.14, 'stiffness_factor': 2.5},
@@ -172,7 +172,7 @@ def test_sweep_cli_runs_on_multistage(yaml_path, tmp_path, capsys):
 
 
 def test_nnm_branches_multistage(yaml_path):
-    from dmf_sim.nnm import NNMOptions, nnm_branches
+    from dmf_sim.solvers.nnm import NNMOptions, nnm_branches
     m = load_driveline(yaml_path).reduce()
     res = nnm_branches(m, xi_max=4.0, options=NNMOptions(n_harmonics=8, step_max=0.3))
     prim = res.branches['primary']
@@ -182,7 +182,7 @@ def test_nnm_branches_multistage(yaml_path):
 
 
 def test_live_simulation_multistage(yaml_path):
-    from dmf_sim.live import LiveSimulation
+    from dmf_sim.live.simulation import LiveSimulation
     line = load_driveline(yaml_path)
     sim = LiveSimulation(line, ENGINE, speed_rpm=SPEED, load=1.0)
     s = sim.advance(3000)
@@ -226,8 +226,8 @@ def test_live_node_runs_the_multistage_yaml(yaml_path, tmp_path):
     from dds_peer import START_TIMEOUT, NodeProcess, Peer, new_domain
     from std_msgs.msg import Float64
 
-    from dmf_sim.engine import load_engine
-    from dmf_sim.node_parameters import PARAMETERS
+    from dmf_sim.live.parameters import PARAMETERS
+    from dmf_sim.physics.engine import load_engine
 
     speed, load = (PARAMETERS[n].default for n in ('initial_speed_rpm', 'initial_load'))
     loads = DrivelineLoads(load_driveline(yaml_path).reduce(),

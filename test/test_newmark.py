@@ -4,11 +4,11 @@ import numpy as np
 import pytest
 from fake_engine import FakeEngine
 
-from dmf_sim.harmonic import solve_harmonic
-from dmf_sim.loads import DrivelineLoads
-from dmf_sim.model import load_model
-from dmf_sim.newmark import NewmarkIntegrator, StepRecord, simulate
-from dmf_sim.units import RPM_TO_RAD_S
+from dmf_sim.core.units import RPM_TO_RAD_S
+from dmf_sim.physics.harmonic import solve_harmonic
+from dmf_sim.physics.loads import DrivelineLoads
+from dmf_sim.physics.model import load_model
+from dmf_sim.solvers.newmark import NewmarkIntegrator, StepRecord, simulate
 
 # mean 400 Nm per cylinder (2400 Nm engine: wind-up just below the 0.24 rad knee), 1.5th/3rd/6th
 # orders
@@ -135,7 +135,7 @@ def test_step_refinement_real_engine_at_knee_grazing_point():
     dt = 1e-4 s the Newmark period error there shifts the 1.5th order by ~3 %; at dt = 5e-5 s
     halving the step changes both orders by < 0.5 % (README: use dt <= 5e-5 s offline near such
     points)."""
-    from dmf_sim.engine import load_engine
+    from dmf_sim.physics.engine import load_engine
     L = DrivelineLoads(load_model('truck_dmf', alpha=3.0), load_engine('engine_d13_2500nm'))
     runs = [simulate(L, 1000, 1.0, dt=dt, steady_tol=1e-9, max_cycles=120)
             for dt in (5e-5, 2.5e-5)]

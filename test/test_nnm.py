@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 
 from dmf_sim.cli import main
-from dmf_sim.modal import modes
-from dmf_sim.model import load_driveline, load_model
-from dmf_sim.nnm import (
+from dmf_sim.physics.modal import modes
+from dmf_sim.physics.model import load_driveline, load_model
+from dmf_sim.solvers.nnm import (
     ConservativeNNM,
     NNMOptions,
     integrate_physical,

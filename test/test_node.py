@@ -77,7 +77,7 @@ def test_setpoints_outputs_fast_spell_and_a_bag_that_analyses(tmp_path, capsys):
     from std_msgs.msg import Float64
 
     from dmf_sim.cli import main as cli_main
-    from dmf_sim.model import load_model
+    from dmf_sim.physics.model import load_model
 
     domain = new_domain()
     bag = tmp_path / 'run_bag'
@@ -414,7 +414,7 @@ def test_two_trucks_keep_topics_and_diagnostics_apart(tmp_path):
 def test_sigkill_leaves_readable_bag_that_recovers(tmp_path):
     from std_msgs.msg import Float64
 
-    from dmf_sim.bag import read_messages, recover_bag
+    from dmf_sim.bags.writer import read_messages, recover_bag
 
     domain = new_domain()
     bag = tmp_path / 'killed_bag'
@@ -507,8 +507,8 @@ def test_installed_layout_runs_like_ros2_run(tmp_path):
     # ros2run: prefix = get_package_prefix(pkg); executable = <prefix>/lib/<pkg>/<name>
     probe = subprocess.run(
         [sys.executable, '-c', 'from ament_index_python.packages import get_package_prefix; '
-         'import dmf_sim, dmf_sim.paths; print(get_package_prefix("dmf_sim")); '
-         'print(dmf_sim.__file__); print(dmf_sim.paths.config_dir())'],
+         'import dmf_sim, dmf_sim.core.paths; print(get_package_prefix("dmf_sim")); '
+         'print(dmf_sim.__file__); print(dmf_sim.core.paths.config_dir())'],
         env=env, capture_output=True, text=True, check=True, cwd=tmp_path)
     found_prefix, module_file, config_dir = probe.stdout.split('\n')[:3]
     assert Path(found_prefix) == prefix

@@ -11,15 +11,15 @@ import numpy as np
 import pytest
 import yaml
 
-from dmf_sim.errors import ConfigError, DmfSimError
-from dmf_sim.health import ERROR, OK, WARN, HealthMonitor, HealthReport
-from dmf_sim.live import LiveSimulation, check_setpoint, ramp_toward, split_steps
-from dmf_sim.live_runtime import LiveRuntime, load_line
-from dmf_sim.node_parameters import DMF_PARAMETERS, PARAMETERS, coerce
-from dmf_sim.pacing import LagStats, Pacer, TimeBase, fmt_num, publish_stride
-from dmf_sim.recording import RecordingControl, run_metadata
-from dmf_sim.run_loop import RunLoop, SetpointInbox
-from dmf_sim.run_metadata import RunMetadata
+from dmf_sim.bags.metadata import RunMetadata
+from dmf_sim.core.errors import ConfigError, DmfSimError
+from dmf_sim.live.health import ERROR, OK, WARN, HealthMonitor, HealthReport
+from dmf_sim.live.pacing import LagStats, Pacer, TimeBase, fmt_num, publish_stride
+from dmf_sim.live.parameters import DMF_PARAMETERS, PARAMETERS, coerce
+from dmf_sim.live.recording import RecordingControl, run_metadata
+from dmf_sim.live.run_loop import RunLoop, SetpointInbox
+from dmf_sim.live.runtime import LiveRuntime, load_line
+from dmf_sim.live.simulation import LiveSimulation, check_setpoint, ramp_toward, split_steps
 
 REPO = Path(__file__).resolve().parents[1]
 TOPICS = {'/driveline/joint_states': 'sensor_msgs/msg/JointState',

@@ -22,7 +22,7 @@ def _free_port() -> int:
 
 async def _foxglove_windup(url: str, topic: str) -> float:
     """Connect as a Foxglove client, subscribe to ``topic`` (std_msgs/Float64), decode one."""
-    from dmf_sim.foxglove_bridge import SUBPROTOCOL
+    from dmf_sim.live.foxglove_bridge import SUBPROTOCOL
     async with websockets.connect(url, subprotocols=[SUBPROTOCOL]) as ws:
         channels = {}
         while topic not in channels:

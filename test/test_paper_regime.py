@@ -1,5 +1,6 @@
 """Issue 11 §1: with the default engine (2800 Nm rating) and Table 1, the package shows the
-paper's phenomena. HBM sweeps (dmf_sim.hbm, used as a black box) on a 20 rpm grid (the alpha 2.5
+paper's phenomena. HBM sweeps (dmf_sim.solvers.hbm, used as a black box) on a 20 rpm grid (the
+alpha 2.5
 and 3 peaks lie on it; alpha 2's is 1.2 % below the 10 rpm grid's) with the default H = 24 (H = 16
 would move the peaks by ~1 % and save little: a sweep takes ~0.3 s), checked against Newmark at
 the strongest peak."""
@@ -8,12 +9,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from dmf_sim.commands._paper_study import stable_peak_1_5
-from dmf_sim.engine import load_engine
-from dmf_sim.hbm import SweepOptions
-from dmf_sim.hbm import sweep as run_sweep
-from dmf_sim.loads import DrivelineLoads
-from dmf_sim.model import load_model
+from dmf_sim.paper.study import stable_peak_1_5
+from dmf_sim.physics.engine import load_engine
+from dmf_sim.physics.loads import DrivelineLoads
+from dmf_sim.physics.model import load_model
+from dmf_sim.solvers.hbm import SweepOptions
+from dmf_sim.solvers.hbm import sweep as run_sweep
 
 GRID = SweepOptions(step_rpm=20.0)
 BAND = (720.0, 1080.0)
@@ -75,7 +76,7 @@ def test_load_sets_b_and_c_peak_at_lower_speeds(engine, load_a):
 def test_newmark_confirms_the_alpha_3_peak(load_a):
     """Time integration started at the static equilibrium (not on the HBM solution) reaches the
     same steady state at the peak: 1.5th order within 1 % (dt 5e-5 s, see README)."""
-    from dmf_sim.newmark import simulate
+    from dmf_sim.solvers.newmark import simulate
     res = load_a[3.0]
     (hb,) = res.solutions_at(1000.0)
     nm = simulate(res.hbm.loads, 1000.0, 1.0, dt=5e-5)

@@ -1,5 +1,5 @@
 """Prediction at the operating point, live minus predicted, alarms and the monitoring messages'
-content (dmf_sim.prediction, dmf_sim.alarms, dmf_sim.monitor_messages). No ROS."""
+content (dmf_sim.monitor.prediction, dmf_sim.monitor.alarms, dmf_sim.monitor.messages). No ROS."""
 from __future__ import annotations
 
 import math
@@ -7,15 +7,10 @@ from types import SimpleNamespace
 
 import pytest
 
-from dmf_sim.alarms import ERROR, OK, WARN, AlarmSettings, evaluate
-from dmf_sim.engine import load_engine
-from dmf_sim.errors import ConfigError, ConvergenceError
-from dmf_sim.loads import DrivelineLoads
-from dmf_sim.model import load_model
-from dmf_sim.monitor_messages import cycle_status, monitor_status, prediction_statuses, values_of
-from dmf_sim.newmark import simulate
-from dmf_sim.orders import OrderSummary
-from dmf_sim.prediction import (
+from dmf_sim.core.errors import ConfigError, ConvergenceError
+from dmf_sim.monitor.alarms import ERROR, OK, WARN, AlarmSettings, evaluate
+from dmf_sim.monitor.messages import cycle_status, monitor_status, prediction_statuses, values_of
+from dmf_sim.monitor.prediction import (
     QUANTITIES,
     OperatingPoint,
     PredictedState,
@@ -24,6 +19,11 @@ from dmf_sim.prediction import (
     predict_states,
     solve_prediction,
 )
+from dmf_sim.physics.engine import load_engine
+from dmf_sim.physics.loads import DrivelineLoads
+from dmf_sim.physics.model import load_model
+from dmf_sim.physics.orders import OrderSummary
+from dmf_sim.solvers.newmark import simulate
 
 
 @pytest.fixture(scope='module')

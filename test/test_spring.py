@@ -1,4 +1,4 @@
-"""The piecewise-linear DMF spring (dmf_sim.spring) and its YAML forms (two-step shorthand,
+"""The piecewise-linear DMF spring (dmf_sim.physics.spring) and its YAML forms (two-step shorthand,
 multi-stage drive and coast stages)."""
 import copy
 
@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 import yaml
 
-from dmf_sim.errors import ConfigError
-from dmf_sim.model import driveline_from_dict, load_driveline
-from dmf_sim.paths import config_file
-from dmf_sim.spring import PiecewiseLinearSpring, Stage
+from dmf_sim.core.errors import ConfigError
+from dmf_sim.core.paths import config_file
+from dmf_sim.physics.model import driveline_from_dict, load_driveline
+from dmf_sim.physics.spring import PiecewiseLinearSpring, Stage
 
 K = 10890.0
 
@@ -142,7 +142,7 @@ def test_config_file_errors_say_what_is_wrong(tmp_path):
 
 
 def test_describe_names_every_stage():
-    from dmf_sim.spring import PiecewiseLinearSpring, Stage
+    from dmf_sim.physics.spring import PiecewiseLinearSpring, Stage
     assert PiecewiseLinearSpring(10890.0, [Stage(0.24, 2.5)]).describe() == \
         'alpha=2.5 theta=0.24 rad'
     text = PiecewiseLinearSpring(10890.0, [Stage(0.1, 1.0), Stage(0.14, 2.5)],

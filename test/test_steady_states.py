@@ -10,16 +10,16 @@ import numpy as np
 import pytest
 
 from dmf_sim.cli import main as cli_main
-from dmf_sim.engine import load_engine
-from dmf_sim.errors import ConfigError
-from dmf_sim.hbm import CondensedHBM, SweepOptions, sweep
-from dmf_sim.hbm.deflation import DeflatedNewton
-from dmf_sim.hbm.layout import amplitudes, shift, to_real
-from dmf_sim.loads import DrivelineLoads
-from dmf_sim.model import load_driveline
-from dmf_sim.newmark import simulate
-from dmf_sim.nonperiodic import NonPeriodicOptions, classify_section
-from dmf_sim.steady import BasinOptions, find_steady_states, wilson_interval
+from dmf_sim.core.errors import ConfigError
+from dmf_sim.physics.engine import load_engine
+from dmf_sim.physics.loads import DrivelineLoads
+from dmf_sim.physics.model import load_driveline
+from dmf_sim.solvers.hbm import CondensedHBM, SweepOptions, sweep
+from dmf_sim.solvers.hbm.deflation import DeflatedNewton
+from dmf_sim.solvers.hbm.layout import amplitudes, shift, to_real
+from dmf_sim.solvers.newmark import simulate
+from dmf_sim.solvers.nonperiodic import NonPeriodicOptions, classify_section
+from dmf_sim.solvers.steady import BasinOptions, find_steady_states, wilson_interval
 
 
 @pytest.fixture(scope='module')
@@ -148,8 +148,8 @@ def test_low_damping_sweep_completes_and_covers_the_range():
 
 
 def test_a_failing_case_does_not_lose_the_others(monkeypatch, capsys, tmp_path):
-    import dmf_sim.hbm as hbm
-    from dmf_sim.errors import ConvergenceError
+    import dmf_sim.solvers.hbm as hbm
+    from dmf_sim.core.errors import ConvergenceError
 
     real = hbm.sweep
 
@@ -168,8 +168,8 @@ def test_a_failing_case_does_not_lose_the_others(monkeypatch, capsys, tmp_path):
 
 
 def test_corrector_leaving_the_engine_data_ends_the_branch_with_an_event():
-    from dmf_sim.continuation import ContinuationOptions, continue_branch
-    from dmf_sim.errors import OperatingRangeError
+    from dmf_sim.core.errors import OperatingRangeError
+    from dmf_sim.solvers.continuation import ContinuationOptions, continue_branch
 
     class Problem:                       # r = x - s^2 / 1e4, but no data above 1000
         def residual_and_jacobians(self, x, s):
@@ -248,7 +248,7 @@ def test_a_sweep_stops_at_its_time_limit_naming_phase_and_speed():
     a generous limit changes nothing."""
     import time
 
-    from dmf_sim.errors import TimeLimitError
+    from dmf_sim.core.errors import TimeLimitError
     L = _paper_loads()
     t0 = time.perf_counter()
     with pytest.raises(TimeLimitError, match=r'time limit 0.001 s reached during continuation '
@@ -268,9 +268,9 @@ def test_a_sweep_stops_at_its_time_limit_naming_phase_and_speed():
 def test_the_time_limit_also_stops_the_full_search():
     """Past the continuation and branch switching, every search step checks the limit too: a
     sweep whose time runs out as the deflated search starts stops there, with that phase named."""
-    from dmf_sim.errors import TimeLimitError
-    from dmf_sim.hbm import CondensedHBM
-    from dmf_sim.hbm.sweep import SpeedSweep
+    from dmf_sim.core.errors import TimeLimitError
+    from dmf_sim.solvers.hbm import CondensedHBM
+    from dmf_sim.solvers.hbm.sweep import SpeedSweep
 
     class RunsOutAtTheSearch(SpeedSweep):
         def full_search(self, bar):

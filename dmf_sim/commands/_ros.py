@@ -9,7 +9,7 @@ from __future__ import annotations
 import os
 from contextlib import contextmanager
 
-from dmf_sim.errors import ConfigError
+from dmf_sim.core.errors import ConfigError
 
 RELIABLE_DEPTH = 10     # the node's stream QoS: reliable, volatile, keep-last 10
 

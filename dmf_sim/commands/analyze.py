@@ -7,7 +7,7 @@ import math
 import sys
 from pathlib import Path
 
-from dmf_sim.errors import ConfigError
+from dmf_sim.core.errors import ConfigError
 
 NAME = 'analyze'
 HELP = ('Order analysis of a recorded bag (rosbag2 MCAP directory, one of its files, or a bare '
@@ -44,7 +44,7 @@ POINTS_PER_CYCLE_MAX = 8192
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from dmf_sim.order_bins import DEFAULT_BIN_RPM, DEFAULT_MIN_CYCLES
+    from dmf_sim.analysis.order_bins import DEFAULT_BIN_RPM, DEFAULT_MIN_CYCLES
 
     p.epilog = EPILOG + '\n\n' + (p.epilog or '')
     p.add_argument('bag', metavar='BAG', help='rosbag2 bag directory, one of its .mcap files, or '
@@ -126,9 +126,9 @@ def check_arguments(args) -> None:
 
 
 def run(args) -> int:
-    from dmf_sim.analysis_output import write_outputs
-    from dmf_sim.analyze import analysis_dict, analyze_bag, model_settings, overlay_all
-    from dmf_sim.bag_files import resolve_bag
+    from dmf_sim.analysis.outputs import write_outputs
+    from dmf_sim.analysis.pipeline import analysis_dict, analyze_bag, model_settings, overlay_all
+    from dmf_sim.bags.layout import resolve_bag
 
     check_arguments(args)
     topics = {key: value for key, value in (('windup', args.windup_topic),

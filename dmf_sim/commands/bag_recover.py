@@ -23,7 +23,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Recover the bag and print what was kept."""
-    from dmf_sim.bag_recovery import recover_bag
+    from dmf_sim.bags.recovery import recover_bag
 
     report = recover_bag(args.bag, args.output, in_place=args.in_place)
     print(report)

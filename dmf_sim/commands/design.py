@@ -5,7 +5,7 @@ import json
 import sys
 from pathlib import Path
 
-from dmf_sim.errors import ConfigError
+from dmf_sim.core.errors import ConfigError
 
 NAME = 'design'
 HELP = ('DMF design study: every design of a study file (k, theta, alpha, damping, spring stages) '

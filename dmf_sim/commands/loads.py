@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 
 from dmf_sim.commands.sweep import check_grid
-from dmf_sim.engine import LOAD_SETS, engine_torque_orders, load_engine
-from dmf_sim.errors import ConfigError
+from dmf_sim.core.errors import ConfigError
+from dmf_sim.physics.engine import LOAD_SETS, engine_torque_orders, load_engine
 
 NAME = 'loads'
 HELP = ('Engine mean torque [Nm] over speed [rpm] for load sets A/B/C (Fig. 8 left), the order '
@@ -51,9 +51,9 @@ def element_torque_over_cycle(loads, speed_rpm: float, load: float, element: str
     """Steady-state torque [Nm] transmitted into ``element`` over one 720 deg cycle of a linear
     driveline (``loads.model`` without DMF): harmonic response per half order (eq. 5), then the
     model's torque read-out (ReducedModel.transmitted_torques). Returns (psi [deg], torque)."""
-    from dmf_sim.harmonic import solve_harmonic, solve_static
-    from dmf_sim.orders import synthesize
-    from dmf_sim.units import CYCLE_RAD, RPM_TO_RAD_S
+    from dmf_sim.core.units import CYCLE_RAD, RPM_TO_RAD_S
+    from dmf_sim.physics.harmonic import solve_harmonic, solve_static
+    from dmf_sim.physics.orders import synthesize
     m = loads.model
     if m.spring is not None:
         raise ConfigError(f'driveline {m.line.name!r}: the torque over the cycle is computed for '
@@ -75,8 +75,8 @@ def element_torque_over_cycle(loads, speed_rpm: float, load: float, element: str
 def torque_before_flywheel(engine, speeds_rpm, load: float) -> tuple[np.ndarray, dict]:
     """Paper Fig. 8 right: torque into the flywheel of the conventional driveline [Nm] over the
     crank angle [deg], per speed [rpm]."""
-    from dmf_sim.loads import DrivelineLoads
-    from dmf_sim.model import load_model
+    from dmf_sim.physics.loads import DrivelineLoads
+    from dmf_sim.physics.model import load_model
     loads = DrivelineLoads(load_model(FIG8_DRIVELINE), engine)
     out = {}
     psi = None

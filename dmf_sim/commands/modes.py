@@ -6,9 +6,9 @@ import json
 from pathlib import Path
 
 from dmf_sim.commands.sweep import check_dmf_options
-from dmf_sim.errors import ConfigError
-from dmf_sim.modal import modes, region_names
-from dmf_sim.model import load_model
+from dmf_sim.core.errors import ConfigError
+from dmf_sim.physics.modal import modes, region_names
+from dmf_sim.physics.model import load_model
 
 NAME = 'modes'
 HELP = ('Natural frequencies [Hz] and mode shapes (scaled by cumulative gear ratio, Fig. 12) of '

@@ -15,10 +15,10 @@ import math
 import time
 from dataclasses import dataclass, field
 
-from dmf_sim.errors import ConfigError, NoResponseError
-from dmf_sim.health import LEVEL_NAMES as LEVELS
-from dmf_sim.health import STATUS_SUFFIX as SIM_STATUS
-from dmf_sim.monitor_messages import MONITOR_NAME as MONITOR_STATUS
+from dmf_sim.core.errors import ConfigError, NoResponseError
+from dmf_sim.live.health import LEVEL_NAMES as LEVELS
+from dmf_sim.live.health import STATUS_SUFFIX as SIM_STATUS
+from dmf_sim.monitor.messages import MONITOR_NAME as MONITOR_STATUS
 
 NAME = 'monitor'
 HELP = ('Live terminal view of a running driveline_node: speed, load, wind-up, live and '
@@ -205,7 +205,7 @@ def render_rich(view: MonitorView, now: float, title: str):
 
 def run(args: argparse.Namespace) -> int:
     from dmf_sim.commands._ros import reliable_qos, ros_session, topic
-    from dmf_sim.monitor_messages import TOPIC_CYCLE, TOPIC_PREDICTED
+    from dmf_sim.monitor.messages import TOPIC_CYCLE, TOPIC_PREDICTED
 
     if not (math.isfinite(args.rate) and 0.1 <= args.rate <= 50):
         raise ConfigError(f'--rate must be in [0.1, 50] Hz, got {args.rate!r}')

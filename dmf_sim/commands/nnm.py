@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 
 from dmf_sim.commands.sweep import check_dmf_options
-from dmf_sim.errors import ConfigError
-from dmf_sim.model import load_model
-from dmf_sim.nnm import REGIONS, NNMOptions, nnm_branches, scaling_check
+from dmf_sim.core.errors import ConfigError
+from dmf_sim.physics.model import load_model
+from dmf_sim.solvers.nnm import REGIONS, NNMOptions, nnm_branches, scaling_check
 
 NAME = 'nnm'
 HELP = ('Non-linear normal modes (no damping, no excitation, about the mean torque\'s static '

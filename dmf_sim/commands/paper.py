@@ -17,9 +17,9 @@ import time
 from pathlib import Path
 
 from dmf_sim import __version__
-from dmf_sim.commands._paper_claims import NO, PARTLY, YES, claims
-from dmf_sim.commands._paper_study import PaperStudy, StudySettings
-from dmf_sim.errors import ConfigError
+from dmf_sim.core.errors import ConfigError
+from dmf_sim.paper.claims import NO, PARTLY, YES, claims
+from dmf_sim.paper.study import PaperStudy, StudySettings
 
 NAME = 'paper'
 HELP = ('Reproduce the reference paper: Figs. 8, 12, 13, 14, 15 and a report (report.md, '
@@ -52,7 +52,7 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
-    from dmf_sim.engine import load_engine
+    from dmf_sim.physics.engine import load_engine
     load_engine(args.engine)                       # a bad engine file: one line before any work
     if args.out.exists() and not args.out.is_dir():
         raise ConfigError(f'--out {args.out}: exists and is not a directory')

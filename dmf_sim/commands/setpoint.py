@@ -16,7 +16,7 @@ import argparse
 import math
 import time
 
-from dmf_sim.errors import ConfigError, NoResponseError
+from dmf_sim.core.errors import ConfigError, NoResponseError
 
 NAME = 'setpoint'
 HELP = ('Send an engine speed [rpm] and/or load [0..1] setpoint to a running driveline_node '

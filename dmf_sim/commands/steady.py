@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import json
 
-from dmf_sim.errors import ConfigError
+from dmf_sim.core.errors import ConfigError
 
 NAME = 'steady'
 HELP = ('Every steady state of the DMF wind-up at one engine speed and load (harmonic balance '
@@ -53,11 +53,11 @@ def _check(args) -> None:
 
 
 def run(args) -> int:
-    from dmf_sim.engine import load_engine
-    from dmf_sim.hbm import HBMOptions
-    from dmf_sim.loads import DrivelineLoads
-    from dmf_sim.model import load_driveline
-    from dmf_sim.steady import BasinOptions, find_steady_states
+    from dmf_sim.physics.engine import load_engine
+    from dmf_sim.physics.loads import DrivelineLoads
+    from dmf_sim.physics.model import load_driveline
+    from dmf_sim.solvers.hbm import HBMOptions
+    from dmf_sim.solvers.steady import BasinOptions, find_steady_states
 
     _check(args)
     line = load_driveline(args.config, alpha=args.alpha, theta=args.theta)

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dmf_sim.errors import ConfigError, ConvergenceError, DmfSimError, one_line
+from dmf_sim.core.errors import ConfigError, ConvergenceError, DmfSimError, one_line
 
 NAME = 'sweep'
 HELP = ('Speed sweep of the DMF wind-up (3rd / 1.5th order amplitude, max/min deviation, theta - '
@@ -104,11 +104,11 @@ def check_dmf_options(alphas, theta) -> None:
 
 
 def run(args) -> int:
-    from dmf_sim.engine import load_engine
-    from dmf_sim.hbm import HBMOptions, SweepOptions, sweep
-    from dmf_sim.hbm.sweep import check_time_limit
-    from dmf_sim.loads import DrivelineLoads
-    from dmf_sim.model import load_driveline
+    from dmf_sim.physics.engine import load_engine
+    from dmf_sim.physics.loads import DrivelineLoads
+    from dmf_sim.physics.model import load_driveline
+    from dmf_sim.solvers.hbm import HBMOptions, SweepOptions, sweep
+    from dmf_sim.solvers.hbm.sweep import check_time_limit
 
     lo, hi, step = args.speeds
     check_grid(lo, hi, step)

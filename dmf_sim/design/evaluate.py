@@ -1,7 +1,8 @@
 """Evaluating designs: one design over all its operating conditions -> result rows.
 
 :func:`solve_condition` is the one place that decides how the steady states of a design are
-found. Today it is continuation (``dmf_sim.hbm.sweep``: the branch from the lowest speed, turning
+found. Today it is continuation (``dmf_sim.solvers.hbm.sweep``: the branch from the lowest speed,
+turning
 points, Floquet stability, branch switching to 1.5th-order branches); when the solution finder
 (issue 13) lands, its body changes and nothing else does.
 
@@ -18,9 +19,9 @@ import os
 import time
 from dataclasses import dataclass, field, replace
 
+from dmf_sim.core.errors import one_line
 from dmf_sim.design.metrics import condition_metrics, design_summary
 from dmf_sim.design.parameters import Parameter, design_driveline
-from dmf_sim.errors import one_line
 
 _CONTEXTS: dict[str, 'StudyContext'] = {}     # key -> context installed in this process
 _CONTEXT_LOADS = [0]                           # contexts installed in this process so far
@@ -44,7 +45,8 @@ def context_loads() -> int:
 @dataclass(frozen=True)
 class SolverSettings:
     """Speed grid [rpm] (from, to, step), harmonics H, branch switching, torque element index,
-    and the full steady-state search (``dmf_sim.hbm.search``; off: continuation, stability and
+    and the full steady-state search (``dmf_sim.solvers.hbm.search``; off: continuation, stability
+    and
     branch switching only, as ``dmf-sim sweep --fast``); ``time_limit_s``: wall-clock limit of
     one design x condition sweep (None: none), past which the condition is recorded as failed."""
 
@@ -60,7 +62,7 @@ class SolverSettings:
 class StudyContext:
     """Everything a worker needs to evaluate designs of one study."""
 
-    base: object                      # dmf_sim.model.Driveline
+    base: object                      # dmf_sim.physics.model.Driveline
     engines: dict                     # load set -> engine
     conditions: list                  # dmf_sim.design.study.Condition
     params: list[Parameter]
@@ -93,10 +95,11 @@ def solve_condition(line, engine, load: float, settings: SolverSettings):
 
 
 def sweep_condition(line, engine, load: float, settings: SolverSettings):
-    """The harmonic-balance sweep (``dmf_sim.hbm.sweep``) of one design at one condition: the
+    """The harmonic-balance sweep (``dmf_sim.solvers.hbm.sweep``) of one design at one condition:
+    the
     solution finder (every stable state, non-periodic speeds) unless ``settings.search`` is off."""
-    from dmf_sim.hbm import HBMOptions, SweepOptions, sweep
-    from dmf_sim.loads import DrivelineLoads
+    from dmf_sim.physics.loads import DrivelineLoads
+    from dmf_sim.solvers.hbm import HBMOptions, SweepOptions, sweep
     lo, hi, step = settings.speeds_rpm
     options = SweepOptions(step_rpm=step, branch_switching=settings.branch_switching,
                            time_limit_s=settings.time_limit_s)

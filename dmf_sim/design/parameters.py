@@ -1,7 +1,7 @@
 """DMF design parameters by name, and building a design's driveline from them.
 
 A design is a mapping ``{name: value}`` (SI units) applied to the study's base driveline through
-:meth:`dmf_sim.model.Driveline.with_dmf`. Names:
+:meth:`dmf_sim.physics.model.Driveline.with_dmf`. Names:
 
 ========================================  ===================================================
 ``k``                                     primary stiffness [Nm/rad] (> 0)
@@ -26,9 +26,9 @@ import math
 import re
 from dataclasses import dataclass
 
-from dmf_sim.errors import ConfigError
-from dmf_sim.model import Driveline
-from dmf_sim.spring import Stage
+from dmf_sim.core.errors import ConfigError
+from dmf_sim.physics.model import Driveline
+from dmf_sim.physics.spring import Stage
 
 ALIASES = {'theta': ('stages', 0, 'angle_rad'), 'alpha': ('stages', 0, 'stiffness_factor')}
 SCALARS = ('k', 'damping')

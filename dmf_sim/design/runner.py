@@ -21,6 +21,7 @@ import uuid
 
 from distributed.diagnostics.plugin import WorkerPlugin
 
+from dmf_sim.core.errors import ConfigError, one_line
 from dmf_sim.design.evaluate import (
     BatchResult,
     StudyContext,
@@ -31,7 +32,6 @@ from dmf_sim.design.evaluate import (
 from dmf_sim.design.result import StudyResult
 from dmf_sim.design.study import load_study
 from dmf_sim.design.table import ResultStore
-from dmf_sim.errors import ConfigError, one_line
 
 LOOPBACK = '127.0.0.1'
 CONNECT_TIMEOUT_S = 5.0

@@ -21,8 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dmf_sim.orders import ORDER_3
-from dmf_sim.units import RPM_TO_RAD_S
+from dmf_sim.core.units import RPM_TO_RAD_S
+from dmf_sim.physics.orders import ORDER_3
 
 _ON_GRID_RPM = 1e-6       # a point this close to a grid speed [rpm] is on it
 SAME_STATE_REL = 0.02     # states closer than this (relative) at one speed are the same state
@@ -73,7 +73,7 @@ def speed_grid(lo: float, hi: float, step: float) -> np.ndarray:
 
 
 def grid_states(res, speeds_rpm: tuple[float, float, float], torque_element: int) -> GridStates:
-    """Flat grid states of a :class:`dmf_sim.hbm.SweepResult` (see the module docstring)."""
+    """Flat grid states of a :class:`~dmf_sim.solvers.hbm.SweepResult` (see the module doc)."""
     lo, hi, step = speeds_rpm
     grid = speed_grid(lo, hi, step)
     refs = []                # (grid index, branch, point a, point b, weight of b)
@@ -177,7 +177,7 @@ def _distinct(grid_index: np.ndarray, stable: np.ndarray, values: np.ndarray) ->
 
 def order_torques(hb, points, element: int, n: int = ORDER_3) -> np.ndarray:
     """Complex half-order-``n`` torque [Nm] transmitted into ``element`` (index) at each HBM
-    point of the condensed problem ``hb`` (a :class:`dmf_sim.hbm.CondensedHBM`), positive
+    point of the condensed problem ``hb`` (a :class:`dmf_sim.solvers.hbm.CondensedHBM`), positive
     when the engine drives; n >= 1. See the module docstring."""
     if n < 1:
         raise ValueError(f'half-order n={n}: needs n >= 1 (the static part is not a harmonic)')

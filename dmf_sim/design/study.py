@@ -35,12 +35,12 @@ from pathlib import Path
 
 import numpy as np
 
+from dmf_sim.core.errors import ConfigError
 from dmf_sim.design import sampling
 from dmf_sim.design.metrics import OBJECTIVES
 from dmf_sim.design.parameters import Parameter, check_parameter_set, parse_parameter
-from dmf_sim.errors import ConfigError
-from dmf_sim.hbm.sweep import TIME_LIMIT_RANGE_S
-from dmf_sim.model import Driveline
+from dmf_sim.physics.model import Driveline
+from dmf_sim.solvers.hbm.sweep import TIME_LIMIT_RANGE_S
 
 REQUIRED = ('driveline', 'engine', 'sampling', 'variables', 'conditions', 'objectives')
 OPTIONAL = ('name', 'description', 'fixed', 'torque_element', 'solver', 'plots')
@@ -153,7 +153,7 @@ def load_study(source) -> Study:
     """A :class:`Study` from a study file (name in config/ or path), a mapping, or a Study."""
     if isinstance(source, Study):
         return source
-    from dmf_sim.paths import read_yaml_mapping
+    from dmf_sim.core.paths import read_yaml_mapping
     if isinstance(source, dict):
         return study_from_dict(source, 'study', base_dir=Path.cwd())
     path, data = read_yaml_mapping(source, 'design study')
@@ -301,7 +301,7 @@ def _resolve(value, base_dir: Path) -> str:
 
 
 def _load_driveline(w: _Where, value, base_dir: Path) -> Driveline:
-    from dmf_sim.model import load_driveline
+    from dmf_sim.physics.model import load_driveline
     if not isinstance(value, str) or not value.strip():
         raise w.error('driveline', f'must be a driveline YAML name or path, got {value!r}')
     try:
@@ -351,7 +351,7 @@ def _variables(w: _Where, raw, method: str):
 
 
 def _conditions(w: _Where, raw, engine_source, base_dir: Path):
-    from dmf_sim.engine import load_engine
+    from dmf_sim.physics.engine import load_engine
     w.mapping(raw, 'conditions', ('load_sets', 'loads', 'speeds_rpm'), ())
     load_sets = w.nonempty_list(raw['load_sets'], 'conditions.load_sets')
     loads = w.nonempty_list(raw['loads'], 'conditions.loads')
@@ -397,7 +397,7 @@ def _conditions(w: _Where, raw, engine_source, base_dir: Path):
 
 def _engine_error(src) -> bool:
     """True when the engine file cannot be loaded with its default load set."""
-    from dmf_sim.engine import load_engine
+    from dmf_sim.physics.engine import load_engine
     try:
         load_engine(src)
     except ConfigError:
@@ -419,7 +419,7 @@ def _objectives(w: _Where, raw) -> list[str]:
 
 def _digest(base_dir: Path, *sources) -> str:
     """Hash of the contents of the study's driveline and engine files."""
-    from dmf_sim.paths import config_file
+    from dmf_sim.core.paths import config_file
     h = hashlib.sha256()
     for src in sources:
         h.update(Path(config_file(_resolve(src, base_dir))).read_bytes())

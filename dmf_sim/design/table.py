@@ -24,8 +24,8 @@ import pyarrow as pa
 import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
 
+from dmf_sim.core.errors import ConfigError
 from dmf_sim.design.metrics import WORST
-from dmf_sim.errors import ConfigError
 
 STUDY_FILE = 'study.json'
 LOCK_FILE = '.lock'

@@ -1,0 +1,1 @@
+"""Order analysis of recorded bags and the model beside the recording."""

@@ -1,0 +1,442 @@
+"""Fast reading of numeric columns from MCAP files, chunk by chunk (the bag analysis' reader).
+
+The reference reader (:mod:`dmf_sim.bags.read`) builds a Python object per record and decodes
+every wanted message with ``rosbags`` -- fine for a few thousand messages, slow for a bag of
+millions (``benchmarks/bench_analyze.py`` measures both). This reader keeps the library's
+framing and decompression and replaces only the per-message work with array operations:
+
+1. **Framing**: the top-level records come from ``mcap``'s StreamReader (chunks whole, message
+   indexes skipped), so truncated files stop cleanly at their last complete record, as there.
+2. **Chunks** are decompressed by ``mcap`` and walked by a small jitted loop that lists the
+   record offsets (no message index needed, so a chunk a crash cut off from its indexes reads
+   the same); message fields (channel, log/publish time, data span) are gathered with numpy.
+3. **Values**: ``std_msgs/Float64`` comes straight from the CDR bytes (both byte orders).
+   ``sensor_msgs/JointState`` columns use the byte layout of the first message, checked against
+   ``rosbags``' decoding of it; each message whose fixed bytes (frame id, names, array lengths)
+   differ from that layout is decoded with ``rosbags``. Any other type: ``rosbags`` per message.
+
+Memory: a batch of decompressed chunks (about 1 MiB) at a time plus the kept columns; the file
+is read, not mapped.
+"""
+from __future__ import annotations
+
+import io
+import struct
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numba
+import numpy as np
+from mcap.data_stream import ReadDataStream
+from mcap.records import Channel, Chunk, DataEnd, Footer, Message, Schema
+from mcap.stream_reader import get_chunk_data_stream
+
+from dmf_sim.bags.read import Scan, TypeDecoder, iter_records, normalize_type
+from dmf_sim.core.errors import BagError
+
+__all__ = ['FLOAT64', 'JOINT_STATE', 'Column', 'ScalarColumn', 'JointStateColumns', 'McapColumns',
+           'ColumnFactory']
+
+FLOAT64 = 'std_msgs/msg/Float64'
+JOINT_STATE = 'sensor_msgs/msg/JointState'
+_OP_SCHEMA, _OP_CHANNEL, _OP_MESSAGE = 3, 4, 5
+_RECORD_HEAD = 9          # opcode (1) + record length (8)
+_LOG_TIME, _PUBLISH_TIME = 15, 23   # message record offsets: head 9, channel 2, sequence 4
+_MSG_DATA = 31            # message data after log and publish time
+_LOOSE_BATCH = 4096       # unchunked messages gathered per batch
+_CHUNK_BATCH_BYTES = 1 << 20   # decompressed chunks gathered per batch (the recorder's chunks
+                               # are small for crash tolerance: numpy's per-call cost would
+                               # dominate chunk by chunk)
+_ARANGE8 = np.arange(8)
+
+
+@numba.njit(cache=True)
+def _record_offsets(buf: np.ndarray) -> np.ndarray:
+    """Offsets of the complete records of a chunk's records area (uint8 array)."""
+    n = buf.shape[0]
+    out = np.empty(n // _RECORD_HEAD + 1, np.int64)
+    pos = 0
+    count = 0
+    while pos + _RECORD_HEAD <= n:
+        length = np.uint64(0)
+        for k in range(8):
+            length |= np.uint64(buf[pos + 1 + k]) << np.uint64(8 * k)
+        if length > np.uint64(n - pos - _RECORD_HEAD):
+            break
+        out[count] = pos
+        count += 1
+        pos += _RECORD_HEAD + np.int64(length)
+    return out[:count]
+
+
+def _u64(buf: np.ndarray, pos: np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(buf[pos[:, None] + _ARANGE8]).view('<u8').ravel()
+
+
+# --------------------------------------------------------------------------------- columns
+
+class Column:
+    """Turns the messages of one channel into rows of ``width`` float values."""
+
+    width = 1
+
+    def __init__(self, decoder: TypeDecoder, msgtype: str) -> None:
+        self.decoder = decoder
+        self.msgtype = msgtype
+
+    def row(self, msg: Any) -> list[float]:  # pragma: no cover - interface
+        """The values of one decoded message."""
+        raise NotImplementedError
+
+    def rows(self, buf: np.ndarray, start: np.ndarray, length: np.ndarray) -> np.ndarray:
+        """Values of the messages whose CDR bytes are ``buf[start:start + length]``."""
+        out = np.full((len(start), self.width), np.nan)
+        self._decode_rows(buf, start, length, out, np.arange(len(start)))
+        return out
+
+    def _decode_rows(self, buf: np.ndarray, start: np.ndarray, length: np.ndarray,
+                     out: np.ndarray, which: np.ndarray) -> None:
+        for r in which:
+            s, n = int(start[r]), int(length[r])
+            out[r] = self.row(self.decoder.decode(buf[s:s + n].tobytes(), self.msgtype))
+
+
+class ScalarColumn(Column):
+    """The ``data`` field of a scalar message; std_msgs/Float64 straight from the CDR bytes
+    (once the first message read so agrees with ``rosbags``' decoding of it)."""
+
+    checked: bool | None = None     # None: not yet compared with rosbags; False: disagreed
+
+    def row(self, msg: Any) -> list[float]:
+        try:
+            return [float(msg.data)]
+        except (AttributeError, TypeError, ValueError):
+            raise BagError(f'messages of type {self.msgtype} have no numeric field "data"'
+                           ) from None
+
+    def rows(self, buf, start, length):
+        out = np.full((len(start), 1), np.nan)
+        if self.msgtype != FLOAT64 or not len(start) or self.checked is False:
+            self._decode_rows(buf, start, length, out, np.arange(len(start)))
+            return out
+        # CDR: representation id 0x0000 (big endian) or 0x0001 (little), 2 option bytes, float64
+        ok = (length >= 12) & (buf[start] == 0) & (buf[start + 1] <= 1)
+        le = ok & (buf[start + 1] == 1)
+        be = ok & ~le
+        raw = np.ascontiguousarray(buf[(start + 4)[:, None] + _ARANGE8])
+        if le.any():
+            out[le, 0] = raw[le].view('<f8').ravel()
+        if be.any():
+            out[be, 0] = raw[be].view('>f8').ravel()
+        self._decode_rows(buf, start, length, out, np.flatnonzero(~ok))
+        if self.checked is None:
+            s, n = int(start[0]), int(length[0])
+            ref = self.row(self.decoder.decode(buf[s:s + n].tobytes(), self.msgtype))[0]
+            self.checked = bool(np.array_equal(out[0, 0], ref, equal_nan=True))
+            if not self.checked:
+                return self.rows(buf, start, length)
+        return out
+
+
+class _Unsupported(Exception):
+    """A JointState message whose bytes the layout reader does not handle."""
+
+
+def _joint_layout(data: bytes) -> tuple[str, list[str], dict[str, tuple[int, int]], int,
+                                         np.ndarray]:
+    """Byte layout of one sensor_msgs/JointState CDR message (XCDR1, plain): byte order, names,
+    field -> (offset of its first float64, count), total length, and the byte positions that
+    carry the representation id, frame id, names and array lengths (alignment padding excluded:
+    serializers need not zero it)."""
+    if len(data) < 4 or data[0] != 0 or data[1] > 1:
+        raise _Unsupported('not plain CDR')
+    end = '<' if data[1] == 1 else '>'
+    key: list[range] = [range(0, 2)]
+
+    def align(p: int, a: int) -> int:
+        return 4 + (p - 4 + a - 1) // a * a
+
+    def u32(p: int) -> int:
+        return struct.unpack_from(end + 'I', data, p)[0]
+
+    p = 4 + 8                                    # header.stamp: int32 sec, uint32 nanosec
+    n = u32(p)
+    key.append(range(p, p + 4 + n))              # header.frame_id
+    p = align(p + 4 + n, 4)
+    names = []
+    count = u32(p)
+    key.append(range(p, p + 4))
+    p += 4
+    for _ in range(count):
+        p = align(p, 4)
+        n = u32(p)
+        key.append(range(p, p + 4 + n))
+        names.append(bytes(data[p + 4:p + 4 + n]).rstrip(b'\0').decode())
+        p += 4 + n
+    arrays = {}
+    for fld in ('position', 'velocity', 'effort'):
+        p = align(p, 4)
+        n = u32(p)
+        key.append(range(p, p + 4))
+        p += 4
+        if n:
+            p = align(p, 8)
+        arrays[fld] = (p, n)
+        p += 8 * n
+    cols = np.unique(np.concatenate([np.arange(r.start, r.stop) for r in key]))
+    return end, names, arrays, p, cols
+
+
+def match_element(wanted: str, names: Sequence[str]) -> int:
+    """Index of element ``wanted`` in ``names``: exact, else case-insensitive with '_' == ' '."""
+    if wanted in names:
+        return list(names).index(wanted)
+    key = wanted.replace('_', ' ').strip().lower()
+    hits = [i for i, n in enumerate(names) if n.replace('_', ' ').strip().lower() == key]
+    if len(hits) == 1:
+        return hits[0]
+    raise BagError(f'element {wanted!r} is not in the joint states; names are: '
+                   f'{", ".join(names)}')
+
+
+class JointStateColumns(Column):
+    """Columns (field, element name) of sensor_msgs/JointState (see the module docstring)."""
+
+    def __init__(self, decoder: TypeDecoder, msgtype: str,
+                 columns: Sequence[tuple[str, str]]) -> None:
+        super().__init__(decoder, msgtype)
+        self.columns = list(columns)
+        self.width = len(self.columns)
+        self.names: list[str] | None = None
+        self.layout: tuple | bool | None = None   # None: not learnt yet; False: none usable
+
+    def row(self, msg: Any) -> list[float]:
+        names = list(msg.name)
+        if self.names is None:
+            self.names = names
+        out = []
+        for fld, el in self.columns:
+            i = match_element(el, names)
+            arr = getattr(msg, fld)
+            if len(arr) <= i:
+                raise BagError(f'joint states carry no {fld!r} for element {el!r} '
+                               f'({len(arr)} values for {len(names)} names)')
+            out.append(float(arr[i]))
+        return out
+
+    def _learn(self, data: bytes) -> None:
+        msg = self.decoder.decode(data, self.msgtype)
+        self.row(msg)                                  # names, and errors for bad requests
+        self.layout = False
+        try:
+            end, names, arrays, total, cols = _joint_layout(data)
+        except (_Unsupported, struct.error, UnicodeDecodeError):
+            return
+        if names != list(msg.name) or total > len(data) or cols.max() >= len(data):
+            return
+        for fld, (off, n) in arrays.items():
+            got = np.frombuffer(data, end + 'f8', count=n, offset=off) if n else np.zeros(0)
+            if not np.array_equal(got, np.asarray(getattr(msg, fld), dtype=float),
+                                  equal_nan=True):
+                return
+        idx = [match_element(el, names) for _, el in self.columns]
+        if any(i >= arrays[fld][1] for (fld, _), i in zip(self.columns, idx)):
+            return
+        offsets = np.array([arrays[fld][0] + 8 * i for (fld, _), i in zip(self.columns, idx)])
+        key = np.frombuffer(data, np.uint8)[cols].copy()
+        self.layout = (np.dtype(end + 'f8'), key, cols, offsets, len(data))
+
+    def rows(self, buf, start, length):
+        n = len(start)
+        out = np.full((n, self.width), np.nan)
+        if n == 0:
+            return out
+        if self.layout is None:
+            s, k = int(start[0]), int(length[0])
+            self._learn(buf[s:s + k].tobytes())
+        if not self.layout:
+            self._decode_rows(buf, start, length, out, np.arange(n))
+            return out
+        dtype, key, cols, offsets, size = self.layout
+        ok = length == size
+        ok[ok] = np.all(buf[start[ok, None] + cols] == key, axis=1)
+        good = np.flatnonzero(ok)
+        if len(good):
+            raw = np.ascontiguousarray(buf[(start[good, None] + offsets)[:, :, None] + _ARANGE8])
+            out[good] = raw.view(dtype).reshape(len(good), self.width)
+        self._decode_rows(buf, start, length, out, np.flatnonzero(~ok))
+        return out
+
+
+ColumnFactory = Callable[[TypeDecoder, str], Column]
+
+
+# ---------------------------------------------------------------------------------- reading
+
+@dataclass
+class McapColumns:
+    """Columns of chosen topics of one MCAP file.
+
+    Args:
+        file: the MCAP file.
+        requests: topic -> factory(decoder, ROS type) of its Column.
+        decoder: shared type decoder (several files of one bag).
+        stamp: 'log' (receive time) or 'publish' time of each message.
+        progress: callable(bytes read) for a progress bar.
+
+    After :meth:`read`: ``columns`` topic -> list of (times [ns] int64, values (k, width)) in
+    file order, ``topics`` topic -> type of every channel, ``truncated`` / ``error``.
+    """
+
+    file: Path
+    requests: Mapping[str, ColumnFactory] = field(default_factory=dict)
+    decoder: TypeDecoder = field(default_factory=TypeDecoder)
+    stamp: str = 'log'
+    progress: Callable[[int], Any] | None = None
+    columns: dict[str, list[tuple[np.ndarray, np.ndarray]]] = field(default_factory=dict)
+    topics: dict[str, str] = field(default_factory=dict)
+    truncated: bool = False
+    error: str = ''
+
+    def __post_init__(self) -> None:
+        if self.stamp not in ('log', 'publish'):
+            raise BagError(f"stamp={self.stamp!r}: allowed 'log', 'publish'")
+        self._stamp_at = _LOG_TIME if self.stamp == 'log' else _PUBLISH_TIME
+        self._schemas: dict[int, Schema] = {}
+        self._channels: dict[int, tuple[str, Column | None]] = {}
+        self._loose: list[Message] = []
+        self._pending: list[bytes] = []        # decompressed chunks not gathered yet
+        self._pending_bytes = 0
+
+    # ---- records -----------------------------------------------------------------------------
+    def _channel(self, channel: Channel) -> None:
+        if channel.id in self._channels:
+            return
+        schema = self._schemas.get(channel.schema_id)
+        msgtype = normalize_type(schema.name) if schema is not None else ''
+        self.topics.setdefault(channel.topic, msgtype)
+        factory = self.requests.get(channel.topic)
+        column = None
+        if factory is not None:
+            if channel.message_encoding != 'cdr':
+                raise BagError(f'{self.file}: topic {channel.topic!r} has message encoding '
+                               f'{channel.message_encoding!r}; only cdr is supported')
+            if not msgtype:
+                raise BagError(f'{self.file}: topic {channel.topic!r} has no schema; its type '
+                               'is unknown')
+            self.decoder.add_schema(schema, msgtype)
+            column = factory(self.decoder, msgtype)
+        self._channels[channel.id] = (channel.topic, column)
+
+    def _record(self, record: Any) -> None:
+        if isinstance(record, Schema):
+            self._schemas[record.id] = record
+        elif isinstance(record, Channel):
+            self._channel(record)
+
+    def _column(self, cid: int) -> Column | None:
+        try:
+            return self._channels[cid][1]
+        except KeyError:
+            raise BagError(f'{self.file}: message on undeclared channel {cid}') from None
+
+    def _gather(self, buf: np.ndarray, cids: np.ndarray, times: np.ndarray, start: np.ndarray,
+                length: np.ndarray) -> None:
+        for cid in np.unique(cids):
+            column = self._column(int(cid))
+            if column is None:
+                continue
+            sel = np.flatnonzero(cids == cid)
+            values = column.rows(buf, start[sel], length[sel])
+            topic = self._channels[int(cid)][0]
+            self.columns.setdefault(topic, []).append((times[sel].astype(np.int64), values))
+
+    # ---- chunks ------------------------------------------------------------------------------
+    def _chunk(self, chunk: Chunk) -> bool:
+        """Decompress one chunk into the pending batch (gathered by :meth:`_flush_chunks`);
+        False if it cannot be decompressed (damaged: the file ends there)."""
+        try:
+            stream, size = get_chunk_data_stream(chunk)
+            data = stream.read(size)
+        except Exception as exc:  # noqa: BLE001 - zstd/lz4 errors of a damaged chunk vary
+            self._flush_chunks()
+            self.truncated = True
+            self.error = f'damaged chunk: {type(exc).__name__}: {" ".join(str(exc).split())}'
+            return False
+        self._pending.append(data)
+        self._pending_bytes += len(data)
+        if self._pending_bytes >= _CHUNK_BATCH_BYTES:
+            self._flush_chunks()
+        return True
+
+    def _flush_chunks(self) -> None:
+        """Gather the pending chunks at once: a chunk's records are a complete record sequence,
+        so chunks read back to back are one."""
+        if not self._pending:
+            return
+        buf = np.frombuffer(b''.join(self._pending), np.uint8)
+        self._pending, self._pending_bytes = [], 0
+        offs = _record_offsets(buf)
+        ops = buf[offs]
+        lengths = _u64(buf, offs + 1).astype(np.int64)
+        for i in np.flatnonzero((ops == _OP_SCHEMA) | (ops == _OP_CHANNEL)):
+            body = ReadDataStream(io.BytesIO(buf[offs[i] + _RECORD_HEAD:
+                                                 offs[i] + _RECORD_HEAD + lengths[i]].tobytes()))
+            self._record(Schema.read(body) if ops[i] == _OP_SCHEMA else Channel.read(body))
+        msg = ops == _OP_MESSAGE
+        m_offs, m_len = offs[msg], lengths[msg]
+        if not len(m_offs):
+            return
+        cids = buf[m_offs + _RECORD_HEAD].astype(np.int64) \
+            | (buf[m_offs + _RECORD_HEAD + 1].astype(np.int64) << 8)
+        times = _u64(buf, m_offs + self._stamp_at)
+        self._gather(buf, cids, times, m_offs + _MSG_DATA, m_len - (_MSG_DATA - _RECORD_HEAD))
+
+    def _flush_loose(self) -> None:
+        """Messages outside chunks (unchunked files), gathered like a chunk's."""
+        if not self._loose:
+            return
+        msgs, self._loose = self._loose, []
+        length = np.array([len(m.data) for m in msgs], np.int64)
+        start = np.concatenate(([0], np.cumsum(length)[:-1])).astype(np.int64)
+        buf = np.frombuffer(b''.join(m.data for m in msgs), np.uint8)
+        cids = np.array([m.channel_id for m in msgs], np.int64)
+        stamp = 'log_time' if self.stamp == 'log' else 'publish_time'
+        times = np.array([getattr(m, stamp) for m in msgs], np.uint64)
+        self._gather(buf, cids, times, start, length)
+
+    def read(self) -> McapColumns:
+        """Read the file (once); returns self."""
+        scan = Scan()
+        done = 0
+        ended = False
+        for record in iter_records(self.file, scan, emit_chunks=True):
+            if isinstance(record, Chunk):
+                self._flush_loose()
+                if not self._chunk(record):
+                    return self
+            elif isinstance(record, Message):
+                self._flush_chunks()           # file order: the chunks before this message
+                if self._column(record.channel_id) is not None:
+                    self._loose.append(record)
+                    if len(self._loose) >= _LOOSE_BATCH:
+                        self._flush_loose()
+            elif isinstance(record, (DataEnd, Footer)):
+                ended = True           # the summary section follows: nothing more to read
+                break
+            else:
+                self._flush_chunks()           # e.g. a channel declared after these chunks
+                self._record(record)
+            if self.progress is not None:
+                self.progress(scan.valid_end - done)
+                done = scan.valid_end
+        self._flush_chunks()
+        self._flush_loose()
+        if not ended and not scan.complete:
+            self.truncated = True
+            self.error = scan.error
+        if self.progress is not None:
+            self.progress(scan.size - done)
+        return self

@@ -1,0 +1,360 @@
+"""rosbag2-compatible MCAP bags: crash-tolerant recording split into files of bounded duration.
+
+A bag is a directory holding ``metadata.yaml`` and MCAP files ``<name>_0.mcap``,
+``<name>_1.mcap``, ..., laid out as rosbag2 (Jazzy, metadata version 9) with its MCAP storage
+plugin writes it: ``ros2`` profile, ``cdr`` messages, ``ros2msg`` schemas with the full message
+definition embedded, channel metadata ``offered_qos_profiles`` and ``topic_type_hash``, a
+``rosbag2`` metadata record. So ``ros2 bag``, Foxglove, PlotJuggler, rosbags and the ``mcap``
+readers open it.
+
+Splits: like ``ros2 bag record --max-bag-duration``, :class:`BagRecorder` starts a new file once
+the current one spans ``max_duration_s`` of log time. Each finished file is closed with its
+complete MCAP summary and footer, and ``metadata.yaml`` is rewritten listing the closed files
+(message counts, durations, ``custom_data``) -- by a helper thread, so the writing thread does not
+wait for it. So after a crash (even SIGKILL) every split but
+the last is a complete file that rosbags, ``mcap`` and ``ros2 bag`` read; the last one, not yet
+listed, is a valid MCAP prefix that :func:`read_messages` and ``dmf-sim analyze`` read up to its
+last complete chunk and :func:`recover_bag` (``dmf-sim bag-recover``) completes.
+
+Memory: the ``mcap`` writer keeps one chunk index per chunk (about 0.7 KB) until it writes the
+file's summary; at ~10 chunks per second that grew ~25-50 MB per hour of one file. Splitting
+bounds it to one file's worth (60 s: < 1 MB) and frees it at every split.
+
+Chunks: a chunk closes when it holds ``chunk_bytes`` of data or spans ``chunk_seconds`` of log
+time or of wall time, and is handed to the operating system at once, so a crash loses at most
+the open chunk.
+
+No ROS runtime is needed: the recorder takes CDR bytes (e.g. from
+``rclpy.serialization.serialize_message``); the readers decode with ``rosbags`` from the schemas
+embedded in the files. Reading: :mod:`dmf_sim.bags.read` (re-exported here), recovery:
+:mod:`dmf_sim.bags.recovery`, which files make a bag: :mod:`dmf_sim.bags.layout`.
+"""
+from __future__ import annotations
+
+import math
+import os
+import threading
+import time
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import yaml
+from mcap.writer import CompressionType, Writer
+
+from dmf_sim.bags.layout import (
+    LIBRARY,
+    ROS_DISTRO,
+    FileInfo,
+    TopicInfo,
+    bag_metadata,
+    dump_metadata,
+    refuse_existing,
+    write_metadata,
+)
+from dmf_sim.bags.read import BagMessage, bag_topics, read_messages
+from dmf_sim.bags.recovery import RecoverReport, recover_bag
+from dmf_sim.core.errors import BagError, BagExistsError
+
+__all__ = [
+    'BagMessage', 'BagRecorder', 'RecoverReport', 'bag_topics', 'read_messages', 'recover_bag',
+    'MAX_DURATION_RANGE_S',
+]
+
+DEFAULT_MAX_DURATION_S = 60.0
+MAX_DURATION_RANGE_S = (1.0, 3600.0)   # split duration bounds [s]; the upper one bounds memory
+
+_INFINITE = {'sec': 9223372036, 'nsec': 854775807}  # RMW_DURATION_INFINITE as rosbag2 writes it
+_QOS_PRESETS: dict[str, dict[str, Any]] = {
+    'reliable': {'history': 'keep_last', 'depth': 10, 'reliability': 'reliable',
+                 'durability': 'volatile'},
+    'best_effort': {'history': 'keep_last', 'depth': 5, 'reliability': 'best_effort',
+                    'durability': 'volatile'},
+    'transient_local': {'history': 'keep_last', 'depth': 1, 'reliability': 'reliable',
+                        'durability': 'transient_local'},
+}
+_COMPRESSION = {'none': CompressionType.NONE, 'lz4': CompressionType.LZ4,
+                'zstd': CompressionType.ZSTD}
+_MESSAGE_OVERHEAD = 31 + 16  # message record header + its message index entry, bytes
+
+
+def _qos_profile(preset: str) -> dict[str, Any]:
+    base = _QOS_PRESETS[preset]
+    return {**base, 'deadline': dict(_INFINITE), 'lifespan': dict(_INFINITE),
+            'liveliness': 'automatic', 'liveliness_lease_duration': dict(_INFINITE),
+            'avoid_ros_namespace_conventions': False}
+
+
+def _qos_text(value: str | None, topic: str) -> str:
+    """Channel-metadata QoS text from a preset name or a YAML list of profiles."""
+    if value is None:
+        value = 'reliable'
+    if value in _QOS_PRESETS:
+        return yaml.safe_dump([_qos_profile(value)], sort_keys=False).strip()
+    try:
+        parsed = yaml.safe_load(value)
+    except yaml.YAMLError:
+        parsed = None
+    if not isinstance(parsed, list) or not parsed:
+        raise BagError(f'QoS for {topic!r} must be one of {sorted(_QOS_PRESETS)} or a YAML list '
+                       f'of profiles, got {value!r}')
+    return value.strip()
+
+
+def _schemas(topics: Mapping[str, str], msgdefs: Mapping[str, str]) -> dict[str, tuple[str, str]]:
+    """Type name -> (ros2msg definition, RIHS01 hash) for every declared type."""
+    from rosbags.typesys import Stores, get_typestore
+    from rosbags.typesys.msg import get_types_from_msg
+
+    store = get_typestore(Stores.ROS2_JAZZY)
+    result: dict[str, tuple[str, str]] = {}
+    for msgtype in dict.fromkeys(topics.values()):
+        if msgtype in msgdefs:
+            try:
+                store.register(get_types_from_msg(msgdefs[msgtype], msgtype))
+                result[msgtype] = (msgdefs[msgtype], store.hash_rihs01(msgtype))
+            except Exception as exc:  # noqa: BLE001 - rosbags' parser errors vary by version
+                raise BagError(f'msgdefs[{msgtype!r}] is not a valid ros2msg definition '
+                               f'(with its dependencies): {type(exc).__name__} '
+                               f'{" ".join(str(exc).split())}') from None
+        elif msgtype in store.types:
+            result[msgtype] = (store.generate_msgdef(msgtype, ros_version=2)[0],
+                               store.hash_rihs01(msgtype))
+        else:
+            raise BagError(f'unknown message type {msgtype!r}; use the full name like '
+                           '"sensor_msgs/msg/JointState" or pass its definition in msgdefs')
+    return result
+
+
+class BagRecorder:
+    """Write pre-serialized CDR messages to a new rosbag2 MCAP bag directory.
+
+    Args:
+        path: Bag directory to create; it must not exist. Missing parents are created, as
+            rosbag2 does, and listed in ``created_dirs`` (for the caller to log).
+        topics: Topic name -> ROS type name, e.g. ``'sensor_msgs/msg/JointState'``.
+        max_duration_s: Start a new file once the current one spans this much log time [s]
+            (``ros2 bag record --max-bag-duration``), within ``MAX_DURATION_RANGE_S``.
+        chunk_seconds: Close a chunk once it spans this much log time or wall time [s].
+        chunk_bytes: Close a chunk once it holds this many bytes.
+        qos: Topic -> offered QoS: ``'reliable'`` (default), ``'best_effort'``,
+            ``'transient_local'``, or a YAML list of QoS profiles as rosbag2 writes them.
+        msgdefs: Type name -> ros2msg definition text (with dependencies, rosbag2 style) for
+            types not in the rosbags ROS 2 Jazzy type store.
+        custom_data: Key/value strings stored in ``metadata.yaml`` (``custom_data``).
+        compression: Chunk compression: ``'none'`` (rosbag2's default), ``'lz4'`` or ``'zstd'``.
+
+    Use as a context manager or call :meth:`close`; see the module docstring for what a crash
+    leaves. The wall-time chunk bound is checked on :meth:`write`; call :meth:`flush` from a
+    timer if messages can pause. Methods are thread-safe.
+    """
+
+    def __init__(self, path: str | os.PathLike[str], topics: Mapping[str, str], *,
+                 max_duration_s: float = DEFAULT_MAX_DURATION_S, chunk_seconds: float = 0.1,
+                 chunk_bytes: int = 64 * 1024, qos: Mapping[str, str] | None = None,
+                 msgdefs: Mapping[str, str] | None = None,
+                 custom_data: Mapping[str, str] | None = None,
+                 compression: str = 'none') -> None:
+        lo, hi = MAX_DURATION_RANGE_S
+        if not (isinstance(max_duration_s, (int, float)) and math.isfinite(max_duration_s)
+                and lo <= max_duration_s <= hi):
+            raise BagError(f'max_duration_s must be within [{lo:g}, {hi:g}] s, '
+                           f'got {max_duration_s!r}')
+        if not (math.isfinite(chunk_seconds) and chunk_seconds > 0):
+            raise BagError(f'chunk_seconds must be positive, got {chunk_seconds!r}')
+        if chunk_bytes < 1:
+            raise BagError(f'chunk_bytes must be positive, got {chunk_bytes!r}')
+        if compression not in _COMPRESSION:
+            raise BagError(f'compression must be one of {sorted(_COMPRESSION)}, '
+                           f'got {compression!r}')
+        qos = dict(qos or {})
+        if unknown := set(qos) - set(topics):
+            raise BagError(f'QoS given for undeclared topics {sorted(unknown)}')
+        self.path = Path(path)
+        schemas = _schemas(topics, msgdefs or {})
+        self._infos: list[TopicInfo] = []
+        for topic, msgtype in topics.items():
+            if not topic.startswith('/'):
+                raise BagError(f'topic names must be absolute (start with "/"), got {topic!r}')
+            self._infos.append(TopicInfo(topic, msgtype, _qos_text(qos.get(topic), topic),
+                                         schemas[msgtype][1]))
+        self._schema_texts = {name: text for name, (text, _) in schemas.items()}
+        self._custom_data = dict(custom_data or {})
+        self._compression = _COMPRESSION[compression]
+        self._max_duration_ns = int(max_duration_s * 1e9)
+        self._chunk_ns = int(chunk_seconds * 1e9)
+        self._chunk_seconds = float(chunk_seconds)
+        self._chunk_bytes = int(chunk_bytes)
+
+        refuse_existing(self.path)
+        #: parent directories that did not exist and were created (rosbag2 does the same)
+        self.created_dirs = [p for p in reversed(self.path.parents) if not p.exists()]
+        try:
+            self.path.mkdir(parents=True)
+        except FileExistsError:
+            raise BagExistsError(f'{self.path} exists already, not overwriting') from None
+        self.message_count = 0
+        self.closed_files: list[FileInfo] = []   # finished splits, in order
+        self._next_index = 0
+        self._finisher: threading.Thread | None = None
+        self._finisher_error: BaseException | None = None
+        self._closed = False
+        self._lock = threading.Lock()
+        self._write_metadata()          # provisional: topics and custom_data, no file yet
+        self._open_file()
+
+    # ---- files -------------------------------------------------------------------------------
+    def _open_file(self) -> None:
+        self._file = FileInfo(f'{self.path.name}_{self._next_index}.mcap')
+        self._next_index += 1
+        self._stream = (self.path / self._file.path).open('xb')
+        self._writer = Writer(self._stream, chunk_size=2**62, compression=self._compression)
+        self._writer.start(profile='ros2', library=LIBRARY)
+        ids = {name: self._writer.register_schema(name, 'ros2msg', text.encode())
+               for name, text in self._schema_texts.items()}
+        self._channels: dict[str, tuple[int, TopicInfo]] = {}
+        for info in self._infos:
+            cid = self._writer.register_channel(
+                info.name, 'cdr', ids[info.msgtype],
+                {'offered_qos_profiles': info.qos, 'topic_type_hash': info.type_hash})
+            self._channels[info.name] = (cid, info)
+        self._stream.flush()
+        self._pending = 0
+        self._pending_bytes = 0
+        self._chunk_t0 = 0
+        self._chunk_wall0 = 0.0
+
+    def _finish(self, writer: Writer, stream, file: FileInfo) -> None:
+        """Write a file's summary and footer, close it, list it in ``metadata.yaml``."""
+        info = self._metadata([*self.closed_files, file])['rosbag2_bagfile_information']
+        writer.add_metadata('rosbag2', {'serialized_metadata': dump_metadata(info),
+                                        'ROS_DISTRO': ROS_DISTRO})
+        writer.finish()
+        stream.close()
+        self.closed_files.append(file)
+        self._write_metadata()
+
+    def _finish_in_background(self, writer: Writer, stream, file: FileInfo) -> None:
+        def run() -> None:
+            try:
+                self._finish(writer, stream, file)
+            except BaseException as exc:  # noqa: BLE001 - reported by the next write/close
+                self._finisher_error = exc
+
+        self._finisher = threading.Thread(target=run, name=f'bag split {file.path}', daemon=True)
+        self._finisher.start()
+
+    def _join_finisher(self) -> None:
+        """Wait for the previous split to be finished; re-raise what it failed with."""
+        if self._finisher is not None:
+            self._finisher.join()
+            self._finisher = None
+        if self._finisher_error is not None:
+            exc, self._finisher_error = self._finisher_error, None
+            raise exc
+
+    def _split(self) -> None:
+        """Start the next file; the full one is finished by a helper thread, so the writing
+        thread (the node's tick) does not wait for its summary and metadata. The previous one
+        is finished first (long since, at any real-time rate), so at most two files are ever
+        unlisted: the one being finished and the one being written."""
+        self._join_finisher()
+        self._flush()
+        old = (self._writer, self._stream, self._file)
+        self._open_file()
+        self._finish_in_background(*old)
+
+    def _metadata(self, files: list[FileInfo]) -> dict[str, Any]:
+        return bag_metadata(self._infos, files, custom_data=self._custom_data)
+
+    def _write_metadata(self) -> None:
+        write_metadata(self.path, self._metadata(self.closed_files))
+
+    # ---- writing -----------------------------------------------------------------------------
+    def write(self, topic: str, timestamp_ns: int, data: bytes) -> None:
+        """Append one CDR-serialized message with log (receive) time ``timestamp_ns``."""
+        with self._lock:
+            self._write(topic, timestamp_ns, data)
+
+    def _write(self, topic: str, timestamp_ns: int, data: bytes) -> None:
+        if self._closed:
+            raise BagError(f'bag {self.path} is closed')
+        try:
+            cid, info = self._channels[topic]
+        except KeyError:
+            raise BagError(f'topic {topic!r} was not declared when the bag was opened') from None
+        if timestamp_ns < 0:
+            raise BagError(f'timestamp must be non-negative, got {timestamp_ns}')
+        if self._finisher_error is not None:
+            self._join_finisher()
+        f = self._file
+        if f.count and timestamp_ns - f.start >= self._max_duration_ns:
+            self._split()
+            f = self._file
+        self._writer.add_message(cid, timestamp_ns, data, timestamp_ns, info.count & 0xFFFFFFFF)
+        info.count += 1
+        self.message_count += 1
+        f.add(topic, timestamp_ns)
+
+        now = time.monotonic()
+        if self._pending == 0:
+            self._chunk_t0, self._chunk_wall0 = timestamp_ns, now
+        self._pending += 1
+        self._pending_bytes += len(data) + _MESSAGE_OVERHEAD
+        if (self._pending_bytes >= self._chunk_bytes
+                or abs(timestamp_ns - self._chunk_t0) >= self._chunk_ns
+                or now - self._chunk_wall0 >= self._chunk_seconds):
+            self._flush()
+
+    def flush(self) -> None:
+        """Close the open chunk (if any) and hand everything written so far to the OS.
+
+        Called automatically by :meth:`write`; call it from a timer when messages may pause.
+        """
+        with self._lock:
+            self._flush()
+
+    def _flush(self) -> None:
+        if not self._closed:
+            self._flush_chunk()
+
+    def _flush_chunk(self) -> None:
+        if self._pending == 0:
+            return
+        self._writer.flush()  # finalizes the chunk + message indexes, flushes the stream
+        self._pending = 0
+        self._pending_bytes = 0
+
+    def close(self) -> None:
+        """Finish the last file (summary, index) and write the final ``metadata.yaml``.
+        Idempotent."""
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+            self._flush_chunk()
+            try:
+                self._join_finisher()
+            finally:
+                self._finish(self._writer, self._stream, self._file)
+
+    # ---- state -------------------------------------------------------------------------------
+    @property
+    def closed(self) -> bool:
+        """Whether :meth:`close` has run."""
+        return self._closed
+
+    @property
+    def files(self) -> list[Path]:
+        """The bag's MCAP files so far (finished splits, then the open one)."""
+        return [self.path / f'{self.path.name}_{i}.mcap' for i in range(self._next_index)]
+
+    def __enter__(self) -> BagRecorder:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        return (f'BagRecorder({str(self.path)!r}, messages={self.message_count}, '
+                f'files={len(self.files)})')

@@ -1,0 +1,1 @@
+"""Edges every layer may use: errors, units, packaged paths, field validation."""

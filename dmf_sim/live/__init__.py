@@ -1,0 +1,2 @@
+"""The ROS-free live core of the node: simulation, pacing, run loop, recording, health,
+parameters, runtime, Foxglove bridge."""

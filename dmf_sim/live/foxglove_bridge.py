@@ -1,0 +1,103 @@
+"""Serve the node's streams over the Foxglove WebSocket protocol (``foxglove-sdk``), no bridge.
+
+``FoxgloveBridge({topic: ROS type}, port=8765)`` starts a Foxglove WebSocket server (the SDK's
+server: subprotocol ``foxglove.sdk.v1``) with one channel per topic: message encoding ``cdr``,
+schema encoding ``ros2msg`` with the full message definition (as in the node's MCAP bags), so
+Foxglove decodes the bytes as the ROS 2 messages they are and the layout's message paths work the
+same on this connection, on a ROS bridge and on a recorded bag. :meth:`FoxgloveBridge.publish`
+takes the CDR bytes the node already serialized for DDS and the bag, with the sample's stamp as
+log time; it costs a channel lookup and, while no client subscribes to the channel, nothing
+more. Each bridge has its own SDK context, so several can run in one process.
+
+The node enables it with ``-p foxglove_port:=8765`` (0 = off, the default); ``foxglove_host``
+(default 127.0.0.1; 0.0.0.0 to serve other machines).
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+from dmf_sim.core.errors import ConfigError
+
+__all__ = ['SUBPROTOCOL', 'FOXGLOVE_PARAMETERS', 'FoxgloveBridge', 'message_definition']
+
+SUBPROTOCOL = 'foxglove.sdk.v1'      # what the SDK's server accepts (checked by the tests)
+SERVER_NAME = 'dmf_sim'
+
+# Node parameters: name -> (default, description, (lo, hi) or None). Read-only (start-up).
+FOXGLOVE_PARAMETERS: dict[str, tuple] = {
+    'foxglove_port': (0, 'Serve the streams over the Foxglove WebSocket protocol on this TCP '
+                      'port (0 = off)', (0, 65535)),
+    'foxglove_host': ('127.0.0.1', 'Address the Foxglove server listens on (0.0.0.0: every '
+                      'interface)', None),
+}
+
+
+def message_definition(msgtype: str) -> str:
+    """ros2msg definition text of a ROS 2 Jazzy type with its dependencies (rosbag2 style)."""
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS2_JAZZY)
+    try:
+        return store.generate_msgdef(msgtype, ros_version=2)[0]
+    except Exception as exc:  # noqa: BLE001 - rosbags raises several kinds for unknown types
+        raise ConfigError(f'foxglove: unknown message type {msgtype!r} ({exc})') from None
+
+
+class FoxgloveBridge:
+    """A Foxglove WebSocket server for given ROS topics (see the module docstring).
+
+    Args:
+        streams: absolute topic name -> ROS type name (e.g. ``'std_msgs/msg/Float64'``).
+        host, port: where to listen (port 0: any free port, see :attr:`port`).
+        name: server name shown by Foxglove.
+    """
+
+    def __init__(self, streams: Mapping[str, str], *, host: str = '127.0.0.1', port: int = 8765,
+                 name: str = SERVER_NAME) -> None:
+        import foxglove
+
+        if not (isinstance(port, int) and 0 <= port <= 65535):
+            raise ConfigError(f'foxglove_port must be in 0..65535, got {port!r}')
+        self._context = foxglove.Context()
+        self._channels = {}
+        for topic, msgtype in streams.items():
+            if not topic.startswith('/'):
+                raise ConfigError(f'foxglove: topic names must be absolute, got {topic!r}')
+            schema = foxglove.Schema(name=msgtype, encoding='ros2msg',
+                                     data=message_definition(msgtype).encode())
+            self._channels[topic] = foxglove.Channel(topic, schema=schema,
+                                                     message_encoding='cdr',
+                                                     context=self._context)
+        try:
+            self._server = foxglove.start_server(name=name, host=host, port=port,
+                                                 context=self._context)
+        except Exception as exc:  # noqa: BLE001 - the SDK raises RuntimeError for bind errors
+            raise ConfigError(f'foxglove server on {host}:{port}: '
+                              f'{" ".join(str(exc).split())}') from None
+        self.host = host
+
+    @property
+    def port(self) -> int:
+        """The port the server listens on."""
+        return int(self._server.port)
+
+    @property
+    def url(self) -> str:
+        return f'ws://{self.host}:{self.port}'
+
+    def publish(self, topic: str, data: bytes, stamp_ns: int) -> None:
+        """Send one CDR-serialized message of ``topic`` (log time ``stamp_ns``) to the clients
+        subscribed to it (nothing when none is)."""
+        ch = self._channels.get(topic)
+        if ch is not None:
+            ch.log(bytes(data), log_time=int(stamp_ns))
+
+    def has_subscribers(self, topic: str) -> bool:
+        ch = self._channels.get(topic)
+        return ch is not None and ch.has_sinks()
+
+    def close(self) -> None:
+        """Stop the server (clients are disconnected)."""
+        self._server.stop()
+        for ch in self._channels.values():
+            ch.close()

@@ -1,0 +1,367 @@
+"""The live simulation behind ``driveline_node``, without ROS: setpoints, ramps, samples.
+
+Importable and testable without DDS; pacing and stamps are in :mod:`dmf_sim.live.pacing`, the tick
+loop in :mod:`dmf_sim.live.run_loop`.
+
+* :func:`check_setpoint`, :func:`ramp_toward`, :func:`split_steps` — small pure functions
+  (setpoint validation, rate limiting, phase-exact chunking of the Newmark stepper).
+* :class:`LiveSimulation` — owns the model, the engine and the Newmark integrator:
+  setpoints with ramps (the speed ramp runs inside the Newmark kernel, the load ramp here, one
+  increment per chunk), excitation update per chunk, rebuild on alpha/theta/load-set changes
+  keeping the operating point and the vibratory state, reset to static equilibrium, solver health,
+  and the per-element samples the node publishes (vibratory angle, velocity, transmitted torque).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from dmf_sim.core.errors import ConfigError, OperatingRangeError
+from dmf_sim.core.units import RAD_S_TO_RPM
+from dmf_sim.live.pacing import fmt_num
+from dmf_sim.live.torques import TorqueOperator
+from dmf_sim.physics.loads import DrivelineLoads
+from dmf_sim.physics.model import Driveline, load_driveline
+from dmf_sim.solvers.newmark import NewmarkIntegrator, StepRecord
+
+LOAD_RANGE = (0.0, 1.0)
+
+
+# ------------------------------------------------------------------------------------------------
+# Small pure functions
+# ------------------------------------------------------------------------------------------------
+
+def check_setpoint(value, lo: float, hi: float, name: str, unit: str = '') -> str | None:
+    """Why ``value`` is not an acceptable setpoint in [lo, hi], or None when it is."""
+    u = f' {unit}' if unit else ''
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
+        return f'{name} must be a number, got {value!r}'
+    v = float(value)
+    if math.isnan(v):
+        return f'{name} is NaN'
+    if math.isinf(v):
+        return f'{name} is {"+" if v > 0 else "-"}inf'
+    if not lo <= v <= hi:
+        return f'{name} {fmt_num(v)}{u} outside [{fmt_num(lo)}, {fmt_num(hi)}]{u}'
+    return None
+
+
+def ramp_toward(current: float, target: float, rate: float, dt: float) -> float:
+    """Move ``current`` toward ``target`` by at most ``rate * dt`` (rate-limited ramp)."""
+    step = rate * dt
+    if target > current:
+        return min(target, current + step)
+    return max(target, current - step)
+
+
+def split_steps(nsteps: int, phase: int, stride: int) -> tuple[list[tuple[int, int, int]], int]:
+    """Split ``nsteps`` Newmark steps into ``advance(k, record, s)`` calls that record exactly
+    every ``stride``-th step counted from the last recorded one.
+
+    ``phase`` = steps done since the last recorded sample (0 <= phase < stride). Returns the calls
+    as (k, s, rows) and the new phase. ``NewmarkIntegrator.advance`` records when
+    ``(step + 1) % s == 0`` inside one call, so a call that must not record uses ``s = k + 1``.
+    """
+    if nsteps < 0 or not 0 <= phase < stride:
+        raise ValueError(f'nsteps={nsteps}, phase={phase}, stride={stride}')
+    if nsteps == 0:
+        return [], phase
+    to_next = stride - phase
+    if nsteps < to_next:
+        return [(nsteps, nsteps + 1, 0)], phase + nsteps
+    if phase == 0:
+        return [(nsteps, stride, nsteps // stride)], nsteps % stride
+    calls = [(to_next, to_next, 1)]
+    rest = nsteps - to_next
+    if rest:
+        calls.append((rest, stride, rest // stride))
+    return calls, rest % stride
+
+
+# ------------------------------------------------------------------------------------------------
+# The simulation
+# ------------------------------------------------------------------------------------------------
+
+@dataclass
+class Samples:
+    """Published samples of one chunk (rows = samples). Views into reused buffers: consume them
+    before the next :meth:`LiveSimulation.advance`.
+
+    step: absolute step index; t [s]; psi crank angle [rad]; speed_rpm reference engine speed;
+    windup [rad]; position/velocity: vibratory element angles [rad] / velocities [rad/s];
+    effort: torque transmitted into each element [Nm] (rows x elements).
+    """
+
+    step: np.ndarray
+    t: np.ndarray
+    psi: np.ndarray
+    speed_rpm: np.ndarray
+    windup: np.ndarray
+    position: np.ndarray
+    velocity: np.ndarray
+    effort: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.t.shape[0])
+
+
+@dataclass
+class LiveSimulation:
+    """Newmark integration of a driveline with ramped setpoints, stepped in chunks.
+
+    Build with :meth:`from_config`. Setpoint setters return None on success or the reason for
+    refusing (the previous setpoint stays); structural changes raise ConfigError and leave the
+    simulation unchanged.
+    """
+
+    line: Driveline
+    engine: object
+    dt: float = 1e-4
+    speed_rpm: float = 1000.0
+    load: float = 0.5
+    speed_ramp_rpm_per_s: float = 500.0
+    load_ramp_per_s: float = 1.0
+    speed_limits_rpm: tuple[float, float] = (500.0, 2200.0)
+    stride: int = 10
+    solver_resets: int = field(default=0, init=False)
+
+    @classmethod
+    def from_config(cls, driveline: str = 'truck_dmf', engine: str = 'engine_d13',
+                    load_set: str = 'A', alpha: float | None = None, theta: float | None = None,
+                    **kw) -> 'LiveSimulation':
+        """Load the driveline YAML and the engine (names in ``config/`` or paths)."""
+        from dmf_sim.physics.engine import load_engine
+
+        line = load_driveline(driveline, alpha=alpha, theta=theta)
+        return cls(line, load_engine(engine, load_set=load_set), **kw)
+
+    def __post_init__(self) -> None:
+        rng = getattr(self.engine, 'speed_range_rpm', None)
+        self.engine_speed_range_rpm = (tuple(float(x) for x in rng) if rng is not None
+                                       else (0.0, math.inf))
+        lo, hi = self.speed_limits_rpm
+        if reason := self.check_speed_limits(lo, hi):
+            raise OperatingRangeError(reason)
+        self.speed_limits_rpm = (float(lo), float(hi))
+        for name, value, (a, b), unit in (
+                ('initial_speed_rpm', self.speed_rpm, self.speed_limits_rpm, 'rpm'),
+                ('initial_load', self.load, LOAD_RANGE, '')):
+            if reason := check_setpoint(value, a, b, name, unit):
+                raise ConfigError(reason)
+        for name, value in (('speed_ramp_rpm_per_s', self.speed_ramp_rpm_per_s),
+                            ('load_ramp_per_s', self.load_ramp_per_s), ('dt', self.dt)):
+            if not (math.isfinite(value) and value > 0):
+                raise ConfigError(f'{name} must be > 0, got {value!r}')
+        self.speed_setpoint = float(self.speed_rpm)
+        self.load_setpoint = float(self.load)
+        self.load = float(self.load)
+        self.steps = 0
+        self.phase = 0
+        self._knees = self._secondary = 0
+        self._exc_key = None
+        self.integ, self._torques = self._make_integrator(self.line, self.engine)
+        # load the compiled kernel now (numba cache), not on the first real-time tick
+        self.integ.reset(self.speed_setpoint, self.load)
+        self.integ.advance(1)
+        self.integ.reset(self.speed_setpoint, self.load)
+        self.integ.set_target(self.speed_setpoint, self.speed_ramp_rpm_per_s)
+        self._rec = StepRecord.allocate(64, self.integ.model.n_dof)
+        self._qva = np.zeros((64, 3 * self.integ.model.n_dof))
+
+    # ---- building ---------------------------------------------------------------------------
+    def _make_integrator(self, line: Driveline, engine):
+        integ = NewmarkIntegrator(DrivelineLoads(line.reduce(), engine), dt=self.dt)
+        return integ, TorqueOperator(integ)
+
+    @property
+    def model(self):
+        return self.integ.model
+
+    @property
+    def names(self) -> list[str]:
+        return list(self.model.names)
+
+    def _swap(self, line: Driveline, engine) -> None:
+        """Rebuild the integrator for another DMF / engine keeping the operating point (speed,
+        target, load, crank angle, time) and the vibratory state (same DOF layout)."""
+        new, torques = self._make_integrator(line, engine)
+        old = self.integ
+        if new.model.n_dof != old.model.n_dof:
+            raise ConfigError('the new driveline has another DOF layout; restart the node instead')
+        new.reset(old.speed_rpm, self.load, psi=old.psi, t=old.t)
+        new.q[:] = old.q
+        new.v[:] = old.v
+        new.a[:] = new.acceleration(new.q, new.v)
+        new.set_target(self.speed_setpoint, self.speed_ramp_rpm_per_s)
+        self._knees += old.knee_crossings
+        self._secondary += old.steps_secondary
+        self.integ, self._torques, self.line, self.engine = new, torques, line, engine
+        self._exc_key = None
+
+    def set_dmf(self, alpha: float | None = None, theta: float | None = None) -> None:
+        """New DMF knee parameters (alpha, theta [rad]); ConfigError if invalid."""
+        self._swap(self.line.with_dmf(alpha=alpha, theta=theta), self.engine)
+
+    def set_load_set(self, load_set: str) -> None:
+        """Switch the engine's load set (A, B, C); ConfigError if unknown."""
+        if getattr(self.engine, 'load_set', None) == load_set:
+            return
+        if not hasattr(self.engine, 'with_load_set'):
+            raise ConfigError('this engine has no load sets')
+        self._swap(self.line, self.engine.with_load_set(load_set))
+
+    # ---- setpoints --------------------------------------------------------------------------
+    def check_speed_limits(self, lo: float, hi: float) -> str | None:
+        elo, ehi = self.engine_speed_range_rpm
+        if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+            return (f'speed limits need speed_min_rpm < speed_max_rpm, got '
+                    f'[{fmt_num(lo)}, {fmt_num(hi)}]')
+        if lo < elo or hi > ehi:
+            return (f'speed limits [{fmt_num(lo)}, {fmt_num(hi)}] rpm must lie within the engine '
+                    f'data range [{fmt_num(elo)}, {fmt_num(ehi)}] rpm')
+        return None
+
+    def set_speed_limits(self, lo: float, hi: float) -> str | None:
+        if reason := self.check_speed_limits(lo, hi):
+            return reason
+        if not lo <= self.speed_setpoint <= hi:
+            return (f'the current speed setpoint {fmt_num(self.speed_setpoint)} rpm is outside '
+                    f'[{fmt_num(lo)}, {fmt_num(hi)}]')
+        self.speed_limits_rpm = (float(lo), float(hi))
+        return None
+
+    def check_speed_setpoint(self, value) -> str | None:
+        """Why ``value`` is not an acceptable speed setpoint now, or None."""
+        return check_setpoint(value, *self.speed_limits_rpm, 'speed setpoint', 'rpm')
+
+    def check_load_setpoint(self, value) -> str | None:
+        """Why ``value`` is not an acceptable load setpoint, or None."""
+        return check_setpoint(value, *LOAD_RANGE, 'load setpoint')
+
+    def set_speed_setpoint(self, value) -> str | None:
+        """Engine speed setpoint [rpm]; ramped at ``speed_ramp_rpm_per_s``."""
+        if reason := self.check_speed_setpoint(value):
+            return reason
+        self.speed_setpoint = float(value)
+        self.integ.set_target(self.speed_setpoint, self.speed_ramp_rpm_per_s)
+        return None
+
+    def set_load_setpoint(self, value) -> str | None:
+        """Load setpoint (fraction of full load, 0..1); ramped at ``load_ramp_per_s``."""
+        if reason := self.check_load_setpoint(value):
+            return reason
+        self.load_setpoint = float(value)
+        return None
+
+    def set_ramps(self, speed_ramp_rpm_per_s: float | None = None,
+                  load_ramp_per_s: float | None = None) -> None:
+        if speed_ramp_rpm_per_s is not None:
+            self.speed_ramp_rpm_per_s = float(speed_ramp_rpm_per_s)
+            self.integ.set_target(self.speed_setpoint, self.speed_ramp_rpm_per_s)
+        if load_ramp_per_s is not None:
+            self.load_ramp_per_s = float(load_ramp_per_s)
+
+    def set_stride(self, stride: int) -> None:
+        """New publish decimation; the next sample comes ``stride`` steps from now."""
+        self.stride = int(stride)
+        self.phase = 0
+
+    def reset(self) -> None:
+        """Static equilibrium at the current setpoints (speed and load jump to them); time,
+        crank angle and step count stay continuous."""
+        it = self.integ
+        self._knees += it.knee_crossings
+        self._secondary += it.steps_secondary
+        self.load = self.load_setpoint
+        it.reset(self.speed_setpoint, self.load, psi=it.psi, t=it.t)
+        it.set_target(self.speed_setpoint, self.speed_ramp_rpm_per_s)
+        self._exc_key = None
+
+    # ---- state ------------------------------------------------------------------------------
+    @property
+    def t(self) -> float:
+        return self.integ.t
+
+    @property
+    def psi(self) -> float:
+        return self.integ.psi
+
+    @property
+    def speed(self) -> float:
+        """Reference (ramped) engine speed [rpm]."""
+        return self.integ.speed_rpm
+
+    @property
+    def windup(self) -> float:
+        return self.integ.windup
+
+    @property
+    def region(self) -> str:
+        sp = self.model.spring
+        return sp.region(self.windup) if sp is not None else 'none'
+
+    @property
+    def knee_crossings(self) -> int:
+        return self._knees + self.integ.knee_crossings
+
+    @property
+    def steps_secondary(self) -> int:
+        return self._secondary + self.integ.steps_secondary
+
+    @property
+    def finite(self) -> bool:
+        """Solver health: the state holds only finite numbers. The tridiagonal solve spreads a
+        NaN/inf in any load, angle or rate to every DOF's angle within one step (and the rates
+        follow from the angles), so the end DOFs' angle and rate tell, at the cost of four scalar
+        reads instead of two array sums per chunk."""
+        q, v = self.integ.q, self.integ.v
+        return math.isfinite(q[0] + q[-1] + v[0] + v[-1])
+
+    @property
+    def next_sample_step(self) -> int:
+        return self.steps + (self.stride - self.phase)
+
+    # ---- stepping ---------------------------------------------------------------------------
+    def advance(self, nsteps: int) -> Samples:
+        """Integrate ``nsteps`` steps: load ramp and excitation update once (held over the chunk),
+        then the kernel; returns the samples due in the chunk (every ``stride``-th step)."""
+        it = self.integ
+        if nsteps > 0:
+            self.load = ramp_toward(self.load, self.load_setpoint, self.load_ramp_per_s,
+                                    nsteps * self.dt)
+            key = (it.speed_rpm, self.load)
+            if key != self._exc_key:
+                it.update_excitation(*key)
+                self._exc_key = key
+        calls, phase = split_steps(int(nsteps), self.phase, self.stride)
+        rows = sum(c[2] for c in calls)
+        if rows > self._rec.t.shape[0]:
+            self._rec = StepRecord.allocate(max(rows, 2 * self._rec.t.shape[0]), it.model.n_dof)
+            self._qva = np.zeros((self._rec.t.shape[0], 3 * it.model.n_dof))
+        first = self.steps + (self.stride - self.phase)
+        rec = self._rec
+        row = 0
+        for k, s, _ in calls:
+            row += it.advance(k, rec if row == 0 else rec.rows_from(row), s)
+        self.steps += int(nsteps)
+        self.phase = phase
+        if not self.finite:
+            # Newmark (average acceleration) is unconditionally stable; a non-finite state means
+            # bad input data. Never publish it: restart from static equilibrium.
+            self.solver_resets += 1
+            self.reset()
+            row = 0
+        n = it.model.n_dof
+        qva = self._qva[:row]
+        qva[:, :n] = rec.q[:row]
+        qva[:, n:2 * n] = rec.v[:row]
+        qva[:, 2 * n:] = rec.a[:row]
+        psi, w = rec.psi[:row], rec.windup[:row]
+        # d'Alembert part with the reference acceleration at the end of the chunk (exact while
+        # the speed is constant or ramping; a ramp that ends inside the chunk is off for <= 1 row)
+        position, velocity, effort = self._torques.outputs(qva, w, psi, it.omega_dot)
+        return Samples(step=first + self.stride * np.arange(row, dtype=np.int64),
+                       t=rec.t[:row], psi=psi, speed_rpm=rec.omega[:row] * RAD_S_TO_RPM,
+                       windup=w, position=position, velocity=velocity, effort=effort)

@@ -1,0 +1,1 @@
+"""Live monitoring off the real-time path: per-cycle orders, HBM prediction, alarms."""

@@ -1,0 +1,1 @@
+"""Reproduction of the reference paper: the study and the claims report."""

@@ -1,0 +1,1 @@
+"""The driveline model, the DMF spring law, engine excitation, loads, modes, orders."""

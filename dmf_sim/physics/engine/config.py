@@ -1,0 +1,373 @@
+"""The engine YAML (``config/engine_d13.yaml``): geometry, firing phases, load sets and the
+pressure-model sections, validated field by field (dmf_sim.core.validation).
+
+An engine YAML may start from another one: ``base: engine_d13`` (a config name or a path,
+relative paths relative to the file) takes every top-level section of the base file and lets this
+file replace whole sections (e.g. only ``name``, ``description`` and ``full_load_curve`` for
+another torque rating of the same engine).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from dmf_sim.core.errors import ConfigError, ConfigFileError
+from dmf_sim.core.paths import config_file, read_yaml_mapping
+from dmf_sim.core.units import CYCLE_RAD
+from dmf_sim.core.validation import (
+    Table1D,
+    check_keys,
+    field_error,
+    integer,
+    number,
+    number_list,
+    table_1d,
+)
+from dmf_sim.physics.orders import half_orders
+
+N_MAX_RANGE = (1, 48)
+"""Allowed highest half-order index n_max of an engine or a table."""
+
+MODEL_KEYS = ('full_load_curve', 'gas_exchange', 'combustion', 'samples_per_cycle', 'grid')
+"""Top-level sections of the pressure model (absent in a YAML that only backs a table)."""
+
+BASE_DEPTH_MAX = 8
+"""Longest chain of ``base:`` references followed."""
+
+_SPEED_RANGE_RPM = (0.0, 10000.0)
+
+
+@dataclass(frozen=True)
+class Geometry:
+    """Slider-crank geometry and oscillating mass of one cylinder (SI units)."""
+
+    bore_m: float
+    stroke_m: float
+    conrod_m: float
+    compression_ratio: float
+    oscillating_mass_kg: float
+
+    @property
+    def crank_radius_m(self) -> float:
+        return 0.5 * self.stroke_m
+
+    @property
+    def piston_area_m2(self) -> float:
+        return 0.25 * math.pi * self.bore_m ** 2
+
+    @property
+    def displacement_m3(self) -> float:
+        """Swept volume of one cylinder [m^3]."""
+        return self.piston_area_m2 * self.stroke_m
+
+    @property
+    def clearance_volume_m3(self) -> float:
+        return self.displacement_m3 / (self.compression_ratio - 1.0)
+
+    def kinematics(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Piston travel from TDC x [m], dx/dtheta [m/rad], d2x/dtheta2 [m/rad^2] at crank
+        angle theta [rad]."""
+        r, lam = self.crank_radius_m, self.crank_radius_m / self.conrod_m
+        s, c = np.sin(theta), np.cos(theta)
+        root = np.sqrt(1.0 - (lam * s) ** 2)
+        x = r * (1.0 - c) + self.conrod_m * (1.0 - root)
+        dx = r * s * (1.0 + lam * c / root)
+        d2x = r * c + r * lam * (np.cos(2.0 * theta) + lam ** 2 * s ** 4) / root ** 3
+        return x, dx, d2x
+
+    def inertia_shape(self, theta: np.ndarray) -> np.ndarray:
+        """Oscillating-mass torque per omega^2, -m (d2x/dtheta2)(dx/dtheta) [Nm s^2]."""
+        _, dx, d2x = self.kinematics(theta)
+        return -self.oscillating_mass_kg * d2x * dx
+
+    def inertia_coefficients(self, n_max: int, n_samples: int) -> np.ndarray:
+        """Half-order coefficients A_0..A_{n_max} [Nm s^2] of :meth:`inertia_shape` (times
+        omega^2 [rad/s]^2 the inertia torque's A_n; its mean is exactly zero)."""
+        theta = CYCLE_RAD * np.arange(n_samples) / n_samples
+        c = half_orders(self.inertia_shape(theta), n_max)
+        c[0] = 0.0
+        return c
+
+
+@dataclass(frozen=True)
+class GasExchange:
+    """Valve events, intake (boost) and exhaust pressures of the pressure model."""
+
+    ambient_pa: float
+    crankcase_pa: float
+    ivc_deg: float
+    evo_deg: float
+    blowdown_deg: float
+    overlap_deg: float
+    boost_gauge_full_load: Table1D          # Pa over rpm
+    exhaust_backpressure_zero_load_pa: float
+    exhaust_backpressure_full_load_pa: float
+
+
+@dataclass(frozen=True)
+class Combustion:
+    """Double Wiebe heat release (Ghojel 2010) and the polytropic exponent."""
+
+    polytropic_exponent: float
+    wiebe_a: float
+    start_deg: Table1D                      # deg over rpm
+    premixed_fraction_zero_load: float
+    premixed_fraction_full_load: float
+    premixed_duration_deg: float
+    premixed_shape: float
+    diffusion_duration_full_load_deg: Table1D  # deg over rpm
+    diffusion_duration_zero_load_factor: float
+    diffusion_shape: float
+
+
+@dataclass(frozen=True)
+class Grid:
+    """Speed x load grid on which the gas part is cached."""
+
+    speeds_rpm: np.ndarray
+    loads: np.ndarray
+
+
+@dataclass(frozen=True)
+class EngineConfig:
+    """Validated engine YAML. Model sections are None when the YAML only backs a table."""
+
+    path: Path
+    name: str
+    n_cylinders: int
+    firing_phases_deg: np.ndarray
+    n_max: int
+    geometry: Geometry
+    load_set_shifts_rpm: dict[str, float]
+    load_set_limit_rpm: float
+    full_load_curve: Table1D | None = None
+    gas_exchange: GasExchange | None = None
+    combustion: Combustion | None = None
+    samples_per_cycle: int | None = None
+    grid: Grid | None = None
+
+    @property
+    def has_model(self) -> bool:
+        return self.full_load_curve is not None
+
+
+# ----------------------------------------------------------------------------------------------
+# Files and base references
+# ----------------------------------------------------------------------------------------------
+def resolve_ref(ref: str, relative_to: Path) -> Path:
+    """A referenced engine YAML: a path relative to ``relative_to``'s directory if it exists
+    there, else a config name or path (dmf_sim.core.paths.config_file)."""
+    cand = Path(ref)
+    if not cand.is_absolute() and cand.suffix in ('.yaml', '.yml'):
+        local = relative_to.parent / cand
+        if local.is_file():
+            return local
+    return config_file(ref)
+
+
+def with_base(doc: Mapping[str, Any], path: Path) -> tuple[dict[str, Any], str]:
+    """The mapping with its ``base:`` chain applied (the file's sections replace the base's) and
+    the name to quote in error messages (``x.yaml`` or ``x.yaml (base engine_d13.yaml)``)."""
+    merged = dict(doc)
+    seen = [Path(path).resolve()]
+    where = Path(path).name
+    bases = []
+    while 'base' in merged:
+        ref = merged.pop('base')
+        if not isinstance(ref, str) or not ref.strip():
+            raise field_error(where, 'base', 'must be the name or path of another engine YAML')
+        if len(seen) > BASE_DEPTH_MAX:
+            raise field_error(where, 'base', f'more than {BASE_DEPTH_MAX} nested base files')
+        try:
+            base_path = resolve_ref(ref, seen[-1])
+        except ConfigFileError as exc:
+            raise field_error(where, 'base', f'{ref!r}: {exc}') from None
+        if base_path.resolve() in seen:
+            raise field_error(where, 'base',
+                              f'{ref!r} refers back to a file already read (a cycle)')
+        seen.append(base_path.resolve())
+        bases.append(base_path.name)
+        _, base_doc = read_yaml_mapping(base_path, 'engine')
+        if 'coefficients' in base_doc:
+            raise field_error(where, 'base', f'{ref!r} is a coefficient table, not an engine YAML')
+        merged = {**base_doc, **merged}     # the base's own 'base' (if any) comes along
+    if bases:
+        where = f'{where} (base {", ".join(bases)})'
+    return merged, where
+
+
+def read_engine_config(path: str | Path, *, need_model: bool = True) -> EngineConfig:
+    """Read and validate an engine YAML (see ``config/engine_d13.yaml``).
+
+    With ``need_model=False`` the pressure-model sections may be absent (a YAML that only supplies
+    geometry, firing phases and load sets for a user table).
+    """
+    path, doc = read_yaml_mapping(path, 'engine')
+    return engine_config(doc, path, need_model=need_model)
+
+
+def engine_config(doc: Mapping[str, Any], path: str | Path, *,
+                  need_model: bool = True) -> EngineConfig:
+    """Validate an engine mapping (as read from ``path``; its ``base:`` chain is applied)."""
+    path = Path(path)
+    d, where = with_base(doc, path)
+    required = ['name', 'n_cylinders', 'firing_phases_deg', 'n_max', 'geometry', 'load_sets']
+    check_keys(d, where, '', required + (list(MODEL_KEYS) if need_model else []),
+               ['description'] + ([] if need_model else list(MODEL_KEYS)))
+    if not isinstance(d['name'], str) or not d['name']:
+        raise field_error(where, 'name', 'must be a non-empty string')
+    n_cyl = integer(d['n_cylinders'], where, 'n_cylinders', 1, 24)
+    phases = number_list(d['firing_phases_deg'], where, 'firing_phases_deg', 0.0, 720.0)
+    if len(phases) != n_cyl:
+        raise field_error(where, 'firing_phases_deg',
+                          f'must have n_cylinders = {n_cyl} entries in [0, 720)')
+    if np.any(phases >= 720.0):
+        raise field_error(where, 'firing_phases_deg', 'entries must be in [0, 720)')
+    n_max = integer(d['n_max'], where, 'n_max', *N_MAX_RANGE)
+    cfg: dict[str, Any] = dict(
+        path=path, name=d['name'], n_cylinders=n_cyl, firing_phases_deg=phases, n_max=n_max,
+        geometry=_geometry(d['geometry'], where), **_load_sets(d['load_sets'], where))
+    if all(k in d for k in MODEL_KEYS):
+        cfg.update(_model_sections(d, where, n_max))
+    elif any(k in d for k in MODEL_KEYS):
+        missing = next(k for k in MODEL_KEYS if k not in d)
+        raise field_error(where, missing,
+                          'missing (required when any pressure-model section is given)')
+    return EngineConfig(**cfg)
+
+
+# ----------------------------------------------------------------------------------------------
+# Sections
+# ----------------------------------------------------------------------------------------------
+def _geometry(g: Any, where: str) -> Geometry:
+    g = check_keys(g, where, 'geometry',
+                   ['bore_m', 'stroke_m', 'conrod_m', 'compression_ratio', 'oscillating_mass_kg'])
+    f = 'geometry.'
+    geometry = Geometry(
+        bore_m=number(g['bore_m'], where, f + 'bore_m', 0.0, 2.0, lo_open=True),
+        stroke_m=number(g['stroke_m'], where, f + 'stroke_m', 0.0, 3.0, lo_open=True),
+        conrod_m=number(g['conrod_m'], where, f + 'conrod_m', 0.0, 10.0, lo_open=True),
+        compression_ratio=number(g['compression_ratio'], where, f + 'compression_ratio',
+                                 1.0, 40.0, lo_open=True),
+        oscillating_mass_kg=number(g['oscillating_mass_kg'], where, f + 'oscillating_mass_kg',
+                                   0.0, 5000.0),
+    )
+    if geometry.conrod_m <= geometry.crank_radius_m:
+        raise field_error(where, f + 'conrod_m', 'must exceed the crank radius stroke_m/2 = '
+                          f'{geometry.crank_radius_m:g} m')
+    return geometry
+
+
+def _load_sets(ls: Any, where: str) -> dict[str, Any]:
+    ls = check_keys(ls, where, 'load_sets', ['limit_rpm', 'shift_rpm'])
+    limit = number(ls['limit_rpm'], where, 'load_sets.limit_rpm', 0.0, 10000.0, lo_open=True)
+    shifts_raw = ls['shift_rpm']
+    if not isinstance(shifts_raw, Mapping) or 'A' not in shifts_raw:
+        raise field_error(where, 'load_sets.shift_rpm',
+                          'must be a mapping of set names to shifts, including A: 0')
+    shifts = {str(k): number(v, where, f'load_sets.shift_rpm.{k}', 0.0, limit, hi_open=True)
+              for k, v in shifts_raw.items()}
+    if shifts['A'] != 0.0:
+        raise field_error(where, 'load_sets.shift_rpm.A',
+                          'must be 0 (Load A is the reference data)')
+    return dict(load_set_shifts_rpm=shifts, load_set_limit_rpm=limit)
+
+
+def _model_sections(d: Mapping[str, Any], where: str, n_max: int) -> dict[str, Any]:
+    curve = table_1d(d['full_load_curve'], where, 'full_load_curve', 'speeds_rpm', 'torque_nm',
+                     _SPEED_RANGE_RPM, (0.0, 1.0e6))
+    samples = integer(d['samples_per_cycle'], where, 'samples_per_cycle', 720, 100000)
+    if samples % 2 or samples <= 4 * (n_max + 1):
+        raise field_error(where, 'samples_per_cycle',
+                          f'must be even and > 4*(n_max+1) = {4 * (n_max + 1)}')
+    return dict(full_load_curve=curve, gas_exchange=_gas_exchange(d['gas_exchange'], where),
+                combustion=_combustion(d['combustion'], where), samples_per_cycle=samples,
+                grid=_grid(d['grid'], where))
+
+
+def _gas_exchange(ge: Any, where: str) -> GasExchange:
+    ge = check_keys(ge, where, 'gas_exchange',
+                    ['ambient_pa', 'crankcase_pa', 'ivc_deg', 'evo_deg', 'blowdown_deg',
+                     'overlap_deg', 'boost_gauge_full_load', 'exhaust_backpressure_zero_load_pa',
+                     'exhaust_backpressure_full_load_pa'])
+    f = 'gas_exchange.'
+
+    def pa(key: str, lo: float, hi: float) -> float:
+        return number(ge[key], where, f + key, lo, hi)
+
+    gas = GasExchange(
+        ambient_pa=pa('ambient_pa', 1.0e4, 2.0e5),
+        crankcase_pa=pa('crankcase_pa', 1.0e4, 2.0e5),
+        ivc_deg=number(ge['ivc_deg'], where, f + 'ivc_deg', -240.0, -90.0),
+        evo_deg=number(ge['evo_deg'], where, f + 'evo_deg', 90.0, 200.0),
+        blowdown_deg=number(ge['blowdown_deg'], where, f + 'blowdown_deg', 1.0, 120.0),
+        overlap_deg=number(ge['overlap_deg'], where, f + 'overlap_deg', 1.0, 120.0),
+        boost_gauge_full_load=table_1d(ge['boost_gauge_full_load'], where,
+                                       f + 'boost_gauge_full_load', 'speeds_rpm', 'pressure_pa',
+                                       _SPEED_RANGE_RPM, (0.0, 1.0e6)),
+        exhaust_backpressure_zero_load_pa=pa('exhaust_backpressure_zero_load_pa', 0.0, 5.0e5),
+        exhaust_backpressure_full_load_pa=pa('exhaust_backpressure_full_load_pa', 0.0, 5.0e5),
+    )
+    if gas.evo_deg + gas.blowdown_deg > 360.0 - 0.5 * gas.overlap_deg:
+        raise field_error(where, f + 'blowdown_deg', 'evo_deg + blowdown_deg must not exceed '
+                          '360 - overlap_deg/2 (blowdown ends before the overlap)')
+    if gas.ivc_deg < -360.0 + 0.5 * gas.overlap_deg:
+        raise field_error(where, f + 'ivc_deg', 'must be later than -360 + overlap_deg/2')
+    return gas
+
+
+def _combustion(cb: Any, where: str) -> Combustion:
+    cb = check_keys(cb, where, 'combustion',
+                    ['polytropic_exponent', 'wiebe_a', 'start_deg', 'premixed_fraction_zero_load',
+                     'premixed_fraction_full_load', 'premixed_duration_deg', 'premixed_shape',
+                     'diffusion_duration_full_load_deg', 'diffusion_duration_zero_load_factor',
+                     'diffusion_shape'])
+    f = 'combustion.'
+
+    def num(key: str, lo: float, hi: float, **kw) -> float:
+        return number(cb[key], where, f + key, lo, hi, **kw)
+
+    return Combustion(
+        polytropic_exponent=num('polytropic_exponent', 1.0, 1.67, lo_open=True),
+        wiebe_a=num('wiebe_a', 0.0, 20.0, lo_open=True),
+        start_deg=table_1d(cb['start_deg'], where, f + 'start_deg', 'speeds_rpm', 'angle_deg',
+                           _SPEED_RANGE_RPM, (-60.0, 30.0)),
+        premixed_fraction_zero_load=num('premixed_fraction_zero_load', 0.0, 1.0),
+        premixed_fraction_full_load=num('premixed_fraction_full_load', 0.0, 1.0),
+        premixed_duration_deg=num('premixed_duration_deg', 0.0, 90.0, lo_open=True),
+        premixed_shape=num('premixed_shape', 0.0, 10.0),
+        diffusion_duration_full_load_deg=table_1d(
+            cb['diffusion_duration_full_load_deg'], where, f + 'diffusion_duration_full_load_deg',
+            'speeds_rpm', 'duration_deg', _SPEED_RANGE_RPM, (1.0, 180.0)),
+        diffusion_duration_zero_load_factor=num('diffusion_duration_zero_load_factor', 0.0, 1.0,
+                                                lo_open=True),
+        diffusion_shape=num('diffusion_shape', 0.0, 10.0),
+    )
+
+
+def _grid(gr: Any, where: str) -> Grid:
+    gr = check_keys(gr, where, 'grid',
+                    ['speed_min_rpm', 'speed_max_rpm', 'speed_step_rpm', 'loads'])
+    s0 = number(gr['speed_min_rpm'], where, 'grid.speed_min_rpm', 50.0, 10000.0)
+    s1 = number(gr['speed_max_rpm'], where, 'grid.speed_max_rpm', s0, 10000.0, lo_open=True)
+    ds = number(gr['speed_step_rpm'], where, 'grid.speed_step_rpm', 0.0, s1 - s0, lo_open=True)
+    n_steps = round((s1 - s0) / ds)
+    if abs(n_steps * ds - (s1 - s0)) > 1e-6 * ds:
+        raise field_error(where, 'grid.speed_step_rpm',
+                          f'must divide speed_max_rpm - speed_min_rpm = {s1 - s0:g}')
+    loads = number_list(gr['loads'], where, 'grid.loads', 0.0, 1.0, min_len=2, increasing=True)
+    if loads[0] != 0.0 or loads[-1] != 1.0:
+        raise field_error(where, 'grid.loads',
+                          'must start at 0 and end at 1 (strictly increasing)')
+    return Grid(np.linspace(s0, s1, n_steps + 1), loads)
+
+
+def require_model(cfg: EngineConfig) -> None:
+    """Refuse a configuration without the pressure-model sections."""
+    if not cfg.has_model:
+        raise ConfigError(f'{cfg.path.name}: full_load_curve: missing (pressure model sections '
+                          'required)')

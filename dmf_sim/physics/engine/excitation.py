@@ -1,0 +1,204 @@
+"""The engine excitation object: A_n = gas part (cached grid, Load A/B/C speed shift) + inertia
+part (exact at the actual speed), and the free functions on the eq. 16-17 series."""
+from __future__ import annotations
+
+import bisect
+import math
+from pathlib import Path
+from typing import Callable, Protocol, runtime_checkable
+
+import numpy as np
+
+from dmf_sim.core.errors import ConfigError, OperatingRangeError
+from dmf_sim.core.units import RPM_TO_RAD_S
+from dmf_sim.core.validation import Table1D
+from dmf_sim.physics.engine.config import EngineConfig
+
+
+@runtime_checkable
+class EngineExcitation(Protocol):
+    """What the load assembly needs from an engine (default model or user table)."""
+
+    n_cylinders: int
+    n_max: int                       # highest half-order index (24)
+    firing_phases_deg: np.ndarray    # beta_k [deg]
+
+    def coefficients(self, speed_rpm: float, load: float) -> np.ndarray:
+        """Complex A_0..A_{n_max} of one cylinder [Nm] (eq. 16-17)."""
+        ...
+
+    def mean_torque(self, speed_rpm: float, load: float) -> float:
+        """Whole-engine mean torque [Nm]."""
+        ...
+
+    def full_load_torque(self, speed_rpm: float) -> float:
+        """Whole-engine full-load mean torque [Nm] as the load set sees it."""
+        ...
+
+
+def cylinder_torque_signal(A: np.ndarray, psi: np.ndarray, beta_rad: float) -> np.ndarray:
+    """Time signal of one cylinder torque [Nm] at crank angles ``psi`` [rad].
+
+    ``P_k(psi) = Re(sum_n A_n exp(i n/2 (psi - beta_k)))`` (eq. 16 for beta = 0, eq. 17 in
+    general). Returns an array of the shape of ``psi``.
+    """
+    A = np.asarray(A, dtype=complex)
+    psi = np.asarray(psi, dtype=float)
+    half_orders = 0.5 * np.arange(A.size)
+    phase = np.exp(1j * np.multiply.outer(psi - beta_rad, half_orders))  # eq. 17
+    return (phase @ A).real
+
+
+def engine_torque_orders(engine: EngineExcitation, speed_rpm: float, load: float) -> np.ndarray:
+    """Complex half-order coefficients [Nm] of the sum over all cylinders on a rigid crank.
+
+    ``sum_k P_k = Re(sum_n B_n exp(i n/2 psi))`` with ``B_n = A_n sum_k exp(-i n/2 beta_k)``
+    (eq. 17 summed over k). Returns ``B_0..B_{n_max}``.
+    """
+    A = engine.coefficients(speed_rpm, load)
+    n = np.arange(A.size)
+    beta = np.radians(np.asarray(engine.firing_phases_deg, dtype=float))
+    return A * np.exp(-0.5j * np.outer(n, beta)).sum(axis=1)
+
+
+class GasGrid:
+    """Gas-part A_n on a speed x load grid, bilinear complex interpolation, lazy filling."""
+
+    def __init__(self, speeds_rpm: np.ndarray, loads: np.ndarray, n_orders: int,
+                 filler: Callable[[float, float], np.ndarray] | None = None,
+                 values: np.ndarray | None = None) -> None:
+        self.speeds = np.asarray(speeds_rpm, dtype=float)
+        self.loads = np.asarray(loads, dtype=float)
+        self._speeds_list = self.speeds.tolist()
+        self._loads_list = self.loads.tolist()
+        shape = (self.speeds.size, self.loads.size, n_orders)
+        if values is None:
+            self.values = np.zeros(shape, dtype=complex)
+            self.done = np.zeros(shape[:2], dtype=bool)
+        else:
+            self.values = np.asarray(values, dtype=complex).reshape(shape)
+            self.done = np.ones(shape[:2], dtype=bool)
+        self._filler = filler
+
+    @property
+    def speed_range(self) -> tuple[float, float]:
+        return float(self.speeds[0]), float(self.speeds[-1])
+
+    def _node(self, i: int, j: int) -> np.ndarray:
+        if not self.done[i, j]:
+            self.values[i, j] = self._filler(self._speeds_list[i], self._loads_list[j])
+            self.done[i, j] = True
+        return self.values[i, j]
+
+    def fill_all(self) -> None:
+        for i in range(self.speeds.size):
+            for j in range(self.loads.size):
+                self._node(i, j)
+
+    @staticmethod
+    def _bracket(grid: list[float], x: float) -> tuple[int, float]:
+        i = min(max(bisect.bisect_right(grid, x) - 1, 0), len(grid) - 2)
+        return i, (x - grid[i]) / (grid[i + 1] - grid[i])
+
+    def __call__(self, speed_rpm: float, load: float) -> np.ndarray:
+        i, ts = self._bracket(self._speeds_list, speed_rpm)
+        j, tl = self._bracket(self._loads_list, load)
+        a = self._node(i, j) * (1.0 - tl) + self._node(i, j + 1) * tl
+        b = self._node(i + 1, j) * (1.0 - tl) + self._node(i + 1, j + 1) * tl
+        return a * (1.0 - ts) + b * ts
+
+
+class Engine:
+    """Engine excitation (implements :class:`EngineExcitation`) for one load set.
+
+    ``coefficients = gas(effective speed, load) + inertia(actual speed)``.
+    """
+
+    def __init__(self, cfg: EngineConfig, gas: GasGrid, inertia_unit: np.ndarray, *,
+                 load_set: str = 'A', n_max: int | None = None,
+                 full_load_curve: Table1D | None = None, model=None,
+                 source: Path | None = None) -> None:
+        if load_set not in cfg.load_set_shifts_rpm:
+            raise ConfigError(f'{cfg.path.name}: load_set: unknown {load_set!r} '
+                              f'(allowed: {", ".join(cfg.load_set_shifts_rpm)})')
+        self.config = cfg
+        self.source = source or cfg.path
+        self.model = model
+        self.n_cylinders: int = cfg.n_cylinders
+        self.n_max: int = cfg.n_max if n_max is None else n_max
+        self.firing_phases_deg: np.ndarray = np.array(cfg.firing_phases_deg, dtype=float)
+        self.load_set = load_set
+        self.shift_rpm = cfg.load_set_shifts_rpm[load_set]
+        self.limit_rpm = cfg.load_set_limit_rpm
+        self._gas = gas
+        self._inertia_unit = np.asarray(inertia_unit, dtype=complex)[: self.n_max + 1]
+        self._curve = full_load_curve
+        self.speed_range_rpm: tuple[float, float] = gas.speed_range
+
+    @property
+    def name(self) -> str:
+        """The engine's name (YAML ``name``; for a table, the table's file name)."""
+        return self.config.name if self.source == self.config.path else self.source.name
+
+    def with_load_set(self, load_set: str) -> Engine:
+        """The same engine (sharing the cached gas data) for another load set."""
+        return Engine(self.config, self._gas, self._inertia_unit, load_set=load_set,
+                      n_max=self.n_max, full_load_curve=self._curve, model=self.model,
+                      source=self.source)
+
+    def warm(self) -> None:
+        """Compute every grid node now (about 0.1 s for the default grid)."""
+        self._gas.fill_all()
+
+    # -- checks --------------------------------------------------------------------------------
+    def _check(self, speed_rpm: float, load: float | None = None) -> None:
+        lo, hi = self.speed_range_rpm
+        if not (math.isfinite(speed_rpm) and lo <= speed_rpm <= hi):
+            raise OperatingRangeError(f'speed_rpm: must be in [{lo:g}, {hi:g}] rpm '
+                                      f'(got {speed_rpm!r})')
+        if load is not None and not (math.isfinite(load) and 0.0 <= load <= 1.0):
+            raise OperatingRangeError(f'load: must be in [0, 1] (got {load!r})')
+
+    def effective_speed(self, speed_rpm: float) -> float:
+        """Speed [rpm] at which Load A's gas data is used: min(s + shift, max(s, limit))."""
+        return min(speed_rpm + self.shift_rpm, max(speed_rpm, self.limit_rpm))
+
+    # -- parts ---------------------------------------------------------------------------------
+    def gas_coefficients(self, speed_rpm: float, load: float) -> np.ndarray:
+        """Gas-pressure part of A_n [Nm] (Load A data at the effective speed)."""
+        speed_rpm, load = float(speed_rpm), float(load)
+        self._check(speed_rpm, load)
+        s_eff = self.effective_speed(speed_rpm)
+        self._check(s_eff)
+        return self._gas(s_eff, load)
+
+    def inertia_coefficients(self, speed_rpm: float) -> np.ndarray:
+        """Oscillating-mass part of A_n [Nm] at the actual speed (load independent)."""
+        speed_rpm = float(speed_rpm)
+        self._check(speed_rpm)
+        omega = speed_rpm * RPM_TO_RAD_S
+        return omega * omega * self._inertia_unit
+
+    # -- EngineExcitation ----------------------------------------------------------------------
+    def coefficients(self, speed_rpm: float, load: float) -> np.ndarray:
+        """Complex per-cylinder A_0..A_{n_max} [Nm] at ``speed_rpm`` [rpm] and ``load`` [0..1]."""
+        return self.gas_coefficients(speed_rpm, load) + self.inertia_coefficients(speed_rpm)
+
+    def mean_torque(self, speed_rpm: float, load: float) -> float:
+        """Whole-engine mean torque n_cylinders * A_0 [Nm]."""
+        return self.n_cylinders * float(self.coefficients(speed_rpm, load)[0].real)
+
+    def full_load_torque(self, speed_rpm: float) -> float:
+        """Whole-engine full-load torque [Nm] as this load set sees it (curve at the effective
+        speed)."""
+        speed_rpm = float(speed_rpm)
+        self._check(speed_rpm)
+        s_eff = self.effective_speed(speed_rpm)
+        if self._curve is not None:
+            return self._curve(s_eff)
+        self._check(s_eff)
+        return self.n_cylinders * float(self._gas(s_eff, 1.0)[0].real)
+
+    def __repr__(self) -> str:
+        return (f'Engine({self.config.name!r}, source={self.source.name!r}, '
+                f'load_set={self.load_set!r}, n_max={self.n_max})')

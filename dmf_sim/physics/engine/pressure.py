@@ -1,0 +1,162 @@
+"""Cylinder pressure and crank-throw torque of one cylinder: the default engine model.
+
+One 720 deg cycle is sampled finely (``samples_per_cycle``) in the cylinder's own angle ``theta``
+(0 = firing TDC):
+
+* closed cycle IVC..EVO with a constant polytropic exponent gamma and a double Wiebe burn fraction
+  ``x_b`` (premixed + diffusion, Ghojel 2010). With constant gamma,
+  ``d(p V^gamma)/dtheta = (gamma - 1) V^(gamma - 1) dQ/dtheta`` integrates to::
+
+      p = V^-gamma [ p_ivc V_ivc^gamma + (gamma - 1) Q_tot * int_{ivc}^{theta} V^(gamma-1) dx_b ]
+
+  so the pressure, the torque and every ``A_n`` are affine in the total heat release ``Q_tot``;
+* blowdown from the EVO pressure to the exhaust back pressure (cosine ramp), exhaust stroke at
+  the exhaust pressure, intake stroke at the boost pressure (cosine blend over the valve overlap);
+* intake pressure ``p_amb + load * boost_gauge(speed)``; exhaust pressure above it by a
+  load-dependent back pressure; Wiebe start/durations depend on speed and load (YAML tables);
+* ``Q_tot`` is solved exactly so that the mean torque equals ``load * full_load_curve(speed) /
+  n_cylinders`` per cylinder. **Friction is not modelled**: the mean indicated torque equals the
+  configured (brake) full-load curve times the load fraction.
+
+Crank torque: gas ``(p - p_crankcase) A_p dx/dtheta`` plus the oscillating-mass inertia torque
+``-m omega^2 (d2x/dtheta2)(dx/dtheta)`` (exact slider-crank kinematics, load independent). The
+``A_n`` are the half orders of the sampled cycle (dmf_sim.physics.orders.half_orders).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from dmf_sim.core.units import RPM_TO_RAD_S
+from dmf_sim.physics.engine.config import EngineConfig, require_model
+from dmf_sim.physics.orders import half_orders, synthesize
+
+
+@dataclass(frozen=True)
+class CycleResult:
+    """One 720 deg cycle of one cylinder, sampled at ``psi_deg`` (0 = its firing TDC)."""
+
+    psi_deg: np.ndarray
+    pressure_pa: np.ndarray
+    gas_torque_nm: np.ndarray
+    inertia_torque_nm: np.ndarray
+    heat_release_j: float            # total Q of the Wiebe law (the part after EVO is not used)
+    intake_pa: float
+    exhaust_pa: float
+
+    @property
+    def torque_nm(self) -> np.ndarray:
+        return self.gas_torque_nm + self.inertia_torque_nm
+
+    @property
+    def peak_pressure_pa(self) -> float:
+        return float(self.pressure_pa.max())
+
+
+class PressureModel:
+    """Cylinder pressure and crank-throw torque of one cylinder (default engine model)."""
+
+    def __init__(self, cfg: EngineConfig) -> None:
+        require_model(cfg)
+        self.cfg = cfg
+        n = cfg.samples_per_cycle
+        # Cylinder angle theta in [-360, 360) deg: one contiguous closed cycle around firing TDC.
+        self.theta_deg = -360.0 + 720.0 * np.arange(n) / n
+        theta = np.radians(self.theta_deg)
+        x, self._dx, _ = cfg.geometry.kinematics(theta)
+        self._volume = cfg.geometry.clearance_volume_m3 + cfg.geometry.piston_area_m2 * x
+        self._roll = -n // 2   # theta = 0 (psi = 0) is sample n/2
+        self._inertia_shape = cfg.geometry.inertia_shape(theta)      # [Nm s^2]
+        self.inertia_unit = cfg.geometry.inertia_coefficients(cfg.n_max, n)
+        gas = cfg.gas_exchange
+        th = self.theta_deg
+        self._i_ivc = int(np.searchsorted(th, gas.ivc_deg))
+        self._i_evo = int(np.searchsorted(th, gas.evo_deg, side='right')) - 1
+        self._closed = (np.arange(n) >= self._i_ivc) & (np.arange(n) <= self._i_evo)
+        t_evo = th[self._i_evo]
+        frac = np.clip((th - t_evo) / gas.blowdown_deg, 0.0, 1.0)
+        self._blowdown_w = np.where(th > t_evo, 0.5 * (1.0 + np.cos(np.pi * frac)), 0.0)
+        # Exhaust -> intake blend around the gas-exchange TDC (theta = +-360 deg).
+        d_ge = np.where(th > 0.0, th - 360.0, th + 360.0)
+        w = np.clip(0.5 + d_ge / gas.overlap_deg, 0.0, 1.0)
+        self._intake_w = 0.5 - 0.5 * np.cos(np.pi * w)
+        self._blowdown_w[self._closed] = 0.0
+
+    def burn_fraction(self, speed_rpm: float, load: float) -> np.ndarray:
+        """Double Wiebe burn fraction x_b(theta) (Ghojel 2010), premixed + diffusion."""
+        cb = self.cfg.combustion
+        z = np.clip(self.theta_deg - cb.start_deg(speed_rpm), 0.0, None)
+        beta = cb.premixed_fraction_zero_load + load * (cb.premixed_fraction_full_load
+                                                        - cb.premixed_fraction_zero_load)
+        dur_d = cb.diffusion_duration_full_load_deg(speed_rpm) * (
+            cb.diffusion_duration_zero_load_factor
+            + (1.0 - cb.diffusion_duration_zero_load_factor) * load)
+        pre = 1.0 - np.exp(-cb.wiebe_a
+                           * (z / cb.premixed_duration_deg) ** (cb.premixed_shape + 1.0))
+        dif = 1.0 - np.exp(-cb.wiebe_a * (z / dur_d) ** (cb.diffusion_shape + 1.0))
+        return beta * pre + (1.0 - beta) * dif
+
+    def _pressure_parts(self, speed_rpm: float, load: float
+                        ) -> tuple[np.ndarray, np.ndarray, float, float]:
+        """Pressure as ``p_base + Q_tot * p_unit`` over the cycle, plus intake/exhaust pressure."""
+        gas, cb = self.cfg.gas_exchange, self.cfg.combustion
+        g = cb.polytropic_exponent
+        V = self._volume
+        p_int = gas.ambient_pa + load * gas.boost_gauge_full_load(speed_rpm)
+        p_exh = p_int + gas.exhaust_backpressure_zero_load_pa + load * (
+            gas.exhaust_backpressure_full_load_pa - gas.exhaust_backpressure_zero_load_pa)
+        # closed cycle: p V^g = p_ivc V_ivc^g + (g-1) Q int V^(g-1) dx_b
+        xb = self.burn_fraction(speed_rpm, load)
+        Vg = V ** (g - 1.0)
+        dI = 0.5 * (Vg[1:] + Vg[:-1]) * np.diff(xb)
+        integral = np.concatenate(([0.0], np.cumsum(dI)))
+        integral -= integral[self._i_ivc]
+        Vmg = V ** -g
+        closed_base = p_int * V[self._i_ivc] ** g * Vmg
+        closed_unit = (g - 1.0) * integral * Vmg
+        # open cycle: exhaust/intake strokes plus the blowdown ramp from the EVO pressure
+        exchange = p_exh + (p_int - p_exh) * self._intake_w
+        i_evo = self._i_evo
+        wb = self._blowdown_w
+        p_base = np.where(self._closed, closed_base,
+                          exchange + (closed_base[i_evo] - exchange[i_evo]) * wb)
+        p_unit = np.where(self._closed, closed_unit, closed_unit[i_evo] * wb)
+        return p_base, p_unit, p_int, p_exh
+
+    def target_cylinder_mean(self, speed_rpm: float, load: float) -> float:
+        """Mean torque of one cylinder [Nm]: load x full-load curve / n_cylinders (no friction)."""
+        return load * self.cfg.full_load_curve(speed_rpm) / self.cfg.n_cylinders
+
+    def cycle(self, speed_rpm: float, load: float) -> CycleResult:
+        """Pressure and torques of one cycle with Q_tot solved for the target mean torque."""
+        area = self.cfg.geometry.piston_area_m2
+        p_base, p_unit, p_int, p_exh = self._pressure_parts(speed_rpm, load)
+        t_base = (p_base - self.cfg.gas_exchange.crankcase_pa) * area * self._dx  # Q_tot = 0
+        t_unit = p_unit * area * self._dx                                          # per joule
+        q = (self.target_cylinder_mean(speed_rpm, load) - t_base.mean()) / t_unit.mean()
+        omega = speed_rpm * RPM_TO_RAD_S
+        roll = self._roll
+        return CycleResult(
+            psi_deg=np.roll(self.theta_deg, roll) % 720.0,
+            pressure_pa=np.roll(p_base + q * p_unit, roll),
+            gas_torque_nm=np.roll(t_base + q * t_unit, roll),
+            inertia_torque_nm=np.roll(omega ** 2 * self._inertia_shape, roll),
+            heat_release_j=float(q), intake_pa=p_int, exhaust_pa=p_exh)
+
+    def gas_coefficients(self, speed_rpm: float, load: float) -> np.ndarray:
+        """Gas-torque A_n of one cylinder [Nm] from one cycle (exact, no cache)."""
+        return half_orders(self.cycle(speed_rpm, load).gas_torque_nm, self.cfg.n_max)
+
+    def inertia_coefficients(self, speed_rpm: float) -> np.ndarray:
+        """Inertia-torque A_n of one cylinder [Nm]: omega^2 times the unit-speed shape."""
+        return (speed_rpm * RPM_TO_RAD_S) ** 2 * self.inertia_unit
+
+    def truncation_error(self, speed_rpm: float, load: float) -> float:
+        """Relative rms error of one cylinder's torque when the series stops at n_max.
+
+        ``rms(P - P_trunc) / rms(P)`` over the finely sampled cycle (P = gas + inertia torque).
+        """
+        torque = self.cycle(speed_rpm, load).torque_nm
+        residual = torque - synthesize(half_orders(torque, self.cfg.n_max), torque.size)
+        return float(np.sqrt(np.mean(residual ** 2) / np.mean(torque ** 2)))

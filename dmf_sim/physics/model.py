@@ -1,0 +1,511 @@
+"""The driveline model: elements in series (paper Table 1, Fig. 3-4) read from YAML.
+
+Element i connects element i-1 to element i through gear ratio r_i, a spring k_i and a viscous
+damper c_i, followed by the inertia j_i. The spring elongation is
+
+    dphi_i = phi_i - phi_{i-1} / r_i                                   (paper, before eq. 1)
+
+Element equation (eq. 1): k_i dphi_i + c_i d(dphi_i)/dt + tau_{i+1}/r_{i+1} + j_i phi_i'' = p_i.
+Assembling it for the chain gives eq. (5)-(6); the damping matrix carries c/r^2 on the diagonal
+exactly like K (the printed eq. 6 has c/r, a misprint: the dissipation function is
+sum 1/2 c_i (d dphi_i/dt)^2).
+
+Infinite stiffness ("rigid" in YAML) is a rigid connection: rigidly connected inertias are merged
+into one degree of freedom (DOF) through the gear ratios, and every element angle is recovered by
+``phi = T q``. The DMF (if any) is the piecewise-linear spring of one element
+(dmf_sim.physics.spring): its
+primary stiffness and damping live in K and C, its extra torque g is the non-linear force of
+eq. (7)-(8).
+"""
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass, field, replace
+from functools import cached_property
+
+import numpy as np
+
+from dmf_sim.core.errors import ConfigError
+from dmf_sim.core.paths import read_yaml_mapping
+from dmf_sim.physics.spring import PiecewiseLinearSpring, Stage
+
+ELEMENT_KEYS = ('name', 'ratio', 'stiffness', 'damping', 'inertia')
+TOP_KEYS_REQUIRED = ('name', 'elements')
+TOP_KEYS_OPTIONAL = ('description', 'cylinders', 'firing_phases_deg', 'rear_load_element', 'dmf')
+DMF_KEYS_REQUIRED = ('element',)
+DMF_KEYS_OPTIONAL = ('stiffness', 'stages', 'coast_stages', 'theta_rad', 'alpha', 'coast')
+COAST_KEYS = ('theta_rad', 'alpha')
+STAGE_KEYS = ('stiffness_factor',)
+STAGE_ANGLE_KEYS = ('angle_rad', 'angle')   # the same quantity [rad]; give one
+RIGID_WORDS = ('rigid', 'inf', '.inf', 'infinite', '∞')
+
+
+@dataclass(frozen=True)
+class Element:
+    """One torsional element (a row of Table 1). SI units: Nm/rad, Nms/rad, kg m^2."""
+
+    name: str
+    ratio: float
+    stiffness: float      # math.inf for a rigid connection
+    damping: float
+    inertia: float
+
+    @property
+    def rigid(self) -> bool:
+        return math.isinf(self.stiffness)
+
+
+@dataclass(frozen=True)
+class DMFSpec:
+    """Which element carries the DMF spring, and its stages (dmf_sim.physics.spring).
+
+    The element's own stiffness is the primary stiffness k, its damping the DMF damping.
+    ``stages`` / ``coast_stages``: drive / coast stages; the paper's (theta, alpha) is one drive
+    stage (:attr:`theta`, :attr:`alpha` read the first one).
+    """
+
+    element: str
+    stages: tuple[Stage, ...] = ()
+    coast_stages: tuple[Stage, ...] = ()
+
+    @property
+    def theta(self) -> float:
+        """First drive knee [rad] (inf without drive stages)."""
+        return self.stages[0].angle_rad if self.stages else math.inf
+
+    @property
+    def alpha(self) -> float:
+        """Stiffness factor of the first drive stage (0 without drive stages)."""
+        return self.stages[0].stiffness_factor if self.stages else 0.0
+
+    def spring(self, k: float) -> PiecewiseLinearSpring:
+        """The spring with primary stiffness ``k`` [Nm/rad] (validates the stages)."""
+        return PiecewiseLinearSpring(k, self.stages, self.coast_stages)
+
+
+@dataclass(frozen=True)
+class Driveline:
+    """A validated driveline description (element level, as in the YAML)."""
+
+    name: str
+    elements: tuple[Element, ...]
+    cylinders: tuple[str, ...] = ()
+    firing_phases_deg: tuple[float, ...] = ()
+    rear_load_element: str | None = None
+    dmf: DMFSpec | None = None
+    description: str = ''
+
+    @property
+    def names(self) -> list[str]:
+        return [e.name for e in self.elements]
+
+    def index(self, name: str) -> int:
+        """0-based index of the element called ``name``."""
+        try:
+            return self.names.index(name)
+        except ValueError:
+            raise ConfigError(f'unknown element {name!r}; elements are '
+                              f'{", ".join(self.names)}') from None
+
+    @property
+    def dmf_element(self) -> Element | None:
+        return self.elements[self.index(self.dmf.element)] if self.dmf is not None else None
+
+    @property
+    def spring(self) -> PiecewiseLinearSpring | None:
+        """The DMF spring (primary stiffness from the DMF element), or None without a DMF."""
+        return self.dmf.spring(self.dmf_element.stiffness) if self.dmf is not None else None
+
+    def with_dmf(self, alpha: float | None = None, theta: float | None = None, *,
+                 k: float | None = None, damping: float | None = None,
+                 stages=None, coast_stages=None) -> 'Driveline':
+        """A copy with other DMF data. ``alpha``, ``theta`` [rad]: the paper's shorthand on the
+        first drive stage; ``stages`` / ``coast_stages``: sequences of :class:`Stage` (or
+        (angle_rad, stiffness_factor) pairs) replacing them; ``k`` [Nm/rad] and ``damping``
+        [Nms/rad]: the DMF element's primary stiffness and damping."""
+        given = (alpha, theta, k, damping, stages, coast_stages)
+        if self.dmf is None:
+            if all(v is None for v in given):
+                return self
+            raise ConfigError(f'driveline {self.name!r} has no dmf section; '
+                              'DMF parameters do not apply')
+        if stages is not None and (alpha is not None or theta is not None):
+            raise ConfigError('dmf: give either stages or the (alpha, theta) shorthand, not both')
+        spring = self.spring
+        if stages is not None or coast_stages is not None:
+            spring = spring.replace(drive=None if stages is None else _as_stages(stages),
+                                    coast=(None if coast_stages is None
+                                           else _as_stages(coast_stages)))
+        spring = spring.with_first_stage(theta=theta, alpha=alpha)
+        if k is not None:
+            spring = spring.replace(k=k)
+        els = list(self.elements)
+        s = self.index(self.dmf.element)
+        el = els[s]
+        if k is not None or damping is not None:
+            d = el.damping if damping is None else float(damping)
+            if not (math.isfinite(d) and d >= 0):
+                raise ConfigError(f'dmf: damping must be finite and >= 0 Nms/rad, got {damping!r}')
+            els[s] = replace(el, stiffness=spring.k, damping=d)
+        dmf = replace(self.dmf, stages=spring.drive, coast_stages=spring.coast)
+        line = replace(self, elements=tuple(els), dmf=dmf)
+        _check_spring(dmf, line)
+        return line
+
+    def reduce(self) -> 'ReducedModel':
+        """Merge rigid connections into DOFs and assemble J, K, C (see ReducedModel)."""
+        return ReducedModel(self)
+
+
+# --------------------------------------------------------------------------------------------
+# YAML loading and validation
+# --------------------------------------------------------------------------------------------
+
+def _num(value, where: str, field_name: str, allow_rigid: bool = False) -> float:
+    if allow_rigid and isinstance(value, str) and value.strip().lower() in RIGID_WORDS:
+        return math.inf
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        extra = " or 'rigid'" if allow_rigid else ''
+        raise ConfigError(f'{where}: field {field_name!r} must be a number{extra}, got {value!r}')
+    v = float(value)
+    if math.isnan(v) or (math.isinf(v) and not allow_rigid):
+        raise ConfigError(f'{where}: field {field_name!r} must be finite, got {value!r}')
+    return v
+
+
+def _check_keys(data: dict, required, optional, where: str) -> None:
+    if not isinstance(data, dict):
+        raise ConfigError(f'{where}: expected a mapping, got {type(data).__name__}')
+    for key in required:
+        if key not in data:
+            raise ConfigError(f'{where}: missing key {key!r}')
+    allowed = set(required) | set(optional)
+    for key in data:
+        if key not in allowed:
+            raise ConfigError(f'{where}: unknown key {key!r} '
+                              f'(allowed: {", ".join(sorted(allowed))})')
+
+
+def _parse_element(raw, pos: int) -> Element:
+    where = f'element {pos + 1}'
+    if isinstance(raw, dict) and 'name' in raw:
+        where = f'element {pos + 1} ({raw["name"]})'
+    _check_keys(raw, ELEMENT_KEYS, (), where)
+    name = str(raw['name'])
+    ratio = _num(raw['ratio'], where, 'ratio')
+    if ratio == 0:
+        raise ConfigError(f'{where}: field \'ratio\' must be non-zero '
+                          '(allowed: any finite number != 0)')
+    stiffness = _num(raw['stiffness'], where, 'stiffness', allow_rigid=True)
+    if stiffness < 0:
+        raise ConfigError(f'{where}: field \'stiffness\' must be >= 0 Nm/rad or \'rigid\', '
+                          f'got {stiffness}')
+    damping = _num(raw['damping'], where, 'damping')
+    if damping < 0:
+        raise ConfigError(f'{where}: field \'damping\' must be >= 0 Nms/rad, got {damping}')
+    inertia = _num(raw['inertia'], where, 'inertia')
+    if inertia <= 0:
+        raise ConfigError(f'{where}: field \'inertia\' must be > 0 kg m^2, got {inertia}')
+    if math.isinf(stiffness) and damping != 0:
+        raise ConfigError(f'{where}: field \'damping\' must be 0 on a rigid connection, '
+                          f'got {damping}')
+    return Element(name, ratio, stiffness, damping, inertia)
+
+
+def _as_stages(items) -> tuple[Stage, ...]:
+    out = []
+    for it in items:
+        out.append(it if isinstance(it, Stage) else Stage(float(it[0]), float(it[1])))
+    return tuple(out)
+
+
+def _parse_stages(raw, where: str) -> tuple[Stage, ...]:
+    if not isinstance(raw, list):
+        raise ConfigError(f'{where}: expected a list of {{angle_rad, stiffness_factor}} mappings, '
+                          f'got {type(raw).__name__}')
+    out = []
+    for i, item in enumerate(raw):
+        w = f'{where}[{i}]'
+        _check_keys(item, STAGE_KEYS, STAGE_ANGLE_KEYS, w)
+        angles = [key for key in STAGE_ANGLE_KEYS if key in item]
+        if len(angles) != 1:
+            raise ConfigError(f'{w}: give the stage angle [rad] once, '
+                              'as \'angle_rad\' (or \'angle\')')
+        out.append(Stage(_num(item[angles[0]], w, angles[0]),
+                         _num(item['stiffness_factor'], w, 'stiffness_factor')))
+    return tuple(out)
+
+
+def _shorthand_stage(raw: dict, where: str) -> Stage:
+    """The paper's (theta_rad, alpha) as one stage, with errors naming those fields."""
+    theta = _num(raw['theta_rad'], where, 'theta_rad')
+    alpha = _num(raw['alpha'], where, 'alpha')
+    if not theta > 0:
+        raise ConfigError(f"{where}: field 'theta_rad' must be > 0 rad, got {theta}")
+    if not alpha >= 0:
+        raise ConfigError(f"{where}: field 'alpha' must be >= 0, got {alpha}")
+    return Stage(theta, alpha)
+
+
+def _parse_dmf(raw, names: list[str]) -> DMFSpec:
+    _check_keys(raw, DMF_KEYS_REQUIRED, DMF_KEYS_OPTIONAL, 'dmf')
+    element = str(raw['element'])
+    if element not in names:
+        raise ConfigError(f'dmf: field \'element\' names unknown element {element!r}')
+    short = [key for key in ('theta_rad', 'alpha') if key in raw]
+    if 'stages' in raw:
+        if short:
+            raise ConfigError(f'dmf: give either \'stages\' or the shorthand '
+                              f'\'theta_rad\'/\'alpha\', not both (found {", ".join(short)})')
+        stages = _parse_stages(raw['stages'], 'dmf.stages')
+    elif len(short) == 2:
+        stages = (_shorthand_stage(raw, 'dmf'),)
+    elif short:
+        missing = 'alpha' if short == ['theta_rad'] else 'theta_rad'
+        raise ConfigError(f"dmf: missing key {missing!r} (the shorthand needs 'theta_rad' and "
+                          "'alpha'; or give 'stages')")
+    else:
+        raise ConfigError('dmf: missing key \'stages\' '
+                          '(or the shorthand \'theta_rad\' and \'alpha\')')
+    coast = raw.get('coast')
+    if 'coast_stages' in raw:
+        if coast is not None:
+            raise ConfigError('dmf: give either \'coast_stages\' or the shorthand \'coast\', '
+                              'not both')
+        coast_stages = _parse_stages(raw['coast_stages'], 'dmf.coast_stages')
+    elif coast is not None:
+        _check_keys(coast, COAST_KEYS, (), 'dmf.coast')
+        coast_stages = (_shorthand_stage(coast, 'dmf.coast'),)
+    else:
+        coast_stages = ()
+    return DMFSpec(element=element, stages=stages, coast_stages=coast_stages)
+
+
+def _check_spring(dmf: DMFSpec, line: 'Driveline') -> None:
+    el = line.elements[line.index(dmf.element)]
+    where = f'dmf (element {dmf.element})'
+    if el.rigid:
+        raise ConfigError(f'{where}: the DMF cannot sit on a rigid element; '
+                          'field \'stiffness\' must be finite > 0')
+    if el.stiffness <= 0:
+        raise ConfigError(f'{where}: field \'stiffness\' of the DMF element must be > 0 Nm/rad, '
+                          f'got {el.stiffness}')
+    if line.index(dmf.element) == 0:
+        raise ConfigError(f'{where}: the DMF cannot be the first element '
+                          '(it needs a primary side)')
+    dmf.spring(el.stiffness)          # validates the stages (one-line ConfigError)
+
+
+def driveline_from_dict(data: dict, source: str = 'driveline') -> Driveline:
+    """Validate a parsed YAML mapping and build a Driveline. Errors are one line naming the
+    field."""
+    _check_keys(data, TOP_KEYS_REQUIRED, TOP_KEYS_OPTIONAL, source)
+    raw_elements = data['elements']
+    if not isinstance(raw_elements, list) or len(raw_elements) < 2:
+        raise ConfigError(f'{source}: field \'elements\' must be a list of at least 2 elements')
+    elements = tuple(_parse_element(raw, i) for i, raw in enumerate(raw_elements))
+    names = [e.name for e in elements]
+    dupes = sorted({n for n in names if names.count(n) > 1})
+    if dupes:
+        raise ConfigError(f'{source}: element names must be unique; repeated: {", ".join(dupes)}')
+    if elements[0].rigid:
+        raise ConfigError(f'element 1 ({elements[0].name}): field \'stiffness\' cannot be rigid '
+                          '(it connects to ground)')
+
+    cylinders = tuple(str(c) for c in data.get('cylinders') or ())
+    phases = tuple(_num(p, source, 'firing_phases_deg')
+                   for p in data.get('firing_phases_deg') or ())
+    if len(cylinders) != len(phases):
+        raise ConfigError(f'{source}: field \'firing_phases_deg\' needs one phase per cylinder '
+                          f'({len(cylinders)} cylinders, {len(phases)} phases)')
+    for c in cylinders:
+        if c not in names:
+            raise ConfigError(f'{source}: field \'cylinders\' names unknown element {c!r}')
+    rear = data.get('rear_load_element') or names[-1]
+    if rear not in names:
+        raise ConfigError(f'{source}: field \'rear_load_element\' names unknown element {rear!r}')
+
+    line = Driveline(name=str(data['name']), elements=elements, cylinders=cylinders,
+                     firing_phases_deg=phases, rear_load_element=rear,
+                     description=str(data.get('description') or ''))
+    raw_dmf = data.get('dmf')
+    if raw_dmf is not None:
+        dmf = _parse_dmf(raw_dmf, names)
+        if 'stiffness' in raw_dmf:
+            k = _num(raw_dmf['stiffness'], 'dmf', 'stiffness')
+            el = elements[names.index(dmf.element)]
+            if k != el.stiffness:
+                raise ConfigError(f'dmf: field \'stiffness\' = {k:g} Nm/rad differs from the '
+                                  f'stiffness {el.stiffness:g} Nm/rad of element '
+                                  f'{dmf.element!r}; give the primary stiffness in one place')
+        _check_spring(dmf, line)
+        line = replace(line, dmf=dmf)
+    return line
+
+
+def load_driveline(source: str | os.PathLike = 'truck_dmf', *, alpha: float | None = None,
+                   theta: float | None = None) -> Driveline:
+    """Load and validate a driveline YAML: a config name (``truck_dmf``, ``truck_conventional``)
+    or a path. ``alpha`` and ``theta`` [rad] override the first drive stage of the DMF."""
+    path, data = read_yaml_mapping(source, 'driveline')
+    line = driveline_from_dict(data, source=str(path))
+    return line.with_dmf(alpha=alpha, theta=theta)
+
+
+# --------------------------------------------------------------------------------------------
+# Reduced (merged) model
+# --------------------------------------------------------------------------------------------
+
+@dataclass
+class ReducedModel:
+    """J, K, C in DOF space with rigid connections merged.
+
+    Attributes (n = number of DOFs, m = number of elements):
+        T: (m, n) element angles from DOFs, ``phi = T q``.
+        J, K, C: (n, n) inertia [kg m^2], stiffness [Nm/rad], damping [Nms/rad] (eq. 5-6).
+        D: (n_springs, n) elongation rows ``dphi_i = D[row] q`` of every flexible connection.
+        spring_elements: element index of each row of D.
+        spring_k, spring_c: stiffness [Nm/rad] and damping [Nms/rad] of each row of D.
+        e: (n,) wind-up row ``w = e q`` of the DMF (zeros without a DMF).
+        R: (m,) cumulative gear ratio of each element; a rigid rotation is ``phi_i = psi / R_i``.
+        rigid_mode: (n,) DOF vector of the rigid rotation (psi = 1 rad), or None if grounded.
+    """
+
+    line: Driveline
+    T: np.ndarray = field(init=False)
+    J: np.ndarray = field(init=False)
+    K: np.ndarray = field(init=False)
+    C: np.ndarray = field(init=False)
+    D: np.ndarray = field(init=False)
+    spring_elements: np.ndarray = field(init=False)
+    spring_k: np.ndarray = field(init=False)
+    spring_c: np.ndarray = field(init=False)
+    e: np.ndarray = field(init=False)
+    R: np.ndarray = field(init=False)
+    dof_of_element: np.ndarray = field(init=False)
+    spring: PiecewiseLinearSpring | None = field(init=False)
+    dmf_element: int | None = field(init=False)
+
+    def __post_init__(self) -> None:
+        els = self.line.elements
+        m = len(els)
+        ratios = np.array([e.ratio for e in els])
+        self.R = np.cumprod(ratios)
+        # Group elements: a new DOF starts at every non-rigid connection.
+        dof = np.zeros(m, dtype=int)
+        T = np.zeros((m, m))
+        n = -1
+        for i, el in enumerate(els):
+            if i == 0 or not el.rigid:
+                n += 1
+                T[i, n] = 1.0
+            else:  # rigid: phi_i = phi_{i-1} / r_i
+                T[i, n] = T[i - 1, n] / el.ratio
+            dof[i] = n
+        self.T = T[:, :n + 1]
+        self.dof_of_element = dof
+        n_dof = n + 1
+        self.J = self.T.T @ np.diag([e.inertia for e in els]) @ self.T
+
+        rows, spring_el, ks, cs = [], [], [], []
+        for i, el in enumerate(els):
+            if el.rigid or (el.stiffness == 0 and el.damping == 0):
+                continue
+            row = self.T[i].copy()
+            if i > 0:
+                row -= self.T[i - 1] / el.ratio          # dphi_i = phi_i - phi_{i-1}/r_i
+            rows.append(row)
+            spring_el.append(i)
+            ks.append(el.stiffness)
+            cs.append(el.damping)
+        self.D = np.array(rows).reshape(len(rows), n_dof)
+        self.spring_elements = np.array(spring_el, dtype=int)
+        self.spring_k = np.array(ks)
+        self.spring_c = np.array(cs)
+        # Eq. (6) with the misprint fixed: both K and C are D^T diag(.) D (c/r^2 on the diagonal).
+        self.K = self.D.T @ (self.spring_k[:, None] * self.D)
+        self.C = self.D.T @ (self.spring_c[:, None] * self.D)
+
+        self.e = np.zeros(n_dof)
+        self.spring = None
+        self.dmf_element = None
+        if self.line.dmf is not None:
+            s = self.line.index(self.line.dmf.element)
+            self.dmf_element = s
+            row = int(np.flatnonzero(self.spring_elements == s)[0])
+            self.e = -self.D[row].copy()                 # w = -dphi_s, positive when driving
+            self.spring = self.line.spring
+
+    # ---- sizes and names ------------------------------------------------------------------
+    @property
+    def n_dof(self) -> int:
+        return self.T.shape[1]
+
+    @property
+    def n_elements(self) -> int:
+        return self.T.shape[0]
+
+    @property
+    def names(self) -> list[str]:
+        return self.line.names
+
+    @cached_property
+    def rigid_mode(self) -> np.ndarray | None:
+        """DOF vector of a rigid rotation of 1 rad at element 1, or None if K is regular."""
+        q = np.linalg.lstsq(self.T, 1.0 / self.R, rcond=None)[0]
+        if self.line.elements[0].stiffness > 0 or not np.allclose(self.T @ q, 1.0 / self.R):
+            return None
+        return q
+
+    @cached_property
+    def equivalent_inertia(self) -> float:
+        """J_eq = sum j_i / R_i^2 [kg m^2]: the whole driveline's inertia seen at element 1."""
+        return float(sum(e.inertia / r**2 for e, r in zip(self.line.elements, self.R)))
+
+    def element_vector(self, element_loads: np.ndarray) -> np.ndarray:
+        """Generalized DOF load from element loads [Nm]: ``T^T p`` (virtual work)."""
+        return np.asarray(element_loads) @ self.T
+
+    # ---- recovering element quantities ----------------------------------------------------
+    def windup(self, q: np.ndarray) -> np.ndarray:
+        """DMF wind-up [rad] for DOF vectors q (..., n)."""
+        return np.asarray(q) @ self.e
+
+    def element_angles(self, q: np.ndarray) -> np.ndarray:
+        """Element angles (..., m) from DOF vectors (..., n) through the rigid constraints."""
+        return np.asarray(q) @ self.T.T
+
+    def transmitted_torques(self, q, qd, qdd, element_loads, extra_torque=None) -> np.ndarray:
+        """Torque [Nm] transmitted through every connection into element i, positive when driving.
+
+        Flexible connection: T_i = -(k_i dphi_i + c_i d(dphi_i)/dt) (+ DMF non-linear part).
+        Rigid connection: from element i's equation, T_i = j_i phi_i'' - p_i + T_{i+1}/r_{i+1}.
+        ``element_loads`` are all external element torques (..., m), including any d'Alembert
+        load of the reference motion; qdd the vibratory DOF accelerations consistent with them.
+        ``extra_torque``: the DMF's non-linear torque g [Nm] (...,); default g(e q) of the spring.
+        Real states, or complex harmonics (q_n, i Om q_n, -Om^2 q_n, p_n, g_n) alike.
+        """
+        q, qd, qdd, p = (np.asarray(a) for a in (q, qd, qdd, element_loads))
+        dtype = np.result_type(q, qd, qdd, p, float)
+        out = np.zeros(q.shape[:-1] + (self.n_elements,), dtype=dtype)
+        dphi = q @ self.D.T
+        dphid = qd @ self.D.T
+        out[..., self.spring_elements] = -(self.spring_k * dphi + self.spring_c * dphid)
+        if extra_torque is not None:
+            out[..., self.dmf_element] += extra_torque
+        elif self.spring is not None:
+            out[..., self.dmf_element] += self.spring.extra_torque(q @ self.e)
+        acc = qdd @ self.T.T
+        els = self.line.elements
+        for i in range(self.n_elements - 1, 0, -1):
+            if els[i].rigid:
+                nxt = out[..., i + 1] / els[i + 1].ratio if i + 1 < self.n_elements else 0.0
+                out[..., i] = els[i].inertia * acc[..., i] - p[..., i] + nxt
+        return out
+
+
+def load_model(source: str | os.PathLike = 'truck_dmf', *, alpha: float | None = None,
+               theta: float | None = None) -> ReducedModel:
+    """Shortcut: ``load_driveline(...).reduce()``."""
+    return load_driveline(source, alpha=alpha, theta=theta).reduce()

@@ -1,0 +1,331 @@
+"""The DMF spring: piecewise linear in the wind-up (paper Fig. 2, eq. 3 and 8; design.md §4a).
+
+This module is the only place the spring law is written. Every solver (Newmark kernel and its
+reference path, harmonic balance and its Jacobian, Floquet monodromy, non-linear normal modes,
+the live torque read-out, modes per region) asks a :class:`PiecewiseLinearSpring` and nothing
+else.
+
+Wind-up ``w`` [rad] is the primary minus the secondary angle (through the gear ratio), positive
+when the engine drives. The spring has the primary stiffness ``k`` [Nm/rad] around w = 0 and
+stages on both sides:
+
+* drive stages at angles ``0 < theta_1 < theta_2 < ...``: beyond ``theta_i`` the stiffness is
+  ``k (1 + f_i)``;
+* coast stages at ``0 > -thetac_1 > -thetac_2 > ...``: beyond ``-thetac_j`` the stiffness is
+  ``k (1 + fc_j)``.
+
+``f`` is the stage's *stiffness factor* (>= 0). The paper's two-step spring (k, theta, alpha) is
+one drive stage ``(theta, alpha)``: secondary stiffness ``k (1 + alpha)``.
+
+The full torque is ``T(w) = k w + g(w)``. The linear part ``k w`` (and the DMF damping) lives in
+the driveline's K and C; the solvers treat only the *extra torque* ``g`` as non-linear
+(eq. 7-8, with the ``(dphi - theta)`` factor the print drops). ``g`` is 0 in the primary region
+and linear in every stage: ``g(w) = s_r w + o_r`` in region ``r`` (:attr:`slopes`,
+:attr:`offsets`), continuous at the knees. Equivalently it is a sum of ramps (:meth:`ramps`),
+``g(w) = sum_i c_i (w - x_i) [side_i (w - x_i) > 0]``.
+
+Regions are numbered two ways:
+
+* ``index`` 0 .. n_knees, ascending in w (what arrays and the numba kernel use):
+  ``knees[r-1] < w <= knees[r]`` is region r (ties to the primary side);
+* ``stage`` = index - :attr:`primary_index`: 0 primary, +i drive stage i, -j coast stage j.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+
+from dmf_sim.core.errors import ConfigError
+
+__all__ = ['Stage', 'PiecewiseLinearSpring']
+
+
+@dataclass(frozen=True)
+class Stage:
+    """One stage of the spring: beyond ``angle_rad`` (drive: w > angle, coast: w < -angle) the
+    stiffness is ``k (1 + stiffness_factor)``."""
+
+    angle_rad: float
+    stiffness_factor: float
+
+
+def _check_stages(stages, where: str) -> tuple[Stage, ...]:
+    out = []
+    prev = 0.0
+    for i, st in enumerate(stages):
+        a, f = float(st.angle_rad), float(st.stiffness_factor)
+        if not (math.isfinite(a) and a > prev):
+            rule = '> 0 rad' if i == 0 else f'> the previous stage angle {prev:g} rad'
+            raise ConfigError(f'{where}[{i}].angle_rad must be finite and {rule}, got {a!r}')
+        if not (math.isfinite(f) and f >= 0.0):
+            raise ConfigError(f'{where}[{i}].stiffness_factor must be finite and >= 0 '
+                              f'(stage stiffness k (1 + factor) >= k), got {f!r}')
+        out.append(Stage(a, f))
+        prev = a
+    return tuple(out)
+
+
+class PiecewiseLinearSpring:
+    """Piecewise-linear DMF spring of primary stiffness ``k`` [Nm/rad] with drive and coast stages.
+
+    Args:
+        k: primary stiffness [Nm/rad] (> 0).
+        drive: drive stages (:class:`Stage`), angles strictly increasing.
+        coast: coast stages, angles (magnitudes) strictly increasing.
+    """
+
+    def __init__(self, k: float, drive=(), coast=()) -> None:
+        k = float(k)
+        if not (math.isfinite(k) and k > 0):
+            raise ConfigError(f'dmf: primary stiffness k must be finite and > 0 Nm/rad, got {k!r}')
+        self.k = k
+        self.drive = _check_stages(drive, 'dmf.stages')
+        self.coast = _check_stages(coast, 'dmf.coast_stages')
+        nc = len(self.coast)
+        self.primary_index = nc
+        knees = [-s.angle_rad for s in reversed(self.coast)] + [s.angle_rad for s in self.drive]
+        self.knees = np.array(knees, dtype=float)
+        slopes = ([k * s.stiffness_factor for s in reversed(self.coast)] + [0.0]
+                  + [k * s.stiffness_factor for s in self.drive])
+        self.slopes = np.array(slopes, dtype=float)
+        # offsets from continuity of g at the knees, g = 0 in the primary region
+        off = np.zeros(len(slopes))
+        for r in range(nc + 1, len(slopes)):          # drive side, outward
+            x = self.knees[r - 1]
+            off[r] = (self.slopes[r - 1] * x + off[r - 1]) - self.slopes[r] * x
+        for r in range(nc - 1, -1, -1):               # coast side, outward
+            x = self.knees[r]
+            off[r] = (self.slopes[r + 1] * x + off[r + 1]) - self.slopes[r] * x
+        self.offsets = off
+        # region lookup: a wind-up exactly at a coast knee belongs to the primary (inner) side,
+        # exactly at a drive knee too: count coast knees <= w and drive knees < w
+        self._coast_knees = self.knees[:nc]
+        self._drive_knees = self.knees[nc:]
+        for a in (self.knees, self.slopes, self.offsets, self._coast_knees, self._drive_knees):
+            a.setflags(write=False)
+        #: True when no stage changes the stiffness (g = 0 everywhere); the spring is immutable
+        self.is_linear = not np.any(self.slopes)
+
+    # ---- construction shorthands -------------------------------------------------------------
+    @classmethod
+    def two_step(cls, k: float, theta: float, alpha: float, theta_coast: float | None = None,
+                 alpha_coast: float = 0.0) -> 'PiecewiseLinearSpring':
+        """The paper's two-step spring: knee ``theta`` [rad], secondary stiffness k (1 + alpha);
+        optionally a coast knee at ``-theta_coast`` with stiffness k (1 + alpha_coast)."""
+        coast = () if theta_coast is None else (Stage(theta_coast, alpha_coast),)
+        return cls(k, (Stage(theta, alpha),), coast)
+
+    def replace(self, *, k: float | None = None, drive=None, coast=None
+                ) -> 'PiecewiseLinearSpring':
+        """A copy with some of k, drive, coast replaced."""
+        return PiecewiseLinearSpring(self.k if k is None else k,
+                                     self.drive if drive is None else drive,
+                                     self.coast if coast is None else coast)
+
+    def with_first_stage(self, *, theta: float | None = None,
+                         alpha: float | None = None) -> 'PiecewiseLinearSpring':
+        """The paper's (theta, alpha) shorthand applied to the first drive stage (created if the
+        spring has none; later stages must stay beyond the new theta)."""
+        if theta is None and alpha is None:
+            return self
+        if theta is not None and not (math.isfinite(theta) and theta > 0):
+            raise ConfigError(f'dmf: theta must be finite and > 0 rad (first drive stage angle), '
+                              f'got {theta!r}')
+        if alpha is not None and not (math.isfinite(alpha) and alpha >= 0):
+            raise ConfigError(f'dmf: alpha must be finite and >= 0 '
+                              '(first drive stage stiffness factor), '
+                              f'got {alpha!r}')
+        if self.drive:
+            first = self.drive[0]
+            new = Stage(first.angle_rad if theta is None else float(theta),
+                        first.stiffness_factor if alpha is None else float(alpha))
+            return self.replace(drive=(new,) + self.drive[1:])
+        if theta is None or alpha is None:
+            raise ConfigError('dmf: the spring has no drive stage; give both theta and alpha')
+        return self.replace(drive=(Stage(float(theta), float(alpha)),))
+
+    # ---- description -------------------------------------------------------------------------
+    @property
+    def theta(self) -> float:
+        """First drive knee [rad] (the paper's theta; inf without drive stages)."""
+        return self.drive[0].angle_rad if self.drive else math.inf
+
+    @property
+    def alpha(self) -> float:
+        """Stiffness factor of the first drive stage (the paper's alpha; 0 without stages)."""
+        return self.drive[0].stiffness_factor if self.drive else 0.0
+
+    @property
+    def n_regions(self) -> int:
+        return len(self.slopes)
+
+    def stage_of_index(self, index):
+        return np.asarray(index) - self.primary_index
+
+    def region_name(self, stage: int) -> str:
+        """'primary', 'secondary' (first drive stage), 'drive stage i', 'coast', 'coast stage
+        j'."""
+        stage = int(stage)
+        if stage == 0:
+            return 'primary'
+        if stage == 1:
+            return 'secondary'
+        if stage > 1:
+            return f'drive stage {stage}'
+        return 'coast' if stage == -1 else f'coast stage {-stage}'
+
+    def primary_bounds(self) -> tuple[float, float]:
+        """(lower, upper) wind-up [rad] of the primary region (-inf / inf without stages)."""
+        p = self.primary_index
+        lo = float(self.knees[p - 1]) if p > 0 else -math.inf
+        hi = float(self.knees[p]) if p < len(self.knees) else math.inf
+        return lo, hi
+
+    def stage_stiffness(self, stage: int) -> float:
+        """Extra stiffness dg/dw [Nm/rad] in the region of ``stage`` (0 in the primary region)."""
+        return float(self.slopes[int(stage) + self.primary_index])
+
+    def stages(self) -> list[int]:
+        """All stage numbers, ascending in w."""
+        return list(range(-len(self.coast), len(self.drive) + 1))
+
+    def ramps(self) -> list[tuple[float, float, float]]:
+        """g as a sum of ramps: (knee x [rad], slope increment c [Nm/rad], side) with
+        ``g(w) = sum c (w - x) [side (w - x) > 0]`` (side +1 drive, -1 coast)."""
+        out = []
+        prev = 0.0
+        for st in self.drive:
+            s = self.k * st.stiffness_factor
+            out.append((st.angle_rad, s - prev, 1.0))
+            prev = s
+        prev = 0.0
+        for st in self.coast:
+            s = self.k * st.stiffness_factor
+            out.append((-st.angle_rad, s - prev, -1.0))
+            prev = s
+        return [r for r in out if r[1] != 0.0]
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(knees, slopes, offsets) as contiguous float64 arrays for compiled kernels."""
+        return (np.ascontiguousarray(self.knees), np.ascontiguousarray(self.slopes),
+                np.ascontiguousarray(self.offsets))
+
+    def as_dict(self) -> dict:
+        return {'k': self.k,
+                'stages': [{'angle_rad': s.angle_rad, 'stiffness_factor': s.stiffness_factor}
+                           for s in self.drive],
+                'coast_stages': [{'angle_rad': s.angle_rad, 'stiffness_factor': s.stiffness_factor}
+                                 for s in self.coast]}
+
+    def describe(self) -> str:
+        """One line for people: the paper's ``alpha=.. theta=.. rad`` for a two-step spring,
+        every stage (angle rad x stiffness factor) otherwise."""
+        if len(self.drive) == 1 and not self.coast:
+            return f'alpha={self.alpha:g} theta={self.theta:g} rad'
+        if not self.drive and not self.coast:
+            return f'linear k={self.k:g} Nm/rad'
+        st = ', '.join(f'{s.angle_rad:g} rad: +{s.stiffness_factor:g}k' for s in self.drive)
+        co = ', '.join(f'-{s.angle_rad:g} rad: +{s.stiffness_factor:g}k' for s in self.coast)
+        return f'k={self.k:g} Nm/rad, drive stages [{st}], coast stages [{co}]'
+
+    def __repr__(self) -> str:
+        st = ', '.join(f'{s.angle_rad:g}:{s.stiffness_factor:g}' for s in self.drive)
+        co = ', '.join(f'{s.angle_rad:g}:{s.stiffness_factor:g}' for s in self.coast)
+        return f'PiecewiseLinearSpring(k={self.k:g}, drive=[{st}], coast=[{co}])'
+
+    def __eq__(self, other) -> bool:
+        return (isinstance(other, PiecewiseLinearSpring) and self.k == other.k
+                and self.drive == other.drive and self.coast == other.coast)
+
+    def __hash__(self) -> int:
+        return hash((self.k, self.drive, self.coast))
+
+    # ---- the law -----------------------------------------------------------------------------
+    def region_index(self, w):
+        """Region index 0..n_knees of wind-up(s) w (ascending in w; ties to the primary side)."""
+        w = np.asarray(w, dtype=float)
+        idx = np.searchsorted(self._drive_knees, w, side='left')
+        if self.primary_index:
+            idx = idx + np.searchsorted(self._coast_knees, w, side='right')
+        return idx if idx.ndim else int(idx)
+
+    def stage(self, w):
+        """Stage number of wind-up(s) w: 0 primary, +i drive stage i, -j coast stage j."""
+        return self.region_index(w) - self.primary_index
+
+    def region(self, w: float) -> str:
+        """Region name of one wind-up (:meth:`region_name`)."""
+        return self.region_name(self.stage(float(w)))
+
+    def extra_torque(self, w):
+        """Non-linear part g(w) [Nm] of the spring torque (array or scalar wind-up [rad])."""
+        return self.extra_torque_and_stiffness(w)[0]
+
+    def extra_stiffness(self, w):
+        """Tangent dg/dw [Nm/rad]."""
+        return self.slopes[self.region_index(w)]
+
+    def extra_torque_and_stiffness(self, w) -> tuple[np.ndarray, np.ndarray]:
+        """(g(w) [Nm], dg/dw [Nm/rad]) with one region lookup (the AFT's hot path)."""
+        w = np.asarray(w, dtype=float)
+        r = self.region_index(w)
+        s = self.slopes[r]
+        return s * w + self.offsets[r], s
+
+    def torque(self, w):
+        """Full spring torque T(w) = k w + g(w) [Nm]."""
+        return self.k * np.asarray(w, dtype=float) + self.extra_torque(w)
+
+    def stiffness(self, w):
+        """Full tangent stiffness dT/dw [Nm/rad]."""
+        return self.k + self.extra_stiffness(w)
+
+    @cached_property
+    def _g_at_knees(self) -> np.ndarray:
+        """g at each knee [Nm] (from the region below it; g is continuous)."""
+        return self.slopes[:-1] * self.knees + self.offsets[:-1]
+
+    @cached_property
+    def _energy_constants(self) -> np.ndarray:
+        """Per region: constant C_r with G(w) = s_r w^2 / 2 + o_r w + C_r, G(0) = 0 (G' = g)."""
+        s, o, x = self.slopes, self.offsets, self.knees
+        C = np.zeros(len(s))
+        p = self.primary_index
+        for r in range(p + 1, len(s)):
+            xr = x[r - 1]
+            C[r] = ((0.5 * s[r - 1] * xr**2 + o[r - 1] * xr + C[r - 1])
+                    - (0.5 * s[r] * xr**2 + o[r] * xr))
+        for r in range(p - 1, -1, -1):
+            xr = x[r]
+            C[r] = ((0.5 * s[r + 1] * xr**2 + o[r + 1] * xr + C[r + 1])
+                    - (0.5 * s[r] * xr**2 + o[r] * xr))
+        return C
+
+    def extra_energy(self, w):
+        """Potential energy [J] of g alone (G(0) = 0, G' = g)."""
+        w = np.asarray(w, dtype=float)
+        r = self.region_index(w)
+        return 0.5 * self.slopes[r] * w**2 + self.offsets[r] * w + self._energy_constants[r]
+
+    def energy(self, w):
+        """Potential energy of the full spring [J] for wind-up w (zero at w = 0)."""
+        return 0.5 * self.k * np.asarray(w, dtype=float) ** 2 + self.extra_energy(w)
+
+    # ---- inverses ----------------------------------------------------------------------------
+    def windup_for_torque(self, torque: float) -> float:
+        """Inverse of T(w): the static wind-up [rad] carrying ``torque`` [Nm] (T is monotone)."""
+        Tk = self.k * self.knees + self._g_at_knees
+        r = int(np.searchsorted(Tk, torque, side='left'))
+        return float((torque - self.offsets[r]) / (self.k + self.slopes[r]))
+
+    def solve_condensed(self, w_lin: float, h: float) -> float:
+        """Solve ``w + h g(w) = w_lin`` for w (h >= 0 a flexibility [rad/Nm]), exactly.
+
+        ``F(w) = w + h g(w)`` is increasing and linear per region: find the region whose image
+        holds ``w_lin`` and invert there (Newton's method on the piecewise-linear g converges in
+        one step from inside the right region)."""
+        r = int(np.searchsorted(self.knees + h * self._g_at_knees, w_lin, side='left'))
+        return float((w_lin - h * self.offsets[r]) / (1.0 + h * self.slopes[r]))

@@ -1,0 +1,489 @@
+"""Harmonic balance (HBM) of the DMF driveline, condensed onto the DMF wind-up (paper eq. 9-15).
+
+Equation of motion in vibratory DOF coordinates q (model.py, eq. 7 merged):
+
+    J q'' + C q' + K q + e g(e q) = P(psi),     P(psi) = Re( sum_n P_n exp(i n psi/2) )
+
+with ``e`` the wind-up row (w = e q, positive when the engine drives) and ``g(w)`` the extra torque
+of the DMF spring (dmf_sim.physics.spring). The base frequency is omega/2: one 720 deg engine
+cycle, so
+half-orders (the 1.5th order, n = 3) are representable. A periodic steady state is written
+
+    w(psi) = Re( sum_{n=0}^{H} w_n exp(i n psi/2) ),
+    g(w(psi)) ~ Re( sum_{n=0}^{H} g_n exp(i n psi/2) )
+
+(eq. 9: the non-linear torque tau of the paper is e g, truncated to the same H harmonics).
+
+Condensation (the paper's split at the non-linear element, eq. 10-14). Balancing each harmonic of
+the linear chain with the non-linear torque as an extra load (eq. 10-13) gives
+
+    q_n = H_n (P_n - e g_n),        H_n = (K - Om_n^2 J + i Om_n C)^-1,   Om_n = n omega / 2
+
+and the wind-up row of it (eq. 14) is one scalar equation per harmonic:
+
+    r_n = w_n - wlin_n + h_n g_n(w_0..w_H) = 0,     wlin_n = e.H_n P_n,   h_n = e.H_n e    (eq. 15)
+
+``wlin_n`` is the linear (alpha = 0) wind-up response and ``h_n`` the wind-up receptance of the
+chain at the DMF. At n = 0 the free-free chain is singular: the static problem is solved with the
+rigid mode removed (harmonic.solve_static), which is the paper's mean offset delta of eq. (14)
+found from the mean torque. The Newton unknowns are only the 2H + 1 real numbers of the wind-up
+harmonics, whatever the size of the driveline. h_n and wlin_n are computed once per speed — from
+the chain's complex modes, computed once per model (exactly the direct n_dof x n_dof solves, see
+``linear_parts_direct`` and the tests) — so a Newton iteration costs one alternating
+frequency-time (AFT) pass: w(psi_j) on M samples of the cycle -> g(w(psi_j)) -> g_n, with the
+analytic Jacobian dg_n/dw_m = (2/M) sum_j g'(w_j) exp(-i n phi_j) dw_j/dw_m.
+
+All element responses are recovered afterwards: ``q_n = H_n (P_n - e g_n)``.
+
+Real unknown layout used throughout: ``x = [w_0, Re w_1..Re w_H, Im w_1..Im w_H]`` [rad].
+"""
+from __future__ import annotations
+
+import math
+from collections import OrderedDict
+from dataclasses import dataclass
+
+import numpy as np
+
+from dmf_sim.core.errors import ConfigError, ConvergenceError
+from dmf_sim.core.units import RPM_TO_RAD_S
+from dmf_sim.physics.harmonic import solve_harmonic, solve_static
+from dmf_sim.physics.loads import DrivelineLoads
+from dmf_sim.physics.orders import OrderSummary, summarize_orders, synthesize
+from dmf_sim.solvers.continuation import solve_small
+from dmf_sim.solvers.hbm.layout import SUB_HARMONICS, times_h, to_complex, to_real
+from dmf_sim.solvers.stability import FlexibleModes
+
+# ------------------------------------------------------------------------------------------------
+# Options, linear parts, solution point
+# ------------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class HBMOptions:
+    """Numerical settings of the condensed harmonic balance.
+
+    Attributes:
+        n_harmonics: H, highest half-order index kept (24 = 12th engine order).
+        n_time: M, AFT samples per 720 deg cycle (default: 8 (H+1) rounded up to a power of 2).
+        tol: Newton tolerance on the residual's max norm [rad].
+        max_iter: Newton iterations per solve.
+        stall_iter, stall_ratio: Newton gives up when the residual has not fallen below
+            ``stall_ratio`` x its value ``stall_iter`` iterations earlier (a seed outside the
+            basin stalls at a kink of the piecewise-linear residual with ever shorter steps;
+            converging solves take full steps and need at most ~6 iterations).
+        speed_fd_rpm: finite-difference step for the speed derivative of the engine load [rpm].
+    """
+
+    n_harmonics: int = 24
+    n_time: int | None = None
+    tol: float = 1e-10
+    max_iter: int = 40
+    stall_iter: int = 8
+    stall_ratio: float = 0.5
+    speed_fd_rpm: float = 0.05
+
+    def time_samples(self) -> int:
+        if self.n_time is not None:
+            return int(self.n_time)
+        return 1 << int(math.ceil(math.log2(8 * (self.n_harmonics + 1))))
+
+
+@dataclass
+class LinearParts:
+    """Everything the condensed equation needs at one speed (computed once per speed).
+
+    Attributes:
+        speed_rpm: engine speed.
+        omega: crank speed [rad/s].
+        P: (H+1, n_dof) complex generalized load harmonics [Nm].
+        h: (H+1,) complex wind-up receptance e.H_n e [rad/Nm] (h_0 static, real).
+        wlin: (H+1,) complex linear wind-up response e.H_n P_n [rad] (wlin_0: static mean).
+        dh_ds, dwlin_ds: their derivatives with respect to speed [per rpm].
+    """
+
+    speed_rpm: float
+    omega: float
+    P: np.ndarray
+    h: np.ndarray
+    wlin: np.ndarray
+    dh_ds: np.ndarray
+    dwlin_ds: np.ndarray
+
+
+@dataclass
+class HBMPoint:
+    """One periodic steady state of the wind-up (SI; speed in rpm).
+
+    Attributes:
+        speed_rpm: engine speed.
+        x: (2H+1,) real unknowns [w_0, Re w_n, Im w_n] [rad].
+        windup_orders: (H+1,) complex c_n of the wind-up, ``w = Re(sum c_n exp(i n psi/2))`` [rad]
+            (same convention as newmark.SimulationResult.windup_orders).
+        summary: OrderSummary (3rd and 1.5th order amplitude, max/min deviation, mean - theta).
+        residual: max |r_n| at convergence [rad]; iterations: Newton iterations used.
+        stable: Floquet stability (None until computed); multipliers: Floquet multipliers of the
+            full linearized driveline over one 720 deg cycle (rigid-body pair excluded).
+        branch: branch id in a sweep; kind: 'main', 'subharmonic' or 'harmonic'.
+        tangent_speed: d(speed)/d(arc) of the continuation tangent (changes sign at a fold).
+        forced_order_1_5: |wlin_3|, the linear (directly forced) 1.5th-order wind-up [rad].
+    """
+
+    speed_rpm: float
+    x: np.ndarray
+    windup_orders: np.ndarray
+    summary: OrderSummary
+    residual: float
+    iterations: int
+    stable: bool | None = None
+    multipliers: np.ndarray | None = None
+    max_multiplier: float = float('nan')
+    branch: int = 0
+    kind: str = 'main'
+    tangent_speed: float = float('nan')
+    forced_order_1_5: float = float('nan')
+
+    @property
+    def order_3(self) -> float:
+        return self.summary.order_3
+
+    @property
+    def order_1_5(self) -> float:
+        return self.summary.order_1_5
+
+    def subharmonic_amplitude(self) -> float:
+        """rms of the n = 3, 9, 15, 21 wind-up harmonics [rad] (zero on a 120-deg-periodic
+        state)."""
+        c = self.windup_orders
+        return float(np.sqrt(np.sum(np.abs(c[[n for n in SUB_HARMONICS if n < len(c)]]) ** 2)))
+
+    def as_dict(self) -> dict:
+        d = {'speed_rpm': float(self.speed_rpm), 'branch': int(self.branch), 'kind': self.kind,
+             'stable': None if self.stable is None else bool(self.stable)}
+        d.update({k: v for k, v in self.summary.as_dict().items() if k != 'mean'})
+        d['mean'] = float(self.summary.mean)
+        d['max_multiplier'] = float(self.max_multiplier)
+        d['forced_order_1_5'] = float(self.forced_order_1_5)
+        return d
+
+
+# ------------------------------------------------------------------------------------------------
+# The condensed harmonic balance problem
+# ------------------------------------------------------------------------------------------------
+
+class CondensedHBM:
+    """Harmonic balance of one driveline at one load fraction, condensed on the DMF wind-up.
+
+    Args:
+        loads: DrivelineLoads (merged model with a DMF + engine).
+        load: engine load fraction 0..1.
+        options: HBMOptions.
+    """
+
+    def __init__(self, loads: DrivelineLoads, load: float, options: HBMOptions | None = None):
+        self.loads = loads
+        self.load = float(load)
+        self.options = options or HBMOptions()
+        self.model = loads.model
+        if self.model.spring is None:
+            raise ConfigError(f'driveline {self.model.line.name!r} has no dmf section: '
+                              'nothing to condense on')
+        self.spring = self.model.spring
+        self.H = H = int(self.options.n_harmonics)
+        if H < 1:
+            raise ConfigError(f'n_harmonics={H}: must be >= 1')
+        self.M = M = self.options.time_samples()
+        if M < 2 * H + 2:
+            raise ConfigError(f'n_time={M}: needs at least 2 (n_harmonics + 1) = '
+                              f'{2 * H + 2} samples')
+        # AFT matrices on the base angle phi_j = psi_j / 2 = 2 pi j / M (one 720 deg cycle):
+        #   w_j = E x        (E = [1, cos n phi_j, -sin n phi_j])
+        #   G   = F g_j      (F = W E^T: mean and 2/M-weighted Fourier sums)
+        self.phi = 2.0 * np.pi * np.arange(M) / M
+        n = np.arange(1, H + 1)
+        self.E = np.hstack([np.ones((M, 1)), np.cos(np.outer(self.phi, n)),
+                            -np.sin(np.outer(self.phi, n))])
+        weights = np.full(2 * H + 1, 2.0 / M)
+        weights[0] = 1.0 / M
+        self.F = weights[:, None] * self.E.T
+        m = self.model
+        # Static (n = 0) flexibility at the DMF, rigid mode removed: u_0 = K^+ e, h_0 = e.K^+ e.
+        self._u0 = solve_static(m, m.e.astype(float))
+        self._h0 = float(m.e @ self._u0)
+        # Receptances of the flexible chain by its complex modes (computed once per model):
+        # with the J-orthonormal flexible modes Phi, the first-order matrix
+        # A = [[0, I], [-Lam, -Cr]] = V diag(d) V^-1, and for Om > 0
+        #     e.H(Om) f = sum_k (e.Phi V_top)_k (V^-1_bottom Phi^T f)_k / (i Om - d_k).
+        # The rigid-body part of H(Om) (-r r^T / (Om^2 r.J r)) does not reach the wind-up
+        # (e.r = 0).
+        self.modes = FlexibleModes(m)
+        d, V, Vinv = self.modes.eig(0.0)
+        self._d = d
+        self._ell = self.modes.er @ V[:self.modes.nf]                         # (2nf,)
+        self._B = self.modes.Phi @ Vinv[:, self.modes.nf:].T                   # (n_dof, 2nf)
+        self._a = self._ell * (self.modes.er @ Vinv[:, self.modes.nf:].T)      # residues of h
+        self._cache: OrderedDict[float, LinearParts] = OrderedDict()
+        self._primary = self.spring.primary_bounds()           # (lower, upper) wind-up [rad]
+        self._eye = np.eye(2 * H + 1)
+
+    # ---- loads and linear parts -------------------------------------------------------------
+    def dof_loads(self, speed_rpm: float) -> np.ndarray:
+        """(H+1, n_dof) complex generalized load harmonics P_n [Nm] (DrivelineLoads.dof_harmonics
+        truncated or zero-padded to H)."""
+        Pe = self.loads.dof_harmonics(speed_rpm, self.load)
+        if len(Pe) == self.H + 1:
+            return Pe
+        P = np.zeros((self.H + 1, self.model.n_dof), dtype=complex)
+        k = min(len(Pe), self.H + 1)
+        P[:k] = Pe[:k]
+        return P
+
+    def linear_parts(self, speed_rpm: float) -> LinearParts:
+        """h_n, wlin_n and their speed derivatives at ``speed_rpm`` (a few most recent are
+        cached)."""
+        key = float(speed_rpm)
+        lp = self._cache.get(key)
+        if lp is not None:
+            return lp
+        H = self.H
+        omega = key * RPM_TO_RAD_S
+        P = self.dof_loads(key)
+        # engine load derivative by a forward difference (backward at the top of the engine's
+        # range)
+        ds = self.options.speed_fd_rpm
+        if key + ds > self._speed_range()[1]:
+            ds = -ds
+        dP = (self.dof_loads(key + ds) - P) / ds
+        Om = np.arange(1, H + 1) * (omega / 2.0)                 # Om_n = n omega / 2
+        dOm = np.arange(1, H + 1) * (RPM_TO_RAD_S / 2.0)         # dOm_n / ds
+        pole = 1.0 / (1j * Om[:, None] - self._d[None, :])       # (H, 2nf): 1 / (i Om_n - d_k)
+        Q = P[1:] @ self._B                                      # modal load of each harmonic
+        dQ = dP[1:] @ self._B
+        h = np.empty(H + 1, dtype=complex)
+        wlin = np.empty(H + 1, dtype=complex)
+        dh = np.zeros(H + 1, dtype=complex)
+        dw = np.empty(H + 1, dtype=complex)
+        h[0] = self._h0                                          # static: e.K^+ e
+        # static: e.K^+ P_0 (rigid mode removed)
+        wlin[0] = self._u0 @ P[0].real
+        dw[0] = self._u0 @ dP[0].real
+        h[1:] = pole @ self._a
+        wlin[1:] = (Q * pole) @ self._ell
+        pole2 = -1j * pole ** 2                                   # d/dOm of the pole
+        dh[1:] = (pole2 @ self._a) * dOm
+        dw[1:] = (Q * pole2) @ self._ell * dOm + (dQ * pole) @ self._ell
+        lp = LinearParts(key, omega, P, h, wlin, dh, dw)
+        self._cache[key] = lp
+        if len(self._cache) > 16:
+            self._cache.popitem(last=False)
+        return lp
+
+    def linear_response(self, speeds_rpm) -> np.ndarray:
+        """(K, H+1) complex linear wind-up harmonics wlin_n at K speeds at once (same modal
+        receptances as :meth:`linear_parts`): the solution wherever the wind-up stays below the
+        knee."""
+        speeds = np.atleast_1d(np.asarray(speeds_rpm, dtype=float))
+        P = np.stack([self.dof_loads(s) for s in speeds])                       # (K, H+1, n_dof)
+        Om = np.outer(speeds * (RPM_TO_RAD_S / 2.0), np.arange(1, self.H + 1))  # (K, H)
+        pole = 1.0 / (1j * Om[..., None] - self._d)                              # (K, H, 2nf)
+        w = np.empty((len(speeds), self.H + 1), dtype=complex)
+        w[:, 0] = P[:, 0].real @ self._u0
+        w[:, 1:] = ((P[:, 1:] @ self._B) * pole) @ self._ell
+        return w
+
+    def time_series_batch(self, C: np.ndarray, n_samples: int = 1024) -> np.ndarray:
+        """(K, n_samples) wind-up over one cycle for K complex harmonic vectors (K, H+1)."""
+        return synthesize(C, n_samples)
+
+    def static_windup(self, speed_rpm: float, wlin0: float | None = None) -> float:
+        """Wind-up [rad] the mean torque alone causes at ``speed_rpm`` (the non-linear static
+        equilibrium; the paper's green line is theta minus it). ``wlin0``: the linear static
+        wind-up e.K^+ P_0 if already at hand."""
+        if wlin0 is None:
+            wlin0 = float(self.linear_parts(speed_rpm).wlin[0].real)
+        return self.spring.solve_condensed(float(wlin0), self._h0)
+
+    def linear_parts_direct(self, speed_rpm: float
+                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(h, wlin, u, v) by direct complex solves Z_n [u_n, v_n] = [e, P_n]
+        (harmonic.solve_harmonic); u_n = H_n e, v_n = H_n P_n are DOF vectors (H+1, n_dof). Used
+        for recovery and as a check."""
+        m = self.model
+        P = self.dof_loads(speed_rpm)
+        omega = float(speed_rpm) * RPM_TO_RAD_S
+        u = np.empty((self.H + 1, m.n_dof), dtype=complex)
+        v = np.empty((self.H + 1, m.n_dof), dtype=complex)
+        u[0], v[0] = self._u0, solve_static(m, P[0].real)
+        for n in range(1, self.H + 1):
+            sol = solve_harmonic(m, n * omega / 2.0, np.stack([m.e.astype(complex), P[n]], axis=1))
+            u[n], v[n] = sol[:, 0], sol[:, 1]
+        return u @ m.e, v @ m.e, u, v
+
+    def _speed_range(self) -> tuple[float, float]:
+        rng = getattr(self.loads.engine, 'speed_range_rpm', None)
+        return (float(rng[0]), float(rng[1])) if rng is not None else (-np.inf, np.inf)
+
+    # ---- AFT: non-linear torque harmonics and their Jacobian ---------------------------------
+    def windup_samples(self, x: np.ndarray) -> np.ndarray:
+        """w(psi_j) on the M AFT samples of one cycle [rad]."""
+        return self.E @ x
+
+    def nonlinear_harmonics(self, x: np.ndarray, jacobian: bool = False):
+        """G = harmonics of g(w(psi)) on the real layout [Nm] (and dG/dx [Nm/rad], None if zero).
+
+        AFT: w_j = E x -> g(w_j) -> G = F g. Jacobian dG/dx = F diag(g'(w_j)) E, summed over the
+        samples where g' != 0 only (the others contribute nothing).
+        """
+        w = self.E @ x
+        sp = self.spring
+        lo, hi = self._primary
+        if w.max() <= hi and w.min() >= lo:          # primary region only (knees tie to it)
+            G = np.zeros(2 * self.H + 1)
+            return (G, None) if jacobian else G
+        idx = np.flatnonzero((w > hi) | (w < lo))
+        Fa = self.F[:, idx]
+        g, dg = sp.extra_torque_and_stiffness(w[idx])
+        G = Fa @ g
+        if not jacobian:
+            return G
+        return G, (Fa * dg) @ self.E[idx]
+
+    # ---- residual (eq. 15) -------------------------------------------------------------------
+    def residual(self, x: np.ndarray, lp: LinearParts) -> np.ndarray:
+        """r = w - wlin + h g(w) on the real layout [rad]."""
+        G = self.nonlinear_harmonics(x)
+        return x - to_real(lp.wlin, self.H) + times_h(lp.h, G, self.H)
+
+    def residual_and_jacobian(self, x: np.ndarray, lp: LinearParts):
+        """(r, dr/dx) with the analytic AFT Jacobian dr/dx = I + h dG/dx."""
+        G, dG = self.nonlinear_harmonics(x, jacobian=True)
+        if dG is None:                          # no sample beyond a knee: the linear problem
+            return x - to_real(lp.wlin, self.H), self._eye.copy()
+        r = x - to_real(lp.wlin, self.H) + times_h(lp.h, G, self.H)
+        Jx = times_h(lp.h, dG, self.H)
+        Jx[np.diag_indices_from(Jx)] += 1.0
+        return r, Jx
+
+    def residual_speed_derivative(self, x: np.ndarray, lp: LinearParts) -> np.ndarray:
+        """dr/ds [rad/rpm] at fixed wind-up harmonics."""
+        G = self.nonlinear_harmonics(x)
+        return -to_real(lp.dwlin_ds, self.H) + times_h(lp.dh_ds, G, self.H)
+
+    # ---- solving at one speed ------------------------------------------------------------------
+    def linear_solution(self, speed_rpm: float) -> np.ndarray:
+        """x of the linear (primary stiffness, alpha = 0) response, the usual initial guess."""
+        return to_real(self.linear_parts(speed_rpm).wlin, self.H)
+
+    def solve(self, speed_rpm: float, x0: np.ndarray | None = None) -> HBMPoint:
+        """Periodic steady state at ``speed_rpm`` by damped Newton from ``x0`` (default: the
+        static mean plus the linear dynamic response)."""
+        lp = self.linear_parts(speed_rpm)
+        if x0 is None:
+            x0 = self.linear_solution(speed_rpm)
+            x0[0] = self.spring.solve_condensed(float(lp.wlin[0].real), float(lp.h[0].real))
+        x, it, res = self.newton(x0, lp)
+        return self.make_point(speed_rpm, x, res, it)
+
+    def newton(self, x0: np.ndarray, lp: LinearParts) -> tuple[np.ndarray, int, float]:
+        """Damped Newton on r(x) = 0 at fixed speed; returns (x, iterations, max|r|)."""
+        x = np.array(x0, dtype=float)
+        r, Jx = self.residual_and_jacobian(x, lp)
+        nr = np.abs(r).max()
+        history = [nr]
+        opt = self.options
+        for it in range(1, opt.max_iter + 1):
+            if nr <= opt.tol:
+                return x, it - 1, nr
+            stalled = (len(history) > opt.stall_iter
+                       and nr > opt.stall_ratio * history[-1 - opt.stall_iter])
+            if stalled:
+                raise ConvergenceError(f'HBM Newton: stalled at residual {nr:.2e} rad after '
+                                       f'{it - 1} iterations at {lp.speed_rpm:.1f} rpm')
+            dx = solve_small(Jx, -r)
+            lam = 1.0
+            while True:   # backtracking on the max norm (the residual is only piecewise smooth)
+                xn = x + lam * dx
+                rn, Jn = self.residual_and_jacobian(xn, lp)
+                nn = np.abs(rn).max()
+                if nn < nr or lam < 1e-3:
+                    break
+                lam *= 0.5
+            x, r, Jx, nr = xn, rn, Jn, nn
+            history.append(nr)
+        if nr <= self.options.tol:
+            return x, self.options.max_iter, nr
+        raise ConvergenceError(f'HBM Newton: residual {nr:.2e} rad after '
+                               f'{self.options.max_iter} iterations '
+                               f'at {lp.speed_rpm:.1f} rpm')
+
+    def make_point(self, speed_rpm: float, x: np.ndarray, residual: float = 0.0,
+                   iterations: int = 0, samples: np.ndarray | None = None,
+                   wlin0: float | None = None) -> HBMPoint:
+        """Wrap a solution vector with its Fig. 13 summary (``samples``: w over the cycle,
+        ``wlin0``: the linear static wind-up, if at hand)."""
+        c = to_complex(x, self.H)
+        w = self.time_series(x, 1024) if samples is None else samples
+        summ = summarize_orders(c, w, self.spring.theta, self.static_windup(speed_rpm, wlin0))
+        return HBMPoint(float(speed_rpm), np.array(x, dtype=float), c, summ, float(residual),
+                        int(iterations))
+
+    # ---- recovery of the whole driveline --------------------------------------------------------
+    def time_series(self, x: np.ndarray, n_samples: int = 512) -> np.ndarray:
+        """w(psi) on ``n_samples`` uniform points of one cycle (psi = 0 .. 4 pi) [rad]."""
+        return synthesize(to_complex(x, self.H), n_samples)
+
+    def dof_harmonics(self, point: HBMPoint) -> np.ndarray:
+        """(H+1, n_dof) complex DOF harmonics q_n = H_n (P_n - e g_n) [rad] (eq. 10-13), by direct
+        solves of the whole chain (rigid-body motion included for n >= 1, removed at n = 0)."""
+        _, _, u, v = self.linear_parts_direct(point.speed_rpm)
+        g = to_complex(self.nonlinear_harmonics(point.x), self.H)
+        return v - u * g[:, None]
+
+    def element_harmonics(self, point: HBMPoint) -> np.ndarray:
+        """(H+1, m) complex element angle harmonics [rad] through the rigid constraints."""
+        return self.dof_harmonics(point) @ self.model.T.T
+
+    def torque_harmonics(self, point: HBMPoint) -> np.ndarray:
+        """(H+1, m) complex harmonics of the torque transmitted into every element [Nm], positive
+        when driving (ReducedModel.transmitted_torques in the frequency domain): flexible
+        connections -(k + i Om c) dphi_n, plus g_n at the DMF; rigid connections from the element
+        equation T_i = -Om^2 j_i phi_i - p_i + T_{i+1} / r_{i+1}."""
+        m = self.model
+        qn = self.dof_harmonics(point)
+        Om = (np.arange(self.H + 1) * (point.speed_rpm * RPM_TO_RAD_S / 2.0))[:, None]
+        p = np.zeros((self.H + 1, m.n_elements), dtype=complex)
+        pe = self.loads.element_harmonics(point.speed_rpm, self.load)
+        k = min(len(pe), self.H + 1)
+        p[:k] = pe[:k]
+        g = to_complex(self.nonlinear_harmonics(point.x), self.H)
+        return m.transmitted_torques(qn, 1j * Om * qn, -(Om ** 2) * qn, p, extra_torque=g)
+
+    def dof_state(self, point: HBMPoint, psi: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """DOF angles q [rad] and velocities q' [rad/s] at crank angle psi (e.g. to start
+        Newmark)."""
+        qn = self.dof_harmonics(point)
+        n = np.arange(self.H + 1)
+        z = np.exp(1j * n * psi / 2.0)
+        omega = point.speed_rpm * RPM_TO_RAD_S
+        q = np.real(z @ qn)
+        v = np.real((1j * n * omega / 2.0 * z) @ qn)
+        return q, v
+
+    # ---- interface for the continuation (continuation.ContinuationProblem) ----------------------
+    def residual_and_jacobians(self, x: np.ndarray, speed_rpm: float):
+        """(r, dr/dx, dr/ds) at wind-up harmonics x and speed [rpm]."""
+        lp = self.linear_parts(speed_rpm)
+        r, Jx = self.residual_and_jacobian(x, lp)
+        return r, Jx, self.residual_speed_derivative(x, lp)
+
+    # ---- cross-check by time integration -------------------------------------------------------
+    def newmark_from(self, point: HBMPoint, *, perturb: np.ndarray | None = None, **kwargs):
+        """Newmark steady state (newmark.simulate) started on this HBM solution's DOF state at
+        psi = 0 (plus an optional DOF perturbation ``perturb`` [rad]); kwargs go to simulate
+        (dt=1e-4 by default). On a stable solution it stays there; an unstable one is left."""
+        from dmf_sim.solvers.newmark import simulate
+        q, v = self.dof_state(point, 0.0)
+        if perturb is not None:
+            q = q + perturb
+        kwargs.setdefault('dt', 1e-4)
+        return simulate(self.loads, point.speed_rpm, self.load, initial=(q, v), **kwargs)
+

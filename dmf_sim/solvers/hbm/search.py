@@ -1,0 +1,302 @@
+"""The full steady-state search of a speed sweep (issue 13): every stable 720 deg periodic state,
+and what time integration shows where there is none.
+
+After continuation and branch switching (dmf_sim.solvers.hbm.sweep, .branches), at speeds of a
+coarse
+grid (``SearchOptions.seed_step_rpm``) where the wind-up comes within reach of a knee or no
+stable state is known:
+
+1. deflated Newton (dmf_sim.solvers.hbm.deflation) from seeds in the 1.5th-order harmonic (n = 3,
+a few
+   amplitudes and phases) and the 3rd order (n = 6 scaled), every known state at that speed and
+   its 120 deg shifts deflated; every new solution is followed by continuation in both
+   directions (isolated branches and folds included);
+2. where still no stable state is known: a short Newmark shot from the unstable solution,
+   perturbed; if it settles, Newton polishes the state it reached (a new branch); otherwise a
+   long run (dmf_sim.solvers.nonperiodic) labels the speed non-periodic (quasi-periodic, chaotic,
+   long
+   transient or a k x 720 deg periodic state) with its envelope and averaged orders;
+3. grid speeds no branch reached are re-seeded from the linear solution and, failing that,
+   listed as uncovered.
+
+Twins: the 120 deg shifts of a state (dmf_sim.solvers.hbm.layout.shift) are one physical state; its
+multiplicity is the number of distinct shifted solutions Newton confirms.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from dmf_sim.core.errors import ConvergenceError, OperatingRangeError
+from dmf_sim.solvers.hbm.condensed import HBMPoint
+from dmf_sim.solvers.hbm.deflation import DeflatedNewton, DeflationOptions
+from dmf_sim.solvers.hbm.layout import amplitudes, shift, to_complex, to_real
+from dmf_sim.solvers.hbm.results import Branch, NonPeriodicBand, SweepEvent
+from dmf_sim.solvers.newmark import simulate
+from dmf_sim.solvers.nonperiodic import NonPeriodicOptions, analyze
+
+N_SHIFTS = 6        # a 720 deg cycle holds six 120 deg firing intervals
+
+
+@dataclass(frozen=True)
+class SearchOptions:
+    """Settings of the full search.
+
+    Attributes:
+        seed_step_rpm: grid on which seeds are tried [rpm].
+        reach: seed where a known state's wind-up comes within ``reach`` x its peak-to-peak of
+            a knee (or where no stable state is known).
+        amplitudes: n = 3 seed amplitudes, in units of the larger of the 3rd-order amplitude and
+            the distance of the wind-up range to the knee.
+        phases: n = 3 seed phases [rad].
+        scale_3rd: factors applied to the n = 6 harmonic for 3rd-order seeds.
+        newmark_shots: try time integration where no stable state is found.
+        shot_cycles: engine cycles of a Newmark shot.
+        nonperiodic: label speeds without a stable periodic state by a long Newmark run.
+        max_new_branches: stop seeding after this many new branches.
+    """
+
+    seed_step_rpm: float = 20.0
+    reach: float = 1.0
+    amplitudes: tuple[float, ...] = (0.5, 2.0)
+    phases: tuple[float, ...] = (0.0, 0.5 * np.pi)
+    scale_3rd: tuple[float, ...] = (0.5, 2.0)
+    newmark_shots: bool = True
+    shot_cycles: int = 60
+    nonperiodic: bool = True
+    nonperiodic_options: NonPeriodicOptions = NonPeriodicOptions()
+    deflation: DeflationOptions = DeflationOptions(max_iter=25)
+    max_new_branches: int = 16
+
+
+def _interp_states(b: Branch, s: float) -> list[tuple[np.ndarray, bool | None]]:
+    """(x, stable) of branch b at speed s: linear interpolation on every stretch bracketing s;
+    stable only if both ends of the stretch are."""
+    out = []
+    pts = b.points
+    for p, q in zip(pts[:-1], pts[1:]):
+        a, c = p.speed_rpm, q.speed_rpm
+        if not min(a, c) - 1e-9 <= s <= max(a, c) + 1e-9:
+            continue
+        f = 0.0 if abs(c - a) < 1e-12 else (s - a) / (c - a)
+        st = None if p.stable is None or q.stable is None else bool(p.stable and q.stable)
+        out.append((p.x + f * (q.x - p.x), st))
+    if len(pts) == 1 and abs(pts[0].speed_rpm - s) < 1e-9:
+        out.append((pts[0].x, pts[0].stable))
+    return out
+
+
+class StateSearch:
+    """The full search: a mixin of :class:`dmf_sim.solvers.hbm.sweep.SpeedSweep` (it uses the
+    sweep's
+    ``hbm``, ``options``, ``floquet``, ``branches``, ``events``, ``range``, ``_point``,
+    ``_follow``, ``_known``, ``_novelty_tol``, ``_trace``, and ``check_time`` with the
+    ``_phase`` it names)."""
+
+    # ---- known states at one speed --------------------------------------------------------------
+    def states_at(self, s: float) -> list[tuple[np.ndarray, bool | None]]:
+        """(x, stable) of every branch at speed s (interpolated between computed points)."""
+        return [st for b in self.branches for st in _interp_states(b, s)]
+
+    def _deflation_set(self, known: list[np.ndarray]) -> np.ndarray:
+        H = self.hbm.H
+        return np.array([shift(x, k, H) for x in known for k in range(N_SHIFTS)])
+
+    def _reaches_knee(self, x: np.ndarray) -> bool:
+        w = self.hbm.time_series(x, 256)
+        lo, hi = self.hbm.spring.primary_bounds()
+        reach = self.search.reach * max(float(np.ptp(w)), 1e-6)
+        return w.max() > hi - reach or w.min() < lo + reach
+
+    def _knee_gap(self, x: np.ndarray) -> float:
+        """Distance [rad] from the wind-up range of x to the nearest knee (0 if it crosses one)."""
+        w = self.hbm.time_series(x, 256)
+        knees = self.hbm.spring.knees
+        if len(knees) == 0:
+            return np.inf
+        gaps = np.where(knees > w.max(), knees - w.max(),
+                        np.where(knees < w.min(), w.min() - knees, 0.0))
+        return float(gaps.min())
+
+    # ---- seeds ----------------------------------------------------------------------------------
+    def _seeds(self, x: np.ndarray) -> list[tuple[str, np.ndarray]]:
+        H = self.hbm.H
+        c = to_complex(x, H)
+        ref = max(abs(c[6]) if H >= 6 else 0.0, self._knee_gap(x), 1e-3)
+        out = []
+        for a in self.search.amplitudes:
+            for ph in self.search.phases:
+                d = np.zeros(H + 1, dtype=complex)
+                d[3] = a * ref * np.exp(1j * ph)
+                out.append((f'n = 3 seed {a:g} x {ref * 1e3:.1f} mrad, '
+                            f'phase {np.degrees(ph):.0f} deg',
+                            x + to_real(d, H)))
+        if H >= 6:
+            for f in self.search.scale_3rd:
+                d = np.zeros(H + 1, dtype=complex)
+                d[6] = (f - 1.0) * c[6]
+                out.append((f'3rd-order seed x {f:g}', x + to_real(d, H)))
+        return out
+
+    def _deflated_pass(self, s: float, bar) -> int:
+        """Deflated Newton from every seed at speed s; new solutions are followed. Returns the
+        number of new branches."""
+        states = self.states_at(s)
+        if not states:
+            return 0
+        if all(st for _, st in states) and not any(self._reaches_knee(x) for x, _ in states):
+            return 0
+        lp = self.hbm.linear_parts(s)
+        solver = DeflatedNewton(self.hbm, self.search.deflation)
+        known = [x for x, _ in states]
+        new = 0
+        base = min(known, key=self._knee_gap)            # the state nearest a knee
+        for how, x0 in self._seeds(base):
+            sol = solver.solve(lp, x0, self._deflation_set(known))
+            if sol is None:
+                continue
+            q = self.hbm.make_point(s, sol[0], sol[2], sol[1])
+            known.append(q.x)
+            if self._known(q, self._novelty_tol(q)):
+                continue
+            self._follow(q, f'deflated Newton at {s:.0f} rpm from a {how}', bar)
+            new += 1
+            if self._new_branches >= self.search.max_new_branches:
+                return new
+        return new
+
+    # ---- Newmark where no stable state is known -------------------------------------------------
+    def _shot(self, s: float, x: np.ndarray, bar) -> bool:
+        """A Newmark shot from the (unstable) state x perturbed; True if it led to a new branch."""
+        hb = self.hbm
+        p = hb.make_point(s, x)
+        q, v = hb.dof_state(p, 0.0)
+        u = hb.model.e / float(hb.model.e @ hb.model.e)
+        q = q + 0.05 * max(p.order_3, 1e-3) * u
+        try:
+            res = simulate(hb.loads, s, hb.load, initial=(q, v),
+                           max_cycles=self.search.shot_cycles)
+        except OperatingRangeError:
+            return False
+        if not res.steady or res.windup_orders is None:
+            return False
+        c = np.zeros(hb.H + 1, dtype=complex)
+        k = min(len(res.windup_orders), hb.H + 1)
+        c[:k] = res.windup_orders[:k]
+        try:
+            found = hb.solve(s, to_real(c, hb.H))
+        except ConvergenceError:
+            return False
+        if self._known(found, self._novelty_tol(found)):
+            return False
+        self._follow(found, f'Newmark shot at {s:.0f} rpm from the perturbed unstable state, '
+                            'then Newton', bar)
+        return True
+
+    def _nonperiodic(self, s: float, x: np.ndarray):
+        hb = self.hbm
+        p = hb.make_point(s, x)
+        q, v = hb.dof_state(p, 0.0)
+        u = hb.model.e / float(hb.model.e @ hb.model.e)
+        res = analyze(hb.loads, s, hb.load, initial=(q + 1e-4 * u, v),
+                      options=self.search.nonperiodic_options)
+        mc = self.floquet.classify(p.windup_orders, s)
+        return res, mc.kind
+
+    # ---- the search -----------------------------------------------------------------------------
+    @property
+    def _new_branches(self) -> int:
+        return sum(1 for b in self.branches if b.origin.startswith(('deflated', 'Newmark shot')))
+
+    def _seed_grid(self) -> np.ndarray:
+        lo, hi = self.range
+        step = self.search.seed_step_rpm
+        grid = np.arange(np.ceil(lo / step - 1e-9), np.floor(hi / step + 1e-9) + 1) * step
+        return grid[(grid >= lo - 1e-9) & (grid <= hi + 1e-9)]
+
+    def full_search(self, bar) -> None:
+        """Steps 1-3 of the module docstring; results go to ``branches``, ``events``,
+        ``non_periodic`` and ``uncovered``."""
+        grid = self._seed_grid()
+        bar.note('deflated Newton search')
+        self._phase = 'the deflated Newton search'
+        for s in grid:
+            if self._new_branches >= self.search.max_new_branches:
+                break
+            self.check_time(s)
+            self._deflated_pass(float(s), bar)
+        bar.note('stable states check')
+        self._phase = 'the stable-states check (Newmark shots)'
+        unstable_speeds = []
+        for s in grid:
+            self.check_time(s)
+            states = self.states_at(float(s))
+            if states and not any(st for _, st in states):
+                x = max(states, key=lambda t: np.abs(t[0]).max())[0]
+                if self.search.newmark_shots and self._shot(float(s), x, bar):
+                    continue
+                unstable_speeds.append(float(s))
+        if self.search.nonperiodic:
+            self._phase = 'the non-periodic classification'
+            self._label_nonperiodic(unstable_speeds)
+        self._phase = 're-seeding uncovered speeds'
+        self._reseed_uncovered(bar)
+
+    def _label_nonperiodic(self, speeds: list[float]) -> None:
+        step = self.search.seed_step_rpm
+        results = []
+        for s in speeds:
+            self.check_time(s)
+            states = self.states_at(s)
+            if any(st for _, st in states):
+                continue                              # a shot elsewhere found a stable state here
+            x = min(states, key=lambda t: np.abs(t[0][1:]).max())[0]
+            res, kind = self._nonperiodic(s, x)
+            if res.label == 'periodic' and res.period_cycles == 1:
+                continue                              # a periodic state after all (see events)
+            results.append((res, kind))
+        for res, kind in results:
+            band = next((b for b in self.non_periodic
+                         if abs(b.speed_max_rpm - res.speed_rpm) <= step + 1e-6
+                         and b.label == res.label), None)
+            if band is None:
+                band = NonPeriodicBand(res.speed_rpm, res.speed_rpm, res.label, kind, [],
+                                       0.5 * step)
+                self.non_periodic.append(band)
+                self.events.append(SweepEvent('non_periodic', -1, res.speed_rpm,
+                                              f'no stable periodic state: {res.label} '
+                                              f'(periodic solution lost stability by {kind})'))
+            band.speed_max_rpm = res.speed_rpm
+            band.results.append(res)
+
+    def _reseed_uncovered(self, bar) -> None:
+        for s in list(self._uncovered()):
+            self.check_time(s)
+            if any(abs(s - t) < 1e-9 for t in self._uncovered()):
+                try:
+                    first = self.hbm.solve(float(s))
+                except (ConvergenceError, OperatingRangeError):
+                    continue
+                if not self._known(first, self._novelty_tol(first)):
+                    self._follow(first, f'continuation from {s:g} rpm '
+                                        '(re-seeded: no branch reached it)', bar)
+        self.uncovered = [float(s) for s in self._uncovered()]
+
+    # ---- twins ----------------------------------------------------------------------------------
+    def multiplicity(self, p: HBMPoint) -> int:
+        """Number of distinct 120 deg shifts of the state p that are solutions (Newton from each
+        shift; 1 for a 120 deg periodic 3rd-order state, 2 for a 1.5th-order state)."""
+        hb = self.hbm
+        found = [p.x]
+        tol = 1e-6 + 1e-4 * np.abs(p.x).max()
+        for k in range(1, N_SHIFTS):
+            try:
+                q = hb.solve(p.speed_rpm, shift(p.x, k, hb.H))
+            except ConvergenceError:
+                continue
+            if np.abs(amplitudes(q.x, hb.H) - amplitudes(p.x, hb.H)).max() > 10 * tol:
+                continue                              # converged to another state
+            if all(np.abs(q.x - f).max() > tol for f in found):
+                found.append(q.x)
+        return len(found)

@@ -1,0 +1,401 @@
+"""Newmark time integration of the non-linear driveline (design.md §3): integrator and
+``simulate()``.
+
+The step itself (the numba kernel, exact condensed DMF solve region by region of the spring, knee
+crossings on step boundaries) and its readable numpy reference live in
+:mod:`dmf_sim.solvers.newmark_kernel`; see its docstring for the equations. This module owns the
+state and
+the model arrays the kernel works on (:class:`NewmarkIntegrator`: stepping API for the live node),
+and the offline one-call API :func:`simulate` (like ``scipy.integrate.solve_ivp``: one call, one
+:class:`SimulationResult`).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from dmf_sim.core.errors import ConfigError
+from dmf_sim.core.units import RPM_TO_RAD_S
+from dmf_sim.physics.loads import DrivelineLoads
+from dmf_sim.physics.orders import CYCLE_RAD, half_orders, resample_on_angle, summarize_orders
+from dmf_sim.solvers import newmark_kernel as kernel
+
+# ------------------------------------------------------------------------------------------------
+# Integrator object (stepping API for the node; simulate() for offline use)
+# ------------------------------------------------------------------------------------------------
+
+def _tridiag(M: np.ndarray, name: str):
+    off = M - np.diag(np.diag(M)) - np.diag(np.diag(M, 1), 1) - np.diag(np.diag(M, -1), -1)
+    if np.abs(off).max() > 1e-9 * max(np.abs(M).max(), 1.0):
+        raise ConfigError(f'{name} is not tridiagonal: the Newmark kernel needs a series chain')
+    return np.diag(M, -1).copy(), np.diag(M).copy(), np.diag(M, 1).copy()
+
+
+@dataclass
+class StepRecord:
+    """Preallocated buffers the stepper writes into (rows = recorded steps). SI units."""
+
+    t: np.ndarray
+    psi: np.ndarray
+    omega: np.ndarray
+    q: np.ndarray
+    v: np.ndarray
+    a: np.ndarray
+    windup: np.ndarray
+    count: int = 0
+
+    def rows_from(self, start: int) -> 'StepRecord':
+        """A view of these buffers from row ``start`` on (the stepper writes into it)."""
+        return StepRecord(self.t[start:], self.psi[start:], self.omega[start:], self.q[start:],
+                          self.v[start:], self.a[start:], self.windup[start:])
+
+    @classmethod
+    def allocate(cls, rows: int, n_dof: int) -> 'StepRecord':
+        return cls(np.zeros(rows), np.zeros(rows), np.zeros(rows), np.zeros((rows, n_dof)),
+                   np.zeros((rows, n_dof)), np.zeros((rows, n_dof)), np.zeros(rows))
+
+
+@dataclass
+class NewmarkIntegrator:
+    """Fixed-step Newmark integrator on a merged model with the DMF's piecewise-linear spring.
+
+    Args:
+        loads: DrivelineLoads (model + engine).
+        dt: time step [s].
+        beta, gamma: Newmark parameters (average acceleration: 1/4, 1/2).
+        use_numba: compiled kernel (True) or the readable numpy reference path (False).
+    """
+
+    loads: DrivelineLoads
+    dt: float = 1e-4
+    beta: float = 0.25
+    gamma: float = 0.5
+    use_numba: bool = True
+    knee_crossings: int = field(default=0, init=False)
+    steps_secondary: int = field(default=0, init=False)
+    steps_coast: int = field(default=0, init=False)
+    split_steps: int = field(default=0, init=False)
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.dt) and self.dt > 0):
+            raise ConfigError(f'dt={self.dt}: must be > 0 s')
+        if not (0 < self.beta <= 0.5 and 0.5 <= self.gamma <= 1.0
+                and self.beta >= self.gamma / 4 - 1e-12):
+            raise ConfigError(f'beta={self.beta}, gamma={self.gamma}: need 0.5 <= gamma <= 1 and '
+                             'gamma/4 <= beta <= 0.5 (unconditionally stable Newmark)')
+        m = self.loads.model
+        self.model = m
+        n = m.n_dof
+        Jd = np.diag(m.J).copy()
+        if np.abs(m.J - np.diag(Jd)).max() > 0:
+            raise ConfigError('J is not diagonal')
+        Clo, Cd, Cup = _tridiag(m.C, 'C')
+        Klo, Kd, Kup = _tridiag(m.K, 'K')
+        self._Jd = Jd
+        self._system = (Jd, Klo, Kd, Kup, Clo, Cd, Cup, np.ascontiguousarray(m.e, dtype=float),
+                        np.array([self.beta, self.gamma]))
+        # Newmark constants, Thomas factors of Khat = K + a0 J + a1 C and u = Khat^-1 e for dt
+        self._factors = (np.zeros(9), np.zeros(max(n - 1, 1)), np.zeros(n),
+                         np.zeros(max(n - 1, 1)), np.zeros(n))
+        kernel.factor(self.dt, *self._system, *self._factors)
+        sp = m.spring
+        knees, slopes, offsets = (sp.arrays() if sp is not None
+                                  else (np.zeros(0), np.zeros(1), np.zeros(1)))
+        self._spring = (knees, slopes, offsets, sp.primary_index if sp is not None else 0)
+        L = self.loads
+        cyl_dof = np.array([int(np.flatnonzero(row)[0]) for row in L.cylinder_dof_vectors],
+                           dtype=np.int64)
+        cyl_scale = np.array([row[d] for row, d in zip(L.cylinder_dof_vectors, cyl_dof)])
+        self._rear_vec = L.rear_dof_vector.copy()
+        self._B = np.zeros((len(cyl_dof), L.n_max + 1), dtype=complex)
+        self._fixed = np.zeros(n)
+        self._excitation = (self._B, cyl_dof, cyl_scale, L.dalembert_dof.copy(), self._fixed)
+        # state
+        self.q = np.zeros(n)
+        self.v = np.zeros(n)
+        self.a = np.zeros(n)
+        self._scal = np.zeros(6)  # t, psi, omega, omega_target, ramp, omega_dot
+        self._state = (self.q, self.v, self.a, self._scal)
+        self._counters = np.zeros(4, dtype=np.int64)  # crossings, drive stage, coast stage, splits
+        self.load = 0.0
+        self._rear_torque = 0.0
+
+    # ---- state accessors ---------------------------------------------------------------
+    @property
+    def t(self) -> float:
+        return float(self._scal[0])
+
+    @property
+    def psi(self) -> float:
+        """Crank angle of the reference rotation [rad], continuous."""
+        return float(self._scal[1])
+
+    @property
+    def omega(self) -> float:
+        """Reference crank speed [rad/s]."""
+        return float(self._scal[2])
+
+    @property
+    def speed_rpm(self) -> float:
+        return self.omega / RPM_TO_RAD_S
+
+    @property
+    def omega_dot(self) -> float:
+        return float(self._scal[5])
+
+    @property
+    def windup(self) -> float:
+        return float(self.model.e @ self.q)
+
+    # ---- set-up --------------------------------------------------------------------------
+    def update_excitation(self, speed_rpm: float | None = None, load: float | None = None) -> None:
+        """Recompute the cylinder coefficients and rear load for the current (or given) speed
+        [rpm] and load fraction. Called by the stepper between chunks; coefficients are held
+        constant inside a chunk."""
+        if speed_rpm is None:
+            speed_rpm = self.speed_rpm
+        if load is not None:
+            self.load = float(load)
+        L = self.loads
+        A = L.engine.coefficients(speed_rpm, self.load)        # one engine query per update
+        self._B[:] = L.cylinder_coefficients_for(A)
+        self._rear_torque = L.rear_load_for(A)
+        self._fixed[:] = self._rear_vec * self._rear_torque
+
+    def set_target(self, speed_rpm: float, ramp_rpm_per_s: float) -> None:
+        """Ramp the reference speed toward ``speed_rpm`` at ``ramp_rpm_per_s``."""
+        self._scal[3] = speed_rpm * RPM_TO_RAD_S
+        self._scal[4] = ramp_rpm_per_s * RPM_TO_RAD_S
+
+    def reset(self, speed_rpm: float, load: float, psi: float = 0.0, t: float = 0.0) -> None:
+        """Start at constant speed from the static equilibrium under the mean torque.
+
+        The rigid-body velocity is set to the forced periodic rigid-body velocity at psi so the
+        free chain's mean speed does not drift away from the reference (the rigid mode is
+        decoupled: r^T K = r^T C = 0).
+        """
+        self._scal[:] = [t, psi, speed_rpm * RPM_TO_RAD_S, speed_rpm * RPM_TO_RAD_S, 0.0, 0.0]
+        self.update_excitation(speed_rpm, load)
+        st = self.loads.static_state(speed_rpm, load)
+        self.q[:] = st.q
+        self.v[:] = 0.0
+        r = self.model.rigid_mode
+        if r is not None and speed_rpm > 0:
+            P = self.loads.dof_harmonics(speed_rpm, load)
+            Jr = float(r @ self.model.J @ r)
+            n = np.arange(1, P.shape[0])
+            Om = n / 2 * speed_rpm * RPM_TO_RAD_S
+            F = P[1:] @ r
+            # eta'' = Re(F e^{i n psi/2})/Jr  ->  eta' = Re(F/(i Om Jr) e^{i n psi/2})
+            eta_dot = np.real(np.sum(F / (1j * Om * Jr) * np.exp(1j * n * psi / 2)))
+            self.v[:] = r * eta_dot
+        self.a[:] = self.acceleration(self.q, self.v)
+        self._counters[:] = 0
+
+    def acceleration(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """a = J^-1 (P - C v - K q - e g(e q)) at the current psi and omega_dot."""
+        P = self.generalized_load(self.psi, self.omega_dot)
+        m = self.model
+        g = float(m.spring.extra_torque(m.e @ q)) if m.spring is not None else 0.0
+        return (P - m.C @ v - m.K @ q - m.e * g) / self._Jd
+
+    def generalized_load(self, psi, omega_dot=0.0) -> np.ndarray:
+        """Generalized load [Nm] with the current coefficients at crank angle(s) psi [rad]:
+        ``T^T p`` of :meth:`element_loads` (virtual work)."""
+        return self.model.element_vector(self.element_loads(psi, omega_dot))
+
+    def element_loads(self, psi, omega_dot=0.0) -> np.ndarray:
+        """Element torques [Nm] (cylinders, rear, d'Alembert) at crank angle(s) psi."""
+        psi = np.asarray(psi, dtype=float)
+        L = self.loads
+        n = np.arange(self._B.shape[1])
+        cyl = np.real(np.exp(1j * np.multiply.outer(psi, n) / 2) @ self._B.T)
+        p = np.multiply.outer(np.asarray(omega_dot, float) * np.ones_like(psi),
+                              L.dalembert_elements)
+        p[..., L.cylinder_elements] += cyl
+        p[..., L.rear_element] += self._rear_torque
+        return p
+
+    # ---- stepping ------------------------------------------------------------------------
+    def advance(self, nsteps: int, record: StepRecord | None = None, stride: int = 1) -> int:
+        """Advance ``nsteps`` steps; every ``stride`` steps write the state into ``record``
+        (rows from 0; needs nsteps // stride rows). Returns the number of rows written."""
+        if record is None:
+            record = self._scratch(max(nsteps // stride, 1))
+            stride = max(nsteps, 1)
+        out = (record.t, record.psi, record.omega, record.q, record.v, record.a, record.windup)
+        if self.use_numba:
+            rows = kernel.advance_compiled(int(nsteps), int(stride), self._state, self._system,
+                                           self._factors, self._spring, self._excitation, out,
+                                           self._counters)
+        else:
+            rows = kernel.advance_reference(int(nsteps), int(stride), self._state, self._system,
+                                            self._factors, self.model.spring, self._excitation,
+                                            out, self._counters)
+        record.count = rows
+        self.knee_crossings, self.steps_secondary, self.steps_coast, self.split_steps = (
+            self._counters.tolist())
+        return rows
+
+    def _scratch(self, rows: int) -> StepRecord:
+        buf = getattr(self, '_scratch_buf', None)
+        if buf is None or buf.t.shape[0] < rows:
+            buf = StepRecord.allocate(rows, self.model.n_dof)
+            self._scratch_buf = buf
+        return buf
+
+
+# ------------------------------------------------------------------------------------------------
+# Offline: one call, one result (like scipy.integrate.solve_ivp)
+# ------------------------------------------------------------------------------------------------
+
+@dataclass
+class SimulationResult:
+    """Result of :func:`simulate` (SI units; speed in rpm as named).
+
+    Attributes:
+        t, psi, speed_rpm, windup: recorded time [s], crank angle [rad], reference speed, DMF
+            wind-up [rad] (every ``record_stride`` steps; for steady-state runs, the last cycles).
+        q, v: recorded DOF angles [rad] and velocities [rad/s].
+        steady: whether the cycle-to-cycle change fell below ``steady_tol``.
+        cycles: engine cycles integrated; change: the last relative cycle-to-cycle change.
+        windup_orders: complex half-order coefficients c_n of the wind-up over the last
+            ``eval_cycles`` whole cycles (steady-state runs; None otherwise).
+        summary: OrderSummary of the wind-up (3rd/1.5th order, max/min deviation, mean - theta).
+        knee_crossings: DMF region changes counted by the kernel.
+        message: human-readable status.
+    """
+
+    t: np.ndarray
+    psi: np.ndarray
+    speed_rpm: np.ndarray
+    windup: np.ndarray
+    q: np.ndarray
+    v: np.ndarray
+    steady: bool
+    cycles: int
+    change: float
+    windup_orders: np.ndarray | None
+    summary: object | None
+    knee_crossings: int
+    message: str
+    integrator: NewmarkIntegrator | None = None
+
+    @property
+    def success(self) -> bool:
+        return self.steady
+
+
+def simulate(loads: DrivelineLoads, speed_rpm: float, load: float, *, t_end: float | None = None,
+             target_speed_rpm: float | None = None, ramp_rpm_per_s: float = 0.0,
+             dt: float = 1e-4, beta: float = 0.25, gamma: float = 0.5,
+             steady_tol: float = 1e-4, min_cycles: int = 5, max_cycles: int = 400,
+             eval_cycles: int = 4, record_stride: int = 1, chunk_s: float = 0.01,
+             initial: tuple[np.ndarray, np.ndarray] | None = None, use_numba: bool = True,
+             progress: bool = False) -> SimulationResult:
+    """Integrate the driveline at speed ``speed_rpm`` and load fraction ``load``.
+
+    Without ``t_end``: run whole engine cycles at constant speed until the wind-up's
+    cycle-to-cycle change (max abs difference over one cycle on a crank-angle grid, relative to
+    its peak-to-peak) is below ``steady_tol``, then return the wind-up orders of the last
+    ``eval_cycles`` cycles. With ``t_end`` [s]: a transient run, optionally ramping toward
+    ``target_speed_rpm`` at ``ramp_rpm_per_s``, recording every ``record_stride`` steps; the
+    excitation coefficients follow the speed every ``chunk_s`` seconds.
+    ``initial`` = (q, v) replaces the static equilibrium start.
+    """
+    integ = NewmarkIntegrator(loads, dt=dt, beta=beta, gamma=gamma, use_numba=use_numba)
+    integ.reset(speed_rpm, load)
+    if initial is not None:
+        integ.q[:] = initial[0]
+        integ.v[:] = initial[1]
+        integ.a[:] = integ.acceleration(integ.q, integ.v)
+    theta = loads.model.spring.theta if loads.model.spring is not None else 0.0
+    n_max = loads.n_max
+
+    if t_end is not None:
+        if target_speed_rpm is not None:
+            integ.set_target(target_speed_rpm, ramp_rpm_per_s)
+        n_total = int(round(t_end / dt))
+        chunk = max(int(round(chunk_s / dt)) // record_stride, 1) * record_stride
+        rows_total = n_total // record_stride
+        rec = StepRecord.allocate(rows_total, loads.model.n_dof)
+        done = row = 0
+        bar = _bar(progress, n_total, 'simulate')
+        while done < n_total:
+            k = min(chunk, n_total - done)
+            k -= k % record_stride if k >= record_stride else 0
+            k = max(k, 1)
+            row += integ.advance(k, rec.rows_from(row), record_stride)
+            done += k
+            integ.update_excitation()
+            bar.update(k)
+        bar.close()
+        return SimulationResult(rec.t[:row], rec.psi[:row], rec.omega[:row] / RPM_TO_RAD_S,
+                                rec.windup[:row], rec.q[:row], rec.v[:row], steady=False,
+                                cycles=int(integ.psi // CYCLE_RAD), change=float('nan'),
+                                windup_orders=None, summary=None,
+                                knee_crossings=integ.knee_crossings,
+                                message=f'transient run of {t_end} s', integrator=integ)
+
+    # --- steady state at constant speed, cycle by cycle -----------------------------------
+    omega = speed_rpm * RPM_TO_RAD_S
+    steps_per_cycle = CYCLE_RAD / (omega * dt)
+    keep = eval_cycles + 2
+    cap = int(np.ceil(steps_per_cycle)) + 2
+    ring = [StepRecord.allocate(cap, loads.model.n_dof) for _ in range(keep)]
+    grid_pts = 256
+
+    def stitched(first: int, last: int, attr: str) -> np.ndarray:
+        recs = [ring[j % keep] for j in range(first, last + 1)]
+        return np.concatenate([getattr(r, attr)[:r.count] for r in recs])
+
+    prev = None
+    change = np.inf
+    steady = False
+    cyc = 0
+    bar = _bar(progress, max_cycles, f'steady state {speed_rpm:.0f} rpm')
+    for cyc in range(1, max_cycles + 1):
+        # record j covers crank angle [(j-1) 4pi + ~2 omega dt, j 4pi + ~2 omega dt)
+        nsteps = int(np.ceil((cyc * CYCLE_RAD - integ.psi) / (omega * dt))) + 1
+        integ.advance(nsteps, ring[cyc % keep], 1)
+        if cyc >= 2:
+            cur = resample_on_angle(stitched(cyc - 1, cyc, 'psi'),
+                                    stitched(cyc - 1, cyc, 'windup'),
+                                    (cyc - 1) * CYCLE_RAD, 1, grid_pts)
+            if prev is not None:
+                change = float(np.max(np.abs(cur - prev))) / max(float(np.ptp(cur)), 1e-9)
+                if cyc >= min_cycles and change < steady_tol:
+                    steady = True
+                    bar.update(1)
+                    break
+            prev = cur
+        bar.update(1)
+    bar.close()
+    n_eval = max(min(eval_cycles, cyc - 1), 1)
+    first = cyc - n_eval
+    psi, w = stitched(first, cyc, 'psi'), stitched(first, cyc, 'windup')
+    start = (cyc - n_eval) * CYCLE_RAD
+    samples = resample_on_angle(psi, w, start, n_eval, grid_pts)
+    coeffs = half_orders(samples, n_max, n_eval)
+    static = (loads.static_state(speed_rpm, load).windup if loads.model.spring is not None
+              else np.nan)
+    summ = summarize_orders(coeffs, samples, theta, static)
+    cat = lambda attr: stitched(first, cyc, attr)  # noqa: E731
+    msg = (f'steady after {cyc} cycles (change {change:.2e})' if steady
+           else f'not steady after {cyc} cycles (change {change:.2e} > {steady_tol:g})')
+    return SimulationResult(cat('t'), psi, np.full(len(psi), speed_rpm), w, cat('q'), cat('v'),
+                            steady=steady, cycles=cyc, change=change, windup_orders=coeffs,
+                            summary=summ, knee_crossings=integ.knee_crossings, message=msg,
+                            integrator=integ)
+
+
+def _bar(enabled: bool, total: int, desc: str):
+    if enabled:
+        from tqdm import tqdm
+        return tqdm(total=total, desc=desc, unit='step' if total > 1000 else 'cycle', leave=False)
+
+    class _Null:
+        def update(self, n): pass
+        def close(self): pass
+    return _Null()

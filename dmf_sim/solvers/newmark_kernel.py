@@ -1,0 +1,410 @@
+"""The Newmark step of the DMF driveline — the live node's hot loop — and its readable reference.
+
+Equation of motion in vibratory DOF coordinates q (deviation from the reference rotation psi/R_i):
+
+    J q'' + C q' + K q + e g(e q) = P(psi) + a_dal domega/dt                    (eq. 7, merged)
+
+with g the DMF spring's extra torque (dmf_sim.physics.spring) and e the wind-up row. Newmark's
+scheme
+(beta, gamma; average acceleration beta = 1/4, gamma = 1/2 by default) gives per step of length h
+
+    Khat q_{n+1} + e g(e q_{n+1}) = rhs,   Khat = K + a0 J + a1 C,
+    rhs = P_{n+1} + J (a0 q_n + a2 v_n + a3 a_n) + C (a1 q_n + a4 v_n + a5 a_n).
+
+Condensed on the wind-up (u = Khat^-1 e, h_c = e.u): ``w + h_c g(w) = w_lin = e.Khat^-1 rhs``, a
+scalar equation solved exactly region by region of the piecewise-linear spring (the region whose
+image under F(w) = w + h_c g(w) holds w_lin; one Newton step from inside it is exact), then
+``q_{n+1} = Khat^-1 rhs - u g(w)``.
+
+Knee crossings: a step whose wind-up changes region is redone in pieces that end at the knees
+it crosses (time from linear interpolation of w), so every kink of the spring falls on a step
+boundary and the trapezoidal rule never straddles one.
+
+Khat is tridiagonal (a chain of merged inertias), so each step is O(n): a Thomas solve with a
+precomputed factorization. :func:`advance_compiled` is the numba kernel (arguments packed in
+tuples, see :class:`dmf_sim.solvers.newmark.NewmarkIntegrator`; the cold parts — factorization,
+region
+lookup — are small jitted helpers); :func:`advance_reference` is the readable numpy path with
+dense solves and the spring object itself, which the tests compare against.
+
+Speed: the reference crank speed omega ramps toward its target at ``ramp`` [rad/s^2]; the
+excitation phase is psi = integral of omega dt (trapezoid, exact for a linear ramp), never
+omega t. The reference acceleration enters as the balanced d'Alembert load (see loads.py).
+
+Packed arguments (all float64 unless noted):
+
+* ``state`` = (q, v, a, scal) with scal = [t, psi, omega, omega_target, ramp, omega_dot]
+* ``system`` = (Jd, Klo, Kd, Kup, Clo, Cd, Cup, e, params) with params = [beta, gamma]
+* ``factors`` = (coef, f_lo, f_inv, f_cp, u): Newmark constants coef = [h, a0..a5, gamma, h_c],
+  Thomas factors of Khat for the regular step, u = Khat^-1 e
+* ``spring`` = (knees, slopes, offsets, primary_index) from ``PiecewiseLinearSpring.arrays()``
+* ``excitation`` = (B complex (n_cyl, N+1), cyl_dof int64, cyl_scale, dal, fixed)
+* ``out`` = (t, psi, omega, q, v, a, w) recorded every ``stride`` steps
+* ``counters`` int64 = [knee crossings, steps beyond a drive knee, steps beyond a coast knee,
+  steps split at a knee]
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+try:
+    import numba
+    HAVE_NUMBA = True
+except ImportError:  # pragma: no cover - numba is a hard dependency, kept optional for readability
+    HAVE_NUMBA = False
+
+MAX_PIECES = 8           # a step is split at most this many times (knees crossed in one step)
+SPLIT_MIN_FRACTION = 0.01  # crossings this close to a step end are not split (no tiny steps)
+
+
+# ------------------------------------------------------------------------------------------------
+# Small helpers (plain Python; compiled by numba below)
+# ------------------------------------------------------------------------------------------------
+
+def newmark_constants(h, beta, gam, coef):
+    """coef[0:8] = [h, a0, a1, a2, a3, a4, a5, gamma] for a step h [s]."""
+    coef[0] = h
+    coef[1] = 1.0 / (beta * h * h)
+    coef[2] = gam / (beta * h)
+    coef[3] = 1.0 / (beta * h)
+    coef[4] = 1.0 / (2.0 * beta) - 1.0
+    coef[5] = gam / beta - 1.0
+    coef[6] = h * (gam / (2.0 * beta) - 1.0)
+    coef[7] = gam
+
+
+def thomas(f_lo, f_inv, f_cp, rhs, x):
+    """Solve Khat x = rhs with the precomputed Thomas factors (O(n))."""
+    n = rhs.shape[0]
+    x[0] = rhs[0] * f_inv[0]
+    for i in range(1, n):
+        x[i] = (rhs[i] - f_lo[i - 1] * x[i - 1]) * f_inv[i]
+    for i in range(n - 2, -1, -1):
+        x[i] -= f_cp[i] * x[i + 1]
+
+
+def factor(h, Jd, Klo, Kd, Kup, Clo, Cd, Cup, e, params, coef, f_lo, f_inv, f_cp, u):
+    """Newmark constants for a step h [s], Thomas factors of Khat = K + a0 J + a1 C, u = Khat^-1 e
+    and h_c = e.u (into coef[8]), all in place (``system`` unpacked: Jd..e,
+    params = [beta, gamma])."""
+    n = Jd.shape[0]
+    newmark_constants(h, params[0], params[1], coef)
+    a0 = coef[1]
+    a1 = coef[2]
+    f_inv[0] = 1.0 / (Kd[0] + a0 * Jd[0] + a1 * Cd[0])
+    for i in range(1, n):
+        f_lo[i - 1] = Klo[i - 1] + a1 * Clo[i - 1]
+        f_cp[i - 1] = (Kup[i - 1] + a1 * Cup[i - 1]) * f_inv[i - 1]
+        f_inv[i] = 1.0 / (Kd[i] + a0 * Jd[i] + a1 * Cd[i] - f_lo[i - 1] * f_cp[i - 1])
+    thomas(f_lo, f_inv, f_cp, e, u)
+    hc = 0.0
+    for i in range(n):
+        hc += e[i] * u[i]
+    coef[8] = hc
+
+
+def region_of(w, knees, primary):
+    """Region index of wind-up w (count of knees below w; ties go to the primary side)."""
+    r = 0
+    nk = knees.shape[0]
+    while r < nk and (w > knees[r] or (w == knees[r] and r < primary)):
+        r += 1
+    return r
+
+
+def knee_between(r_from, r_to, knees):
+    """The first knee crossed going from region r_from toward region r_to."""
+    return knees[r_from] if r_to > r_from else knees[r_from - 1]
+
+
+# ------------------------------------------------------------------------------------------------
+# The kernel
+# ------------------------------------------------------------------------------------------------
+
+def advance_kernel(nsteps, stride, state, system, factors, spring, excitation, out, counters):
+    """Advance ``nsteps`` Newmark steps of factors[0][0] seconds in place; every ``stride`` steps
+    write the state into ``out`` (row j = step // stride). Returns the rows written.
+
+    One loop body does every (sub)step: the regular step with the precomputed factors, or a piece
+    of a step split at a knee with factors for its length (:func:`factor`). The body is written
+    out here rather than called: numba's inlining of helpers that take many arrays costs 25-35 %
+    of the step time (measured with numba 0.68), and this loop is the node's hot path.
+    """
+    q, v, a, scal = state
+    Jd, Klo, Kd, Kup, Clo, Cd, Cup, e, params = system
+    coef, f_lo, f_inv, f_cp, u = factors
+    knees, slopes, offsets, primary = spring
+    B, cyl_dof, cyl_scale, dal, fixed = excitation
+    out_t, out_psi, out_omega, out_q, out_v, out_a, out_w = out
+    n = q.shape[0]
+    n_cyl = B.shape[0]
+    n_h = B.shape[1]
+    nk = knees.shape[0]
+    dt = coef[0]
+    rhs = np.empty(n)
+    y = np.empty(n)
+    x = np.empty(n)
+    zp = np.empty(n_h, dtype=np.complex128)
+    q0 = np.empty(n)                 # state at the start of the (rest of the) step
+    v0 = np.empty(n)
+    a00 = np.empty(n)
+    s0 = np.empty(6)
+    s_coef = np.empty(9)             # factors of a split piece
+    s_lo = np.empty(max(n - 1, 1))
+    s_inv = np.empty(n)
+    s_cp = np.empty(max(n - 1, 1))
+    s_u = np.empty(n)
+    w_prev = 0.0
+    for i in range(n):
+        w_prev += e[i] * q[i]
+    r_prev = region_of(w_prev, knees, primary)
+    w = w_prev
+    r = r_prev
+    j = 0
+    for step in range(nsteps):
+        for i in range(n):
+            q0[i] = q[i]
+            v0[i] = v[i]
+            a00[i] = a[i]
+        for i in range(6):
+            s0[i] = scal[i]
+        phase = 0            # 0: the regular step; 1: a piece ending at a knee; 2: the rest
+        pieces = 0
+        h_rem = dt
+        frac = 1.0
+        w_a = w_prev         # wind-up and region at the start of the rest of the step
+        r_a = r_prev
+        while True:
+            if phase == 0:
+                c = coef
+                fl = f_lo
+                fi = f_inv
+                fc = f_cp
+                uu = u
+            else:
+                c = s_coef
+                fl = s_lo
+                fi = s_inv
+                fc = s_cp
+                uu = s_u
+            h = c[0]
+            a0 = c[1]
+            a1 = c[2]
+            a2 = c[3]
+            a3 = c[4]
+            a4 = c[5]
+            a5 = c[6]
+            gam = c[7]
+            hc = c[8]
+            # --- reference speed and excitation phase psi = integral of omega dt ------------
+            omega = scal[2]
+            diff = scal[3] - omega
+            lim = scal[4] * h
+            if diff > lim:
+                diff = lim
+            elif diff < -lim:
+                diff = -lim
+            omega_new = omega + diff
+            omega_dot = diff / h
+            psi = scal[1] + 0.5 * (omega + omega_new) * h
+            scal[0] += h
+            scal[1] = psi
+            scal[2] = omega_new
+            scal[5] = omega_dot
+            # --- load: eq. (16)-(17) with z = exp(i psi/2), plus fixed and d'Alembert loads --
+            for i in range(n):
+                rhs[i] = fixed[i] + dal[i] * omega_dot
+            z = complex(math.cos(0.5 * psi), math.sin(0.5 * psi))
+            zp[0] = 1.0
+            for k in range(1, n_h):
+                zp[k] = zp[k - 1] * z
+            for cc in range(n_cyl):
+                acc = 0.0
+                for k in range(n_h):
+                    acc += B[cc, k].real * zp[k].real - B[cc, k].imag * zp[k].imag
+                rhs[cyl_dof[cc]] += cyl_scale[cc] * acc
+            # --- rhs += J (a0 q + a2 v + a3 a) + C (a1 q + a4 v + a5 a) ------------------
+            for i in range(n):
+                y[i] = a1 * q[i] + a4 * v[i] + a5 * a[i]
+                rhs[i] += Jd[i] * (a0 * q[i] + a2 * v[i] + a3 * a[i]) + Cd[i] * y[i]
+            for i in range(n - 1):
+                rhs[i] += Cup[i] * y[i + 1]
+                rhs[i + 1] += Clo[i] * y[i]
+            # --- Thomas solve Khat x = rhs ---------------------------------------------------
+            x[0] = rhs[0] * fi[0]
+            for i in range(1, n):
+                x[i] = (rhs[i] - fl[i - 1] * x[i - 1]) * fi[i]
+            for i in range(n - 2, -1, -1):
+                x[i] -= fc[i] * x[i + 1]
+            # --- condensed DMF equation w + hc g(w) = w_lin, exact in the region that holds it
+            w_lin = 0.0
+            for i in range(n):
+                w_lin += e[i] * x[i]
+            r = 0
+            while r < nk and knees[r] + hc * (slopes[r] * knees[r] + offsets[r]) < w_lin:
+                r += 1
+            w = (w_lin - hc * offsets[r]) / (1.0 + hc * slopes[r])
+            g = slopes[r] * w + offsets[r]
+            for i in range(n):
+                qn = x[i] - uu[i] * g
+                an = a0 * (qn - q[i]) - a2 * v[i] - a3 * a[i]
+                v[i] = v[i] + h * ((1.0 - gam) * a[i] + gam * an)
+                a[i] = an
+                q[i] = qn
+            # --- knee crossings: redo the step in pieces that end at the knees -------------
+            if phase == 1:               # landed on a knee: try the rest of the step from here
+                w_a = w
+                r_a = r
+                pieces += 1
+                counters[3] += 1
+                h_rem -= frac * h_rem
+                for i in range(n):
+                    q0[i] = q[i]
+                    v0[i] = v[i]
+                    a00[i] = a[i]
+                for i in range(6):
+                    s0[i] = scal[i]
+                factor(h_rem, Jd, Klo, Kd, Kup, Clo, Cd, Cup, e, params, s_coef, s_lo, s_inv,
+                       s_cp, s_u)
+                phase = 2
+                continue
+            if phase == 0 and r != r_prev:
+                counters[0] += abs(r - r_prev)
+            if r == r_a or pieces >= MAX_PIECES:
+                break
+            frac = (knee_between(r_a, r, knees) - w_a) / (w - w_a) if w != w_a else 0.5
+            if not (SPLIT_MIN_FRACTION < frac < 1.0 - SPLIT_MIN_FRACTION):
+                break                    # the crossing is at an end of the step: keep it
+            for i in range(n):           # back to the start of the rest, then to the knee
+                q[i] = q0[i]
+                v[i] = v0[i]
+                a[i] = a00[i]
+            for i in range(6):
+                scal[i] = s0[i]
+            factor(frac * h_rem, Jd, Klo, Kd, Kup, Clo, Cd, Cup, e, params, s_coef, s_lo, s_inv,
+                   s_cp, s_u)
+            phase = 1
+        if r > primary:
+            counters[1] += 1
+        elif r < primary:
+            counters[2] += 1
+        r_prev = r
+        w_prev = w
+        if (step + 1) % stride == 0:
+            out_t[j] = scal[0]
+            out_psi[j] = scal[1]
+            out_omega[j] = scal[2]
+            out_w[j] = w
+            for i in range(n):
+                out_q[j, i] = q[i]
+                out_v[j, i] = v[i]
+                out_a[j, i] = a[i]
+            j += 1
+    return j
+
+
+if HAVE_NUMBA:
+    _jit = numba.njit(cache=True, nogil=True, error_model='numpy')
+    newmark_constants = _jit(newmark_constants)
+    thomas = _jit(thomas)
+    factor = _jit(factor)
+    region_of = _jit(region_of)
+    knee_between = _jit(knee_between)
+    advance_compiled = _jit(advance_kernel)
+else:  # pragma: no cover
+    advance_compiled = advance_kernel
+
+
+# ------------------------------------------------------------------------------------------------
+# The readable reference: dense numpy solves and the spring object itself
+# ------------------------------------------------------------------------------------------------
+
+def advance_reference(nsteps, stride, state, system, factors, spring_obj, excitation, out,
+                      counters):
+    """Readable numpy version of :func:`advance_kernel` (same packed arguments, but the spring
+    object instead of its arrays): dense matrices, ``numpy.linalg.solve`` and Newton on the
+    condensed DMF equation with the spring's own torque and tangent."""
+    q, v, a, scal = state
+    Jd, Klo, Kd, Kup, Clo, Cd, Cup, e, (beta, gam) = system
+    dt = factors[0][0]
+    B, cyl_dof, cyl_scale, dal, fixed = excitation
+    K = np.diag(Kd) + np.diag(Kup, 1) + np.diag(Klo, -1)
+    C = np.diag(Cd) + np.diag(Cup, 1) + np.diag(Clo, -1)
+    J = np.diag(Jd)
+    nh = np.arange(B.shape[1])
+    sp = spring_obj
+    p = sp.primary_index if sp is not None else 0
+
+    def g_of(w):
+        if sp is None:
+            return 0.0, 0.0
+        return float(sp.extra_torque(w)), float(sp.extra_stiffness(w))
+
+    def region(w):
+        return int(sp.region_index(w)) if sp is not None else 0
+
+    def step(h, q, v, a):
+        c = np.zeros(8)
+        newmark_constants(h, beta, gam, c)
+        _, a0, a1, a2, a3, a4, a5, _ = c
+        Khat = K + a0 * J + a1 * C
+        omega = scal[2]
+        d = np.clip(scal[3] - omega, -scal[4] * h, scal[4] * h)
+        scal[5] = d / h
+        scal[1] += (omega + 0.5 * d) * h                         # psi = integral of omega
+        scal[2] = omega + d
+        scal[0] += h
+        P = fixed + dal * scal[5]
+        np.add.at(P, cyl_dof, cyl_scale * np.real(B @ np.exp(1j * nh * scal[1] / 2)))   # eq. (17)
+        rhs = P + J @ (a0 * q + a2 * v + a3 * a) + C @ (a1 * q + a4 * v + a5 * a)
+        x = np.linalg.solve(Khat, rhs)
+        uu = np.linalg.solve(Khat, e)
+        hc, w_lin = e @ uu, e @ x
+        w = w_lin                                  # Newton on w + hc g(w) = w_lin
+        for _ in range(4 * (len(sp.knees) + 1) if sp is not None else 1):
+            g, dg = g_of(w)
+            res = w + hc * g - w_lin
+            if abs(res) <= 1e-15 * max(1.0, abs(w_lin)):
+                break
+            w -= res / (1 + hc * dg)
+        qn = x - uu * g_of(w)[0]
+        an = a0 * (qn - q) - a2 * v - a3 * a
+        return qn, v + h * ((1 - gam) * a + gam * an), an, w
+
+    w_prev = float(e @ q)
+    r_prev = region(w_prev)
+    j = 0
+    for n_step in range(nsteps):
+        saved = (q.copy(), v.copy(), a.copy(), scal.copy())
+        qn, vn, an, w = step(dt, q, v, a)                    # regular trial
+        r = region(w)
+        if r != r_prev:
+            counters[0] += abs(r - r_prev)
+            w_a, r_a, h_rem = w_prev, r_prev, dt
+            for _ in range(MAX_PIECES):
+                if r == r_a:
+                    break
+                knee = sp.knees[r_a] if r > r_a else sp.knees[r_a - 1]
+                frac = (knee - w_a) / (w - w_a) if w != w_a else 0.5
+                if not SPLIT_MIN_FRACTION < frac < 1 - SPLIT_MIN_FRACTION:
+                    break                                    # keep the trial as it is
+                scal[:] = saved[3]                           # back to the start of the rest
+                qk, vk, ak, w_a = step(frac * h_rem, *saved[:3])   # piece ending at the knee
+                r_a = region(w_a)
+                counters[3] += 1
+                h_rem -= frac * h_rem
+                saved = (qk, vk, ak, scal.copy())
+                qn, vn, an, w = step(h_rem, qk, vk, ak)     # trial of the rest
+                r = region(w)
+        q[:], v[:], a[:] = qn, vn, an
+        counters[1] += r > p
+        counters[2] += r < p
+        r_prev, w_prev = r, w
+        if (n_step + 1) % stride == 0:
+            out_t, out_psi, out_omega, out_q, out_v, out_a, out_w = out
+            out_t[j], out_psi[j], out_omega[j], out_w[j] = scal[0], scal[1], scal[2], w
+            out_q[j], out_v[j], out_a[j] = q, v, a
+            j += 1
+    return j

@@ -1,0 +1,295 @@
+"""Floquet stability of a periodic steady state of the DMF driveline (design.md §3; the paper
+leaves stability open).
+
+Linearizing J q'' + C q' + K q + e g(e q) = P about a periodic solution q*(t) gives
+
+    J dq'' + C dq' + (K + g'(w*(t)) e e^T) dq = 0,
+
+a linear system with a *piecewise-constant* stiffness: g' is the extra stiffness of the spring
+stage w* is in (0 in the primary region; dmf_sim.physics.spring). The force g is continuous, so no
+jump
+(saltation) matrix is needed at a knee crossing. Over one period T = 4 pi / omega (720 deg of crank
+angle) the state transition (monodromy) matrix is therefore the exact product of matrix
+exponentials
+
+    Phi(T) = exp(A_{r_k} tau_k) ... exp(A_{r_2} tau_2) exp(A_{r_1} tau_1),
+
+one factor per stretch tau between knee crossings, with the crossing times found as roots of the
+wind-up's Fourier series (not rounded to a time grid). Each A_r is constant, so it is diagonalized
+once per model: exp(A_r tau) = V_r diag(exp(lambda_r tau)) V_r^-1 — a monodromy costs a few small
+matrix products.
+
+The rigid-body rotation of the free-free chain (K r = C r = 0, e.r = 0) is decoupled and carries a
+double multiplier 1 (neutral drift of the mean angle); it is removed by working in the
+J-orthonormal flexible modes of (K, J). The Floquet multipliers reported are those of the
+2 (n_dof - 1) flexible states; the solution is asymptotically stable when all lie inside the unit
+circle.
+
+The base period is the 720 deg cycle, so a period-doubling of a 120-deg-periodic 3rd-order solution
+(multiplier -1 over 120 deg) shows up as a multiplier crossing +1 over 720 deg (like a fold); the
+eigenvector's harmonic content tells them apart (:meth:`FloquetAnalyzer.classify`): a 1.5th-order
+(n = 3 mod 6) perturbation is the sub-harmonic instability.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+
+from dmf_sim.core.errors import ConfigError
+from dmf_sim.core.units import CYCLE_RAD, RPM_TO_RAD_S, cycle_period_s
+from dmf_sim.physics.model import ReducedModel
+from dmf_sim.physics.orders import synthesize
+
+
+@dataclass
+class FloquetResult:
+    """Floquet multipliers of one periodic solution.
+
+    Attributes:
+        multipliers: (2 (n_dof-1),) complex multipliers over one 720 deg cycle, by |mu| descending.
+        max_abs: largest |mu|; stable: max_abs < 1 + tol.
+        n_crossings: knee crossings per cycle (0: the solution stays in one linear region).
+    """
+
+    multipliers: np.ndarray
+    max_abs: float
+    stable: bool
+    n_crossings: int
+    monodromy: np.ndarray | None = None
+    segments: list | None = None
+
+
+@dataclass
+class ModeClass:
+    """Harmonic content of a Floquet eigen-solution's wind-up perturbation."""
+
+    multiplier: complex
+    dominant_n: int                 # half-order index with the largest share
+    share_by_class: np.ndarray      # (6,) share of |.|^2 in n = 0..5 mod 6
+    sub_harmonic_share: float       # share in n = 3 mod 6 (1.5th-order family)
+    spectrum: np.ndarray            # |P_n| of the periodic part
+    coefficients: np.ndarray | None = None   # complex c_n of Re(p) from psi = 0 (for seeding)
+
+    @property
+    def kind(self) -> str:
+        mu = self.multiplier
+        if abs(mu.imag) > 1e-6 * abs(mu):
+            base = 'complex'
+        elif mu.real < 0:
+            return 'flip'          # period doubling of the 720 deg solution (order n/4)
+        else:
+            base = 'real'
+        if self.sub_harmonic_share > 0.5:
+            return 'subharmonic'   # period doubling of the 120 deg solution: 1.5th-order family
+        return 'fold' if base == 'real' else 'torus'
+
+
+class FlexibleModes:
+    """The flexible part of the free-free chain in J-orthonormal modal coordinates.
+
+    ``q = r eta + Phi y``: the rigid rotation r is decoupled (K r = C r = 0, e.r = 0), the flexible
+    coordinates obey y'' + Cr y' + (Lam + k_extra er er^T) y = Phi^T f with Cr = Phi^T C Phi and
+    er = Phi^T e (the wind-up of each mode). ``eig(k_extra)`` diagonalizes the first-order matrix
+    A = [[0, I], [-(Lam + k_extra er er^T), -Cr]] (cached per stiffness value).
+    """
+
+    def __init__(self, model: ReducedModel):
+        lam, V = scipy.linalg.eigh(model.K, model.J)
+        if model.rigid_mode is not None:
+            keep = np.sort(np.argsort(np.abs(lam))[1:])       # drop the rigid-body mode
+        else:
+            keep = np.arange(len(lam))
+        self.Phi = V[:, keep]
+        self.nf = len(keep)
+        self.lam = lam[keep]
+        self.er = self.Phi.T @ model.e
+        self.Cr = self.Phi.T @ model.C @ self.Phi
+        self._eig: dict[float, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+
+    def state_matrix(self, k_extra: float = 0.0) -> np.ndarray:
+        nf = self.nf
+        Z, identity = np.zeros((nf, nf)), np.eye(nf)
+        return np.block([[Z, identity],
+                         [-(np.diag(self.lam) + k_extra * np.outer(self.er, self.er)), -self.Cr]])
+
+    def eig(self, k_extra: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(d, V, V^-1) with A = V diag(d) V^-1 for the extra DMF stiffness ``k_extra``
+        [Nm/rad]."""
+        key = float(k_extra)
+        if key not in self._eig:
+            d, V = scipy.linalg.eig(self.state_matrix(key))
+            Vinv = np.linalg.inv(V)
+            err = np.abs((V * d) @ Vinv - self.state_matrix(key)).max()
+            if err > 1e-6 * np.abs(d).max():
+                raise ConfigError(f'state matrix not diagonalizable to accuracy ({err:.1e}); '
+                                 'check for repeated undamped modes')
+            self._eig[key] = (d, V, Vinv)
+        return self._eig[key]
+
+
+class FloquetAnalyzer:
+    """Monodromy and Floquet multipliers of periodic wind-up solutions of one model.
+
+    Args:
+        model: merged driveline with a DMF.
+        n_fine: samples per cycle to locate knee crossings before refining them (default 1024).
+        tol: stability tolerance on |mu| (default 1e-7: the lightly damped gearbox modes have
+            |mu| within 1e-5 of 1 but below it).
+        modes: FlexibleModes to share with the HBM solver (built if None).
+    """
+
+    def __init__(self, model: ReducedModel, n_fine: int = 1024, tol: float = 1e-7,
+                 modes: FlexibleModes | None = None):
+        if model.spring is None:
+            raise ConfigError('model has no DMF: stability of the linear chain is trivial')
+        self.model = model
+        self.spring = model.spring
+        self.n_fine = int(n_fine)
+        self.tol = float(tol)
+        self.modes = modes or FlexibleModes(model)
+        self.nf = self.modes.nf
+        self.er = self.modes.er
+        self._region_stiffness = {st: self.spring.stage_stiffness(st)
+                                  for st in self.spring.stages()}
+        self._eig = {r: self.modes.eig(k) for r, k in self._region_stiffness.items()}
+        # wind-up read-out of the first-order state y = [modal angles, modal velocities]
+        self._ew = np.concatenate([self.er, np.zeros(self.nf)])
+
+    # ---- regions and crossings -------------------------------------------------------------
+    def linear_multipliers(self, speeds_rpm: np.ndarray, region: int = 0) -> np.ndarray:
+        """(K, 2 nf) multipliers exp(d T) of solutions that stay in one region for the whole
+        cycle."""
+        T = cycle_period_s(np.asarray(speeds_rpm, dtype=float))
+        return np.exp(np.outer(T, self._eig[region][0]))
+
+    def segments_from(self, c: np.ndarray, omega: float, samples: np.ndarray | None = None
+                      ) -> tuple[list[tuple[int, float]], float]:
+        """(segments, t_start): [(stage, duration [s]), ...] covering one 720 deg cycle from the
+        first knee crossing, and the time [s] after psi = 0 at which they start.
+
+        ``c`` are the complex wind-up harmonics (w = Re sum c_n exp(i n psi/2)), omega [rad/s];
+        ``samples``: w on a uniform grid of the cycle if already at hand (any length). Crossings
+        are bracketed on the grid (every knee passed between two samples, in order) and refined
+        by Newton's method on the trigonometric polynomial w(phi) - knee (all at once)."""
+        c = np.asarray(c, dtype=complex)
+        T = CYCLE_RAD / omega
+        w = np.asarray(samples, dtype=float) if samples is not None else synthesize(c, self.n_fine)
+        N = len(w)
+        idx = self.spring.region_index(w)
+        nxt_idx = np.roll(idx, -1)
+        change = np.flatnonzero(idx != nxt_idx)                # between sample j and j+1
+        if len(change) == 0:
+            return [(int(idx[0]) - self.spring.primary_index, T)], 0.0
+        # one entry per knee crossed: the knees between the two samples' regions, in order
+        ia, ib = idx[change], nxt_idx[change]
+        count = np.abs(ib - ia)
+        j = np.repeat(change, count)
+        step = np.repeat(np.sign(ib - ia), count)
+        k = np.concatenate([np.arange(m) for m in count])      # 0, 1, .. within each interval
+        start = np.repeat(ia, count)
+        knee_index = np.where(step > 0, start + k, start - 1 - k)
+        after = knee_index + (step > 0)                        # region index after the crossing
+        level = self.spring.knees[knee_index]
+        dphi = 2.0 * np.pi / N
+        w0, w1 = w[j], w[(j + 1) % N]
+        phis = (j + np.clip((level - w0) / (w1 - w0), 0.0, 1.0)) * dphi
+        n = np.arange(len(c))
+        for _ in range(4):
+            z = np.exp(1j * np.outer(phis, n)) * c
+            f = z.real.sum(axis=1) - level
+            df = (1j * n * z).real.sum(axis=1)
+            upd = np.where(np.abs(df) > 0, f / np.where(df == 0, 1.0, df), 0.0)
+            phis = np.clip(phis - upd, j * dphi, (j + 1) * dphi)
+        phis = np.maximum.accumulate(phis)                     # crossings in time order
+        times = phis * 2.0 / omega                             # psi = 2 phi, t = psi / omega
+        stages = after - self.spring.primary_index
+        segs = []
+        for i in range(len(times)):
+            t0 = times[i]
+            t1 = times[i + 1] if i + 1 < len(times) else times[0] + T
+            segs.append((int(stages[i]), float(t1 - t0)))
+        return segs, float(times[0])
+
+    # ---- monodromy -------------------------------------------------------------------------
+    def transition(self, region: int, tau: float) -> np.ndarray:
+        """exp(A_region tau) through the precomputed eigen-decomposition."""
+        w, V, Vinv = self._eig[region]
+        return ((V * np.exp(w * tau)) @ Vinv).real
+
+    def monodromy(self, segments: list[tuple[int, float]]) -> np.ndarray:
+        M = np.eye(2 * self.nf)
+        for r, tau in segments:
+            M = self.transition(r, tau) @ M
+        return M
+
+    def analyze(self, c: np.ndarray, speed_rpm: float, keep_monodromy: bool = False,
+                samples: np.ndarray | None = None) -> FloquetResult:
+        """Floquet multipliers of the periodic wind-up with harmonics ``c`` at ``speed_rpm``
+        (``samples``: the wind-up on a uniform grid of the cycle, if already computed)."""
+        omega = speed_rpm * RPM_TO_RAD_S
+        segs, _ = self.segments_from(c, omega, samples)
+        if len(segs) == 1:
+            # one linear region for the whole cycle: multipliers exp(lambda T) in closed form
+            w = self._eig[segs[0][0]][0]
+            mu = np.exp(w * segs[0][1])
+            M = self.monodromy(segs) if keep_monodromy else None
+        else:
+            M = self.monodromy(segs)
+            mu = np.linalg.eigvals(M)
+        mu = mu[np.argsort(-np.abs(mu))]
+        mx = float(np.abs(mu[0]))
+        n_cross = 0 if len(segs) == 1 else len(segs)
+        return FloquetResult(mu, mx, mx < 1.0 + self.tol, n_cross,
+                             M if keep_monodromy else None, segs)
+
+    # ---- what kind of instability --------------------------------------------------------
+    def classify(self, c: np.ndarray, speed_rpm: float, which: int = 0, n_grid: int = 512
+                 ) -> ModeClass:
+        """Harmonic content of the wind-up perturbation of the ``which``-th largest multiplier.
+
+        The eigen-solution is dy(t) = exp(t log(mu)/T) p(t) with p periodic over 720 deg; the
+        spectrum of p's wind-up part (half-order n relative to the base omega/2) tells a fold
+        (n = 0 mod 6), a 1.5th-order sub-harmonic (n = 3 mod 6) or other orders apart.
+        ``ModeClass.coefficients`` are p's wind-up harmonics c_n in the psi convention of the
+        solution (w = Re sum c_n exp(i n psi/2)): the direction to perturb for branch switching.
+        """
+        omega = speed_rpm * RPM_TO_RAD_S
+        T = CYCLE_RAD / omega
+        segs, t_start = self.segments_from(c, omega)
+        M = self.monodromy(segs)
+        mu, vecs = np.linalg.eig(M)
+        order = np.argsort(-np.abs(mu))
+        m = complex(mu[order[which]])
+        y = vecs[:, order[which]].astype(complex)
+        if abs(m.imag) < 1e-12 * abs(m):       # real multiplier: a real eigen-solution
+            y = y * np.exp(-1j * np.angle(y[np.argmax(np.abs(y))]))
+        t_grid = np.arange(n_grid) * T / n_grid
+        dw = np.empty(n_grid, dtype=complex)
+        t0 = 0.0
+        for r, tau in segs:
+            w, V, Vinv = self._eig[r]
+            a = Vinv @ y
+            ev = self._ew @ V
+            sel = (t_grid >= t0) & (t_grid < t0 + tau)
+            dw[sel] = (np.exp(np.outer(t_grid[sel] - t0, w)) * a) @ ev
+            y = V @ (np.exp(w * tau) * a)
+            t0 += tau
+        p = dw * np.exp(-t_grid * np.log(m) / T)
+        X = np.fft.fft(p) / n_grid
+        n_idx = np.fft.fftfreq(n_grid, 1.0 / n_grid).astype(int)
+        power = np.abs(X) ** 2
+        by_class = np.array([power[np.mod(n_idx, 6) == k].sum() for k in range(6)])
+        by_class = by_class / max(by_class.sum(), 1e-300)
+        spec = np.zeros(n_grid // 2 + 1)
+        for n, pw in zip(n_idx, power):
+            spec[abs(n)] += pw
+        dominant = int(np.argmax(spec))
+        # real part of p as a half-order series from psi = 0:
+        # c_n = 2 X_n exp(-i n omega t_start / 2)
+        Xr = np.fft.rfft(p.real) / n_grid
+        nn = np.arange(len(Xr))
+        coeffs = 2.0 * Xr * np.exp(-1j * nn * omega * t_start / 2.0)
+        coeffs[0] = Xr[0].real
+        return ModeClass(m, dominant, by_class, float(by_class[3]), np.sqrt(spec), coeffs)

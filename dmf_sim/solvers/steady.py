@@ -1,0 +1,267 @@
+"""Every steady state at one operating point, and how likely the driveline settles in each
+(issue 13; ``dmf-sim steady``).
+
+1. The states: a full harmonic balance sweep over a small speed window around the operating
+   point (dmf_sim.solvers.hbm: continuation, Floquet stability, branch switching, deflated Newton
+   seeds, Newmark shots), evaluated exactly at the speed; 120 deg twins are one state with its
+   multiplicity. Where no periodic state is stable, a long Newmark run says what happens
+   instead (dmf_sim.solvers.nonperiodic).
+2. Basins of attraction: N initial states around the static equilibrium — wind-up offsets and
+   rates drawn uniformly in [-A, A] / 2 and [-Omega A, Omega A] / 2 along each of the two modes
+   with the most strain energy in the DMF (:func:`dmf_modes`, Omega their angular frequency) —
+   are integrated by Newmark until the cycle-to-cycle change settles. Each run is matched to a
+   state by its order amplitudes; a settled run that matches none is polished by harmonic balance
+   Newton and added (found by time integration). The share of runs per state is reported with a
+   95 % Wilson score interval.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from dmf_sim.core.errors import ConfigError, ConvergenceError
+from dmf_sim.physics.loads import DrivelineLoads
+from dmf_sim.solvers.hbm import CondensedHBM, HBMOptions, HBMPoint, SweepOptions, sweep
+from dmf_sim.solvers.hbm.layout import amplitudes, to_real
+from dmf_sim.solvers.newmark import simulate
+from dmf_sim.solvers.nonperiodic import NonPeriodicResult
+from dmf_sim.solvers.stability import FlexibleModes, FloquetAnalyzer
+
+Z_95 = 1.959963984540054      # two-sided 95 % normal quantile (Wilson interval)
+MATCH_HARMONICS = 12          # half orders compared when matching a run to a state (to 6th order)
+
+
+@dataclass(frozen=True)
+class BasinOptions:
+    """samples: initial states (0: no basin estimate); amplitude_rad: A, half-range of the random
+    wind-up offset (None: twice the largest 3rd-order amplitude, at least 0.02 rad); seed: random
+    generator seed; max_cycles: engine cycles per run; dt: Newmark step [s]; steady_tol: the
+    run's cycle-to-cycle change that counts as settled (coarser than for an accurate steady
+    state: the run only tells where it goes, the state is the harmonic balance one); match_tol:
+    relative order-amplitude distance under which a run belongs to a state."""
+
+    samples: int = 200
+    amplitude_rad: float | None = None
+    seed: int = 0
+    max_cycles: int = 200
+    dt: float = 1e-4
+    steady_tol: float = 1e-3
+    match_tol: float = 0.03
+
+
+def wilson_interval(k: int, n: int) -> tuple[float, float]:
+    """95 % Wilson score interval of a proportion k / n."""
+    if n <= 0:
+        return 0.0, 1.0
+    p = k / n
+    den = 1.0 + Z_95 ** 2 / n
+    centre = (p + Z_95 ** 2 / (2 * n)) / den
+    half = Z_95 * math.sqrt(p * (1 - p) / n + Z_95 ** 2 / (4 * n * n)) / den
+    return max(0.0, centre - half), min(1.0, centre + half)
+
+
+@dataclass
+class SteadyState:
+    """One steady state: the HBM point (orders, Fig. 13 quantities, stability), its
+    multiplicity (120 deg twins), how it was found, and its basin estimate."""
+
+    point: HBMPoint
+    multiplicity: int = 1
+    found_by: str = ''
+    hits: int = 0
+
+    @property
+    def kind(self) -> str:
+        return '1.5th order' if self.point.order_1_5 > 0.2 * self.point.order_3 else '3rd order'
+
+    def as_dict(self, samples: int) -> dict:
+        p = self.point
+        lo, hi = wilson_interval(self.hits, samples)
+        d = {'kind': self.kind, 'stable': None if p.stable is None else bool(p.stable),
+             'multiplicity': int(self.multiplicity), 'found_by': self.found_by,
+             'max_multiplier': float(p.max_multiplier)}
+        d.update(p.summary.as_dict())
+        d['orders_rad'] = {f'{n / 2:g}': float(abs(c)) for n, c in enumerate(p.windup_orders)
+                           if n > 0 and n % 3 == 0 and n <= 24}
+        if samples:
+            d['basin'] = {'hits': int(self.hits), 'share': self.hits / samples,
+                          'ci95': [lo, hi]}
+        return d
+
+
+@dataclass
+class SteadyStateSet:
+    """All steady states at one operating point (SI; speed in rpm)."""
+
+    speed_rpm: float
+    load: float
+    states: list[SteadyState]
+    non_periodic: list[NonPeriodicResult] = field(default_factory=list)
+    samples: int = 0
+    amplitude_rad: float = 0.0
+    rate_rad_s: float = 0.0
+    unsettled: int = 0
+    seconds: float = 0.0
+
+    @property
+    def stable(self) -> list[SteadyState]:
+        return [s for s in self.states if s.point.stable]
+
+    def as_dict(self) -> dict:
+        lo, hi = wilson_interval(self.unsettled, self.samples)
+        return {'speed_rpm': self.speed_rpm, 'load': self.load, 'seconds': self.seconds,
+                'n_stable': len(self.stable),
+                'states': [s.as_dict(self.samples) for s in self.states],
+                'non_periodic': [r.as_dict() for r in self.non_periodic],
+                'basin_sampling': {'samples': self.samples,
+                                   'windup_offset_range_rad': [-self.amplitude_rad,
+                                                               self.amplitude_rad],
+                                   'windup_rate_range_rad_s': [-self.rate_rad_s, self.rate_rad_s],
+                                   'unsettled': self.unsettled,
+                                   'unsettled_share': (self.unsettled / self.samples
+                                                       if self.samples else 0.0),
+                                   'unsettled_ci95': [lo, hi] if self.samples else None},
+                'units': 'wind-up quantities in rad, positive when the engine drives'}
+
+
+def _fingerprint(c: np.ndarray) -> np.ndarray:
+    k = min(len(c), MATCH_HARMONICS + 1)
+    return np.abs(np.asarray(c)[:k])
+
+
+class _Matcher:
+    """Assigns a Newmark result (its wind-up orders) to the nearest known state."""
+
+    def __init__(self, states: list[SteadyState], tol: float):
+        self.states = states
+        self.tol = tol
+
+    def match(self, c: np.ndarray) -> SteadyState | None:
+        f = _fingerprint(c)
+        best, dist = None, np.inf
+        for s in self.states:
+            g = _fingerprint(s.point.windup_orders)
+            n = min(len(f), len(g))
+            d = float(np.abs(f[:n] - g[:n]).max()) / max(float(g[1:n].max()), 1e-6)
+            if d < dist:
+                best, dist = s, d
+        return best if dist <= self.tol else None
+
+
+def find_steady_states(loads: DrivelineLoads, speed_rpm: float, load: float, *,
+                       window_rpm: float = 30.0, hbm_options: HBMOptions | None = None,
+                       sweep_options: SweepOptions | None = None,
+                       basin: BasinOptions | None = None, progress: bool = False
+                       ) -> SteadyStateSet:
+    """Every steady state at ``speed_rpm`` and load fraction ``load`` with basin estimates (see
+    the module docstring)."""
+    t0 = time.perf_counter()
+    b = basin or BasinOptions()
+    s = float(speed_rpm)
+    rng = getattr(loads.engine, 'speed_range_rpm', None)
+    lo, hi = s - window_rpm, s + window_rpm
+    if rng is not None:
+        if not rng[0] <= s <= rng[1]:
+            raise ConfigError(f'speed {s:g} rpm: the engine data covers '
+                              f'{rng[0]:g}..{rng[1]:g} rpm')
+        lo, hi = max(lo, float(rng[0])), min(hi, float(rng[1]))
+    step = max(window_rpm / 6.0, 1.0)
+    base = sweep_options or SweepOptions()
+    opts = SweepOptions(**{**base.__dict__, 'step_rpm': step})
+    if opts.search is not None:
+        opts = SweepOptions(**{**opts.__dict__, 'search': type(opts.search)(
+            **{**opts.search.__dict__, 'seed_step_rpm': step})})
+    res = sweep(loads, load, (lo, hi), hbm_options=hbm_options, options=opts, progress=progress,
+                label=f'{s:g} rpm')
+    hb: CondensedHBM = res.hbm
+    states: list[SteadyState] = []
+    for q in res.solutions_at(s):
+        mult = next((br.multiplicity for br in res.branches if br.id == q.branch), 1)
+        known = next((st for st in states if np.abs(amplitudes(st.point.x, hb.H)
+                                                    - amplitudes(q.x, hb.H)).max()
+                      <= 1e-6 + 1e-4 * np.abs(q.x).max()), None)
+        if known is None:
+            states.append(SteadyState(q, mult, f'harmonic balance (branch {q.branch}: {q.kind})'))
+    nonper = [r for band in res.non_periodic for r in band.results if abs(r.speed_rpm - s) < 1e-6]
+    out = SteadyStateSet(s, float(load), states, nonper)
+    if b.samples > 0:
+        _basins(out, hb, loads, b, progress)
+    out.states.sort(key=lambda st: (not st.point.stable, -st.hits, st.point.order_1_5))
+    out.seconds = time.perf_counter() - t0
+    return out
+
+
+def dmf_modes(model, count: int = 2) -> list[tuple[np.ndarray, float]]:
+    """The ``count`` flexible modes with the largest share of their strain energy in the DMF
+    spring (k (e.phi)^2 / omega^2 for mass-normalized phi; the truck: 7.8 and 17.9 Hz), each as
+    (DOF shape scaled to unit wind-up, angular frequency [rad/s])."""
+    fm = FlexibleModes(model)
+    share = model.spring.k * fm.er ** 2 / np.maximum(fm.lam, 1e-300)
+    out = []
+    for k in np.argsort(-share)[:count]:
+        phi = fm.Phi[:, k]
+        out.append((phi / float(model.e @ phi), float(np.sqrt(fm.lam[k]))))
+    return out
+
+
+def _basins(out: SteadyStateSet, hb: CondensedHBM, loads: DrivelineLoads, b: BasinOptions,
+            progress: bool) -> None:
+    s, load = out.speed_rpm, out.load
+    model = loads.model
+    A = b.amplitude_rad
+    if A is None:
+        A = max([2.0 * st.point.order_3 for st in out.states] + [0.02])
+    if not (math.isfinite(A) and A > 0):
+        raise ConfigError(f'basin amplitude {A!r} rad: must be > 0')
+    modes = dmf_modes(model, 2)
+    omega = max(om for _, om in modes)
+    out.samples, out.amplitude_rad, out.rate_rad_s = b.samples, float(A), float(omega * A)
+    q_s = loads.static_state(s, load).q
+    rng = np.random.default_rng(b.seed)
+    matcher = _Matcher(out.states, b.match_tol)
+    floquet = FloquetAnalyzer(model, modes=hb.modes)
+    bar = None
+    if progress:
+        from tqdm import tqdm
+        bar = tqdm(total=b.samples, desc=f'basins at {s:g} rpm', unit='run', leave=False)
+    for _ in range(b.samples):
+        dq, dv = np.zeros_like(q_s), np.zeros_like(q_s)
+        for shape, om in modes:            # the wind-up offset and rate split over the modes
+            dq += rng.uniform(-A, A) / len(modes) * shape
+            dv += rng.uniform(-om * A, om * A) / len(modes) * shape
+        r = simulate(loads, s, load, dt=b.dt, max_cycles=b.max_cycles, steady_tol=b.steady_tol,
+                     initial=(q_s + dq, dv))
+        if bar is not None:
+            bar.update(1)
+        if not r.steady:
+            out.unsettled += 1
+            continue
+        st = matcher.match(r.windup_orders)
+        if st is None:
+            st = _add_from_newmark(out, hb, floquet, r.windup_orders, s)
+        if st is None:
+            out.unsettled += 1
+        else:
+            st.hits += 1
+    if bar is not None:
+        bar.close()
+
+
+def _add_from_newmark(out: SteadyStateSet, hb: CondensedHBM, floquet: FloquetAnalyzer,
+                      c: np.ndarray, s: float) -> SteadyState | None:
+    """A settled Newmark run that matches no state: Newton from its orders, stability, add."""
+    x = np.zeros(hb.H + 1, dtype=complex)
+    k = min(len(c), hb.H + 1)
+    x[:k] = c[:k]
+    try:
+        q = hb.solve(s, to_real(x, hb.H))
+    except ConvergenceError:
+        return None
+    fr = floquet.analyze(q.windup_orders, s)
+    q.stable, q.multipliers, q.max_multiplier = fr.stable, fr.multipliers, fr.max_abs
+    st = SteadyState(q, 1, 'time integration from a random start, polished by Newton')
+    out.states.append(st)
+    return st
