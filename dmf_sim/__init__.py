@@ -1,7 +1,83 @@
 """dmf_sim: torsional vibrations of a heavy-truck driveline with a two-step dual mass flywheel.
 
-The pure-Python core (model, loads, solvers, bag tools) runs without ROS; ``dmf_sim.node``
-is a thin rclpy shell over it.
+The public API for scripts and notebooks::
+
+    import dmf_sim as dmf
+
+    loads = dmf.DrivelineLoads(dmf.load_model('truck_dmf', alpha=3.0),
+                               dmf.load_engine('engine_d13', load_set='A'))
+    res = dmf.sweep(loads, load=1.0, speed_range=(900.0, 1100.0))   # HBM over speed [rpm]
+    for row in res.rows()[:3]:                       # one dict per point, SI units (rad, Nm)
+        print(row['speed_rpm'], row['order_3'], row['stable'])
+
+Every name in ``__all__`` is loaded on first use (PEP 562), so ``import dmf_sim`` and
+``dmf-sim --help`` stay light: numba is compiled only when a solver is first used, Dask only
+when a study runs. The layers underneath (``dmf_sim.core``, ``physics``, ``solvers``, ``bags``,
+``analysis``, ``live``, ``monitor``, ``design``, ``paper``) are documented in the docs site's
+architecture page; ``dmf_sim.node`` is a thin rclpy shell over the ROS-free core.
 """
+from __future__ import annotations
+
+import importlib
 
 __version__ = '0.1.0'
+
+# public name -> module that defines it (the one place it lives)
+_API = {
+    # model and loads
+    'load_model': 'dmf_sim.physics.model',
+    'load_driveline': 'dmf_sim.physics.model',
+    'driveline_from_dict': 'dmf_sim.physics.model',
+    'Driveline': 'dmf_sim.physics.model',
+    'ReducedModel': 'dmf_sim.physics.model',
+    'PiecewiseLinearSpring': 'dmf_sim.physics.spring',
+    'Stage': 'dmf_sim.physics.spring',
+    'load_engine': 'dmf_sim.physics.engine',
+    'DrivelineLoads': 'dmf_sim.physics.loads',
+    'modes': 'dmf_sim.physics.modal',
+    # solvers
+    'simulate': 'dmf_sim.solvers.newmark',
+    'SimulationResult': 'dmf_sim.solvers.newmark',
+    'sweep': 'dmf_sim.solvers.hbm',
+    'SweepOptions': 'dmf_sim.solvers.hbm',
+    'HBMOptions': 'dmf_sim.solvers.hbm',
+    'SweepResult': 'dmf_sim.solvers.hbm',
+    'find_steady_states': 'dmf_sim.solvers.steady',
+    'BasinOptions': 'dmf_sim.solvers.steady',
+    'nnm_branches': 'dmf_sim.solvers.nnm',
+    'NNMOptions': 'dmf_sim.solvers.nnm',
+    # bags and their analysis
+    'analyze_bag': 'dmf_sim.analysis.pipeline',
+    'read_messages': 'dmf_sim.bags.read',
+    # design studies
+    'load_study': 'dmf_sim.design.study',
+    'run_study': 'dmf_sim.design.runner',
+    # errors
+    'DmfSimError': 'dmf_sim.core.errors',
+    'ConfigError': 'dmf_sim.core.errors',
+    'ConfigFileError': 'dmf_sim.core.errors',
+    'BagError': 'dmf_sim.core.errors',
+    'BagFileError': 'dmf_sim.core.errors',
+    'BagExistsError': 'dmf_sim.core.errors',
+    'ConvergenceError': 'dmf_sim.core.errors',
+    'OperatingRangeError': 'dmf_sim.core.errors',
+    'TimeLimitError': 'dmf_sim.core.errors',
+    'NoResponseError': 'dmf_sim.core.errors',
+}
+
+__all__ = ['__version__', *_API]
+
+
+def __getattr__(name: str):
+    """Import the module behind a public name on first use and cache the name here."""
+    try:
+        module = _API[name]
+    except KeyError:
+        raise AttributeError(f'module {__name__!r} has no attribute {name!r}') from None
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_API))

@@ -344,3 +344,14 @@ def save(fig: Figure, path: str | Path) -> Path:
     path = Path(path)
     fig.savefig(path, dpi=DPI)
     return path
+
+
+def fig8(mean_speeds, mean, load: float, psi_deg, torque: dict, load_set: str, engine: str):
+    """Paper Fig. 8: mean torque of the load sets (left), torque before the flywheel of the
+    conventional driveline over the engine cycle (right)."""
+    fig, left, right = two_panel_figure(f'Engine loads, engine {engine} (paper Fig. 8)')
+    mean_torque_panel(left, mean_speeds, mean, load)
+    torque_over_angle_panel(right, psi_deg, torque,
+                            f'Torque into the flywheel, conventional driveline, Load {load_set}, '
+                            f'load {load:g} (Fig. 8 right)')
+    return fig

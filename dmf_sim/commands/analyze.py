@@ -7,6 +7,7 @@ import math
 import sys
 from pathlib import Path
 
+from dmf_sim.commands import _options as opt
 from dmf_sim.core.errors import ConfigError
 
 NAME = 'analyze'
@@ -78,19 +79,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument('--no-plots', action='store_true', help='skip the PNG plots')
     p.add_argument('--hbm', action=argparse.BooleanOptionalAction, default=True,
                    help='overlay the harmonic-balance prediction on the wind-up (default on)')
-    p.add_argument('--config', help='driveline YAML (name in config/ or path); default: from the '
-                                    'bag, else truck_dmf')
-    p.add_argument('--engine', help='engine YAML or coefficient table; default: from the bag, '
-                                    'else engine_d13')
-    p.add_argument('--alpha', type=float, help='DMF secondary stiffness factor of the first drive '
-                                               'stage; default: from the bag, else the YAML')
-    p.add_argument('--theta', type=float, help='DMF first stiffness change angle [rad]; default: '
-                                               'from the bag, else the YAML')
-    p.add_argument('--load', type=float, help='engine load fraction 0..1; default: the load '
-                                              'stored in the bag (at the start of the '
-                                              'recording), else 1.0')
-    p.add_argument('--load-set', choices=('A', 'B', 'C'),
-                   help='engine load set (default: from the bag, else A)')
+    opt.add_config(p, default=None, help_default='from the bag, else truck_dmf')
+    opt.add_engine(p, default=None, help_default='from the bag, else engine_d13')
+    opt.add_alpha(p, help_default='from the bag, else the YAML')
+    opt.add_theta(p, help_default='from the bag, else the YAML')
+    opt.add_load(p, default=None, help_default='the load stored in the bag, else 1.0')
+    opt.add_load_set(p, default=None, help_default='from the bag, else A')
     p.add_argument('--namespace', help="driveline namespace of the default topics (e.g. truck1; "
                                        "default: detected from the bag's topics)")
     p.add_argument('--windup-topic', help='wind-up topic (default /driveline/dmf_windup under the '
@@ -113,7 +107,7 @@ def _within(name: str, value, lo, hi, unit: str = '') -> None:
 
 def check_arguments(args) -> None:
     """Refuse out-of-range options with one line each (before reading anything)."""
-    _within('--load', args.load, 0.0, 1.0)
+    opt.check_common(args)
     _within('--bin-rpm', args.bin_rpm, *BIN_RPM_RANGE, ' rpm (0 = per cycle)')
     _within('--min-cycles', args.min_cycles, *MIN_CYCLES_RANGE)
     _within('--n-max', args.n_max, *N_MAX_RANGE)

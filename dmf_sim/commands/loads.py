@@ -9,8 +9,15 @@ from pathlib import Path
 
 import numpy as np
 
-from dmf_sim.commands.sweep import check_grid
+from dmf_sim.commands import _options as opt
 from dmf_sim.core.errors import ConfigError
+from dmf_sim.physics.cycle_torque import (
+    FIG8_DRIVELINE,
+    FIG8_ELEMENT,
+    FIG8_SPEEDS_RPM,
+    mean_torques,
+    torque_before_flywheel,
+)
 from dmf_sim.physics.engine import LOAD_SETS, engine_torque_orders, load_engine
 
 NAME = 'loads'
@@ -18,22 +25,14 @@ HELP = ('Engine mean torque [Nm] over speed [rpm] for load sets A/B/C (Fig. 8 le
         'content of the engine torque at a speed, and the torque before the flywheel of the '
         'conventional driveline over the engine cycle (Fig. 8 right).')
 
-FIG8_SPEEDS_RPM = (800.0, 1000.0, 1200.0, 1400.0)   # default speeds of Fig. 8 right [rpm]
-FIG8_DRIVELINE = 'truck_conventional'
-FIG8_ELEMENT = 'FLYWHEEL'
-CYCLE_SAMPLES = 720                                   # samples per 720 deg cycle (1 deg)
 MAX_TORQUE_SPEEDS = 12
 
 
 def add_arguments(p) -> None:
-    p.add_argument('--engine', default='engine_d13',
-                   help='engine YAML or A_n table (CSV/YAML); default engine_d13 (2800 Nm), '
-                        'engine_d13_2500nm the 2500 Nm rating')
-    p.add_argument('--load-set', nargs='+', default=list(LOAD_SETS), choices=list(LOAD_SETS),
-                   help='load sets (default: all)')
-    p.add_argument('--load', type=float, default=1.0, help='load fraction 0..1 (default 1)')
-    p.add_argument('--speeds', type=float, nargs=3, default=[600.0, 2000.0, 50.0],
-                   metavar=('FROM', 'TO', 'STEP'), help='speed range [rpm] (default 600 2000 50)')
+    opt.add_engine(p)
+    opt.add_load_set(p, many=True, default=LOAD_SETS, help_default='all')
+    opt.add_load(p)
+    opt.add_speeds(p, default=(600.0, 2000.0, 50.0), what='speed range')
     p.add_argument('--speed', type=float, default=1000.0,
                    help='speed [rpm] for the order table (default 1000)')
     p.add_argument('--torque-speeds', type=float, nargs='+', default=list(FIG8_SPEEDS_RPM),
@@ -46,57 +45,12 @@ def add_arguments(p) -> None:
                         'fig8.png (mean torque, torque before the flywheel)')
 
 
-def element_torque_over_cycle(loads, speed_rpm: float, load: float, element: str,
-                              n_samples: int = CYCLE_SAMPLES) -> tuple[np.ndarray, np.ndarray]:
-    """Steady-state torque [Nm] transmitted into ``element`` over one 720 deg cycle of a linear
-    driveline (``loads.model`` without DMF): harmonic response per half order (eq. 5), then the
-    model's torque read-out (ReducedModel.transmitted_torques). Returns (psi [deg], torque)."""
-    from dmf_sim.core.units import CYCLE_RAD, RPM_TO_RAD_S
-    from dmf_sim.physics.harmonic import solve_harmonic, solve_static
-    from dmf_sim.physics.orders import synthesize
-    m = loads.model
-    if m.spring is not None:
-        raise ConfigError(f'driveline {m.line.name!r}: the torque over the cycle is computed for '
-                          'a linear driveline (no dmf section)')
-    col = m.line.index(element)
-    P = loads.dof_harmonics(speed_rpm, load)
-    om = np.arange(P.shape[0]) * (speed_rpm * RPM_TO_RAD_S / 2.0)       # Om_n = n omega / 2
-    Q = np.empty_like(P)
-    Q[0] = solve_static(m, P[0].real)
-    for n in range(1, P.shape[0]):
-        Q[n] = solve_harmonic(m, om[n], P[n])
-    q, qd, qdd = (synthesize(c.T, n_samples).T for c in (Q, 1j * om[:, None] * Q,
-                                                         -(om ** 2)[:, None] * Q))
-    psi = CYCLE_RAD * np.arange(n_samples) / n_samples
-    torque = m.transmitted_torques(q, qd, qdd, loads.element_loads(psi, speed_rpm, load))
-    return np.degrees(psi), torque[:, col]
-
-
-def torque_before_flywheel(engine, speeds_rpm, load: float) -> tuple[np.ndarray, dict]:
-    """Paper Fig. 8 right: torque into the flywheel of the conventional driveline [Nm] over the
-    crank angle [deg], per speed [rpm]."""
-    from dmf_sim.physics.loads import DrivelineLoads
-    from dmf_sim.physics.model import load_model
-    loads = DrivelineLoads(load_model(FIG8_DRIVELINE), engine)
-    out = {}
-    psi = None
-    for s in speeds_rpm:
-        psi, out[float(s)] = element_torque_over_cycle(loads, float(s), load, FIG8_ELEMENT)
-    return psi, out
-
-
-def mean_torques(engines: dict, speeds: np.ndarray, load: float) -> dict[str, list[float]]:
-    """Whole-engine mean torque [Nm] over ``speeds`` per load set."""
-    return {s: [float(e.mean_torque(v, load)) for v in speeds] for s, e in engines.items()}
-
-
 def run(args) -> int:
-    if not 0.0 <= args.load <= 1.0:
-        raise ConfigError(f'--load={args.load}: allowed range 0..1')
+    opt.check_common(args)
     lo, hi, step = args.speeds
     engines = {s: load_engine(args.engine, load_set=s) for s in dict.fromkeys(args.load_set)}
     first = engines[args.load_set[0]]
-    check_grid(lo, hi, step, first)
+    opt.check_grid(lo, hi, step, first)
     if len(args.torque_speeds) > MAX_TORQUE_SPEEDS:
         raise ConfigError(f'--torque-speeds: {len(args.torque_speeds)} speeds, allowed at most '
                           f'{MAX_TORQUE_SPEEDS}')
@@ -131,20 +85,8 @@ def run(args) -> int:
     return 0
 
 
-def fig8(mean_speeds, mean, load: float, psi_deg, torque: dict, load_set: str, engine: str):
-    """Paper Fig. 8: mean torque of the load sets (left), torque before the flywheel of the
-    conventional driveline over the engine cycle (right)."""
-    from dmf_sim.figures import mean_torque_panel, torque_over_angle_panel, two_panel_figure
-    fig, left, right = two_panel_figure(f'Engine loads, engine {engine} (paper Fig. 8)')
-    mean_torque_panel(left, mean_speeds, mean, load)
-    torque_over_angle_panel(right, psi_deg, torque,
-                            f'Torque into the flywheel, conventional driveline, Load {load_set}, '
-                            f'load {load:g} (Fig. 8 right)')
-    return fig
-
-
 def _write(out: Path, data: dict, speeds, mean, orders, args, psi, tq) -> None:
-    from dmf_sim.figures import mean_torque_panel, order_bars_panel, save, two_panel_figure
+    from dmf_sim.figures import fig8, mean_torque_panel, order_bars_panel, save, two_panel_figure
     out.mkdir(parents=True, exist_ok=True)
     (out / 'loads.json').write_text(json.dumps(data, indent=2))
     with open(out / 'loads.csv', 'w', newline='') as fh:

@@ -5,7 +5,7 @@ import csv
 import json
 from pathlib import Path
 
-from dmf_sim.commands.sweep import check_dmf_options
+from dmf_sim.commands import _options as opt
 from dmf_sim.core.errors import ConfigError
 from dmf_sim.physics.modal import modes, region_names
 from dmf_sim.physics.model import load_model
@@ -19,9 +19,9 @@ VARIANTS = {'dmf': 'truck_dmf', 'conventional': 'truck_conventional'}
 def add_arguments(p) -> None:
     p.add_argument('--variant', choices=sorted(VARIANTS), default='dmf',
                    help='default drivelines from config/ (default: dmf)')
-    p.add_argument('--config', help='driveline YAML path (overrides --variant)')
-    p.add_argument('--alpha', type=float, help='DMF secondary stiffness factor: k(1+alpha)')
-    p.add_argument('--theta', type=float, help='DMF stiffness change angle [rad]')
+    opt.add_config(p, default=None, help_default='the --variant driveline; overrides it')
+    opt.add_alpha(p)
+    opt.add_theta(p)
     p.add_argument('--region',
                    help="DMF spring stage whose stiffness is used: 'primary' (k), 'secondary' "
                         "(k(1+alpha), the first drive stage), 'drive stage 2', 'coast', ... as "
@@ -35,7 +35,7 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
-    check_dmf_options([] if args.alpha is None else [args.alpha], args.theta)
+    opt.check_common(args)
     source = args.config or VARIANTS[args.variant]
     model = load_model(source, alpha=args.alpha, theta=args.theta)
     if not 1 <= args.modes <= model.n_dof:

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dmf_sim.commands.sweep import check_dmf_options
+from dmf_sim.commands import _options as opt
 from dmf_sim.core.errors import ConfigError
 from dmf_sim.physics.model import load_model
 from dmf_sim.solvers.nnm import REGIONS, NNMOptions, nnm_branches, scaling_check
@@ -25,14 +25,10 @@ STEP_MAX_RANGE = (1e-4, 1.0)       # largest continuation step (scaled units)
 
 
 def add_arguments(p) -> None:
-    p.add_argument('--config', default='truck_dmf',
-                   help='driveline YAML name or path (default truck_dmf)')
-    p.add_argument('--alpha', type=float, default=2.0,
-                   help='DMF secondary stiffness factor, k(1+alpha) (default 2.0, as the paper\'s '
-                        'Fig. 14)')
-    p.add_argument('--theta', type=float,
-                   help='DMF stiffness change angle [rad] (default: the YAML\'s; the result does '
-                        'not depend on it, see --check-scaling)')
+    opt.add_config(p)
+    opt.add_alpha(p, default=2.0, help_default="2.0, as the paper's Fig. 14")
+    opt.add_theta(p, help_default="the YAML value; the result does not depend on it, see "
+                                  "--check-scaling")
     p.add_argument('--distance', type=float,
                    help='distance of the static wind-up from the knee [rad], up to theta (default '
                         'theta/2; the result does not depend on it either)')
@@ -83,7 +79,7 @@ def check_options(args, model) -> None:
 
 
 def run(args) -> int:
-    check_dmf_options([args.alpha], args.theta)
+    opt.check_dmf_options([args.alpha], args.theta)
     model = load_model(args.config, alpha=args.alpha, theta=args.theta)
     check_options(args, model)
     opts = NNMOptions(n_harmonics=args.harmonics, step_max=args.step_max,

@@ -17,6 +17,7 @@ import time
 from pathlib import Path
 
 from dmf_sim import __version__
+from dmf_sim.commands import _options as opt
 from dmf_sim.core.errors import ConfigError
 from dmf_sim.paper.claims import NO, PARTLY, YES, claims
 from dmf_sim.paper.study import PaperStudy, StudySettings
@@ -42,8 +43,7 @@ STATUS_COLUMN = 4
 def add_arguments(p) -> None:
     p.add_argument('--out', type=Path, required=True,
                    help='directory for the figures, report.md, report.html and claims.json')
-    p.add_argument('--engine', default='engine_d13',
-                   help='engine YAML or A_n table (default engine_d13, the 2800 Nm rating)')
+    opt.add_engine(p)
     p.add_argument('--quick', action='store_true',
                    help='reduced study (coarser sweeps, smaller load scan, NNMs to xi = 10; '
                         'about 20 s): the same claims computed on less')
@@ -95,8 +95,8 @@ def run(args) -> int:
 
 # ------------------------------------------------------------------------------------------------
 def write_figures(r, out: Path) -> dict[str, str]:
-    from dmf_sim.commands.loads import fig8
     from dmf_sim.figures import (
+        fig8,
         mode_shapes_figure,
         nnm_figure,
         panel_title,
@@ -210,8 +210,3 @@ def report_html(r, rows, summary: dict, out: Path) -> str:
         parts += ['<h2>Solver notes</h2><ul>'] + [f'<li>{e(n)}</li>' for n in r.notes] + ['</ul>']
     parts.append('</body></html>')
     return '\n'.join(parts) + '\n'
-
-
-if __name__ == '__main__':  # pragma: no cover
-    from dmf_sim.cli import main
-    sys.exit(main([NAME, *sys.argv[1:]]))

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import json
 
+from dmf_sim.commands import _options as opt
 from dmf_sim.core.errors import ConfigError
 
 NAME = 'steady'
@@ -11,21 +12,18 @@ HELP = ('Every steady state of the DMF wind-up at one engine speed and load (har
         'Floquet stability and a basin estimate: the share of random initial states that Newmark '
         'carries to each state, with a Wilson 95 per cent confidence interval.')
 
-LIMITS = {'samples': (0, 10000), 'harmonics': (6, 60), 'window': (1.0, 300.0),
+LIMITS = {'samples': (0, 10000), 'window': (1.0, 300.0),
           'amplitude': (1e-4, 1.0), 'max_cycles': (10, 5000)}
 
 
 def add_arguments(p) -> None:
     p.add_argument('--speed', type=float, required=True, help='engine speed [rpm]')
-    p.add_argument('--load', type=float, default=1.0, help='load fraction 0..1 (default 1)')
-    p.add_argument('--config', default='truck_dmf',
-                   help='driveline YAML name or path (default truck_dmf)')
-    p.add_argument('--engine', default='engine_d13',
-                   help='engine YAML or A_n table (default engine_d13)')
-    p.add_argument('--load-set', default='A', help='load set A/B/C (default A)')
-    p.add_argument('--alpha', type=float,
-                   help='first drive stage stiffness factor (default: the YAML)')
-    p.add_argument('--theta', type=float, help='first drive stage angle [rad] (default: the YAML)')
+    opt.add_load(p)
+    opt.add_config(p)
+    opt.add_engine(p)
+    opt.add_load_set(p)
+    opt.add_alpha(p)
+    opt.add_theta(p)
     p.add_argument('--samples', type=int, default=200,
                    help='random initial states for the basin estimate (default 200; 0 = none)')
     p.add_argument('--amplitude', type=float,
@@ -37,19 +35,18 @@ def add_arguments(p) -> None:
     p.add_argument('--window', type=float, default=30.0,
                    help='half-width [rpm] of the speed window the search continues over '
                         '(default 30)')
-    p.add_argument('--harmonics', type=int, default=24, help='half-orders kept, H (default 24)')
+    opt.add_harmonics(p)
     p.add_argument('--no-progress', action='store_true', help='no progress bar on stderr')
     p.add_argument('--json', action='store_true', help='print one JSON object to stdout')
 
 
 def _check(args) -> None:
+    opt.check_common(args)
     for name, (lo, hi) in LIMITS.items():
         value = getattr(args, name)
         if value is not None and not lo <= value <= hi:
             raise ConfigError(f'--{name.replace("_", "-")} {value!r}: '
                               f'allowed range {lo:g}..{hi:g}')
-    if not 0.0 <= args.load <= 1.0:
-        raise ConfigError(f'--load {args.load!r}: allowed range 0..1')
 
 
 def run(args) -> int:

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from dmf_sim.commands import _options as opt
 from dmf_sim.core.errors import ConfigError, ConvergenceError, DmfSimError, one_line
 
 NAME = 'sweep'
@@ -22,35 +23,18 @@ CSV_FIELDS = ['alpha', 'load_set', 'load', 'speed_rpm', 'branch', 'kind', 'stabl
               'label', 'instability']
 FIG15_ALPHA = 2.5
 
-# Bounds of the size-like options (issue 14: refuse absurd sizes with one line)
-HARMONICS_RANGE = (6, 64)        # highest half-order index H (6 = the 3rd order)
-MAX_GRID_POINTS = 2000           # output speed grid points per sweep
-MIN_STEP_RPM = 0.5               # finest output speed grid [rpm]
-ALPHA_RANGE = (0.0, 50.0)        # secondary stiffness factor (as the node's parameter)
-THETA_RANGE_RAD = (0.0, 2.0)     # knee angle, lower bound excluded (as the node's parameter)
 MAX_SWEEPS = 24                  # alpha values x load sets
 
 
 def add_arguments(p) -> None:
-    p.add_argument('--config', default='truck_dmf',
-                   help='driveline YAML name or path (default truck_dmf)')
-    p.add_argument('--engine', default='engine_d13',
-                   help='engine YAML or A_n table (CSV/YAML), as for `dmf-sim loads` (default '
-                        'engine_d13, 2800 Nm; engine_d13_2500nm is the 2500 Nm rating)')
-    p.add_argument('--alpha', type=float, nargs='+',
-                   help=f'DMF secondary stiffness factors, k(1+alpha), in [{ALPHA_RANGE[0]:g}, '
-                        f'{ALPHA_RANGE[1]:g}] (default: the YAML value)')
-    p.add_argument('--theta', type=float,
-                   help='DMF stiffness change angle [rad] in (0, 2] (default: the YAML value)')
-    p.add_argument('--load-set', nargs='+', default=['A'], help='load sets A/B/C (default A)')
-    p.add_argument('--load', type=float, default=1.0, help='load fraction 0..1 (default 1)')
-    p.add_argument('--speeds', type=float, nargs=3, default=[600.0, 2000.0, 10.0],
-                   metavar=('FROM', 'TO', 'STEP'),
-                   help=f'speed range and output grid step [rpm] (default 600 2000 10; at most '
-                        f'{MAX_GRID_POINTS} grid points, STEP >= {MIN_STEP_RPM:g})')
-    p.add_argument('--harmonics', type=int, default=24,
-                   help=f'highest half-order index H kept, {HARMONICS_RANGE[0]}..'
-                        f'{HARMONICS_RANGE[1]} (default 24 = 12th engine order)')
+    opt.add_config(p)
+    opt.add_engine(p)
+    opt.add_alpha(p, many=True)
+    opt.add_theta(p)
+    opt.add_load_set(p, many=True)
+    opt.add_load(p)
+    opt.add_speeds(p)
+    opt.add_harmonics(p)
     p.add_argument('--no-stability', action='store_true',
                    help='skip Floquet stability (and branch switching)')
     p.add_argument('--no-branch-switching', action='store_true',
@@ -73,36 +57,6 @@ def add_arguments(p) -> None:
                         'first --alpha, one panel per load set)')
 
 
-def check_grid(lo: float, hi: float, step: float, engine=None, option: str = '--speeds') -> None:
-    """Refuse a speed grid that is empty, too fine, too long or outside the engine data."""
-    if not (np.isfinite([lo, hi, step]).all() and hi > lo and step >= MIN_STEP_RPM):
-        raise ConfigError(f'{option} FROM TO STEP: need finite TO > FROM and STEP >= '
-                          f'{MIN_STEP_RPM:g} rpm (got {lo:g} {hi:g} {step:g})')
-    n = (hi - lo) / step + 1
-    if n > MAX_GRID_POINTS:
-        raise ConfigError(f'{option} {lo:g} {hi:g} {step:g}: {n:.0f} grid points, allowed at most '
-                          f'{MAX_GRID_POINTS} (use a larger STEP)')
-    rng = getattr(engine, 'speed_range_rpm', None)
-    if rng is not None and not (rng[0] <= lo and hi <= rng[1]):
-        raise ConfigError(f'{option} {lo:g} {hi:g}: engine data covers {rng[0]:g}..{rng[1]:g} rpm')
-
-
-def check_harmonics(h: int, option: str = '--harmonics') -> None:
-    lo, hi = HARMONICS_RANGE
-    if not lo <= h <= hi:
-        raise ConfigError(f'{option}={h}: allowed range {lo}..{hi} (the 3rd order is n = 6)')
-
-
-def check_dmf_options(alphas, theta) -> None:
-    for a in alphas:
-        if not ALPHA_RANGE[0] <= a <= ALPHA_RANGE[1]:
-            raise ConfigError(f'--alpha {a:g}: allowed range '
-                              f'{ALPHA_RANGE[0]:g}..{ALPHA_RANGE[1]:g}')
-    if theta is not None and not THETA_RANGE_RAD[0] < theta <= THETA_RANGE_RAD[1]:
-        raise ConfigError(f'--theta {theta:g}: allowed range ({THETA_RANGE_RAD[0]:g}, '
-                          f'{THETA_RANGE_RAD[1]:g}] rad')
-
-
 def run(args) -> int:
     from dmf_sim.physics.engine import load_engine
     from dmf_sim.physics.loads import DrivelineLoads
@@ -110,13 +64,9 @@ def run(args) -> int:
     from dmf_sim.solvers.hbm import HBMOptions, SweepOptions, sweep
     from dmf_sim.solvers.hbm.sweep import check_time_limit
 
+    opt.check_common(args)
     lo, hi, step = args.speeds
-    check_grid(lo, hi, step)
     time_limit = check_time_limit(args.time_limit, '--time-limit')
-    if not 0.0 <= args.load <= 1.0:
-        raise ConfigError(f'--load={args.load}: allowed range 0..1')
-    check_harmonics(args.harmonics)
-    check_dmf_options(args.alpha or [], args.theta)
     if len(args.alpha or [None]) * len(args.load_set) > MAX_SWEEPS:
         raise ConfigError(f'--alpha x --load-set: {len(args.alpha) * len(args.load_set)} sweeps, '
                           f'allowed at most {MAX_SWEEPS}')
@@ -127,7 +77,7 @@ def run(args) -> int:
     engines = {}
     for ls in dict.fromkeys(args.load_set):
         engines[ls] = load_engine(args.engine, load_set=ls)
-        check_grid(lo, hi, step, engines[ls])
+        opt.check_grid(lo, hi, step, engines[ls])
 
     hopt = HBMOptions(n_harmonics=args.harmonics)
     sopt = SweepOptions(step_rpm=step, stability=not args.no_stability,
@@ -244,8 +194,3 @@ def _write(out: Path, data: dict, results) -> dict:
                                     f'{", ".join(load_sets)}, load {load:g} (paper Fig. 15)')
         files['fig15'] = str(save(fig, out / 'fig15.png'))
     return files
-
-
-if __name__ == '__main__':  # pragma: no cover
-    from dmf_sim.cli import main
-    sys.exit(main([NAME, *sys.argv[1:]]))

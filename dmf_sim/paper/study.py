@@ -218,7 +218,7 @@ class PaperStudy:
         r.modes_dmf_band = modes(self.line.with_dmf(alpha=self.s.band_alpha).reduce(), 'secondary')
 
     def _loads(self, r: StudyResults) -> None:
-        from dmf_sim.commands.loads import mean_torques, torque_before_flywheel
+        from dmf_sim.physics.cycle_torque import mean_torques, torque_before_flywheel
         r.mean_torque_speeds = grid(self.s.speeds)
         engines = {ls: self.engine.with_load_set(ls) for ls in self.s.load_sets}
         r.mean_torque = mean_torques(engines, r.mean_torque_speeds, 1.0)

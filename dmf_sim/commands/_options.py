@@ -1,0 +1,142 @@
+"""The options several ``dmf-sim`` commands share, added and checked in one place.
+
+``--config``, ``--engine``, ``--alpha``, ``--theta``, ``--load-set``, ``--load``, ``--speeds`` and
+``--harmonics`` mean the same and accept the same values in every command that has them: a
+command adds them with the ``add_*`` functions and calls :func:`check_common` first thing in its
+``run``; a value out of range is a one-line :class:`~dmf_sim.core.errors.ConfigError` naming the
+option and the allowed range.
+"""
+from __future__ import annotations
+
+import math
+
+from dmf_sim.core.errors import ConfigError
+from dmf_sim.physics.engine import DEFAULT_ENGINE, LOAD_SETS
+
+__all__ = ['ALPHA_RANGE', 'THETA_RANGE_RAD', 'LOAD_RANGE', 'LOAD_SETS', 'HARMONICS_RANGE',
+           'MAX_GRID_POINTS', 'MIN_STEP_RPM', 'DEFAULT_CONFIG', 'DEFAULT_ENGINE', 'add_config',
+           'add_engine', 'add_alpha', 'add_theta', 'add_load_set', 'add_load', 'add_speeds',
+           'add_harmonics', 'check_common', 'check_grid', 'check_harmonics', 'check_dmf_options']
+
+ALPHA_RANGE = (0.0, 50.0)        # secondary stiffness factor (as the node's parameter)
+THETA_RANGE_RAD = (0.0, 2.0)     # knee angle [rad], lower bound excluded (as the node's parameter)
+LOAD_RANGE = (0.0, 1.0)          # engine load fraction
+HARMONICS_RANGE = (6, 64)        # highest half-order index H kept (6 = the 3rd order)
+MAX_GRID_POINTS = 2000           # output speed grid points per sweep
+MIN_STEP_RPM = 0.5               # finest output speed grid [rpm]
+DEFAULT_CONFIG = 'truck_dmf'     # config/truck_dmf.yaml: Table 1 with the DMF
+
+
+def add_config(p, default: str | None = DEFAULT_CONFIG, help_default: str | None = None) -> None:
+    p.add_argument('--config', default=default,
+                   help='driveline YAML name in config/ or path (default '
+                        f'{help_default or default})')
+
+
+def add_engine(p, default: str | None = DEFAULT_ENGINE, help_default: str | None = None) -> None:
+    p.add_argument('--engine', default=default,
+                   help='engine YAML or A_n table (CSV/YAML) name in config/ or path (default '
+                        f'{help_default or default}; engine_d13_2500nm is the 2500 Nm rating)')
+
+
+def add_alpha(p, many: bool = False, default: float | None = None,
+              help_default: str = 'the YAML value') -> None:
+    p.add_argument('--alpha', type=float, nargs='+' if many else None, default=default,
+                   help=f'DMF secondary stiffness factor{"s" if many else ""} of the first drive '
+                        f'stage, k(1+alpha), in [{ALPHA_RANGE[0]:g}, {ALPHA_RANGE[1]:g}] '
+                        f'(default {help_default})')
+
+
+def add_theta(p, help_default: str = 'the YAML value') -> None:
+    p.add_argument('--theta', type=float,
+                   help=f'DMF first stiffness change angle [rad] in ({THETA_RANGE_RAD[0]:g}, '
+                        f'{THETA_RANGE_RAD[1]:g}] (default {help_default})')
+
+
+def add_load_set(p, many: bool = False, default=('A',), help_default: str | None = None) -> None:
+    if many:
+        p.add_argument('--load-set', nargs='+', default=list(default) if default else default,
+                       help=f'load sets among {"/".join(LOAD_SETS)} (default '
+                            f'{help_default or " ".join(default)})')
+    else:
+        p.add_argument('--load-set', default=default[0] if default else None,
+                       help=f'load set {"/".join(LOAD_SETS)} (default '
+                            f'{help_default or default[0]})')
+
+
+def add_load(p, default: float | None = 1.0, help_default: str | None = None) -> None:
+    p.add_argument('--load', type=float, default=default,
+                   help=f'engine load fraction {LOAD_RANGE[0]:g}..{LOAD_RANGE[1]:g} (default '
+                        f'{help_default or f"{default:g}"})')
+
+
+def add_speeds(p, default=(600.0, 2000.0, 10.0), what: str = 'speed range and output grid step'
+               ) -> None:
+    p.add_argument('--speeds', type=float, nargs=3, default=list(default),
+                   metavar=('FROM', 'TO', 'STEP'),
+                   help=f'{what} [rpm] (default {" ".join(f"{v:g}" for v in default)}; at most '
+                        f'{MAX_GRID_POINTS} grid points, STEP >= {MIN_STEP_RPM:g})')
+
+
+def add_harmonics(p, default: int = 24) -> None:
+    p.add_argument('--harmonics', type=int, default=default,
+                   help=f'highest half-order index H kept, {HARMONICS_RANGE[0]}..'
+                        f'{HARMONICS_RANGE[1]} (default {default} = the {default / 2:g}th engine '
+                        'order)')
+
+
+def check_grid(lo: float, hi: float, step: float, engine=None, option: str = '--speeds') -> None:
+    """Refuse a speed grid that is empty, too fine, too long or outside the engine data."""
+    if not (all(map(math.isfinite, (lo, hi, step))) and hi > lo and step >= MIN_STEP_RPM):
+        raise ConfigError(f'{option} FROM TO STEP: need finite TO > FROM and STEP >= '
+                          f'{MIN_STEP_RPM:g} rpm (got {lo:g} {hi:g} {step:g})')
+    n = (hi - lo) / step + 1
+    if n > MAX_GRID_POINTS:
+        raise ConfigError(f'{option} {lo:g} {hi:g} {step:g}: {n:.0f} grid points, allowed at most '
+                          f'{MAX_GRID_POINTS} (use a larger STEP)')
+    rng = getattr(engine, 'speed_range_rpm', None)
+    if rng is not None and not (rng[0] <= lo and hi <= rng[1]):
+        raise ConfigError(f'{option} {lo:g} {hi:g}: engine data covers {rng[0]:g}..{rng[1]:g} rpm')
+
+
+def check_harmonics(h: int, option: str = '--harmonics', lo_hi=HARMONICS_RANGE) -> None:
+    lo, hi = lo_hi
+    if not lo <= h <= hi:
+        raise ConfigError(f'{option}={h}: allowed range {lo}..{hi} (the 3rd order is n = 6)')
+
+
+def check_dmf_options(alphas, theta) -> None:
+    """``--alpha`` values and ``--theta`` within the ranges the node's parameters accept."""
+    for a in alphas:
+        if not (math.isfinite(a) and ALPHA_RANGE[0] <= a <= ALPHA_RANGE[1]):
+            raise ConfigError(f'--alpha {a:g}: allowed range '
+                              f'{ALPHA_RANGE[0]:g}..{ALPHA_RANGE[1]:g}')
+    if theta is not None and not (math.isfinite(theta)
+                                  and THETA_RANGE_RAD[0] < theta <= THETA_RANGE_RAD[1]):
+        raise ConfigError(f'--theta {theta:g}: allowed range ({THETA_RANGE_RAD[0]:g}, '
+                          f'{THETA_RANGE_RAD[1]:g}] rad')
+
+
+def _as_list(value) -> list:
+    if value is None:
+        return []
+    return list(value) if isinstance(value, (list, tuple)) else [value]
+
+
+def check_common(args) -> None:
+    """Check every shared option ``args`` has (``--alpha``, ``--theta``, ``--load``,
+    ``--load-set``, ``--speeds``, ``--harmonics``): one-line errors with the allowed range."""
+    alphas = _as_list(getattr(args, 'alpha', None))
+    check_dmf_options(alphas, getattr(args, 'theta', None))
+    load = getattr(args, 'load', None)
+    if load is not None and not (math.isfinite(load) and LOAD_RANGE[0] <= load <= LOAD_RANGE[1]):
+        raise ConfigError(f'--load {load!r}: allowed range {LOAD_RANGE[0]:g}..{LOAD_RANGE[1]:g}')
+    for s in _as_list(getattr(args, 'load_set', None)):
+        if s not in LOAD_SETS:
+            raise ConfigError(f'--load-set {s!r}: allowed {", ".join(LOAD_SETS)}')
+    speeds = getattr(args, 'speeds', None)
+    if speeds is not None:
+        check_grid(*speeds)
+    h = getattr(args, 'harmonics', None)
+    if h is not None:
+        check_harmonics(h)
