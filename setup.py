@@ -34,7 +34,8 @@ setup(
     ],
     extras_require={
         'ros': ['ros-jazzy-rclpy[fastrtps]', 'ros-jazzy-common-interfaces'],
-        'test': ['pytest>=7', 'mcap-ros2-support>=0.5', 'websockets>=12', 'ruff>=0.5'],
+        'test': ['pytest>=7', 'mcap-ros2-support>=0.5', 'websockets>=12', 'ruff>=0.5',
+                 'import-linter>=2.1'],
     },
     zip_safe=True,
     maintainer='dmf_sim developers',
