@@ -19,7 +19,7 @@ from dmf_sim.cli import main as cli_main
     (['sweep', '--alpha', '1e6'], ('--alpha', '0..50')),
     (['sweep', '--theta', '0'], ('--theta', '(0, 2]')),
     (['sweep', '--alpha', *['2'] * 13, '--load-set', 'A', 'B'], ('26 sweeps', '24')),
-    (['sweep', '--load-set', 'D'], ('load_set', 'A, B, C')),
+    (['sweep', '--load-set', 'D'], ('--load-set', 'A, B, C')),
     (['loads', '--speeds', '600', '2000', '0.01'], ('--speeds', 'STEP >= 0.5')),
     (['loads', '--speeds', '0', '1e7', '100'], ('--speeds', '100001 grid points')),
     (['loads', '--speeds', '100', '1000', '100'], ('--speeds', '400..2200')),

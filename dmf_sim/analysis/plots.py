@@ -18,21 +18,17 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
+from matplotlib import colormaps
+from matplotlib.figure import Figure
+
+from dmf_sim.figures import save
 
 __all__ = ['fig13_figure', 'plot_campbell', 'plot_fig13']
 
-_DPI = 120
 _ORDER_STYLE = {'order_3': ('3rd order', 'tab:red'), 'order_1_5': ('1.5th order', 'tab:blue'),
                 'max_deviation': ('max / min deviation', 'k'), 'min_deviation': (None, 'k')}
 _GREEN = 'tab:green'
 _MARGIN = 1.25            # the vibration panel spans the measured/HBM extremes x this
-
-
-def _pyplot():
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
-    return plt
 
 
 def _legend_outside(ax) -> None:
@@ -86,24 +82,19 @@ def _title(res, sig) -> str:
 
 def plot_fig13(res, sig, path: Path) -> Path:
     """Save :func:`fig13_figure` as ``path`` (PNG)."""
-    plt = _pyplot()
-    fig = fig13_figure(res, sig)
-    fig.savefig(path, dpi=_DPI)
-    plt.close(fig)
-    return path
+    return save(fig13_figure(res, sig), path)
 
 
 def fig13_figure(res, sig):
     """The paper's Fig. 13 quantities over speed (see the module docstring): a Figure."""
-    plt = _pyplot()
     t = sig.table
     unit = sig.signal.unit
     steady = t.steady
     green = t.theta_minus_static
     two = green is not None and np.isfinite(green).any()
-    fig, axes = plt.subplots(2 if two else 1, 1, figsize=(11, 7.5 if two else 5.5), sharex=True,
-                             gridspec_kw={'height_ratios': [3, 1.3]} if two else None,
-                             squeeze=False, layout='constrained')
+    fig = Figure(figsize=(11, 7.5 if two else 5.5), layout='constrained')
+    axes = fig.subplots(2 if two else 1, 1, sharex=True,
+                        gridspec_kw={'height_ratios': [3, 1.3]} if two else None, squeeze=False)
     ax = axes[0, 0]
     curve = sig.hbm.curve if sig.hbm is not None else None
     extremes = []
@@ -150,14 +141,13 @@ def plot_campbell(res, sig, path: Path, natural: Mapping[str, Sequence[float]] |
     """Campbell diagram (frequency over speed, half orders as dots sized by amplitude, engine
     orders and linear natural frequencies as lines) beside an order waterfall (colour map);
     ramp bins hollow / hatched."""
-    plt = _pyplot()
     from matplotlib.colors import LogNorm
 
     t = sig.table
     amp, orders, speeds, steady = t.amplitudes[:, 1:], t.orders[1:], t.speed_rpm, t.steady
     unit = sig.signal.unit
-    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(14, 6), layout='constrained',
-                                  gridspec_kw={'width_ratios': [1.25, 1]})
+    fig = Figure(figsize=(14, 6), layout='constrained')
+    ax, ax2 = fig.subplots(1, 2, gridspec_kw={'width_ratios': [1.25, 1]})
     finite = amp[np.isfinite(amp)]
     top = float(finite.max()) if finite.size else 1.0
     norm = LogNorm(vmin=max(1e-3 * top, 1e-300), vmax=top)
@@ -172,7 +162,7 @@ def plot_campbell(res, sig, path: Path, natural: Mapping[str, Sequence[float]] |
                     norm=norm, alpha=0.85, lw=0)
     if ramp.any():
         ax.scatter(S[ramp], (Ord * S / 60.0)[ramp], s=sizes[ramp], facecolors='none',
-                   edgecolors=plt.get_cmap('viridis')(norm(amp[ramp])), lw=0.6,
+                   edgecolors=colormaps['viridis'](norm(amp[ramp])), lw=0.6,
                    label='ramp bins (few cycles)')
     fig.colorbar(sc, ax=ax, label=f'half-order amplitude [{unit}]')
     rpm = np.array([speeds.min(), speeds.max()])
@@ -207,6 +197,4 @@ def plot_campbell(res, sig, path: Path, natural: Mapping[str, Sequence[float]] |
     ax2.set_ylabel('engine speed [rpm]')
     ax2.set_title('order waterfall (hatched: ramp bins, few cycles)', fontsize=10)
     fig.suptitle(_title(res, sig), fontsize=10)
-    fig.savefig(path, dpi=_DPI)
-    plt.close(fig)
-    return path
+    return save(fig, path)

@@ -1,6 +1,17 @@
-"""Reading engine YAML fields: one-line :class:`~dmf_sim.core.errors.ConfigError` naming the file,
-the
-field and the allowed range (``engine_x.yaml: geometry.bore_m: must be in (0, 2] (got -1)``)."""
+"""Validation of user input, one place for the whole package: every field of a driveline, engine,
+study or optimizer file (and every option the commands share) is checked here, and every refusal
+reads the same way, on one line, as a :class:`~dmf_sim.core.errors.ConfigError`::
+
+    <where>: field '<field>' <requirement>, got <value>
+    element 4 (CYL2): field 'inertia' must be > 0 kg m^2, got 0.0
+    engine_x.yaml: field 'geometry.bore_m' must be in (0, 2] m, got -1
+    study.yaml: missing key 'conditions.speeds_rpm'
+
+``where`` names the file or the part of it (``element 4 (CYL2)``, ``dmf``); ``field`` is the
+dotted path inside it. :class:`Where` binds a ``where`` for a reader that checks many fields.
+Numbers written the YAML 1.1 way without a dot (``1e300``), which PyYAML reads as strings, are
+taken as the numbers the user meant.
+"""
 from __future__ import annotations
 
 import math
@@ -11,52 +22,114 @@ import numpy as np
 
 from dmf_sim.core.errors import ConfigError
 
+__all__ = ['field_error', 'check_keys', 'as_number', 'number', 'integer', 'number_list',
+           'nonempty_list', 'Where', 'Table1D', 'table_1d']
 
-def field_error(where: str, field: str, msg: str) -> ConfigError:
-    """``where: field: msg`` on one line."""
-    return ConfigError(' '.join(f'{where}: {field}: {msg}'.split()))
+_NO_VALUE = object()
 
 
-def check_keys(d: Any, where: str, field: str, required: Sequence[str],
-               optional: Sequence[str] = ()) -> Mapping[str, Any]:
-    """``d`` as a mapping holding every ``required`` key and nothing beyond ``optional``."""
+def field_error(where: str, field: str, msg: str, value: Any = _NO_VALUE) -> ConfigError:
+    """``<where>: field '<field>' <msg>[, got <value>]`` on one line (``<where>: <msg>`` without
+    a field)."""
+    text = f"{where}: field '{field}' {msg}" if field else f'{where}: {msg}'
+    if value is not _NO_VALUE:
+        text += f', got {value!r}'
+    return ConfigError(' '.join(text.split()))
+
+
+def check_keys(d: Any, where: str, field: str, required: Sequence[str] = (),
+               optional: Sequence[str] | None = ()) -> Mapping[str, Any]:
+    """``d`` as a mapping holding every ``required`` key and, unless ``optional`` is None (any
+    key), nothing beyond ``optional``."""
     if not isinstance(d, Mapping):
-        raise field_error(where, field or 'document', 'must be a mapping')
+        got = 'nothing' if d is None else f'a {type(d).__name__}'
+        raise field_error(where, field, f'must be a mapping, got {got}')
     prefix = field + '.' if field else ''
     for key in required:
         if key not in d:
-            raise field_error(where, prefix + key, 'missing (required key)')
-    allowed = set(required) | set(optional)
-    for key in d:
-        if key not in allowed:
-            raise field_error(where, prefix + str(key),
-                              f'unknown key (allowed: {", ".join(sorted(allowed))})')
+            raise ConfigError(f"{where}: missing key '{prefix}{key}'")
+    if optional is not None:
+        allowed = set(required) | set(optional)
+        for key in d:
+            if key not in allowed:
+                raise ConfigError(f"{where}: unknown key '{prefix}{key}' "
+                                  f'(allowed: {", ".join(sorted(allowed))})')
     return d
 
 
-def number(value: Any, where: str, field: str, lo: float, hi: float, *,
-           lo_open: bool = False, hi_open: bool = False) -> float:
-    """A finite number in [lo, hi] (or the open variants)."""
-    lo_b, hi_b = '(' if lo_open else '[', ')' if hi_open else ']'
-    rng = f'{lo_b}{lo:g}, {hi:g}{hi_b}'
-    if isinstance(value, str):  # PyYAML (YAML 1.1) reads 1.0e5 without a sign as a string
+def as_number(value: Any) -> Any:
+    """``value`` as a float where it is a string that spells a number (PyYAML follows YAML 1.1,
+    which needs a dot: ``1e300`` and ``1.0e5`` without a sign arrive as strings); else as is."""
+    if isinstance(value, str):
         try:
-            value = float(value)
+            return float(value)
         except ValueError:
-            pass
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise field_error(where, field, f'must be a number in {rng} (got {value!r})')
-    x = float(value)
+            return value
+    return value
+
+
+def _range_text(lo: float, hi: float, lo_open: bool, hi_open: bool, unit: str) -> str:
+    if lo == -math.inf and hi == math.inf:
+        return 'finite'
+    if hi == math.inf:
+        text = f'{">" if lo_open else ">="} {lo:g}'
+    elif lo == -math.inf:
+        text = f'{"<" if hi_open else "<="} {hi:g}'
+    else:
+        text = f'in {"(" if lo_open else "["}{lo:g}, {hi:g}{")" if hi_open else "]"}'
+    return f'{text} {unit}'.rstrip()
+
+
+def number(value: Any, where: str, field: str, lo: float = -math.inf, hi: float = math.inf, *,
+           lo_open: bool = False, hi_open: bool = False, unit: str = '') -> float:
+    """A finite number in [lo, hi] (or the open variants), ``unit`` named in the message."""
+    rng = _range_text(lo, hi, lo_open, hi_open, unit)
+    x = as_number(value)
+    if isinstance(x, bool) or not isinstance(x, (int, float)):
+        raise field_error(where, field, f'must be a number {rng}'.replace('number finite',
+                                                                          'finite number'), value)
+    x = float(x)
     if not math.isfinite(x) or x < lo or x > hi or (lo_open and x == lo) or (hi_open and x == hi):
-        raise field_error(where, field, f'must be in {rng} (got {value!r})')
+        raise field_error(where, field, f'must be {rng}', value)
     return x
 
 
 def integer(value: Any, where: str, field: str, lo: int, hi: int) -> int:
     """An integer in [lo, hi]."""
     if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
-        raise field_error(where, field, f'must be an integer in [{lo}, {hi}] (got {value!r})')
+        raise field_error(where, field, f'must be an integer in [{lo}, {hi}]', value)
     return int(value)
+
+
+def nonempty_list(value: Any, where: str, field: str) -> list:
+    """A non-empty list."""
+    if not isinstance(value, list) or not value:
+        raise field_error(where, field, 'must be a non-empty list', value)
+    return value
+
+
+class Where:
+    """The checks above bound to one ``where`` (a file or a part of it)."""
+
+    def __init__(self, source: str):
+        self.source = source
+
+    def error(self, field: str, msg: str, value: Any = _NO_VALUE) -> ConfigError:
+        return field_error(self.source, field, msg, value)
+
+    def mapping(self, data: Any, field: str, required: Sequence[str] = (),
+                optional: Sequence[str] | None = None) -> dict:
+        return check_keys(data, self.source, field, required, optional)
+
+    def number(self, value: Any, field: str, lo: float = -math.inf, hi: float = math.inf,
+               unit: str = '', **kw) -> float:
+        return number(value, self.source, field, lo, hi, unit=unit, **kw)
+
+    def integer(self, value: Any, field: str, lo: int, hi: int) -> int:
+        return integer(value, self.source, field, lo, hi)
+
+    def nonempty_list(self, value: Any, field: str) -> list:
+        return nonempty_list(value, self.source, field)
 
 
 def number_list(value: Any, where: str, field: str, lo: float, hi: float, *,
@@ -64,7 +137,8 @@ def number_list(value: Any, where: str, field: str, lo: float, hi: float, *,
     """A list of at least ``min_len`` numbers in [lo, hi] (strictly increasing if asked)."""
     if not isinstance(value, (list, tuple)) or len(value) < min_len:
         raise field_error(where, field,
-                          f'must be a list of at least {min_len} numbers in [{lo:g}, {hi:g}]')
+                          f'must be a list of at least {min_len} numbers in [{lo:g}, {hi:g}]',
+                          value)
     arr = np.array([number(v, where, f'{field}[{i}]', lo, hi) for i, v in enumerate(value)])
     if increasing and np.any(np.diff(arr) <= 0):
         raise field_error(where, field, f'must be strictly increasing within [{lo:g}, {hi:g}]')

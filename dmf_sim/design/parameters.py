@@ -27,6 +27,7 @@ import re
 from dataclasses import dataclass
 
 from dmf_sim.core.errors import ConfigError
+from dmf_sim.core.validation import number
 from dmf_sim.physics.model import Driveline
 from dmf_sim.physics.spring import Stage
 
@@ -63,18 +64,11 @@ class Parameter:
     def unit(self) -> str:
         return _BOUNDS[self.kind][2]
 
-    def check_value(self, value, where: str) -> float:
-        """``value`` as a float within the parameter's allowed range, else a one-line error."""
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ConfigError(f'{where}: must be a number, got {value!r}')
-        v = float(value)
+    def check_value(self, value, where: str, field: str | None = None) -> float:
+        """``value`` as a float within the parameter's allowed range, else a one-line error
+        naming ``where`` and ``field`` (default: the parameter's name)."""
         lo, closed, unit = _BOUNDS[self.kind]
-        ok = math.isfinite(v) and (v >= lo if closed else v > lo)
-        if not ok:
-            rule = f'>= {lo:g}' if closed else f'> {lo:g}'
-            raise ConfigError(f'{where}: {self.name} must be finite and {rule} {unit}'.rstrip()
-                              + f', got {value!r}')
-        return v
+        return number(value, where, field or self.name, lo, lo_open=not closed, unit=unit)
 
 
 def parse_parameter(name: str, where: str) -> Parameter:

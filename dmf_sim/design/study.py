@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -36,6 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from dmf_sim.core.errors import ConfigError
+from dmf_sim.core.validation import Where
 from dmf_sim.design import sampling
 from dmf_sim.design.metrics import OBJECTIVES
 from dmf_sim.design.parameters import Parameter, check_parameter_set, parse_parameter
@@ -160,66 +160,19 @@ def load_study(source) -> Study:
     return study_from_dict(data, str(path), base_dir=path.parent, default_name=path.stem)
 
 
-class _Where:
-    """Builds ``'<file>: <field>: message'`` errors."""
-
-    def __init__(self, source: str):
-        self.source = source
-
-    def error(self, field_name: str, msg: str) -> ConfigError:
-        return ConfigError(f'{self.source}: {field_name}: {msg}')
-
-    def mapping(self, data, field_name: str, required=(), optional=None) -> dict:
-        """``data`` as a mapping with the ``required`` keys and, unless ``optional`` is None
-        (any key), no keys beyond ``required`` + ``optional``."""
-        if not isinstance(data, dict):
-            got = 'nothing' if data is None else f'a {type(data).__name__}'
-            raise self.error(field_name, f'must be a mapping, got {got}')
-        if optional is None:
-            return data
-        for key in required:
-            if key not in data:
-                raise self.error(field_name, f'missing key {key!r}')
-        allowed = set(required) | set(optional)
-        for key in data:
-            if key not in allowed:
-                raise self.error(field_name, f'unknown key {key!r} (allowed: '
-                                 f'{", ".join(sorted(allowed))})')
-        return data
-
-    def number(self, value, field_name: str, lo=-math.inf, hi=math.inf, unit='') -> float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)) \
-                or not math.isfinite(value):
-            raise self.error(field_name, f'must be a finite number, got {value!r}')
-        if not lo <= value <= hi:
-            raise self.error(field_name, f'must be in [{lo:g}, {hi:g}] {unit}'.rstrip()
-                             + f', got {value!r}')
-        return float(value)
-
-    def integer(self, value, field_name: str, lo: int, hi: int) -> int:
-        if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
-            raise self.error(field_name, f'must be an integer in [{lo}, {hi}], got {value!r}')
-        return int(value)
-
-    def nonempty_list(self, value, field_name: str) -> list:
-        if not isinstance(value, list) or not value:
-            raise self.error(field_name, f'must be a non-empty list, got {value!r}')
-        return value
-
-
 def study_from_dict(data: dict, source: str = 'study', *, base_dir: Path | None = None,
                     default_name: str = 'study') -> Study:
     """Validate a parsed study mapping; load its driveline and engines. One-line ConfigErrors."""
-    w = _Where(source)
-    w.mapping(data, 'study', REQUIRED, OPTIONAL)
+    w = Where(source)
+    w.mapping(data, '', REQUIRED, OPTIONAL)
     base_dir = base_dir or Path.cwd()
     name = str(data.get('name') or default_name)
 
     samp = w.mapping(data['sampling'], 'sampling', ('method',), ('n', 'seed'))
     method = samp['method']
     if method not in sampling.METHODS:
-        raise w.error('sampling.method', f'unknown method {method!r} (allowed: '
-                      f'{", ".join(sampling.METHODS)})')
+        raise w.error('sampling.method', f'must be one of {", ".join(sampling.METHODS)}',
+                      method)
     seed = w.integer(samp.get('seed', 0), 'sampling.seed', 0, 2**32 - 1)
     n_samples = None
     if method == 'grid':
@@ -228,7 +181,8 @@ def study_from_dict(data: dict, source: str = 'study', *, base_dir: Path | None 
                           'variable)')
     else:
         if 'n' not in samp:
-            raise w.error('sampling', f"missing key 'n' (number of {method} designs)")
+            raise ConfigError(f"{w.source}: missing key 'sampling.n' (number of {method} "
+                              'designs)')
         n_samples = w.integer(samp['n'], 'sampling.n', 1, MAX_DESIGNS)
 
     base = _load_driveline(w, data['driveline'], base_dir)
@@ -236,7 +190,7 @@ def study_from_dict(data: dict, source: str = 'study', *, base_dir: Path | None 
     fixed = {}
     for key, value in w.mapping(data.get('fixed') or {}, 'fixed').items():
         p = parse_parameter(key, f'{source}: fixed')
-        fixed[p] = p.check_value(value, f'{source}: fixed.{key}')
+        fixed[p] = p.check_value(value, source, f'fixed.{key}')
     check_parameter_set(params + list(fixed), base, f'{source}: variables/fixed')
     n_designs = int(np.prod([len(r.levels(n)) for r, n in zip(ranges, points)])) \
         if method == 'grid' else n_samples
@@ -255,10 +209,10 @@ def study_from_dict(data: dict, source: str = 'study', *, base_dir: Path | None 
                           MIN_HARMONICS, 64)
     switching = solver.get('branch_switching', True)
     if not isinstance(switching, bool):
-        raise w.error('solver.branch_switching', f'must be true or false, got {switching!r}')
+        raise w.error('solver.branch_switching', 'must be true or false', switching)
     search = solver.get('search', True)
     if not isinstance(search, bool):
-        raise w.error('solver.search', f'must be true or false, got {search!r}')
+        raise w.error('solver.search', 'must be true or false', search)
     time_limit = solver.get('time_limit_s')
     if time_limit is not None:
         time_limit = w.number(time_limit, 'solver.time_limit_s', *TIME_LIMIT_RANGE_S, 's')
@@ -267,7 +221,7 @@ def study_from_dict(data: dict, source: str = 'study', *, base_dir: Path | None 
     ref_raw = w.mapping(plots.get('reference', PAPER_REFERENCE), 'plots.reference')
     for key, value in ref_raw.items():
         p = parse_parameter(key, f'{source}: plots.reference')
-        reference[p] = p.check_value(value, f'{source}: plots.reference.{key}')
+        reference[p] = p.check_value(value, source, f'plots.reference.{key}')
     check_parameter_set(list(reference), base, f'{source}: plots.reference')
     names = [p.name for p in params]
     map_vars = tuple(plots.get('map_variables', names[:2]))
@@ -300,7 +254,7 @@ def _resolve(value, base_dir: Path) -> str:
     return text
 
 
-def _load_driveline(w: _Where, value, base_dir: Path) -> Driveline:
+def _load_driveline(w: Where, value, base_dir: Path) -> Driveline:
     from dmf_sim.physics.model import load_driveline
     if not isinstance(value, str) or not value.strip():
         raise w.error('driveline', f'must be a driveline YAML name or path, got {value!r}')
@@ -314,7 +268,7 @@ def _load_driveline(w: _Where, value, base_dir: Path) -> Driveline:
     return line
 
 
-def _variables(w: _Where, raw, method: str):
+def _variables(w: Where, raw, method: str):
     if not isinstance(raw, dict) or not raw:
         raise w.error('variables', f'must be a non-empty mapping of design parameters, '
                       f'got {raw!r}')
@@ -328,7 +282,7 @@ def _variables(w: _Where, raw, method: str):
             if set(spec) != {'values'}:
                 raise w.error(where, "give either 'values' or 'min'/'max'/'n', not both")
             vals = w.nonempty_list(spec['values'], f'{where}.values')
-            vals = tuple(p.check_value(v, f'{w.source}: {where}.values[{i}]')
+            vals = tuple(p.check_value(v, w.source, f'{where}.values[{i}]')
                          for i, v in enumerate(vals))
             if len(set(vals)) != len(vals):
                 raise w.error(f'{where}.values', 'repeated values')
@@ -338,9 +292,9 @@ def _variables(w: _Where, raw, method: str):
             continue
         for key in ('min', 'max') + (('n',) if method == 'grid' else ()):
             if key not in spec:
-                raise w.error(where, f'missing key {key!r}')
-        lo = p.check_value(spec['min'], f'{w.source}: {where}.min')
-        hi = p.check_value(spec['max'], f'{w.source}: {where}.max')
+                raise ConfigError(f"{w.source}: missing key '{where}.{key}'")
+        lo = p.check_value(spec['min'], w.source, f'{where}.min')
+        hi = p.check_value(spec['max'], w.source, f'{where}.max')
         if not lo < hi:
             raise w.error(where, f'empty range: min {lo:g} must be < max {hi:g} {p.unit}'.rstrip())
         n = w.integer(spec['n'], f'{where}.n', 2, MAX_DESIGNS) if method == 'grid' else 0
@@ -350,7 +304,7 @@ def _variables(w: _Where, raw, method: str):
     return params, ranges, points
 
 
-def _conditions(w: _Where, raw, engine_source, base_dir: Path):
+def _conditions(w: Where, raw, engine_source, base_dir: Path):
     from dmf_sim.physics.engine import load_engine
     w.mapping(raw, 'conditions', ('load_sets', 'loads', 'speeds_rpm'), ())
     load_sets = w.nonempty_list(raw['load_sets'], 'conditions.load_sets')
@@ -405,7 +359,7 @@ def _engine_error(src) -> bool:
     return False
 
 
-def _objectives(w: _Where, raw) -> list[str]:
+def _objectives(w: Where, raw) -> list[str]:
     objs = w.nonempty_list(raw, 'objectives')
     for i, o in enumerate(objs):
         if o not in OBJECTIVES:

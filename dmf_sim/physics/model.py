@@ -28,6 +28,7 @@ import numpy as np
 
 from dmf_sim.core.errors import ConfigError
 from dmf_sim.core.paths import read_yaml_mapping
+from dmf_sim.core.validation import as_number, check_keys, field_error, number
 from dmf_sim.physics.spring import PiecewiseLinearSpring, Stage
 
 ELEMENT_KEYS = ('name', 'ratio', 'stiffness', 'damping', 'inertia')
@@ -163,28 +164,19 @@ class Driveline:
 # --------------------------------------------------------------------------------------------
 
 def _num(value, where: str, field_name: str, allow_rigid: bool = False) -> float:
-    if allow_rigid and isinstance(value, str) and value.strip().lower() in RIGID_WORDS:
-        return math.inf
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        extra = " or 'rigid'" if allow_rigid else ''
-        raise ConfigError(f'{where}: field {field_name!r} must be a number{extra}, got {value!r}')
-    v = float(value)
-    if math.isnan(v) or (math.isinf(v) and not allow_rigid):
-        raise ConfigError(f'{where}: field {field_name!r} must be finite, got {value!r}')
-    return v
+    """A finite number (or, with ``allow_rigid``, 'rigid' = inf) through the one validation."""
+    if allow_rigid:
+        if isinstance(value, str) and value.strip().lower() in RIGID_WORDS:
+            return math.inf
+        if isinstance(value, (int, float)) and not isinstance(value, bool) and value == math.inf:
+            return math.inf
+        if not isinstance(as_number(value), (int, float)) or isinstance(value, bool):
+            raise field_error(where, field_name, "must be a number or 'rigid'", value)
+    return number(value, where, field_name)
 
 
 def _check_keys(data: dict, required, optional, where: str) -> None:
-    if not isinstance(data, dict):
-        raise ConfigError(f'{where}: expected a mapping, got {type(data).__name__}')
-    for key in required:
-        if key not in data:
-            raise ConfigError(f'{where}: missing key {key!r}')
-    allowed = set(required) | set(optional)
-    for key in data:
-        if key not in allowed:
-            raise ConfigError(f'{where}: unknown key {key!r} '
-                              f'(allowed: {", ".join(sorted(allowed))})')
+    check_keys(data, where, '', required, optional)
 
 
 def _parse_element(raw, pos: int) -> Element:
