@@ -1,5 +1,6 @@
-# Two entry points (README quick start): `make node` runs the live node, `make test` the test suite.
-# Each sets up its own virtual environment in .venv (ROS 2 Jazzy rclpy from the package index).
+# Two entry points (README quick start): `make node` runs the live node, `make test` the test suite
+# and the docs build. Each sets up its own virtual environment in .venv (ROS 2 Jazzy rclpy from the
+# package index). `make docs` builds the documentation site alone (doc/ -> doc/_build/html).
 PYTHON ?= python3
 VENV := .venv
 STAMP := $(VENV)/.installed
@@ -11,7 +12,7 @@ $(STAMP): setup.py setup.cfg package.xml
 	$(PY) -m pip install --quiet -e '.[ros,test]'
 	touch $(STAMP)
 
-.PHONY: venv node test bench clean
+.PHONY: venv node test docs bench clean
 venv: $(STAMP)
 
 node: $(STAMP)
@@ -19,9 +20,15 @@ node: $(STAMP)
 
 test: $(STAMP)
 	$(PY) -m pytest -q test
+	$(MAKE) docs
+
+# -W: any warning (a broken link, a page missing from a toctree, malformed Markdown) fails the
+# build; -E: fresh, so a warning is never hidden by an earlier build; no network needed.
+docs: $(STAMP)
+	$(PY) -m sphinx -W -E -q -b html doc doc/_build/html
 
 bench: $(STAMP)
 	for b in benchmarks/bench_*.py; do $(PY) $$b || exit 1; done
 
 clean:
-	rm -rf $(VENV) build *.egg-info
+	rm -rf $(VENV) build *.egg-info doc/_build

@@ -35,7 +35,8 @@ setup(
     extras_require={
         'ros': ['ros-jazzy-rclpy[fastrtps]', 'ros-jazzy-common-interfaces'],
         'test': ['pytest>=7', 'mcap-ros2-support>=0.5', 'websockets>=12', 'ruff>=0.5',
-                 'import-linter>=2.1'],
+                 'import-linter>=2.1',
+                 'sphinx>=7.2', 'myst-parser>=2'],   # make docs (run by make test)
     },
     zip_safe=True,
     maintainer='dmf_sim developers',

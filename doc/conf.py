@@ -9,6 +9,7 @@ Built three ways, all with this file:
 
 No network: no intersphinx inventories are fetched, so the build takes seconds and works offline.
 """
+import functools
 import os
 import re
 import sys
@@ -68,26 +69,32 @@ _ROLE = re.compile(r':[\w:+.-]+:`[^`]*`')
 _DIRECTIVE = re.compile(r'^(\s*)\.\. [\w:+.-]+::.*$', re.M)
 
 
-def _parses_cleanly(lines):
-    """True when the docstring is valid reStructuredText (checked with plain docutils, its Sphinx
-    roles and directives blanked out, so the check registers nothing in the real build)."""
-    from docutils.core import publish_doctree
-
-    text = _DIRECTIVE.sub(r'\1..', _ROLE.sub('``x``', '\n'.join(lines)))
+@functools.lru_cache(maxsize=None)
+def _parses_cleanly(text):
+    """True when the docstring is valid reStructuredText. Checked with plain docutils, its
+    Sphinx roles and directives blanked out, so the check registers nothing in the real build;
+    parse errors are system_message nodes, an undefined |substitution| (found by the transform)
+    leaves a problematic node."""
     from docutils import nodes
+    from docutils.frontend import get_default_settings
+    from docutils.parsers.rst import Parser
+    from docutils.transforms.references import Substitutions
+    from docutils.utils import new_document
 
-    doctree = publish_doctree(text, settings_overrides={
-        'report_level': 5, 'halt_level': 5, 'warning_stream': False,
-        'file_insertion_enabled': False, 'raw_enabled': False})
-    # parse errors are system_message nodes; transform errors (an undefined |substitution|)
-    # leave a problematic node where the text was
-    problems = [m for m in doctree.findall(nodes.system_message) if m['level'] >= 2]
-    problems += list(doctree.findall(nodes.problematic))
-    return not problems
+    settings = get_default_settings(Parser)
+    for name, value in {'report_level': 5, 'halt_level': 5, 'warning_stream': False,
+                        'file_insertion_enabled': False, 'raw_enabled': False}.items():
+        setattr(settings, name, value)
+    document = new_document('<docstring>', settings)
+    Parser().parse(_DIRECTIVE.sub(r'\1..', _ROLE.sub('``x``', text)), document)
+    document.transformer.add_transform(Substitutions)
+    document.transformer.apply_transforms()
+    problems = [m for m in document.findall(nodes.system_message) if m['level'] >= 2]
+    return not problems and not any(True for _ in document.findall(nodes.problematic))
 
 
 def _docstring_as_written(app, what, name, obj, options, lines):
-    if not lines or _parses_cleanly(lines):
+    if not lines or _parses_cleanly('\n'.join(lines)):
         return
     text = [line.rstrip() for line in lines]
     lines[:] = ['::', ''] + ['    ' + line if line else '' for line in text] + ['']

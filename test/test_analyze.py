@@ -285,7 +285,7 @@ def test_cli_text_report(bags, tmp_path, capsys, monkeypatch):
 
 # ------------------------------------------------------------- node run-up against the HBM
 
-# Tolerances the README states for a run-up at <= 20 rpm/s against the steady-state HBM:
+# Tolerances doc/commands/analyze.md states for a run-up at <= 20 rpm/s against the steady HBM:
 RUNUP_TOL = {'order_3': ('rel', 0.01), 'order_1_5': ('peak', 0.15),
              'max_deviation': ('peak', 0.05), 'min_deviation': ('peak', 0.05),
              'mean_minus_theta': ('abs', 1.5e-3)}

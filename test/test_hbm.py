@@ -289,7 +289,7 @@ def test_cli_sweep_rejects_bad_input(capsys):
 
 def test_benchmark_quick():
     # dt 5e-5 s: at the default engine's 1.5th-order resonance (1000 rpm) Newmark at 1e-4 s is
-    # 1.1 % off the HBM and converges to it at 5e-5 s (README, Newmark step refinement)
+    # 1.1 % off the HBM and converges to it at 5e-5 s (doc/theory.md §5)
     out = subprocess.run([sys.executable, str(REPO / 'benchmarks' / 'bench_hbm.py'), '--quick',
                           '--dt', '5e-5'],
                          capture_output=True, text=True, timeout=300, cwd=REPO)

@@ -57,7 +57,7 @@ def test_monitor_predicts_compares_and_alarms(worker):
         assert values_of(preds[0].prediction_statuses[0])['stable_states'] == '1'
         last = cycles[-1]
         assert last.cycle.speed_rpm == pytest.approx(1200.0, rel=1e-6)
-        # settled: live equals predicted within 1 % (HBM vs Newmark, design.md section 3)
+        # settled: live equals predicted within 1 % (HBM vs Newmark, doc/theory.md §6)
         assert last.comparison.applies
         assert abs(last.comparison.difference['order_3']) < 0.01 * pred.states[0].order_3
         assert abs(last.comparison.difference['mean']) < 3e-4      # of a 0.207 rad mean

@@ -133,8 +133,8 @@ def test_step_refinement_real_engine_at_knee_grazing_point():
     """Real engine (2500 Nm rating), alpha 3, Load A at 1000 rpm: the swing just grazes the knee
     and the small 1.5th order is coupled to a lightly damped 125 Hz crank mode (7.5th order). At
     dt = 1e-4 s the Newmark period error there shifts the 1.5th order by ~3 %; at dt = 5e-5 s
-    halving the step changes both orders by < 0.5 % (README: use dt <= 5e-5 s offline near such
-    points)."""
+    halving the step changes both orders by < 0.5 % (doc/theory.md §5: dt <= 5e-5 s offline near
+    such points)."""
     from dmf_sim.physics.engine import load_engine
     L = DrivelineLoads(load_model('truck_dmf', alpha=3.0), load_engine('engine_d13_2500nm'))
     runs = [simulate(L, 1000, 1.0, dt=dt, steady_tol=1e-9, max_cycles=120)

@@ -75,7 +75,7 @@ def test_load_sets_b_and_c_peak_at_lower_speeds(engine, load_a):
 
 def test_newmark_confirms_the_alpha_3_peak(load_a):
     """Time integration started at the static equilibrium (not on the HBM solution) reaches the
-    same steady state at the peak: 1.5th order within 1 % (dt 5e-5 s, see README)."""
+    same steady state at the peak: 1.5th order within 1 % (dt 5e-5 s, see doc/theory.md §5)."""
     from dmf_sim.solvers.newmark import simulate
     res = load_a[3.0]
     (hb,) = res.solutions_at(1000.0)

@@ -41,7 +41,7 @@ def _point(loads, speed, load=1.0):
 @pytest.mark.parametrize('speed', [1200.0, 960.0])
 def test_predicted_states_are_where_time_integration_settles(knee_loads, speed):
     """Physics: Newmark from static equilibrium runs to a periodic steady state; it must be one
-    of the predicted stable states (HBM and Newmark agree within 1 %, design.md §3)."""
+    of the predicted stable states (HBM and Newmark agree within 1 %, doc/theory.md §6)."""
     pred = solve_prediction(predict_states, knee_loads, _point(knee_loads, speed))
     assert not pred.error and pred.states
     sim = simulate(knee_loads, speed, 1.0)

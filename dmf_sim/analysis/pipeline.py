@@ -1,4 +1,4 @@
-"""Order analysis of recorded driveline bags (design.md §4-5): no ROS runtime needed.
+"""Order analysis of recorded driveline bags (doc/commands/analyze.md): no ROS runtime needed.
 
 Pipeline (one module per step):
 

@@ -25,7 +25,7 @@ def add_arguments(p) -> None:
     p.add_argument('--workers', type=int,
                    help='worker processes of the local cluster (default: one per core)')
     p.add_argument('--batch-size', type=int, help='designs per Dask task (default: measured, '
-                   'see the README)')
+                   'see doc/performance.md)')
     p.add_argument('--connect-timeout', type=float, default=5.0,
                    help='seconds to wait for --scheduler to answer (default 5)')
     p.add_argument('--no-plots', action='store_true', help='skip the PNG figures')

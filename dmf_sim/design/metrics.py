@@ -1,7 +1,7 @@
 """What a study reports per design and condition, from the steady states on the speed grid.
 
 All "worst" values are over the *stable* steady states (the states a truck can sit in; an unstable
-solution is never the answer, design.md §4), at every grid speed and on every branch, and over
+solution is never the answer, doc/theory.md §9), at every grid speed and on every branch, and over
 the time-integration envelopes where no periodic state is stable (averaged orders and max/min
 over many cycles: what the driveline does there):
 

@@ -75,7 +75,7 @@ class MonitorSettings:
     compare_speed_tolerance_rpm: float = MONITOR_PARAMETERS['compare_speed_tolerance_rpm'][0]
     compare_load_tolerance: float = MONITOR_PARAMETERS['compare_load_tolerance'][0]
     worker: str = MONITOR_PARAMETERS['monitor_worker'][0]
-    niceness: int = 0             # added to the worker processes' nice value (see the README)
+    niceness: int = 0             # added to the workers' nice value (see doc/monitoring.md)
 
     def __post_init__(self) -> None:
         if self.worker not in WORKER_MODES:

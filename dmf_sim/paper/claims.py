@@ -227,8 +227,8 @@ def _nnm(r: StudyResults) -> list[Claim]:
              'so the frequency of this branch must rise. The paper\'s own conclusion says so: "If '
              'the wind-up angle caused by the mean torque is in the secondary stiffness region of '
              'the dual mass flywheel, a higher torque amplitude will lead to a lower resonance '
-             'frequency, otherwise it will lead to a higher resonance frequency." design.md §3 '
-             'treats the sentence in the results section as a slip of the text.')
+             'frequency, otherwise it will lead to a higher resonance frequency." doc/theory.md '
+             '§11 treats the sentence in the results section as a slip of the text.')
         if prim_up else '',
         values={'frequency_hz': [float(v) for v in f['primary']], 'xi': [1.0, xi_max]})
     secondary = Claim(

@@ -20,7 +20,7 @@ from dmf_sim.core.errors import DmfSimError
 
 ORDER_1_5_HZ_FACTOR = 1.5 / 60.0     # 1.5th order frequency [Hz] per engine speed [rpm]
 MAX_STEPS_PER_BRANCH = 1000          # continuation steps per branch (a full sweep needs < 300)
-NEWMARK_DT_S = 5e-5                  # time step of the coexistence check (README: dt <= 5e-5 s
+NEWMARK_DT_S = 5e-5                  # coexistence check's step (doc/theory.md §5: dt <= 5e-5 s
 NEWMARK_MAX_CYCLES = 300             # at the 1.5th-order resonance)
 
 

@@ -1,4 +1,4 @@
-"""The DMF spring: piecewise linear in the wind-up (paper Fig. 2, eq. 3 and 8; design.md §4a).
+"""The DMF spring: piecewise linear in the wind-up (paper Fig. 2, eq. 3 and 8; doc/theory.md §2).
 
 This module is the only place the spring law is written. Every solver (Newmark kernel and its
 reference path, harmonic balance and its Jacobian, Floquet monodromy, non-linear normal modes,

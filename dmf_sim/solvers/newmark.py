@@ -1,4 +1,4 @@
-"""Newmark time integration of the non-linear driveline (design.md §3): integrator and
+"""Newmark time integration of the non-linear driveline (doc/theory.md §5): integrator and
 ``simulate()``.
 
 The step itself (the numba kernel, exact condensed DMF solve region by region of the spring, knee

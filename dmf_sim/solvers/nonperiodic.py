@@ -1,4 +1,4 @@
-"""Where no periodic steady state is stable: what time integration shows (issue 13, design.md §4).
+"""Where no periodic steady state is stable: what time integration shows (doc/theory.md §9).
 
 A long Newmark run from a given state (usually the unstable periodic solution, slightly
 perturbed) is sampled once per engine cycle (a Poincaré section at psi = 0 mod 720 deg) and

@@ -1,4 +1,4 @@
-"""Floquet stability of a periodic steady state of the DMF driveline (design.md §3; the paper
+"""Floquet stability of a periodic steady state of the DMF driveline (doc/theory.md §8; the paper
 leaves stability open).
 
 Linearizing J q'' + C q' + K q + e g(e q) = P about a periodic solution q*(t) gives

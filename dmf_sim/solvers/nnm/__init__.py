@@ -1,4 +1,4 @@
-"""Non-linear normal modes (NNMs) of the conservative DMF driveline (design.md §3, paper Fig. 14).
+"""Non-linear normal modes (NNMs) of the conservative DMF driveline (doc/theory.md §10, Fig. 14).
 
 The driveline without damping and excitation, held at the static equilibrium of a mean torque,
 is solved by harmonic balance condensed on the DMF wind-up with exact Galerkin harmonics of the

@@ -1,4 +1,4 @@
-"""The conservative condensed harmonic balance about one static point (design.md §3,
+"""The conservative condensed harmonic balance about one static point (doc/theory.md §10,
 paper Fig. 14).
 
 The conservative system is the driveline without damping and without excitation, held at the static

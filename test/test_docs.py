@@ -1,0 +1,68 @@
+"""The documentation stays where a clone can read it (issue 21).
+
+The site itself is built by `make docs` (run by `make test`) with warnings as errors; these checks
+are the cheap ones that need no Sphinx: nothing in the repository cites notes outside it, the
+README stays short and its links resolve, and every `dmf-sim` command has its page.
+"""
+import importlib
+import pkgutil
+import re
+from pathlib import Path
+
+from dmf_sim import commands
+
+ROOT = Path(__file__).resolve().parents[1]
+# Generated or installed trees, not the repository's own files.
+SKIP_DIRS = {'.git', '.venv', 'build', 'install', 'log', '_build', '__pycache__',
+             '.pytest_cache', 'out'}
+TEXT_SUFFIXES = {'.py', '.md', '.yaml', '.yml', '.xml', '.cfg', '.toml', '.json', '.csv', '.txt',
+                 ''}
+README_MAX_BYTES = 12 * 1024          # issue 21: README <= ~12 KB, the rest lives in doc/
+# A citation of the design notes or of anything beside the repository (../shared/...). The page
+# doc/commands/design-study.md is named so that it never matches.
+OUTSIDE = re.compile(r'(?<![\w-])design\.md|\.\./shared\b|/shared/(design|engine-notes)')
+LINK = re.compile(r'\]\(([^)#\s]+)(?:#[^)]*)?\)')
+
+
+def _repository_files():
+    for path in ROOT.rglob('*'):
+        rel = path.relative_to(ROOT)
+        if any(part in SKIP_DIRS or part.endswith('.egg-info') for part in rel.parts):
+            continue
+        if path.is_file() and path.suffix in TEXT_SUFFIXES:
+            yield rel, path
+
+
+def test_nothing_cites_notes_outside_the_repository():
+    hits = []
+    for rel, path in _repository_files():
+        if rel == Path('test/test_docs.py'):
+            continue                        # this file names the pattern it looks for
+        for n, line in enumerate(path.read_text(errors='replace').splitlines(), 1):
+            if OUTSIDE.search(line):
+                hits.append(f'{rel}:{n}: {line.strip()}')
+    assert not hits, 'cite doc/theory.md, doc/architecture.md, doc/engine.md instead:\n' + \
+        '\n'.join(hits)
+
+
+def test_readme_is_short_and_its_links_resolve():
+    readme = ROOT / 'README.md'
+    assert readme.stat().st_size <= README_MAX_BYTES, readme.stat().st_size
+    text = readme.read_text()
+    targets = [t for t in LINK.findall(text) if '://' not in t]
+    assert targets, 'the README links into doc/'
+    missing = [t for t in targets if not (ROOT / t).exists()]
+    assert not missing, missing
+
+
+def test_every_command_has_its_page_in_the_table():
+    names = [importlib.import_module(f'{commands.__name__}.{info.name}').NAME
+             for info in pkgutil.iter_modules(commands.__path__) if not info.name.startswith('_')]
+    assert len(names) >= 11
+    table = (ROOT / 'doc' / 'commands' / 'index.md').read_text()
+    readme = (ROOT / 'README.md').read_text()
+    for name in names:
+        row = re.search(rf'\[`{re.escape(name)}`\]\(([^)]+)\)', table)
+        assert row, f'dmf-sim {name} is missing from doc/commands/index.md'
+        assert (ROOT / 'doc' / 'commands' / row.group(1)).exists(), row.group(1)
+        assert f'[`{name}`](doc/commands/' in readme, f'dmf-sim {name} is missing from the README'
