@@ -48,7 +48,7 @@ autodoc_mock_imports = ['rclpy', 'std_msgs', 'sensor_msgs', 'diagnostic_msgs', '
                         'std_srvs', 'builtin_interfaces', 'rcl_interfaces', 'launch',
                         'launch_ros', 'ament_index_python']
 autodoc_member_order = 'bysource'
-autodoc_typehints = 'description'
+autodoc_typehints = 'none'     # signatures stay readable; the docstrings give types and units
 autodoc_default_options = {'members': True, 'show-inheritance': True}
 napoleon_google_docstring = True
 napoleon_numpy_docstring = False

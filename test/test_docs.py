@@ -9,6 +9,8 @@ import pkgutil
 import re
 from pathlib import Path
 
+import pytest
+
 from dmf_sim import commands
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -66,3 +68,19 @@ def test_every_command_has_its_page_in_the_table():
         assert row, f'dmf-sim {name} is missing from doc/commands/index.md'
         assert (ROOT / 'doc' / 'commands' / row.group(1)).exists(), row.group(1)
         assert f'[`{name}`](doc/commands/' in readme, f'dmf-sim {name} is missing from the README'
+
+
+def _python_blocks(path: Path) -> list[str]:
+    return re.findall(r'```python\n(.*?)```', path.read_text(), re.S)
+
+
+@pytest.mark.parametrize('page', ['README.md', 'doc/guide/python-api.md'])
+def test_the_api_examples_run(page, capsys):
+    """The README's API example and the guide's first script run as printed (issue 21: a short
+    example in the README, a runnable one in the docs), through `import dmf_sim as dmf` only."""
+    code = _python_blocks(ROOT / page)[0]
+    assert code.startswith('import dmf_sim as dmf\n')
+    exec(compile(code, page, 'exec'), {'__name__': '__docs_example__'})
+    out = capsys.readouterr().out
+    assert 'steady after' in out          # Newmark reached its steady state
+    assert re.search(r'^True |: stable,', out, re.M)   # the harmonic balance: a stable state
