@@ -1,6 +1,6 @@
 """Engine excitation: cylinder torque coefficients A_n (pressure model or user table), Load A/B/C.
 
-Convention (paper eq. 16-17, docs/ARCHITECTURE.md)
+Convention (paper eq. 16-17, doc/theory.md §3)
 -------------------------------------------------
 The torque [Nm] one cylinder k applies to its crank throw is the half-order series::
 
