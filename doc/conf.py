@@ -7,7 +7,8 @@ Built three ways, all with this file:
 * rosdoc2 on a ROS docs farm: ``rosdoc2.yaml`` beside ``package.xml`` points its Sphinx builder
   at this directory (``sphinx_sourcedir: doc``).
 
-No network: no intersphinx inventories are fetched, so the build takes seconds and works offline.
+No network: no intersphinx inventories are fetched, so the build works offline. The pages take a
+few seconds; the API pages most of the rest (autodoc imports and reads every module).
 """
 import functools
 import os
@@ -15,9 +16,10 @@ import re
 import sys
 
 # The package is documented from this source tree (the repository root is the parent of doc/),
-# so the API pages show the code beside them, installed or not.
+# so the API pages show the code beside them, installed or not. rosdoc2 runs this file from a
+# wrapper elsewhere (__file__ is the wrapper's): there the built and sourced package is imported.
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-if ROOT not in sys.path:
+if os.path.isfile(os.path.join(ROOT, 'dmf_sim', '__init__.py')) and ROOT not in sys.path:
     sys.path.insert(0, ROOT)
 
 project = 'dmf_sim'
