@@ -154,3 +154,31 @@ def record_node_run_up(path: Path, v0: float, v1: float, ramp_rpm_s: float, hold
                     f.data = float(val)
                     rec.write(topic, ns, serialize_message(f))
     return path
+
+
+# ------------------------------------------------------------------ damaged files (issue 20)
+
+def chunk_spans(file: Path) -> list[tuple[int, int, int, int]]:
+    """(record offset, record length, message start, message end [ns]) of every chunk of a
+    complete MCAP file, from its summary's chunk index."""
+    from mcap.reader import make_reader
+
+    with open(file, 'rb') as fh:
+        summary = make_reader(fh).get_summary()
+    return [(c.chunk_start_offset, c.chunk_length, c.message_start_time, c.message_end_time)
+            for c in sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset)]
+
+
+def flip_chunks(file: Path, which, nbytes: int = 64) -> list[tuple[int, int, int, int]]:
+    """Invert ``nbytes`` bytes in the middle of the records of each chunk ``which`` (indexes into
+    :func:`chunk_spans`), as a bad sector or a bit-rotted copy would; returns those chunks."""
+    spans = chunk_spans(file)
+    picked = [spans[i] for i in which]
+    with open(file, 'r+b') as fh:
+        for off, length, _, _ in picked:
+            at = off + length // 2
+            fh.seek(at)
+            data = fh.read(nbytes)
+            fh.seek(at)
+            fh.write(bytes(b ^ 0xFF for b in data))
+    return picked

@@ -98,7 +98,7 @@ def analysis_dict(res, extra: Mapping[str, Any] | None = None) -> dict[str, Any]
         'n_max': res.n_max, 'orders': [n / 2 for n in range(res.n_max + 1)],
         'theta_rad': res.theta, 'read_seconds': res.read_seconds,
         'analyze_seconds': res.analyze_seconds, 'warnings': list(res.warnings),
-        'signals': signals,
+        'corrupt_chunks': list(getattr(res, 'corrupt', [])), 'signals': signals,
     }
     if extra:
         out.update(extra)

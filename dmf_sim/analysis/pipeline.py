@@ -103,6 +103,7 @@ class BagAnalysis:
     theta: float | None
     warnings: list[str] = field(default_factory=list)
     model: dict | None = None        # model settings, once :func:`overlay_all` ran
+    corrupt: list[dict] = field(default_factory=list)   # corrupt chunks skipped (see below)
 
     def signal(self, label: str = 'windup') -> SignalAnalysis:
         for s in self.signals:
@@ -160,6 +161,9 @@ def analyze_bag(path: str | os.PathLike | BagFiles,
     if bag.truncated:
         warnings.append('truncated bag (recorder crashed?): read up to the last complete chunk '
                         f'of {", ".join(f.name for f in bag.truncated)}')
+    corrupt = corrupt_report(bag, int(crank.t_ns[0]))
+    warnings += [f'corrupt chunk skipped: {c["text"]}' for c in corrupt]
+    warnings += [s.data_crc_error for s in bag.scans if s.data_crc_error]
     out, rates = [], []
     window = start_s is not None or end_s is not None
     for spec in specs:
@@ -188,4 +192,13 @@ def analyze_bag(path: str | os.PathLike | BagFiles,
     dur = float(crank.t_ns[-1] - crank.t_ns[0]) * 1e-9
     return BagAnalysis(bag.bag.path, source, out, float(bin_rpm), int(min_cycles), int(n_max),
                        int(points_per_cycle), float(min(rates)) if rates else float('nan'), dur,
-                       bag, time.perf_counter() - t_start, theta, warnings)
+                       bag, time.perf_counter() - t_start, theta, warnings, corrupt=corrupt)
+
+
+def corrupt_report(bag: BagSeries, t0_ns: int) -> list[dict]:
+    """The corrupt chunks the reader skipped: file, byte offset, reason, time range [s from
+    ``t0_ns``], messages lost per topic (None: unknown) and one line of text each."""
+    return [{'file': c.file.name, 'offset': c.offset, 'reason': c.reason,
+             't_start_s': (c.start_ns - t0_ns) * 1e-9, 't_end_s': (c.end_ns - t0_ns) * 1e-9,
+             'messages_lost': c.messages, 'topics': dict(c.topics), 'text': c.describe(t0_ns)}
+            for c in bag.corrupt]
