@@ -11,9 +11,9 @@ file was valid. Integrity, as the format provides it:
   times, from the message index records that follow it; else the chunk's own time range).
   Reading goes on with the next chunk.
 * the **data section** CRC (``DataEnd.data_section_crc``, 0 = not computed) covers every byte
-  from the magic up to the DataEnd record; a mismatch is reported in
-  :attr:`Scan.data_crc_error` (a damaged record outside the chunks: an index, a message of an
-  unchunked file).
+  from the magic up to the DataEnd record; a mismatch that the corrupt chunks do not explain
+  is reported in :attr:`Scan.data_crc_error` (a damaged record outside the chunks: an index, a
+  message of an unchunked file).
 
 Channels and schemas declared only inside a corrupt chunk are taken from the file's summary
 section when it has one (yielded right after the corrupt chunk is found). Every reader of the
@@ -303,7 +303,7 @@ def iter_records(file: Path, scan: Scan | None = None, *, emit_chunks: bool = Fa
                         yield r
                 continue
             if isinstance(record, DataEnd) and record.data_section_crc \
-                    and record.data_section_crc != before:
+                    and record.data_section_crc != before and not scan.corrupt:
                 scan.data_crc_error = (f'{file.name}: data section CRC mismatch ({before:08x}, '
                                        f'stored {record.data_section_crc:08x}): a record outside '
                                        'the chunks is damaged')

@@ -4,11 +4,13 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 from pathlib import Path
 
 from dmf_sim.commands import _options as opt
 from dmf_sim.core.errors import ConfigError
+from dmf_sim.core.paths import check_output_dir
 
 NAME = 'analyze'
 HELP = ('Order analysis of a recorded bag (rosbag2 MCAP directory, one of its files, or a bare '
@@ -71,8 +73,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         f'{N_MAX_RANGE[1]} (default %(default)d = 12th order)')
     p.add_argument('--out', type=Path,
                    help='output directory (analysis.json, <signal>_orders.csv, '
-                        '<signal>_cycles.csv, <signal>_campbell.png, <signal>_fig13.png); '
-                        'default <BAG name>_analysis unless --json')
+                        '<signal>_cycles.csv, <signal>_campbell.png, <signal>_fig13.png), '
+                        'checked before anything is computed; default: beside the bag, '
+                        '<BAG>_analysis (none with --json)')
     p.add_argument('--json', action='store_true',
                    help='print one JSON object (order amplitudes per speed bin, Fig. 13 '
                         'quantities, HBM comparison) on stdout')
@@ -119,12 +122,24 @@ def check_arguments(args) -> None:
         raise ConfigError(f'--end {args.end:g} must be after --start {args.start:g}')
 
 
+def default_output(bag: str | Path) -> Path:
+    """Where the analysis goes by default: beside the bag, ``<bag directory>_analysis`` or
+    ``<file name without .mcap>_analysis`` next to the file (not the current directory)."""
+    p = Path(bag)
+    if p.name == 'metadata.yaml':
+        p = p.parent
+    p = Path(os.path.abspath(p))
+    return p.parent / f'{p.name.removesuffix(".mcap")}_analysis'
+
+
 def run(args) -> int:
     from dmf_sim.analysis.outputs import write_outputs
     from dmf_sim.analysis.pipeline import analysis_dict, analyze_bag, model_settings, overlay_all
     from dmf_sim.bags.layout import resolve_bag
 
     check_arguments(args)
+    out = None if args.out is None and args.json else check_output_dir(
+        args.out if args.out is not None else default_output(args.bag))
     topics = {key: value for key, value in (('windup', args.windup_topic),
                                             ('crank', args.crank_topic),
                                             ('speed', args.speed_topic),
@@ -141,9 +156,6 @@ def run(args) -> int:
     natural = overlay_all(res, settings, hbm=args.hbm)
     extra = {'model': {k: v for k, v in settings.items() if k != 'sources'},
              'model_sources': settings['sources'], 'natural_frequencies_hz': natural}
-    out = args.out
-    if out is None and not args.json:
-        out = Path(f'{Path(args.bag).name.removesuffix(".mcap")}_analysis')
     written = write_outputs(res, out, natural=natural, plots=not args.no_plots,
                             extra=extra) if out is not None else []
     if args.json:
