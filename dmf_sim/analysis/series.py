@@ -39,6 +39,10 @@ TOPIC_SPEED = '/engine/speed'
 TOPIC_CRANK = '/engine/crank_angle'
 DEFAULT_TOPICS = {'windup': TOPIC_WINDUP, 'joints': TOPIC_JOINTS, 'speed': TOPIC_SPEED,
                   'crank': TOPIC_CRANK}
+# where the bag holds the engine load (analysis.load_timeline): the node's health statuses and,
+# when it was recorded, the load setpoint topic (under the driveline's namespace)
+TOPIC_DIAGNOSTICS = '/diagnostics'
+TOPIC_LOAD_SETPOINT = '/engine/load_setpoint'
 BACK_JUMP_STEPS = 100     # a stamp this many sample intervals back is a re-anchored clock
 
 # signal kind -> (JointState field or None, unit, description)
@@ -133,6 +137,9 @@ class BagSeries:
         topic_names: the topics read ('windup', 'joints', 'speed', 'crank' -> name).
         scans: per file read, how far it was valid and its corrupt chunks (skipped: the
             messages they held are missing from the series), see :mod:`dmf_sim.bags.records`.
+        health: (times [ns], rows of :data:`dmf_sim.analysis.load_timeline.HEALTH_KEYS`) of
+            the recording node's health statuses in ``/diagnostics`` (None: none recorded).
+        load_setpoints: (times [ns], values) of the recorded load setpoint topic, or None.
     """
 
     series: dict[str, Series]
@@ -146,6 +153,8 @@ class BagSeries:
     notes: list[str] = field(default_factory=list)
     topic_names: dict[str, str] = field(default_factory=lambda: dict(DEFAULT_TOPICS))
     scans: list[Scan] = field(default_factory=list)
+    health: tuple[np.ndarray, np.ndarray] | None = None
+    load_setpoints: tuple[np.ndarray, np.ndarray] | None = None
 
     @property
     def corrupt(self) -> list:
@@ -306,6 +315,12 @@ def read_bag_series(path: str | os.PathLike | BagFiles, *, signals: Sequence[Sig
     tp, ns = bag_topic_names(listed, topics, namespace)
     scalar, joint_cols, factories = _requests({'crank': tp['crank'], 'speed': tp['speed']},
                                               signals, tp)
+    load_sp = ns + TOPIC_LOAD_SETPOINT
+    if load_sp in listed:
+        scalar['load_setpoint'] = load_sp
+        factories[load_sp] = ScalarColumn
+    if TOPIC_DIAGNOSTICS in listed:
+        factories[TOPIC_DIAGNOSTICS] = _health_factory(bag, ns)
     bar = None
     if progress and reader == 'fast':
         from tqdm import tqdm
@@ -348,11 +363,27 @@ def read_bag_series(path: str | os.PathLike | BagFiles, *, signals: Sequence[Sig
         for k, s in enumerate(signal_cols):
             series[s.label] = Series(tv[0], tv[1][:, k])
         names = next((c.names for c in columns if getattr(c, 'names', None)), [])
+    health = assemble(TOPIC_DIAGNOSTICS) if TOPIC_DIAGNOSTICS in factories else None
+    if health is not None:
+        keep = np.isfinite(health[1][:, 0])
+        health = (health[0][keep], health[1][keep]) if keep.any() else None
+    setpoints = series.pop('load_setpoint', None)
     if jumps:
         notes.append(f'time stamps jump back {max(jumps.values())} time(s) (a clock re-anchored '
                      'while recording): later stamps shifted so time runs on')
     return BagSeries(series, {**listed}, bag, truncated, reader, time.perf_counter() - t0, names,
-                     ns.strip('/'), notes, dict(tp), scans)
+                     ns.strip('/'), notes, dict(tp), scans, health,
+                     None if setpoints is None else (setpoints.t_ns, setpoints.values))
+
+
+def _health_factory(bag: BagFiles, ns: str):
+    """Column factory of the recording node's health statuses: the node stored in the bag's
+    metadata, else any node under the namespace ``ns``."""
+    from dmf_sim.analysis.load_timeline import HealthColumn
+
+    node = bag.run_metadata.node
+    prefix = None if node else (ns + '/' if ns else None)
+    return lambda dec, msgtype: HealthColumn(dec, msgtype, node=node, prefix=prefix)
 
 
 # ---------------------------------------------------------------------------- crank angle
