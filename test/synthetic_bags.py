@@ -141,19 +141,26 @@ def record_node_run_up(path: Path, v0: float, v1: float, ramp_rpm_s: float, hold
                 assert sim.set_speed_setpoint(v1) is None
             s = sim.advance(chunk_steps)
             done += chunk_steps
-            for i in range(len(s)):
-                ns = T0 + int(round(float(s.t[i]) * 1e9))
-                js.header.stamp = Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
-                js.position = array.array('d', s.position[i].tobytes())
-                js.velocity = array.array('d', s.velocity[i].tobytes())
-                js.effort = array.array('d', s.effort[i].tobytes())
-                rec.write('/driveline/joint_states', ns, serialize_message(js))
-                for topic, val in (('/driveline/dmf_windup', s.windup[i]),
-                                   ('/engine/speed', s.speed_rpm[i]),
-                                   ('/engine/crank_angle', s.psi[i])):
-                    f.data = float(val)
-                    rec.write(topic, ns, serialize_message(f))
+            write_samples(rec, s, js, f)
     return path
+
+
+def write_samples(rec, s, js: JointState | None, f: Float64) -> None:
+    """Record the samples ``s`` of LiveSimulation.advance as the node publishes them: joint
+    states (unless ``js`` is None), wind-up, speed, crank angle; log time T0 + t."""
+    for i in range(len(s)):
+        ns = T0 + int(round(float(s.t[i]) * 1e9))
+        if js is not None:
+            js.header.stamp = Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+            js.position = array.array('d', s.position[i].tobytes())
+            js.velocity = array.array('d', s.velocity[i].tobytes())
+            js.effort = array.array('d', s.effort[i].tobytes())
+            rec.write('/driveline/joint_states', ns, serialize_message(js))
+        for topic, val in (('/driveline/dmf_windup', s.windup[i]),
+                           ('/engine/speed', s.speed_rpm[i]),
+                           ('/engine/crank_angle', s.psi[i])):
+            f.data = float(val)
+            rec.write(topic, ns, serialize_message(f))
 
 
 # ------------------------------------------------------------------ damaged files (issue 20)
@@ -241,20 +248,7 @@ def record_load_change(path: Path, speed_rpm: float, load0: float, load1: float,
                 if record_setpoint:
                     rec.write('/engine/load_setpoint', T0 + int(round(sim.t * 1e9)),
                               serialize_message(Float64(data=float(load1))))
-            s = sim.advance(chunk_steps)
-            for i in range(len(s)):
-                ns = T0 + int(round(float(s.t[i]) * 1e9))
-                if joints:
-                    js.header.stamp = Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
-                    js.position = array.array('d', s.position[i].tobytes())
-                    js.velocity = array.array('d', s.velocity[i].tobytes())
-                    js.effort = array.array('d', s.effort[i].tobytes())
-                    rec.write('/driveline/joint_states', ns, serialize_message(js))
-                for topic, val in (('/driveline/dmf_windup', s.windup[i]),
-                                   ('/engine/speed', s.speed_rpm[i]),
-                                   ('/engine/crank_angle', s.psi[i])):
-                    f.data = float(val)
-                    rec.write(topic, ns, serialize_message(f))
+            write_samples(rec, sim.advance(chunk_steps), js if joints else None, f)
             if sim.t >= next_diag:
                 ns = T0 + int(round(sim.t * 1e9))
                 msg = DiagnosticArray(status=[health_status(sim)])

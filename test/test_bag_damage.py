@@ -15,6 +15,7 @@ from pathlib import Path
 import pytest
 import rclpy  # noqa: F401  (the ROS tests need it; make test installs it)
 from synthetic_bags import WINDUP, check_table, chunk_spans, flip_chunks, write_synthetic
+from test_analyze_inputs import one_line_error
 
 from dmf_sim.analysis.pipeline import analyze_bag, read_bag_series  # noqa: E402
 from dmf_sim.bags.read import read_messages  # noqa: E402
@@ -26,12 +27,6 @@ from dmf_sim.core.errors import BagError  # noqa: E402
 RAMP = {'duration': 6.0, 'v0': 900.0, 'v1': 1300.0}        # ~55 cycles, 3 files of 2 s
 TOPICS = ('windup', 'speed', 'crank')
 FLIPPED = (5, 9, 14)                                        # chunks of the middle file
-
-
-def one_line_error(capsys) -> str:
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1, err
-    return err[0]
 
 
 @pytest.fixture(scope='module')
