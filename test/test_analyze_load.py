@@ -105,7 +105,8 @@ def test_load_setpoint_topic_marks_the_change():
 
 def test_start_load_only_and_no_load_are_warned(tmp_path):
     """A bag that stores only the start load (no health statuses, no setpoints) is analysed
-    at it, with a warning that it was assumed constant; with no load at all: 1.0, warned."""
+    at it, with a warning that it was assumed constant; with no load at all: 1.0, warned; and
+    a model the bag does not record (driveline, engine, spring) is named as assumed."""
     short = {'duration': 2.0, 'v0': 950.0, 'v1': 1050.0}
     only_start = write_synthetic(tmp_path / 'start', ('windup', 'speed', 'crank'),
                                  custom_data=RunMetadata(load=0.7).to_custom_data(), **short)
@@ -115,3 +116,10 @@ def test_start_load_only_and_no_load_are_warned(tmp_path):
         res = analyze_bag(bag)
         overlay_all(res, model_settings(res.metadata), hbm=False)
         assert any(words in w for w in res.warnings), res.warnings
+        (model,) = [w for w in res.warnings if 'does not record the model' in w]
+        assert 'driveline truck_dmf' in model and 'engine engine_d13' in model
+        assert 'DMF spring of the driveline YAML' in model
+    res = analyze_bag(none)
+    overlay_all(res, model_settings(res.metadata, config='truck_dmf', engine='engine_d13',
+                                    load_set='A', load=1.0), hbm=False)
+    assert not any('does not record' in w for w in res.warnings), res.warnings

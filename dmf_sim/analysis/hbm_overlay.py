@@ -343,6 +343,17 @@ def overlay_all(res, settings: Mapping[str, Any], *, hbm: bool = True) -> dict[s
             if s.signal.kind != 'windup':
                 res.warnings.append('HBM overlay is computed for the DMF wind-up only, not for '
                                     f'{s.signal.label}')
+    sources = settings.get('sources', {})
+    guessed = [f'{key} {settings[key]}' for key in ('driveline', 'engine', 'load_set')
+               if sources.get(key) == 'default']
+    if settings.get('alpha') is not None and sources.get('spring') == 'driveline YAML' \
+            and 'option' not in (sources.get('driveline'), sources.get('alpha'),
+                                 sources.get('theta_rad')):
+        guessed.append(f'the DMF spring of the driveline YAML (alpha {settings["alpha"]:g}, '
+                       f'theta {settings["theta_rad"]:g} rad)')
+    if guessed:
+        res.warnings.append(f'the bag does not record the model: assumed {", ".join(guessed)} '
+                            '(set --config/--engine/--load-set/--alpha/--theta)')
     if model.spring is None:
         if windups:
             res.warnings.append(f'driveline {settings["driveline"]!r} has no DMF: no static '
@@ -366,7 +377,7 @@ def overlay_all(res, settings: Mapping[str, Any], *, hbm: bool = True) -> dict[s
                                       settings=keep)
         else:
             _overlay_per_load(sig, loads, keep, hbm)
-    source = settings.get('sources', {}).get('load')
+    source = sources.get('load')
     if not per_row and source == 'default':
         res.warnings.append('the bag does not record the engine load: static wind-up and HBM '
                             'at load 1.0 (set --load)')
