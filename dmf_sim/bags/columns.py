@@ -401,7 +401,9 @@ class McapColumns:
         scan = self.scan
         done = 0
         ended = False
-        for record in iter_records(self.file, scan, emit_chunks=True):
+        # the chunk CRCs protect every record read; the data-section CRC would only add the
+        # message indexes this reader skips, at the cost of a second pass over the file
+        for record in iter_records(self.file, scan, emit_chunks=True, data_crc=False):
             if isinstance(record, CheckedChunk):
                 self._flush_loose()
                 self._chunk(record)

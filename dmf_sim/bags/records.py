@@ -177,9 +177,10 @@ class _Reader(StreamReader):
     computed as it is read, message indexes parsed only when asked for (after a corrupt chunk;
     a reader that walks every chunk itself would only pay for their per-entry parsing)."""
 
-    def __init__(self, stream, size: int) -> None:
+    def __init__(self, stream, size: int, data_crc: bool) -> None:
         super().__init__(stream, emit_chunks=True, record_size_limit=max(size, 1))
-        self._stream = ReadDataStream(stream, calculate_crc=True)
+        self._stream = ReadDataStream(stream, calculate_crc=data_crc)
+        self.data_crc = data_crc
         self.want_index = False
 
     def _read_record(self, opcode: int, length: int):
@@ -189,10 +190,11 @@ class _Reader(StreamReader):
         return super()._read_record(opcode, length)
 
     def scan(self) -> Iterator[tuple[Any, int]]:
-        """(record or None, CRC of the bytes before it) in file order, up to the footer."""
+        """(record or None, CRC of the bytes before it or None) in file order, up to the
+        footer."""
         read_magic(self._stream)
         while True:
-            before = self._stream.checksum()
+            before = self._stream.checksum() if self.data_crc else None
             opcode = self._stream.read1()
             length = self._stream.read8()
             if length > self._record_size_limit:
@@ -242,21 +244,23 @@ def _summary(file: Path):
             return None
 
 
-def iter_records(file: Path, scan: Scan | None = None, *, emit_chunks: bool = False
-                 ) -> Iterator[Any]:
+def iter_records(file: Path, scan: Scan | None = None, *, emit_chunks: bool = False,
+                 data_crc: bool = True) -> Iterator[Any]:
     """Yield the records of an MCAP file in file order (see the module docstring).
 
     Chunks are checked and expanded into their records, or (``emit_chunks``) yielded as
     :class:`CheckedChunk`; corrupt chunks are skipped and listed in ``scan.corrupt``; message
     index records are not yielded. Reading stops cleanly at a truncated or damaged tail;
-    ``scan`` tells how far the file was valid and what was corrupt.
+    ``scan`` tells how far the file was valid and what was corrupt. ``data_crc=False`` skips the
+    data-section CRC (a second pass over every byte): for a reader that uses only what the
+    chunk CRCs protect (the fast column reader skips the indexes it would cover).
     """
     scan = scan if scan is not None else Scan()
     scan.size = file.stat().st_size
     declared: set[tuple[type, int]] = set()
     from_summary = False
     with file.open('rb') as stream:
-        reader = _Reader(stream, scan.size)
+        reader = _Reader(stream, scan.size, data_crc)
         records = reader.scan()
         bad: CorruptChunk | None = None
         while True:
@@ -302,7 +306,7 @@ def iter_records(file: Path, scan: Scan | None = None, *, emit_chunks: bool = Fa
                             declared.add((type(r), r.id))
                         yield r
                 continue
-            if isinstance(record, DataEnd) and record.data_section_crc \
+            if isinstance(record, DataEnd) and before is not None and record.data_section_crc \
                     and record.data_section_crc != before and not scan.corrupt:
                 scan.data_crc_error = (f'{file.name}: data section CRC mismatch ({before:08x}, '
                                        f'stored {record.data_section_crc:08x}): a record outside '
