@@ -430,7 +430,7 @@ def _overlay_per_load(sig, loads, settings: Mapping[str, Any], hbm: bool) -> Non
         curve.setdefault('load', []).extend([level] * len(ov.curve['speed_rpm'])
                                             if ov.curve else [])
         events += [{**e, 'load': level} for e in ov.events]
-        methods.append(f'load {level:g}: {ov.method}')
+        methods.append((level, ov.method))
         seconds += ov.seconds
     meas = {'order_3': table.order_3, 'order_1_5': table.order_1_5,
             'max_deviation': table.max_deviation, 'min_deviation': table.min_deviation,
@@ -440,5 +440,9 @@ def _overlay_per_load(sig, loads, settings: Mapping[str, Any], hbm: bool) -> Non
     st = {**settings, 'load': levels if len(levels) != 1 else levels[0],
           'speed_range_rpm': [float(np.min(speeds)), float(np.max(speeds))] if len(speeds)
           else []}
+    by_method: dict[str, list[float]] = {}
+    for level, method in methods:
+        by_method.setdefault(method, []).append(level)
+    text = '; '.join(f'load {", ".join(f"{v:g}" for v in lv)}: {m}' for m, lv in by_method.items())
     sig.hbm = HBMOverlay(table.speed_mean_rpm, values, stable, curve or None, diff, st, seconds,
-                         method='; '.join(methods), branch=branch, events=events)
+                         method=text, branch=branch, events=events)

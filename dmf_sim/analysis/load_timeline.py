@@ -29,7 +29,8 @@ import numpy as np
 
 from dmf_sim.bags.columns import Column
 
-__all__ = ['LOAD_TOLERANCE', 'HEALTH_KEYS', 'HealthColumn', 'LoadTimeline', 'load_timeline']
+__all__ = ['LOAD_TOLERANCE', 'HEALTH_KEYS', 'HealthColumn', 'LoadTimeline', 'load_timeline',
+           'describe_unknown', 'load_text']
 
 # two loads within this fraction of full load are the same operating point (the health status
 # prints the load with 4 decimals)
@@ -112,6 +113,13 @@ class LoadTimeline:
         """Load of each engine cycle (times in s from ``origin_ns``); NaN where unknown."""
         return np.array([self.load_between(origin_ns + a * 1e9, origin_ns + b * 1e9)
                          for a, b in zip(t_start_s, t_end_s)], float)
+
+
+def load_text(load: float | Sequence[float]) -> str:
+    """A load, or the loads compared (a list), as text: ``0.5`` or ``0.5, 1``."""
+    if isinstance(load, (list, tuple)):
+        return ', '.join(f'{v:g}' for v in load)
+    return f'{load:g}'
 
 
 def _same(a: float, b: float) -> bool:

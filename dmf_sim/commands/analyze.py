@@ -194,6 +194,8 @@ def _report(res, written) -> None:
 
 
 def _report_signal(res, sig) -> None:
+    from dmf_sim.analysis.load_timeline import load_text
+
     t = sig.table
     unit = sig.signal.unit
     mode = f'{res.bin_rpm:g} rpm bins' if res.bin_rpm > 0 else 'per cycle'
@@ -229,9 +231,7 @@ def _report_signal(res, sig) -> None:
         print(f'HBM: no steady speed bin (>= {t.min_cycles} cycles) to compare with -- the '
               'recording ramps through every bin; lower --min-cycles or widen --bin-rpm')
         return
-    load = (', '.join(f'{v:g}' for v in s['load']) if isinstance(s['load'], list)
-            else f'{s["load"]:g}')
-    print(f'HBM ({sig.hbm.method}; alpha={s["alpha"]:g}, load={load}, load set '
+    print(f'HBM ({sig.hbm.method}; alpha={s["alpha"]:g}, load={load_text(s["load"])}, load set '
           f'{s["load_set"]}, {sig.hbm.seconds:.2f} s): measured - HBM over the steady rows')
     for k, d in sig.hbm.difference.items():
         print(f'  {k:17s} max |diff| {_fmt(d["max_abs"], 1, ".5f")} {unit} at '
