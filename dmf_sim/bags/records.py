@@ -48,6 +48,7 @@ TRUNCATION_ERRORS = (McapError, struct.error, EOFError, UnicodeDecodeError, Valu
 # what reading the summary of a damaged or tiny file raises (a seek before the start: OSError)
 SUMMARY_ERRORS = (*TRUNCATION_ERRORS, OSError)
 RECORD_HEAD = 9           # opcode (1) + record length (8)
+_MAGIC_BYTES = 8          # the magic before the first record
 _NS = 1e-9
 
 
@@ -264,7 +265,7 @@ def iter_records(file: Path, scan: Scan | None = None, *, emit_chunks: bool = Fa
         records = reader.scan()
         bad: CorruptChunk | None = None
         while True:
-            start = scan.valid_end
+            start = max(scan.valid_end, _MAGIC_BYTES)     # offset of the next record
             try:
                 record, before = next(records)
             except StopIteration:
