@@ -18,8 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from dmf_sim.analysis.load_timeline import LOAD_TOLERANCE
-from dmf_sim.analysis.order_bins import OrderTable
+from dmf_sim.analysis.order_bins import LOAD_TOLERANCE, OrderTable
 from dmf_sim.bags.metadata import RunMetadata
 from dmf_sim.core.errors import BagError, ConfigError, ConvergenceError, one_line
 

@@ -27,14 +27,12 @@ from typing import Any
 
 import numpy as np
 
+from dmf_sim.analysis.order_bins import LOAD_TOLERANCE
 from dmf_sim.bags.columns import Column
 
 __all__ = ['LOAD_TOLERANCE', 'HEALTH_KEYS', 'HealthColumn', 'LoadTimeline', 'load_timeline',
            'describe_unknown', 'load_text']
 
-# two loads within this fraction of full load are the same operating point (the health status
-# prints the load with 4 decimals)
-LOAD_TOLERANCE = 1e-3
 # health status values read: the load simulated, its setpoint, the DMF's first drive stage
 HEALTH_KEYS = ('load', 'load_setpoint', 'alpha', 'theta_rad')
 

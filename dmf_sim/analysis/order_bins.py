@@ -18,15 +18,17 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from dmf_sim.analysis.cycle_orders import CycleOrders
-from dmf_sim.analysis.load_timeline import LOAD_TOLERANCE
 from dmf_sim.physics.orders import ORDER_1_5, ORDER_3
 
-__all__ = ['DEFAULT_BIN_RPM', 'DEFAULT_MIN_CYCLES', 'OrderTable', 'bin_cycles']
+__all__ = ['DEFAULT_BIN_RPM', 'DEFAULT_MIN_CYCLES', 'LOAD_TOLERANCE', 'OrderTable', 'bin_cycles']
 
 DEFAULT_BIN_RPM = 20.0
 # 5 cycles in a 20-rpm bin: the speed moved by at most ~33 rpm/s at 1000 rpm (a cycle lasts 0.12 s)
 DEFAULT_MIN_CYCLES = 5
 _UNKNOWN_LEVEL = np.iinfo(np.int64).max     # load level key of cycles of unknown load
+# two loads within this fraction of full load are one operating point (the node's health status
+# prints the load with 4 decimals)
+LOAD_TOLERANCE = 1e-3
 
 
 @dataclass
