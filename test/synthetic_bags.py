@@ -141,16 +141,118 @@ def record_node_run_up(path: Path, v0: float, v1: float, ramp_rpm_s: float, hold
                 assert sim.set_speed_setpoint(v1) is None
             s = sim.advance(chunk_steps)
             done += chunk_steps
-            for i in range(len(s)):
-                ns = T0 + int(round(float(s.t[i]) * 1e9))
-                js.header.stamp = Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
-                js.position = array.array('d', s.position[i].tobytes())
-                js.velocity = array.array('d', s.velocity[i].tobytes())
-                js.effort = array.array('d', s.effort[i].tobytes())
-                rec.write('/driveline/joint_states', ns, serialize_message(js))
-                for topic, val in (('/driveline/dmf_windup', s.windup[i]),
-                                   ('/engine/speed', s.speed_rpm[i]),
-                                   ('/engine/crank_angle', s.psi[i])):
-                    f.data = float(val)
-                    rec.write(topic, ns, serialize_message(f))
+            write_samples(rec, s, js, f)
+    return path
+
+
+def write_samples(rec, s, js: JointState | None, f: Float64) -> None:
+    """Record the samples ``s`` of LiveSimulation.advance as the node publishes them: joint
+    states (unless ``js`` is None), wind-up, speed, crank angle; log time T0 + t."""
+    for i in range(len(s)):
+        ns = T0 + int(round(float(s.t[i]) * 1e9))
+        if js is not None:
+            js.header.stamp = Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+            js.position = array.array('d', s.position[i].tobytes())
+            js.velocity = array.array('d', s.velocity[i].tobytes())
+            js.effort = array.array('d', s.effort[i].tobytes())
+            rec.write('/driveline/joint_states', ns, serialize_message(js))
+        for topic, val in (('/driveline/dmf_windup', s.windup[i]),
+                           ('/engine/speed', s.speed_rpm[i]),
+                           ('/engine/crank_angle', s.psi[i])):
+            f.data = float(val)
+            rec.write(topic, ns, serialize_message(f))
+
+
+# ------------------------------------------------------------------ damaged files (issue 20)
+
+def chunk_spans(file: Path) -> list[tuple[int, int, int, int]]:
+    """(record offset, record length, message start, message end [ns]) of every chunk of a
+    complete MCAP file, from its summary's chunk index."""
+    from mcap.reader import make_reader
+
+    with open(file, 'rb') as fh:
+        summary = make_reader(fh).get_summary()
+    return [(c.chunk_start_offset, c.chunk_length, c.message_start_time, c.message_end_time)
+            for c in sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset)]
+
+
+def flip_chunks(file: Path, which, nbytes: int = 64) -> list[tuple[int, int, int, int]]:
+    """Invert ``nbytes`` bytes in the middle of the records of each chunk ``which`` (indexes into
+    :func:`chunk_spans`), as a bad sector or a bit-rotted copy would; returns those chunks."""
+    spans = chunk_spans(file)
+    picked = [spans[i] for i in which]
+    with open(file, 'r+b') as fh:
+        for off, length, _, _ in picked:
+            at = off + length // 2
+            fh.seek(at)
+            data = fh.read(nbytes)
+            fh.seek(at)
+            fh.write(bytes(b ^ 0xFF for b in data))
+    return picked
+
+
+# ------------------------------------------------------------- a load change (issue 20, item 11)
+
+NODE = '/driveline_node'
+
+
+def health_status(sim, node: str = NODE):
+    """The node's health status as /diagnostics carries it (the keys and formats of
+    dmf_sim.live.health that the analysis reads: load, load_setpoint, alpha, theta_rad)."""
+    from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+
+    from dmf_sim.live.health import status_name
+    from dmf_sim.live.pacing import fmt_num
+
+    spring = sim.model.spring
+    values = {'sim_time_s': f'{sim.t:.4f}', 'speed_rpm': f'{sim.speed:.3f}',
+              'load': f'{sim.load:.4f}', 'load_setpoint': fmt_num(sim.load_setpoint),
+              'alpha': fmt_num(spring.alpha), 'theta_rad': fmt_num(spring.theta)}
+    return DiagnosticStatus(level=bytes([0]), name=status_name(node), hardware_id=node,
+                            message='offline recording',
+                            values=[KeyValue(key=k, value=v) for k, v in values.items()])
+
+
+def record_load_change(path: Path, speed_rpm: float, load0: float, load1: float,
+                       change_s: float, duration_s: float, *, diagnostics_hz: float = 1.0,
+                       record_setpoint: bool = False, joints: bool = False,
+                       chunk_steps: int = 100) -> Path:
+    """Offline 'node recording' (the node's simulation core, as record_node_run_up) at a fixed
+    speed whose load setpoint goes ``load0`` -> ``load1`` at ``change_s``; the node's health
+    status in /diagnostics every 1/``diagnostics_hz`` s and, with ``record_setpoint``, the
+    setpoint topic as ``ros2 bag record -a`` would hold it; the joint states only with
+    ``joints`` (the wind-up analysis does not read them). custom_data stores the start load."""
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    from dmf_sim.live.simulation import LiveSimulation
+
+    sim = LiveSimulation.from_config('truck_dmf', 'engine_d13', load_set='A', speed_rpm=speed_rpm,
+                                     load=load0, stride=10)
+    spring = sim.model.spring
+    custom = RunMetadata(driveline='truck_dmf', engine='engine_d13', load_set='A',
+                         alpha=spring.alpha, theta_rad=spring.theta, spring=spring.as_dict(),
+                         load=load0, speed_rpm=speed_rpm, dt_s=sim.dt, publish_rate_hz=1000.0,
+                         node=NODE).to_custom_data()
+    topics = {**TOPICS, '/diagnostics': 'diagnostic_msgs/msg/DiagnosticArray'}
+    if not joints:
+        del topics['/driveline/joint_states']
+    if record_setpoint:
+        topics['/engine/load_setpoint'] = 'std_msgs/msg/Float64'
+    js, f = JointState(), Float64()
+    js.name = sim.names
+    next_diag = 0.0
+    with BagRecorder(path, topics, custom_data=custom) as rec:
+        while sim.t < duration_s:
+            if sim.t >= change_s and sim.load_setpoint != load1:
+                assert sim.set_load_setpoint(load1) is None
+                if record_setpoint:
+                    rec.write('/engine/load_setpoint', T0 + int(round(sim.t * 1e9)),
+                              serialize_message(Float64(data=float(load1))))
+            write_samples(rec, sim.advance(chunk_steps), js if joints else None, f)
+            if sim.t >= next_diag:
+                ns = T0 + int(round(sim.t * 1e9))
+                msg = DiagnosticArray(status=[health_status(sim)])
+                msg.header.stamp = Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+                rec.write('/diagnostics', ns, serialize_message(msg))
+                next_diag += 1.0 / diagnostics_hz
     return path

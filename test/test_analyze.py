@@ -274,12 +274,14 @@ def test_cli_json_and_files(bags, tmp_path, capsys):
 
 
 def test_cli_text_report(bags, tmp_path, capsys, monkeypatch):
+    """The analysis goes beside the bag by default (issue 20), not into the current directory."""
     monkeypatch.chdir(tmp_path)
     assert cli_main(['analyze', str(bags['no_crank']), '--no-hbm', '--no-plots', '--bin-rpm',
                      '50']) == 0
     out = capsys.readouterr().out
     assert 'integrated engine speed' in out and '3rd' in out
-    assert (tmp_path / 'no_crank_analysis' / 'windup_orders.csv').exists()
+    assert (bags['root'] / 'no_crank_analysis' / 'windup_orders.csv').exists()
+    assert not list(tmp_path.iterdir())
 
 
 

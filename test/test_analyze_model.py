@@ -125,7 +125,7 @@ def test_ramp_bins_marked_and_not_compared(tmp_path, capsys):
     res.signal('windup').table.theta = data['theta_rad']
     fig = fig13_figure(res, res.signal('windup'))
     lines = {ln.get_label(): ln for ln in fig.axes[0].lines}
-    hollow = [lines['3rd order (bag, ramp: few cycles)']]
+    hollow = [lines['3rd order (bag, not steady: few cycles or load changing)']]
     filled = [lines['3rd order (bag)']]
     assert hollow[0].get_markerfacecolor() == 'none'
     np.testing.assert_array_equal(hollow[0].get_xdata(), [r['speed_rpm'] for r in ramp])

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from dmf_sim.analysis.order_bins import OrderTable
+from dmf_sim.analysis.order_bins import LOAD_TOLERANCE, OrderTable
 from dmf_sim.bags.metadata import RunMetadata
 from dmf_sim.core.errors import BagError, ConfigError, ConvergenceError, one_line
 
@@ -28,6 +28,7 @@ __all__ = ['COMPARED', 'HBMOverlay', 'model_settings', 'build_model', 'natural_f
 COMPARED = ('order_3', 'order_1_5', 'max_deviation', 'min_deviation', 'mean_minus_theta')
 _HBM_KEYS = ('order_3', 'order_1_5', 'max_deviation', 'min_deviation', 'mean_minus_theta', 'mean',
              'theta_minus_static')
+_BRANCHES_PER_LOAD = 1000   # curve branch ids of load level j start at j * this (plots apart)
 _SOLVER_ERRORS = (ConvergenceError, np.linalg.LinAlgError, FloatingPointError)
 
 
@@ -324,20 +325,34 @@ def _ramp_direction(speed_rpm: np.ndarray, t_start: np.ndarray) -> int:
 
 def overlay_all(res, settings: Mapping[str, Any], *, hbm: bool = True) -> dict[str, list[float]]:
     """Model quantities beside a :class:`dmf_sim.analysis.pipeline.BagAnalysis` (set in place):
-    the static
-    wind-up of the mean torque on every wind-up table (the green line) and, with ``hbm``, the
-    HBM overlay on every wind-up signal (other signals get a warning). Returns the natural
-    frequencies of the model."""
+    the static wind-up of the mean torque on every wind-up table (the green line) and, with
+    ``hbm``, the HBM overlay on every wind-up signal (other signals get a warning). Each row is
+    compared at its own load when the table has one per row (the load the bag recorded), else
+    at ``settings['load']``. Returns the natural frequencies of the model."""
     model = build_model(settings)
     natural = natural_frequencies(model)
     res.model = {k: settings[k] for k in ('driveline', 'engine', 'alpha', 'theta_rad', 'load_set',
                                           'load')}
     windups = [s for s in res.signals if s.signal.kind == 'windup']
+    per_row = any(s.table.load is not None for s in windups)
+    if per_row:
+        res.model['load'] = _levels(windups)
     if hbm:
         for s in res.signals:
             if s.signal.kind != 'windup':
                 res.warnings.append('HBM overlay is computed for the DMF wind-up only, not for '
                                     f'{s.signal.label}')
+    sources = settings.get('sources', {})
+    guessed = [f'{key} {settings[key]}' for key in ('driveline', 'engine', 'load_set')
+               if sources.get(key) == 'default']
+    if settings.get('alpha') is not None and sources.get('spring') == 'driveline YAML' \
+            and 'option' not in (sources.get('driveline'), sources.get('alpha'),
+                                 sources.get('theta_rad')):
+        guessed.append(f'the DMF spring of the driveline YAML (alpha {settings["alpha"]:g}, '
+                       f'theta {settings["theta_rad"]:g} rad)')
+    if guessed:
+        res.warnings.append(f'the bag does not record the model: assumed {", ".join(guessed)} '
+                            '(set --config/--engine/--load-set/--alpha/--theta)')
     if model.spring is None:
         if windups:
             res.warnings.append(f'driveline {settings["driveline"]!r} has no DMF: no static '
@@ -349,15 +364,84 @@ def overlay_all(res, settings: Mapping[str, Any], *, hbm: bool = True) -> dict[s
     from dmf_sim.physics.loads import DrivelineLoads
 
     loads = DrivelineLoads(model, load_engine(settings['engine'], load_set=settings['load_set']))
-    keep = ('driveline', 'engine', 'alpha', 'theta_rad', 'load_set')
+    keep = {k: settings[k] for k in ('driveline', 'engine', 'alpha', 'theta_rad', 'load_set')}
     for sig in windups:
-        sig.table.static_windup = static_windups(loads, sig.table.speed_mean_rpm, settings['load'])
-        if hbm:
-            sig.hbm = hbm_overlay(sig.table, loads, settings['load'],
-                                  direction=_ramp_direction(sig.cycles.speed_rpm,
-                                                            sig.cycles.t_start),
-                                  settings={k: settings[k] for k in keep})
-    if settings.get('sources', {}).get('load') == 'default':
+        if sig.table.load is None:
+            sig.table.static_windup = static_windups(loads, sig.table.speed_mean_rpm,
+                                                     settings['load'])
+            if hbm:
+                sig.hbm = hbm_overlay(sig.table, loads, settings['load'],
+                                      direction=_ramp_direction(sig.cycles.speed_rpm,
+                                                                sig.cycles.t_start),
+                                      settings=keep)
+        else:
+            _overlay_per_load(sig, loads, keep, hbm)
+    source = sources.get('load')
+    if not per_row and source == 'default':
         res.warnings.append('the bag does not record the engine load: static wind-up and HBM '
                             'at load 1.0 (set --load)')
+    elif not per_row and source == 'bag':
+        res.warnings.append(f'the bag records the engine load only at the start of the recording '
+                            f'({settings["load"]:g}, metadata.yaml), no health statuses or load '
+                            'setpoints: assumed constant (set --load if it changed)')
     return natural
+
+
+def _levels(windups) -> list[float]:
+    """The distinct known loads of the wind-up tables' rows, ascending."""
+    vals = np.concatenate([s.table.load for s in windups if s.table.load is not None])
+    return sorted({float(v) for v in vals[np.isfinite(vals)]})
+
+
+def _overlay_per_load(sig, loads, settings: Mapping[str, Any], hbm: bool) -> None:
+    """Static wind-up and HBM of each row at its own load (rows of unknown load get neither):
+    one overlay per load level, merged into one :class:`HBMOverlay` (curve branches numbered
+    apart per level, ``curve['load']`` says which)."""
+    table = sig.table
+    n = len(table)
+    table.static_windup = np.full(n, np.nan)
+    key = np.where(np.isfinite(table.load), np.round(table.load / LOAD_TOLERANCE), np.nan)
+    groups = [np.flatnonzero(key == k) for k in np.unique(key[np.isfinite(key)])]
+    levels = [float(table.load[g[0]]) for g in groups]
+    if not hbm:
+        for rows, level in zip(groups, levels):
+            table.static_windup[rows] = static_windups(loads, table.speed_mean_rpm[rows], level)
+        return
+    values = {k: np.full(n, np.nan) for k in _HBM_KEYS}
+    stable = np.full(n, None, dtype=object)
+    branch = np.full(n, -1)
+    curve: dict[str, list] = {}
+    events, methods, seconds = [], [], 0.0
+    for j, (rows, level) in enumerate(zip(groups, levels)):
+        table.static_windup[rows] = static_windups(loads, table.speed_mean_rpm[rows], level)
+        at = np.isfinite(sig.cycle_load) & (np.abs(sig.cycle_load - level) <= LOAD_TOLERANCE)
+        ov = hbm_overlay(table.select(rows), loads, level,
+                         direction=_ramp_direction(sig.cycles.speed_rpm[at],
+                                                   sig.cycles.t_start[at]),
+                         settings=settings)
+        for k in _HBM_KEYS:
+            values[k][rows] = ov.values[k]
+        stable[rows] = ov.stable
+        branch[rows] = np.where(ov.branch >= 0, ov.branch + j * _BRANCHES_PER_LOAD, -1)
+        for k, v in (ov.curve or {}).items():
+            curve.setdefault(k, []).extend(
+                [b + j * _BRANCHES_PER_LOAD for b in v] if k == 'branch' else v)
+        curve.setdefault('load', []).extend([level] * len(ov.curve['speed_rpm'])
+                                            if ov.curve else [])
+        events += [{**e, 'load': level} for e in ov.events]
+        methods.append((level, ov.method))
+        seconds += ov.seconds
+    meas = {'order_3': table.order_3, 'order_1_5': table.order_1_5,
+            'max_deviation': table.max_deviation, 'min_deviation': table.min_deviation,
+            'mean_minus_theta': table.mean_minus_theta}
+    diff = _differences(meas, values, table.speed_mean_rpm, table.steady)
+    speeds = table.speed_mean_rpm[np.isfinite(table.load)]
+    st = {**settings, 'load': levels if len(levels) != 1 else levels[0],
+          'speed_range_rpm': [float(np.min(speeds)), float(np.max(speeds))] if len(speeds)
+          else []}
+    by_method: dict[str, list[float]] = {}
+    for level, method in methods:
+        by_method.setdefault(method, []).append(level)
+    text = '; '.join(f'load {", ".join(f"{v:g}" for v in lv)}: {m}' for m, lv in by_method.items())
+    sig.hbm = HBMOverlay(table.speed_mean_rpm, values, stable, curve or None, diff, st, seconds,
+                         method=text, branch=branch, events=events)

@@ -57,6 +57,7 @@ def table_rows(sig) -> list[dict[str, Any]]:
     for i in range(len(t)):
         row = {'speed_rpm': float(t.speed_rpm[i]), 'speed_mean_rpm': float(t.speed_mean_rpm[i]),
                'n_cycles': int(t.n_cycles[i]), 'steady': bool(steady[i]),
+               'load': _optional(t.load, i),
                'order_3': _f(t.order_3[i]), 'order_1_5': _f(t.order_1_5[i]),
                'max_deviation': _f(t.max_deviation[i]), 'min_deviation': _f(t.min_deviation[i]),
                'mean': _f(t.mean[i]),
@@ -98,11 +99,25 @@ def analysis_dict(res, extra: Mapping[str, Any] | None = None) -> dict[str, Any]
         'n_max': res.n_max, 'orders': [n / 2 for n in range(res.n_max + 1)],
         'theta_rad': res.theta, 'read_seconds': res.read_seconds,
         'analyze_seconds': res.analyze_seconds, 'warnings': list(res.warnings),
+        'corrupt_chunks': list(getattr(res, 'corrupt', [])),
+        'load_timeline': _timeline(getattr(res, 'load_timeline', None), res),
         'signals': signals,
     }
     if extra:
         out.update(extra)
     return to_jsonable(out)
+
+
+def _timeline(tl, res) -> dict[str, Any] | None:
+    """Where the per-row loads came from: sources, the loads found, the intervals [s from the
+    first crank-angle sample] where the load was changing or unknown."""
+    if tl is None:
+        return None
+    t0 = int(res.series.series['crank'].t_ns[0]) if 'crank' in res.series.series else 0
+    unknown = [[(a - t0) * 1e-9, (b - t0) * 1e-9]
+               for a, b, v in zip(tl.t0_ns, tl.t1_ns, tl.value) if not math.isfinite(v)]
+    return {'sources': list(tl.sources), 'levels': tl.levels, 'unknown_s': unknown,
+            'notes': list(tl.notes)}
 
 
 def write_csv(sig, path: Path) -> Path:

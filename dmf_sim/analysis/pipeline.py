@@ -39,6 +39,7 @@ from dmf_sim.analysis.hbm_overlay import (
     natural_frequencies,
     overlay_all,
 )
+from dmf_sim.analysis.load_timeline import LoadTimeline, describe_unknown, load_timeline
 from dmf_sim.analysis.order_bins import DEFAULT_BIN_RPM, DEFAULT_MIN_CYCLES, OrderTable, bin_cycles
 from dmf_sim.analysis.outputs import (
     analysis_dict,
@@ -83,6 +84,7 @@ class SignalAnalysis:
     n_samples: int
     topic: str = ''
     hbm: HBMOverlay | None = None
+    cycle_load: np.ndarray | None = None     # engine load of each cycle (NaN: unknown)
 
 
 @dataclass
@@ -103,6 +105,8 @@ class BagAnalysis:
     theta: float | None
     warnings: list[str] = field(default_factory=list)
     model: dict | None = None        # model settings, once :func:`overlay_all` ran
+    corrupt: list[dict] = field(default_factory=list)   # corrupt chunks skipped (see below)
+    load_timeline: LoadTimeline | None = None   # the load over the recording, from the bag
 
     def signal(self, label: str = 'windup') -> SignalAnalysis:
         for s in self.signals:
@@ -131,7 +135,8 @@ def analyze_bag(path: str | os.PathLike | BagFiles,
                 points_per_cycle: int = 256, n_max: int = 24, theta: float | None = None,
                 topics: Mapping[str, str] | None = None, namespace: str | None = None,
                 stamp: str = 'log', reader: str = 'fast', progress: bool = False,
-                start_s: float | None = None, end_s: float | None = None) -> BagAnalysis:
+                start_s: float | None = None, end_s: float | None = None,
+                load: float | None = None) -> BagAnalysis:
     """Order analysis of a bag (see the module docstring).
 
     Args:
@@ -145,6 +150,9 @@ def analyze_bag(path: str | os.PathLike | BagFiles,
         topics, namespace, stamp, reader, progress: see :func:`read_bag_series`.
         start_s, end_s: keep only cycles within this time window [s from the first crank-angle
             sample] (e.g. to skip a start-up transient).
+        load: the engine load fraction of the whole recording, if the caller knows it (the
+            ``--load`` option). None: the load each cycle ran at, from what the bag holds
+            (:mod:`dmf_sim.analysis.load_timeline`); rows are then per speed bin *and* load.
     """
     t_start = time.perf_counter()
     specs = [s if isinstance(s, SignalSpec) else SignalSpec.parse(s) for s in signals]
@@ -160,6 +168,22 @@ def analyze_bag(path: str | os.PathLike | BagFiles,
     if bag.truncated:
         warnings.append('truncated bag (recorder crashed?): read up to the last complete chunk '
                         f'of {", ".join(f.name for f in bag.truncated)}')
+    corrupt = corrupt_report(bag, int(crank.t_ns[0]))
+    warnings += [f'corrupt chunk skipped: {c["text"]}' for c in corrupt]
+    warnings += [s.data_crc_error for s in bag.scans if s.data_crc_error]
+    timeline = None
+    if load is None:
+        t0_ns = int(crank.t_ns[0])
+        timeline = load_timeline(bag.health, bag.load_setpoints, bag.bag.run_metadata.load,
+                                 t0_ns, int(crank.t_ns[-1]))
+        if timeline is not None:
+            warnings += timeline.notes
+            for key, seen in timeline.settings.items():
+                if len(seen) > 1:
+                    warnings.append(f'{key} changed during the recording '
+                                    f'({", ".join(f"{v:g}" for v in seen)}): the model uses one '
+                                    f'value (see model_sources); analyse the parts apart with '
+                                    '--start/--end')
     out, rates = [], []
     window = start_s is not None or end_s is not None
     for spec in specs:
@@ -183,9 +207,24 @@ def analyze_bag(path: str | os.PathLike | BagFiles,
                            + (' in the time window' if window else ''))
         if len(s) > 1:
             rates.append(1e9 / float(np.median(np.diff(s.t_ns))))
-        table = bin_cycles(cyc, bin_rpm, theta if spec.kind == 'windup' else None, min_cycles)
-        out.append(SignalAnalysis(spec, cyc, table, len(s), topic))
+        loads = (None if timeline is None else
+                 timeline.cycle_loads(cyc.t_start, cyc.t_end, int(crank.t_ns[0])))
+        table = bin_cycles(cyc, bin_rpm, theta if spec.kind == 'windup' else None, min_cycles,
+                           loads)
+        if loads is not None and not np.isfinite(loads).all() and not out:
+            warnings.append(describe_unknown(timeline, loads, int(crank.t_ns[0])))
+        out.append(SignalAnalysis(spec, cyc, table, len(s), topic, cycle_load=loads))
     dur = float(crank.t_ns[-1] - crank.t_ns[0]) * 1e-9
     return BagAnalysis(bag.bag.path, source, out, float(bin_rpm), int(min_cycles), int(n_max),
                        int(points_per_cycle), float(min(rates)) if rates else float('nan'), dur,
-                       bag, time.perf_counter() - t_start, theta, warnings)
+                       bag, time.perf_counter() - t_start, theta, warnings, corrupt=corrupt,
+                       load_timeline=timeline)
+
+
+def corrupt_report(bag: BagSeries, t0_ns: int) -> list[dict]:
+    """The corrupt chunks the reader skipped: file, byte offset, reason, time range [s from
+    ``t0_ns``], messages lost per topic (None: unknown) and one line of text each."""
+    return [{'file': c.file.name, 'offset': c.offset, 'reason': c.reason,
+             't_start_s': (c.start_ns - t0_ns) * 1e-9, 't_end_s': (c.end_ns - t0_ns) * 1e-9,
+             'messages_lost': c.messages, 'topics': dict(c.topics), 'text': c.describe(t0_ns)}
+            for c in bag.corrupt]

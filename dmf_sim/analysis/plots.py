@@ -21,6 +21,7 @@ import numpy as np
 from matplotlib import colormaps
 from matplotlib.figure import Figure
 
+from dmf_sim.analysis.load_timeline import load_text
 from dmf_sim.figures import save
 
 __all__ = ['fig13_figure', 'plot_campbell', 'plot_fig13']
@@ -44,7 +45,7 @@ def _measured(ax, speed, y, steady, color, label) -> None:
     ax.plot(speed[steady], y[steady], 'o', ms=4, color=color, label=_label(label, 'bag'))
     if (~steady).any():
         ax.plot(speed[~steady], y[~steady], 'o', ms=4, mfc='none', mec=color, alpha=0.6,
-                label=_label(label, 'bag, ramp: few cycles'))
+                label=_label(label, 'bag, not steady: few cycles or load changing'))
 
 
 def _hbm_lines(ax, curve, key, color, label) -> None:
@@ -76,7 +77,8 @@ def _title(res, sig) -> str:
             x for x in (f'θ = {theta:.3g} rad' if theta is not None else '',
                         f"α = {s['alpha']:g}" if s.get('alpha') is not None else '',
                         f"load set {s['load_set']}" if s.get('load_set') else '',
-                        f"load {s['load']:g}" if s.get('load') is not None else '') if x))
+                        f"load {load_text(s['load'])}" if s.get('load') is not None else '')
+                       if x))
     return ' — '.join(parts)
 
 
@@ -163,7 +165,7 @@ def plot_campbell(res, sig, path: Path, natural: Mapping[str, Sequence[float]] |
     if ramp.any():
         ax.scatter(S[ramp], (Ord * S / 60.0)[ramp], s=sizes[ramp], facecolors='none',
                    edgecolors=colormaps['viridis'](norm(amp[ramp])), lw=0.6,
-                   label='ramp bins (few cycles)')
+                   label='not steady (few cycles or load changing)')
     fig.colorbar(sc, ax=ax, label=f'half-order amplitude [{unit}]')
     rpm = np.array([speeds.min(), speeds.max()])
     for o in engine_orders:
@@ -195,6 +197,6 @@ def plot_campbell(res, sig, path: Path, natural: Mapping[str, Sequence[float]] |
     fig.colorbar(m, ax=ax2, label=f'amplitude [{unit}]')
     ax2.set_xlabel('engine order [-]')
     ax2.set_ylabel('engine speed [rpm]')
-    ax2.set_title('order waterfall (hatched: ramp bins, few cycles)', fontsize=10)
+    ax2.set_title('order waterfall (hatched: not steady)', fontsize=10)
     fig.suptitle(_title(res, sig), fontsize=10)
     return save(fig, path)

@@ -24,7 +24,8 @@ import numpy as np
 
 from dmf_sim.bags.columns import Column, JointStateColumns, McapColumns, ScalarColumn
 from dmf_sim.bags.layout import BagFiles, resolve_bag
-from dmf_sim.bags.read import Scan, TypeDecoder, bag_topics, iter_records, read_messages
+from dmf_sim.bags.read import TypeDecoder, bag_topics, read_messages
+from dmf_sim.bags.records import Scan
 from dmf_sim.core.errors import BagError
 from dmf_sim.core.units import RPM_TO_RAD_S
 
@@ -38,6 +39,10 @@ TOPIC_SPEED = '/engine/speed'
 TOPIC_CRANK = '/engine/crank_angle'
 DEFAULT_TOPICS = {'windup': TOPIC_WINDUP, 'joints': TOPIC_JOINTS, 'speed': TOPIC_SPEED,
                   'crank': TOPIC_CRANK}
+# where the bag holds the engine load (analysis.load_timeline): the node's health statuses and,
+# when it was recorded, the load setpoint topic (under the driveline's namespace)
+TOPIC_DIAGNOSTICS = '/diagnostics'
+TOPIC_LOAD_SETPOINT = '/engine/load_setpoint'
 BACK_JUMP_STEPS = 100     # a stamp this many sample intervals back is a re-anchored clock
 
 # signal kind -> (JointState field or None, unit, description)
@@ -130,6 +135,11 @@ class BagSeries:
         namespace: the driveline namespace the default topics were taken under ('' for none).
         notes: what the reader adapted to (skipped files, re-anchored clocks).
         topic_names: the topics read ('windup', 'joints', 'speed', 'crank' -> name).
+        scans: per file read, how far it was valid and its corrupt chunks (skipped: the
+            messages they held are missing from the series), see :mod:`dmf_sim.bags.records`.
+        health: (times [ns], rows of :data:`dmf_sim.analysis.load_timeline.HEALTH_KEYS`) of
+            the recording node's health statuses in ``/diagnostics`` (None: none recorded).
+        load_setpoints: (times [ns], values) of the recorded load setpoint topic, or None.
     """
 
     series: dict[str, Series]
@@ -142,6 +152,15 @@ class BagSeries:
     namespace: str = ''
     notes: list[str] = field(default_factory=list)
     topic_names: dict[str, str] = field(default_factory=lambda: dict(DEFAULT_TOPICS))
+    scans: list[Scan] = field(default_factory=list)
+    health: tuple[np.ndarray, np.ndarray] | None = None
+    load_setpoints: tuple[np.ndarray, np.ndarray] | None = None
+
+    @property
+    def corrupt(self) -> list:
+        """The corrupt chunks skipped in every file (:class:`~dmf_sim.bags.records.CorruptChunk`).
+        """
+        return [c for s in self.scans for c in s.corrupt]
 
     @property
     def files(self) -> tuple[Path, ...]:
@@ -225,7 +244,8 @@ def _requests(keys: Mapping[str, str], signals: Sequence[SignalSpec], tp: Mappin
     return scalar, joint_cols, factories
 
 
-def _read_fast(bag: BagFiles, factories, stamp: str, bar) -> tuple[dict, list, list]:
+def _read_fast(bag: BagFiles, factories, stamp: str, bar, scans: list[Scan]
+               ) -> tuple[dict, list, list]:
     parts: dict[str, list] = {}
     truncated: list[Path] = []
     columns: list[Column] = []
@@ -246,16 +266,18 @@ def _read_fast(bag: BagFiles, factories, stamp: str, bar) -> tuple[dict, list, l
             parts.setdefault(topic, []).extend(got)
         if reader.truncated:
             truncated.append(file)
+        scans.append(reader.scan)
     return parts, truncated, columns
 
 
-def _read_reference(bag: BagFiles, factories, stamp: str) -> tuple[dict, list, list]:
+def _read_reference(bag: BagFiles, factories, stamp: str, scans: list[Scan]
+                    ) -> tuple[dict, list, list]:
     """The library path: mcap records, every wanted message decoded by rosbags."""
     columns: dict[str, Column] = {}
     rows: dict[str, list] = {}
     times: dict[str, list] = {}
     decoder = TypeDecoder()
-    for m in read_messages(bag, list(factories)):
+    for m in read_messages(bag, list(factories), scans=scans):
         col = columns.get(m.topic)
         if col is None:
             col = columns[m.topic] = factories[m.topic](decoder, m.msgtype)
@@ -263,15 +285,8 @@ def _read_reference(bag: BagFiles, factories, stamp: str) -> tuple[dict, list, l
         times.setdefault(m.topic, []).append(m.timestamp_ns if stamp == 'log'
                                              else m.publish_time_ns)
     parts = {t: [(np.array(times[t], np.int64), np.array(rows[t], float))] for t in rows}
-    truncated = [f for f in bag.files if not _complete(f)]
+    truncated = [f for f, s in zip(bag.files, scans) if not s.complete]
     return parts, truncated, list(columns.values())
-
-
-def _complete(file: Path) -> bool:
-    scan = Scan()
-    for _ in iter_records(file, scan, emit_chunks=True):
-        pass
-    return scan.complete
 
 
 def read_bag_series(path: str | os.PathLike | BagFiles, *, signals: Sequence[SignalSpec] = (),
@@ -300,16 +315,23 @@ def read_bag_series(path: str | os.PathLike | BagFiles, *, signals: Sequence[Sig
     tp, ns = bag_topic_names(listed, topics, namespace)
     scalar, joint_cols, factories = _requests({'crank': tp['crank'], 'speed': tp['speed']},
                                               signals, tp)
+    load_sp = ns + TOPIC_LOAD_SETPOINT
+    if load_sp in listed:
+        scalar['load_setpoint'] = load_sp
+        factories[load_sp] = ScalarColumn
+    if TOPIC_DIAGNOSTICS in listed:
+        factories[TOPIC_DIAGNOSTICS] = _health_factory(bag, ns)
     bar = None
     if progress and reader == 'fast':
         from tqdm import tqdm
         bar = tqdm(total=sum(f.stat().st_size for f in bag.files), unit='B', unit_scale=True,
                    desc='reading bag', leave=False)
+    scans: list[Scan] = []
     try:
         if reader == 'fast':
-            parts, truncated, columns = _read_fast(bag, factories, stamp, bar)
+            parts, truncated, columns = _read_fast(bag, factories, stamp, bar, scans)
         else:
-            parts, truncated, columns = _read_reference(bag, factories, stamp)
+            parts, truncated, columns = _read_reference(bag, factories, stamp, scans)
     finally:
         if bar is not None:
             bar.close()
@@ -341,11 +363,27 @@ def read_bag_series(path: str | os.PathLike | BagFiles, *, signals: Sequence[Sig
         for k, s in enumerate(signal_cols):
             series[s.label] = Series(tv[0], tv[1][:, k])
         names = next((c.names for c in columns if getattr(c, 'names', None)), [])
+    health = assemble(TOPIC_DIAGNOSTICS) if TOPIC_DIAGNOSTICS in factories else None
+    if health is not None:
+        keep = np.isfinite(health[1][:, 0])
+        health = (health[0][keep], health[1][keep]) if keep.any() else None
+    setpoints = series.pop('load_setpoint', None)
     if jumps:
         notes.append(f'time stamps jump back {max(jumps.values())} time(s) (a clock re-anchored '
                      'while recording): later stamps shifted so time runs on')
     return BagSeries(series, {**listed}, bag, truncated, reader, time.perf_counter() - t0, names,
-                     ns.strip('/'), notes, dict(tp))
+                     ns.strip('/'), notes, dict(tp), scans, health,
+                     None if setpoints is None else (setpoints.t_ns, setpoints.values))
+
+
+def _health_factory(bag: BagFiles, ns: str):
+    """Column factory of the recording node's health statuses: the node stored in the bag's
+    metadata, else any node under the namespace ``ns``."""
+    from dmf_sim.analysis.load_timeline import HealthColumn
+
+    node = bag.run_metadata.node
+    prefix = None if node else (ns + '/' if ns else None)
+    return lambda dec, msgtype: HealthColumn(dec, msgtype, node=node, prefix=prefix)
 
 
 # ---------------------------------------------------------------------------- crank angle

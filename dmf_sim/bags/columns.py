@@ -5,11 +5,14 @@ every wanted message with ``rosbags`` -- fine for a few thousand messages, slow 
 millions (``benchmarks/bench_analyze.py`` measures both). This reader keeps the library's
 framing and decompression and replaces only the per-message work with array operations:
 
-1. **Framing**: the top-level records come from ``mcap``'s StreamReader (chunks whole, message
-   indexes skipped), so truncated files stop cleanly at their last complete record, as there.
-2. **Chunks** are decompressed by ``mcap`` and walked by a small jitted loop that lists the
-   record offsets (no message index needed, so a chunk a crash cut off from its indexes reads
-   the same); message fields (channel, log/publish time, data span) are gathered with numpy.
+1. **Framing**: the top-level records come from the record scanner
+   (:mod:`dmf_sim.bags.records`: chunks whole and checked against their CRCs, message indexes
+   skipped), so truncated files stop cleanly at their last complete record, as there, and a
+   corrupt chunk is skipped and reported (:attr:`McapColumns.scan`).
+2. **Chunks**, decompressed and checked by the scanner, are walked by a small jitted loop that
+   lists the record offsets (no message index needed, so a chunk a crash cut off from its
+   indexes reads the same); message fields (channel, log/publish time, data span) are gathered
+   with numpy.
 3. **Values**: ``std_msgs/Float64`` comes straight from the CDR bytes (both byte orders).
    ``sensor_msgs/JointState`` columns use the byte layout of the first message, checked against
    ``rosbags``' decoding of it; each message whose fixed bytes (frame id, names, array lengths)
@@ -27,13 +30,19 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numba
 import numpy as np
 from mcap.data_stream import ReadDataStream
-from mcap.records import Channel, Chunk, DataEnd, Footer, Message, Schema
-from mcap.stream_reader import get_chunk_data_stream
+from mcap.records import Channel, DataEnd, Footer, Message, Schema
 
-from dmf_sim.bags.read import Scan, TypeDecoder, iter_records, normalize_type
+from dmf_sim.bags.read import TypeDecoder
+from dmf_sim.bags.records import (
+    RECORD_HEAD,
+    CheckedChunk,
+    Scan,
+    iter_records,
+    normalize_type,
+    record_offsets,
+)
 from dmf_sim.core.errors import BagError
 
 __all__ = ['FLOAT64', 'JOINT_STATE', 'Column', 'ScalarColumn', 'JointStateColumns', 'McapColumns',
@@ -42,7 +51,8 @@ __all__ = ['FLOAT64', 'JOINT_STATE', 'Column', 'ScalarColumn', 'JointStateColumn
 FLOAT64 = 'std_msgs/msg/Float64'
 JOINT_STATE = 'sensor_msgs/msg/JointState'
 _OP_SCHEMA, _OP_CHANNEL, _OP_MESSAGE = 3, 4, 5
-_RECORD_HEAD = 9          # opcode (1) + record length (8)
+_RECORD_HEAD = RECORD_HEAD
+_record_offsets = record_offsets   # (the benchmark times it by this name)
 _LOG_TIME, _PUBLISH_TIME = 15, 23   # message record offsets: head 9, channel 2, sequence 4
 _MSG_DATA = 31            # message data after log and publish time
 _LOOSE_BATCH = 4096       # unchunked messages gathered per batch
@@ -50,25 +60,6 @@ _CHUNK_BATCH_BYTES = 1 << 20   # decompressed chunks gathered per batch (the rec
                                # are small for crash tolerance: numpy's per-call cost would
                                # dominate chunk by chunk)
 _ARANGE8 = np.arange(8)
-
-
-@numba.njit(cache=True)
-def _record_offsets(buf: np.ndarray) -> np.ndarray:
-    """Offsets of the complete records of a chunk's records area (uint8 array)."""
-    n = buf.shape[0]
-    out = np.empty(n // _RECORD_HEAD + 1, np.int64)
-    pos = 0
-    count = 0
-    while pos + _RECORD_HEAD <= n:
-        length = np.uint64(0)
-        for k in range(8):
-            length |= np.uint64(buf[pos + 1 + k]) << np.uint64(8 * k)
-        if length > np.uint64(n - pos - _RECORD_HEAD):
-            break
-        out[count] = pos
-        count += 1
-        pos += _RECORD_HEAD + np.int64(length)
-    return out[:count]
 
 
 def _u64(buf: np.ndarray, pos: np.ndarray) -> np.ndarray:
@@ -287,7 +278,9 @@ class McapColumns:
         progress: callable(bytes read) for a progress bar.
 
     After :meth:`read`: ``columns`` topic -> list of (times [ns] int64, values (k, width)) in
-    file order, ``topics`` topic -> type of every channel, ``truncated`` / ``error``.
+    file order, ``topics`` topic -> type of every channel, ``truncated`` / ``error``, ``scan``
+    (how far the file was valid; its corrupt chunks, skipped, with the topics they held) and
+    ``undeclared`` (messages on channels declared only in a corrupt chunk: unreadable).
     """
 
     file: Path
@@ -299,6 +292,8 @@ class McapColumns:
     topics: dict[str, str] = field(default_factory=dict)
     truncated: bool = False
     error: str = ''
+    scan: Scan = field(default_factory=Scan)
+    undeclared: int = 0
 
     def __post_init__(self) -> None:
         if self.stamp not in ('log', 'publish'):
@@ -340,6 +335,8 @@ class McapColumns:
         try:
             return self._channels[cid][1]
         except KeyError:
+            if self.scan.corrupt:          # declared in a chunk that was skipped
+                return None
             raise BagError(f'{self.file}: message on undeclared channel {cid}') from None
 
     def _gather(self, buf: np.ndarray, cids: np.ndarray, times: np.ndarray, start: np.ndarray,
@@ -347,6 +344,8 @@ class McapColumns:
         for cid in np.unique(cids):
             column = self._column(int(cid))
             if column is None:
+                if int(cid) not in self._channels:
+                    self.undeclared += int(np.count_nonzero(cids == cid))
                 continue
             sel = np.flatnonzero(cids == cid)
             values = column.rows(buf, start[sel], length[sel])
@@ -354,22 +353,12 @@ class McapColumns:
             self.columns.setdefault(topic, []).append((times[sel].astype(np.int64), values))
 
     # ---- chunks ------------------------------------------------------------------------------
-    def _chunk(self, chunk: Chunk) -> bool:
-        """Decompress one chunk into the pending batch (gathered by :meth:`_flush_chunks`);
-        False if it cannot be decompressed (damaged: the file ends there)."""
-        try:
-            stream, size = get_chunk_data_stream(chunk)
-            data = stream.read(size)
-        except Exception as exc:  # noqa: BLE001 - zstd/lz4 errors of a damaged chunk vary
-            self._flush_chunks()
-            self.truncated = True
-            self.error = f'damaged chunk: {type(exc).__name__}: {" ".join(str(exc).split())}'
-            return False
-        self._pending.append(data)
-        self._pending_bytes += len(data)
+    def _chunk(self, chunk: CheckedChunk) -> None:
+        """Add one checked chunk's records to the pending batch (see :meth:`_flush_chunks`)."""
+        self._pending.append(chunk.data)
+        self._pending_bytes += len(chunk.data)
         if self._pending_bytes >= _CHUNK_BATCH_BYTES:
             self._flush_chunks()
-        return True
 
     def _flush_chunks(self) -> None:
         """Gather the pending chunks at once: a chunk's records are a complete record sequence,
@@ -409,14 +398,15 @@ class McapColumns:
 
     def read(self) -> McapColumns:
         """Read the file (once); returns self."""
-        scan = Scan()
+        scan = self.scan
         done = 0
         ended = False
-        for record in iter_records(self.file, scan, emit_chunks=True):
-            if isinstance(record, Chunk):
+        # the chunk CRCs protect every record read; the data-section CRC would only add the
+        # message indexes this reader skips, at the cost of a second pass over the file
+        for record in iter_records(self.file, scan, emit_chunks=True, data_crc=False):
+            if isinstance(record, CheckedChunk):
                 self._flush_loose()
-                if not self._chunk(record):
-                    return self
+                self._chunk(record)
             elif isinstance(record, Message):
                 self._flush_chunks()           # file order: the chunks before this message
                 if self._column(record.channel_id) is not None:
@@ -437,6 +427,7 @@ class McapColumns:
         if not ended and not scan.complete:
             self.truncated = True
             self.error = scan.error
+        scan.name({cid: topic for cid, (topic, _) in self._channels.items()})
         if self.progress is not None:
             self.progress(scan.size - done)
         return self

@@ -1,90 +1,32 @@
 """Reading bags message by message with the libraries: ``mcap`` framing, ``rosbags`` decoding.
 
-This is the reference reader: every record of every file through ``mcap``'s
-:class:`~mcap.stream_reader.StreamReader` (its chunk decompression included), every wanted
+This is the reference reader: every record of every file through ``mcap``'s record parsing
+(its chunk decompression included), every wanted
 message decoded by :class:`TypeDecoder` (``rosbags`` types from the schemas embedded in the
 file). It reads complete files, files a crash truncated (up to the last complete record) and
-files written by other tools. :mod:`dmf_sim.bags.columns` is the fast path for numeric columns;
-it is checked against this one.
+files written by other tools. The records come from :mod:`dmf_sim.bags.records` (chunks checked
+against their CRCs: a corrupt chunk is skipped and reported in the file's :class:`Scan`).
+:mod:`dmf_sim.bags.columns` is the fast path for numeric columns; it is checked against this
+one.
 """
 from __future__ import annotations
 
 import os
-import struct
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from mcap.exceptions import McapError
-from mcap.opcode import Opcode
-from mcap.reader import make_reader
 from mcap.records import Channel, Message, Schema
-from mcap.stream_reader import StreamReader
 
 from dmf_sim.bags.layout import BagFiles, resolve_bag
+from dmf_sim.bags.records import Scan, file_topics, iter_records, normalize_type
 from dmf_sim.core.errors import BagError
 
 __all__ = ['BagMessage', 'Scan', 'TypeDecoder', 'bag_topics', 'iter_records', 'normalize_type',
            'read_messages']
 
-# what a truncated or damaged tail raises inside the mcap reader
-TRUNCATION_ERRORS = (McapError, struct.error, EOFError, UnicodeDecodeError, ValueError)
 _IDL_SEPARATOR = '=' * 80 + '\n'
-
-
-def normalize_type(name: str) -> str:
-    """ROS type name in its full form (``std_msgs/Float64`` -> ``std_msgs/msg/Float64``)."""
-    from rosbags.typesys.msg import normalize_msgtype
-
-    return normalize_msgtype(name) if name else ''
-
-
-@dataclass
-class Scan:
-    """Outcome of a sequential pass over one MCAP file."""
-
-    complete: bool = False   # footer and trailing magic seen
-    valid_end: int = 0       # file offset after the last complete record
-    size: int = 0
-    error: str = ''
-
-
-class _ChunkReader(StreamReader):
-    """mcap's StreamReader, chunks emitted whole and message indexes skipped unparsed (a
-    reader that walks every chunk itself would only pay for their per-entry parsing)."""
-
-    def _read_record(self, opcode: int, length: int):
-        if opcode == Opcode.MESSAGE_INDEX:
-            self._stream.read(length)
-            return None
-        return super()._read_record(opcode, length)
-
-
-def iter_records(file: Path, scan: Scan | None = None, *, emit_chunks: bool = False
-                 ) -> Iterator[Any]:
-    """Yield the records of an MCAP file in file order, stopping cleanly at a truncated or
-    damaged tail; ``scan`` tells how far the file was valid. Chunks are expanded into their
-    records, or (``emit_chunks``) yielded whole without the message index records.
-    """
-    scan = scan if scan is not None else Scan()
-    scan.size = file.stat().st_size
-    with file.open('rb') as stream:
-        kind = _ChunkReader if emit_chunks else StreamReader
-        reader = kind(stream, emit_chunks=emit_chunks, record_size_limit=max(scan.size, 1))
-        records = reader.records
-        while True:
-            try:
-                record = next(records)
-            except StopIteration:
-                scan.complete = True
-                scan.valid_end = stream.tell()
-                return
-            except TRUNCATION_ERRORS as exc:
-                scan.error = f'{type(exc).__name__}: {exc}' if str(exc) else type(exc).__name__
-                return
-            scan.valid_end = stream.tell()  # chunk contents come after the whole chunk is read
-            yield record
 
 
 class TypeDecoder:
@@ -213,8 +155,8 @@ def _channel_type(file: Path, channel: Channel, schemas: dict[int, Schema]) -> s
 
 
 def read_messages(path: str | os.PathLike[str] | BagFiles,
-                  topics: str | Iterable[str] | None = None, *, raw: bool = False
-                  ) -> Iterator[BagMessage]:
+                  topics: str | Iterable[str] | None = None, *, raw: bool = False,
+                  scans: list[Scan] | None = None) -> Iterator[BagMessage]:
     """Iterate over the messages of a bag in file order (log-time order for our own bags).
 
     Args:
@@ -223,8 +165,11 @@ def read_messages(path: str | os.PathLike[str] | BagFiles,
             in the file.
         topics: only these topics (default: all).
         raw: yield the CDR bytes as ``msg`` instead of decoding.
+        scans: if given, one :class:`Scan` per file is appended as the file is read: how far
+            it was valid and which chunks were corrupt (skipped), with their topics.
 
-    A truncated file (crashed recorder) is read up to its last complete chunk.
+    A truncated file (crashed recorder) is read up to its last complete chunk; a corrupt chunk
+    (CRC mismatch) is skipped.
     """
     bag = path if isinstance(path, BagFiles) else resolve_bag(path)
     wanted = _wanted(topics)
@@ -232,7 +177,11 @@ def read_messages(path: str | os.PathLike[str] | BagFiles,
     for file in bag.files:
         schemas: dict[int, Schema] = {}
         channels: dict[int, tuple[str, str] | None] = {}   # id -> (topic, type); None: skipped
-        for record in iter_records(file):
+        names: dict[int, str] = {}
+        scan = Scan()
+        if scans is not None:
+            scans.append(scan)
+        for record in iter_records(file, scan):
             if isinstance(record, Message):
                 info = channels.get(record.channel_id)
                 if info is None:
@@ -243,6 +192,7 @@ def read_messages(path: str | os.PathLike[str] | BagFiles,
             elif isinstance(record, Schema):
                 schemas[record.id] = record
             elif isinstance(record, Channel) and record.id not in channels:
+                names[record.id] = record.topic
                 if wanted is not None and record.topic not in wanted:
                     channels[record.id] = None
                     continue
@@ -250,22 +200,7 @@ def read_messages(path: str | os.PathLike[str] | BagFiles,
                 if not raw:
                     decoder.add_schema(schemas.get(record.schema_id), msgtype)
                 channels[record.id] = (record.topic, msgtype)
-
-
-def _summary_topics(file: Path) -> dict[str, str] | None:
-    """Topic -> type from the summary section of a complete file (None if it has none)."""
-    with file.open('rb') as stream:
-        try:
-            summary = make_reader(stream).get_summary()
-        except TRUNCATION_ERRORS:
-            return None
-    if summary is None or not summary.channels:
-        return None
-    out: dict[str, str] = {}
-    for channel in summary.channels.values():
-        schema = summary.schemas.get(channel.schema_id)
-        out.setdefault(channel.topic, normalize_type(schema.name) if schema else '')
-    return out
+        scan.name(names)
 
 
 def bag_topics(path: str | os.PathLike[str] | BagFiles) -> dict[str, str]:
@@ -276,11 +211,6 @@ def bag_topics(path: str | os.PathLike[str] | BagFiles) -> dict[str, str]:
         return bag.topics
     result = dict(bag.topics)
     for file in bag.files:
-        found = _summary_topics(file)
-        if found is None:
-            from dmf_sim.bags.columns import McapColumns
-
-            found = McapColumns(file).read().topics
-        for topic, msgtype in found.items():
+        for topic, msgtype in file_topics(file).items():
             result.setdefault(topic, msgtype)
     return result

@@ -3,11 +3,15 @@
 After a crash (even SIGKILL) a bag written by :class:`dmf_sim.bags.writer.BagRecorder` holds its
 closed
 splits, complete and listed in ``metadata.yaml``, and the split being written: a valid MCAP
-prefix without summary or footer, not listed yet. :func:`recover_bag` keeps every complete file
-as it is (copied, or left in place), rewrites each incomplete one record by record with the
-``mcap`` writer -- every complete chunk kept, summary, indexes and footer added -- and writes a
-``metadata.yaml`` listing every file with its message counts and the original ``custom_data``.
-Bags written by other tools (``ros2 bag record``, a bare ``.mcap``) are handled the same way.
+prefix without summary or footer, not listed yet. :func:`recover_bag` checks every file with the
+record scanner (:mod:`dmf_sim.bags.records`: chunk CRCs, the data section CRC), keeps every
+complete and intact file as it is (copied, or left in place), rewrites each incomplete or
+damaged one record by record with the ``mcap`` writer -- every complete, intact chunk kept,
+corrupt chunks dropped (and reported: topic, time range, messages), summary, indexes and footer
+added -- and writes a ``metadata.yaml`` listing every file with its message counts and the
+original ``custom_data``. Bags written by other tools (``ros2 bag record``, a bare ``.mcap``)
+are handled the same way. A bag from which no message can be recovered (a stub a crash left
+before the first chunk was written) is refused: there is nothing to write.
 """
 from __future__ import annotations
 
@@ -32,7 +36,7 @@ from dmf_sim.bags.layout import (
     resolve_bag,
     write_metadata,
 )
-from dmf_sim.bags.read import TRUNCATION_ERRORS, Scan, iter_records, normalize_type
+from dmf_sim.bags.records import SUMMARY_ERRORS, Scan, iter_records, normalize_type
 from dmf_sim.core.errors import BagError
 
 __all__ = ['CHUNK_BYTES_RANGE', 'RecoverReport', 'recover_bag']
@@ -54,10 +58,17 @@ class RecoverReport:
     dropped_bytes: int = 0                      # bytes after the last complete record
     errors: tuple[str, ...] = ()                # why reading stopped, per damaged file
     rewritten: tuple[str, ...] = ()             # files rewritten (the others were complete)
+    corrupt: tuple[str, ...] = ()               # corrupt chunks dropped (one line each)
+    dropped_messages: int = 0                   # messages in the dropped chunks (as indexed)
 
     def __str__(self) -> str:
-        state = (f'truncated input, {self.dropped_bytes} trailing bytes dropped'
-                 if self.truncated else 'input was complete')
+        parts = []
+        if self.truncated:
+            parts.append(f'truncated input, {self.dropped_bytes} trailing bytes dropped')
+        if self.corrupt:
+            parts.append(f'{len(self.corrupt)} corrupt part(s) dropped, '
+                         f'{self.dropped_messages} messages lost')
+        state = '; '.join(parts) or 'input was complete and intact'
         span = (self.end_ns - self.start_ns) / 1e9
         return (f'{self.output_path}: kept {self.message_count} messages on '
                 f'{len(self.topics)} topics over {span:.3f} s ({state})')
@@ -68,7 +79,7 @@ def _complete_info(file: Path, name: str, known: dict[str, TopicInfo]) -> FileIn
     with file.open('rb') as stream:
         try:
             summary = make_reader(stream).get_summary()
-        except TRUNCATION_ERRORS:
+        except SUMMARY_ERRORS:
             return None
     if summary is None or summary.statistics is None:
         return None
@@ -150,10 +161,11 @@ class _Rewrite:
     def run(self) -> FileInfo:
         with self.dst.open('xb') as stream:
             self.writer = Writer(stream, chunk_size=self.chunk_bytes,
-                                 compression=CompressionType.NONE)
+                                 compression=CompressionType.NONE, enable_data_crcs=True)
             for record in iter_records(self.src, self.scan):
                 self._record(record)
             self._start(None)
+            self.scan.name({cid: topic.name for cid, (_, topic) in self._channels.items()})
             self.writer.flush()
             meta = bag_metadata(list(self.known.values()), [self.info])
             self.writer.add_metadata('rosbag2', {
@@ -212,7 +224,7 @@ def recover_bag(path: str | os.PathLike[str], out_path: str | os.PathLike[str] |
         for i, file in enumerate(bag.files):
             name = file.name if (in_place or src.is_dir()) else f'{out.name}_{i}.mcap'
             target = out / name if as_dir else out
-            info = _complete_info(file, name, known) if as_dir else None
+            info = _complete_info(file, name, known) if as_dir and _intact(file) else None
             if info is not None:
                 if not in_place:
                     shutil.copy2(file, target)
@@ -222,6 +234,11 @@ def recover_bag(path: str | os.PathLike[str], out_path: str | os.PathLike[str] |
                 scans.append(job.scan)
                 rewritten.append(name)
             infos.append(info)
+        if not any(i.count for i in infos) and scans:
+            stopped = '; '.join(f'{s.error}' for s in scans if s.error)
+            raise BagError(f'{src}: nothing to recover: no complete message in '
+                           f'{sum(s.size for s in scans)} bytes'
+                           + (f' (reading stopped at: {stopped})' if stopped else ''))
         if as_dir:
             old = bag.metadata or {}
             write_metadata(out, bag_metadata(list(known.values()), infos,
@@ -253,4 +270,14 @@ def recover_bag(path: str | os.PathLike[str], out_path: str | os.PathLike[str] |
         end_ns=max((i.end for i in counted), default=0),
         truncated=not all(s.complete for s in scans),
         dropped_bytes=sum(s.size - s.valid_end for s in scans if not s.complete),
-        errors=tuple(s.error for s in scans if s.error), rewritten=tuple(rewritten))
+        errors=tuple(s.error for s in scans if s.error), rewritten=tuple(rewritten),
+        corrupt=tuple(line for s in scans for line in s.problems),
+        dropped_messages=sum(c.messages or 0 for s in scans for c in s.corrupt))
+
+
+def _intact(file: Path) -> bool:
+    """Whether every chunk of ``file`` passes its CRC and the data section its CRC."""
+    scan = Scan()
+    for _ in iter_records(file, scan, emit_chunks=True):
+        pass
+    return not scan.corrupt and not scan.data_crc_error

@@ -208,7 +208,8 @@ class BagRecorder:
         self._file = FileInfo(f'{self.path.name}_{self._next_index}.mcap')
         self._next_index += 1
         self._stream = (self.path / self._file.path).open('xb')
-        self._writer = Writer(self._stream, chunk_size=2**62, compression=self._compression)
+        self._writer = Writer(self._stream, chunk_size=2**62, compression=self._compression,
+                              enable_data_crcs=True)   # chunk CRCs are on by default
         self._writer.start(profile='ros2', library=LIBRARY)
         ids = {name: self._writer.register_schema(name, 'ros2msg', text.encode())
                for name, text in self._schema_texts.items()}

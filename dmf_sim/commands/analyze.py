@@ -4,11 +4,13 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 from pathlib import Path
 
 from dmf_sim.commands import _options as opt
 from dmf_sim.core.errors import ConfigError
+from dmf_sim.core.paths import check_output_dir
 
 NAME = 'analyze'
 HELP = ('Order analysis of a recorded bag (rosbag2 MCAP directory, one of its files, or a bare '
@@ -32,8 +34,14 @@ model settings for the modes, the static wind-up and the HBM: each option given 
 what the recording node stored in the bag's metadata.yaml (custom_data: driveline, engine, load
 set, the whole DMF spring, and the load at the start of the recording) -- also when BAG is one
 of the bag's .mcap files, whose metadata.yaml lies beside it; else the defaults (truck_dmf,
-engine_d13, load set A, load 1.0, the YAML's spring). The load is the engine load fraction the
-node had when recording started: pass --load if it changed during the recording.
+engine_d13, load set A, load 1.0, the YAML's spring).
+
+the engine load: without --load, the load each engine cycle ran at, as the bag records it (the
+node's health statuses in /diagnostics, the load setpoint topic if recorded, the load stored at
+the start of the recording); rows are then per speed bin AND load, each compared with the HBM
+at its own load, and cycles during a load change (or of unknown load) are never steady. A bag
+that records only the start load (or none: 1.0) is assumed constant, with a warning. --load L
+takes L for the whole recording.
 
 speed bins with fewer than --min-cycles engine cycles are ramp bins: hollow markers / hatched
 in the plots, and left out of the comparison with the HBM."""
@@ -71,8 +79,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         f'{N_MAX_RANGE[1]} (default %(default)d = 12th order)')
     p.add_argument('--out', type=Path,
                    help='output directory (analysis.json, <signal>_orders.csv, '
-                        '<signal>_cycles.csv, <signal>_campbell.png, <signal>_fig13.png); '
-                        'default <BAG name>_analysis unless --json')
+                        '<signal>_cycles.csv, <signal>_campbell.png, <signal>_fig13.png), '
+                        'checked before anything is computed; default: beside the bag, '
+                        '<BAG>_analysis (none with --json)')
     p.add_argument('--json', action='store_true',
                    help='print one JSON object (order amplitudes per speed bin, Fig. 13 '
                         'quantities, HBM comparison) on stdout')
@@ -83,7 +92,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     opt.add_engine(p, default=None, help_default='from the bag, else engine_d13')
     opt.add_alpha(p, help_default='from the bag, else the YAML')
     opt.add_theta(p, help_default='from the bag, else the YAML')
-    opt.add_load(p, default=None, help_default='the load stored in the bag, else 1.0')
+    opt.add_load(p, default=None, help_default='the load stored in the bag for each cycle, '
+                                              'else 1.0; see below')
     opt.add_load_set(p, default=None, help_default='from the bag, else A')
     p.add_argument('--namespace', help="driveline namespace of the default topics (e.g. truck1; "
                                        "default: detected from the bag's topics)")
@@ -119,12 +129,24 @@ def check_arguments(args) -> None:
         raise ConfigError(f'--end {args.end:g} must be after --start {args.start:g}')
 
 
+def default_output(bag: str | Path) -> Path:
+    """Where the analysis goes by default: beside the bag, ``<bag directory>_analysis`` or
+    ``<file name without .mcap>_analysis`` next to the file (not the current directory)."""
+    p = Path(bag)
+    if p.name == 'metadata.yaml':
+        p = p.parent
+    p = Path(os.path.abspath(p))
+    return p.parent / f'{p.name.removesuffix(".mcap")}_analysis'
+
+
 def run(args) -> int:
     from dmf_sim.analysis.outputs import write_outputs
     from dmf_sim.analysis.pipeline import analysis_dict, analyze_bag, model_settings, overlay_all
     from dmf_sim.bags.layout import resolve_bag
 
     check_arguments(args)
+    out = None if args.out is None and args.json else check_output_dir(
+        args.out if args.out is not None else default_output(args.bag))
     topics = {key: value for key, value in (('windup', args.windup_topic),
                                             ('crank', args.crank_topic),
                                             ('speed', args.speed_topic),
@@ -137,13 +159,13 @@ def run(args) -> int:
                       min_cycles=args.min_cycles, points_per_cycle=args.points_per_cycle,
                       n_max=args.n_max, theta=settings['theta_rad'], topics=topics,
                       namespace=args.namespace, stamp=args.stamp, progress=args.progress,
-                      start_s=args.start, end_s=args.end)
+                      start_s=args.start, end_s=args.end, load=args.load)
     natural = overlay_all(res, settings, hbm=args.hbm)
-    extra = {'model': {k: v for k, v in settings.items() if k != 'sources'},
-             'model_sources': settings['sources'], 'natural_frequencies_hz': natural}
-    out = args.out
-    if out is None and not args.json:
-        out = Path(f'{Path(args.bag).name.removesuffix(".mcap")}_analysis')
+    model = {k: v for k, v in settings.items() if k != 'sources'}
+    sources = dict(settings['sources'])
+    if res.load_timeline is not None:      # each row at the load the bag recorded for it
+        model['load'], sources['load'] = res.model['load'], 'bag (per engine cycle)'
+    extra = {'model': model, 'model_sources': sources, 'natural_frequencies_hz': natural}
     written = write_outputs(res, out, natural=natural, plots=not args.no_plots,
                             extra=extra) if out is not None else []
     if args.json:
@@ -172,15 +194,19 @@ def _report(res, written) -> None:
 
 
 def _report_signal(res, sig) -> None:
+    from dmf_sim.analysis.load_timeline import load_text
+
     t = sig.table
     unit = sig.signal.unit
     mode = f'{res.bin_rpm:g} rpm bins' if res.bin_rpm > 0 else 'per cycle'
     steady = t.steady
     print(f'\n{sig.signal.description} [{unit}]: {len(sig.cycles)} engine cycles, {len(t)} rows '
-          f'({mode}; {int(steady.sum())} steady, ~ marks ramp rows with < {t.min_cycles} cycles)')
+          f'({mode}; {int(steady.sum())} steady, ~ marks ramp rows with < {t.min_cycles} cycles'
+          + (' or of unknown load' if t.load is not None else '') + ')')
     green = t.theta_minus_static
     last = 'th-static' if green is not None else 'mean'
-    head = (f'{"rpm":>8} {"cycles":>6} {"3rd":>9} {"1.5th":>9} {"max dev":>9} {"min dev":>9} '
+    head = (f'{"rpm":>8}' + (f' {"load":>6}' if t.load is not None else '')
+            + f' {"cycles":>6} {"3rd":>9} {"1.5th":>9} {"max dev":>9} {"min dev":>9} '
             f'{last:>9}')
     if sig.hbm is not None:
         head += f' {"HBM 3rd":>9} {"HBM 1.5":>9}'
@@ -189,7 +215,9 @@ def _report_signal(res, sig) -> None:
     col = green if green is not None else t.mean
     for i in range(0, len(t), step):
         mark = ' ' if steady[i] else '~'
-        line = (f'{mark}{t.speed_rpm[i]:7.0f} {t.n_cycles[i]:6d} {_fmt(t.order_3[i])} '
+        line = (f'{mark}{t.speed_rpm[i]:7.0f}'
+                + (f' {_fmt(t.load[i], 1, "6.3f").strip():>6}' if t.load is not None else '')
+                + f' {t.n_cycles[i]:6d} {_fmt(t.order_3[i])} '
                 f'{_fmt(t.order_1_5[i])} {_fmt(t.max_deviation[i])} {_fmt(t.min_deviation[i])} '
                 f'{_fmt(col[i])}')
         if sig.hbm is not None:
@@ -203,7 +231,7 @@ def _report_signal(res, sig) -> None:
         print(f'HBM: no steady speed bin (>= {t.min_cycles} cycles) to compare with -- the '
               'recording ramps through every bin; lower --min-cycles or widen --bin-rpm')
         return
-    print(f'HBM ({sig.hbm.method}; alpha={s["alpha"]:g}, load={s["load"]:g}, load set '
+    print(f'HBM ({sig.hbm.method}; alpha={s["alpha"]:g}, load={load_text(s["load"])}, load set '
           f'{s["load_set"]}, {sig.hbm.seconds:.2f} s): measured - HBM over the steady rows')
     for k, d in sig.hbm.difference.items():
         print(f'  {k:17s} max |diff| {_fmt(d["max_abs"], 1, ".5f")} {unit} at '

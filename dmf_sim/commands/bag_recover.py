@@ -4,9 +4,11 @@ from __future__ import annotations
 import argparse
 
 NAME = 'bag-recover'
-HELP = ('Complete a bag a crash left behind (recorder killed): every complete split is kept as '
-        'it is, each truncated file is rewritten with every complete chunk plus summary and '
-        'index, and metadata.yaml lists them all. A file that is not MCAP is refused.')
+HELP = ('Complete a bag a crash left behind (recorder killed) or repair a damaged one: every '
+        'complete, intact split is kept as it is; each truncated file, or file with corrupt '
+        'chunks (CRC mismatch), is rewritten with every complete, intact chunk plus summary and '
+        'index (what was dropped is listed: topic, time range, messages), and metadata.yaml '
+        'lists them all. A file that is not MCAP, or holds no complete message, is refused.')
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -33,4 +35,6 @@ def run(args: argparse.Namespace) -> int:
         print(f'  rewritten: {", ".join(report.rewritten)}')
     for error in report.errors:
         print(f'  reading stopped at: {error}')
+    for line in report.corrupt:
+        print(f'  dropped: {line}')
     return 0

@@ -103,3 +103,20 @@ def read_yaml_mapping(source: str | os.PathLike, what: str = 'configuration') ->
         article = 'an' if what[:1].lower() in 'aeiou' else 'a'
         raise ConfigError(f'{path}: not {article} {what} YAML mapping (the file holds {got})')
     return path, data
+
+
+def check_output_dir(path: str | os.PathLike, option: str = '--out') -> Path:
+    """Refuse, before anything is computed, an output directory that cannot be made: a path that
+    exists and is not a directory, or whose nearest existing ancestor is not a writable directory
+    (one-line :class:`ConfigError` naming ``option``). Creates nothing."""
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise ConfigError(f'{option} {p}: exists and is not a directory')
+    probe = p.absolute()
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    if not probe.is_dir():
+        raise ConfigError(f'{option} {p}: cannot be created, {probe} is not a directory')
+    if not os.access(probe, os.W_OK | os.X_OK):
+        raise ConfigError(f'{option} {p}: cannot be written, {probe} is not writable')
+    return p
