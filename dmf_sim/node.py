@@ -44,18 +44,8 @@ from dmf_sim.core.errors import ConfigError, DmfSimError, one_line
 from dmf_sim.live.health import status_name
 from dmf_sim.live.pacing import fmt_num
 from dmf_sim.live.parameters import DMF_PARAMETERS, PARAMETERS, coerce
-from dmf_sim.monitor.messages import TOPIC_CYCLE, TOPIC_PREDICTED
+from dmf_sim.live.streams import STATUS_STREAMS, STREAMS
 
-STREAMS = {  # key -> (default topic, ROS type)
-    'joint_states': ('driveline/joint_states', 'sensor_msgs/msg/JointState'),
-    'dmf_windup': ('driveline/dmf_windup', 'std_msgs/msg/Float64'),
-    'speed': ('engine/speed', 'std_msgs/msg/Float64'),
-    'crank_angle': ('engine/crank_angle', 'std_msgs/msg/Float64'),
-    'diagnostics': ('/diagnostics', 'diagnostic_msgs/msg/DiagnosticArray'),
-    'dmf_orders': (TOPIC_CYCLE, 'diagnostic_msgs/msg/DiagnosticArray'),
-    'dmf_predicted': (TOPIC_PREDICTED, 'diagnostic_msgs/msg/DiagnosticArray'),
-}
-STATUS_STREAMS = ('diagnostics', 'dmf_orders', 'dmf_predicted')     # keep-last 10 (latched: 1)
 STREAM_DEPTH = 100          # 0.1 s of samples at 1 kHz for a subscriber that falls behind
 DIAGNOSTICS_DEPTH = 10
 EXIT_CONFIG_ERROR = 2
