@@ -14,6 +14,7 @@ setup(
         ('share/' + PACKAGE, ['package.xml']),
         ('share/' + PACKAGE + '/config', sorted(glob('config/*.yaml'))
          + sorted(glob('config/*.csv')) + sorted(glob('config/*.json'))),
+        ('share/' + PACKAGE + '/config/profiles', sorted(glob('config/profiles/*.yaml'))),
         ('share/' + PACKAGE + '/launch', sorted(glob('launch/*.launch.py'))),
     ],
     python_requires='>=3.11',
@@ -31,6 +32,7 @@ setup(
         'foxglove-sdk>=0.30',
         'dask[distributed]>=2024.1',   # dmf-sim design: a LocalCluster or a real cluster
         'pyarrow>=14',                 # dmf-sim design: the Parquet result table
+        'fatpack>=0.7',                # dmf-sim durability: rainflow cycles
     ],
     extras_require={
         'ros': ['ros-jazzy-rclpy[fastrtps]', 'ros-jazzy-common-interfaces'],

@@ -45,7 +45,8 @@ from dmf_sim.bags.records import (
 )
 from dmf_sim.core.errors import BagError
 
-__all__ = ['FLOAT64', 'JOINT_STATE', 'Column', 'ScalarColumn', 'JointStateColumns', 'McapColumns',
+__all__ = ['FLOAT64', 'JOINT_STATE', 'joint_state_layout', 'Column', 'ScalarColumn',
+           'JointStateColumns', 'McapColumns',
            'ColumnFactory']
 
 FLOAT64 = 'std_msgs/msg/Float64'
@@ -135,7 +136,7 @@ class _Unsupported(Exception):
     """A JointState message whose bytes the layout reader does not handle."""
 
 
-def _joint_layout(data: bytes) -> tuple[str, list[str], dict[str, tuple[int, int]], int,
+def joint_state_layout(data: bytes) -> tuple[str, list[str], dict[str, tuple[int, int]], int,
                                          np.ndarray]:
     """Byte layout of one sensor_msgs/JointState CDR message (XCDR1, plain): byte order, names,
     field -> (offset of its first float64, count), total length, and the byte positions that
@@ -222,7 +223,7 @@ class JointStateColumns(Column):
         self.row(msg)                                  # names, and errors for bad requests
         self.layout = False
         try:
-            end, names, arrays, total, cols = _joint_layout(data)
+            end, names, arrays, total, cols = joint_state_layout(data)
         except (_Unsupported, struct.error, UnicodeDecodeError):
             return
         if names != list(msg.name) or total > len(data) or cols.max() >= len(data):

@@ -48,7 +48,10 @@ class RunMetadata:
         spring: the whole spring (``PiecewiseLinearSpring.as_dict()``: k, stages, coast_stages).
         load, speed_rpm: load fraction and engine speed when the recording started.
         dt_s: Newmark step; publish_rate_hz: samples per simulated second.
-        node: fully qualified node name (namespace included) of the recording node.
+        node: fully qualified node name (namespace included) of the recording node, or the
+            command that wrote the bag (``dmf-sim run``).
+        profile: the speed/load profile a run followed (its name; ``dmf-sim run``, or the
+            node's ``profile`` parameter when it was set at the start of the recording).
     """
 
     driveline: str | None = None
@@ -62,6 +65,7 @@ class RunMetadata:
     dt_s: float | None = None
     publish_rate_hz: float | None = None
     node: str | None = None
+    profile: str | None = None
 
     _FLOATS = ('alpha', 'theta_rad', 'load', 'speed_rpm', 'dt_s', 'publish_rate_hz')
 

@@ -40,6 +40,8 @@ from pathlib import Path
 from typing import Any
 
 import yaml
+import numpy as np
+from mcap.records import MessageIndex
 from mcap.writer import CompressionType, Writer
 
 from dmf_sim.bags.layout import (
@@ -76,6 +78,33 @@ _QOS_PRESETS: dict[str, dict[str, Any]] = {
 _COMPRESSION = {'none': CompressionType.NONE, 'lz4': CompressionType.LZ4,
                 'zstd': CompressionType.ZSTD}
 _MESSAGE_OVERHEAD = 31 + 16  # message record header + its message index entry, bytes
+_OP_MESSAGE, _OP_MESSAGE_INDEX = 5, 7       # MCAP opcodes
+_MESSAGE_HEAD = 22                          # channel 2 + sequence 4 + log 8 + publish 8 bytes
+
+
+class _ArrayMessageIndex(MessageIndex):
+    """A chunk's message index for one channel from arrays (written in one piece: the
+    library's per-entry loop would cost more than building the whole chunk)."""
+
+    def __init__(self, channel_id: int, entries: np.ndarray) -> None:
+        super().__init__(channel_id, [])
+        self.entries = np.ascontiguousarray(entries, dtype='<u8')    # (n, 2): log time, offset
+
+    def write(self, stream) -> None:
+        body = self.entries.tobytes()
+        stream.write(bytes([_OP_MESSAGE_INDEX]) + (6 + len(body)).to_bytes(8, 'little')
+                     + int(self.channel_id).to_bytes(2, 'little')
+                     + len(body).to_bytes(4, 'little') + body)
+
+
+def _block_layout(sizes: list[int]) -> np.dtype:
+    """Packed record layout of one row of a block: per topic a message record (opcode,
+    length, channel, sequence, log time, publish time, data)."""
+    fields = []
+    for j, size in enumerate(sizes):
+        fields += [(f'op{j}', 'u1'), (f'len{j}', '<u8'), (f'cid{j}', '<u2'), (f'seq{j}', '<u4'),
+                   (f'log{j}', '<u8'), (f'pub{j}', '<u8'), (f'data{j}', 'u1', (size,))]
+    return np.dtype(fields)
 
 
 def _qos_profile(preset: str) -> dict[str, Any]:
@@ -306,6 +335,105 @@ class BagRecorder:
                 or abs(timestamp_ns - self._chunk_t0) >= self._chunk_ns
                 or now - self._chunk_wall0 >= self._chunk_seconds):
             self._flush()
+
+    def write_block(self, log_ns: np.ndarray, payloads: list[tuple[str, np.ndarray]]) -> None:
+        """Append rows of fixed-size messages at once: row i holds one message per
+        (topic, payload) pair, in that order, all logged (and published) at ``log_ns[i]``;
+        ``payload`` is a (rows, size) uint8 array of CDR messages. The file gets exactly what
+        :meth:`write` called per message in that order would give it (same records, sequence
+        numbers, indexes, splits, metadata), as one chunk per call and file, built with numpy
+        (``dmf-sim run`` writes ~4000 messages per simulated second)."""
+        log_ns = np.asarray(log_ns, dtype=np.int64)
+        rows = len(log_ns)
+        for topic, data in payloads:
+            if data.ndim != 2 or data.shape[0] != rows or data.dtype != np.uint8:
+                raise BagError(f'write_block: payload of {topic!r} must be a ({rows}, size) '
+                               f'uint8 array, got {data.dtype} {data.shape}')
+        if rows and (log_ns[0] < 0 or (np.diff(log_ns) < 0).any()):
+            raise BagError('write_block: log times must be non-negative and non-decreasing')
+        with self._lock:
+            start = 0
+            while start < rows:
+                start += self._write_rows(log_ns[start:], [(t, d[start:]) for t, d in payloads])
+
+    def _write_rows(self, log_ns: np.ndarray, payloads: list[tuple[str, np.ndarray]]) -> int:
+        """Write the rows that belong to the current file (a split starts the next one as
+        :meth:`_write` does); returns how many were written."""
+        if self._closed:
+            raise BagError(f'bag {self.path} is closed')
+        if self._finisher_error is not None:
+            self._join_finisher()
+        f = self._file
+        if f.count and int(log_ns[0]) - f.start >= self._max_duration_ns:
+            self._split()
+            f = self._file
+        first = f.start if f.count else int(log_ns[0])
+        rows = int(np.searchsorted(log_ns, first + self._max_duration_ns, side='left'))
+        rows = max(rows, 1)
+        t = log_ns[:rows]
+        chans = []
+        for topic, data in payloads:
+            try:
+                cid, info = self._channels[topic]
+            except KeyError:
+                raise BagError(f'topic {topic!r} was not declared when the bag was opened') from None
+            chans.append((cid, info, data[:rows]))
+        writer = self._writer
+        builder = getattr(writer, '_Writer__chunk_builder', None)
+        stats = getattr(writer, '_Writer__statistics', None)
+        if builder is None or stats is None:      # another mcap version: message by message
+            for i in range(rows):
+                for cid, info, data in chans:
+                    self._write(info.name, int(t[i]), data[i].tobytes())
+            return rows
+        self._flush_chunk()                       # what write() left open goes first
+        layout, template = self._block_template(tuple((cid, d.shape[1]) for cid, _, d in chans))
+        block = np.empty(rows, layout)
+        raw = block.view(np.uint8).reshape(rows, layout.itemsize)
+        raw[:] = template                         # opcodes, lengths, channel ids
+        row_offsets = np.arange(rows, dtype=np.int64) * layout.itemsize
+        index = np.empty((len(chans), rows, 2), dtype='<u8')
+        for j, (cid, info, data) in enumerate(chans):
+            block[f'seq{j}'] = (info.count + np.arange(rows, dtype=np.int64)) & 0xFFFFFFFF
+            block[f'log{j}'] = t
+            block[f'pub{j}'] = t
+            block[f'data{j}'] = data
+            index[j, :, 0] = t
+            index[j, :, 1] = row_offsets + layout.fields[f'op{j}'][1]
+            info.count += rows
+            stats.channel_message_counts[cid] += rows
+            f.topic_counts[info.name] = f.topic_counts.get(info.name, 0) + rows
+        n = rows * len(chans)
+        t0, t1 = int(t[0]), int(t[-1])
+        builder.record_writer.write(raw.data)
+        builder.num_messages = n
+        builder.message_start_time, builder.message_end_time = t0, t1
+        builder.message_indices = {cid: _ArrayMessageIndex(cid, index[j])
+                                   for j, (cid, _, _) in enumerate(chans)}
+        stats.message_start_time = (t0 if stats.message_count == 0
+                                    else min(t0, stats.message_start_time))
+        stats.message_end_time = max(t1, stats.message_end_time)
+        stats.message_count += n
+        if f.count == 0:
+            f.start = f.end = t0
+        f.start, f.end = min(f.start, t0), max(f.end, t1)
+        f.count += n
+        self.message_count += n
+        writer.flush()                            # the chunk, its indexes, to the OS
+        return rows
+
+    def _block_template(self, channels: tuple[tuple[int, int], ...]):
+        """(layout, constant bytes of a row) for rows of (channel id, payload size)."""
+        cache = self.__dict__.setdefault('_templates', {})
+        if channels not in cache:
+            layout = _block_layout([size for _, size in channels])
+            row = np.zeros(1, layout)
+            for j, (cid, size) in enumerate(channels):
+                row[f'op{j}'] = _OP_MESSAGE
+                row[f'len{j}'] = _MESSAGE_HEAD + size
+                row[f'cid{j}'] = cid
+            cache[channels] = (layout, row.view(np.uint8).copy())
+        return cache[channels]
 
     def flush(self) -> None:
         """Close the open chunk (if any) and hand everything written so far to the OS.

@@ -1,0 +1,250 @@
+"""Offline transient runs: a speed/load profile through the live core, streamed to a bag
+(``dmf-sim run``).
+
+The same equation and stepping as the live node: :class:`dmf_sim.live.simulation.LiveSimulation`
+(the compiled Newmark kernel with the speed ramp inside it, excitation phase psi = integral of
+omega dt, d'Alembert loads of the reference acceleration balanced at the rear element, the load
+ramped per chunk, the excitation coefficients updated per chunk), driven by
+:class:`dmf_sim.transient.follow.ProfileFollower`. Chunks end at every profile row, so the
+reference speed is on the table exactly. Samples every ``1 / rate_hz`` s go to a bag with the
+node's topics, types, stamps (wall clock at the start + simulated time, as
+:class:`dmf_sim.live.pacing.TimeBase`), split files and ``custom_data``
+(:class:`dmf_sim.bags.metadata.RunMetadata`, plus the profile's name), written a chunk at a time
+(:meth:`dmf_sim.bags.writer.BagRecorder.write_block`), so memory stays flat whatever the
+profile's length. An interruption (Ctrl-C) closes the bag: what was simulated is readable.
+"""
+from __future__ import annotations
+
+import math
+import resource
+import time
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from dmf_sim.core.errors import ConfigError, OperatingRangeError, one_line
+from dmf_sim.live.pacing import TimeBase, publish_stride
+from dmf_sim.live.recording import run_metadata
+from dmf_sim.live.simulation import LiveSimulation, Samples
+from dmf_sim.live.streams import STREAMS, resolved_topics
+from dmf_sim.transient.follow import ProfileFollower
+from dmf_sim.transient.profiles import Profile
+
+WRITER_NAME = 'dmf-sim run'
+DEFAULT_CHUNK_S = 0.05      # simulated time per chunk [s]: the excitation coefficients and the
+                            # load are held over a chunk (the speed ramp is exact inside it)
+CHUNK_RANGE_S = (1e-3, 1.0)
+DEFAULT_SPLIT_S = 60.0      # bag files split every this many simulated seconds (as the node)
+MEMORY_MARKS = (0.1, 0.5, 1.0)   # fractions of the run where the peak RSS is sampled
+MAX_CHUNK_ROWS = 64         # samples per chunk at most: OpenBLAS threads larger products of the
+                            # torque read-out, ~10x slower on a busy 2-core machine (measured)
+BLOCK_ROWS = 256            # samples gathered per bag chunk (~140 KB for the truck model): the
+                            # per-chunk cost of encoding and writing is paid 4x per simulated s
+
+
+@dataclass
+class RunOptions:
+    """Model and output settings of a run (SI; speed in rpm).
+
+    driveline, engine, load_set, alpha, theta: the model (names in ``config/`` or paths).
+    dt: Newmark step [s]; rate_hz: samples per simulated second in the bag (a whole number of
+    steps per sample); chunk_s: simulated time per chunk; split_s: bag file split [s];
+    write: False integrates without writing (for timing); namespace: topics under it.
+    """
+
+    driveline: str = 'truck_dmf'
+    engine: str = 'engine_d13'
+    load_set: str = 'A'
+    alpha: float | None = None
+    theta: float | None = None
+    dt: float = 1e-4
+    rate_hz: float = 1000.0
+    chunk_s: float = DEFAULT_CHUNK_S
+    split_s: float = DEFAULT_SPLIT_S
+    write: bool = True
+    namespace: str = ''
+
+
+class SampleBlock:
+    """Samples gathered over several chunks until a bag chunk is worth writing (preallocated;
+    the live core's samples are views that the next chunk overwrites)."""
+
+    def __init__(self, rows: int, m: int) -> None:
+        self.t = np.empty(rows)
+        self.psi = np.empty(rows)
+        self.speed_rpm = np.empty(rows)
+        self.windup = np.empty(rows)
+        self.position = np.empty((rows, m))
+        self.velocity = np.empty((rows, m))
+        self.effort = np.empty((rows, m))
+        self.n = 0
+
+    @property
+    def free(self) -> int:
+        return len(self.t) - self.n
+
+    def add(self, s, start: int, stop: int) -> None:
+        k = stop - start
+        sl = slice(self.n, self.n + k)
+        for name in ('t', 'psi', 'speed_rpm', 'windup', 'position', 'velocity', 'effort'):
+            getattr(self, name)[sl] = getattr(s, name)[start:stop]
+        self.n += k
+
+    def take(self) -> Samples:
+        """The gathered samples (views; valid until the next :meth:`add`) and empty."""
+        n, self.n = self.n, 0
+        return Samples(np.zeros(0, np.int64), self.t[:n], self.psi[:n], self.speed_rpm[:n],
+                       self.windup[:n], self.position[:n], self.velocity[:n], self.effort[:n])
+
+
+@dataclass
+class RunSummary:
+    """What a run did (``--json``)."""
+
+    profile: dict
+    bag: str | None
+    simulated_s: float
+    wall_s: float
+    realtime_factor: float
+    samples: int
+    messages: int
+    rate_hz: float
+    dt_s: float
+    interrupted: bool
+    knee_crossings: int
+    solver_resets: int
+    peak_rss_mib: dict = field(default_factory=dict)   # fraction of the run -> peak RSS
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+def _peak_rss_mib() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0    # KiB on Linux
+
+
+def build_simulation(profile: Profile, opt: RunOptions) -> LiveSimulation:
+    """The live core at the profile's first row (static equilibrium), speed limits = the
+    engine's data range (a profile outside it: one-line OperatingRangeError)."""
+    from dmf_sim.physics.engine import load_engine
+    from dmf_sim.physics.model import load_driveline
+
+    if not (CHUNK_RANGE_S[0] <= opt.chunk_s <= CHUNK_RANGE_S[1]):
+        raise ConfigError(f'chunk_s must be within [{CHUNK_RANGE_S[0]:g}, {CHUNK_RANGE_S[1]:g}]'
+                          f' s, got {opt.chunk_s!r}')
+    try:
+        line = load_driveline(opt.driveline, alpha=opt.alpha, theta=opt.theta)
+        engine = load_engine(opt.engine, load_set=opt.load_set)
+    except (ValueError, FileNotFoundError) as exc:
+        if isinstance(exc, ConfigError):
+            raise
+        raise ConfigError(one_line(exc)) from None
+    rng = getattr(engine, 'speed_range_rpm', None)
+    lo, hi = (float(rng[0]), float(rng[1])) if rng is not None else (0.0, math.inf)
+    profile.check_speed_range(lo, hi, f'the engine data of {opt.engine}')
+    if hasattr(engine, 'warm'):
+        engine.warm()           # the gas grid now (~0.1 s), not lazily inside the timed loop
+    hi_lim = hi if math.isfinite(hi) else float(profile.speed_rpm.max()) * 2
+    lo_lim = lo if lo > 0 else float(profile.speed_rpm.min()) / 2
+    stride = publish_stride(opt.rate_hz, opt.dt)
+    try:
+        return LiveSimulation(line, engine, dt=opt.dt, speed_rpm=float(profile.speed_rpm[0]),
+                              load=float(profile.load[0]), speed_limits_rpm=(lo_lim, hi_lim),
+                              stride=stride)
+    except OperatingRangeError:
+        raise
+    except ValueError as exc:
+        raise ConfigError(one_line(exc)) from None
+
+
+def open_bag(out, sim: LiveSimulation, profile: Profile, opt: RunOptions, rate_hz: float):
+    """A new bag with the node's topics and this run's metadata (never overwrites)."""
+    from dmf_sim.bags.writer import BagRecorder
+
+    topics = resolved_topics(opt.namespace)
+    meta = run_metadata(sim, driveline=opt.driveline, engine=opt.engine, node=WRITER_NAME,
+                        publish_rate_hz=rate_hz)
+    custom = replace(meta, profile=profile.name).to_custom_data()
+    return BagRecorder(out, {topics[k]: t for k, (_, t) in STREAMS.items()},
+                       max_duration_s=opt.split_s, custom_data=custom), topics
+
+
+def run_profile(profile: Profile, out: str | Path | None, options: RunOptions | None = None, *,
+                progress: bool = False) -> RunSummary:
+    """Integrate ``profile`` and stream the samples to bag ``out`` (see the module docstring).
+
+    ``out`` None or ``options.write`` False: integrate and encode nothing (timing)."""
+    from dmf_sim.transient.encode import SampleEncoder
+
+    opt = options or RunOptions()
+    sim = build_simulation(profile, opt)
+    rate_hz = 1.0 / (sim.stride * sim.dt)
+    write = opt.write and out is not None
+    recorder, topics = open_bag(out, sim, profile, opt, rate_hz) if write else (None, {})
+    encoder = SampleEncoder(sim.names) if write else None
+    follower = ProfileFollower(profile, sim)
+    timebase = TimeBase()
+    timebase.start(time.time_ns(), sim.t)
+    rows_per_chunk = min(max(int(round(opt.chunk_s / sim.dt)) // sim.stride, 1), MAX_CHUNK_ROWS)
+    chunk = rows_per_chunk * sim.stride
+    block = SampleBlock(BLOCK_ROWS, len(sim.names)) if write else None
+
+    def write_out() -> None:
+        if block is not None and block.n:
+            b = block.take()
+            stamps = timebase.stamps_ns(b.t)
+            recorder.write_block(stamps, encoder.samples(b, stamps, topics))
+    total = int(round(profile.duration_s / sim.dt))
+    bar = None
+    if progress:
+        from tqdm import tqdm
+        bar = tqdm(total=round(profile.duration_s, 3), unit='sim s', desc=f'run {profile.name}',
+                   leave=False, bar_format='{l_bar}{bar}| {n:.1f}/{total:.1f} sim s '
+                   '[{elapsed}<{remaining}, {rate_fmt}]')
+    marks = list(MEMORY_MARKS)
+    peaks: dict[str, float] = {}
+    done = samples = 0
+    interrupted = False
+    t_wall = time.perf_counter()
+    try:
+        while done < total:
+            follower.apply(sim.t)
+            to_row = follower.next_row_s(sim.t) - sim.t
+            k = min(chunk, total - done, max(int(round(to_row / sim.dt)), 1))
+            s = sim.advance(k)
+            done += k
+            rows = len(s)
+            samples += rows
+            start = 0
+            while block is not None and start < rows:
+                k = min(block.free, rows - start)
+                block.add(s, start, start + k)
+                start += k
+                if block.free == 0:
+                    write_out()
+            if bar is not None:
+                bar.update(k * sim.dt)
+            while marks and done >= marks[0] * total:
+                peaks[f'{marks.pop(0):g}'] = round(_peak_rss_mib(), 1)
+    except KeyboardInterrupt:
+        interrupted = True
+    finally:
+        if bar is not None:
+            bar.close()
+        if recorder is not None:
+            try:
+                write_out()         # the samples gathered so far, also after Ctrl-C
+            finally:
+                recorder.close()
+    wall = time.perf_counter() - t_wall
+    follower.finish()
+    simulated = done * sim.dt
+    return RunSummary(
+        profile=profile.as_dict(), bag=str(recorder.path) if recorder is not None else None,
+        simulated_s=simulated, wall_s=wall,
+        realtime_factor=simulated / wall if wall > 0 else math.inf, samples=samples,
+        messages=recorder.message_count if recorder is not None else 0, rate_hz=rate_hz,
+        dt_s=sim.dt, interrupted=interrupted, knee_crossings=sim.knee_crossings,
+        solver_resets=sim.solver_resets, peak_rss_mib=peaks)
+
