@@ -277,6 +277,9 @@ class McapColumns:
         decoder: shared type decoder (several files of one bag).
         stamp: 'log' (receive time) or 'publish' time of each message.
         progress: callable(bytes read) for a progress bar.
+        sink: callable(topic, times, values) that takes each batch as it is gathered (a reader
+            that must not hold the whole file, e.g. ``dmf-sim durability``); ``columns`` then
+            stays empty.
 
     After :meth:`read`: ``columns`` topic -> list of (times [ns] int64, values (k, width)) in
     file order, ``topics`` topic -> type of every channel, ``truncated`` / ``error``, ``scan``
@@ -289,6 +292,7 @@ class McapColumns:
     decoder: TypeDecoder = field(default_factory=TypeDecoder)
     stamp: str = 'log'
     progress: Callable[[int], Any] | None = None
+    sink: Callable[[str, np.ndarray, np.ndarray], Any] | None = None
     columns: dict[str, list[tuple[np.ndarray, np.ndarray]]] = field(default_factory=dict)
     topics: dict[str, str] = field(default_factory=dict)
     truncated: bool = False
@@ -351,7 +355,10 @@ class McapColumns:
             sel = np.flatnonzero(cids == cid)
             values = column.rows(buf, start[sel], length[sel])
             topic = self._channels[int(cid)][0]
-            self.columns.setdefault(topic, []).append((times[sel].astype(np.int64), values))
+            if self.sink is not None:
+                self.sink(topic, times[sel].astype(np.int64), values)
+            else:
+                self.columns.setdefault(topic, []).append((times[sel].astype(np.int64), values))
 
     # ---- chunks ------------------------------------------------------------------------------
     def _chunk(self, chunk: CheckedChunk) -> None:

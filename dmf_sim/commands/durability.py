@@ -1,0 +1,71 @@
+"""``dmf-sim durability BAG``: rainflow, Palmgren-Miner damage, time per spring stage, largest
+torques and the DMF damping's dissipated power of a recorded or ``dmf-sim run`` bag, read in
+batches (``dmf_sim.durability``)."""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from dmf_sim.core.errors import BagExistsError
+
+NAME = 'durability'
+HELP = ('DMF durability of a bag: rainflow counts of the spring torque, damage per hour with an '
+        'S-N curve (placeholder defaults in config/durability.yaml), time per spring stage, '
+        'largest torques, dissipated power; a one-page report')
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument('bag', metavar='BAG', help='rosbag2 bag directory, one of its .mcap files, '
+                   'or a bare .mcap file')
+    p.add_argument('--config', default='durability', metavar='YAML',
+                   help='durability settings (S-N curve, bins; default config/durability.yaml)')
+    p.add_argument('--exponent', type=float, metavar='B', help='Basquin exponent b')
+    p.add_argument('--reference-range', type=float, metavar='NM',
+                   help='S-N reference torque range S_ref [Nm]')
+    p.add_argument('--reference-cycles', type=float, metavar='N',
+                   help='S-N cycles to failure N_ref at S_ref')
+    p.add_argument('--out', type=Path, help='output directory (durability.json, '
+                   'durability.png); default <BAG name>_durability unless --json')
+    p.add_argument('--json', action='store_true', help='print the JSON report to stdout')
+    p.add_argument('--no-plots', action='store_true', help='skip the PNG report')
+    p.add_argument('--namespace', help="driveline namespace of the node's topics (default: "
+                   'found in the bag)')
+    p.add_argument('--progress', action='store_true', help='progress bar over the bytes read')
+
+
+def run(args: argparse.Namespace) -> int:
+    from dmf_sim.durability.read import bag_durability
+    from dmf_sim.durability.report import plot_report, report_dict, write_json
+    from dmf_sim.durability.settings import load_settings
+
+    settings = load_settings(args.config, exponent=args.exponent,
+                             reference_range_nm=args.reference_range,
+                             reference_cycles=args.reference_cycles)
+    out = args.out
+    if out is None and not args.json:
+        out = Path(f'{Path(args.bag).resolve().name}_durability')
+    if out is not None and out.exists() and any(out.iterdir()):
+        raise BagExistsError(f'output directory {out} exists and is not empty; not overwriting')
+    result = bag_durability(args.bag, settings, namespace=args.namespace,
+                            progress=args.progress and sys.stderr.isatty())
+    written = []
+    if out is not None:
+        out.mkdir(parents=True, exist_ok=True)
+        written.append(write_json(result, out / 'durability.json'))
+        if not args.no_plots:
+            written.append(plot_report(result, out / 'durability.png'))
+    if args.json:
+        print(json.dumps(report_dict(result)))
+    else:
+        r = result.result
+        print(f'{result.bag}: {r.duration_s:.1f} s, damage {r.damage:.3g} ({r.damage_per_hour:.3g}'
+              f' per hour{", placeholder S-N curve" if settings.sn.placeholder else ""}), torque '
+              f'{r.torque_min_nm:.0f}..{r.torque_max_nm:.0f} Nm, DMF damping power mean '
+              f'{r.power_mean_w:.0f} W')
+        for note in r.notes:
+            print(f'note: {note}')
+        for path in written:
+            print(f'wrote {path}')
+    return 0

@@ -1,0 +1,153 @@
+"""Durability of a recorded bag, read in batches (``dmf-sim durability BAG``).
+
+The bag (the node's recording or a ``dmf-sim run`` bag; :func:`dmf_sim.bags.layout.resolve_bag`)
+is read file by file with the fast column reader (:class:`dmf_sim.bags.columns.McapColumns`),
+which hands over about 1 MiB of decompressed chunks at a time; each batch goes into the
+:class:`DurabilityAccumulator` and is dropped. Memory stays at one batch plus the accumulated
+histograms, whatever the record's length.
+
+Signals: the joint states of the two elements around the DMF give the wind-up
+w = phi_(s-1) / r_s - phi_s and its rate from the recorded velocities (exact, no numerical
+differentiation); engine speed and crank angle are interpolated onto the joint-state stamps.
+The model (the DMF spring, its damping) is the one the bag's ``custom_data`` names
+(:func:`dmf_sim.analysis.hbm_overlay.model_settings`), as ``dmf-sim analyze`` rebuilds it.
+"""
+from __future__ import annotations
+
+import os
+import resource
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from dmf_sim.analysis.hbm_overlay import build_model, model_settings
+from dmf_sim.analysis.series import bag_topic_names
+from dmf_sim.bags.columns import JointStateColumns, McapColumns, ScalarColumn
+from dmf_sim.bags.layout import BagFiles, resolve_bag
+from dmf_sim.bags.read import TypeDecoder, bag_topics
+from dmf_sim.core.errors import BagError
+from dmf_sim.durability.accumulate import DurabilityAccumulator, DurabilityResult
+from dmf_sim.durability.settings import DurabilitySettings
+
+
+@dataclass
+class DurabilityRun:
+    """The result and how it was read."""
+
+    result: DurabilityResult
+    bag: str
+    files: int
+    truncated: list
+    model: dict
+    read_seconds: float
+    peak_rss_mib: float
+    batches: int
+
+
+class _Aligner:
+    """Joint-state rows with speed and crank angle interpolated onto their stamps, handed to
+    the accumulator as soon as both scalars reach past them."""
+
+    def __init__(self, acc: DurabilityAccumulator, topics: dict, ratio: float) -> None:
+        self.acc, self.topics, self.ratio = acc, topics, ratio
+        self.joint: list = []
+        self.scalar: dict[str, list] = {'speed': [], 'crank': []}
+        self.batches = 0
+
+    def __call__(self, topic: str, t: np.ndarray, values: np.ndarray) -> None:
+        if topic == self.topics['joints']:
+            self.joint.append((t, values))
+        elif topic == self.topics['speed']:
+            self.scalar['speed'].append((t, values[:, 0]))
+        elif topic == self.topics['crank']:
+            self.scalar['crank'].append((t, values[:, 0]))
+        self.process()
+
+    @staticmethod
+    def _joined(parts: list) -> tuple[np.ndarray, np.ndarray]:
+        if len(parts) == 1:
+            return parts[0]
+        return (np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts]))
+
+    def process(self, final: bool = False) -> None:
+        if not self.joint or not all(self.scalar.values()):
+            return
+        jt, jv = self._joined(self.joint)
+        sc = {k: self._joined(v) for k, v in self.scalar.items()}
+        upto = min(sc['speed'][0][-1], sc['crank'][0][-1])
+        n = len(jt) if final else int(np.searchsorted(jt, upto, side='right'))
+        if n == 0:
+            self.joint = [(jt, jv)]
+            self.scalar = {k: [v] for k, v in sc.items()}
+            return
+        t = jt[:n]
+        speed = np.interp(t, *sc['speed'])
+        psi = np.interp(t, *sc['crank'])
+        v = jv[:n]
+        w = v[:, 0] / self.ratio - v[:, 1]
+        wdot = v[:, 2] / self.ratio - v[:, 3]
+        self.acc.add(t, w, wdot, speed, psi)
+        self.batches += 1
+        self.joint = [(jt[n:], jv[n:])] if n < len(jt) else []
+        # keep the scalars from the last one at or before the processed stamps on
+        self.scalar = {}
+        for k, (st, sv) in sc.items():
+            i = max(int(np.searchsorted(st, t[-1], side='right')) - 1, 0)
+            self.scalar[k] = [(st[i:], sv[i:])]
+
+
+def bag_durability(path: str | os.PathLike | BagFiles, settings: DurabilitySettings, *,
+                   namespace: str | None = None, progress: bool = False) -> DurabilityRun:
+    """Durability figures of a bag (see the module docstring)."""
+    t0 = time.perf_counter()
+    bag = path if isinstance(path, BagFiles) else resolve_bag(path)
+    listed = bag_topics(bag)
+    tp, _ = bag_topic_names(listed, None, namespace)
+    for key in ('joints', 'speed', 'crank'):
+        if tp[key] not in listed:
+            raise BagError(f'the bag has no {tp[key]} topic (durability needs the joint states, '
+                           'engine speed and crank angle of the node\'s recording); topics found: '
+                           f'{", ".join(sorted(listed)) or "none"}')
+    st = model_settings(bag.metadata)
+    model = build_model(st)
+    if model.spring is None:
+        raise BagError(f'driveline {st["driveline"]!r} of this bag has no DMF: nothing to assess')
+    line = model.line
+    s = model.dmf_element
+    names = line.names
+    el = line.elements[s]
+    cols = [('position', names[s - 1]), ('position', names[s]), ('velocity', names[s - 1]),
+            ('velocity', names[s])]
+    acc = DurabilityAccumulator(model.spring, el.damping, settings)
+    align = _Aligner(acc, tp, el.ratio)
+    requests = {tp['joints']: lambda dec, t: JointStateColumns(dec, t, cols),
+                tp['speed']: ScalarColumn, tp['crank']: ScalarColumn}
+    decoder = TypeDecoder()
+    truncated = []
+    bar = None
+    if progress:
+        from tqdm import tqdm
+        bar = tqdm(total=sum(f.stat().st_size for f in bag.files), unit='B', unit_scale=True,
+                   desc='durability', leave=False)
+    try:
+        for file in bag.files:
+            reader = McapColumns(file, requests, decoder, 'log',
+                                 bar.update if bar is not None else None, sink=align).read()
+            if reader.truncated:
+                truncated.append(str(file))
+    finally:
+        if bar is not None:
+            bar.close()
+    align.process(final=True)
+    if acc.samples == 0:
+        raise BagError(f'{bag.path}: no joint states with engine speed and crank angle to assess')
+    result = acc.finish()
+    if truncated:
+        result.notes.append('truncated bag (recorder crashed?): read up to the last complete '
+                            f'chunk of {", ".join(truncated)}')
+    keep = ('driveline', 'engine', 'load_set', 'alpha', 'theta_rad')
+    return DurabilityRun(result, str(bag.path), len(bag.files), truncated,
+                         {k: st.get(k) for k in keep}, time.perf_counter() - t0,
+                         resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+                         align.batches)

@@ -1,0 +1,128 @@
+"""The one-page durability report: JSON and a PNG with the torque histogram, the rainflow
+matrix, the damage by speed band and the dissipated power over the record."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from dmf_sim.analysis.outputs import to_jsonable
+from dmf_sim.durability.read import DurabilityRun
+
+_DPI = 110
+_SIZE_IN = (11.0, 8.5)
+
+
+def _pyplot():
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    return plt
+
+
+def report_dict(run: DurabilityRun) -> dict:
+    d = run.result.as_dict()
+    d.update(bag=run.bag, files=run.files, model=run.model, read_seconds=run.read_seconds,
+             peak_rss_mib=run.peak_rss_mib, batches=run.batches)
+    return to_jsonable(d)
+
+
+def write_json(run: DurabilityRun, path: Path) -> Path:
+    path.write_text(json.dumps(report_dict(run), indent=1))
+    return path
+
+
+def _text(run: DurabilityRun) -> str:
+    r = run.result
+    sn = r.settings.sn
+    lines = [
+        f'{Path(run.bag).name}: {r.duration_s:.1f} s, {r.samples} samples; model '
+        f'{run.model.get("driveline")}, {run.model.get("engine")} load set '
+        f'{run.model.get("load_set")}',
+        f'spring torque {r.torque_min_nm:.0f} .. {r.torque_max_nm:.0f} Nm; {r.cycles:.0f} '
+        f'rainflow cycles; damage {r.damage:.3g} = {r.damage_per_hour:.3g} per hour',
+        f'S-N: N = {sn.reference_cycles:.3g} (S / {sn.reference_range_nm:g} Nm)^-'
+        f'{sn.exponent:g}, S = torque range'
+        + (' -- PLACEHOLDER curve, not spring data' if sn.placeholder else ''),
+        'stages: ' + '; '.join(f'{name} {st.time_s / r.duration_s:.0%} of the time, '
+                               f'{st.torque_min_nm:.0f}..{st.torque_max_nm:.0f} Nm'
+                               for name, st in r.stages.items()),
+        f'DMF damping power c (dw/dt)^2: mean {r.power_mean_w:.0f} W, highest engine-cycle '
+        f'mean {r.power_max_cycle_w:.0f} W',
+        '  (the model\'s viscous damping only: real arc-spring friction is not modelled)',
+    ]
+    if r.largest:
+        top = r.largest[0]
+        lines.append(f'largest torque {top[1]:.0f} Nm at {top[3]:.0f} rpm (t = {top[2]:.1f} s)')
+    return '\n'.join(lines)
+
+
+def plot_report(run: DurabilityRun, path: Path) -> Path:
+    """One page: text summary, torque histogram, rainflow matrix, damage by speed band,
+    dissipated power over time."""
+    plt = _pyplot()
+    r = run.result
+    s = r.settings
+    fig = plt.figure(figsize=_SIZE_IN, dpi=_DPI)
+    grid = fig.add_gridspec(3, 2, height_ratios=[0.55, 1, 1], hspace=0.55, wspace=0.3)
+    ax_t = fig.add_subplot(grid[0, :])
+    ax_t.axis('off')
+    ax_t.text(0.0, 1.0, _text(run), va='top', ha='left', fontsize=8.5, family='monospace',
+              wrap=True)
+    ax_t.set_title('DMF durability', loc='left', fontsize=12)
+
+    ax = fig.add_subplot(grid[1, 0])
+    keys = np.array(sorted(r.torque_hist))
+    if len(keys):
+        ax.bar(keys * s.torque_bin_nm + s.torque_bin_nm / 2,
+               [r.torque_hist[k] for k in keys], width=s.torque_bin_nm, color='tab:blue')
+    ax.set_xlabel('spring torque T(w) [Nm]')
+    ax.set_ylabel('time [s]')
+    ax.set_title('torque histogram (time per bin)', fontsize=10)
+
+    ax = fig.add_subplot(grid[1, 1])
+    if r.rainflow:
+        cells = np.array([(rb, mb, c) for (rb, mb), c in r.rainflow.items()])
+        r0, r1 = int(cells[:, 0].min()), int(cells[:, 0].max())
+        m0, m1 = int(cells[:, 1].min()), int(cells[:, 1].max())
+        mat = np.full((r1 - r0 + 1, m1 - m0 + 1), np.nan)
+        for rb, mb, c in cells:
+            mat[int(rb) - r0, int(mb) - m0] = c
+        im = ax.imshow(np.log10(mat), origin='lower', aspect='auto', cmap='viridis',
+                       extent=[m0 * s.mean_bin_nm, (m1 + 1) * s.mean_bin_nm,
+                               r0 * s.range_bin_nm, (r1 + 1) * s.range_bin_nm])
+        fig.colorbar(im, ax=ax, label='log10 cycles')
+    ax.set_xlabel('cycle mean torque [Nm]')
+    ax.set_ylabel('cycle torque range [Nm]')
+    ax.set_title('rainflow matrix', fontsize=10)
+
+    ax = fig.add_subplot(grid[2, 0])
+    bands = sorted(set(r.damage_by_band) | set(r.time_by_band))
+    if bands:
+        x = np.array(bands) * s.speed_bin_rpm + s.speed_bin_rpm / 2
+        dmg = np.array([r.damage_by_band.get(k, 0.0) for k in bands])
+        share = dmg / r.damage if r.damage > 0 else dmg
+        ax.bar(x, 100 * share, width=0.9 * s.speed_bin_rpm, color='tab:red', label='damage')
+        tim = np.array([r.time_by_band.get(k, 0.0) for k in bands])
+        ax.plot(x, 100 * tim / max(tim.sum(), 1e-12), 'ko-', ms=3, lw=1, label='time')
+        ax.legend(fontsize=8, frameon=False)
+    ax.set_xlabel('engine speed band [rpm]')
+    ax.set_ylabel('share [%]')
+    resid = r.damage_residue / r.damage if r.damage > 0 else 0.0
+    ax.set_title('damage by speed band' + (' (placeholder S-N)' if s.sn.placeholder else '')
+                 + f'\nresidue half cycles (no band): {resid:.0%} of the damage', fontsize=9)
+
+    ax = fig.add_subplot(grid[2, 1])
+    if len(r.power_t_s):
+        ax.plot(r.power_t_s, r.power_w, color='tab:orange', lw=1)
+        ax2 = ax.twinx()
+        ax2.plot(r.power_t_s, r.power_speed_rpm, color='0.6', lw=0.8)
+        ax2.set_ylabel('engine speed [rpm]', color='0.4')
+    ax.set_xlabel('time [s]')
+    ax.set_ylabel('power [W]')
+    ax.set_title('DMF damping power c (dw/dt)^2 per engine cycle\n(real arc-spring friction '
+                 'not in the model)', fontsize=9)
+    fig.savefig(path, dpi=_DPI, bbox_inches='tight')
+    plt.close(fig)
+    return path
