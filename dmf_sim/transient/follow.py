@@ -17,6 +17,8 @@ from dmf_sim.transient.profiles import Profile
 
 MIN_RAMP_RPM_PER_S = 1e-6     # a flat segment still gets a (tiny) positive rate
 MIN_LOAD_RAMP_PER_S = 1e-9
+TIME_EPS_S = 1e-9             # a simulated time this close to a row counts as at the row (the
+                              # stepper's time is a float sum of steps)
 
 
 class ProfileFollower:
@@ -38,7 +40,7 @@ class ProfileFollower:
 
     def next_row_s(self, t: float) -> float:
         """Simulated time [s] of the next profile row after ``t`` (inf past the end)."""
-        return self.t0 + self.profile.next_row_s(t - self.t0)
+        return self.t0 + self.profile.next_row_s(t - self.t0 + TIME_EPS_S)
 
     def apply(self, t: float | None = None) -> bool:
         """Setpoints for simulated time ``t`` (default: now); False once the profile is over
@@ -47,7 +49,7 @@ class ProfileFollower:
             return False
         sim = self.sim
         t = float(sim.t if t is None else t)
-        tp = t - self.t0
+        tp = t - self.t0 + TIME_EPS_S
         prof = self.profile
         if tp >= prof.duration_s - 1e-12:
             self.finish()
