@@ -244,7 +244,7 @@ def test_interrupted_run_leaves_a_readable_bag(tmp_path):
     try:
         deadline = time.monotonic() + 120
         first = out / 'cut_0.mcap'
-        while not (first.exists() and first.stat().st_size > 600_000):   # ~4 s simulated
+        while not (first.exists() and first.stat().st_size > 600_000):   # ~1 s simulated
             assert proc.poll() is None and time.monotonic() < deadline
             time.sleep(0.05)
         proc.send_signal(signal.SIGINT)
@@ -254,9 +254,9 @@ def test_interrupted_run_leaves_a_readable_bag(tmp_path):
             proc.kill()
     assert proc.returncode == 130 and 'interrupted at' in err
     meta = yaml.safe_load((out / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
-    assert meta['message_count'] > 4 * 3000 and meta['files']
+    assert meta['message_count'] >= 4 * 500 and meta['files']
     res = analyze_bag(out, bin_rpm=20)
-    assert not res.truncated and res.duration_s > 3
+    assert not res.truncated and res.duration_s > 0.5
 
 
 def test_slow_runup_follows_the_hbm_branch(tmp_path):
