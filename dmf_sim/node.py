@@ -45,6 +45,7 @@ from dmf_sim.live.health import status_name
 from dmf_sim.live.pacing import fmt_num
 from dmf_sim.live.parameters import DMF_PARAMETERS, PARAMETERS, coerce
 from dmf_sim.live.streams import STATUS_STREAMS, STREAMS
+from dmf_sim.transient.live_profile import NodeProfile
 
 STREAM_DEPTH = 100          # 0.1 s of samples at 1 kHz for a subscriber that falls behind
 DIAGNOSTICS_DEPTH = 10
@@ -136,6 +137,9 @@ class DrivelineNode(Node):
                                    topics={self._topics[k]: t for k, (_, t) in STREAMS.items()})
         self._js.name = self.runtime.sim.names
         self._update_clock_publisher()
+        self.profile = NodeProfile(self.runtime, self.get_logger())     # parameter 'profile'
+        if reason := self.profile.start(values['profile']):
+            raise ConfigError(f'parameter {reason}')
 
         inbox = self.runtime.loop.inbox
         for kind in ('speed', 'load'):
@@ -257,7 +261,9 @@ class DrivelineNode(Node):
         return [Parameter(p.name, value=coerce(p.name, p.value)) for p in params]
 
     def _check_parameters(self, params):
-        reason = self.runtime.check({p.name: p.value for p in params})
+        new = {p.name: p.value for p in params}
+        reason = (self.profile.check(new['profile']) if 'profile' in new else None
+                  ) or self.runtime.check(new)
         if reason:
             self.runtime.discard_pending()
             self.get_logger().warning(f'parameter change refused: {reason}')
@@ -267,6 +273,7 @@ class DrivelineNode(Node):
     def _apply_parameters(self, params) -> None:
         with self.runtime.lock:
             self._answers = self.runtime.apply({p.name: p.value for p in params})
+            self._answers += [self.profile.apply(p.value) for p in params if p.name == 'profile']
             self._update_clock_publisher()
 
     # ---- spinning -----------------------------------------------------------------------

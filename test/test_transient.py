@@ -272,3 +272,50 @@ def test_slow_runup_follows_the_hbm_branch(tmp_path):
     ok = np.isfinite(hbm)
     assert ok.sum() >= 4
     assert np.abs(meas[ok] / hbm[ok] - 1).max() < 0.03
+
+
+# ------------------------------------------------------------------------- the node's profile
+
+def test_node_profile_parameter_follows_and_refuses(tmp_path):
+    """The node's ``profile`` parameter (ROS-free core): follows a ramp in simulated time,
+    tells the monitor's setpoint listeners, refuses profiles outside the node's speed limits
+    or broken files with a one-line reason, '' stops it."""
+    import time as _time
+
+    from dmf_sim.live.parameters import PARAMETERS
+    from dmf_sim.live.runtime import LiveRuntime, load_line
+    from dmf_sim.transient.live_profile import NodeProfile
+
+    class Log:
+        def __init__(self):
+            self.lines = []
+        info = warning = error = lambda self, m: self.lines.append(m)
+
+    class Sink:
+        def publish_samples(self, *a): pass
+        def publish_clock(self, *a): pass
+        def publish_statuses(self, *a): pass
+
+    values = {n: s.default for n, s in PARAMETERS.items()}
+    values.update(alpha=2.5, theta=0.24, pacing='fast', monitor=False)
+    log = Log()
+    rt = LiveRuntime(values, load_line('truck_dmf'), Sink(), log, topics={})
+    heard = []
+    rt.loop.setpoint_listeners.append(lambda speed, load: heard.append((speed, load)))
+    prof = NodeProfile(rt, log)
+    assert 'speed_min_rpm' in prof.check('ramp:400:1000:100')
+    bad = tmp_path / 'bad.csv'
+    bad.write_text('time_s,speed_rpm,load\n0,900,1\n0,950,1\n')
+    reason = prof.check(str(bad))
+    assert reason.startswith('profile: ') and 'increase strictly' in reason and '\n' not in reason
+    assert prof.start('ramp:1000:1200:1000:0.8:0.05') is None
+    rt.loop.start()
+    while rt.sim.t < 0.3:
+        rt.loop.tick(_time.perf_counter())
+    assert rt.sim.speed == pytest.approx(1200.0) and rt.sim.load == pytest.approx(0.8)
+    assert prof.follower is None and any('done at' in m for m in log.lines)
+    assert heard and heard[-1] == (1200.0, 0.8)
+    assert rt.sim.speed_ramp_rpm_per_s == values['speed_ramp_rpm_per_s']   # restored
+    prof.apply('ramp:1200:1100:100')
+    assert prof.follower is not None
+    assert 'stopped' in prof.apply('') and prof.follower is None

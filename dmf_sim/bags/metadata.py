@@ -50,8 +50,7 @@ class RunMetadata:
         dt_s: Newmark step; publish_rate_hz: samples per simulated second.
         node: fully qualified node name (namespace included) of the recording node, or the
             command that wrote the bag (``dmf-sim run``).
-        profile: the speed/load profile a run followed (its name; ``dmf-sim run``, or the
-            node's ``profile`` parameter when it was set at the start of the recording).
+        profile: the speed/load profile ``dmf-sim run`` followed (its name).
     """
 
     driveline: str | None = None

@@ -39,8 +39,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-import yaml
 import numpy as np
+import yaml
 from mcap.records import MessageIndex
 from mcap.writer import CompressionType, Writer
 
@@ -373,10 +373,9 @@ class BagRecorder:
         t = log_ns[:rows]
         chans = []
         for topic, data in payloads:
-            try:
-                cid, info = self._channels[topic]
-            except KeyError:
-                raise BagError(f'topic {topic!r} was not declared when the bag was opened') from None
+            if topic not in self._channels:
+                raise BagError(f'topic {topic!r} was not declared when the bag was opened')
+            cid, info = self._channels[topic]
             chans.append((cid, info, data[:rows]))
         writer = self._writer
         builder = getattr(writer, '_Writer__chunk_builder', None)

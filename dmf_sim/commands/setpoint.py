@@ -1,4 +1,5 @@
-"""``dmf-sim setpoint --speed RPM [--load L] [--namespace /truck1]``: setpoints to a live node.
+"""``dmf-sim setpoint --speed RPM [--load L] [--namespace /truck1]``: setpoints to a live node;
+``dmf-sim setpoint --profile FILE``: a speed/load profile played in real time.
 
 Publishes std_msgs/Float64 on ``<namespace>/engine/speed_setpoint`` [rpm] and
 ``<namespace>/engine/load_setpoint`` [0..1] (the node's subscriptions), the way
@@ -9,6 +10,12 @@ publisher discovered it, and acknowledges only from then on). Exit 0 when delive
 subscriber; one line and exit 2 when no node subscribes or acknowledges within ``--timeout``.
 The node applies its own limits (speed_min_rpm/speed_max_rpm): a refused setpoint is counted
 in its /diagnostics (``rejected_setpoints``) and logged by the node.
+
+``--profile``: once the node subscribes, the profile (a file, a packaged name or a ``ramp:``
+spec, as ``dmf-sim run`` takes) is published interpolated at
+:data:`dmf_sim.transient.live_profile.PLAYER_RATE_HZ` over wall-clock time (the node ramps
+toward each value at its ``speed_ramp_rpm_per_s``), the last row until acknowledged. For a node
+in fast pacing use the node's own ``profile`` parameter instead (it follows simulated time).
 """
 from __future__ import annotations
 
@@ -28,6 +35,9 @@ ACK_TIMEOUT_S = 5.0     # for the last acknowledgement
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--speed', type=float, metavar='RPM', help='engine speed setpoint [rpm]')
     parser.add_argument('--load', type=float, metavar='L', help='load setpoint, fraction 0..1')
+    parser.add_argument('--profile', metavar='FILE',
+                        help='play a speed/load profile in real time: CSV/YAML file, packaged '
+                             'name (truck_road_cycle) or ramp:FROM:TO:RATE[:LOAD[:SETTLE]]')
     parser.add_argument('--namespace', default='', metavar='NS',
                         help="the node's namespace, e.g. /truck1 (default: none)")
     parser.add_argument('--timeout', type=float, default=10.0, metavar='S',
@@ -36,8 +46,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def check(args: argparse.Namespace) -> list[tuple[str, float, str]]:
     """(topic name relative to the namespace, value, text) per setpoint; one-line errors."""
+    if args.profile is not None and (args.speed is not None or args.load is not None):
+        raise ConfigError('give either --profile FILE or --speed/--load, not both')
+    if args.profile is not None:
+        from dmf_sim.transient.profiles import load_profile
+        prof = load_profile(args.profile)
+        speed, load = (float(v) for v in prof.at(0.0))
+        if not (math.isfinite(args.timeout) and args.timeout > 0):
+            raise ConfigError(f'--timeout must be > 0 s, got {args.timeout!r}')
+        args.profile_data = prof
+        return [('engine/speed_setpoint', speed, f'{speed:g} rpm'),
+                ('engine/load_setpoint', load, f'load {load:g}')]
     if args.speed is None and args.load is None:
-        raise ConfigError('give --speed RPM and/or --load L')
+        raise ConfigError('give --speed RPM and/or --load L, or --profile FILE')
     out = []
     if args.speed is not None:
         if not (math.isfinite(args.speed) and args.speed > 0):
@@ -70,6 +91,12 @@ def run(args: argparse.Namespace) -> int:
                     f'no node subscribes to {", ".join(missing)} within {args.timeout:g} s (is '
                     'driveline_node running with this ROS_DOMAIN_ID and namespace?)')
             executor.spin_once(timeout_sec=0.02)
+        if getattr(args, 'profile_data', None) is not None:
+            _play(args.profile_data, pubs, executor, Float64)
+            pubs = [(p, v, f'{v:g} rpm' if 'speed' in p.topic_name else f'load {v:g}')
+                    for (p, _, _), v in zip(pubs, args.profile_data.at(
+                        args.profile_data.duration_s))]
+            end = time.monotonic() + args.timeout
         # The node's reader may discover this publisher seconds after this publisher matched
         # it; it acknowledges samples only from then on. Publish until every subscriber has
         # acknowledged, then once more (that one certainly reaches a matched reader).
@@ -89,3 +116,19 @@ def run(args: argparse.Namespace) -> int:
             n = pub.get_subscription_count()
             print(f'{pub.topic_name}: {text} delivered to {n} subscriber{"s" if n != 1 else ""}')
     return 0
+
+
+def _play(profile, pubs, executor, Float64) -> None:
+    """Publish the profile's setpoints in real time (see the module docstring)."""
+    from dmf_sim.transient.live_profile import ProfilePlayer
+
+    player = ProfilePlayer(profile, time.monotonic())
+    print(f'playing profile {profile.name}: {profile.duration_s:g} s, '
+          f'{profile.speed_rpm.min():g}-{profile.speed_rpm.max():g} rpm', flush=True)
+    now = time.monotonic()
+    while not player.done(now):
+        values = player.setpoints(now)
+        for (pub, _, _), v in zip(pubs, values):
+            pub.publish(Float64(data=v))
+        executor.spin_once(timeout_sec=max(player.next_time(now) - time.monotonic(), 0.0))
+        now = time.monotonic()

@@ -111,7 +111,8 @@ class DurabilityResult:
                                 for _, tq, t, sp in self.largest],
             'dissipated_power': {'mean_w': self.power_mean_w,
                                  'max_cycle_mean_w': self.power_max_cycle_w,
-                                 'energy_j': self.energy_j, 'damping_nms_per_rad': self.damping_nms,
+                                 'energy_j': self.energy_j,
+                                 'damping_nms_per_rad': self.damping_nms,
                                  'note': 'viscous DMF damping c (dw/dt)^2 of the model only; '
                                          'the friction/hysteresis of real arc springs is not '
                                          'in the model'},
@@ -307,7 +308,8 @@ class DurabilityAccumulator:
                               'damage figures only compare records with each other')
         return DurabilityResult(
             duration_s=self.duration, samples=self.samples, settings=self.s,
-            damage=self.damage, damage_residue=self.damage_residue, damage_per_hour=self.damage / hours if hours > 0 else 0.0,
+            damage=self.damage, damage_residue=self.damage_residue,
+            damage_per_hour=self.damage / hours if hours > 0 else 0.0,
             cycles=self.cycles, reversals=self.rf.reversals, torque_hist=self.torque_hist,
             rainflow=self.rainflow, damage_by_band=self.damage_by_band,
             time_by_band=self.time_by_band, stages=self.stages,

@@ -68,6 +68,10 @@ PARAMETERS: dict[str, ParameterSpec] = {
                               'the working directory. An existing path is never overwritten; '
                               'missing parents are created. Set while recording: applies to '
                               'the next recording'),
+    'profile': ParameterSpec('', "Speed/load profile to follow from now on: a CSV/YAML file "
+                             '(time_s, speed_rpm, load), a packaged name (truck_road_cycle) or '
+                             "ramp:FROM:TO:RATE[:LOAD[:SETTLE]]; '' = none. Overrides the "
+                             'setpoint topics while it runs; the last row holds after it'),
     'bag_max_duration_s': ParameterSpec(60.0, 'Split recordings into MCAP files of this many '
                                         'seconds (as ros2 bag record --max-bag-duration); '
                                         'applies to the next recording', (1.0, 86400.0)),

@@ -30,7 +30,7 @@ class ProfileFollower:
         self.sim = sim
         self.t0 = float(sim.t if t0 is None else t0)
         self._saved = (sim.speed_ramp_rpm_per_s, sim.load_ramp_per_s)
-        self._segment = -1
+        self.segment = -1       # the profile row segment applied last
         self.done = False
 
     @property
@@ -65,7 +65,7 @@ class ProfileFollower:
             raise ValueError(reason)
         if reason := sim.set_load_setpoint(load):
             raise ValueError(reason)
-        self._segment = i
+        self.segment = i
         return True
 
     def finish(self) -> None:
