@@ -1,0 +1,63 @@
+"""``dmf-sim runup UP_BAG [DOWN_BAG]``: order tracks of run-up / run-down bags over the HBM
+sweep's branches, the jump speeds in the records and the sweep events that explain them
+(``dmf_sim.transient.runup``)."""
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from dmf_sim.analysis.outputs import to_jsonable
+from dmf_sim.core.errors import BagExistsError, ConfigError
+from dmf_sim.transient.runup import DEFAULT_BIN_RPM, JUMP_WINDOW_CYCLES
+
+NAME = 'runup'
+HELP = ('Run-up analysis: order tracks of run-up/run-down bags (e.g. from dmf-sim run '
+        'ramp:...) over the HBM branches, jump speeds vs the sweep\'s fold/stability events')
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument('bags', nargs='+', metavar='BAG', help='run-up and/or run-down bags')
+    p.add_argument('--bin-rpm', type=float, default=DEFAULT_BIN_RPM,
+                   help=f'speed bin for the quasi-static comparison [rpm] (default '
+                        f'{DEFAULT_BIN_RPM:g})')
+    p.add_argument('--window', type=int, default=JUMP_WINDOW_CYCLES,
+                   help=f'engine cycles before/after a jump (default {JUMP_WINDOW_CYCLES})')
+    p.add_argument('--no-hbm', action='store_true', help='no HBM sweep (jumps unmatched)')
+    p.add_argument('--out', type=Path, help='output directory (runup.json, runup.png); '
+                   'default <first BAG name>_runup unless --json')
+    p.add_argument('--json', action='store_true', help='print the JSON to stdout')
+
+
+def run(args: argparse.Namespace) -> int:
+    from dmf_sim.transient.plots import plot_runup
+    from dmf_sim.transient.runup import runup_analysis
+
+    if not 0 < args.bin_rpm <= 500:
+        raise ConfigError(f'--bin-rpm must be within (0, 500] rpm, got {args.bin_rpm!r}')
+    if not 2 <= args.window <= 200:
+        raise ConfigError(f'--window must be within [2, 200] cycles, got {args.window!r}')
+    out = args.out
+    if out is None and not args.json:
+        out = Path(f'{Path(args.bags[0]).resolve().name}_runup')
+    if out is not None and out.exists() and any(out.iterdir()):
+        raise BagExistsError(f'output directory {out} exists and is not empty; not overwriting')
+    res = runup_analysis(args.bags, bin_rpm=args.bin_rpm, hbm=not args.no_hbm,
+                         window=args.window)
+    data = to_jsonable(res.as_dict())
+    if out is not None:
+        out.mkdir(parents=True, exist_ok=True)
+        (out / 'runup.json').write_text(json.dumps(data, indent=1))
+        plot_runup(res, out / 'runup.png')
+    if args.json:
+        print(json.dumps(data))
+    else:
+        for j in res.jumps:
+            ev = (f'; sweep {j.event["kind"]} at {j.event["speed_rpm"]:.1f} rpm '
+                  f'({j.error_rpm:.1f} rpm away)' if j.event else '')
+            print(f'run-{"up" if j.direction > 0 else "down"}: {j.order} jumps {j.before * 1e3:.1f}'
+                  f' -> {j.after * 1e3:.1f} mrad at {j.speed_rpm:.1f} rpm{ev}')
+        if not res.jumps:
+            print('no jumps found')
+        print(f'wrote {out}/runup.json, {out}/runup.png')
+    return 0
