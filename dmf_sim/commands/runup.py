@@ -55,8 +55,9 @@ def run(args: argparse.Namespace) -> int:
         for j in res.jumps:
             ev = (f'; sweep {j.event["kind"]} at {j.event["speed_rpm"]:.1f} rpm '
                   f'({j.error_rpm:.1f} rpm away)' if j.event else '')
-            print(f'run-{"up" if j.direction > 0 else "down"}: {j.order} jumps {j.before * 1e3:.1f}'
-                  f' -> {j.after * 1e3:.1f} mrad at {j.speed_rpm:.1f} rpm{ev}')
+            way = 'up' if j.direction > 0 else 'down'
+            print(f'run-{way}: {j.order} jumps {j.before * 1e3:.1f} -> {j.after * 1e3:.1f} mrad '
+                  f'at {j.speed_rpm:.1f} rpm{ev}')
         if not res.jumps:
             print('no jumps found')
         print(f'wrote {out}/runup.json, {out}/runup.png')
