@@ -106,7 +106,8 @@ class RunSummary:
     bag: str | None
     simulated_s: float
     wall_s: float
-    realtime_factor: float
+    realtime_factor: float        # simulated s per wall s (the loop: integrate, encode, write)
+    cpu_s: float                  # the process' CPU time in the loop (threads included)
     samples: int
     messages: int
     rate_hz: float
@@ -206,7 +207,7 @@ def run_profile(profile: Profile, out: str | Path | None, options: RunOptions | 
     peaks: dict[str, float] = {}
     done = samples = 0
     interrupted = False
-    t_wall = time.perf_counter()
+    t_wall, t_cpu = time.perf_counter(), time.process_time()
     try:
         while done < total:
             follower.apply(sim.t)
@@ -237,13 +238,13 @@ def run_profile(profile: Profile, out: str | Path | None, options: RunOptions | 
                 write_out()         # the samples gathered so far, also after Ctrl-C
             finally:
                 recorder.close()
-    wall = time.perf_counter() - t_wall
+    wall, cpu = time.perf_counter() - t_wall, time.process_time() - t_cpu
     follower.finish()
     simulated = done * sim.dt
     return RunSummary(
         profile=profile.as_dict(), bag=str(recorder.path) if recorder is not None else None,
         simulated_s=simulated, wall_s=wall,
-        realtime_factor=simulated / wall if wall > 0 else math.inf, samples=samples,
+        realtime_factor=simulated / wall if wall > 0 else math.inf, cpu_s=cpu, samples=samples,
         messages=recorder.message_count if recorder is not None else 0, rate_hz=rate_hz,
         dt_s=sim.dt, interrupted=interrupted, knee_crossings=sim.knee_crossings,
         solver_resets=sim.solver_resets, peak_rss_mib=peaks)
