@@ -120,7 +120,7 @@ def main() -> None:
         rate = 50 if args.small else 5
         for name, spec in (('fold_up', f'ramp:330:420:{rate}:1.0:2'),
                            ('fold_down', f'ramp:420:330:{rate}:1.0:2')):
-            cli('run', spec, '--out', str(work / name), '--driveline', str(line), '--engine',
+            cli('run', spec, '--out', str(work / name), '--config', str(line), '--engine',
                 str(engine))
         res = runup_analysis([work / 'fold_up', work / 'fold_down'])
         out['jumps'] = [j.as_dict() for j in res.jumps]

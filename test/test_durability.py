@@ -181,7 +181,7 @@ def test_durability_command_on_a_run_bag(road_bag, tmp_path, capsys):
 def test_bad_durability_settings_one_line(road_bag, tmp_path, capsys, yaml_text, words):
     cfg = tmp_path / 'd.yaml'
     cfg.write_text(yaml_text)
-    assert cli_main(['durability', str(road_bag), '--json', '--config', str(cfg)]) == 2
+    assert cli_main(['durability', str(road_bag), '--json', '--settings', str(cfg)]) == 2
     err = capsys.readouterr().err.strip()
     assert '\n' not in err and 'Traceback' not in err
     for w in words:

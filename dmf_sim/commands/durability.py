@@ -19,7 +19,7 @@ HELP = ('DMF durability of a bag: rainflow counts of the spring torque, damage p
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument('bag', metavar='BAG', help='rosbag2 bag directory, one of its .mcap files, '
                    'or a bare .mcap file')
-    p.add_argument('--config', default='durability', metavar='YAML',
+    p.add_argument('--settings', default='durability', metavar='YAML',
                    help='durability settings (S-N curve, bins; default config/durability.yaml)')
     p.add_argument('--exponent', type=float, metavar='B', help='Basquin exponent b')
     p.add_argument('--reference-range', type=float, metavar='NM',
@@ -40,7 +40,7 @@ def run(args: argparse.Namespace) -> int:
     from dmf_sim.durability.report import plot_report, report_dict, write_json
     from dmf_sim.durability.settings import load_settings
 
-    settings = load_settings(args.config, exponent=args.exponent,
+    settings = load_settings(args.settings, exponent=args.exponent,
                              reference_range_nm=args.reference_range,
                              reference_cycles=args.reference_cycles)
     out = args.out

@@ -11,6 +11,14 @@ import json
 import math
 import sys
 
+from dmf_sim.commands._options import (
+    add_alpha,
+    add_config,
+    add_engine,
+    add_load_set,
+    add_theta,
+    check_common,
+)
 from dmf_sim.core.errors import ConfigError
 from dmf_sim.transient.run import CHUNK_RANGE_S, DEFAULT_CHUNK_S, RunOptions, run_profile
 
@@ -29,11 +37,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument('--rate', type=float, default=1000.0, metavar='HZ',
                    help='samples per simulated second in the bag (default 1000; a whole number '
                         'of Newmark steps per sample)')
-    p.add_argument('--driveline', default='truck_dmf', help='driveline YAML (default truck_dmf)')
-    p.add_argument('--engine', default='engine_d13', help='engine YAML or A_n table')
-    p.add_argument('--load-set', default='A', help='A, B or C (default A)')
-    p.add_argument('--alpha', type=float, help='DMF secondary stiffness factor (default: YAML)')
-    p.add_argument('--theta', type=float, help='DMF stiffness change angle [rad]')
+    add_config(p)
+    add_engine(p)
+    add_load_set(p)
+    add_alpha(p)
+    add_theta(p)
     p.add_argument('--dt', type=float, default=1e-4, help='Newmark step [s] (default 1e-4)')
     p.add_argument('--chunk', type=float, default=DEFAULT_CHUNK_S, metavar='S',
                    help='simulated time per chunk: excitation coefficients and load are held '
@@ -48,12 +56,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from dmf_sim.transient.profiles import load_profile
 
+    check_common(args)
     if not args.no_write and not args.out:
         raise ConfigError('give --out BAG (the bag directory to create) or --no-write')
     if not (math.isfinite(args.dt) and 1e-6 <= args.dt <= 1e-2):
         raise ConfigError(f'--dt must be within [1e-06, 0.01] s, got {args.dt!r}')
     profile = load_profile(args.profile)
-    opt = RunOptions(driveline=args.driveline, engine=args.engine, load_set=args.load_set,
+    opt = RunOptions(driveline=args.config, engine=args.engine, load_set=args.load_set,
                      alpha=args.alpha, theta=args.theta, dt=args.dt, rate_hz=args.rate,
                      chunk_s=args.chunk, write=not args.no_write, namespace=args.namespace)
     summary = run_profile(profile, None if args.no_write else args.out, opt,
