@@ -33,6 +33,7 @@ setup(
         'dask[distributed]>=2024.1',   # dmf-sim design: a LocalCluster or a real cluster
         'pyarrow>=14',                 # dmf-sim design: the Parquet result table
         'fatpack>=0.7',                # dmf-sim durability: rainflow cycles
+        'threadpoolctl>=3',            # dmf-sim run: BLAS in one thread for the small products
     ],
     extras_require={
         'ros': ['ros-jazzy-rclpy[fastrtps]', 'ros-jazzy-common-interfaces'],

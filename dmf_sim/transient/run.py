@@ -22,23 +22,26 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from dmf_sim.core.errors import ConfigError, OperatingRangeError, one_line
 from dmf_sim.live.pacing import TimeBase, publish_stride
 from dmf_sim.live.recording import run_metadata
 from dmf_sim.live.simulation import LiveSimulation, Samples
 from dmf_sim.live.streams import STREAMS, resolved_topics
-from dmf_sim.transient.follow import ProfileFollower
+from dmf_sim.transient.follow import TIME_EPS_S, ProfileFollower
 from dmf_sim.transient.profiles import Profile
 
 WRITER_NAME = 'dmf-sim run'
-DEFAULT_CHUNK_S = 0.05      # simulated time per chunk [s]: the excitation coefficients and the
-                            # load are held over a chunk (the speed ramp is exact inside it)
+DEFAULT_CHUNK_S = 0.1       # simulated time per chunk at most [s]: the excitation coefficients
+                            # and the load are held over a chunk (the speed ramp is exact in it)
+CHUNK_SPEED_STEP_RPM = 5.0  # ... and a chunk is short enough that the speed moves at most this
+CHUNK_LOAD_STEP = 0.02      # ... and the load at most this (gear shifts: ~10 ms chunks)
 CHUNK_RANGE_S = (1e-3, 1.0)
 DEFAULT_SPLIT_S = 60.0      # bag files split every this many simulated seconds (as the node)
 MEMORY_MARKS = (0.1, 0.5, 1.0)   # fractions of the run where the peak RSS is sampled
-MAX_CHUNK_ROWS = 64         # samples per chunk at most: OpenBLAS threads larger products of the
-                            # torque read-out, ~10x slower on a busy 2-core machine (measured)
+BLAS_THREADS = 1            # the torque read-out's small matrix products in one thread: OpenBLAS
+                            # threads them past ~64 rows, ~10x slower on a busy 2-core machine
 BLOCK_ROWS = 256            # samples gathered per bag chunk (~140 KB for the truck model): the
                             # per-chunk cost of encoding and writing is paid 4x per simulated s
 
@@ -125,6 +128,20 @@ def _peak_rss_mib() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0    # KiB on Linux
 
 
+def _chunk_limit(profile: Profile, segment: int, chunk: int, stride: int, dt: float) -> int:
+    """Steps per chunk in a profile segment: at most ``chunk``, and few enough that speed and
+    load move at most CHUNK_SPEED_STEP_RPM / CHUNK_LOAD_STEP (a whole number of samples)."""
+    i = min(max(segment, 0), len(profile) - 2)
+    span = profile.t_s[i + 1] - profile.t_s[i]
+    seconds = opt_s = chunk * dt
+    for delta, step in ((profile.speed_rpm[i + 1] - profile.speed_rpm[i], CHUNK_SPEED_STEP_RPM),
+                        (profile.load[i + 1] - profile.load[i], CHUNK_LOAD_STEP)):
+        if delta:
+            seconds = min(seconds, step * span / abs(delta))
+    steps = int(min(seconds, opt_s) / dt) // stride * stride
+    return max(steps, stride)
+
+
 def build_simulation(profile: Profile, opt: RunOptions) -> LiveSimulation:
     """The live core at the profile's first row (static equilibrium), speed limits = the
     engine's data range (a profile outside it: one-line OperatingRangeError)."""
@@ -187,8 +204,8 @@ def run_profile(profile: Profile, out: str | Path | None, options: RunOptions | 
     follower = ProfileFollower(profile, sim)
     timebase = TimeBase()
     timebase.start(time.time_ns(), sim.t)
-    rows_per_chunk = min(max(int(round(opt.chunk_s / sim.dt)) // sim.stride, 1), MAX_CHUNK_ROWS)
-    chunk = rows_per_chunk * sim.stride
+    stride = sim.stride
+    chunk = max(int(round(opt.chunk_s / sim.dt)) // stride, 1) * stride
     block = SampleBlock(BLOCK_ROWS, len(sim.names)) if write else None
 
     def write_out() -> None:
@@ -207,37 +224,44 @@ def run_profile(profile: Profile, out: str | Path | None, options: RunOptions | 
     peaks: dict[str, float] = {}
     done = samples = 0
     interrupted = False
+    next_row = -math.inf
+    limit = chunk
     t_wall, t_cpu = time.perf_counter(), time.process_time()
-    try:
-        while done < total:
-            follower.apply(sim.t)
-            to_row = follower.next_row_s(sim.t) - sim.t
-            k = min(chunk, total - done, max(int(round(to_row / sim.dt)), 1))
-            s = sim.advance(k)
-            done += k
-            rows = len(s)
-            samples += rows
-            start = 0
-            while block is not None and start < rows:
-                k = min(block.free, rows - start)
-                block.add(s, start, start + k)
-                start += k
-                if block.free == 0:
-                    write_out()
+    with threadpool_limits(BLAS_THREADS):
+        try:
+            while done < total:
+                if sim.t >= next_row - TIME_EPS_S:        # a new profile segment
+                    follower.apply(sim.t)
+                    next_row = follower.next_row_s(sim.t)
+                    limit = _chunk_limit(profile, follower.segment, chunk, stride, sim.dt)
+                to_row = (int(round((next_row - sim.t) / sim.dt)) if math.isfinite(next_row)
+                          else total)
+                n = min(limit, total - done, max(to_row, 1))
+                s = sim.advance(n)
+                done += n
+                rows = len(s)
+                samples += rows
+                start = 0
+                while block is not None and start < rows:
+                    k = min(block.free, rows - start)
+                    block.add(s, start, start + k)
+                    start += k
+                    if block.free == 0:
+                        write_out()
+                if bar is not None:
+                    bar.update(n * sim.dt)
+                while marks and done >= marks[0] * total:
+                    peaks[f'{marks.pop(0):g}'] = round(_peak_rss_mib(), 1)
+        except KeyboardInterrupt:
+            interrupted = True
+        finally:
             if bar is not None:
-                bar.update(k * sim.dt)
-            while marks and done >= marks[0] * total:
-                peaks[f'{marks.pop(0):g}'] = round(_peak_rss_mib(), 1)
-    except KeyboardInterrupt:
-        interrupted = True
-    finally:
-        if bar is not None:
-            bar.close()
-        if recorder is not None:
-            try:
-                write_out()         # the samples gathered so far, also after Ctrl-C
-            finally:
-                recorder.close()
+                bar.close()
+            if recorder is not None:
+                try:
+                    write_out()         # the samples gathered so far, also after Ctrl-C
+                finally:
+                    recorder.close()
     wall, cpu = time.perf_counter() - t_wall, time.process_time() - t_cpu
     follower.finish()
     simulated = done * sim.dt
