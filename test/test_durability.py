@@ -173,10 +173,11 @@ def test_durability_command_on_a_run_bag(road_bag, tmp_path, capsys):
 
 
 @pytest.mark.parametrize('yaml_text, words', [
-    ('sn_curve: {exponent: -1}\n', ['sn_curve.exponent must be within']),
-    ('sn_curve: {reference_cycles: many}\n', ['sn_curve.reference_cycles must be a number']),
-    ('bins: {torque_nm: 0}\n', ['bins.torque_nm must be within']),
-    ('colour: red\n', ['unknown key(s) colour']),
+    ('sn_curve: {exponent: -1}\n', ["field 'sn_curve.exponent' must be in [0.5, 50]"]),
+    ('sn_curve: {reference_cycles: many}\n', ["field 'sn_curve.reference_cycles' must be a "
+                                              'number']),
+    ('bins: {torque_nm: 0}\n', ["field 'bins.torque_nm' must be in"]),
+    ('colour: red\n', ["unknown key 'colour'"]),
 ])
 def test_bad_durability_settings_one_line(road_bag, tmp_path, capsys, yaml_text, words):
     cfg = tmp_path / 'd.yaml'

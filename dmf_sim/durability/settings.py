@@ -6,14 +6,13 @@ made with them says so.
 """
 from __future__ import annotations
 
-import math
 import os
 from dataclasses import dataclass
 
 import numpy as np
 
-from dmf_sim.core.errors import ConfigError
 from dmf_sim.core.paths import read_yaml_mapping
+from dmf_sim.core.validation import check_keys, field_error, integer, number
 
 DEFAULT_SETTINGS = 'durability'      # config/durability.yaml
 
@@ -70,24 +69,10 @@ _BIN_FIELDS = {'torque_nm': (1e-3, 1e6), 'range_nm': (1e-3, 1e6), 'mean_nm': (1e
                'speed_rpm': (1.0, 5000.0), 'power_time_s': (1e-3, 3600.0)}
 
 
-def _number(where: str, value, lo: float, hi: float) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ConfigError(f'{where} must be a number within [{lo:g}, {hi:g}], got {value!r}')
-    v = float(value)
-    if not (math.isfinite(v) and lo <= v <= hi):
-        raise ConfigError(f'{where} must be within [{lo:g}, {hi:g}], got {value!r}')
-    return v
-
-
 def _section(data: dict, key: str, path, fields) -> dict:
     sec = data.get(key, {})
-    if not isinstance(sec, dict):
-        raise ConfigError(f'{path}: {key} must be a mapping')
-    allowed = set(fields) | ({'placeholder'} if key == 'sn_curve' else set())
-    if unknown := sorted(set(sec) - allowed):
-        raise ConfigError(f'{path}: {key}: unknown key(s) {", ".join(map(str, unknown))}; '
-                          f'allowed: {", ".join(sorted(allowed))}')
-    return sec
+    allowed = list(fields) + (['placeholder'] if key == 'sn_curve' else [])
+    return dict(check_keys(sec, str(path), key, (), allowed))
 
 
 def load_settings(source: str | os.PathLike = DEFAULT_SETTINGS, **overrides) -> DurabilitySettings:
@@ -98,28 +83,26 @@ def load_settings(source: str | os.PathLike = DEFAULT_SETTINGS, **overrides) -> 
     ``placeholder: false`` or gives its own S-N numbers, or options do."""
     _, base = read_yaml_mapping(DEFAULT_SETTINGS, 'durability settings')
     path, data = read_yaml_mapping(source, 'durability settings')
-    allowed = {'sn_curve', 'bins', 'largest', 'largest_separation_s', 'window_s'}
-    if unknown := sorted(set(data) - allowed):
-        raise ConfigError(f'{path}: unknown key(s) {", ".join(map(str, unknown))}; allowed: '
-                          f'{", ".join(sorted(allowed))}')
+    check_keys(data, str(path), '', (), ('sn_curve', 'bins', 'largest', 'largest_separation_s',
+                                         'window_s'))
     user_sn = _section(data, 'sn_curve', path, _SN_FIELDS)
     sn = {**base['sn_curve'], **user_sn}
-    values = {k: _number(f'{path}: sn_curve.{k}', sn[k], *_SN_FIELDS[k]) for k in _SN_FIELDS}
+    values = {k: number(sn[k], str(path), f'sn_curve.{k}', *_SN_FIELDS[k]) for k in _SN_FIELDS}
     own = path.resolve() != read_yaml_mapping(DEFAULT_SETTINGS)[0].resolve() and any(
         k in user_sn for k in _SN_FIELDS)
     placeholder = user_sn.get('placeholder', sn['placeholder'] and not own)
     if not isinstance(placeholder, bool):
-        raise ConfigError(f'{path}: sn_curve.placeholder must be true or false, got '
-                          f'{placeholder!r}')
+        raise field_error(str(path), 'sn_curve.placeholder', 'must be true or false', placeholder)
     given = {k: v for k, v in overrides.items() if v is not None}
     for k, v in given.items():
-        values[k] = _number(f'--{k.replace("_", "-")}', v, *_SN_FIELDS[k])
+        values[k] = number(v, 'command line', f'--{k.replace("_", "-")}', *_SN_FIELDS[k])
     bins = {**base['bins'], **_section(data, 'bins', path, _BIN_FIELDS)}
-    b = {k: _number(f'{path}: bins.{k}', bins[k], *_BIN_FIELDS[k]) for k in _BIN_FIELDS}
-    largest = int(_number(f'{path}: largest', data.get('largest', base['largest']), 1, 1000))
-    window = _number(f'{path}: window_s', data.get('window_s', base['window_s']), 1e-3, 10.0)
-    sep = _number(f'{path}: largest_separation_s',
-                  data.get('largest_separation_s', base['largest_separation_s']), 0.0, 1e6)
+    b = {k: number(bins[k], str(path), f'bins.{k}', *_BIN_FIELDS[k]) for k in _BIN_FIELDS}
+    largest = integer(data.get('largest', base['largest']), str(path), 'largest', 1, 1000)
+    window = number(data.get('window_s', base['window_s']), str(path), 'window_s', 1e-3, 10.0,
+                    unit='s')
+    sep = number(data.get('largest_separation_s', base['largest_separation_s']), str(path),
+                 'largest_separation_s', 0.0, 1e6, unit='s')
     return DurabilitySettings(
         SNCurve(**values, placeholder=placeholder and not given),
         torque_bin_nm=b['torque_nm'], range_bin_nm=b['range_nm'], mean_bin_nm=b['mean_nm'],

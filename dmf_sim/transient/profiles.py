@@ -29,6 +29,7 @@ import numpy as np
 
 from dmf_sim.core.errors import ConfigError, OperatingRangeError
 from dmf_sim.core.paths import config_dir, config_file, parse_yaml, read_text
+from dmf_sim.core.validation import check_keys, field_error, number
 
 COLUMNS = ('time_s', 'speed_rpm', 'load')
 DEFAULT_SETTLE_S = 2.0            # dwell at a ramp's start speed [s] before it ramps
@@ -108,30 +109,19 @@ def make_profile(rows, *, name: str = 'profile', source: str = '', where: str = 
     out = np.empty((len(rows), 3))
     for i, row in enumerate(rows):
         if not isinstance(row, (list, tuple)) or len(row) != 3:
-            raise ConfigError(f'{at(i)}: a row is [time_s, speed_rpm, load] (3 numbers), got '
-                              f'{row!r}')
+            raise field_error(at(i), 'row', 'must be [time_s, speed_rpm, load] (3 numbers)', row)
         for j, (col, value) in enumerate(zip(COLUMNS, row)):
-            try:
-                if isinstance(value, bool):
-                    raise ValueError
-                v = float(value)
-            except (TypeError, ValueError):
-                raise ConfigError(f'{at(i)}: {col} must be a number, got {value!r}') from None
-            if not math.isfinite(v):
-                raise ConfigError(f'{at(i)}: {col} must be finite, got {value!r}')
-            out[i, j] = v
+            out[i, j] = number(value, at(i), col)
     t, speed, load = out.T
     if t[0] != 0.0:
-        raise ConfigError(f'{at(0)}: time_s must start at 0 s, got {t[0]:g}')
+        raise field_error(at(0), 'time_s', 'must start at 0 s', float(t[0]))
     for i in range(1, len(t)):
         if not t[i] > t[i - 1]:
-            raise ConfigError(f'{at(i)}: time_s must increase strictly, got {t[i]:g} after '
-                              f'{t[i - 1]:g}')
+            raise field_error(at(i), 'time_s', f'must increase strictly (after {t[i - 1]:g})',
+                              float(t[i]))
     for i in range(len(t)):
-        if not speed[i] > 0:
-            raise ConfigError(f'{at(i)}: speed_rpm must be > 0 rpm, got {speed[i]:g}')
-        if not LOAD_RANGE[0] <= load[i] <= LOAD_RANGE[1]:
-            raise ConfigError(f'{at(i)}: load must be within [0, 1], got {load[i]:g}')
+        number(float(speed[i]), at(i), 'speed_rpm', 0.0, lo_open=True, unit='rpm')
+        number(float(load[i]), at(i), 'load', *LOAD_RANGE)
     return Profile(t.copy(), speed.copy(), load.copy(), name=name, source=source)
 
 
@@ -139,24 +129,15 @@ def ramp_profile(from_rpm: float, to_rpm: float, rate_rpm_per_s: float, load: fl
                  settle_s: float = DEFAULT_SETTLE_S, *, where: str = 'ramp') -> Profile:
     """Built-in run-up (to > from) or run-down: ``settle_s`` at ``from_rpm``, then a constant
     rate to ``to_rpm``."""
-    checks = (('from_rpm', from_rpm, (0.0, math.inf), 'rpm', False),
-              ('to_rpm', to_rpm, (0.0, math.inf), 'rpm', False),
-              ('rate_rpm_per_s', rate_rpm_per_s, RAMP_RATE_RANGE, 'rpm/s', True),
-              ('load', load, LOAD_RANGE, '', True),
-              ('settle_s', settle_s, SETTLE_RANGE_S, 's', True))
-    for name, value, (lo, hi), unit, closed in checks:
-        try:
-            v = float(value)
-        except (TypeError, ValueError):
-            raise ConfigError(f'{where}: {name} must be a number, got {value!r}') from None
-        ok = (lo <= v <= hi) if closed else (lo < v <= hi)
-        if not (math.isfinite(v) and ok):
-            rng = f'[{lo:g}, {hi:g}]' if closed else f'> {lo:g}'
-            raise ConfigError(f'{where}: {name} must be {"within " if closed else ""}{rng}'
-                              f'{" " + unit if unit else ""}, got {value!r}')
-    if float(from_rpm) == float(to_rpm):
-        raise ConfigError(f'{where}: from_rpm and to_rpm are equal ({float(from_rpm):g} rpm): '
-                          'nothing to ramp')
+    from_rpm = number(from_rpm, where, 'from_rpm', 0.0, lo_open=True, unit='rpm')
+    to_rpm = number(to_rpm, where, 'to_rpm', 0.0, lo_open=True, unit='rpm')
+    rate_rpm_per_s = number(rate_rpm_per_s, where, 'rate_rpm_per_s', *RAMP_RATE_RANGE,
+                            unit='rpm/s')
+    load = number(load, where, 'load', *LOAD_RANGE)
+    settle_s = number(settle_s, where, 'settle_s', *SETTLE_RANGE_S, unit='s')
+    if from_rpm == to_rpm:
+        raise field_error(where, 'to_rpm', f'must differ from from_rpm ({from_rpm:g} rpm): '
+                          'nothing to ramp', to_rpm)
     ramp_s = abs(float(to_rpm) - float(from_rpm)) / float(rate_rpm_per_s)
     times = [0.0, float(settle_s), float(settle_s) + ramp_s] if settle_s > 0 else [0.0, ramp_s]
     speeds = ([from_rpm, from_rpm, to_rpm] if settle_s > 0 else [from_rpm, to_rpm])
@@ -174,13 +155,7 @@ def _parse_ramp_spec(spec: str) -> Profile:
         raise ConfigError(f'profile {spec!r}: write ramp:FROM:TO:RATE[:LOAD[:SETTLE]] (rpm, rpm, '
                           'rpm/s, 0..1, s), e.g. ramp:800:2000:10:1.0')
     names = ('from_rpm', 'to_rpm', 'rate_rpm_per_s', 'load', 'settle_s')
-    values = {}
-    for name, text in zip(names, parts):
-        try:
-            values[name] = float(text)
-        except ValueError:
-            raise ConfigError(f'profile {spec!r}: {name} must be a number, got {text!r}') from None
-    return ramp_profile(**values, where=f'profile {spec!r}')
+    return ramp_profile(**dict(zip(names, parts)), where=f'profile {spec!r}')
 
 
 def _read_csv(path: Path) -> Profile:
@@ -195,12 +170,12 @@ def _read_csv(path: Path) -> Profile:
         if header is None:
             header = cells
             if header != list(COLUMNS):
-                raise ConfigError(f'{path}:{lineno}: the header must be '
-                                  f'{",".join(COLUMNS)}, got {stripped!r}')
+                raise field_error(f'{path}:{lineno}', 'header', f'must be {",".join(COLUMNS)}',
+                                  stripped)
             continue
         if len(cells) != len(COLUMNS):
-            raise ConfigError(f'{path}:{lineno}: a row has 3 values ({",".join(COLUMNS)}), got '
-                              f'{len(cells)}')
+            raise field_error(f'{path}:{lineno}', 'row', f'must have 3 values '
+                              f'({",".join(COLUMNS)})', stripped)
         rows.append(cells)
         lines.append(lineno)
     if header is None:
@@ -210,32 +185,25 @@ def _read_csv(path: Path) -> Profile:
 
 def _read_yaml(path: Path) -> Profile:
     data = parse_yaml(read_text(path), str(path))
-    if not isinstance(data, dict):
-        raise ConfigError(f'{path}: a profile YAML is a mapping with points: or ramp:')
-    allowed = {'name', 'source', 'points', 'ramp', 'columns'}
-    if unknown := sorted(set(data) - allowed):
-        raise ConfigError(f'{path}: unknown key(s) {", ".join(map(str, unknown))}; allowed: '
-                          f'{", ".join(sorted(allowed))}')
+    check_keys(data, str(path), '', (), ('name', 'source', 'points', 'ramp', 'columns'))
     name = str(data.get('name') or path.stem)
     source = str(data.get('source') or path)
     if ('points' in data) == ('ramp' in data):
         raise ConfigError(f'{path}: give exactly one of points: (rows [time_s, speed_rpm, load]) '
                           'or ramp: (from_rpm, to_rpm, rate_rpm_per_s, load, settle_s)')
     if 'columns' in data and list(data['columns']) != list(COLUMNS):
-        raise ConfigError(f'{path}: columns must be {list(COLUMNS)}, got {data["columns"]!r}')
+        raise field_error(str(path), 'columns', f'must be {list(COLUMNS)}', data['columns'])
     if 'ramp' in data:
-        ramp = data['ramp']
-        keys = ('from_rpm', 'to_rpm', 'rate_rpm_per_s', 'load', 'settle_s')
-        if not isinstance(ramp, dict) or not {'from_rpm', 'to_rpm', 'rate_rpm_per_s'} <= set(
-                ramp) or set(ramp) - set(keys):
-            raise ConfigError(f'{path}: ramp: needs from_rpm, to_rpm, rate_rpm_per_s (optional '
-                              f'load, settle_s), got {ramp!r}')
+        ramp = check_keys(data['ramp'], str(path), 'ramp', ('from_rpm', 'to_rpm',
+                                                             'rate_rpm_per_s'),
+                          ('load', 'settle_s'))
         p = ramp_profile(**ramp, where=f'{path}: ramp')
         return Profile(p.t_s, p.speed_rpm, p.load, name=name, source=data.get('source')
                        or p.source)
     points = data['points']
     if not isinstance(points, list):
-        raise ConfigError(f'{path}: points must be a list of [time_s, speed_rpm, load] rows')
+        raise field_error(str(path), 'points', 'must be a list of [time_s, speed_rpm, load] rows',
+                          points)
     return make_profile(points, name=name, source=source, where=f'{path}: points')
 
 
