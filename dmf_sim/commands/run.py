@@ -20,7 +20,7 @@ from dmf_sim.commands._options import (
     check_common,
 )
 from dmf_sim.core.errors import ConfigError
-from dmf_sim.transient.run import CHUNK_RANGE_S, DEFAULT_CHUNK_S, RunOptions, run_profile
+from dmf_sim.transient.defaults import CHUNK_RANGE_S, DEFAULT_CHUNK_S
 
 NAME = 'run'
 HELP = ('Offline transient run of a speed/load profile (run-up, run-down, drive cycle) through '
@@ -55,6 +55,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from dmf_sim.transient.profiles import load_profile
+    from dmf_sim.transient.run import RunOptions, run_profile
 
     check_common(args)
     if not args.no_write and not args.out:

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from dmf_sim.analysis.outputs import to_jsonable
 from dmf_sim.core.errors import BagExistsError, ConfigError
-from dmf_sim.transient.runup import DEFAULT_BIN_RPM, JUMP_WINDOW_CYCLES
+from dmf_sim.transient.defaults import DEFAULT_BIN_RPM, JUMP_WINDOW_CYCLES
 
 NAME = 'runup'
 HELP = ('Run-up analysis: order tracks of run-up/run-down bags (e.g. from dmf-sim run '

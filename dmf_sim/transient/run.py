@@ -29,15 +29,13 @@ from dmf_sim.live.pacing import TimeBase, publish_stride
 from dmf_sim.live.recording import run_metadata
 from dmf_sim.live.simulation import LiveSimulation, Samples
 from dmf_sim.live.streams import STREAMS, resolved_topics
+from dmf_sim.transient.defaults import CHUNK_RANGE_S, DEFAULT_CHUNK_S
 from dmf_sim.transient.follow import TIME_EPS_S, ProfileFollower
 from dmf_sim.transient.profiles import Profile
 
 WRITER_NAME = 'dmf-sim run'
-DEFAULT_CHUNK_S = 0.1       # simulated time per chunk at most [s]: the excitation coefficients
-                            # and the load are held over a chunk (the speed ramp is exact in it)
 CHUNK_SPEED_STEP_RPM = 5.0  # ... and a chunk is short enough that the speed moves at most this
 CHUNK_LOAD_STEP = 0.02      # ... and the load at most this (gear shifts: ~10 ms chunks)
-CHUNK_RANGE_S = (1e-3, 1.0)
 DEFAULT_SPLIT_S = 60.0      # bag files split every this many simulated seconds (as the node)
 MEMORY_MARKS = (0.1, 0.5, 1.0)   # fractions of the run where the peak RSS is sampled
 BLAS_THREADS = 1            # the torque read-out's small matrix products in one thread: OpenBLAS

@@ -31,9 +31,9 @@ from dmf_sim.analysis.hbm_overlay import model_settings, overlay_all
 from dmf_sim.analysis.order_bins import bin_cycles
 from dmf_sim.analysis.pipeline import BagAnalysis, analyze_bag
 from dmf_sim.core.errors import BagError
+from dmf_sim.transient.defaults import DEFAULT_BIN_RPM, JUMP_WINDOW_CYCLES
 
 ORDERS = ('order_3', 'order_1_5')
-JUMP_WINDOW_CYCLES = 8      # engine cycles averaged before and after a candidate jump
 JUMP_MIN_FRACTION = 0.25    # a jump changes the amplitude by this fraction of its peak at least
 JUMP_FLOOR_FRACTION = 0.05  # ... and by this fraction of the largest order's peak (noise floor)
 STEP_RATIO_MAX = 1.5        # a step seen over the whole window at most this many times the one
@@ -42,7 +42,6 @@ EVENT_KINDS = ('fold', 'stability_loss')
 SEGMENT_SPEED_SCALE_RPM = 10.0   # speed distance that counts like the amplitude's peak when
                                  # a state is placed on the nearest stable HBM stretch
 SETTLE_TOLERANCE_RPM = 0.5  # cycles within this of the start speed are the settle part
-DEFAULT_BIN_RPM = 10.0
 AWAY_FROM_JUMPS_RPM = 30.0  # quasi-static comparison: rows this far from jumps and events
 MIN_SHARE_OF_PEAK = 0.05    # ... and where the HBM amplitude is at least this share of its peak
 
