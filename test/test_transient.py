@@ -319,3 +319,23 @@ def test_node_profile_parameter_follows_and_refuses(tmp_path):
     prof.apply('ramp:1200:1100:100')
     assert prof.follower is not None
     assert 'stopped' in prof.apply('') and prof.follower is None
+
+
+def test_profile_player_and_setpoint_profile_errors(tmp_path, capsys):
+    """``dmf-sim setpoint --profile``: the setpoints due over wall-clock time, the last row
+    exactly; bad profiles and mixed options refused in one line before any ROS is touched."""
+    from dmf_sim.transient.live_profile import ProfilePlayer
+    player = ProfilePlayer(load_profile('ramp:1000:1200:100:0.5:1'), t0=10.0, rate_hz=20.0)
+    assert player.setpoints(10.5) == (1000.0, 0.5)
+    assert player.setpoints(12.0) == pytest.approx((1100.0, 0.5))
+    assert player.next_time(11.0) == pytest.approx(11.05)
+    assert player.next_time(12.98) == pytest.approx(13.0)      # the last row exactly
+    assert not player.done(12.99) and player.done(13.0)
+    bad = tmp_path / 'bad.csv'
+    bad.write_text('time_s,speed_rpm,load\n0,900,1\n1,950,2\n')
+    for argv in (['setpoint', '--profile', str(bad)],
+                 ['setpoint', '--profile', 'ramp:800:900:10', '--speed', '900']):
+        assert cli_main(argv) == 2
+        err = capsys.readouterr().err.strip()
+        assert '\n' not in err and 'Traceback' not in err
+        assert "'load' must be in [0, 1]" in err or 'not both' in err
