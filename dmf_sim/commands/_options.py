@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 
 from dmf_sim.core.errors import ConfigError
+from dmf_sim.core.paths import check_output_dir
 from dmf_sim.physics.engine import DEFAULT_ENGINE, LOAD_SETS
 
 __all__ = ['ALPHA_RANGE', 'THETA_RANGE_RAD', 'LOAD_RANGE', 'LOAD_SETS', 'HARMONICS_RANGE',
@@ -125,7 +126,8 @@ def _as_list(value) -> list:
 
 def check_common(args) -> None:
     """Check every shared option ``args`` has (``--alpha``, ``--theta``, ``--load``,
-    ``--load-set``, ``--speeds``, ``--harmonics``): one-line errors with the allowed range."""
+    ``--load-set``, ``--speeds``, ``--harmonics``, an output directory ``--out``): one-line
+    errors with the allowed range."""
     alphas = _as_list(getattr(args, 'alpha', None))
     check_dmf_options(alphas, getattr(args, 'theta', None))
     load = getattr(args, 'load', None)
@@ -140,3 +142,6 @@ def check_common(args) -> None:
     h = getattr(args, 'harmonics', None)
     if h is not None:
         check_harmonics(h)
+    out = getattr(args, 'out', None)
+    if out is not None:
+        check_output_dir(out)         # before any computation, not after it

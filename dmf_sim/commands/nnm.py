@@ -9,6 +9,7 @@ import numpy as np
 
 from dmf_sim.commands import _options as opt
 from dmf_sim.core.errors import ConfigError
+from dmf_sim.core.paths import check_output_dir
 from dmf_sim.physics.model import load_model
 from dmf_sim.solvers.nnm import REGIONS, NNMOptions, nnm_branches, scaling_check
 
@@ -82,6 +83,8 @@ def run(args) -> int:
     opt.check_dmf_options([args.alpha], args.theta)
     model = load_model(args.config, alpha=args.alpha, theta=args.theta)
     check_options(args, model)
+    if args.out is not None:
+        check_output_dir(args.out)
     opts = NNMOptions(n_harmonics=args.harmonics, step_max=args.step_max,
                       step=min(NNMOptions.step, args.step_max))
     res = nnm_branches(model, mode=args.mode, distance=args.distance, xi_max=args.xi_max,

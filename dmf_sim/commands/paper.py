@@ -16,7 +16,7 @@ from pathlib import Path
 
 from dmf_sim import __version__
 from dmf_sim.commands import _options as opt
-from dmf_sim.core.errors import ConfigError
+from dmf_sim.core.paths import check_output_dir
 from dmf_sim.paper.claims import NO, PARTLY, YES, claims
 from dmf_sim.paper.report import STATUS_MARK, report_html, report_markdown, write_figures
 from dmf_sim.paper.study import PaperStudy, StudySettings
@@ -40,8 +40,7 @@ def add_arguments(p) -> None:
 def run(args) -> int:
     from dmf_sim.physics.engine import load_engine
     load_engine(args.engine)                       # a bad engine file: one line before any work
-    if args.out.exists() and not args.out.is_dir():
-        raise ConfigError(f'--out {args.out}: exists and is not a directory')
+    check_output_dir(args.out)
     settings = (StudySettings.quick if args.quick else StudySettings)(engine=args.engine)
     t0 = time.perf_counter()
 

@@ -12,8 +12,9 @@ HELP = ('Every steady state of the DMF wind-up at one engine speed and load (har
         'Floquet stability and a basin estimate: the share of random initial states that Newmark '
         'carries to each state, with a Wilson 95 per cent confidence interval.')
 
+SEED_MAX = 2 ** 32 - 1         # random generator seeds: 0 .. 2**32 - 1
 LIMITS = {'samples': (0, 10000), 'window': (1.0, 300.0),
-          'amplitude': (1e-4, 1.0), 'max_cycles': (10, 5000)}
+          'amplitude': (1e-4, 1.0), 'max_cycles': (10, 5000), 'seed': (0, SEED_MAX)}
 
 
 def add_arguments(p) -> None:
@@ -29,7 +30,8 @@ def add_arguments(p) -> None:
     p.add_argument('--amplitude', type=float,
                    help='half-range A [rad] of the random wind-up offsets (default: twice the '
                         'largest 3rd-order amplitude, at least 0.02 rad)')
-    p.add_argument('--seed', type=int, default=0, help='random generator seed (default 0)')
+    p.add_argument('--seed', type=int, default=0,
+                   help=f'random generator seed 0..{SEED_MAX} (default 0)')
     p.add_argument('--max-cycles', type=int, default=200,
                    help='engine cycles per basin run (default 200)')
     p.add_argument('--window', type=float, default=30.0,
@@ -46,7 +48,7 @@ def _check(args) -> None:
         value = getattr(args, name)
         if value is not None and not lo <= value <= hi:
             raise ConfigError(f'--{name.replace("_", "-")} {value!r}: '
-                              f'allowed range {lo:g}..{hi:g}')
+                              f'allowed range {lo:.12g}..{hi:.12g}')
 
 
 def run(args) -> int:

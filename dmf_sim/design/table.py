@@ -25,6 +25,7 @@ import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
 
 from dmf_sim.core.errors import ConfigError
+from dmf_sim.core.paths import check_output_dir
 from dmf_sim.design.metrics import WORST
 
 STUDY_FILE = 'study.json'
@@ -74,8 +75,7 @@ class ResultStore:
         self.names = study.variable_names
         self._rows: list[dict] | None = []
         meta = self.dir / STUDY_FILE
-        if self.dir.exists() and not self.dir.is_dir():
-            raise ConfigError(f'--out {self.dir}: exists and is not a directory')
+        check_output_dir(self.dir)
         if meta.exists():
             if not resume:
                 raise ConfigError(f'--out {self.dir}: already holds a study; pass --resume to '
