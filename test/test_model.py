@@ -94,7 +94,7 @@ def test_rigid_merge_equals_limit_of_growing_stiffness():
     (lambda d: d['elements'][5].update(stiffness=-5.0), "'stiffness' must be >= 0"),
     (lambda d: d['dmf'].update(element='HUB'), 'rigid element'),
     (lambda d: d['dmf'].update(element='NOPE'), 'unknown element'),
-    (lambda d: d['dmf'].update(theta_rad=-0.1), "'theta_rad' must be > 0"),
+    (lambda d: d['dmf'].update(theta_rad=-0.1), "'theta_rad' must be in (0, 2] rad"),
     (lambda d: d['dmf'].pop('alpha'), "missing key 'alpha'"),
     (lambda d: d.update(wheels=4), "unknown key 'wheels'"),
     (lambda d: d['elements'][3].update(damping=float('nan')), "'damping' must be finite"),

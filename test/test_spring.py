@@ -65,13 +65,18 @@ def test_multi_stage_law_continuous_monotone_energy_and_inverses():
 
 def test_stage_validation_one_line_errors():
     with pytest.raises(ConfigError,
-                       match=r'dmf.stages\[1\].angle_rad must be finite and > the previous'):
+                       match=r'dmf.stages\[1\].angle_rad must be finite, > the previous'):
         PiecewiseLinearSpring(K, (Stage(0.24, 2.5), Stage(0.20, 3.0)))
     with pytest.raises(ConfigError,
-                       match=r'dmf.coast_stages\[0\].stiffness_factor must be finite and >= 0'):
+                       match=r'dmf.coast_stages\[0\].stiffness_factor must be finite and in \[0, 50\]'):
         PiecewiseLinearSpring(K, (), (Stage(0.1, -2.0),))
     with pytest.raises(ConfigError, match='> 0 rad'):
         PiecewiseLinearSpring.two_step(K, 0.0, 1.0)
+    # bounded above too (issue 20: a YAML `alpha: 1e300` is a number now, refused by its range)
+    with pytest.raises(ConfigError, match=r'stiffness_factor must be finite and in \[0, 50\]'):
+        PiecewiseLinearSpring.two_step(K, 0.24, 1e300)
+    with pytest.raises(ConfigError, match=r'angle_rad must be finite, > 0 rad and <= 2 rad'):
+        PiecewiseLinearSpring.two_step(K, 3.0, 1.0)
 
 
 def _raw():

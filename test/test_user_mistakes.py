@@ -2,6 +2,7 @@
 in one line naming the option or field and its allowed range (exit 2), before any computation."""
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from dmf_sim.cli import main as cli_main
@@ -44,3 +45,77 @@ def test_sweep_refuses_a_system_file_as_out(capsys, monkeypatch):
     monkeypatch.setattr('dmf_sim.solvers.hbm.sweep', _no_compute)
     assert cli_main(['sweep', '--no-progress', '--out', '/etc/passwd']) == 2
     assert '--out /etc/passwd: exists and is not a directory' in capsys.readouterr().err
+
+
+# ---- item 12: numbers the parsers let through or misread --------------------------------------
+def _pure3_table(path, a6: float):
+    rows = ['speed_rpm,n,re,im']
+    for s in range(600, 1201, 100):
+        for n in range(25):
+            re = 10.0 if n == 0 else (a6 if n == 6 else 0.0)
+            rows.append(f'{s},{n},{re!r},0.0')
+    path.write_text('\n'.join(rows) + '\n')
+    return path
+
+
+def test_engine_table_beyond_any_cylinder_pressure_is_refused(tmp_path, capsys, monkeypatch):
+    """A_n = 1e308 was accepted (overflow warnings, then 'no branch reached', exit 0)."""
+    import warnings
+
+    from dmf_sim.core.errors import ConfigError
+    from dmf_sim.physics.engine import load_engine
+    from dmf_sim.physics.engine.tables import PEAK_PRESSURE_MAX_PA
+    monkeypatch.setattr('dmf_sim.solvers.hbm.sweep', _no_compute)
+    table = _pure3_table(tmp_path / 'huge.csv', 1e308)
+    with warnings.catch_warnings():
+        warnings.simplefilter('error')                 # no overflow warning on the way
+        with pytest.raises(ConfigError, match=r'A_6 at 600 rpm: .* allowed \|A_6\| <= 9\.7\d+e\+04'
+                                              r' Nm .*350 bar'):
+            load_engine(table)
+    assert cli_main(['sweep', '--no-progress', '--engine', str(table)]) == 2
+    err = capsys.readouterr().err
+    assert err.count('\n') == 1 and 'huge.csv: coefficients: A_6' in err
+    # the bound is the gas torque of one D13 cylinder at 350 bar, times 2 (|A_n| <= 2 max|P|):
+    # p pi/4 D^2 r (1 + r/l), D 131 mm, r 79 mm, l 255 mm
+    r = 0.079
+    bound = 2 * PEAK_PRESSURE_MAX_PA * 0.25 * np.pi * 0.131 ** 2 * r * (1 + r / 0.255)
+    assert bound == pytest.approx(9.76e4, rel=2e-3)
+    load_engine(_pure3_table(tmp_path / 'ok.csv', 0.99 * bound))           # just inside: read
+
+
+def test_yaml_numbers_with_an_exponent_but_no_dot(tmp_path):
+    """PyYAML (YAML 1.1) reads `alpha: 1e300` and `25e-1`-like numbers without a dot or sign as
+    strings; the one validation (core.validation.number) takes them as the numbers meant, and the
+    field's range decides (one line naming field and range)."""
+    import yaml
+
+    from dmf_sim.core.errors import ConfigError
+    from dmf_sim.core.paths import config_file
+    from dmf_sim.physics.model import load_driveline
+    d = yaml.safe_load(config_file('truck_dmf').read_text())
+    text = yaml.safe_dump(d, sort_keys=False)
+    good = text.replace('alpha: 2.5', 'alpha: 25e-1').replace('theta_rad: 0.24',
+                                                               'theta_rad: 24e-2')
+    assert 'alpha: 25e-1' in good
+    (tmp_path / 'good.yaml').write_text(good)
+    line = load_driveline(tmp_path / 'good.yaml')
+    assert (line.spring.alpha, line.spring.theta) == (2.5, 0.24)
+    (tmp_path / 'big.yaml').write_text(text.replace('alpha: 2.5', 'alpha: 1e300'))
+    with pytest.raises(ConfigError, match=r"field 'alpha' must be in \[0, 50\], got '1e300'"):
+        load_driveline(tmp_path / 'big.yaml')
+
+
+def test_engine_and_study_yaml_read_exponent_numbers(tmp_path):
+    from dmf_sim.core.paths import config_file
+    from dmf_sim.design.study import load_study
+    from dmf_sim.physics.engine import load_engine
+    eng = config_file('engine_d13').read_text().replace('bore_m: 0.131', 'bore_m: 131e-3')
+    assert 'bore_m: 131e-3' in eng
+    (tmp_path / 'engine_e.yaml').write_text(eng)
+    e = load_engine(tmp_path / 'engine_e.yaml')
+    assert e.coefficients(1000.0, 1.0)[6] == pytest.approx(
+        load_engine('engine_d13').coefficients(1000.0, 1.0)[6], rel=1e-12)
+    study = config_file('study_example').read_text().replace('step: 10}', 'step: 1e1}')
+    assert 'step: 1e1}' in study
+    (tmp_path / 'study.yaml').write_text(study)
+    assert load_study(tmp_path / 'study.yaml').speeds_rpm[2] == 10.0

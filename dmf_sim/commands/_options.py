@@ -13,14 +13,15 @@ import math
 from dmf_sim.core.errors import ConfigError
 from dmf_sim.core.paths import check_output_dir
 from dmf_sim.physics.engine import DEFAULT_ENGINE, LOAD_SETS
+from dmf_sim.physics.spring import STAGE_ANGLE_MAX_RAD, STIFFNESS_FACTOR_MAX
 
 __all__ = ['ALPHA_RANGE', 'THETA_RANGE_RAD', 'LOAD_RANGE', 'LOAD_SETS', 'HARMONICS_RANGE',
            'MAX_GRID_POINTS', 'MIN_STEP_RPM', 'DEFAULT_CONFIG', 'DEFAULT_ENGINE', 'add_config',
            'add_engine', 'add_alpha', 'add_theta', 'add_load_set', 'add_load', 'add_speeds',
            'add_harmonics', 'check_common', 'check_grid', 'check_harmonics', 'check_dmf_options']
 
-ALPHA_RANGE = (0.0, 50.0)        # secondary stiffness factor (as the node's parameter)
-THETA_RANGE_RAD = (0.0, 2.0)     # knee angle [rad], lower bound excluded (as the node's parameter)
+ALPHA_RANGE = (0.0, STIFFNESS_FACTOR_MAX)    # secondary stiffness factor (the spring's bound)
+THETA_RANGE_RAD = (0.0, STAGE_ANGLE_MAX_RAD)  # knee angle [rad], lower bound excluded
 LOAD_RANGE = (0.0, 1.0)          # engine load fraction
 HARMONICS_RANGE = (6, 64)        # highest half-order index H kept (6 = the 3rd order)
 MAX_GRID_POINTS = 2000           # output speed grid points per sweep

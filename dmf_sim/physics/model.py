@@ -29,7 +29,12 @@ import numpy as np
 from dmf_sim.core.errors import ConfigError
 from dmf_sim.core.paths import read_yaml_mapping
 from dmf_sim.core.validation import as_number, check_keys, field_error, number
-from dmf_sim.physics.spring import PiecewiseLinearSpring, Stage
+from dmf_sim.physics.spring import (
+    STAGE_ANGLE_MAX_RAD,
+    STIFFNESS_FACTOR_MAX,
+    PiecewiseLinearSpring,
+    Stage,
+)
 
 ELEMENT_KEYS = ('name', 'ratio', 'stiffness', 'damping', 'inertia')
 TOP_KEYS_REQUIRED = ('name', 'elements')
@@ -231,12 +236,9 @@ def _parse_stages(raw, where: str) -> tuple[Stage, ...]:
 
 def _shorthand_stage(raw: dict, where: str) -> Stage:
     """The paper's (theta_rad, alpha) as one stage, with errors naming those fields."""
-    theta = _num(raw['theta_rad'], where, 'theta_rad')
-    alpha = _num(raw['alpha'], where, 'alpha')
-    if not theta > 0:
-        raise ConfigError(f"{where}: field 'theta_rad' must be > 0 rad, got {theta}")
-    if not alpha >= 0:
-        raise ConfigError(f"{where}: field 'alpha' must be >= 0, got {alpha}")
+    theta = number(raw['theta_rad'], where, 'theta_rad', 0.0, STAGE_ANGLE_MAX_RAD, lo_open=True,
+                   unit='rad')
+    alpha = number(raw['alpha'], where, 'alpha', 0.0, STIFFNESS_FACTOR_MAX)
     return Stage(theta, alpha)
 
 

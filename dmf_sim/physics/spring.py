@@ -40,7 +40,14 @@ import numpy as np
 
 from dmf_sim.core.errors import ConfigError
 
-__all__ = ['Stage', 'PiecewiseLinearSpring']
+__all__ = ['Stage', 'PiecewiseLinearSpring', 'STIFFNESS_FACTOR_MAX', 'STAGE_ANGLE_MAX_RAD']
+
+STIFFNESS_FACTOR_MAX = 50.0
+"""Largest stage stiffness factor [-]: a stage stiffer than 51 k is an end stop, which a
+piecewise-linear arc-spring model does not describe (and the Newmark step cannot resolve)."""
+
+STAGE_ANGLE_MAX_RAD = 2.0
+"""Largest stage angle [rad] (115 deg: beyond any arc-spring travel of a DMF)."""
 
 
 @dataclass(frozen=True)
@@ -57,12 +64,14 @@ def _check_stages(stages, where: str) -> tuple[Stage, ...]:
     prev = 0.0
     for i, st in enumerate(stages):
         a, f = float(st.angle_rad), float(st.stiffness_factor)
-        if not (math.isfinite(a) and a > prev):
+        if not (math.isfinite(a) and prev < a <= STAGE_ANGLE_MAX_RAD):
             rule = '> 0 rad' if i == 0 else f'> the previous stage angle {prev:g} rad'
-            raise ConfigError(f'{where}[{i}].angle_rad must be finite and {rule}, got {a!r}')
-        if not (math.isfinite(f) and f >= 0.0):
-            raise ConfigError(f'{where}[{i}].stiffness_factor must be finite and >= 0 '
-                              f'(stage stiffness k (1 + factor) >= k), got {f!r}')
+            raise ConfigError(f'{where}[{i}].angle_rad must be finite, {rule} and <= '
+                              f'{STAGE_ANGLE_MAX_RAD:g} rad, got {a!r}')
+        if not (math.isfinite(f) and 0.0 <= f <= STIFFNESS_FACTOR_MAX):
+            raise ConfigError(f'{where}[{i}].stiffness_factor must be finite and in '
+                              f'[0, {STIFFNESS_FACTOR_MAX:g}] (stage stiffness k (1 + factor) '
+                              f'from k to {1 + STIFFNESS_FACTOR_MAX:g} k), got {f!r}')
         out.append(Stage(a, f))
         prev = a
     return tuple(out)

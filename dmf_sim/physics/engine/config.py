@@ -79,6 +79,12 @@ class Geometry:
         d2x = r * c + r * lam * (np.cos(2.0 * theta) + lam ** 2 * s ** 4) / root ** 3
         return x, dx, d2x
 
+    def max_gas_torque_nm(self, pressure_pa: float) -> float:
+        """Upper bound [Nm] of one cylinder's gas torque at cylinder pressure ``pressure_pa``
+        (gauge to the crankcase): p A dx/dtheta with the lever |dx/dtheta| <= r (1 + r/l)."""
+        r = self.crank_radius_m
+        return pressure_pa * self.piston_area_m2 * r * (1.0 + r / self.conrod_m)
+
     def inertia_shape(self, theta: np.ndarray) -> np.ndarray:
         """Oscillating-mass torque per omega^2, -m (d2x/dtheta2)(dx/dtheta) [Nm s^2]."""
         _, dx, d2x = self.kinematics(theta)

@@ -33,6 +33,12 @@ DEFAULT_ENGINE = 'engine_d13'
 TABLE_SPEED_RANGE_RPM = (100.0, 5000.0)
 """Speeds a table may hold [rpm]."""
 
+PEAK_PRESSURE_MAX_PA = 3.5e7
+"""Highest cylinder pressure [Pa] a table's gas part may imply (350 bar: above the 250-300 bar
+peak firing pressures of current heavy-duty diesels). A table coefficient's gas part is bounded by
+twice the largest gas torque one cylinder can produce at that pressure (|A_n| <= 2 max |P_k|, n >
+0), :meth:`~dmf_sim.physics.engine.config.Geometry.max_gas_torque_nm`."""
+
 INERTIA_SAMPLES_MIN = 2880
 """Samples per 720 deg cycle for a table's inertia part (0.25 deg, as the default model)."""
 
@@ -77,7 +83,7 @@ def _validate(where: str, speeds: np.ndarray, loads: np.ndarray | None, orders: 
     if not np.all(np.isfinite(coeffs.view(float))):
         raise field_error(where, 'coefficients' if yaml_fields else 're/im',
                           'coefficients must be finite (no NaN/inf)')
-    scale = max(1.0, float(np.abs(coeffs).max()))
+    scale = max(1.0, float(np.abs(coeffs.view(float)).max()))     # no overflow near 1e308
     if np.any(np.abs(coeffs[..., 0].imag) > 1e-9 * scale):
         raise field_error(where, 'coefficients' if yaml_fields else 'im',
                           'A_0 (n = 0) must be real: im must be 0')
@@ -194,6 +200,24 @@ def read_table_yaml(path: Path, doc: Mapping[str, Any]) -> TableData:
     return TableData(engine_ref, speeds, loads, coeffs)
 
 
+def _check_gas_bound(where: str, table: TableData, gas: np.ndarray, torque_max_nm: float) -> None:
+    """Refuse gas parts no engine of this geometry produces (:data:`PEAK_PRESSURE_MAX_PA`)."""
+    with np.errstate(over='ignore'):
+        size = np.maximum(np.abs(gas.real), np.abs(gas.imag))          # no overflow warnings
+        size = np.where(size <= 2.0 * torque_max_nm, np.abs(gas), size)
+    bound = np.full(gas.shape[-1], 2.0 * torque_max_nm)
+    bound[0] = torque_max_nm                                           # the mean: |A_0| <= max |P|
+    bad = np.argwhere(~(size <= bound))
+    if bad.size:
+        i_s, i_l, n = bad[0]
+        load = '' if table.loads is None else f', load {table.loads[i_l]:g}'
+        raise field_error(where, 'coefficients', f'A_{n} at {table.speeds_rpm[i_s]:g} rpm{load}: '
+                          f'gas part {size[i_s, i_l, n]:.4g} Nm beyond what one cylinder of this '
+                          f'geometry produces: allowed |A_{n}| <= {bound[n]:.4g} Nm '
+                          f'(inertia part excluded; peak pressure {PEAK_PRESSURE_MAX_PA / 1e5:g} '
+                          'bar)')
+
+
 def engine_from_table(path: Path, table: TableData, load_set: str) -> Engine:
     """The Engine of a table: gas part = table - inertia part of the referenced geometry."""
     try:
@@ -206,6 +230,7 @@ def engine_from_table(path: Path, table: TableData, load_set: str) -> Engine:
     c = cfg.geometry.inertia_coefficients(n_max, max(INERTIA_SAMPLES_MIN, 8 * (n_max + 1)))
     omega2 = (table.speeds_rpm * RPM_TO_RAD_S) ** 2
     gas = table.coefficients - omega2[:, None, None] * c[None, None, :]
+    _check_gas_bound(path.name, table, gas, cfg.geometry.max_gas_torque_nm(PEAK_PRESSURE_MAX_PA))
     if table.loads is None:   # full-load data: gas part scales with the load fraction
         loads = np.array([0.0, 1.0])
         gas = np.concatenate((np.zeros_like(gas), gas), axis=1)
