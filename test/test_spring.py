@@ -68,7 +68,7 @@ def test_stage_validation_one_line_errors():
                        match=r'dmf.stages\[1\].angle_rad must be finite, > the previous'):
         PiecewiseLinearSpring(K, (Stage(0.24, 2.5), Stage(0.20, 3.0)))
     with pytest.raises(ConfigError,
-                       match=r'dmf.coast_stages\[0\].stiffness_factor must be finite and in \[0, 50\]'):
+                       match=r'coast_stages\[0\].stiffness_factor must be finite and in \[0, 50'):
         PiecewiseLinearSpring(K, (), (Stage(0.1, -2.0),))
     with pytest.raises(ConfigError, match='> 0 rad'):
         PiecewiseLinearSpring.two_step(K, 0.0, 1.0)

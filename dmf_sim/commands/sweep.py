@@ -2,7 +2,6 @@
 continuation and Floquet stability (paper Fig. 13 and 15)."""
 from __future__ import annotations
 
-import csv
 import json
 import sys
 from pathlib import Path
@@ -10,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from dmf_sim.commands import _options as opt
+from dmf_sim.core.csv_out import write_csv
 from dmf_sim.core.errors import ConfigError, ConvergenceError, DmfSimError, one_line
 
 NAME = 'sweep'
@@ -154,11 +154,15 @@ def _print_summary(data: dict, results) -> None:
             print(f'  alpha={a:g} Load {ls}: {e.kind} on branch {e.branch} at {e.speed_rpm:.1f} '
                   f'rpm  {e.detail}')
         for b in r.non_periodic:
+            speeds = ', '.join(f'{x.speed_rpm:g}' for x in b.results)
             env = max(b.results, key=lambda x: x.max_deviation - x.min_deviation)
-            print(f'  alpha={a:g} Load {ls}: no stable periodic state at {b.speed_min_rpm:.0f}-'
-                  f'{b.speed_max_rpm:.0f} rpm ({b.label}, after a {b.instability} instability): '
-                  f'wind-up swings {env.max_deviation:+.4f}/{env.min_deviation:+.4f} rad (time '
-                  'integration)')
+            print(f'  alpha={a:g} Load {ls}: no stable periodic state at {speeds} rpm (after a '
+                  f'{b.instability} instability); time integration: {b.results[0].describe()}; '
+                  f'wind-up swings up to {env.max_deviation:+.4f}/{env.min_deviation:+.4f} rad '
+                  f'at {env.speed_rpm:g} rpm (envelope per speed in the CSV/JSON)')
+        for nc in r.not_computed:
+            at = 'every speed' if nc['speed_rpm'] is None else f'{nc["speed_rpm"]:g} rpm'
+            print(f'  alpha={a:g} Load {ls}: not computed at {at}: {nc["reason"]}')
         if r.uncovered:
             print(f'  alpha={a:g} Load {ls}: no branch reached '
                   f'{", ".join(f"{s:g}" for s in r.uncovered)} rpm')
@@ -170,12 +174,8 @@ def _write(out: Path, data: dict, results) -> dict:
     from dmf_sim.figures import panel_title, save, sweep_bands, sweep_curves, windup_figure
     out.mkdir(parents=True, exist_ok=True)
     files = {'csv': str(out / 'sweep.csv'), 'json': str(out / 'sweep.json')}
-    with open(out / 'sweep.csv', 'w', newline='') as fh:
-        w = csv.DictWriter(fh, fieldnames=CSV_FIELDS, extrasaction='ignore')
-        w.writeheader()
-        for sw in data['sweeps']:
-            for row in sw['points']:
-                w.writerow({**row, 'load': data['load']})
+    write_csv(out / 'sweep.csv', CSV_FIELDS, ({**row, 'load': data['load']}
+                                              for sw in data['sweeps'] for row in sw['points']))
     (out / 'sweep.json').write_text(json.dumps(data, indent=1))
     theta, load = data['theta_rad'], data['load']
     first_ls = results[0][1]

@@ -72,6 +72,15 @@ class NonPeriodicResult:
     section: np.ndarray
     cycles: int
 
+    def describe(self) -> str:
+        """The label in words (a periodic label with its period)."""
+        if self.label != 'periodic':
+            return self.label
+        if self.period_cycles == 1:
+            return (f'720 deg periodic within {self.cycles} cycles (the unstable periodic state '
+                    'drifts too slowly to show, or an attractor harmonic balance did not find)')
+        return f'periodic of {self.period_cycles} x 720 deg'
+
     def as_dict(self) -> dict:
         return {'speed_rpm': float(self.speed_rpm), 'label': self.label,
                 'period_cycles': int(self.period_cycles), 'mean': float(self.mean),

@@ -86,9 +86,9 @@ class SteadyState:
         d.update(p.summary.as_dict())
         d['orders_rad'] = {f'{n / 2:g}': float(abs(c)) for n, c in enumerate(p.windup_orders)
                            if n > 0 and n % 3 == 0 and n <= 24}
-        if samples:
-            d['basin'] = {'hits': int(self.hits), 'share': self.hits / samples,
-                          'ci95': [lo, hi]}
+        if samples:      # an unstable state attracts nothing: no basin (not a share of 0)
+            d['basin'] = ({'hits': int(self.hits), 'share': self.hits / samples,
+                           'ci95': [lo, hi]} if p.stable is not False else None)
         return d
 
 
@@ -133,7 +133,8 @@ def _fingerprint(c: np.ndarray) -> np.ndarray:
 
 
 class _Matcher:
-    """Assigns a Newmark result (its wind-up orders) to the nearest known state."""
+    """Assigns a Newmark result (its wind-up orders) to the nearest known state that is not
+    unstable (a run cannot settle on an unstable state: near one it is still drifting)."""
 
     def __init__(self, states: list[SteadyState], tol: float):
         self.states = states
@@ -143,6 +144,8 @@ class _Matcher:
         f = _fingerprint(c)
         best, dist = None, np.inf
         for s in self.states:
+            if s.point.stable is False:
+                continue
             g = _fingerprint(s.point.windup_orders)
             n = min(len(f), len(g))
             d = float(np.abs(f[:n] - g[:n]).max()) / max(float(g[1:n].max()), 1e-6)
@@ -173,7 +176,8 @@ def find_steady_states(loads: DrivelineLoads, speed_rpm: float, load: float, *,
     opts = SweepOptions(**{**base.__dict__, 'step_rpm': step})
     if opts.search is not None:
         opts = SweepOptions(**{**opts.__dict__, 'search': type(opts.search)(
-            **{**opts.search.__dict__, 'seed_step_rpm': step})})
+            **{**opts.search.__dict__, 'seed_step_rpm': step,
+               'nonperiodic_speeds': (s,)})})          # the envelope where it is asked
     res = sweep(loads, load, (lo, hi), hbm_options=hbm_options, options=opts, progress=progress,
                 label=f'{s:g} rpm')
     hb: CondensedHBM = res.hbm
@@ -262,6 +266,8 @@ def _add_from_newmark(out: SteadyStateSet, hb: CondensedHBM, floquet: FloquetAna
         return None
     fr = floquet.analyze(q.windup_orders, s)
     q.stable, q.multipliers, q.max_multiplier = fr.stable, fr.multipliers, fr.max_abs
+    if not q.stable:
+        return None          # the run passed near an unstable state: it had not settled
     st = SteadyState(q, 1, 'time integration from a random start, polished by Newton')
     out.states.append(st)
     return st

@@ -112,6 +112,7 @@ class SweepResult:
     non_periodic: list[NonPeriodicBand] = field(default_factory=list)
     uncovered: list[float] = field(default_factory=list)
     search: bool = False
+    not_computed: list[dict] = field(default_factory=list)
 
     def rows(self) -> list[dict]:
         """One dict per computed point: speed_rpm, branch, kind, stable, order_3, order_1_5,
@@ -217,6 +218,7 @@ class SweepResult:
                 'subharmonic': self.subharmonic_summary(), 'search': self.search,
                 'non_periodic': [b.as_dict() for b in self.non_periodic],
                 'uncovered_rpm': list(self.uncovered),
+                'not_computed': list(self.not_computed),
                 'events': [e.as_dict() for e in self.events], 'points': self.rows()}
 
 

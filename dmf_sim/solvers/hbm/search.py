@@ -1,23 +1,24 @@
 """The full steady-state search of a speed sweep (issue 13): every stable 720 deg periodic state,
 and what time integration shows where there is none.
 
-After continuation and branch switching (dmf_sim.solvers.hbm.sweep, .branches), at speeds of a
-coarse
-grid (``SearchOptions.seed_step_rpm``) where the wind-up comes within reach of a knee or no
-stable state is known:
+After continuation and branch switching (dmf_sim.solvers.hbm.sweep, .branches):
 
-1. deflated Newton (dmf_sim.solvers.hbm.deflation) from seeds in the 1.5th-order harmonic (n = 3,
-a few
+1. at the speeds of a coarse grid (``SearchOptions.seed_step_rpm``) where the wind-up comes
+   within reach of a knee or no stable state is known: deflated Newton
+   (dmf_sim.solvers.hbm.deflation) from seeds in the 1.5th-order harmonic (n = 3, a few
    amplitudes and phases) and the 3rd order (n = 6 scaled), every known state at that speed and
    its 120 deg shifts deflated; every new solution is followed by continuation in both
    directions (isolated branches and folds included);
-2. where still no stable state is known: a short Newmark shot from the unstable solution,
-   perturbed; if it settles, Newton polishes the state it reached (a new branch); otherwise a
-   long run (dmf_sim.solvers.nonperiodic) labels the speed non-periodic (quasi-periodic, chaotic,
-   long
-   transient or a k x 720 deg periodic state) with its envelope and averaged orders;
-3. grid speeds no branch reached are re-seeded from the linear solution and, failing that,
-   listed as uncovered.
+2. grid speeds no branch reached are re-seeded from the linear solution and, failing that,
+   listed as uncovered;
+3. where still no stable state is known (seed grid): a short Newmark shot from the unstable
+   solution, perturbed; if it settles, Newton polishes the state it reached (a new branch);
+4. every speed of the *requested output grid* (``SweepOptions.step_rpm``, or
+   ``SearchOptions.nonperiodic_speeds``) that still has no stable periodic state gets a long
+   time integration (dmf_sim.solvers.nonperiodic) from the unstable periodic state (or, where
+   no branch reached, from the static equilibrium): its envelope, averaged orders and label
+   (quasi-periodic, chaotic, long transient or a k x 720 deg periodic state). A speed where
+   that cannot be done gets an explicit reason instead (``not_computed``).
 
 Twins: the 120 deg shifts of a state (dmf_sim.solvers.hbm.layout.shift) are one physical state; its
 multiplicity is the number of distinct shifted solutions Newton confirms.
@@ -54,6 +55,8 @@ class SearchOptions:
         newmark_shots: try time integration where no stable state is found.
         shot_cycles: engine cycles of a Newmark shot.
         nonperiodic: label speeds without a stable periodic state by a long Newmark run.
+        nonperiodic_speeds: the speeds [rpm] checked for that (None: every speed of the sweep's
+            output grid, ``SweepOptions.step_rpm``).
         max_new_branches: stop seeding after this many new branches.
     """
 
@@ -66,6 +69,7 @@ class SearchOptions:
     shot_cycles: int = 60
     nonperiodic: bool = True
     nonperiodic_options: NonPeriodicOptions = NonPeriodicOptions()
+    nonperiodic_speeds: tuple[float, ...] | None = None
     deflation: DeflationOptions = DeflationOptions(max_iter=25)
     max_new_branches: int = 16
 
@@ -194,8 +198,13 @@ class StateSearch:
                             'then Newton', bar)
         return True
 
-    def _nonperiodic(self, s: float, x: np.ndarray):
+    def _nonperiodic(self, s: float, x: np.ndarray | None):
+        """Long time integration at speed s from the state x perturbed (None: from the static
+        equilibrium); (result, how the periodic solution lost stability)."""
         hb = self.hbm
+        if x is None:
+            res = analyze(hb.loads, s, hb.load, options=self.search.nonperiodic_options)
+            return res, 'none: no periodic solution reached this speed'
         p = hb.make_point(s, x)
         q, v = hb.dof_state(p, 0.0)
         u = hb.model.e / float(hb.model.e @ hb.model.e)
@@ -216,8 +225,8 @@ class StateSearch:
         return grid[(grid >= lo - 1e-9) & (grid <= hi + 1e-9)]
 
     def full_search(self, bar) -> None:
-        """Steps 1-3 of the module docstring; results go to ``branches``, ``events``,
-        ``non_periodic`` and ``uncovered``."""
+        """Steps 1-4 of the module docstring; results go to ``branches``, ``events``,
+        ``non_periodic``, ``not_computed`` and ``uncovered``."""
         grid = self._seed_grid()
         bar.note('deflated Newton search')
         self._phase = 'the deflated Newton search'
@@ -226,47 +235,65 @@ class StateSearch:
                 break
             self.check_time(s)
             self._deflated_pass(float(s), bar)
+        self._phase = 're-seeding uncovered speeds'
+        self._reseed_uncovered(bar)
         bar.note('stable states check')
         self._phase = 'the stable-states check (Newmark shots)'
-        unstable_speeds = []
         for s in grid:
             self.check_time(s)
             states = self.states_at(float(s))
-            if states and not any(st for _, st in states):
+            if states and not any(st for _, st in states) and self.search.newmark_shots:
                 x = max(states, key=lambda t: np.abs(t[0]).max())[0]
-                if self.search.newmark_shots and self._shot(float(s), x, bar):
-                    continue
-                unstable_speeds.append(float(s))
+                self._shot(float(s), x, bar)
+        speeds = self.nonperiodic_speeds()
         if self.search.nonperiodic:
+            bar.note('non-periodic speeds')
             self._phase = 'the non-periodic classification'
-            self._label_nonperiodic(unstable_speeds)
-        self._phase = 're-seeding uncovered speeds'
-        self._reseed_uncovered(bar)
+            self._label_nonperiodic(speeds)
+        else:
+            self.not_computed.extend(
+                {'speed_rpm': s, 'reason': 'no stable periodic state; the time integration '
+                                           'was switched off (SearchOptions.nonperiodic)'}
+                for s in speeds if not self._has_stable(s))
+
+    def nonperiodic_speeds(self) -> list[float]:
+        """The speeds checked for a stable periodic state: the output grid (or the chosen
+        ``SearchOptions.nonperiodic_speeds``)."""
+        chosen = self.search.nonperiodic_speeds
+        if chosen is not None:
+            return [float(s) for s in chosen]
+        return [float(s) for s in self.output_grid()]
+
+    def _has_stable(self, s: float) -> bool:
+        return any(st for _, st in self.states_at(s))
 
     def _label_nonperiodic(self, speeds: list[float]) -> None:
-        step = self.search.seed_step_rpm
-        results = []
+        """A long time integration at every speed of ``speeds`` without a stable periodic state
+        (step 4 of the module docstring); neighbouring speeds of one label form a band."""
+        step = self.options.step_rpm
         for s in speeds:
             self.check_time(s)
             states = self.states_at(s)
             if any(st for _, st in states):
-                continue                              # a shot elsewhere found a stable state here
-            x = min(states, key=lambda t: np.abs(t[0][1:]).max())[0]
-            res, kind = self._nonperiodic(s, x)
-            if res.label == 'periodic' and res.period_cycles == 1:
-                continue                              # a periodic state after all (see events)
-            results.append((res, kind))
-        for res, kind in results:
+                continue
+            x = min(states, key=lambda t: np.abs(t[0][1:]).max())[0] if states else None
+            try:
+                res, kind = self._nonperiodic(s, x)
+            except OperatingRangeError as exc:
+                self.not_computed.append({'speed_rpm': s, 'reason': 'no stable periodic state; '
+                                          f'time integration impossible: {exc}'})
+                continue
             band = next((b for b in self.non_periodic
-                         if abs(b.speed_max_rpm - res.speed_rpm) <= step + 1e-6
-                         and b.label == res.label), None)
+                         if abs(res.speed_rpm - b.speed_max_rpm) <= step + 1e-6
+                         and b.label == res.label and b.instability == kind), None)
             if band is None:
                 band = NonPeriodicBand(res.speed_rpm, res.speed_rpm, res.label, kind, [],
                                        0.5 * step)
                 self.non_periodic.append(band)
                 self.events.append(SweepEvent('non_periodic', -1, res.speed_rpm,
-                                              f'no stable periodic state: {res.label} '
-                                              f'(periodic solution lost stability by {kind})'))
+                                              'no stable periodic state; time integration: '
+                                              f'{res.describe()} (periodic solution lost '
+                                              f'stability by {kind})'))
             band.speed_max_rpm = res.speed_rpm
             band.results.append(res)
 

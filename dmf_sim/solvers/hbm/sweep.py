@@ -131,6 +131,7 @@ class SpeedSweep(BranchSwitching, StateSearch):
         self.branches: list[Branch] = []
         self.non_periodic: list = []
         self.uncovered: list[float] = []
+        self.not_computed: list[dict] = []
         self.range = (0.0, 0.0)
         self._deadline = math.inf          # perf_counter() value of the time limit
         self._phase = 'continuation'
@@ -285,6 +286,7 @@ class SpeedSweep(BranchSwitching, StateSearch):
                                                                key=lambda q: q.order_1_5))
             else:
                 self.uncovered = [float(s) for s in self._uncovered()]
+                self._not_searched()
         finally:
             bar.close()
         sp = self.hbm.spring
@@ -293,6 +295,7 @@ class SpeedSweep(BranchSwitching, StateSearch):
                            ratio_1_5=self.options.ratio_1_5, min_1_5=self.options.min_subharmonic,
                            hbm=self.hbm, floquet=self.floquet if self.options.stability else None,
                            non_periodic=self.non_periodic, uncovered=self.uncovered,
+                           not_computed=self.not_computed,
                            search=self.search is not None and self.options.stability)
 
     def _approach(self, lo: float) -> tuple[np.ndarray | None, str]:
@@ -315,13 +318,32 @@ class SpeedSweep(BranchSwitching, StateSearch):
                            f'{start:g} rpm: Newton from the linear response did not converge at '
                            f'{lo:g} rpm)')
 
-    def _uncovered(self) -> np.ndarray:
-        """Grid speeds that no branch passes through (e.g. beyond a turning point where the branch
-        from the lowest speed went back down)."""
+    def output_grid(self) -> np.ndarray:
+        """The requested speeds [rpm]: multiples of ``step_rpm`` in the range, and its ends."""
         lo, hi = self.range
         step = self.options.step_rpm
         grid = np.arange(np.ceil(lo / step - 1e-9), np.floor(hi / step + 1e-9) + 1) * step
-        grid = grid[(grid >= lo - 1e-9) & (grid <= hi + 1e-9)]
+        grid = grid[(grid > lo + 1e-6) & (grid < hi - 1e-6)]
+        return np.concatenate(([lo], grid, [hi]))
+
+    def _not_searched(self) -> None:
+        """Without the full search (or without stability) no speed gets a non-periodic envelope:
+        say so for every grid speed it concerns."""
+        if not self.options.stability:
+            self.not_computed.append({'speed_rpm': None, 'reason': 'stability not computed '
+                                      '(no Floquet analysis): whether a periodic state is stable, '
+                                      'and the non-periodic envelope, are not computed'})
+            return
+        for s in self.output_grid():
+            if not any(st for _, st in self.states_at(float(s))):
+                self.not_computed.append({'speed_rpm': float(s), 'reason': (
+                    'no stable periodic state found; the non-periodic envelope was not computed '
+                    '(the full search is off: --fast / search=None)')})
+
+    def _uncovered(self) -> np.ndarray:
+        """Grid speeds that no branch passes through (e.g. beyond a turning point where the branch
+        from the lowest speed went back down)."""
+        grid = self.output_grid()
         covered = np.zeros(len(grid), dtype=bool)
         for b in self.branches:
             S = np.array([q.speed_rpm for q in b.points])
