@@ -8,7 +8,6 @@ paper's green line), the HBM values (``hbm_*``) and every half order (``o0``, ``
 """
 from __future__ import annotations
 
-import csv
 import json
 import math
 from collections.abc import Mapping, Sequence
@@ -16,6 +15,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from dmf_sim.core.csv_out import write_csv as write_table
 
 __all__ = ['to_jsonable', 'table_rows', 'analysis_dict', 'write_csv', 'write_cycles_csv',
            'write_outputs']
@@ -125,29 +126,20 @@ def write_csv(sig, path: Path) -> Path:
     rows = table_rows(sig)
     orders = [f'o{n / 2:g}' for n in range(sig.table.amplitudes.shape[1])]
     fixed = [k for k in rows[0] if k != 'amplitudes'] if rows else []
-    with open(path, 'w', newline='') as fh:
-        w = csv.writer(fh)
-        w.writerow(fixed + orders)
-        for r in rows:
-            w.writerow([('' if r[k] is None else r[k]) for k in fixed]
-                       + [('' if a is None else a) for a in r['amplitudes']])
-    return path
+    return write_table(path, fixed + orders,
+                       ([r[k] for k in fixed] + list(r['amplitudes']) for r in rows))
 
 
 def write_cycles_csv(sig, path: Path) -> Path:
     """Every engine cycle: start/end time, crank angle, speed, Fig. 13 quantities, |c_n|."""
     c = sig.cycles
     amp = np.abs(c.coeffs)
-    with open(path, 'w', newline='') as fh:
-        w = csv.writer(fh)
-        w.writerow(['t_start_s', 't_end_s', 'psi_start_rad', 'speed_rpm', 'mean', 'max_deviation',
-                    'min_deviation'] + [f'o{n / 2:g}' for n in range(amp.shape[1])])
-        for i in range(len(c)):
-            w.writerow([f'{c.t_start[i]:.6f}', f'{c.t_end[i]:.6f}', f'{c.psi_start[i]:.6f}',
-                        f'{c.speed_rpm[i]:.4f}', f'{c.mean[i]:.8g}', f'{c.max_deviation[i]:.8g}',
-                        f'{c.min_deviation[i]:.8g}']
-                       + [('' if not math.isfinite(a) else f'{a:.8g}') for a in amp[i]])
-    return path
+    header = ['t_start_s', 't_end_s', 'psi_start_rad', 'speed_rpm', 'mean', 'max_deviation',
+              'min_deviation'] + [f'o{n / 2:g}' for n in range(amp.shape[1])]
+    return write_table(path, header, (
+        [c.t_start[i], c.t_end[i], c.psi_start[i], c.speed_rpm[i], c.mean[i],
+         c.max_deviation[i], c.min_deviation[i]] + [_f(a) for a in amp[i]]
+        for i in range(len(c))))
 
 
 def write_outputs(res, out: Path, *, natural: Mapping[str, Sequence[float]] | None = None,

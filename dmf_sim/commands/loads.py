@@ -3,13 +3,13 @@ content of the engine torque at one speed, and the torque before the flywheel of
 conventional driveline over the engine cycle (Fig. 8 right)."""
 from __future__ import annotations
 
-import csv
 import json
 from pathlib import Path
 
 import numpy as np
 
 from dmf_sim.commands import _options as opt
+from dmf_sim.core.csv_out import write_csv
 from dmf_sim.core.errors import ConfigError
 from dmf_sim.physics.cycle_torque import (
     FIG8_DRIVELINE,
@@ -89,11 +89,8 @@ def _write(out: Path, data: dict, speeds, mean, orders, args, psi, tq) -> None:
     from dmf_sim.figures import fig8, mean_torque_panel, order_bars_panel, save, two_panel_figure
     out.mkdir(parents=True, exist_ok=True)
     (out / 'loads.json').write_text(json.dumps(data, indent=2))
-    with open(out / 'loads.csv', 'w', newline='') as fh:
-        w = csv.writer(fh)
-        w.writerow(['speed_rpm', *[f'mean_torque_{s}_nm' for s in mean]])
-        for i, v in enumerate(speeds):
-            w.writerow([v, *[mean[s][i] for s in mean]])
+    write_csv(out / 'loads.csv', ['speed_rpm', *[f'mean_torque_{s}_nm' for s in mean]],
+              ([v, *[mean[s][i] for s in mean]] for i, v in enumerate(speeds)))
     fig, left, right = two_panel_figure(f'Engine loads, engine {args.engine}', width=11.0)
     mean_torque_panel(left, speeds, mean, args.load)
     order_bars_panel(right, orders, args.speed, args.load_set[0], args.load)

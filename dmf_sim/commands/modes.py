@@ -1,11 +1,11 @@
 """``dmf-sim modes``: natural frequencies and mode shapes (paper Fig. 12)."""
 from __future__ import annotations
 
-import csv
 import json
 from pathlib import Path
 
 from dmf_sim.commands import _options as opt
+from dmf_sim.core.csv_out import write_csv
 from dmf_sim.core.errors import ConfigError
 from dmf_sim.physics.modal import modes, region_names
 from dmf_sim.physics.model import load_model
@@ -44,10 +44,13 @@ def run(args) -> int:
     region = args.region or ('secondary' if args.alpha is not None else 'primary')
     names = region_names(model)
     if model.spring is None:
-        region = 'primary'
+        if args.region is not None:
+            raise ConfigError(f'--region {args.region!r}: driveline {model.line.name!r} has no '
+                              'DMF (its modes are linear; leave out --region)')
+        region = None
     elif region not in names:
         raise ConfigError(f'--region {region!r}: allowed {", ".join(names)}')
-    res = modes(model, region)
+    res = modes(model, region or 'primary')
     n = min(args.modes, len(res.frequencies_hz))
     data = {'driveline': model.line.name, 'region': region,
             'alpha': model.line.dmf.alpha if model.line.dmf else None,
@@ -58,8 +61,8 @@ def run(args) -> int:
     if args.json:
         print(json.dumps(data))
     else:
-        print(f'{model.line.name}: {model.n_elements} elements, {model.n_dof} DOFs, '
-              f'DMF region: {region}')
+        dmf = f'DMF region: {region}' if region else 'no DMF (linear driveline)'
+        print(f'{model.line.name}: {model.n_elements} elements, {model.n_dof} DOFs, {dmf}')
         print(f'{"mode":>4}  {"frequency [Hz]":>14}')
         for i, f in enumerate(res.frequencies_hz[:n]):
             print(f'{i:>4}  {f:14.2f}')
@@ -72,12 +75,9 @@ def _write(out: Path, data: dict, source: str, args) -> None:
     from dmf_sim.figures import save
     out.mkdir(parents=True, exist_ok=True)
     (out / 'modes.json').write_text(json.dumps(data, indent=2))
-    with open(out / 'modes.csv', 'w', newline='') as fh:
-        w = csv.writer(fh)
-        w.writerow(['mode', 'frequency_hz', *data['elements']])
-        rows = zip(data['frequencies_hz'], data['mode_shapes_scaled'], strict=True)
-        for i, (f, shape) in enumerate(rows):
-            w.writerow([i, f, *shape])
+    rows = zip(data['frequencies_hz'], data['mode_shapes_scaled'], strict=True)
+    write_csv(out / 'modes.csv', ['mode', 'frequency_hz', *data['elements']],
+              ([i, f, *shape] for i, (f, shape) in enumerate(rows)))
     save(fig12(args.alpha, args.theta, 'primary' if args.region is None else args.region),
          out / 'modes.png')
 

@@ -1,13 +1,13 @@
 """``dmf-sim nnm``: non-linear normal modes of the conservative DMF driveline (paper Fig. 14)."""
 from __future__ import annotations
 
-import csv
 import json
 from pathlib import Path
 
 import numpy as np
 
 from dmf_sim.commands import _options as opt
+from dmf_sim.core.csv_out import write_csv
 from dmf_sim.core.errors import ConfigError
 from dmf_sim.core.paths import check_output_dir
 from dmf_sim.physics.model import load_model
@@ -149,16 +149,11 @@ def _write(out: Path, res, data: dict, args) -> None:
     out.mkdir(parents=True, exist_ok=True)
     (out / 'nnm.json').write_text(json.dumps(data, indent=1))
     H = res.n_harmonics
-    with open(out / 'nnm.csv', 'w', newline='') as fh:
-        w = csv.writer(fh)
-        w.writerow(['region', 'segment', 'xi', 'frequency_hz', 'energy_J', 'fundamental_share',
-                    'tongue_harmonic', 'windup_static_rad', *[f'a{n}_rad' for n in range(H + 1)]])
-        for r in REGIONS:
-            br = res.branches[r]
-            tn = br.tongue_harmonic
-            for i in range(len(br.xi)):
-                w.writerow([r, int(br.segment[i]), f'{br.xi[i]:.8g}', f'{br.frequency_hz[i]:.8g}',
-                            f'{br.energy[i]:.8g}', f'{br.shares[i, 1]:.4f}', int(tn[i]),
-                            f'{br.windup_static:.8g}', *[f'{v:.6e}' for v in br.coefficients[i]]])
+    rows = [[r, int(br.segment[i]), br.xi[i], br.frequency_hz[i], br.energy[i],
+             br.shares[i, 1], int(br.tongue_harmonic[i]), br.windup_static, *br.coefficients[i]]
+            for r in REGIONS for br in (res.branches[r],) for i in range(len(br.xi))]
+    write_csv(out / 'nnm.csv', ['region', 'segment', 'xi', 'frequency_hz', 'energy_J',
+                                'fundamental_share', 'tongue_harmonic', 'windup_static_rad',
+                                *[f'a{n}_rad' for n in range(H + 1)]], rows)
     from dmf_sim.figures import nnm_figure, save
     save(nnm_figure(res, xi_max=args.xi_max), out / 'nnm.png')

@@ -86,7 +86,8 @@ def run(args) -> int:
         basin = ''
         if res.samples:
             d = st.as_dict(res.samples)['basin']
-            basin = f'{d["share"]:5.1%} [{d["ci95"][0]:.1%}, {d["ci95"][1]:.1%}]'
+            basin = ('-  (unstable: attracts no run)' if d is None else
+                     f'{d["share"]:5.1%} [{d["ci95"][0]:.1%}, {d["ci95"][1]:.1%}]')
         print(f'{st.kind:>11} {str(p.stable):>6} {st.multiplicity:5d} {s.order_3 * 1e3:7.2f} '
               f'{s.order_1_5 * 1e3:7.2f} {s.max_deviation * 1e3:8.2f} '
               f'{s.min_deviation * 1e3:8.2f} {s.mean_minus_theta * 1e3:8.2f}  {basin}')

@@ -21,9 +21,9 @@ import os
 from pathlib import Path
 
 import pyarrow as pa
-import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
 
+from dmf_sim.core.csv_out import write_csv
 from dmf_sim.core.errors import ConfigError
 from dmf_sim.core.paths import check_output_dir
 from dmf_sim.design.metrics import WORST
@@ -154,7 +154,8 @@ class ResultStore:
         files = {'parquet': str(self.dir / f'{RESULTS}.parquet'),
                  'csv': str(self.dir / f'{RESULTS}.csv')}
         _atomic_write(Path(files['parquet']), lambda p: pq.write_table(table, p))
-        _atomic_write(Path(files['csv']), lambda p: pacsv.write_csv(table, p))
+        _atomic_write(Path(files['csv']),
+                      lambda p: write_csv(p, table.column_names, table.to_pylist()))
         return files
 
 

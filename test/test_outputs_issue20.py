@@ -1,0 +1,105 @@
+"""Issue 20 item 13: figures and printed output say what was computed and nothing else: CSV
+numbers as people write them (one writer), `modes` of a driveline without DMF, no basin share for
+an unstable state, every computed sweep case in a figure."""
+from __future__ import annotations
+
+import ast
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import dmf_sim
+from dmf_sim.cli import main as cli_main
+from dmf_sim.core.csv_out import csv_value, write_csv
+
+
+def test_csv_floats_read_as_written(tmp_path):
+    theta = 0.2 + 0.04                                 # 0.24000000000000002
+    assert repr(theta) != '0.24'
+    path = write_csv(tmp_path / 'x.csv', ['theta', 'n', 'name', 'missing', 'small', 'np'],
+                     [[theta, 3, 'a', None, 1e-5 + 1e-21, np.float64(0.1) * 3],
+                      {'theta': float('nan'), 'n': np.int64(4)}])
+    rows = list(csv.reader(path.open()))
+    assert rows[1] == ['0.24', '3', 'a', '', '1e-05', '0.3']
+    assert rows[2] == ['nan', '4', '', '', '', '']
+    x = 0.1234567890123456
+    assert abs(float(csv_value(x)) - x) <= 5e-12 * abs(x)       # 12 significant digits kept
+
+
+def test_every_csv_of_the_package_goes_through_the_one_writer():
+    """No CSV writer outside dmf_sim/core/csv_out.py (csv.writer, DictWriter, pyarrow's)."""
+    root = Path(dmf_sim.__file__).parent
+    offenders = []
+    for path in root.rglob('*.py'):
+        if path.name == 'csv_out.py':
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Attribute) and node.attr in ('writer', 'DictWriter') \
+                    and isinstance(node.value, ast.Name) and node.value.id == 'csv':
+                offenders.append(f'{path.relative_to(root)}:{node.lineno}')
+            if isinstance(node, ast.Attribute) and node.attr == 'write_csv' \
+                    and isinstance(node.value, ast.Name) and node.value.id != 'self':
+                offenders.append(f'{path.relative_to(root)}:{node.lineno}')
+    assert offenders == []
+
+
+def test_design_results_csv_prints_grid_values_as_written(tmp_path):
+    import pyarrow as pa
+
+    from dmf_sim.design.table import ResultStore
+    store = ResultStore.__new__(ResultStore)
+    store.dir = tmp_path
+    table = pa.table({'theta': [0.2 + 0.04, 0.3], 'ok': [True, False], 'x': [None, 1.5]})
+    files = store.finalize(table)
+    lines = Path(files['csv']).read_text().splitlines()
+    assert lines == ['theta,ok,x', '0.24,True,', '0.3,False,1.5']
+
+
+def test_modes_of_a_driveline_without_dmf_names_no_dmf_region(capsys, tmp_path):
+    assert cli_main(['modes', '--variant', 'conventional', '--modes', '3']) == 0
+    out = capsys.readouterr().out
+    assert 'DMF region' not in out and 'no DMF' in out.splitlines()[0]
+    assert cli_main(['modes', '--variant', 'conventional', '--modes', '3', '--json']) == 0
+    assert json.loads(capsys.readouterr().out)['region'] is None
+    assert cli_main(['modes', '--variant', 'conventional', '--region', 'secondary']) == 2
+    err = capsys.readouterr().err
+    assert err.count('\n') == 1 and '--region' in err and 'no DMF' in err
+    assert cli_main(['modes', '--modes', '3']) == 0
+    assert 'DMF region: primary' in capsys.readouterr().out        # the DMF driveline: unchanged
+
+
+def _states_at_1000_rpm():
+    from dmf_sim.physics.engine import load_engine
+    from dmf_sim.physics.loads import DrivelineLoads
+    from dmf_sim.physics.model import load_driveline
+    from dmf_sim.solvers.hbm import CondensedHBM
+    from dmf_sim.solvers.steady import SteadyState, SteadyStateSet
+    L = DrivelineLoads(load_driveline('truck_dmf').reduce(), load_engine('engine_d13'))
+    hb = CondensedHBM(L, 1.0)
+    good, bad = hb.solve(1000.0), hb.solve(1000.0)
+    good.stable, bad.stable = True, False
+    states = [SteadyState(good, 1, 'test', hits=7), SteadyState(bad, 1, 'test', hits=0)]
+    return SteadyStateSet(1000.0, 1.0, states, samples=10, amplitude_rad=0.02, unsettled=3)
+
+
+def test_no_basin_share_for_an_unstable_state(capsys, monkeypatch):
+    from dmf_sim.solvers.steady import _Matcher
+    res = _states_at_1000_rpm()
+    d = res.as_dict()
+    assert d['states'][0]['basin']['share'] == pytest.approx(0.7)
+    assert d['states'][1]['stable'] is False and d['states'][1]['basin'] is None
+    # a run ending on the unstable state's orders is not counted as reaching it
+    assert _Matcher(res.states, 0.03).match(res.states[1].point.windup_orders) is res.states[0]
+    res.states[0].point.stable = None                  # unknown stability: may match
+    assert _Matcher(res.states[1:], 0.03).match(res.states[1].point.windup_orders) is None
+    res.states[0].point.stable = True
+    monkeypatch.setattr('dmf_sim.solvers.steady.find_steady_states', lambda *a, **k: res)
+    assert cli_main(['steady', '--speed', '1000', '--samples', '10', '--no-progress']) == 0
+    lines = capsys.readouterr().out.splitlines()
+    unstable = [ln for ln in lines if ' False ' in ln]
+    stable = [ln for ln in lines if ' True ' in ln]
+    assert len(unstable) == 1 and '%' not in unstable[0] and 'unstable' in unstable[0]
+    assert len(stable) == 1 and '70.0%' in stable[0]
