@@ -34,6 +34,7 @@ COLORS = {'order_3': 'tab:red', 'order_1_5': 'tab:blue', 'deviation': 'black',
           'primary': 'tab:blue', 'secondary': 'tab:red'}
 LOAD_SET_COLORS = {'A': 'tab:blue', 'B': 'tab:orange', 'C': 'tab:green'}
 NO_PERIODIC_SHADE = '0.88'   # speeds without a stable periodic state
+RESONANCE_MARK_COLOR = '0.35'  # sharp resonances (an order meeting a lightly damped mode)
 
 _Y_MARGIN = 1.25          # wind-up axis: this times the largest vibration quantity
 _BAND_WIDTH = 4.0         # line width of the red 3rd-order band [pt]
@@ -73,11 +74,18 @@ class WindupCurves:
 
 
 def windup_panel(ax, curves: Sequence[WindupCurves], title: str,
-                 bands: Sequence[tuple[float, float]] = ()) -> None:
+                 bands: Sequence[tuple[float, float]] = (),
+                 marks: Sequence[tuple[float, str]] = ()) -> None:
     """Draw one Fig. 13 panel (any number of branches / measurements) on ``ax``; ``bands``:
-    speed ranges [rpm] where no periodic state is stable (shaded)."""
+    speed ranges [rpm] where no periodic state is stable (shaded); ``marks``: (speed [rpm],
+    label) of sharp resonances, a dotted line labelled at the top (:func:`sweep_marks`)."""
     for lo, hi in bands:
         ax.axvspan(lo, hi, color=NO_PERIODIC_SHADE, lw=0, zorder=0)
+    for speed, label in marks:
+        ax.axvline(speed, color=RESONANCE_MARK_COLOR, lw=0.7, ls=':', zorder=1)
+        ax.annotate(label, (speed, 1.0), xycoords=('data', 'axes fraction'),
+                    xytext=(-1, -2), textcoords='offset points', ha='right', va='top',
+                    fontsize=6.5, color=RESONANCE_MARK_COLOR, rotation=90)
     vib_hi, vib_lo = 0.0, 0.0
     for c in curves:
         lw = _LINE_WIDTH if c.main else 0.7 * _LINE_WIDTH
@@ -150,6 +158,27 @@ def sweep_curves(res) -> list:
     return curves
 
 
+def order_label(order: float) -> str:
+    """'6th', '4.5th', '1st', '0.5th' order names."""
+    if order != int(order):
+        return f'{order:g}th'
+    k = int(order)
+    return f'{k}{"th" if 10 <= k % 100 <= 20 else {1: "st", 2: "nd", 3: "rd"}.get(k % 10, "th")}'
+
+
+def sweep_marks(res) -> list[tuple[float, str]]:
+    """(speed [rpm], label) of the sharp resonances of a SweepResult: where an order meets a
+    lightly damped mode (``SweepResult.sharp_resonances``), e.g. '6th × 125.1 Hz'."""
+    return [(r['speed_rpm'], f'{order_label(r["order"])} × {r["frequency_hz"]:.1f} Hz')
+            for r in getattr(res, 'sharp_resonances', ())]
+
+
+def sweep_panel(title: str, res) -> tuple:
+    """The wind-up panel of a SweepResult for :func:`windup_figure`: its title, every branch
+    and the non-periodic envelope, the shaded non-periodic bands and the sharp resonances."""
+    return title, sweep_curves(res), sweep_bands(res), sweep_marks(res)
+
+
 def sweep_bands(res) -> list[tuple[float, float]]:
     """Speed ranges [rpm] without a stable periodic state (shaded in the figures)."""
     return [(b.speed_min_rpm - b.half_width_rpm, b.speed_max_rpm + b.half_width_rpm)
@@ -167,12 +196,14 @@ def windup_legend_handles() -> list[Line2D]:
             Line2D([], [], color=COLORS['green'], lw=_LINE_WIDTH,
                    label='θ − static wind-up of the mean torque (drive +)'),
             Line2D([], [], color='0.3', lw=_LINE_WIDTH, ls='--', label='unstable (Floquet)'),
-            Patch(color=NO_PERIODIC_SHADE, label='no stable periodic state (x: time integration)')]
+            Patch(color=NO_PERIODIC_SHADE, label='no stable periodic state (x: time integration)'),
+            Line2D([], [], color=RESONANCE_MARK_COLOR, lw=0.7, ls=':',
+                   label='order × lightly damped mode (sharp resonance)')]
 
 
 def windup_figure(panels: Sequence[tuple], title: str) -> Figure:
-    """One wind-up panel per (title, curves[, bands]), stacked over a shared speed axis, legend
-    below."""
+    """One wind-up panel per (title, curves[, bands[, marks]]), stacked over a shared speed
+    axis, legend below."""
     n = len(panels)
     fig = Figure(figsize=(9.5, 2.6 * n + 1.6), layout='constrained')
     axes = fig.subplots(n, 1, sharex=True, squeeze=False)[:, 0]

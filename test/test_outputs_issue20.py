@@ -103,3 +103,57 @@ def test_no_basin_share_for_an_unstable_state(capsys, monkeypatch):
     stable = [ln for ln in lines if ' True ' in ln]
     assert len(unstable) == 1 and '%' not in unstable[0] and 'unstable' in unstable[0]
     assert len(stable) == 1 and '70.0%' in stable[0]
+
+
+def test_the_1251_rpm_spike_is_the_6th_order_meeting_the_125_hz_crank_mode():
+    """The sharp feature at 1251 rpm in every Fig. 13/15 panel is physical, and not the 11th
+    order at 228.7 Hz: the 6th engine order (n = 12) meets the 125.1 Hz mode (damping ratio
+    0.05 %); the LINEAR 6th-order wind-up already dips there (harmonic balance with H = 24 and
+    36 agree, so it is no aliasing), while the 11th order is 0.002 mrad and flat."""
+    from dmf_sim.physics.engine import load_engine
+    from dmf_sim.physics.loads import DrivelineLoads
+    from dmf_sim.physics.model import load_driveline
+    from dmf_sim.solvers.hbm import CondensedHBM, HBMOptions
+    L = DrivelineLoads(load_driveline('truck_dmf').reduce(), load_engine('engine_d13'))
+    hb = CondensedHBM(L, 1.0)
+    marks = hb.sharp_resonances((600.0, 2000.0))
+    m = next(r for r in marks if r['half_order'] == 12)
+    assert m['speed_rpm'] == pytest.approx(1250.7, abs=0.2)
+    assert m['frequency_hz'] == pytest.approx(125.1, abs=0.1) and m['damping_ratio'] < 1e-3
+    assert not any(r['half_order'] == 22 for r in marks)
+    w6 = {s: abs(hb.linear_parts(s).wlin[12]) for s in (1240.0, 1250.5, 1262.0)}
+    assert w6[1250.5] < 0.7 * min(w6[1240.0], w6[1262.0])
+    w11 = [abs(hb.linear_parts(s).wlin[22]) for s in np.arange(1240.0, 1262.0, 0.5)]
+    assert max(w11) < 1e-5 and np.ptp(w11) < 0.2 * max(w11)
+    # the non-linear max deviation jumps there with either number of harmonics (no aliasing)
+    jumps = []
+    for H in (24, 36):
+        h = CondensedHBM(L, 1.0, HBMOptions(n_harmonics=H))
+        d = [h.solve(s).summary.max_deviation for s in (1248.0, 1251.0)]
+        jumps.append(d[1] - d[0])
+    assert min(jumps) > 1e-3 and jumps[0] == pytest.approx(jumps[1], rel=0.02)
+
+
+def test_sweep_figures_hold_every_computed_case_and_label_the_spike(capsys, tmp_path):
+    out = tmp_path / 'out'
+    assert cli_main(['sweep', '--fast', '--no-progress', '--speeds', '1240', '1260', '20',
+                     '--alpha', '2', '3', '--load-set', 'A', 'C', '--out', str(out)]) == 0
+    printed = capsys.readouterr().out
+    data = json.loads((out / 'sweep.json').read_text())
+    drawn = data['figures']
+    assert sorted(drawn) == ['fig13.png', 'fig13_load_C.png', 'fig15.png', 'fig15_alpha_3.png']
+    every = {f'α {a:g} Load {ls}' for a in (2, 3) for ls in 'AC'}
+    assert set(drawn['fig13.png']) | set(drawn['fig13_load_C.png']) == every
+    assert set(drawn['fig15.png']) | set(drawn['fig15_alpha_3.png']) == every
+    for name, cases in drawn.items():
+        assert (out / name).stat().st_size > 0
+        assert f'  {name}: {", ".join(cases)}' in printed
+    assert 'order 6 meets the 125.1 Hz mode' in printed
+    from dmf_sim.commands.sweep import figures
+    from dmf_sim.solvers.hbm.results import SweepResult
+    res = SweepResult([], [], (1240.0, 1260.0), 1.0, 2.0, 0.24,
+                      sharp_resonances=data['sweeps'][0]['sharp_resonances'])
+    figs = figures({'theta_rad': 0.24, 'load': 1.0, 'engine': 'e'}, [(2.0, 'A', res)])
+    fig, cases = figs['fig13']
+    texts = [t.get_text() for ax in fig.axes for t in ax.texts]
+    assert cases == ['α 2 Load A'] and '6th × 125.1 Hz' in texts

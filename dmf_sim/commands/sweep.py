@@ -52,9 +52,12 @@ def add_arguments(p) -> None:
     p.add_argument('--no-progress', action='store_true', help='no progress bar on stderr')
     p.add_argument('--json', action='store_true', help='print one JSON object to stdout')
     p.add_argument('--out', type=Path,
-                   help='directory for sweep.csv, sweep.json, fig13.png (one panel per alpha, '
-                        'first load set) and, with several load sets, fig15.png (alpha 2.5 or the '
-                        'first --alpha, one panel per load set)')
+                   help='directory for sweep.csv, sweep.json and the figures, every computed '
+                        'case in one: fig13.png (every alpha, first load set), '
+                        'fig13_load_<X>.png (each further load set) and, with several load sets, '
+                        'fig15.png (every load set at alpha 2.5 or the first --alpha), '
+                        'fig15_alpha_<a>.png (each further alpha); the printed summary lists '
+                        'which cases each figure holds')
 
 
 def run(args) -> int:
@@ -160,6 +163,11 @@ def _print_summary(data: dict, results) -> None:
                   f'{b.instability} instability); time integration: {b.results[0].describe()}; '
                   f'wind-up swings up to {env.max_deviation:+.4f}/{env.min_deviation:+.4f} rad '
                   f'at {env.speed_rpm:g} rpm (envelope per speed in the CSV/JSON)')
+        for m in r.sharp_resonances:
+            print(f'  alpha={a:g} Load {ls}: sharp resonance at {m["speed_rpm"]:.1f} rpm: order '
+                  f'{m["order"]:g} meets the {m["frequency_hz"]:.1f} Hz mode (damping ratio '
+                  f'{m["damping_ratio"]:.2%}; {m["share"]:.0%} of the linear wind-up there), '
+                  'labelled in the figures')
         for nc in r.not_computed:
             at = 'every speed' if nc['speed_rpm'] is None else f'{nc["speed_rpm"]:g} rpm'
             print(f'  alpha={a:g} Load {ls}: not computed at {at}: {nc["reason"]}')
@@ -168,29 +176,55 @@ def _print_summary(data: dict, results) -> None:
                   f'{", ".join(f"{s:g}" for s in r.uncovered)} rpm')
     for f in data.get('failed', []):
         print(f'  alpha={f["alpha"]:g} Load {f["load_set"]}: FAILED: {f["error"]}')
+    for name, cases in data.get('figures', {}).items():
+        print(f'  {name}: {", ".join(cases)}')
+
+
+def _case(a: float, ls: str) -> str:
+    return f'α {a:g} Load {ls}'
+
+
+def figures(data: dict, results) -> dict[str, tuple]:
+    """Every computed case in a figure (paper Figs. 13 and 15): ``fig13`` holds every alpha of
+    the first load set, ``fig13_load_<X>`` those of each further load set; with several load
+    sets ``fig15`` holds every load set at alpha 2.5 (or the first alpha), ``fig15_alpha_<a>``
+    those at each further alpha. Returns {name: (Figure, cases drawn)}; each figure's title
+    names the figures holding the other cases."""
+    from dmf_sim.figures import panel_title, sweep_panel, windup_figure
+    theta, load = data['theta_rad'], data['load']
+    load_sets = list(dict.fromkeys(ls for _, ls, _ in results))
+    alphas = list(dict.fromkeys(a for a, _, _ in results))
+    groups = {}                     # name -> (title, [(alpha, load set, result)])
+    for i, ls in enumerate(load_sets):
+        groups['fig13' if i == 0 else f'fig13_load_{ls}'] = (
+            f'DMF wind-up over engine speed, Load {ls}, load {load:g}, engine {data["engine"]} '
+            '(paper Fig. 13)', [c for c in results if c[1] == ls])
+    if len(load_sets) > 1:
+        a15 = FIG15_ALPHA if FIG15_ALPHA in alphas else alphas[0]
+        for a in [a15] + [x for x in alphas if x != a15]:
+            groups['fig15' if a == a15 else f'fig15_alpha_{a:g}'] = (
+                f'DMF wind-up over engine speed, α = {a:g}, Loads '
+                f'{", ".join(load_sets)}, load {load:g} (paper Fig. 15)',
+                [c for c in results if c[0] == a])
+    out = {}
+    for name, (title, cases) in groups.items():
+        family = [n for n in groups if n.split('_')[0] == name.split('_')[0] and n != name]
+        if family:
+            title += f'; other cases: {", ".join(f + ".png" for f in family)}'
+        panels = [sweep_panel(panel_title(a, theta, ls, load), r) for a, ls, r in cases]
+        out[name] = (windup_figure(panels, title), [_case(a, ls) for a, ls, _ in cases])
+    return out
 
 
 def _write(out: Path, data: dict, results) -> dict:
-    from dmf_sim.figures import panel_title, save, sweep_bands, sweep_curves, windup_figure
+    from dmf_sim.figures import save
     out.mkdir(parents=True, exist_ok=True)
     files = {'csv': str(out / 'sweep.csv'), 'json': str(out / 'sweep.json')}
+    data['figures'] = {}
+    for name, (fig, cases) in figures(data, results).items():
+        files[name] = str(save(fig, out / f'{name}.png'))
+        data['figures'][f'{name}.png'] = cases
     write_csv(out / 'sweep.csv', CSV_FIELDS, ({**row, 'load': data['load']}
                                               for sw in data['sweeps'] for row in sw['points']))
-    (out / 'sweep.json').write_text(json.dumps(data, indent=1))
-    theta, load = data['theta_rad'], data['load']
-    first_ls = results[0][1]
-    panels = [(panel_title(a, theta, ls, load), sweep_curves(r), sweep_bands(r))
-              for a, ls, r in results if ls == first_ls]
-    fig = windup_figure(panels, f'DMF wind-up over engine speed, Load {first_ls}, load {load:g}, '
-                                f'engine {data["engine"]} (paper Fig. 13)')
-    files['fig13'] = str(save(fig, out / 'fig13.png'))
-    load_sets = list(dict.fromkeys(ls for _, ls, _ in results))
-    if len(load_sets) > 1:
-        alphas = [a for a, _, _ in results]
-        a15 = FIG15_ALPHA if FIG15_ALPHA in alphas else alphas[0]
-        panels = [(panel_title(a, theta, ls, load), sweep_curves(r), sweep_bands(r))
-                  for a, ls, r in results if a == a15]
-        fig = windup_figure(panels, f'DMF wind-up over engine speed, α = {a15:g}, Loads '
-                                    f'{", ".join(load_sets)}, load {load:g} (paper Fig. 15)')
-        files['fig15'] = str(save(fig, out / 'fig15.png'))
+    (out / 'sweep.json').write_text(json.dumps({**data, 'files': files}, indent=1))
     return files

@@ -130,7 +130,7 @@ def _ref_text(study) -> str:
 
 
 def _fig13(result, ref):
-    from dmf_sim.figures import sweep_bands, sweep_curves, windup_figure
+    from dmf_sim.figures import sweep_panel, windup_figure
     study = result.study
     if result.best_id is None:
         return None
@@ -144,6 +144,6 @@ def _fig13(result, ref):
                           f'best: design {best["design_id"]} ({best_text})')):
         line = design_driveline(study.base, values)
         res = sweep_condition(line, study.engines[cond.load_set], cond.load, ctx.settings)
-        panels.append((text, sweep_curves(res), sweep_bands(res)))
+        panels.append(sweep_panel(text, res))
     return windup_figure(panels, f'DMF wind-up, Load {cond.load_set}, load {cond.load:g} '
                                  '(paper Fig. 13): reference vs best design')

@@ -30,8 +30,7 @@ def write_figures(r, out: Path) -> dict[str, str]:
         nnm_figure,
         panel_title,
         save,
-        sweep_bands,
-        sweep_curves,
+        sweep_panel,
         windup_figure,
     )
     s = r.settings
@@ -41,22 +40,20 @@ def write_figures(r, out: Path) -> dict[str, str]:
     files['fig12.png'] = save(mode_shapes_figure(r.modes_conventional, r.modes_dmf,
                                                  dmf_label='DMF (primary stiffness)'),
                               out / 'fig12.png')
-    panels = [(panel_title(a, r.theta, 'A', 1.0), sweep_curves(r.sweeps[(a, 'A')]),
-               sweep_bands(r.sweeps[(a, 'A')])) for a in s.alphas]
+    panels = [sweep_panel(panel_title(a, r.theta, 'A', 1.0), r.sweeps[(a, 'A')])
+              for a in s.alphas]
     files['fig13.png'] = save(windup_figure(panels, f'DMF wind-up over engine speed, Load A, full '
                                                     f'load, engine {s.engine} (paper Fig. 13)'),
                               out / 'fig13.png')
-    panels = [(panel_title(s.band_alpha, r.theta, 'A', 1.0)
-               + f', DMF damping {r.dmf_damping[k]:g} Nms/rad', sweep_curves(r.low_damping[k]),
-               sweep_bands(r.low_damping[k])) for k in ('table', 'lower')]
+    panels = [sweep_panel(panel_title(s.band_alpha, r.theta, 'A', 1.0)
+                          + f', DMF damping {r.dmf_damping[k]:g} Nms/rad', r.low_damping[k])
+              for k in ('table', 'lower')]
     files['fig13_damping.png'] = save(windup_figure(
         panels, 'DMF wind-up with the Table 1 DMF damping and a lower one (paper: "a resonance '
                 'peak at 720 rpm ... for lower damping")'), out / 'fig13_damping.png')
     files['fig14.png'] = save(nnm_figure(r.nnm, xi_max=s.nnm_xi_max), out / 'fig14.png')
-    panels = [(panel_title(s.fig15_alpha, r.theta, ls, 1.0),
-               sweep_curves(r.sweeps[(s.fig15_alpha, ls)]),
-               sweep_bands(r.sweeps[(s.fig15_alpha, ls)]))
-              for ls in s.load_sets]
+    panels = [sweep_panel(panel_title(s.fig15_alpha, r.theta, ls, 1.0),
+                          r.sweeps[(s.fig15_alpha, ls)]) for ls in s.load_sets]
     files['fig15.png'] = save(windup_figure(panels, f'DMF wind-up over engine speed, α = '
                                                     f'{s.fig15_alpha:g}, Loads '
                                                     f'{", ".join(s.load_sets)}, full load '

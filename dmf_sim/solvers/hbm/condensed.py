@@ -54,6 +54,14 @@ from dmf_sim.solvers.continuation import solve_small
 from dmf_sim.solvers.hbm.layout import SUB_HARMONICS, times_h, to_complex, to_real
 from dmf_sim.solvers.stability import FlexibleModes
 
+SHARP_DAMPING_RATIO = 0.01
+"""A mode damped less than this (damping ratio [-]) makes a resonance a few rpm wide: a spike in
+the wind-up curves (:meth:`CondensedHBM.sharp_resonances`)."""
+
+RESONANCE_SHARE = 0.05
+"""A sharp resonance is reported where its mode's peak contribution to the wind-up's half order
+reaches this share of the linear wind-up's dynamic amplitude (sum of |w_n|, n >= 1) there."""
+
 # ------------------------------------------------------------------------------------------------
 # Options, linear parts, solution point
 # ------------------------------------------------------------------------------------------------
@@ -301,6 +309,39 @@ class CondensedHBM:
         if wlin0 is None:
             wlin0 = float(self.linear_parts(speed_rpm).wlin[0].real)
         return self.spring.solve_condensed(float(wlin0), self._h0)
+
+    def sharp_resonances(self, speed_range: tuple[float, float],
+                         share: float = RESONANCE_SHARE,
+                         max_damping_ratio: float = SHARP_DAMPING_RATIO) -> list[dict]:
+        """Where a half order n of the excitation meets a lightly damped natural frequency of the
+        linear part (primary DMF stiffness), so that the wind-up curves show a spike there.
+
+        For each complex mode d_k (damping ratio < ``max_damping_ratio``) and half order n with
+        n omega / 2 = Im d_k inside ``speed_range`` [rpm], the mode's contribution to the
+        wind-up's n-th harmonic at that speed is (Q_n . B_k) ell_k / (-Re d_k) (the receptance's
+        modal sum, :meth:`linear_parts`); it is reported if it reaches ``share`` of the linear
+        wind-up's dynamic amplitude there. Returns dicts: speed_rpm, half_order n, order (n/2),
+        frequency_hz, damping_ratio, contribution_rad, share, sorted by speed."""
+        lo, hi = speed_range
+        out = []
+        for k in np.flatnonzero(self._d.imag > 0):
+            d = self._d[k]
+            zeta = -d.real / abs(d)
+            if zeta >= max_damping_ratio:
+                continue
+            for n in range(1, self.H + 1):
+                s = 2.0 * d.imag / n / RPM_TO_RAD_S
+                if not lo <= s <= hi:
+                    continue
+                P = self.dof_loads(s)
+                peak = abs((P[n] @ self._B[:, k]) * self._ell[k] / -d.real)
+                dyn = float(np.abs(self.linear_parts(s).wlin[1:]).sum())
+                if dyn > 0 and peak >= share * dyn:
+                    out.append({'speed_rpm': float(s), 'half_order': n, 'order': n / 2,
+                                'frequency_hz': float(d.imag / (2 * np.pi)),
+                                'damping_ratio': float(zeta), 'contribution_rad': float(peak),
+                                'share': float(peak / dyn)})
+        return sorted(out, key=lambda r: r['speed_rpm'])
 
     def linear_parts_direct(self, speed_rpm: float
                             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

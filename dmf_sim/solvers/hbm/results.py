@@ -113,6 +113,7 @@ class SweepResult:
     uncovered: list[float] = field(default_factory=list)
     search: bool = False
     not_computed: list[dict] = field(default_factory=list)
+    sharp_resonances: list[dict] = field(default_factory=list)
 
     def rows(self) -> list[dict]:
         """One dict per computed point: speed_rpm, branch, kind, stable, order_3, order_1_5,
@@ -131,12 +132,19 @@ class SweepResult:
 
     def stable_states_at(self, speed_rpm: float) -> int:
         """Number of distinct stable states at ``speed_rpm`` (stretches of branches bracketing
-        it whose both ends are stable; 120 deg twins counted once, as one branch)."""
-        n = 0
+        it whose both ends are stable, or computed points at that speed that are stable; 120 deg
+        twins counted once, as one branch)."""
+        n, counted = 0, set()
         for b in self.branches:
             for p, q in zip(b.points[:-1], b.points[1:]):
-                if min(p.speed_rpm, q.speed_rpm) <= speed_rpm <= max(p.speed_rpm, q.speed_rpm) \
-                        and p.stable and q.stable:
+                if not min(p.speed_rpm, q.speed_rpm) <= speed_rpm <= max(p.speed_rpm, q.speed_rpm):
+                    continue
+                end = next((e for e in (p, q) if abs(e.speed_rpm - speed_rpm) < 1e-9), None)
+                if end is not None:
+                    if end.stable and id(end) not in counted:
+                        counted.add(id(end))
+                        n += 1
+                elif p.stable and q.stable:
                     n += 1
         return n
 
@@ -219,6 +227,7 @@ class SweepResult:
                 'non_periodic': [b.as_dict() for b in self.non_periodic],
                 'uncovered_rpm': list(self.uncovered),
                 'not_computed': list(self.not_computed),
+                'sharp_resonances': list(self.sharp_resonances),
                 'events': [e.as_dict() for e in self.events], 'points': self.rows()}
 
 

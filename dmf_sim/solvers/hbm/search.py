@@ -76,7 +76,7 @@ class SearchOptions:
 
 def _interp_states(b: Branch, s: float) -> list[tuple[np.ndarray, bool | None]]:
     """(x, stable) of branch b at speed s: linear interpolation on every stretch bracketing s;
-    stable only if both ends of the stretch are."""
+    stable only if both ends of the stretch are (at a computed point: that point's stability)."""
     out = []
     pts = b.points
     for p, q in zip(pts[:-1], pts[1:]):
@@ -85,6 +85,9 @@ def _interp_states(b: Branch, s: float) -> list[tuple[np.ndarray, bool | None]]:
             continue
         f = 0.0 if abs(c - a) < 1e-12 else (s - a) / (c - a)
         st = None if p.stable is None or q.stable is None else bool(p.stable and q.stable)
+        for end in (p, q):
+            if abs(end.speed_rpm - s) < 1e-9:
+                st = None if end.stable is None else bool(end.stable)
         out.append((p.x + f * (q.x - p.x), st))
     if len(pts) == 1 and abs(pts[0].speed_rpm - s) < 1e-9:
         out.append((pts[0].x, pts[0].stable))

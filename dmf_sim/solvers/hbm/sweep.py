@@ -296,6 +296,7 @@ class SpeedSweep(BranchSwitching, StateSearch):
                            hbm=self.hbm, floquet=self.floquet if self.options.stability else None,
                            non_periodic=self.non_periodic, uncovered=self.uncovered,
                            not_computed=self.not_computed,
+                           sharp_resonances=self.hbm.sharp_resonances((lo, hi)),
                            search=self.search is not None and self.options.stability)
 
     def _approach(self, lo: float) -> tuple[np.ndarray | None, str]:
