@@ -157,3 +157,72 @@ def test_sweep_figures_hold_every_computed_case_and_label_the_spike(capsys, tmp_
     fig, cases = figs['fig13']
     texts = [t.get_text() for ax in fig.axes for t in ax.texts]
     assert cases == ['α 2 Load A'] and '6th × 125.1 Hz' in texts
+
+
+def test_pareto_plot_shows_designs_hidden_under_one_marker():
+    """Several designs with identical objective values sat under the 'best' star unseen: the
+    star's label names them and every shared marker carries its count."""
+    from types import SimpleNamespace
+
+    from dmf_sim.design.plots import _pareto
+    rows = [{'design_id': i, 'status': 'ok', 'a': a, 'b': b, 'pareto': p}
+            for i, (a, b, p) in enumerate([(1.0, 4.0, True), (2.0, 2.0, True), (2.0, 2.0, True),
+                                           (2.0 + 1e-15, 2.0, True), (4.0, 1.0, True),
+                                           (3.0, 3.0, False), (3.0, 3.0, False)])]
+    study = SimpleNamespace(objectives=['a', 'b'], name='s', reference={})
+    result = SimpleNamespace(study=study, rows=lambda what: rows, best_id=1,
+                             design=lambda i: rows[i])
+    fig = _pareto(result, {'status': 'failed'})
+    ax = fig.axes[0]
+    counts = sorted(t.get_text() for t in ax.texts)
+    assert counts == ['×2', '×3']
+    labels = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert 'best: design 1 (same values: designs 2, 3)' in labels
+
+
+def test_worker_watch_says_lost_joined_and_restarted():
+    from dmf_sim.design.runner import WorkerWatch
+
+    class FakeClient:
+        workers = {'tcp://a:1': {'name': 'w0'}, 'tcp://b:1': {'name': 'w1'}}
+
+        def scheduler_info(self, n_workers=-1):
+            return {'workers': dict(self.workers)}
+    c, said = FakeClient(), []
+    watch = WorkerWatch(c, said.append)
+    assert watch.check() == []
+    c.workers = {'tcp://a:1': {'name': 'w0'}}                          # w1 SIGKILLed
+    assert watch.check() == ['worker w1 (tcp://b:1) lost; 1 worker(s) left, its running '
+                             'designs are rescheduled']
+    c.workers = {'tcp://a:1': {'name': 'w0'}, 'tcp://b:2': {'name': 'w1'}}   # nanny restart
+    c.workers['tcp://c:1'] = {'name': 'w2'}                                  # and a new one
+    assert watch.check() == ['worker w1 restarted (tcp://b:2); 3 worker(s)',
+                             'worker w2 (tcp://c:1) joined; 3 worker(s)']
+    assert said == ['worker w1 (tcp://b:1) lost; 1 worker(s) left, its running designs are '
+                    'rescheduled', 'worker w1 restarted (tcp://b:2); 3 worker(s)',
+                    'worker w2 (tcp://c:1) joined; 3 worker(s)']
+
+
+def test_worker_watch_on_a_real_cluster():
+    """A real (in-process) Dask cluster: a worker that joins and one that leaves are each said
+    once, by the watch's own thread (waited on as events, no sleeps)."""
+    import threading
+
+    from distributed import Client, LocalCluster
+
+    from dmf_sim.design.runner import WorkerWatch
+    events, seen = [], threading.Event()
+
+    def say(line):
+        events.append(line)
+        seen.set()
+    with LocalCluster(n_workers=1, processes=False, dashboard_address=None) as cluster, \
+            Client(cluster) as client, WorkerWatch(client, say, interval_s=0.1):
+        cluster.scale(2)
+        client.wait_for_workers(2, timeout=60)
+        assert seen.wait(60)
+        assert len(events) == 1 and 'joined; 2 worker(s)' in events[0]
+        seen.clear()
+        cluster.scale(1)
+        assert seen.wait(60)
+        assert len(events) == 2 and 'lost; 1 worker(s) left' in events[1]

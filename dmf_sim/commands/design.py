@@ -55,7 +55,8 @@ def run(args) -> int:
         result = run_study(study, client, out=args.out, resume=args.resume,
                            workers=args.workers, batch_size=args.batch_size,
                            progress=not args.no_progress,
-                           on_batch=lambda n, total: done.__setitem__(0, n))
+                           on_batch=lambda n, total: done.__setitem__(0, n),
+                           on_worker_event=_say)
     except KeyboardInterrupt:
         print(f'dmf-sim design: interrupted; {done[0]} of {done[1]} designs are stored in '
               f'{args.out}; continue with --resume', file=sys.stderr)
@@ -73,6 +74,12 @@ def run(args) -> int:
     else:
         _print(summary)
     return 0
+
+
+def _say(line: str) -> None:
+    """A cluster event on stderr, one line, without breaking the progress bar."""
+    from tqdm import tqdm
+    tqdm.write(f'dmf-sim design: {line}', file=sys.stderr)
 
 
 def _print(s: dict) -> None:

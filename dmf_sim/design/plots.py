@@ -21,6 +21,7 @@ from dmf_sim.design.metrics import OBJECTIVES
 from dmf_sim.design.parameters import design_driveline
 
 MAX_CELLS = 40            # bins per map axis for scattered samples
+PARETO_IDS_LISTED = 6     # design ids named in the Pareto legend before 'and n more'
 
 
 def write_plots(result, out) -> dict[str, str]:
@@ -111,10 +112,18 @@ def _pareto(result, ref):
     front = sorted((r for r in ok if r['pareto']), key=lambda r: (r[o1], r[o2]))
     ax.plot([r[o1] for r in front], [r[o2] for r in front], 'o-', color='tab:blue', ms=4,
             label=f'non-dominated ({len(front)})')
+    same = _coincident(ok, o1, o2)
+    for (x, y), ids in same.items():          # designs under one marker: say how many
+        if len(ids) > 1:
+            ax.annotate(f'×{len(ids)}', (x, y), xytext=(5, 4), textcoords='offset points',
+                        fontsize=7, color='0.25')
     if result.best_id is not None:
         b = result.design(result.best_id)
+        twins = [i for i in same.get(_key(b, o1, o2), []) if i != b['design_id']]
+        also = (f' (same values: design{"s" if len(twins) > 1 else ""} '
+                f'{_id_list(twins)})' if twins else '')
         ax.plot(b[o1], b[o2], '*', color='tab:orange', ms=14,
-                label=f'best: design {b["design_id"]}')
+                label=f'best: design {b["design_id"]}{also}')
     if ref['status'] == 'ok':
         ax.plot(ref[o1], ref[o2], 's', color='tab:red', ms=8, label=_ref_text(study))
     ax.set_xlabel(f'{o1}: {_label(o1)}', fontsize=8)
@@ -123,6 +132,25 @@ def _pareto(result, ref):
     ax.legend(fontsize=8)
     ax.set_title(f'{study.name}: Pareto front (both minimized)', fontsize=10)
     return fig
+
+
+def _key(row: dict, o1: str, o2: str) -> tuple[float, float]:
+    """A design's point in the objective plane, rounded to 12 significant digits (designs that
+    differ below that sit under one marker)."""
+    return tuple(float(f'{float(row[o]):.12g}') for o in (o1, o2))
+
+
+def _coincident(rows: list[dict], o1: str, o2: str) -> dict[tuple[float, float], list[int]]:
+    """Design ids per point of the objective plane."""
+    out: dict[tuple[float, float], list[int]] = {}
+    for r in rows:
+        out.setdefault(_key(r, o1, o2), []).append(int(r['design_id']))
+    return out
+
+
+def _id_list(ids: list[int], most: int = PARETO_IDS_LISTED) -> str:
+    shown = ', '.join(str(i) for i in ids[:most])
+    return shown + (f' and {len(ids) - most} more' if len(ids) > most else '')
 
 
 def _ref_text(study) -> str:

@@ -9,6 +9,8 @@
   the designs in batches (one Dask task each), takes the results as they finish
   (``as_completed``), writes each batch to the store at once, and shows a progress bar with ETA.
   A batch whose task is lost (a worker died) is recorded as 'lost' and recomputed on resume.
+* :class:`WorkerWatch`: while the designs run, one line per change of the cluster's workers
+  (lost, joined, restarted: lost and back under its name), from the scheduler's worker list.
 """
 from __future__ import annotations
 
@@ -16,8 +18,10 @@ import logging
 import math
 import os
 import re
+import threading
 import time
 import uuid
+from collections.abc import Callable
 
 from distributed.diagnostics.plugin import WorkerPlugin
 
@@ -35,6 +39,8 @@ from dmf_sim.design.table import ResultStore
 
 LOOPBACK = '127.0.0.1'
 CONNECT_TIMEOUT_S = 5.0
+WORKER_WATCH_INTERVAL_S = 1.0
+"""How often the client compares the cluster's workers while a study runs [s]."""
 DEFAULT_BATCH_SIZE = 8
 """Designs per Dask task. benchmarks/bench_design.py measured 4.7 ms of Dask overhead per task
 against 58 ms per paper-case design: 1 design per task loses 8 %, 4 lose 2.0 %, 8 lose 1.0 %."""
@@ -56,6 +62,64 @@ class StudyPlugin(WorkerPlugin):
 
     def teardown(self, worker) -> None:
         drop_context(self.key)
+
+
+class WorkerWatch:
+    """Reports changes of a cluster's workers, one line each, to ``say``: a worker lost (its
+    running designs are rescheduled by Dask, or recorded 'lost' if that fails), a worker that
+    joined, a worker restarted (lost, then back under the same name, e.g. by its nanny).
+
+    Polls ``client.scheduler_info()`` every ``interval_s`` in a daemon thread while used as a
+    context manager; :meth:`check` does one comparison (also usable without the thread)."""
+
+    def __init__(self, client, say: Callable[[str], None],
+                 interval_s: float = WORKER_WATCH_INTERVAL_S):
+        self._client, self._say, self._interval = client, say, interval_s
+        self._known = self._workers()
+        self._lost_names: set[str] = set()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._loop, name='dmf-worker-watch', daemon=True)
+
+    def _workers(self) -> dict[str, str]:
+        info = self._client.scheduler_info(n_workers=-1).get('workers', {})
+        return {addr: str(w.get('name', addr)) for addr, w in info.items()}
+
+    def check(self) -> list[str]:
+        """Compare the workers with the last look; say and return one line per change."""
+        now = self._workers()
+        lines = []
+        for addr in sorted(self._known.keys() - now.keys()):
+            name = self._known[addr]
+            self._lost_names.add(name)
+            lines.append(f'worker {name} ({addr}) lost; {len(now)} worker(s) left, its running '
+                         'designs are rescheduled')
+        for addr in sorted(now.keys() - self._known.keys()):
+            name = now[addr]
+            if name in self._lost_names:
+                self._lost_names.discard(name)
+                lines.append(f'worker {name} restarted ({addr}); {len(now)} worker(s)')
+            else:
+                lines.append(f'worker {name} ({addr}) joined; {len(now)} worker(s)')
+        self._known = now
+        for line in lines:
+            self._say(line)
+        return lines
+
+    def _loop(self) -> None:
+        while not self._stop.wait(self._interval):
+            try:
+                self.check()
+            except Exception:  # noqa: BLE001 - the client closing under us ends the watch
+                if self._stop.is_set():
+                    return
+
+    def __enter__(self) -> 'WorkerWatch':
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._stop.set()
+        self._thread.join()
 
 
 def available_cores() -> int:
@@ -122,7 +186,8 @@ def batch_size_for(n_designs: int, n_workers: int, batch_size: int | None = None
 
 def run_study(study, client=None, *, out=None, resume: bool = False, workers: int | None = None,
               batch_size: int | None = None, progress: bool = False,
-              on_batch=None) -> StudyResult:
+              on_batch=None, on_worker_event: Callable[[str], None] | None = None
+              ) -> StudyResult:
     """Evaluate every design of ``study`` (a study file, mapping or Study) on Dask.
 
     Args:
@@ -133,6 +198,8 @@ def run_study(study, client=None, *, out=None, resume: bool = False, workers: in
         batch_size: designs per Dask task (default :func:`batch_size_for`).
         progress: tqdm progress bar with ETA on stderr.
         on_batch: called as ``on_batch(n_done, n_total)`` after each stored batch.
+        on_worker_event: called with one line per worker lost, joined or restarted while the
+            designs run (:class:`WorkerWatch`); None: not watched.
     """
     study = load_study(study)
     store = ResultStore(out, study, resume) if out is not None else None
@@ -156,7 +223,11 @@ def run_study(study, client=None, *, out=None, resume: bool = False, workers: in
                 client.wait_for_workers(len(cluster.workers))
             n_workers = wait_for_workers(client)
             size = batch_size_for(len(todo), n_workers, batch_size)
-            run.compute(client, todo, size, _bar(progress, len(designs), len(done)))
+            if on_worker_event is None:
+                run.compute(client, todo, size, _bar(progress, len(designs), len(done)))
+            else:
+                with WorkerWatch(client, on_worker_event):
+                    run.compute(client, todo, size, _bar(progress, len(designs), len(done)))
         rows = (store.rows if store else []) + run.rows
         result = StudyResult.from_rows(study, rows, n_computed=_n_designs(run.rows),
                                        seconds=time.perf_counter() - t0, workers=n_workers,
