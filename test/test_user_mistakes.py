@@ -119,3 +119,17 @@ def test_engine_and_study_yaml_read_exponent_numbers(tmp_path):
     assert 'step: 1e1}' in study
     (tmp_path / 'study.yaml').write_text(study)
     assert load_study(tmp_path / 'study.yaml').speeds_rpm[2] == 10.0
+
+
+def test_study_variable_beyond_the_spring_bound_is_refused_when_read(tmp_path):
+    """The spring's stiffness-factor bound also bounds a design study's variables (refused when
+    the study is read, not design by design)."""
+    from dmf_sim.core.errors import ConfigError
+    from dmf_sim.core.paths import config_file
+    from dmf_sim.design.study import load_study
+    text = config_file('study_example').read_text()
+    assert 'alpha: {min: 1.0, max: 5.0, n: 9}' in text
+    (tmp_path / 'big.yaml').write_text(text.replace('alpha: {min: 1.0, max: 5.0, n: 9}',
+                                                    'alpha: {min: 1.0, max: 6e1, n: 9}'))
+    with pytest.raises(ConfigError, match=r"alpha.* must be in \[0, 50\], got 60"):
+        load_study(tmp_path / 'big.yaml')

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 from dmf_sim.core.errors import ConfigError
 from dmf_sim.core.validation import number
 from dmf_sim.physics.model import Driveline
-from dmf_sim.physics.spring import Stage
+from dmf_sim.physics.spring import STAGE_ANGLE_MAX_RAD, STIFFNESS_FACTOR_MAX, Stage
 
 ALIASES = {'theta': ('stages', 0, 'angle_rad'), 'alpha': ('stages', 0, 'stiffness_factor')}
 SCALARS = ('k', 'damping')
@@ -41,6 +41,8 @@ ALLOWED_TEXT = ('k, damping, theta, alpha, stages[i].angle_rad, stages[i].stiffn
 # (lower bound, bound included, unit) of each kind of parameter
 _BOUNDS = {'k': (0.0, False, 'Nm/rad'), 'damping': (0.0, True, 'Nms/rad'),
            'angle_rad': (0.0, False, 'rad'), 'stiffness_factor': (0.0, True, '')}
+# upper bounds: the spring's own (dmf_sim.physics.spring), so a study is refused when read
+_UPPER = {'angle_rad': STAGE_ANGLE_MAX_RAD, 'stiffness_factor': STIFFNESS_FACTOR_MAX}
 
 
 @dataclass(frozen=True)
@@ -68,7 +70,8 @@ class Parameter:
         """``value`` as a float within the parameter's allowed range, else a one-line error
         naming ``where`` and ``field`` (default: the parameter's name)."""
         lo, closed, unit = _BOUNDS[self.kind]
-        return number(value, where, field or self.name, lo, lo_open=not closed, unit=unit)
+        return number(value, where, field or self.name, lo, _UPPER.get(self.kind, math.inf),
+                      lo_open=not closed, unit=unit)
 
 
 def parse_parameter(name: str, where: str) -> Parameter:
