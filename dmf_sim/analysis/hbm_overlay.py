@@ -222,8 +222,10 @@ def _sweep(hbm_mod, loads, load: float, lo: float, hi: float, step_rpm: float):
     """(swept result or None, curve dict, events, method text)."""
     curve: dict[str, list] = {k: [] for k in ('speed_rpm', 'branch', 'stable') + _HBM_KEYS}
     try:
-        swept = hbm_mod.sweep(loads, load, (math.floor(lo), math.ceil(hi)),
-                              options=hbm_mod.SweepOptions(step_rpm=step_rpm))
+        swept = hbm_mod.sweep(loads, load, (math.floor(lo), math.ceil(hi)),   # no envelopes used
+                              options=hbm_mod.SweepOptions(step_rpm=step_rpm,
+                                                           search=hbm_mod.SearchOptions(
+                                                               nonperiodic_speeds=())))
     except (*_SOLVER_ERRORS, ConfigError) as exc:
         return None, curve, [], f'sweep failed ({type(exc).__name__}: {one_line(exc)})'
     for b in swept.branches:

@@ -48,7 +48,7 @@ def predict_states(loads, speed_rpm: float, load: float) -> list:
     ones of
     :meth:`~dmf_sim.solvers.hbm.SweepResult.solutions_at` the speed (HBMPoints). Raises
     :class:`ConvergenceError` when no sweep converges."""
-    from dmf_sim.solvers.hbm import SweepOptions, sweep
+    from dmf_sim.solvers.hbm import SearchOptions, SweepOptions, sweep
 
     s = float(speed_rpm)
     lo_data, hi_data = getattr(loads.engine, 'speed_range_rpm', (0.0, math.inf))
@@ -59,8 +59,9 @@ def predict_states(loads, speed_rpm: float, load: float) -> list:
             raise ConvergenceError(f'{s:g} rpm is outside the engine data [{lo_data:g}, '
                                    f'{hi_data:g}] rpm')
         try:
-            res = sweep(loads, float(load), (lo, hi),
-                        options=SweepOptions(step_rpm=SWEEP_STEP_RPM))
+            res = sweep(loads, float(load), (lo, hi),   # stable states only: no envelopes
+                        options=SweepOptions(step_rpm=SWEEP_STEP_RPM,
+                                             search=SearchOptions(nonperiodic_speeds=())))
         except (ConvergenceError, np.linalg.LinAlgError, FloatingPointError) as exc:
             errors.append(f'+-{half:g} rpm: {exc}')
             continue

@@ -14,7 +14,9 @@ branches;
 from dmf_sim.solvers.hbm.condensed import CondensedHBM, HBMOptions, HBMPoint, LinearParts
 from dmf_sim.solvers.hbm.layout import SUB_HARMONICS, to_complex, to_real
 from dmf_sim.solvers.hbm.results import Branch, SweepEvent, SweepResult
+from dmf_sim.solvers.hbm.search import SearchOptions
 from dmf_sim.solvers.hbm.sweep import SpeedSweep, SweepOptions, sweep
 
 __all__ = ['CondensedHBM', 'HBMOptions', 'HBMPoint', 'LinearParts', 'SUB_HARMONICS', 'to_complex',
-           'to_real', 'Branch', 'SweepEvent', 'SweepResult', 'SpeedSweep', 'SweepOptions', 'sweep']
+           'to_real', 'Branch', 'SweepEvent', 'SweepResult', 'SearchOptions', 'SpeedSweep',
+           'SweepOptions', 'sweep']
