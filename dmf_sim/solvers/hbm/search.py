@@ -96,10 +96,9 @@ def _interp_states(b: Branch, s: float) -> list[tuple[np.ndarray, bool | None]]:
 
 class StateSearch:
     """The full search: a mixin of :class:`dmf_sim.solvers.hbm.sweep.SpeedSweep` (it uses the
-    sweep's
-    ``hbm``, ``options``, ``floquet``, ``branches``, ``events``, ``range``, ``_point``,
-    ``_follow``, ``_known``, ``_novelty_tol``, ``_trace``, and ``check_time`` with the
-    ``_phase`` it names)."""
+    sweep's ``hbm``, ``options``, ``floquet``, ``branches``, ``events``, ``range``,
+    ``not_computed``, ``output_grid``, ``_point``, ``_follow``, ``_known``, ``_novelty_tol``,
+    ``_trace``, and ``check_time`` with the ``_phase`` it names)."""
 
     # ---- known states at one speed --------------------------------------------------------------
     def states_at(self, s: float) -> list[tuple[np.ndarray, bool | None]]:
