@@ -74,7 +74,8 @@ def _without_timing(table) -> list[dict]:
 def _direct(study, alpha, theta, cond) -> dict:
     """Worst values of one design and condition straight from hbm.sweep: every stable solution
     at every grid speed (SweepResult.solutions_at), the torque by the solver's own whole-chain
-    recovery (CondensedHBM.torque_harmonics)."""
+    recovery (CondensedHBM.torque_harmonics), and the time-integration envelope at every grid
+    speed without a stable periodic state (what the driveline does there; no torque)."""
     lo, hi, step = study.speeds_rpm
     line = study.base.with_dmf(alpha=alpha, theta=theta)
     res = sweep(DrivelineLoads(line.reduce(), study.engines[cond.load_set]), cond.load, (lo, hi),
@@ -96,6 +97,13 @@ def _direct(study, alpha, theta, cond) -> dict:
             ext = np.array([sm.mean + sm.max_deviation, sm.mean + sm.min_deviation])
             out['max_dmf_torque'] = max(out['max_dmf_torque'],
                                         float(np.abs(line.spring.torque(ext)).max()))
+    for r in (r for band in res.non_periodic for r in band.results):
+        assert res.stable_states_at(r.speed_rpm) == 0     # envelopes only where none is stable
+        out['worst_order_1_5'] = max(out['worst_order_1_5'], r.order_1_5)
+        out['worst_order_3'] = max(out['worst_order_3'], r.order_3)
+        ext = np.array([r.mean + r.max_deviation, r.mean + r.min_deviation])
+        out['max_dmf_torque'] = max(out['max_dmf_torque'],
+                                    float(np.abs(line.spring.torque(ext)).max()))
     return out
 
 
