@@ -23,7 +23,7 @@ def a_file(tmp_path):
     (['steady', '--speed', '1000', '--seed', '-1'], ('--seed -1', '0..4294967295')),
     (['steady', '--speed', '1000', '--seed', str(2 ** 64)], ('--seed', '0..4294967295')),
     (['sweep', '--no-progress', '--out', '{file}'], ('--out', 'not a directory')),
-    (['sweep', '--no-progress', '--out', '{file}/below'], ('--out', 'is a file')),
+    (['sweep', '--no-progress', '--out', '{file}/below'], ('--out', 'cannot be created')),
     (['nnm', '--out', '{file}'], ('--out', 'not a directory')),
     (['paper', '--quick', '--no-progress', '--out', '{file}'], ('--out', 'not a directory')),
 ])

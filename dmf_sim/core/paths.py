@@ -68,26 +68,6 @@ def config_file(name_or_path: str | os.PathLike) -> Path:
     raise ConfigFileError(f'config file not found: {raw} (a path, or a name in {config_dir()})')
 
 
-def check_output_dir(path: str | os.PathLike, option: str = '--out') -> Path:
-    """Refuse an output directory that cannot be one, before anything is computed (one place for
-    every command that writes into a directory): an existing path that is not a directory, a
-    path below a file, or a directory that cannot be created or written. Returns the path; the
-    directory itself is created by the writer."""
-    out = Path(path)
-    if out.exists() and not out.is_dir():
-        raise ConfigError(f'{option} {out}: exists and is not a directory')
-    parent = out
-    while not parent.exists():
-        if parent.parent == parent:
-            break
-        parent = parent.parent
-    if parent.exists() and not parent.is_dir():
-        raise ConfigError(f'{option} {out}: {parent} is a file, not a directory')
-    if not os.access(parent, os.W_OK | os.X_OK):
-        raise ConfigError(f'{option} {out}: {parent} is not writable (permission denied)')
-    return out
-
-
 def read_text(path: Path) -> str:
     """The file's text; one-line ConfigFileError if it cannot be read or is not UTF-8 text."""
     try:

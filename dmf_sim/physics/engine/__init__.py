@@ -124,8 +124,7 @@ def load_engine(source: str | Path = DEFAULT_ENGINE, load_set: str = 'A') -> Eng
 def engine_from_mapping(doc: Mapping[str, Any], path: str | Path, load_set: str = 'A') -> Engine:
     """The pressure-model engine of an engine YAML mapping (as read from ``path``, which names it
     in errors and anchors relative ``base:`` references); e.g. a study's variant of a packaged
-    engine with another full-load curve. Numbers must be numbers: read the YAML with
-    :func:`dmf_sim.core.paths.parse_yaml` (``yaml.safe_load`` reads ``1.0e5`` as a string)."""
+    engine with another full-load curve."""
     cfg = engine_config(doc, path)
     model = PressureModel(cfg)
     grid = GasGrid(cfg.grid.speeds_rpm, cfg.grid.loads, cfg.n_max + 1,
