@@ -211,11 +211,11 @@ def _check_gas_bound(where: str, table: TableData, gas: np.ndarray, torque_max_n
     if bad.size:
         i_s, i_l, n = bad[0]
         load = '' if table.loads is None else f', load {table.loads[i_l]:g}'
-        raise field_error(where, 'coefficients', f'A_{n} at {table.speeds_rpm[i_s]:g} rpm{load}: '
-                          f'gas part {size[i_s, i_l, n]:.4g} Nm beyond what one cylinder of this '
-                          f'geometry produces: allowed |A_{n}| <= {bound[n]:.4g} Nm '
-                          f'(inertia part excluded; peak pressure {PEAK_PRESSURE_MAX_PA / 1e5:g} '
-                          'bar)')
+        raise field_error(where, 'coefficients',
+                          f'A_{n} at {table.speeds_rpm[i_s]:g} rpm{load}: its gas part (inertia '
+                          f'part excluded) must be <= {bound[n]:.4g} Nm in magnitude, what one '
+                          f'cylinder of this geometry produces at {PEAK_PRESSURE_MAX_PA / 1e5:g} '
+                          'bar', float(size[i_s, i_l, n]))
 
 
 def engine_from_table(path: Path, table: TableData, load_set: str) -> Engine:
