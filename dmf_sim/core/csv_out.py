@@ -34,11 +34,15 @@ def csv_value(value: Any) -> Any:
 
 
 def write_csv(path: str | Path, header: Sequence[str],
-              rows: Iterable[Sequence[Any] | Mapping[str, Any]]) -> Path:
-    """Write ``header`` and ``rows`` (sequences in header order, or mappings by header name;
-    keys not in the header are left out, missing ones are empty) to ``path``."""
+              rows: Iterable[Sequence[Any] | Mapping[str, Any]],
+              comments: Sequence[str] = ()) -> Path:
+    """Write ``comments`` (each as a ``# `` line), ``header`` and ``rows`` (sequences in header
+    order, or mappings by header name; keys not in the header are left out, missing ones are
+    empty) to ``path``."""
     path = Path(path)
     with open(path, 'w', newline='') as fh:
+        for line in comments:
+            fh.write(f'# {line}\n')
         w = csv.writer(fh)
         w.writerow(header)
         for row in rows:

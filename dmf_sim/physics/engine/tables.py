@@ -20,6 +20,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from dmf_sim.core.csv_out import write_csv
 from dmf_sim.core.errors import ConfigFileError
 from dmf_sim.core.paths import read_text
 from dmf_sim.core.units import RPM_TO_RAD_S
@@ -247,17 +248,13 @@ def write_coefficient_table(engine: EngineExcitation, path: str | Path,
 
     Without ``loads`` the table holds full-load data (header ``speed_rpm,n,re,im``).
     """
-    path = Path(path)
-    lines = [f'# {ln}' for ln in comment.splitlines()]
-    lines.append(f'# engine: {engine_ref}')
-    lines.append(','.join(_CSV_HEADERS[1] if loads is not None else _CSV_HEADERS[0]))
+    rows = []
     for s in speeds_rpm:
         for ld in (loads if loads is not None else [1.0]):
             A = engine.coefficients(s, ld)
             A = np.where(np.abs(A) < 1e-9 * max(1.0, float(np.abs(A).max())), 0.0, A)  # round-off
             for n, a in enumerate(A):
                 im = 0.0 if n == 0 else a.imag
-                prefix = f'{s:g},{ld:g}' if loads is not None else f'{s:g}'
-                lines.append(f'{prefix},{n},{a.real:.9g},{im:.9g}')
-    path.write_text('\n'.join(lines) + '\n')
-    return path
+                rows.append([s, ld, n, a.real, im] if loads is not None else [s, n, a.real, im])
+    return write_csv(path, _CSV_HEADERS[1] if loads is not None else _CSV_HEADERS[0], rows,
+                     comments=[*comment.splitlines(), f'engine: {engine_ref}'])
