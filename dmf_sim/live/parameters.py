@@ -17,6 +17,7 @@ from dmf_sim.live.foxglove_bridge import FOXGLOVE_PARAMETERS
 from dmf_sim.live.pacing import OVERRUN_POLICIES
 from dmf_sim.live.run_loop import PACING_MODES
 from dmf_sim.monitor.worker import MONITOR_PARAMETERS
+from dmf_sim.physics.spring import STAGE_ANGLE_MAX_RAD, STIFFNESS_FACTOR_MAX
 
 
 class ParameterSpec(NamedTuple):
@@ -86,9 +87,9 @@ MONITOR_SETTINGS = tuple(n for n in MONITOR_PARAMETERS if n != 'monitor')
 
 DMF_PARAMETERS: dict[str, ParameterSpec] = {   # default: from the driveline YAML
     'alpha': ParameterSpec(None, 'DMF secondary stiffness factor: secondary stiffness '
-                           'k(1+alpha) (default: driveline YAML)', (0.0, 50.0)),
+                           'k(1+alpha) (default: driveline YAML)', (0.0, STIFFNESS_FACTOR_MAX)),
     'theta': ParameterSpec(None, 'DMF stiffness change angle [rad] (default: driveline YAML)',
-                           (0.0, 2.0)),
+                           (0.0, STAGE_ANGLE_MAX_RAD)),
 }
 FLOAT_PARAMETERS = frozenset([name for name, s in PARAMETERS.items()
                               if isinstance(s.default, float)] + list(DMF_PARAMETERS))
