@@ -1,8 +1,8 @@
 """``dmf-sim setpoint`` and ``dmf-sim monitor`` against a real driveline_node process over DDS
-(localhost only, ROS_DOMAIN_ID in 61..100), plus the monitor's view without ROS."""
+(localhost only, ROS_DOMAIN_ID from DMF_SIM_TEST_DOMAINS, see dds_peer), plus the monitor's
+view without ROS."""
 from __future__ import annotations
 
-import itertools
 import os
 import re
 import signal
@@ -12,18 +12,15 @@ import sysconfig
 import time
 from pathlib import Path
 
+import pytest
 import rclpy
+from dds_peer import START_TIMEOUT, NodeProcess, Peer, new_domain
 
+from dmf_sim.commands._ros import select_node
 from dmf_sim.commands.monitor import MonitorView, Status, render_plain
+from dmf_sim.core.errors import ConfigError
 
-_seq = itertools.count()
-START_TIMEOUT = 90.0
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'   # this process's participants too
-
-
-def new_domain() -> int:
-    """A ROS_DOMAIN_ID in 61..100 (this helper's range), different per test of a run."""
-    return 61 + (os.getpid() * 7 + 13 * next(_seq)) % 40
 
 
 def _env(domain: int) -> dict:
@@ -86,6 +83,38 @@ def test_monitor_view_shows_every_quantity():
     assert '(diagnostics 9 s old)' in render_plain(view, 10.0)
 
 
+def _health(fqn: str, speed: str) -> Status:
+    return Status(0, f'{fqn}: driveline simulation', 'ok', {'speed_rpm': speed}, fqn)
+
+
+@pytest.mark.parametrize('namespace, node', [('/truck1', ''), ('', '/truck1/driveline_node'),
+                                             ('/truck1', 'driveline_node'),
+                                             ('/truck1', '/truck1/driveline_node')])
+def test_monitor_view_keeps_to_its_node_by_full_name(namespace, node):
+    """Issue 20 item 2: the filter compared only the last name segment (the same for every
+    truck), and --namespace alone did not filter /diagnostics at all."""
+    view = MonitorView(node=select_node(namespace, node))
+    assert view.node.namespace == '/truck1'
+    for fqn, speed in [('/truck1/driveline_node', '800'), ('/truck2/driveline_node', '1200'),
+                       ('/driveline_node', '1000'), ('/truck1/sub/driveline_node', '900')]:
+        view.on_diagnostics([_health(fqn, speed)], now=1.0)
+    assert view.sim.values['speed_rpm'] == '800'
+    assert render_plain(view, 1.0).splitlines()[0].split()[1] == '/truck1/driveline_node'
+
+
+def test_node_selector_resolves_names_and_refuses_a_mismatch():
+    assert select_node('', '').matches('/driveline_node')
+    assert not select_node('', '').matches('/truck2/driveline_node')
+    assert not select_node('', 'driveline_node').matches('/truck2/driveline_node')
+    assert select_node('/truck2', 'my_node').fqn == '/truck2/my_node'
+    assert select_node('', 'driveline_node').matches('driveline_node')      # no leading '/'
+    with pytest.raises(ConfigError, match="--node '/truck1/driveline_node' is not in "
+                                          "--namespace '/truck2'"):
+        select_node('/truck2', '/truck1/driveline_node')
+    with pytest.raises(ConfigError, match='--namespace must be absolute'):
+        select_node('truck1', '')
+
+
 # ================================================================================================
 # Over DDS with a real node
 # ================================================================================================
@@ -139,7 +168,7 @@ def test_setpoint_and_monitor_against_a_running_node(tmp_path):
             'dmf-sim setpoint: error: no node subscribes to /nobody/engine/speed_setpoint within '
             '2 s (is driveline_node running with this ROS_DOMAIN_ID and namespace?)']
         out, err = nobody[1].communicate(timeout=60)
-        assert nobody[1].returncode == 2 and 'no /diagnostics from a driveline_node' in err
+        assert nobody[1].returncode == 2 and 'no /diagnostics from /nobody within 2 s' in err
 
         # the monitor shows the node's state, refreshing with values that change, and the
         # per-cycle and prediction topics (published here as the node will publish them)
@@ -208,7 +237,8 @@ def _monitor_with_monitor_topics(domain: int) -> str:
         proc = subprocess.Popen([sys.executable, '-m', 'dmf_sim.cli', 'monitor', '--namespace',
                                  '/truck1', '--plain', '--rate', '2', '--duration', '9'],
                                 env=_env(domain), stdout=subprocess.PIPE, text=True)
-        end = time.monotonic() + 9
+        # publish until the monitor ends: its 9 s start after its own (loaded: slow) start-up
+        end = time.monotonic() + 120
         while proc.poll() is None and time.monotonic() < end:
             cyc_pub.publish(cyc_msg)
             ex.spin_once(timeout_sec=0.1)
@@ -221,3 +251,45 @@ def _monitor_with_monitor_topics(domain: int) -> str:
         node.destroy_node()
         rclpy.try_shutdown(context=ctx)
     return out
+
+
+def test_monitor_of_one_truck_shows_only_that_truck_over_dds(tmp_path):
+    """Issue 20 item 2, two trucks over real DDS: ``monitor --namespace /truck1`` (and
+    ``--node /truck1/driveline_node``) shows truck1's health in every frame, never truck2's."""
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    domain = new_domain()
+    speeds = {1: 800, 2: 1200}
+    nodes = [NodeProcess(['--ros-args', '-r', f'__ns:=/truck{i}', '-p', 'monitor:=false',
+                          '-p', f'initial_speed_rpm:={float(rpm)}', '-p', 'publish_rate:=100.0',
+                          '-p', 'diagnostics_rate:=4.0'], tmp_path, domain)
+             for i, rpm in speeds.items()]
+    peer = Peer(domain)
+    monitors = []
+    try:
+        peer.subscribe('/diagnostics', DiagnosticArray)
+        names = {f'/truck{i}/driveline_node: driveline simulation' for i in speeds}
+        assert peer.spin_until(lambda: names <= set(peer.diags), START_TIMEOUT), \
+            [n.output() for n in nodes]
+        cases = [(['--namespace', '/truck1'], 1), (['--node', '/truck1/driveline_node'], 1),
+                 (['--namespace', '/truck2', '--node', 'driveline_node'], 2)]
+        monitors = [subprocess.Popen([sys.executable, '-m', 'dmf_sim.cli', 'monitor', *args,
+                                      '--plain', '--rate', '4', '--duration', '4'],
+                                     env=_env(domain), stdout=subprocess.PIPE,
+                                     stderr=subprocess.PIPE, text=True) for args, _ in cases]
+        for proc, (args, truck) in zip(monitors, cases):
+            out, err = proc.communicate(timeout=120)
+            assert proc.returncode == 0, err
+            frames = [f for f in _frames(out) if 'speed' in f]
+            assert len(frames) >= 3, (args, out)
+            for f in frames:
+                assert f['node'].startswith(f'/truck{truck}/driveline_node  '), (args, f)
+                assert re.match(rf'{speeds[truck]}\.0 rpm', f['speed']), (args, f)
+    finally:
+        for proc in monitors:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait(timeout=10)
+        peer.close()
+        for n in nodes:
+            n.stop()

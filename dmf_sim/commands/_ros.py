@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import os
 from contextlib import contextmanager
+from dataclasses import dataclass
 
 from dmf_sim.core.errors import ConfigError
 
@@ -20,6 +21,43 @@ def check_namespace(namespace: str) -> str:
     if ns and not ns.startswith('/'):
         raise ConfigError(f"--namespace must be absolute (start with '/'), got {namespace!r}")
     return ns
+
+
+@dataclass(frozen=True)
+class NodeSelector:
+    """Which node's ``/diagnostics`` statuses a command shows: the node's namespace and, if
+    given, its fully qualified name. Statuses are matched by the full name of the node that
+    published them (its ``hardware_id``), never by the last name segment alone, which is the
+    same for every truck (``/truck1/driveline_node``, ``/truck2/driveline_node``)."""
+
+    namespace: str = ''         # '' (root) or '/truck1'
+    fqn: str = ''               # '/truck1/driveline_node', or '' = any node in the namespace
+
+    def matches(self, node_fqn: str) -> bool:
+        """Whether a status published by node ``node_fqn`` belongs to the selected node."""
+        full = '/' + node_fqn.strip().lstrip('/')
+        if self.fqn:
+            return full == self.fqn
+        return full.rsplit('/', 1)[0] == self.namespace
+
+    def describe(self) -> str:
+        return self.fqn or f'a node in namespace {self.namespace or "/"}'
+
+
+def select_node(namespace: str, node: str = '') -> NodeSelector:
+    """The node of ``--namespace`` / ``--node``: ``node`` absolute (``/truck1/driveline_node``)
+    is the full name and implies its namespace; relative, it is resolved in ``namespace``;
+    empty, any node directly in ``namespace``. One-line ConfigError when they disagree."""
+    ns = check_namespace(namespace)
+    name = (node or '').strip().rstrip('/')
+    if not name:
+        return NodeSelector(ns, '')
+    fqn = name if name.startswith('/') else f'{ns}/{name}'
+    node_ns = fqn.rsplit('/', 1)[0]
+    if namespace and node_ns != ns:
+        raise ConfigError(f'--node {node!r} is not in --namespace {namespace!r} (give one of '
+                          'them, or both consistent)')
+    return NodeSelector(node_ns, fqn)
 
 
 def topic(namespace: str, name: str) -> str:

@@ -15,6 +15,7 @@ import math
 import time
 from dataclasses import dataclass, field
 
+from dmf_sim.commands._ros import NodeSelector, select_node
 from dmf_sim.core.errors import ConfigError, NoResponseError
 from dmf_sim.live.health import LEVEL_NAMES as LEVELS
 from dmf_sim.live.health import STATUS_SUFFIX as SIM_STATUS
@@ -29,10 +30,12 @@ STALE_S = 3.0                           # diagnostics older than this [s] are sh
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--namespace', default='', metavar='NS',
-                        help="the node's namespace, e.g. /truck1 (default: none)")
+                        help="the node's namespace, e.g. /truck1 (default: none); /diagnostics "
+                             'statuses of nodes in other namespaces are ignored')
     parser.add_argument('--node', default='', metavar='NAME',
-                        help='only /diagnostics statuses of this node name (default: any '
-                             'driveline_node)')
+                        help='only /diagnostics statuses of this node: its full name '
+                             '(/truck1/driveline_node, implies the namespace) or its name in '
+                             '--namespace (default: any node in the namespace)')
     parser.add_argument('--rate', type=float, default=4.0, metavar='HZ',
                         help='screen refreshes per second (default 4)')
     parser.add_argument('--plain', action='store_true',
@@ -57,18 +60,28 @@ class Status:
     name: str
     message: str
     values: dict[str, str]
+    hardware_id: str = ''
 
     @classmethod
     def from_msg(cls, st) -> 'Status':
         level = st.level[0] if isinstance(st.level, (bytes, bytearray)) else int(st.level)
-        return cls(level, st.name, st.message, {kv.key: kv.value for kv in st.values})
+        return cls(level, st.name, st.message, {kv.key: kv.value for kv in st.values},
+                   st.hardware_id)
+
+    @property
+    def node(self) -> str:
+        """Full name of the node that published it: its hardware_id (the node's fully
+        qualified name), else the name's part before ':'."""
+        if self.hardware_id.startswith('/'):
+            return self.hardware_id
+        return self.name.split(':', 1)[0].strip()
 
 
 @dataclass
 class MonitorView:
     """The latest of each message and the lines to show (see :meth:`rows`)."""
 
-    node: str = ''
+    node: NodeSelector = field(default_factory=NodeSelector)
     sim: Status | None = None
     monitor: Status | None = None
     cycle: Status | None = None
@@ -77,8 +90,7 @@ class MonitorView:
 
     def on_diagnostics(self, statuses, now: float) -> None:
         for st in statuses:
-            name = st.name.split(':', 1)[0].strip()
-            if self.node and name.rsplit('/', 1)[-1] != self.node.strip('/').rsplit('/', 1)[-1]:
+            if not self.node.matches(st.node):
                 continue
             if st.name.endswith(SIM_STATUS):
                 self.sim = st
@@ -104,7 +116,7 @@ class MonitorView:
         """(label, text, level) lines; level picks the colour (0 OK .. 3 stale/none)."""
         out: list[tuple[str, str, int]] = []
         if self.sim is None:
-            return [('node', 'waiting for /diagnostics of a driveline_node ...', 3)]
+            return [('node', f'waiting for /diagnostics of {self.node.describe()} ...', 3)]
         v = self.sim.values
         age = now - self.received['sim']
         out.append(('node', f'{self.sim.name.split(":", 1)[0]}  {LEVELS.get(self.sim.level)}  '
@@ -211,12 +223,12 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f'--rate must be in [0.1, 50] Hz, got {args.rate!r}')
     if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
         raise ConfigError(f'--duration must be > 0 s, got {args.duration!r}')
-    view = MonitorView(node=args.node)
-    with ros_session('dmf_sim_monitor', args.namespace) as (rclpy, node, executor):
+    view = MonitorView(node=select_node(args.namespace, args.node))
+    with ros_session('dmf_sim_monitor', view.node.namespace) as (rclpy, node, executor):
         from diagnostic_msgs.msg import DiagnosticArray
 
         ns = node.get_namespace().rstrip('/')
-        title = f'dmf-sim monitor  {ns or "/"}  (Ctrl-C to quit)'
+        title = f'dmf-sim monitor  {view.node.fqn or ns or "/"}  (Ctrl-C to quit)'
 
         def sub(name, handler, latched=False):
             node.create_subscription(
@@ -240,9 +252,9 @@ def _loop(args, view: MonitorView, executor, title: str) -> int:
         end = start + args.timeout
         while not view.has_data:
             if time.monotonic() > end:
-                raise NoResponseError(f'no /diagnostics from a driveline_node within '
-                                      f'{args.timeout:g} s (is it running with this '
-                                      'ROS_DOMAIN_ID?)')
+                raise NoResponseError(f'no /diagnostics from {view.node.describe()} within '
+                                      f'{args.timeout:g} s (is driveline_node running there '
+                                      'with this ROS_DOMAIN_ID?)')
             executor.spin_once(timeout_sec=0.05)
         # give the per-cycle and prediction topics a moment to arrive too
         settle = time.monotonic() + min(1.0, args.timeout)
