@@ -44,11 +44,9 @@ from dmf_sim.core.errors import ConfigError, DmfSimError, one_line
 from dmf_sim.live.health import status_name
 from dmf_sim.live.pacing import fmt_num
 from dmf_sim.live.parameters import DMF_PARAMETERS, PARAMETERS, coerce
-from dmf_sim.live.streams import STATUS_STREAMS, STREAMS
+from dmf_sim.live.streams import STREAMS
 from dmf_sim.transient.live_profile import NodeProfile
 
-STREAM_DEPTH = 100          # 0.1 s of samples at 1 kHz for a subscriber that falls behind
-DIAGNOSTICS_DEPTH = 10
 EXIT_CONFIG_ERROR = 2
 
 try:
@@ -86,9 +84,8 @@ def _qos(depth: int = 0, latched: bool = False):
 
 
 def _stream_qos(key: str):
-    if key == 'dmf_predicted':
-        return _qos(1, latched=True)            # the latest prediction for late joiners
-    return _qos(DIAGNOSTICS_DEPTH if key in STATUS_STREAMS else STREAM_DEPTH)
+    stream = STREAMS[key]
+    return _qos(stream.depth, latched=stream.latched)
 
 
 def _descriptor(name: str, default, spec) -> ParameterDescriptor:
@@ -125,8 +122,8 @@ class DrivelineNode(Node):
 
         types = {'sensor_msgs/msg/JointState': JointState, 'std_msgs/msg/Float64': Float64,
                  'diagnostic_msgs/msg/DiagnosticArray': DiagnosticArray}
-        self._pubs = {k: self.create_publisher(types[t], topic, _stream_qos(k))
-                      for k, (topic, t) in STREAMS.items()}
+        self._pubs = {k: self.create_publisher(types[s.msgtype], s.topic, _stream_qos(k))
+                      for k, s in STREAMS.items()}
         self._topics = {k: pub.topic_name for k, pub in self._pubs.items()}
         self._js = JointState()
         self._f64 = Float64()
@@ -134,7 +131,9 @@ class DrivelineNode(Node):
         self._clock_pub = None
         self._answers: list[str] = []
         self.runtime = LiveRuntime(values, line, self, self.get_logger(), node_name=self.fqn,
-                                   topics={self._topics[k]: t for k, (_, t) in STREAMS.items()})
+                                   topics={self._topics[k]: s.msgtype for k, s in STREAMS.items()},
+                                   qos={self._topics[k]: s.qos_profile()
+                                        for k, s in STREAMS.items()})
         self._js.name = self.runtime.sim.names
         self._update_clock_publisher()
         self.profile = NodeProfile(self.runtime, self.get_logger())     # parameter 'profile'

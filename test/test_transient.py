@@ -121,7 +121,7 @@ def test_run_bag_has_the_nodes_topics_and_follows_the_profile(run_bag):
     topics = {t['topic_metadata']['name']: t['topic_metadata']['type']
               for t in meta['topics_with_message_count']}
     names = resolved_topics()
-    assert topics == {names[k]: t for k, (_, t) in STREAMS.items()}
+    assert topics == {names[k]: s.msgtype for k, s in STREAMS.items()}
     assert len(meta['files']) == 3                       # split every simulated second
     assert meta['message_count'] == 4 * summary.samples == summary.messages
     rm = RunMetadata.from_bag_metadata(meta)

@@ -16,6 +16,13 @@ the last is a complete file that rosbags, ``mcap`` and ``ros2 bag`` read; the la
 listed, is a valid MCAP prefix that :func:`read_messages` and ``dmf-sim analyze`` read up to its
 last complete chunk and :func:`recover_bag` (``dmf-sim bag-recover``) completes.
 
+QoS and latched topics: each topic's offered QoS (``qos``; rosbag2 Jazzy's profile form, see
+:func:`qos_profile`) is written into ``metadata.yaml`` and the MCAP channel metadata, so
+``ros2 bag play`` offers it again. Like rosbag2, the last messages of each transient-local
+topic are written again at the start of every split file (logged at the file's first log time,
+their original time kept as publish time), so every file holds the latched state;
+:meth:`BagRecorder.hold_latched` gives a recording the ones published before it started.
+
 Memory: the ``mcap`` writer keeps one chunk index per chunk (about 0.7 KB) until it writes the
 file's summary; at ~10 chunks per second that grew ~25-50 MB per hour of one file. Splitting
 bounds it to one file's worth (60 s: < 1 MB) and frees it at every split.
@@ -35,6 +42,7 @@ import math
 import os
 import threading
 import time
+from collections import deque
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -59,8 +67,8 @@ from dmf_sim.bags.recovery import RecoverReport, recover_bag
 from dmf_sim.core.errors import BagError, BagExistsError
 
 __all__ = [
-    'BagMessage', 'BagRecorder', 'RecoverReport', 'bag_topics', 'read_messages', 'recover_bag',
-    'MAX_DURATION_RANGE_S',
+    'BagMessage', 'BagRecorder', 'RecoverReport', 'bag_topics', 'latched_depth', 'qos_profile',
+    'read_messages', 'recover_bag', 'MAX_DURATION_RANGE_S',
 ]
 
 DEFAULT_MAX_DURATION_S = 60.0
@@ -107,17 +115,30 @@ def _block_layout(sizes: list[int]) -> np.dtype:
     return np.dtype(fields)
 
 
-def _qos_profile(preset: str) -> dict[str, Any]:
-    base = _QOS_PRESETS[preset]
-    return {**base, 'deadline': dict(_INFINITE), 'lifespan': dict(_INFINITE),
+def qos_profile(depth: int, *, reliable: bool = True, transient_local: bool = False,
+                keep_all: bool = False) -> dict[str, Any]:
+    """One offered QoS profile as rosbag2 Jazzy writes it (``offered_qos_profiles``, metadata
+    version 9: policies as strings, durations as sec/nsec, unset ones infinite)."""
+    return {'history': 'keep_all' if keep_all else 'keep_last', 'depth': int(depth),
+            'reliability': 'reliable' if reliable else 'best_effort',
+            'durability': 'transient_local' if transient_local else 'volatile',
+            'deadline': dict(_INFINITE), 'lifespan': dict(_INFINITE),
             'liveliness': 'automatic', 'liveliness_lease_duration': dict(_INFINITE),
             'avoid_ros_namespace_conventions': False}
 
 
-def _qos_text(value: str | None, topic: str) -> str:
-    """Channel-metadata QoS text from a preset name or a YAML list of profiles."""
+def _qos_profile(preset: str) -> dict[str, Any]:
+    base = _QOS_PRESETS[preset]
+    return {**qos_profile(base['depth']), **base}
+
+
+def _qos_text(value: str | Mapping[str, Any] | None, topic: str) -> str:
+    """Channel-metadata QoS text from a preset name, a profile mapping (missing policies as
+    :func:`qos_profile` fills them) or a YAML list of profiles."""
     if value is None:
         value = 'reliable'
+    if isinstance(value, Mapping):
+        return yaml.safe_dump([{**qos_profile(10), **value}], sort_keys=False).strip()
     if value in _QOS_PRESETS:
         return yaml.safe_dump([_qos_profile(value)], sort_keys=False).strip()
     try:
@@ -128,6 +149,14 @@ def _qos_text(value: str | None, topic: str) -> str:
         raise BagError(f'QoS for {topic!r} must be one of {sorted(_QOS_PRESETS)} or a YAML list '
                        f'of profiles, got {value!r}')
     return value.strip()
+
+
+def latched_depth(profiles: list[dict[str, Any]]) -> int:
+    """How many messages of a topic offered with ``profiles`` a late subscriber gets (0 when
+    not transient-local; keep-all counts as 1 here, the latest)."""
+    depths = [max(1, int(p.get('depth') or 1)) if p.get('history') != 'keep_all' else 1
+              for p in profiles if p.get('durability') == 'transient_local']
+    return max(depths, default=0)
 
 
 def _schemas(topics: Mapping[str, str], msgdefs: Mapping[str, str]) -> dict[str, tuple[str, str]]:
@@ -167,7 +196,10 @@ class BagRecorder:
         chunk_seconds: Close a chunk once it spans this much log time or wall time [s].
         chunk_bytes: Close a chunk once it holds this many bytes.
         qos: Topic -> offered QoS: ``'reliable'`` (default), ``'best_effort'``,
-            ``'transient_local'``, or a YAML list of QoS profiles as rosbag2 writes them.
+            ``'transient_local'``, a profile mapping (:func:`qos_profile`), or a YAML list of
+            QoS profiles as rosbag2 writes them. Transient-local (latched) topics: the last
+            ``depth`` messages are written again at the start of every split file (as rosbag2
+            does), so each file holds the latched state; see :meth:`hold_latched`.
         msgdefs: Type name -> ros2msg definition text (with dependencies, rosbag2 style) for
             types not in the rosbags ROS 2 Jazzy type store.
         custom_data: Key/value strings stored in ``metadata.yaml`` (``custom_data``).
@@ -180,7 +212,7 @@ class BagRecorder:
 
     def __init__(self, path: str | os.PathLike[str], topics: Mapping[str, str], *,
                  max_duration_s: float = DEFAULT_MAX_DURATION_S, chunk_seconds: float = 0.1,
-                 chunk_bytes: int = 64 * 1024, qos: Mapping[str, str] | None = None,
+                 chunk_bytes: int = 64 * 1024, qos: Mapping[str, Any] | None = None,
                  msgdefs: Mapping[str, str] | None = None,
                  custom_data: Mapping[str, str] | None = None,
                  compression: str = 'none') -> None:
@@ -208,6 +240,11 @@ class BagRecorder:
             self._infos.append(TopicInfo(topic, msgtype, _qos_text(qos.get(topic), topic),
                                          schemas[msgtype][1]))
         self._schema_texts = {name: text for name, (text, _) in schemas.items()}
+        #: latched topic -> its last messages (log time, bytes), repeated in every new file
+        self._latched: dict[str, deque] = {
+            info.name: deque(maxlen=n) for info in self._infos
+            if (n := latched_depth(info.qos_profiles))}
+        self._repeat_due = False
         self._custom_data = dict(custom_data or {})
         self._compression = _COMPRESSION[compression]
         self._max_duration_ns = int(max_duration_s * 1e9)
@@ -253,6 +290,7 @@ class BagRecorder:
         self._pending_bytes = 0
         self._chunk_t0 = 0
         self._chunk_wall0 = 0.0
+        self._repeat_due = any(self._latched.values())
 
     def _finish(self, writer: Writer, stream, file: FileInfo) -> None:
         """Write a file's summary and footer, close it, list it in ``metadata.yaml``."""
@@ -320,19 +358,26 @@ class BagRecorder:
         f = self._file
         if f.count and timestamp_ns - f.start >= self._max_duration_ns:
             self._split()
-            f = self._file
-        self._writer.add_message(cid, timestamp_ns, data, timestamp_ns, info.count & 0xFFFFFFFF)
+        if self._repeat_due:
+            self._repeat_latched(timestamp_ns, skip=topic)
+        self._add(cid, info, timestamp_ns, timestamp_ns, data)
+        if (held := self._latched.get(topic)) is not None:
+            held.append((timestamp_ns, bytes(data)))
+
+    def _add(self, cid: int, info: TopicInfo, log_ns: int, publish_ns: int, data: bytes) -> None:
+        f = self._file
+        self._writer.add_message(cid, log_ns, data, publish_ns, info.count & 0xFFFFFFFF)
         info.count += 1
         self.message_count += 1
-        f.add(topic, timestamp_ns)
+        f.add(info.name, log_ns)
 
         now = time.monotonic()
         if self._pending == 0:
-            self._chunk_t0, self._chunk_wall0 = timestamp_ns, now
+            self._chunk_t0, self._chunk_wall0 = log_ns, now
         self._pending += 1
         self._pending_bytes += len(data) + _MESSAGE_OVERHEAD
         if (self._pending_bytes >= self._chunk_bytes
-                or abs(timestamp_ns - self._chunk_t0) >= self._chunk_ns
+                or abs(log_ns - self._chunk_t0) >= self._chunk_ns
                 or now - self._chunk_wall0 >= self._chunk_seconds):
             self._flush()
 
@@ -366,6 +411,9 @@ class BagRecorder:
         f = self._file
         if f.count and int(log_ns[0]) - f.start >= self._max_duration_ns:
             self._split()
+            f = self._file
+        if self._repeat_due:                      # a new file starts with the latched messages
+            self._repeat_latched(int(log_ns[0]), skip='')
             f = self._file
         first = f.start if f.count else int(log_ns[0])
         rows = int(np.searchsorted(log_ns, first + self._max_duration_ns, side='left'))
@@ -433,6 +481,28 @@ class BagRecorder:
                 row[f'cid{j}'] = cid
             cache[channels] = (layout, row.view(np.uint8).copy())
         return cache[channels]
+
+    def _repeat_latched(self, log_ns: int, skip: str) -> None:
+        """Write the held latched messages at the start of a file, logged at ``log_ns`` (the
+        file's first log time; their original log time is kept as publish time). ``skip``:
+        the topic whose newer message is being written now (it supersedes the held ones)."""
+        self._repeat_due = False
+        for topic, held in self._latched.items():
+            if topic == skip:
+                continue
+            cid, info = self._channels[topic]
+            for original_ns, data in held:
+                self._add(cid, info, log_ns, original_ns, data)
+
+    def hold_latched(self, topic: str, timestamp_ns: int, data: bytes) -> None:
+        """Remember a latched message published before this recording started (the recording
+        starts with it, as a late transient-local subscriber would receive it)."""
+        with self._lock:
+            if (held := self._latched.get(topic)) is None:
+                raise BagError(f'topic {topic!r} is not a declared transient-local topic')
+            held.append((int(timestamp_ns), bytes(data)))
+            if not self._closed and self._file.count == 0:
+                self._repeat_due = True         # before the first message of the recording
 
     def flush(self) -> None:
         """Close the open chunk (if any) and hand everything written so far to the OS.

@@ -9,12 +9,18 @@ takes the CDR bytes the node already serialized for DDS and the bag, with the sa
 log time; it costs a channel lookup and, while no client subscribes to the channel, nothing
 more. Each bridge has its own SDK context, so several can run in one process.
 
+Latched topics (``latched``: the node's transient-local streams, the prediction): the bridge
+keeps the last message of each and sends it to a client as soon as it subscribes, as DDS does
+for a late transient-local subscriber; so a viewer that connects after the prediction shows it
+at once, not only after the next setpoint change. (The SDK logs to every subscribed client of
+the channel; a client that was already subscribed receives the latest value once more.)
+
 The node enables it with ``-p foxglove_port:=8765`` (0 = off, the default); ``foxglove_host``
-(default 127.0.0.1; 0.0.0.0 to serve other machines).
+(default 127.0.0.1; 0.0.0.0 to serve other machines) and logs the server's URL at start.
 """
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 
 from dmf_sim.core.errors import ConfigError
 
@@ -50,11 +56,13 @@ class FoxgloveBridge:
         streams: absolute topic name -> ROS type name (e.g. ``'std_msgs/msg/Float64'``).
         host, port: where to listen (port 0: any free port, see :attr:`port`).
         name: server name shown by Foxglove.
+        latched: topics whose last message a client gets when it subscribes.
     """
 
     def __init__(self, streams: Mapping[str, str], *, host: str = '127.0.0.1', port: int = 8765,
-                 name: str = SERVER_NAME) -> None:
+                 name: str = SERVER_NAME, latched: Iterable[str] = ()) -> None:
         import foxglove
+        from foxglove.websocket import ServerListener
 
         if not (isinstance(port, int) and 0 <= port <= 65535):
             raise ConfigError(f'foxglove_port must be in 0..65535, got {port!r}')
@@ -68,9 +76,21 @@ class FoxgloveBridge:
             self._channels[topic] = foxglove.Channel(topic, schema=schema,
                                                      message_encoding='cdr',
                                                      context=self._context)
+        if unknown := set(latched) - set(self._channels):
+            raise ConfigError(f'foxglove: latched topics {sorted(unknown)} are not streams')
+        #: latched topic -> (log time [ns], CDR bytes) of its last message
+        self._latest: dict[str, tuple[int, bytes]] = {}
+        self._latched = frozenset(latched)
+        bridge = self
+
+        class _Listener(ServerListener):
+            def on_subscribe(self, client, channel) -> None:
+                bridge._resend(channel.topic)
+
         try:
             self._server = foxglove.start_server(name=name, host=host, port=port,
-                                                 context=self._context)
+                                                 context=self._context,
+                                                 server_listener=_Listener())
         except Exception as exc:  # noqa: BLE001 - the SDK raises RuntimeError for bind errors
             raise ConfigError(f'foxglove server on {host}:{port}: '
                               f'{" ".join(str(exc).split())}') from None
@@ -89,8 +109,16 @@ class FoxgloveBridge:
         """Send one CDR-serialized message of ``topic`` (log time ``stamp_ns``) to the clients
         subscribed to it (nothing when none is)."""
         ch = self._channels.get(topic)
-        if ch is not None:
-            ch.log(bytes(data), log_time=int(stamp_ns))
+        if ch is None:
+            return
+        if topic in self._latched:
+            self._latest[topic] = (int(stamp_ns), bytes(data))
+        ch.log(bytes(data), log_time=int(stamp_ns))
+
+    def _resend(self, topic: str) -> None:
+        """A client subscribed to ``topic`` (server thread): send it the latched message."""
+        if (last := self._latest.get(topic)) is not None:
+            self._channels[topic].log(last[1], log_time=last[0])
 
     def has_subscribers(self, topic: str) -> bool:
         ch = self._channels.get(topic)

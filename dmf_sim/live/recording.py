@@ -13,6 +13,10 @@
 * :meth:`stop` closes the bag and returns what it did ("bag X closed: N messages").
 * Splits: ``max_duration_s`` is handed to the recorder when it supports it (the bag layer's
   ``max_duration_s``); :attr:`splits_supported` tells whether it does.
+* QoS: each topic's offered QoS (``qos``, rosbag2 profile mappings) goes into the bag. The last
+  message of each transient-local (latched) topic is kept while not recording too, and every
+  recording starts with it (the bag layer repeats it at the start of every split), as a late
+  subscriber receives it: a recording started after the prediction still holds it.
 
 :func:`run_metadata` is what the node stores in the bag's ``custom_data``.
 """
@@ -25,6 +29,7 @@ from pathlib import Path
 from typing import Mapping
 
 from dmf_sim.bags.metadata import RunMetadata
+from dmf_sim.bags.writer import latched_depth
 from dmf_sim.core.errors import BagError, one_line
 
 
@@ -53,13 +58,19 @@ class RecordingControl:
         max_duration_s: split the recording into files of this many seconds (if the recorder
             supports it; None = the recorder's default).
         recorder_class: the bag writer (``BagRecorder``).
+        qos: topic -> offered QoS profile (:func:`dmf_sim.bags.writer.qos_profile`); topics
+            not given are recorded as the writer's default.
     """
 
     def __init__(self, topics: Mapping[str, str], log, *, max_duration_s: float | None = None,
-                 recorder_class=None) -> None:
+                 recorder_class=None, qos: Mapping[str, dict] | None = None) -> None:
         if recorder_class is None:
             from dmf_sim.bags.writer import BagRecorder as recorder_class
         self.topics = dict(topics)
+        self.qos = dict(qos or {})
+        #: latched topic -> its last message (log time, bytes), recorded or not
+        self.latched: dict[str, tuple[int, bytes] | None] = {
+            t: None for t, profile in self.qos.items() if latched_depth([profile])}
         self.log = log
         self.max_duration_s = max_duration_s
         self.recorder_class = recorder_class
@@ -116,6 +127,8 @@ class RecordingControl:
         path = self.target(bag_path)
         created = _missing_parents(path)
         kwargs = {'custom_data': metadata.to_custom_data()}
+        if self.qos:
+            kwargs['qos'] = self.qos
         if self.max_duration_s is not None and self.splits_supported:
             kwargs['max_duration_s'] = float(self.max_duration_s)
         try:
@@ -127,7 +140,10 @@ class RecordingControl:
         return recorder, None
 
     def start(self, recorder) -> None:
-        """Record to a prepared bag from now on."""
+        """Record to a prepared bag from now on; it starts with the latched messages."""
+        for topic, last in self.latched.items():
+            if last is not None and hasattr(recorder, 'hold_latched'):
+                recorder.hold_latched(topic, *last)
         self.recorder, self.path, self.error = recorder, recorder.path, ''
         self.log.info(f'recording to {recorder.path}')
 
@@ -163,6 +179,8 @@ class RecordingControl:
             pass
 
     def write(self, topic: str, log_ns: int, data: bytes) -> None:
+        if topic in self.latched:
+            self.latched[topic] = (log_ns, bytes(data))
         if self.recorder is None:
             return
         try:

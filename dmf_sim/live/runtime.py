@@ -48,10 +48,15 @@ class LiveRuntime:
         log: info/warning/error logger.
         topics: absolute topic name -> ROS type of every recorded stream.
         node_name: the node's fully qualified name (stored in bags).
+        qos: absolute topic name -> offered QoS profile (rosbag2 form,
+            :meth:`dmf_sim.live.streams.Stream.qos_profile`): written into bags; the latched
+            (transient-local) topics start every recording and are resent to Foxglove clients
+            that subscribe later.
     """
 
     def __init__(self, values: Mapping, line, sink, log, *, topics: Mapping[str, str],
-                 node_name: str = '/driveline_node') -> None:
+                 node_name: str = '/driveline_node',
+                 qos: Mapping[str, dict] | None = None) -> None:
         from dmf_sim.live.run_loop import RunLoop
         from dmf_sim.physics.engine import load_engine
 
@@ -87,14 +92,19 @@ class LiveRuntime:
                       p['overrun_policy'])
         self.loop = RunLoop(self.sim, pacer, sink, log, publish_clock=p['publish_clock'],
                             diagnostics_period_s=1.0 / p['diagnostics_rate'])
-        self.recording = RecordingControl(topics, log, max_duration_s=p['bag_max_duration_s'])
+        self.recording = RecordingControl(topics, log, max_duration_s=p['bag_max_duration_s'],
+                                          qos=qos)
         self.health = HealthMonitor(self.loop, self.recording)
         self.monitor = self._start_monitor(sink) if p['monitor'] and self.has_dmf else None
         self.foxglove = None
         if p['foxglove_port']:
             from dmf_sim.live.foxglove_bridge import FoxgloveBridge
+            from dmf_sim.bags.writer import latched_depth
+            latched = [t for t, profile in (qos or {}).items() if latched_depth([profile])]
             self.foxglove = FoxgloveBridge(topics, host=p['foxglove_host'],
-                                           port=int(p['foxglove_port']))
+                                           port=int(p['foxglove_port']), latched=latched)
+            log.info(f'Foxglove server at {self.foxglove.url} (open it in Foxglove: "Open '
+                     'connection", Foxglove WebSocket; layout config/foxglove_layout.json)')
         self.lock = threading.RLock()
         self._pending_recorder = None
         if p['record']:

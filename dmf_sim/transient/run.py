@@ -182,7 +182,8 @@ def open_bag(out, sim: LiveSimulation, profile: Profile, opt: RunOptions, rate_h
     meta = run_metadata(sim, driveline=opt.driveline, engine=opt.engine, node=WRITER_NAME,
                         publish_rate_hz=rate_hz)
     custom = replace(meta, profile=profile.name).to_custom_data()
-    return BagRecorder(out, {topics[k]: t for k, (_, t) in STREAMS.items()},
+    return BagRecorder(out, {topics[k]: s.msgtype for k, s in STREAMS.items()},
+                       qos={topics[k]: s.qos_profile() for k, s in STREAMS.items()},
                        max_duration_s=opt.split_s, custom_data=custom), topics
 
 
