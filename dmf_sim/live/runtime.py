@@ -98,8 +98,8 @@ class LiveRuntime:
         self.monitor = self._start_monitor(sink) if p['monitor'] and self.has_dmf else None
         self.foxglove = None
         if p['foxglove_port']:
-            from dmf_sim.live.foxglove_bridge import FoxgloveBridge
             from dmf_sim.bags.writer import latched_depth
+            from dmf_sim.live.foxglove_bridge import FoxgloveBridge
             latched = [t for t, profile in (qos or {}).items() if latched_depth([profile])]
             self.foxglove = FoxgloveBridge(topics, host=p['foxglove_host'],
                                            port=int(p['foxglove_port']), latched=latched)
