@@ -35,12 +35,14 @@ pacing returns to it). Parameters: :mod:`dmf_sim.live.parameters`, ``config/driv
 from __future__ import annotations
 
 import array
+import os
 import signal
 import sys
 import threading
 import time
 
 from dmf_sim.core.errors import ConfigError, DmfSimError, one_line
+from dmf_sim.core.process import end_with_parent
 from dmf_sim.live.health import status_name
 from dmf_sim.live.pacing import fmt_num
 from dmf_sim.live.parameters import DMF_PARAMETERS, PARAMETERS, coerce
@@ -311,13 +313,22 @@ def main(argv: list[str] | None = None) -> int:
 
     argv = list(sys.argv if argv is None else argv)
     stop = threading.Event()
+    why: list[str] = []
 
     def on_signal(signum, _frame):
+        why.append(signal.Signals(signum).name)
         stop.set()
         signal.signal(signum, signal.SIG_DFL)    # a second SIGINT/SIGTERM: default action
 
+    def on_parent_death(pid: int) -> None:
+        why.append(f'parent process {pid} ended')
+        stop.set()
+
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
+    # a launch parent that dies (SIGTERM/SIGKILL to `ros2 launch`) ends the node the same clean
+    # way as Ctrl-C: SIGTERM from Linux (or a pid watch elsewhere), the bag closed
+    parent = end_with_parent(on_parent_death, signal.SIGTERM)
     try:
         rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     except Exception as exc:  # noqa: BLE001 - RCLError: bad --ros-args / params file
@@ -336,9 +347,24 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     finally:
         if node is not None:
-            node.runtime.close()
+            _shut_down(node, why, parent)
             node.destroy_node()
         rclpy.try_shutdown()
+
+
+def _shut_down(node: DrivelineNode, why: list[str], parent: int) -> None:
+    """Close the runtime (bag, monitor, Foxglove) and say why and where the bag is."""
+    log = node.get_logger()
+    reason = why[0] if why else 'shutdown'
+    if reason == 'SIGTERM' and os.getppid() != parent:
+        reason = f'SIGTERM: parent process {parent} ended'
+    log.info(f'stopping ({reason})')
+    rec = node.runtime.recording
+    closed = node.runtime.close()       # logs 'stopped recording: bag X closed, N messages'
+    if closed == 'not recording':
+        log.info('stopped; no bag was open' + (f' (last bag: {rec.path.absolute()})'
+                                               if rec.path is not None else
+                                               ' (record with -p record:=true)'))
 
 
 if __name__ == '__main__':

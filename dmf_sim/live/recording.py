@@ -164,7 +164,7 @@ class RecordingControl:
             msg = f'closing bag {rec.path} failed: {one_line(exc)}'
             self.log.error(msg)
             return msg
-        msg = f'stopped recording: bag {rec.path} closed, {rec.message_count} messages'
+        msg = f'stopped recording: bag {rec.path.absolute()} closed, {rec.message_count} messages'
         self.log.info(msg)
         return msg
 

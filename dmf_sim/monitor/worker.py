@@ -24,6 +24,7 @@ from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field, replace
 
 from dmf_sim.core.errors import ConfigError
+from dmf_sim.core.process import die_with_parent
 from dmf_sim.monitor.alarms import AlarmReport, AlarmSettings, evaluate
 from dmf_sim.monitor.messages import StatusData, cycle_status, monitor_status, prediction_statuses
 from dmf_sim.monitor.orders import CycleOrderTracker, CycleResult, CycleWindow, analyze_window
@@ -99,24 +100,11 @@ class MonitorSettings:
 _MODELS: OrderedDict = OrderedDict()
 
 
-PR_SET_PDEATHSIG = 1         # Linux prctl option: a signal for the child when its parent dies
-
-
-def _die_with_parent() -> None:
-    """Ask Linux to SIGKILL this worker when the node dies (also of SIGKILL: a crashed node
-    must not leave orphan workers holding its pipes)."""
-    try:
-        import ctypes
-        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
-    except (OSError, AttributeError):        # not Linux: close() still stops the workers
-        pass
-
-
 def _init_worker(niceness: int) -> None:
     # Ctrl-C in a terminal reaches the whole process group: the node decides when its workers
     # stop (LiveMonitor.close), a worker must not die of the node's SIGINT
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    _die_with_parent()
+    die_with_parent(signal.SIGKILL)       # a crashed node must not leave orphan workers
     if niceness:
         os.nice(niceness)
 

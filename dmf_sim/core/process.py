@@ -1,0 +1,46 @@
+"""A process that ends with its parent: Linux's parent-death signal, a polling fallback.
+
+Used by the node (SIGTERM when its launch parent dies: the same clean shutdown as Ctrl-C,
+closing its bag) and by the monitor's worker processes (SIGKILL when the node dies, even of
+SIGKILL: orphans must not hold the node's pipes).
+"""
+from __future__ import annotations
+
+import os
+import signal
+import threading
+from collections.abc import Callable
+
+__all__ = ['PARENT_POLL_S', 'PR_SET_PDEATHSIG', 'die_with_parent', 'end_with_parent']
+
+PR_SET_PDEATHSIG = 1        # Linux prctl option: a signal for this process when its parent dies
+PARENT_POLL_S = 0.5         # fallback (no prctl): how often the parent pid is checked [s]
+
+
+def die_with_parent(signum: int = signal.SIGKILL) -> bool:
+    """Ask Linux to send ``signum`` to this process when the thread that started it ends
+    (``prctl(PR_SET_PDEATHSIG)``). False where that is not available (not Linux)."""
+    try:
+        import ctypes
+        libc = ctypes.CDLL(None, use_errno=True)
+        return libc.prctl(PR_SET_PDEATHSIG, int(signum), 0, 0, 0) == 0
+    except (OSError, AttributeError):
+        return False
+
+
+def end_with_parent(on_death: Callable[[int], None], signum: int = signal.SIGTERM,
+                    poll_s: float = PARENT_POLL_S) -> int:
+    """Make this process end when its parent does: ``signum`` from Linux (its handler decides
+    what ending means), else a daemon thread that polls the parent pid and calls
+    ``on_death(parent_pid)``. Also calls it at once when the parent has died already (between
+    this process's start and now). Returns the parent's pid."""
+    parent = os.getppid()
+    if not die_with_parent(signum):
+        def watch() -> None:
+            while os.getppid() == parent:
+                threading.Event().wait(poll_s)
+            on_death(parent)
+        threading.Thread(target=watch, name='parent-watch', daemon=True).start()
+    elif os.getppid() != parent:             # died before prctl took effect
+        on_death(parent)
+    return parent

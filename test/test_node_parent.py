@@ -1,0 +1,93 @@
+"""The node ends cleanly when its launch parent dies (issue 20 item 7).
+
+``ros2 launch ... &`` from a script ignores SIGINT; SIGTERM then ended launch and left the node
+running and recording. Here a parent process starts two namespaced nodes (as a launch file of
+two trucks does) and is SIGKILLed: both nodes must stop the way Ctrl-C stops them, closing
+complete bags. Over real DDS on a domain from DMF_SIM_TEST_DOMAINS.
+"""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import yaml
+from dds_peer import START_TIMEOUT, Peer, new_domain
+from mcap.reader import make_reader
+
+PARENT = '''
+import json, subprocess, sys, time
+procs = [subprocess.Popen(cmd, stdout=open(log, 'w'), stderr=subprocess.STDOUT)
+         for cmd, log in json.loads(sys.argv[1])]
+print(' '.join(str(p.pid) for p in procs), flush=True)
+time.sleep(3600)
+'''
+EXIT_TIMEOUT = 60.0
+
+
+def _gone(pid: int) -> bool:
+    """Whether process ``pid`` has ended (a zombie nobody reaps counts as ended)."""
+    try:
+        state = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()[0]
+    except (FileNotFoundError, ProcessLookupError, IndexError):
+        return True
+    return state in ('Z', 'X')
+
+
+def test_nodes_close_their_bags_when_the_launch_parent_dies(tmp_path):
+    from std_msgs.msg import Float64
+
+    domain = new_domain()
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
+               PYTHONUNBUFFERED='1')
+    bags = {i: tmp_path / f'truck{i}_bag' for i in (1, 2)}
+    logs = {i: tmp_path / f'truck{i}.log' for i in (1, 2)}
+    cmds = [([sys.executable, '-m', 'dmf_sim.node', '--ros-args', '-r', f'__ns:=/truck{i}',
+              '-p', 'record:=true', '-p', f'bag_path:={bags[i]}', '-p', 'monitor:=false',
+              '-p', 'publish_rate:=200.0'], str(logs[i])) for i in (1, 2)]
+    parent = subprocess.Popen([sys.executable, '-c', PARENT, json.dumps(cmds)], env=env,
+                              cwd=tmp_path, stdout=subprocess.PIPE, text=True)
+    pids = [int(p) for p in parent.stdout.readline().split()]
+    peer = Peer(domain)
+    try:
+        for i in (1, 2):
+            peer.subscribe(f'/truck{i}/engine/speed', Float64)
+        assert peer.spin_until(lambda: all(peer.counts[f'/truck{i}/engine/speed'] > 20
+                                           for i in (1, 2)), START_TIMEOUT), \
+            [log.read_text() for log in logs.values()]
+        parent.send_signal(signal.SIGKILL)        # launch killed: nobody forwards a signal
+        parent.wait(timeout=10)
+        deadline = time.monotonic() + EXIT_TIMEOUT
+        while not all(_gone(pid) for pid in pids) and time.monotonic() < deadline:
+            peer.spin_for(0.05)
+        assert all(_gone(pid) for pid in pids), [log.read_text() for log in logs.values()]
+    finally:
+        peer.close()
+        if parent.poll() is None:
+            parent.kill()
+            parent.wait(timeout=10)
+        for pid in pids:
+            if not _gone(pid):
+                os.kill(pid, signal.SIGKILL)
+
+    for i in (1, 2):
+        out = logs[i].read_text()
+        assert f'stopping (SIGTERM: parent process {parent.pid} ended)' in out, out
+        assert f'stopped recording: bag {bags[i]} closed' in out, out
+        assert 'Traceback' not in out, out
+        meta = yaml.safe_load((bags[i] / 'metadata.yaml').read_text())
+        info = meta['rosbag2_bagfile_information']
+        assert [p.name for p in sorted(bags[i].glob('*.mcap'))] == info['relative_file_paths']
+        total = 0
+        for name in info['relative_file_paths']:          # closed: summary and footer written
+            with open(bags[i] / name, 'rb') as fh:
+                summary = make_reader(fh).get_summary()
+            assert summary is not None and summary.statistics is not None
+            total += summary.statistics.message_count
+        assert total == info['message_count'] > 100
+        assert meta['rosbag2_bagfile_information']['custom_data']['dmf_sim.node'] == \
+            f'/truck{i}/driveline_node'
