@@ -13,7 +13,12 @@ import pytest
 import websockets
 
 from dmf_sim.core.errors import ConfigError
-from dmf_sim.live.foxglove_bridge import SUBPROTOCOL, FoxgloveBridge, message_definition
+from dmf_sim.live.foxglove_bridge import (
+    SUBPROTOCOL,
+    FoxgloveBridge,
+    foxglove_layout,
+    message_definition,
+)
 
 REPO = Path(__file__).resolve().parents[1]
 LAYOUT = REPO / 'config' / 'foxglove_layout.json'
@@ -137,6 +142,7 @@ def test_layout_is_a_foxglove_layout_of_the_node_s_topics_and_keys():
         TOPIC_CYCLE,
         TOPIC_PREDICTED,
         cycle_status,
+        monitor_status,
         prediction_statuses,
         values_of,
     )
@@ -190,8 +196,14 @@ def test_layout_is_a_foxglove_layout_of_the_node_s_topics_and_keys():
             paths.append(cfg['topicPath'])
     assert len(paths) >= 8
     # the node's health status is picked by its hardware_id, the node's fully qualified name:
-    # a layout variable (edit it in Foxglove for a namespaced node)
+    # a layout variable, and the Diagnostic Status panel selects it (issue 20 item 4: it
+    # selected 'dmf_sim', which no status carries); `dmf-sim foxglove-layout` for other names
     assert layout['globalVariables'] == {'node': '/driveline_node'}
+    published = {monitor_status('/driveline_node', AlarmReport(0, ()), None, None, {}).hardware_id,
+                 cycle_status('/driveline_node', cyc, None, pred, AlarmReport(0, ())).hardware_id}
+    assert published == {'/driveline_node'}
+    assert layout['configById']['DiagnosticStatusPanel!dmfdiag']['selectedHardwareId'] in \
+        published
     for path in paths:
         m = re.match(r'^(/[\w/]+?)(\.|$)(.*)$', path)
         assert m and m.group(1) in topics, path
@@ -205,3 +217,54 @@ def test_layout_is_a_foxglove_layout_of_the_node_s_topics_and_keys():
             key = km.group(1)
             allowed = keys.get(topic, diag_keys)
             assert key in allowed, path
+
+
+def test_layout_for_a_namespaced_node_moves_its_topics_and_selects_its_health():
+    """Issue 20 item 4: the layout for /truck1/driveline_node (``dmf-sim foxglove-layout``)."""
+    base, layout = foxglove_layout(), foxglove_layout('/truck1/driveline_node')
+    assert base == json.loads(LAYOUT.read_text())          # the shipped file is the default
+    assert layout['globalVariables'] == {'node': '/truck1/driveline_node'}
+    panel = layout['configById']['DiagnosticStatusPanel!dmfdiag']
+    assert panel['selectedHardwareId'] == '/truck1/driveline_node'
+    assert panel['topicToRender'] == '/diagnostics'                 # not namespaced
+    paths = [p['value'] for cfg in layout['configById'].values() for p in cfg.get('paths', ())]
+    assert all(p.startswith(('/truck1/driveline/', '/truck1/engine/', '/diagnostics.'))
+               for p in paths), paths
+    assert layout['configById']['RawMessages!dmfpredicted']['topicPath'] == \
+        '/truck1/driveline/dmf_predicted'
+    with pytest.raises(ConfigError, match='fully qualified ROS node name'):
+        foxglove_layout('/truck 1/driveline_node')
+
+
+async def _late_client(url: str, topic: str) -> tuple[int, bytes]:
+    """Connect, subscribe to ``topic``; the first message it gets (log time, payload)."""
+    async with websockets.connect(url, subprotocols=[SUBPROTOCOL]) as ws:
+        channels = {}
+        while topic not in channels:
+            msg = json.loads(await asyncio.wait_for(ws.recv(), 10))
+            if msg['op'] == 'advertise':
+                channels.update({c['topic']: c for c in msg['channels']})
+        await ws.send(json.dumps({'op': 'subscribe', 'subscriptions': [
+            {'id': 3, 'channelId': channels[topic]['id']}]}))
+        while True:
+            data = await asyncio.wait_for(ws.recv(), 10)
+            if isinstance(data, bytes) and data[0] == 0x01:
+                return struct.unpack_from('<Q', data, 5)[0], data[13:]
+
+
+def test_a_client_connecting_after_the_latched_message_gets_it():
+    """Issue 20 item 4: the prediction (latched) was published before the client connected;
+    the client gets it as soon as it subscribes, as a late transient-local DDS subscriber."""
+    store = _store()
+    bridge = FoxgloveBridge(STREAMS, port=0, latched=['/driveline/dmf_orders'])
+    try:
+        old = _diag_cdr(store, {'order_3_rad': '0.01'})
+        new = _diag_cdr(store, {'order_3_rad': '0.02'})
+        bridge.publish('/driveline/dmf_orders', old, 5)
+        bridge.publish('/driveline/dmf_orders', new, 7)
+        t, payload = asyncio.run(_late_client(bridge.url, '/driveline/dmf_orders'))
+        assert t == 7 and payload == new
+        with pytest.raises(ConfigError, match='latched topics'):
+            FoxgloveBridge(STREAMS, port=0, latched=['/nope'])
+    finally:
+        bridge.close()

@@ -24,10 +24,13 @@ from collections.abc import Iterable, Mapping
 
 from dmf_sim.core.errors import ConfigError
 
-__all__ = ['SUBPROTOCOL', 'FOXGLOVE_PARAMETERS', 'FoxgloveBridge', 'message_definition']
+__all__ = ['SUBPROTOCOL', 'FOXGLOVE_PARAMETERS', 'LAYOUT_FILE', 'FoxgloveBridge', 'foxglove_layout',
+           'message_definition']
 
 SUBPROTOCOL = 'foxglove.sdk.v1'      # what the SDK's server accepts (checked by the tests)
 SERVER_NAME = 'dmf_sim'
+LAYOUT_FILE = 'foxglove_layout.json'     # in config/: the layout of a node named /driveline_node
+DEFAULT_NODE = '/driveline_node'
 
 # Node parameters: name -> (default, description, (lo, hi) or None). Read-only (start-up).
 FOXGLOVE_PARAMETERS: dict[str, tuple] = {
@@ -129,3 +132,51 @@ class FoxgloveBridge:
         self._server.stop()
         for ch in self._channels.values():
             ch.close()
+
+
+def foxglove_hint(url: str, node: str) -> str:
+    """The node's start-up line about its Foxglove server: where, and which layout."""
+    layout = (f'config/{LAYOUT_FILE}' if node == DEFAULT_NODE else
+              f'`dmf-sim foxglove-layout --node {node} --out layout.json`')
+    return (f'Foxglove server at {url} (Foxglove: Open connection > Foxglove WebSocket > {url}; '
+            f'import the layout {layout})')
+
+
+def foxglove_layout(node: str = DEFAULT_NODE) -> dict:
+    """The shipped Foxglove layout (``config/foxglove_layout.json``, written for the node
+    ``/driveline_node``) for the node whose fully qualified name is ``node``: its namespaced
+    topics in every message path, and its health status selected by the hardware id it
+    publishes (its full name) in the Diagnostic Status panel and the ``$node`` variable.
+
+    Foxglove's Diagnostic Status panel shows one hardware id and cannot take a variable, so a
+    namespaced node needs this rewritten layout (``dmf-sim foxglove-layout --node NAME``);
+    the Diagnostics Summary panel lists every node's statuses anyway."""
+    import json
+
+    from dmf_sim.core.paths import config_dir, read_text
+    from dmf_sim.live.streams import STREAMS
+
+    fqn = '/' + node.strip().strip('/')
+    if fqn == '/' or any(not part.replace('_', 'a').isalnum() for part in fqn[1:].split('/')):
+        raise ConfigError(f'node {node!r} must be a fully qualified ROS node name like '
+                          '/truck1/driveline_node')
+    ns = fqn.rsplit('/', 1)[0]
+    layout = json.loads(read_text(config_dir() / LAYOUT_FILE))
+    relative = tuple('/' + s.topic for s in STREAMS.values() if not s.topic.startswith('/'))
+
+    def move(path: str) -> str:
+        for topic in relative:
+            if path == topic or path.startswith(topic + '.'):
+                return ns + path
+        return path
+
+    for pid, cfg in layout['configById'].items():
+        for item in cfg.get('paths', ()):
+            item['value'] = move(item['value'])
+        for key in ('topicPath', 'topicToRender'):
+            if key in cfg:
+                cfg[key] = move(cfg[key])
+        if pid.startswith('DiagnosticStatusPanel'):
+            cfg['selectedHardwareId'] = fqn
+    layout['globalVariables']['node'] = fqn
+    return layout

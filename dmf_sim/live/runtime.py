@@ -99,12 +99,11 @@ class LiveRuntime:
         self.foxglove = None
         if p['foxglove_port']:
             from dmf_sim.bags.writer import latched_depth
-            from dmf_sim.live.foxglove_bridge import FoxgloveBridge
+            from dmf_sim.live.foxglove_bridge import FoxgloveBridge, foxglove_hint
             latched = [t for t, profile in (qos or {}).items() if latched_depth([profile])]
             self.foxglove = FoxgloveBridge(topics, host=p['foxglove_host'],
                                            port=int(p['foxglove_port']), latched=latched)
-            log.info(f'Foxglove server at {self.foxglove.url} (open it in Foxglove: "Open '
-                     'connection", Foxglove WebSocket; layout config/foxglove_layout.json)')
+            log.info(foxglove_hint(self.foxglove.url, node_name))
         self.lock = threading.RLock()
         self._pending_recorder = None
         if p['record']:
