@@ -24,8 +24,8 @@ from collections.abc import Iterable, Mapping
 
 from dmf_sim.core.errors import ConfigError
 
-__all__ = ['SUBPROTOCOL', 'FOXGLOVE_PARAMETERS', 'LAYOUT_FILE', 'FoxgloveBridge', 'foxglove_layout',
-           'message_definition']
+__all__ = ['SUBPROTOCOL', 'FOXGLOVE_PARAMETERS', 'LAYOUT_FILE', 'FoxgloveBridge', 'foxglove_hint',
+           'foxglove_layout', 'message_definition']
 
 SUBPROTOCOL = 'foxglove.sdk.v1'      # what the SDK's server accepts (checked by the tests)
 SERVER_NAME = 'dmf_sim'
