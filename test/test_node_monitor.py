@@ -1,6 +1,8 @@
 """The DMF monitor and the Foxglove server wired into the running node (issue 15 items 1-3):
 per-cycle orders and the latched prediction on their topics, the monitor's status beside the
-node's health in /diagnostics, and a Foxglove client receiving the node's own wind-up stream."""
+node's health in /diagnostics, and a Foxglove client receiving the node's own wind-up stream.
+Issue 20 items 3-4: a Foxglove client and a recording that start after the prediction get it,
+the bag offers the real QoS, and the layout matches what the node publishes."""
 from __future__ import annotations
 
 import asyncio
@@ -18,6 +20,39 @@ def _free_port() -> int:
     with socket.socket() as s:
         s.bind(('127.0.0.1', 0))
         return s.getsockname()[1]
+
+
+async def _foxglove_channels_and_first(url: str, topic: str):
+    """Connect as a Foxglove client: every advertised channel (topic -> schema name), and the
+    first message of ``topic`` after subscribing (its CDR payload)."""
+    from dmf_sim.live.foxglove_bridge import SUBPROTOCOL
+    async with websockets.connect(url, subprotocols=[SUBPROTOCOL]) as ws:
+        channels = {}
+        while topic not in channels:
+            msg = json.loads(await asyncio.wait_for(ws.recv(), 10))
+            if msg['op'] == 'advertise':
+                channels.update({c['topic']: c for c in msg['channels']})
+        await ws.send(json.dumps({'op': 'subscribe', 'subscriptions': [
+            {'id': 1, 'channelId': channels[topic]['id']}]}))
+        while True:
+            data = await asyncio.wait_for(ws.recv(), 10)
+            if isinstance(data, bytes) and data[0] == 0x01:
+                return {t: c['schemaName'] for t, c in channels.items()}, data[13:]
+
+
+def _layout_topics(layout: dict) -> dict[str, str]:
+    """Topic -> the message type a layout's panels expect of it."""
+    import re
+    out = {}
+    for pid, cfg in layout['configById'].items():
+        paths = [p['value'] for p in cfg.get('paths', ())] + [cfg.get('topicPath', '')]
+        for path in filter(None, paths):
+            topic, _, rest = re.match(r'^(/[\w/]+?)(\.|$)(.*)$', path).groups()
+            out[topic] = ('std_msgs/msg/Float64' if rest.startswith('data')
+                          else 'diagnostic_msgs/msg/DiagnosticArray')
+        if 'topicToRender' in cfg:
+            out[cfg['topicToRender']] = 'diagnostic_msgs/msg/DiagnosticArray'
+    return out
 
 
 async def _foxglove_windup(url: str, topic: str) -> float:
@@ -74,7 +109,47 @@ def test_node_publishes_cycle_orders_prediction_and_serves_foxglove(tmp_path: Pa
         # Foxglove: the node's own wind-up stream over the WebSocket protocol
         w = asyncio.run(_foxglove_windup(f'ws://127.0.0.1:{port}', '/truck7/driveline/dmf_windup'))
         assert 0.0 < w < 0.6
+        assert f'Foxglove server at ws://127.0.0.1:{port}' in node.output()
+
+        # issue 20 item 4: a client connecting after the prediction gets it at once, and the
+        # layout for this node names topics it serves with the types the panels expect and
+        # selects the hardware id its health status carries
+        from rosbags.typesys import Stores, get_typestore
+
+        from dmf_sim.live.foxglove_bridge import foxglove_layout
+        store = get_typestore(Stores.ROS2_JAZZY)
+        channels, payload = asyncio.run(_foxglove_channels_and_first(
+            f'ws://127.0.0.1:{port}', '/truck7/driveline/dmf_predicted'))
+        late = store.deserialize_cdr(payload, 'diagnostic_msgs/msg/DiagnosticArray')
+        assert late.status[0].name == predicted[-1].status[0].name
+        assert late.status[0].message == predicted[-1].status[0].message
+        layout = foxglove_layout('/truck7/driveline_node')
+        for topic, msgtype in _layout_topics(layout).items():
+            assert channels.get(topic) == msgtype, (topic, channels)
+        assert layout['configById']['DiagnosticStatusPanel!dmfdiag']['selectedHardwareId'] == \
+            health['_hardware_id'] == layout['globalVariables']['node']
+
+        # issue 20 item 3: a recording started after the prediction begins with it
+        from std_srvs.srv import SetBool
+        bag = tmp_path / 'late_bag'
+        assert peer.set_params('/truck7/driveline_node', bag_path=str(bag))[0].successful
+        assert peer.call(SetBool, '/truck7/driveline_node/record',
+                         SetBool.Request(data=True)).success
+        peer.spin_for(1.0)
+        assert peer.call(SetBool, '/truck7/driveline_node/record',
+                         SetBool.Request(data=False)).success
     finally:
         peer.close()
         code = node.stop()
     assert code == 0, node.output()
+    from rosbags.rosbag2 import Reader
+    with Reader(bag) as reader:
+        qos = {c.topic: c.ext.offered_qos_profiles[0] for c in reader.connections}
+        conn, _, raw = next(reader.messages())
+        assert conn.topic == '/truck7/driveline/dmf_predicted'
+        first = store.deserialize_cdr(raw, conn.msgtype)
+        assert first.status[0].message == predicted[-1].status[0].message
+    pred_qos = qos['/truck7/driveline/dmf_predicted']
+    assert (pred_qos.durability.name.lower(), pred_qos.depth) == ('transient_local', 1)
+    assert qos['/truck7/driveline/joint_states'].depth == 100
+    assert qos['/diagnostics'].durability.name.lower() == 'volatile'
