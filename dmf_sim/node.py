@@ -8,17 +8,20 @@ What runs is :class:`dmf_sim.live.runtime.LiveRuntime` (simulation, tick loop, r
 health); this module declares the parameters, creates the topics and services, serializes the
 samples and spins. Importing it needs no ROS installation (the rclpy imports are guarded).
 
-Topics (relative names; without a namespace they resolve as listed), all reliable / volatile:
+Topics (relative names; without a namespace they resolve as listed), all reliable; volatile
+except dmf_predicted (transient-local: latched). Table: :mod:`dmf_sim.live.streams`.
 
     sub  engine/speed_setpoint   std_msgs/Float64      engine speed setpoint [rpm]    keep all
     sub  engine/load_setpoint    std_msgs/Float64      load setpoint [0..1]           keep all
     pub  driveline/joint_states  sensor_msgs/JointState every element: position = vibratory
                                  angle [rad], velocity [rad/s], effort = transmitted torque [Nm]
-                                                                                     depth 100
+                                 (publish_rate, default 1000 Hz)                      depth 100
     pub  driveline/dmf_windup    std_msgs/Float64      DMF wind-up [rad]              depth 100
     pub  engine/speed            std_msgs/Float64      engine speed (ramped) [rpm]    depth 100
     pub  engine/crank_angle      std_msgs/Float64      crank angle [rad], continuous  depth 100
-    pub  /diagnostics            diagnostic_msgs/DiagnosticArray  health             depth 10
+    pub  /diagnostics            diagnostic_msgs/DiagnosticArray  health (1 Hz)       depth 10
+    pub  driveline/dmf_orders    diagnostic_msgs/DiagnosticArray  per engine cycle    depth 10
+    pub  driveline/dmf_predicted diagnostic_msgs/DiagnosticArray  prediction, latched depth 1
     pub  /clock                  rosgraph_msgs/Clock   simulated time; advertised only while
                                  pacing is fast, real_time_factor != 1, or publish_clock depth 1
 
@@ -29,8 +32,8 @@ applied. Services: ``~/reset`` (std_srvs/Trigger): static equilibrium at the cur
 ``~/record`` (std_srvs/SetBool): start/stop recording (same as setting parameter ``record``).
 
 Stamps: see :class:`dmf_sim.live.pacing.TimeBase` (wall clock at real-time factor 1, re-anchored
-when
-pacing returns to it). Parameters: :mod:`dmf_sim.live.parameters`, ``config/driveline_node.yaml``.
+when pacing returns to it). Parameters: :mod:`dmf_sim.live.parameters`,
+``config/driveline_node.yaml``.
 """
 from __future__ import annotations
 
@@ -300,8 +303,23 @@ class DrivelineNode(Node):
             pass
 
 
+def usage() -> str:
+    """``driveline_node --help``: how to start it, its topics and services, how to stop it."""
+    head, _, rest = __doc__.partition('What runs is')
+    topics = rest[rest.index('Topics'):rest.index('Setpoints are commands')].rstrip()
+    return (f'{head.strip()}\n\n{topics}\n\nServices: ~/reset (std_srvs/Trigger), ~/record '
+            '(std_srvs/SetBool). Parameters: ros2 param list/describe /driveline_node, or '
+            'config/driveline_node.yaml.\nStop: Ctrl-C or SIGTERM (closes the bag); it also '
+            'stops when the process that started it (ros2 launch) ends.')
+
+
 def main(argv: list[str] | None = None) -> int:
     """Console script ``driveline_node``. Returns the process exit code."""
+    args = list(sys.argv if argv is None else argv)
+    ros_args = args.index('--ros-args') if '--ros-args' in args else len(args)
+    if {'-h', '--help'} & set(args[1:ros_args]):
+        print(usage())
+        return 0
     if ROS_IMPORT_ERROR is not None:
         print(f'driveline_node: error: ROS 2 Python packages missing '
               f'({one_line(ROS_IMPORT_ERROR)}); source a Jazzy installation or pip install '

@@ -515,6 +515,20 @@ def test_installed_layout_runs_like_ros2_run(tmp_path):
     assert Path(module_file).is_relative_to(prefix)          # the installed copy runs
     assert Path(config_dir) == prefix / 'share' / 'dmf_sim' / 'config'
 
+    # issue 20 item 5: both console scripts are in lib/dmf_sim (where `ros2 run dmf_sim X`
+    # looks), not on PATH, and run from there: `ros2 run dmf_sim dmf-sim --help`
+    lib = Path(found_prefix) / 'lib' / 'dmf_sim'
+    assert not (prefix / 'bin' / 'dmf-sim').exists()
+    for exe_name, words in (('dmf-sim', ('usage: dmf-sim', 'monitor', 'foxglove-layout')),
+                            ('driveline_node', ('ros2 run dmf_sim driveline_node',
+                                                'driveline/dmf_predicted', 'Ctrl-C'))):
+        script = lib / exe_name
+        assert script.is_file() and os.access(script, os.X_OK), exe_name
+        res = subprocess.run([str(script), '--help'], env=env, capture_output=True, text=True,
+                             timeout=120, cwd=tmp_path)
+        assert res.returncode == 0, (exe_name, res.stderr)
+        assert all(w in res.stdout for w in words), (exe_name, res.stdout)
+
     domain = new_domain()
     node = NodeProcess(['--ros-args', '-r', '__node:=my_node', '-p', 'publish_rate:=200.0'],
                        tmp_path, domain, exe=[str(Path(found_prefix) / 'lib' / 'dmf_sim' /
