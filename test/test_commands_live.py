@@ -269,7 +269,7 @@ def test_monitor_of_one_truck_shows_only_that_truck_over_dds(tmp_path):
     try:
         peer.subscribe('/diagnostics', DiagnosticArray)
         names = {f'/truck{i}/driveline_node: driveline simulation' for i in speeds}
-        assert peer.spin_until(lambda: names <= set(peer.diags), START_TIMEOUT), \
+        assert peer.spin_until(lambda: names <= set(peer.diags), 2 * START_TIMEOUT), \
             [n.output() for n in nodes]
         cases = [(['--namespace', '/truck1'], 1), (['--node', '/truck1/driveline_node'], 1),
                  (['--namespace', '/truck2', '--node', 'driveline_node'], 2)]

@@ -57,7 +57,7 @@ def test_nodes_close_their_bags_when_the_launch_parent_dies(tmp_path):
         for i in (1, 2):
             peer.subscribe(f'/truck{i}/engine/speed', Float64)
         assert peer.spin_until(lambda: all(peer.counts[f'/truck{i}/engine/speed'] > 20
-                                           for i in (1, 2)), START_TIMEOUT), \
+                                           for i in (1, 2)), 2 * START_TIMEOUT), \
             [log.read_text() for log in logs.values()]
         parent.send_signal(signal.SIGKILL)        # launch killed: nobody forwards a signal
         parent.wait(timeout=10)
