@@ -158,6 +158,8 @@ class DrivelineNode(Node):
         self.add_on_set_parameters_callback(self._check_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
         self.get_logger().info(self.runtime.describe())
+        for line in self.runtime.ready_lines(self._topics):
+            self.get_logger().info(line)
 
     def _declare(self, name, default, spec):
         try:

@@ -595,3 +595,26 @@ def test_launch_file_declares_namespace_params_record_and_wires_them(monkeypatch
     # the installed params file's key matches the node in any namespace
     cfg = yaml.safe_load((REPO / 'config' / 'driveline_node.yaml').read_text())
     assert list(cfg) == ['/**/driveline_node']
+
+
+def test_start_lines_say_topics_rates_where_to_look_and_how_to_stop(tmp_path):
+    """Issue 20 item 14: ``make node`` printed one line, then nothing; the node now says what
+    it publishes at which rate, where to look and how to stop (and which bag Ctrl-C closes)."""
+    from dmf_sim.live.streams import STREAMS
+
+    resolved = {k: '/truck1/' + s.topic if not s.topic.startswith('/') else s.topic
+                for k, s in STREAMS.items()}
+    rt, _ = make_runtime(publish_rate=500.0, diagnostics_rate=2.0, monitor=False,
+                         record=True, bag_path=str(tmp_path / 'b'))
+    try:
+        lines = rt.ready_lines(resolved)
+    finally:
+        rt.close()
+    text = '\n'.join(lines)
+    assert lines[0].startswith('publishing /truck1/driveline/joint_states, ')
+    assert '/truck1/engine/crank_angle at 500 Hz' in lines[0]
+    assert '/diagnostics at 2 Hz' in lines[0]
+    assert 'dmf_predicted' not in text                      # no monitor: not promised
+    assert 'dmf-sim monitor --namespace /truck1' in text
+    assert 'ros2 topic hz /truck1/engine/speed' in text
+    assert lines[-1] == f'stop: Ctrl-C or SIGTERM (closes the bag {tmp_path / "b"})'

@@ -156,6 +156,31 @@ class LiveRuntime:
             text += ' (one file: this bag writer does not split, bag_max_duration_s unused)'
         return text
 
+    def ready_lines(self, topics: Mapping[str, str]) -> list[str]:
+        """What the node says once it runs: its topics with their rates, where to look, how
+        to stop. ``topics``: stream key (:data:`dmf_sim.live.streams.STREAMS`) -> resolved
+        topic name."""
+        from dmf_sim.live.streams import STREAMS
+        by = {}
+        for key, name in topics.items():
+            per = STREAMS[key].per
+            if per in ('cycle', 'setpoint') and self.monitor is None:
+                continue
+            by.setdefault(per, []).append(name + (' (latched)' if STREAMS[key].latched else ''))
+        rate = 1.0 / self.loop.diagnostics_period_s
+        ns = topics['speed'].rsplit('/', 2)[0]
+        where = f' --namespace {ns}' if ns else ''
+        lines = [f'publishing {", ".join(by["sample"])} at {self.loop.publish_rate_hz:g} Hz '
+                 f'(simulated time); {", ".join(by["diagnostics"])} at {rate:g} Hz']
+        if self.monitor is not None:
+            lines.append(f'DMF monitor: {", ".join(by["cycle"])} per engine cycle, '
+                         f'{", ".join(by["setpoint"])} when the setpoint changes')
+        lines.append(f'look: dmf-sim monitor{where} | ros2 topic hz {topics["speed"]} | set: '
+                     f'dmf-sim setpoint{where} --speed 1200 --load 0.8')
+        bag = f' (closes the bag {self.recording.path})' if self.recording.active else ''
+        lines.append(f'stop: Ctrl-C or SIGTERM{bag}')
+        return lines
+
     # ---- recording --------------------------------------------------------------------------
     def _prepare_recording(self, bag_path: str):
         meta = run_metadata(self.sim, driveline=str(self.values['driveline']),
