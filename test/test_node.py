@@ -539,7 +539,8 @@ def test_installed_layout_runs_like_ros2_run(tmp_path):
         assert peer.spin_until(lambda: ('my_node', '/') in
                                peer.node.get_node_names_and_namespaces(), START_TIMEOUT), \
             node.output()
-        assert peer.spin_until(lambda: peer.counts['/engine/speed'] > 20, START_TIMEOUT), node.output()
+        assert peer.spin_until(lambda: peer.counts['/engine/speed'] > 20, START_TIMEOUT), \
+            node.output()
         n0, t0 = peer.counts['/engine/speed'], time.monotonic()
         peer.spin_for(2.0)
         rate = (peer.counts['/engine/speed'] - n0) / (time.monotonic() - t0)
