@@ -16,6 +16,11 @@ $(STAMP): setup.py setup.cfg package.xml
 venv: $(STAMP)
 
 node: $(STAMP)
+	@echo 'make node: starting driveline_node, the live driveline (truck_dmf, real time); the first'
+	@echo '  start loads and compiles for ~20 s before it logs its topics, rates and how to stop.'
+	@echo '  Stop: Ctrl-C (a recording, ARGS="--ros-args -p record:=true", is closed and its bag named).'
+	@echo '  The dmf-sim CLI is ready now (after make venv): $(VENV)/bin/dmf-sim, or run'
+	@echo '  ". $(VENV)/bin/activate" once; e.g. in another terminal: $(VENV)/bin/dmf-sim monitor'
 	$(VENV)/bin/driveline_node $(ARGS)
 
 test: $(STAMP)

@@ -46,7 +46,6 @@ setup(
     maintainer_email='dmf-sim@example.com',
     description='Truck driveline torsional vibrations with a two-step dual mass flywheel',
     license='Apache-2.0',
-    tests_require=['pytest'],
     entry_points={
         'console_scripts': [
             'dmf-sim = dmf_sim.cli:main',

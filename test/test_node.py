@@ -479,6 +479,17 @@ def test_bad_configuration_stops_startup_with_one_line(tmp_path):
         assert len(lines) == 1 and ('error' in lines[0].lower() or 'failed' in lines[0]), err
 
 
+def test_setup_passes_no_option_setuptools_warns_about():
+    """Issue 20 item 14: setuptools >= 72 (what a fresh ``pip install`` builds with) warns
+    "Unknown distribution option: 'tests_require'" on every install; the test extra says it."""
+    import ast
+    tree = ast.parse((REPO / 'setup.py').read_text())
+    call = next(n for n in ast.walk(tree) if isinstance(n, ast.Call)
+                and getattr(n.func, 'id', '') == 'setup')
+    keywords = {k.arg for k in call.keywords}
+    assert 'tests_require' not in keywords and 'extras_require' in keywords
+
+
 def test_installed_layout_runs_like_ros2_run(tmp_path):
     """colcon's install form (executable, ament index, config, launch file), then launch the way
     ``ros2 run`` finds executables."""
