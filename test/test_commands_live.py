@@ -33,6 +33,14 @@ def _dmf_sim(args, env, timeout=120):
                           capture_output=True, text=True, timeout=timeout)
 
 
+def _kill(procs) -> None:
+    """End the subprocesses this test started that still run (by their own pid)."""
+    for p in procs:
+        if p.poll() is None:
+            p.kill()
+            p.wait(timeout=10)
+
+
 def _frames(text: str) -> list[dict[str, str]]:
     """--plain output -> one dict per frame: label -> text."""
     out = []
@@ -188,10 +196,7 @@ def test_setpoint_and_monitor_against_a_running_node(tmp_path):
         assert 'live - predicted +0.00010' in last['vs']
         assert last['alarms'].startswith('1.5th-order sub-harmonic present: 0.0163 rad')
     finally:
-        for p in nobody:
-            if p.poll() is None:
-                p.kill()
-                p.wait(timeout=10)
+        _kill(nobody)
         node.stop()
 
 
@@ -286,10 +291,7 @@ def test_monitor_of_one_truck_shows_only_that_truck_over_dds(tmp_path):
                 assert f['node'].startswith(f'/truck{truck}/driveline_node  '), (args, f)
                 assert re.match(rf'{speeds[truck]}\.0 rpm', f['speed']), (args, f)
     finally:
-        for proc in monitors:
-            if proc.poll() is None:
-                proc.kill()
-                proc.wait(timeout=10)
+        _kill(monitors)
         peer.close()
         for n in nodes:
             n.stop()

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import pytest
 import websockets
+from foxglove_client import first_message
 
 from dmf_sim.core.errors import ConfigError
 from dmf_sim.live.foxglove_bridge import (
@@ -236,22 +237,6 @@ def test_layout_for_a_namespaced_node_moves_its_topics_and_selects_its_health():
         foxglove_layout('/truck 1/driveline_node')
 
 
-async def _late_client(url: str, topic: str) -> tuple[int, bytes]:
-    """Connect, subscribe to ``topic``; the first message it gets (log time, payload)."""
-    async with websockets.connect(url, subprotocols=[SUBPROTOCOL]) as ws:
-        channels = {}
-        while topic not in channels:
-            msg = json.loads(await asyncio.wait_for(ws.recv(), 10))
-            if msg['op'] == 'advertise':
-                channels.update({c['topic']: c for c in msg['channels']})
-        await ws.send(json.dumps({'op': 'subscribe', 'subscriptions': [
-            {'id': 3, 'channelId': channels[topic]['id']}]}))
-        while True:
-            data = await asyncio.wait_for(ws.recv(), 10)
-            if isinstance(data, bytes) and data[0] == 0x01:
-                return struct.unpack_from('<Q', data, 5)[0], data[13:]
-
-
 def test_a_client_connecting_after_the_latched_message_gets_it():
     """Issue 20 item 4: the prediction (latched) was published before the client connected;
     the client gets it as soon as it subscribes, as a late transient-local DDS subscriber."""
@@ -262,7 +247,7 @@ def test_a_client_connecting_after_the_latched_message_gets_it():
         new = _diag_cdr(store, {'order_3_rad': '0.02'})
         bridge.publish('/driveline/dmf_orders', old, 5)
         bridge.publish('/driveline/dmf_orders', new, 7)
-        t, payload = asyncio.run(_late_client(bridge.url, '/driveline/dmf_orders'))
+        _, t, payload = first_message(bridge.url, '/driveline/dmf_orders')
         assert t == 7 and payload == new
         with pytest.raises(ConfigError, match='latched topics'):
             FoxgloveBridge(STREAMS, port=0, latched=['/nope'])

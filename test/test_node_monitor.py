@@ -5,39 +5,19 @@ Issue 20 items 3-4: a Foxglove client and a recording that start after the predi
 the bag offers the real QoS, and the layout matches what the node publishes."""
 from __future__ import annotations
 
-import asyncio
-import json
 import socket
 import struct
 from pathlib import Path
 
 import pytest
-import websockets
 from dds_peer import NodeProcess, Peer, new_domain
+from foxglove_client import first_message
 
 
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(('127.0.0.1', 0))
         return s.getsockname()[1]
-
-
-async def _foxglove_channels_and_first(url: str, topic: str):
-    """Connect as a Foxglove client: every advertised channel (topic -> schema name), and the
-    first message of ``topic`` after subscribing (its CDR payload)."""
-    from dmf_sim.live.foxglove_bridge import SUBPROTOCOL
-    async with websockets.connect(url, subprotocols=[SUBPROTOCOL]) as ws:
-        channels = {}
-        while topic not in channels:
-            msg = json.loads(await asyncio.wait_for(ws.recv(), 10))
-            if msg['op'] == 'advertise':
-                channels.update({c['topic']: c for c in msg['channels']})
-        await ws.send(json.dumps({'op': 'subscribe', 'subscriptions': [
-            {'id': 1, 'channelId': channels[topic]['id']}]}))
-        while True:
-            data = await asyncio.wait_for(ws.recv(), 10)
-            if isinstance(data, bytes) and data[0] == 0x01:
-                return {t: c['schemaName'] for t, c in channels.items()}, data[13:]
 
 
 def _layout_topics(layout: dict) -> dict[str, str]:
@@ -53,24 +33,6 @@ def _layout_topics(layout: dict) -> dict[str, str]:
         if 'topicToRender' in cfg:
             out[cfg['topicToRender']] = 'diagnostic_msgs/msg/DiagnosticArray'
     return out
-
-
-async def _foxglove_windup(url: str, topic: str) -> float:
-    """Connect as a Foxglove client, subscribe to ``topic`` (std_msgs/Float64), decode one."""
-    from dmf_sim.live.foxglove_bridge import SUBPROTOCOL
-    async with websockets.connect(url, subprotocols=[SUBPROTOCOL]) as ws:
-        channels = {}
-        while topic not in channels:
-            msg = json.loads(await asyncio.wait_for(ws.recv(), 10))
-            if msg['op'] == 'advertise':
-                channels.update({c['topic']: c for c in msg['channels']})
-        assert channels[topic]['schemaName'] == 'std_msgs/msg/Float64'
-        await ws.send(json.dumps({'op': 'subscribe', 'subscriptions': [
-            {'id': 1, 'channelId': channels[topic]['id']}]}))
-        while True:
-            data = await asyncio.wait_for(ws.recv(), 10)
-            if isinstance(data, bytes) and data[0] == 0x01:
-                return struct.unpack_from('<d', data, 13 + 4)[0]    # CDR header, then float64
 
 
 def test_node_publishes_cycle_orders_prediction_and_serves_foxglove(tmp_path: Path):
@@ -107,7 +69,10 @@ def test_node_publishes_cycle_orders_prediction_and_serves_foxglove(tmp_path: Pa
         health = peer.diagnostics('/truck7/driveline_node: driveline simulation')
         assert health and health['_hardware_id'] == '/truck7/driveline_node'
         # Foxglove: the node's own wind-up stream over the WebSocket protocol
-        w = asyncio.run(_foxglove_windup(f'ws://127.0.0.1:{port}', '/truck7/driveline/dmf_windup'))
+        channels, _, payload = first_message(f'ws://127.0.0.1:{port}',
+                                             '/truck7/driveline/dmf_windup')
+        assert channels['/truck7/driveline/dmf_windup'] == 'std_msgs/msg/Float64'
+        w = struct.unpack_from('<d', payload, 4)[0]        # CDR header, then float64
         assert 0.0 < w < 0.6
         assert f'Foxglove server at ws://127.0.0.1:{port}' in node.output()
 
@@ -118,8 +83,8 @@ def test_node_publishes_cycle_orders_prediction_and_serves_foxglove(tmp_path: Pa
 
         from dmf_sim.live.foxglove_bridge import foxglove_layout
         store = get_typestore(Stores.ROS2_JAZZY)
-        channels, payload = asyncio.run(_foxglove_channels_and_first(
-            f'ws://127.0.0.1:{port}', '/truck7/driveline/dmf_predicted'))
+        channels, _, payload = first_message(f'ws://127.0.0.1:{port}',
+                                             '/truck7/driveline/dmf_predicted')
         late = store.deserialize_cdr(payload, 'diagnostic_msgs/msg/DiagnosticArray')
         assert late.status[0].name == predicted[-1].status[0].name
         assert late.status[0].message == predicted[-1].status[0].message
