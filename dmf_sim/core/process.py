@@ -23,7 +23,8 @@ def die_with_parent(signum: int = signal.SIGKILL) -> bool:
     try:
         import ctypes
         libc = ctypes.CDLL(None, use_errno=True)
-        return libc.prctl(PR_SET_PDEATHSIG, int(signum), 0, 0, 0) == 0
+        zero = ctypes.c_ulong(0)            # prctl reads its arguments as unsigned long
+        return libc.prctl(PR_SET_PDEATHSIG, ctypes.c_ulong(int(signum)), zero, zero, zero) == 0
     except (OSError, AttributeError):
         return False
 
