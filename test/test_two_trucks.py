@@ -1,14 +1,17 @@
-"""The node ends cleanly when its launch parent dies (issue 20 item 7).
+"""Two trucks in two namespaces under one launch parent, over real DDS (a domain from
+DMF_SIM_TEST_DOMAINS); one pair of node starts serves two fixes of issue 20:
 
-``ros2 launch ... &`` from a script ignores SIGINT; SIGTERM then ended launch and left the node
-running and recording. Here a parent process starts two namespaced nodes (as a launch file of
-two trucks does) and is SIGKILLed: both nodes must stop the way Ctrl-C stops them, closing
-complete bags. Over real DDS on a domain from DMF_SIM_TEST_DOMAINS.
+* item 2: ``dmf-sim monitor --namespace /truck1`` (and ``--node /truck1/driveline_node``)
+  showed the other truck's health; every frame must show its own truck's node and speed;
+* item 7: ``ros2 launch ... &`` from a script ignores SIGINT; SIGTERM then ended launch and left
+  the node running and recording. The parent is SIGKILLed: both nodes must stop the way Ctrl-C
+  stops them, closing complete bags.
 """
 from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -18,6 +21,7 @@ from pathlib import Path
 import yaml
 from dds_peer import START_TIMEOUT, Peer, new_domain
 from mcap.reader import make_reader
+from test_commands_live import _frames, _kill
 
 PARENT = '''
 import json, subprocess, sys, time
@@ -38,7 +42,28 @@ def _gone(pid: int) -> bool:
     return state in ('Z', 'X')
 
 
-def test_nodes_close_their_bags_when_the_launch_parent_dies(tmp_path):
+def _monitors_show_their_own_truck(env: dict, speeds: dict) -> None:
+    """Item 2: three monitors at once; every frame shows the selected truck's node and speed."""
+    cases = [(['--namespace', '/truck1'], 1), (['--node', '/truck1/driveline_node'], 1),
+             (['--namespace', '/truck2', '--node', 'driveline_node'], 2)]
+    monitors = [subprocess.Popen([sys.executable, '-m', 'dmf_sim.cli', 'monitor', *args,
+                                  '--plain', '--rate', '4', '--duration', '3'],
+                                 env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                 text=True) for args, _ in cases]
+    try:
+        for proc, (args, truck) in zip(monitors, cases):
+            out, err = proc.communicate(timeout=120)
+            assert proc.returncode == 0, err
+            frames = [f for f in _frames(out) if 'speed' in f]
+            assert len(frames) >= 3, (args, out)
+            for f in frames:
+                assert f['node'].startswith(f'/truck{truck}/driveline_node  '), (args, f)
+                assert re.match(rf'{speeds[truck]}\.0 rpm', f['speed']), (args, f)
+    finally:
+        _kill(monitors)
+
+
+def test_two_trucks_monitor_apart_and_end_with_their_launch_parent(tmp_path):
     from std_msgs.msg import Float64
 
     domain = new_domain()
@@ -46,9 +71,11 @@ def test_nodes_close_their_bags_when_the_launch_parent_dies(tmp_path):
                PYTHONUNBUFFERED='1')
     bags = {i: tmp_path / f'truck{i}_bag' for i in (1, 2)}
     logs = {i: tmp_path / f'truck{i}.log' for i in (1, 2)}
+    speeds = {1: 800, 2: 1200}
     cmds = [([sys.executable, '-m', 'dmf_sim.node', '--ros-args', '-r', f'__ns:=/truck{i}',
               '-p', 'record:=true', '-p', f'bag_path:={bags[i]}', '-p', 'monitor:=false',
-              '-p', 'publish_rate:=200.0'], str(logs[i])) for i in (1, 2)]
+              '-p', 'publish_rate:=200.0', '-p', f'initial_speed_rpm:={float(speeds[i])}',
+              '-p', 'diagnostics_rate:=4.0'], str(logs[i])) for i in (1, 2)]
     parent = subprocess.Popen([sys.executable, '-c', PARENT, json.dumps(cmds)], env=env,
                               cwd=tmp_path, stdout=subprocess.PIPE, text=True)
     pids = [int(p) for p in parent.stdout.readline().split()]
@@ -59,6 +86,7 @@ def test_nodes_close_their_bags_when_the_launch_parent_dies(tmp_path):
         assert peer.spin_until(lambda: all(peer.counts[f'/truck{i}/engine/speed'] > 20
                                            for i in (1, 2)), 2 * START_TIMEOUT), \
             [log.read_text() for log in logs.values()]
+        _monitors_show_their_own_truck(env, speeds)
         peer.spin_for(0.5)
         seen = {i: peer.counts[f'/truck{i}/engine/speed'] for i in (1, 2)}
         parent.send_signal(signal.SIGKILL)        # launch killed: nobody forwards a signal
