@@ -220,8 +220,17 @@ def test_layout_is_a_foxglove_layout_of_the_node_s_topics_and_keys():
             assert key in allowed, path
 
 
-def test_layout_for_a_namespaced_node_moves_its_topics_and_selects_its_health():
-    """Issue 20 item 4: the layout for /truck1/driveline_node (``dmf-sim foxglove-layout``)."""
+def test_layout_for_a_namespaced_node_moves_its_topics_and_selects_its_health(tmp_path, capsys):
+    """Issue 20 item 4: the layout for /truck1/driveline_node (``dmf-sim monitor --namespace
+    /truck1 --foxglove-layout FILE``)."""
+    from dmf_sim.cli import main
+
+    out = tmp_path / 'truck1.json'
+    assert main(['monitor', '--namespace', '/truck1', '--foxglove-layout', str(out)]) == 0
+    assert json.loads(out.read_text()) == foxglove_layout('/truck1/driveline_node')
+    assert main(['monitor', '--node', '/truck1/driveline_node', '--foxglove-layout',
+                 str(out)]) == 2                                 # never overwritten
+    assert 'exists already' in capsys.readouterr().err
     base, layout = foxglove_layout(), foxglove_layout('/truck1/driveline_node')
     assert base == json.loads(LAYOUT.read_text())          # the shipped file is the default
     assert layout['globalVariables'] == {'node': '/truck1/driveline_node'}

@@ -530,7 +530,7 @@ def test_installed_layout_runs_like_ros2_run(tmp_path):
     # looks), not on PATH, and run from there: `ros2 run dmf_sim dmf-sim --help`
     lib = Path(found_prefix) / 'lib' / 'dmf_sim'
     assert not (prefix / 'bin' / 'dmf-sim').exists()
-    for exe_name, words in (('dmf-sim', ('usage: dmf-sim', 'monitor', 'foxglove-layout')),
+    for exe_name, words in (('dmf-sim', ('usage: dmf-sim', 'monitor', 'setpoint')),
                             ('driveline_node', ('ros2 run dmf_sim driveline_node',
                                                 'driveline/dmf_predicted', 'Ctrl-C'))):
         script = lib / exe_name

@@ -14,6 +14,7 @@ import argparse
 import math
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 from dmf_sim.commands._ros import NodeSelector, select_node
 from dmf_sim.core.errors import ConfigError, NoResponseError
@@ -46,6 +47,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     end.add_argument('--duration', type=float, metavar='S', help='exit after S seconds')
     parser.add_argument('--timeout', type=float, default=15.0, metavar='S',
                         help='with --once: seconds to wait for the node (default 15)')
+    end.add_argument('--foxglove-layout', type=Path, metavar='FILE',
+                     help='write the Foxglove layout for this node (--namespace/--node: its '
+                          'topics, its health status selected by its full name) to the new '
+                          'FILE and exit; needs no running node')
 
 
 # ------------------------------------------------------------------------------------------------
@@ -224,6 +229,8 @@ def run(args: argparse.Namespace) -> int:
     if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
         raise ConfigError(f'--duration must be > 0 s, got {args.duration!r}')
     view = MonitorView(node=select_node(args.namespace, args.node))
+    if args.foxglove_layout is not None:
+        return _write_layout(args.foxglove_layout, view.node)
     with ros_session('dmf_sim_monitor', view.node.namespace) as (rclpy, node, executor):
         from diagnostic_msgs.msg import DiagnosticArray
 
@@ -243,6 +250,23 @@ def run(args: argparse.Namespace) -> int:
             return _loop(args, view, executor, title)
         except KeyboardInterrupt:
             return 0
+
+
+def _write_layout(path: Path, node: NodeSelector) -> int:
+    """``--foxglove-layout FILE``: the shipped layout for this node, never overwriting."""
+    import json
+
+    from dmf_sim.live.foxglove_bridge import DEFAULT_NODE, foxglove_layout
+
+    fqn = node.fqn or f'{node.namespace}{DEFAULT_NODE}'
+    if path.exists() or path.is_symlink():
+        raise ConfigError(f'--foxglove-layout {path} exists already; not overwriting it')
+    try:
+        path.write_text(json.dumps(foxglove_layout(fqn), indent=2) + '\n', encoding='utf-8')
+    except OSError as exc:
+        raise ConfigError(f'--foxglove-layout {path}: {exc.strerror or exc}') from None
+    print(f'wrote {path}: Foxglove layout for {fqn} (Layouts > Import from file)')
+    return 0
 
 
 def _loop(args, view: MonitorView, executor, title: str) -> int:

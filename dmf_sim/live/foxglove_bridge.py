@@ -137,7 +137,7 @@ class FoxgloveBridge:
 def foxglove_hint(url: str, node: str) -> str:
     """The node's start-up line about its Foxglove server: where, and which layout."""
     layout = (f'config/{LAYOUT_FILE}' if node == DEFAULT_NODE else
-              f'`dmf-sim foxglove-layout --node {node} --out layout.json`')
+              f'`dmf-sim monitor --node {node} --foxglove-layout layout.json`')
     return (f'Foxglove server at {url} (Foxglove: Open connection > Foxglove WebSocket > {url}; '
             f'import the layout {layout})')
 
@@ -149,7 +149,8 @@ def foxglove_layout(node: str = DEFAULT_NODE) -> dict:
     publishes (its full name) in the Diagnostic Status panel and the ``$node`` variable.
 
     Foxglove's Diagnostic Status panel shows one hardware id and cannot take a variable, so a
-    namespaced node needs this rewritten layout (``dmf-sim foxglove-layout --node NAME``);
+    namespaced node needs this rewritten layout (``dmf-sim monitor --node NAME
+    --foxglove-layout FILE``);
     the Diagnostics Summary panel lists every node's statuses anyway."""
     import json
 
