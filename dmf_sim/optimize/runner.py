@@ -190,7 +190,9 @@ def run_optimization(problem, client=None, *, out=None, resume: bool = False,
                 client.wait_for_workers(len(cluster.workers))
             n_workers = wait_for_workers(client)
             run.compute(client, todo, _bar(progress, problem.budget, run.n_finished))
-        result = finish(problem, (store.rows if store else []) + run.rows,
+        rows = [r for r in (store.rows if store else []) + run.rows
+                if r['design_id'] < problem.budget]   # a smaller budget: the first designs
+        result = finish(problem, rows,
                         n_computed=run.n_computed, seconds=time.perf_counter() - t0,
                         workers=n_workers)
         if store:

@@ -6,7 +6,8 @@ metrics put it), :func:`verify_worst` runs
 * shots: steady-state Newmark runs at that speed from several initial states (the static
   equilibrium and offsets of the wind-up and its rate along the two modes with the most strain
   energy in the DMF, ``dmf_sim.steady.dmf_modes``), and
-* run-ups: slow speed ramps through a window around that speed, up and down (the live node's
+* run-ups: slow speed ramps through a window around that speed (inside the study's speed
+  range), up to it and down to it (the live node's
   equation: excitation phase = integral of the speed, d'Alembert loads), each started from a
   settled state at the window's end,
 
@@ -87,13 +88,17 @@ def verify_design(problem, row: dict, settings: VerifySettings | None = None) ->
         out.append(verify_worst(line, study.engines[cond.load_set], cond.load,
                                 float(row[f'{obj}_rpm']), obj, float(row[obj]),
                                 ctx.settings.torque_element, s, row['design_id'], cond.label,
-                                study.speeds_rpm[2]))
+                                study.speeds_rpm))
     return out
 
 
 def verify_worst(line, engine, load: float, speed_rpm: float, objective: str, hbm_value: float,
                  torque_element: int, s: VerifySettings, design_id: int = -1,
-                 condition: str = '', step_rpm: float = 10.0) -> Check:
+                 condition: str = '', speeds_rpm: tuple[float, float, float] | None = None
+                 ) -> Check:
+    """The time-domain check of one worst value (see the module docstring); ``speeds_rpm``:
+    the study's speed grid (from, to, step): the run-ups stay inside it."""
+    lo_s, hi_s, step_rpm = speeds_rpm or (0.0, math.inf, 10.0)
     from dmf_sim.loads import DrivelineLoads
     from dmf_sim.newmark import simulate
     from dmf_sim.steady import dmf_modes
@@ -116,10 +121,10 @@ def verify_worst(line, engine, load: float, speed_rpm: float, objective: str, hb
     run_up = math.nan
     if s.run_ups:
         vals = []
-        for start, end in ((speed_rpm - s.window_rpm, speed_rpm + s.window_rpm),
-                           (speed_rpm + s.window_rpm, speed_rpm - s.window_rpm)):
-            lo, hi = getattr(engine, 'speed_range_rpm', (0.0, math.inf))
-            start = min(max(start, lo), hi)
+        a, b = max(speed_rpm - s.window_rpm, lo_s), min(speed_rpm + s.window_rpm, hi_s)
+        for start, end in ((a, b), (b, a)):
+            if start == speed_rpm:          # the worst speed at the grid's end: one way only
+                continue
             first = simulate(loads, start, load, dt=s.dt, max_cycles=s.max_cycles,
                              steady_tol=s.steady_tol, eval_cycles=1)
             init = (first.q[-1], first.v[-1])
@@ -127,7 +132,8 @@ def verify_worst(line, engine, load: float, speed_rpm: float, objective: str, hb
             r = simulate(loads, start, load, t_end=t_end, target_speed_rpm=end,
                          ramp_rpm_per_s=s.ramp_rpm_per_s, dt=s.dt, initial=init)
             v, speeds = _cycle_values(r, model, signal, n, torque_element, with_speed=True)
-            near = np.abs(speeds - speed_rpm) <= step_rpm / 2.0
+            near = (np.abs(speeds - speed_rpm) <= step_rpm / 2.0) & (speeds >= lo_s) \
+                & (speeds <= hi_s)
             if near.any():
                 vals.append(float(np.max(v[near])))
         run_up = max(vals) if vals else math.nan
