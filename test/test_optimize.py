@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from dmf_sim.cli import main as cli_main
+from dmf_sim.core.errors import ConfigError
 from dmf_sim.design.parameters import design_driveline
 from dmf_sim.design.runner import local_cluster
-from dmf_sim.errors import ConfigError
 from dmf_sim.optimize import load_problem, run_optimization
 from dmf_sim.optimize.constraints import rank
 from dmf_sim.optimize.hypervolume import hypervolume, hypervolume_history
@@ -206,7 +206,7 @@ def test_absolute_later_stage_angle_asks_for_an_increment():
 def test_cli_report_yaml_designs_and_json(client, tmp_path, capsys):
     import yaml
 
-    from dmf_sim.model import load_driveline
+    from dmf_sim.physics.model import load_driveline
     study = tmp_path / 'study.yaml'
     study.write_text(yaml.safe_dump(_problem(budget=4, batch_size=4)))
     out = tmp_path / 'out'

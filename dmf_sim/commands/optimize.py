@@ -6,7 +6,7 @@ import sys
 import time
 from pathlib import Path
 
-from dmf_sim.errors import ConfigError
+from dmf_sim.core.errors import ConfigError
 
 NAME = 'optimize'
 HELP = ('Optimize the DMF spring of a study file with an optimizer section (NSGA-II or TPE, '
@@ -47,7 +47,7 @@ def run(args) -> int:
     from dmf_sim.design.runner import connect, local_cluster
     from dmf_sim.design.table import ResultStore
     from dmf_sim.optimize.problem import load_problem
-    from dmf_sim.optimize.runner import BASELINE_DIR, EXTRA, baseline_problem
+    from dmf_sim.optimize.runner import BASELINE_DIR, EXTRA
 
     if args.workers is not None and args.workers < 1:
         raise ConfigError(f'--workers {args.workers}: must be >= 1')

@@ -1,7 +1,8 @@
 """What a real DMF spring must meet (issue 23), as constraint values (> 0: violated).
 
 * ``capacity``: the spring reaches the torque capacity before its travel ends,
-  ``T(max_travel_rad) >= capacity`` (T the spring's full torque, dmf_sim.spring). The capacity
+  ``T(max_travel_rad) >= capacity`` (T the spring's full torque, dmf_sim.physics.spring). The
+  capacity
   is ``capacity_nm`` or ``capacity_factor`` (default :data:`DEFAULT_CAPACITY_FACTOR`) times the
   engine's largest mean torque (full load, every load set, the study's speed grid).
 * ``dmf_torque`` (``max_dmf_torque: true``, the default): the largest DMF torque in operation
@@ -22,9 +23,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from dmf_sim.core.errors import ConfigError
 from dmf_sim.design.metrics import OBJECTIVES
 from dmf_sim.design.states import speed_grid
-from dmf_sim.errors import ConfigError
 
 DEFAULT_CAPACITY_FACTOR = 1.2
 """Torque capacity / engine's largest mean torque (the issue's default margin)."""

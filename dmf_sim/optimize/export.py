@@ -12,9 +12,9 @@ from dmf_sim.design.parameters import design_driveline
 
 def design_yaml(problem, row: dict) -> str:
     """The driveline YAML text of a design's summary row (validated by loading it back)."""
+    from dmf_sim.core.paths import config_file
     from dmf_sim.design.evaluate import StudyContext
-    from dmf_sim.model import driveline_from_dict
-    from dmf_sim.paths import config_file
+    from dmf_sim.physics.model import driveline_from_dict
     study = problem.study
     ctx = StudyContext.from_study(study)
     line = design_driveline(study.base, ctx.design_values([row[v] for v in study.variable_names]))

@@ -40,9 +40,9 @@ from pathlib import Path
 
 import numpy as np
 
+from dmf_sim.core.errors import ConfigError
 from dmf_sim.design.parameters import Parameter, parse_parameter
 from dmf_sim.design.study import Study, study_from_dict
-from dmf_sim.errors import ConfigError
 from dmf_sim.optimize.constraints import Constraints, parse_constraints
 
 METHODS = {
@@ -154,7 +154,7 @@ def load_problem(source, *, budget: int | None = None) -> Problem:
     ``budget`` overrides the file's."""
     if isinstance(source, Problem):
         return source if budget is None else source.with_method(source.method, budget=budget)
-    from dmf_sim.paths import read_yaml_mapping
+    from dmf_sim.core.paths import read_yaml_mapping
     if isinstance(source, dict):
         prob = problem_from_dict(source, 'study', base_dir=Path.cwd())
     else:

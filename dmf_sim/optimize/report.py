@@ -153,7 +153,8 @@ def pareto_figure(result, baseline, ref: dict) -> Figure:
                 color=color, ms=4, label=f'{name}: Pareto front ({len(front)})')
     if result.best_id is not None:
         b = result.design(result.best_id)
-        ax.plot(b[o1], b[o2], '*', color='tab:orange', ms=15, label=f'best: design {b["design_id"]}')
+        ax.plot(b[o1], b[o2], '*', color='tab:orange', ms=15,
+                label=f'best: design {b["design_id"]}')
     if ref['status'] == 'ok':
         ax.plot(ref[o1], ref[o2], 's', color='tab:red', ms=8,
                 label='paper (α 3, θ 0.24)' + ('' if ref['feasible'] else ', infeasible'))
@@ -294,7 +295,8 @@ def _blocks(result, baseline, ref, hv, bvp, exported, seconds, front) -> list[Bl
               if c.max_travel_rad is not None else 'no travel constraint')
     b.append(Block('p', f'{p.method} ({p.budget} designs, {p.batch_size} per generation, seed '
                         f'{p.seed}) on {len(p.variables)} variables '
-                        f'({", ".join(p.names)}); objectives {", ".join(p.objectives)} (minimized, '
+                        f'({", ".join(p.names)}); objectives {", ".join(p.objectives)} '
+                        '(minimized, '
                         f'worst over conditions {", ".join(x.label for x in s.conditions)}, every '
                         f'stable state and the non-periodic envelopes); constraints: {travel}'
                         + (f', largest DMF torque in operation <= {c.capacity_nm:.0f} Nm'
@@ -305,7 +307,8 @@ def _blocks(result, baseline, ref, hv, bvp, exported, seconds, front) -> list[Bl
                            if c.capacity_factor else '.')))
     b.append(Block('p', f'{result.n_designs} designs, {n_feas} feasible, '
                         f'{sum(r["status"] != "ok" for r in result.rows("design"))} failed; '
-                        f'{len(front)} on the feasible Pareto front. Computed in {seconds:.0f} s.'))
+                        f'{len(front)} on the feasible Pareto front. Computed in '
+                        f'{seconds:.0f} s.'))
     b.append(Block('h2', 'Optimizer vs Latin hypercube (same budget)'))
     if baseline is not None:
         b.append(Block('p', f'Hypervolume of the feasible designs (reference point '

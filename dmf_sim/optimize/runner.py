@@ -26,10 +26,10 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
+from dmf_sim.core.errors import ConfigError, one_line
 from dmf_sim.design.evaluate import StudyContext, evaluate_batch
 from dmf_sim.design.runner import StudyPlugin, _bar, local_cluster, wait_for_workers
 from dmf_sim.design.table import ResultStore, sort_rows, to_table
-from dmf_sim.errors import ConfigError, one_line
 from dmf_sim.optimize.constraints import rank, violation
 from dmf_sim.optimize.hypervolume import hypervolume_history
 from dmf_sim.optimize.problem import Problem, load_problem, unit_to_values

@@ -5,14 +5,14 @@ metrics put it), :func:`verify_worst` runs
 
 * shots: steady-state Newmark runs at that speed from several initial states (the static
   equilibrium and offsets of the wind-up and its rate along the two modes with the most strain
-  energy in the DMF, ``dmf_sim.steady.dmf_modes``), and
+  energy in the DMF, ``dmf_sim.solvers.steady.dmf_modes``), and
 * run-ups: slow speed ramps through a window around that speed (inside the study's speed
   range), up to it and down to it (the live node's
   equation: excitation phase = integral of the speed, d'Alembert loads), each started from a
   settled state at the window's end,
 
-and takes the objective's quantity per engine cycle (``dmf_sim.cycle_orders``): the wind-up's
-1.5th / 3rd order, or the 3rd-order torque into the torque element (``ReducedModel.
+and takes the objective's quantity per engine cycle (``dmf_sim.analysis.cycle_orders``): the
+wind-up's 1.5th / 3rd order, or the 3rd-order torque into the torque element (``ReducedModel.
 transmitted_torques`` of the recorded states). The shots' largest value is the time-domain worst
 value compared with the harmonic-balance one; the run-ups' largest value near the speed is
 reported beside it, over the cycles within half a grid step of the speed (a ramp passes
@@ -26,7 +26,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from dmf_sim.design.parameters import design_driveline
-from dmf_sim.orders import ORDER_1_5, ORDER_3
+from dmf_sim.physics.orders import ORDER_1_5, ORDER_3
 
 VERIFIABLE = {'worst_order_1_5': ('windup', ORDER_1_5), 'worst_order_3': ('windup', ORDER_3),
               'worst_torque_3': ('torque', ORDER_3)}
@@ -99,9 +99,9 @@ def verify_worst(line, engine, load: float, speed_rpm: float, objective: str, hb
     """The time-domain check of one worst value (see the module docstring); ``speeds_rpm``:
     the study's speed grid (from, to, step): the run-ups stay inside it."""
     lo_s, hi_s, step_rpm = speeds_rpm or (0.0, math.inf, 10.0)
-    from dmf_sim.loads import DrivelineLoads
-    from dmf_sim.newmark import simulate
-    from dmf_sim.steady import dmf_modes
+    from dmf_sim.physics.loads import DrivelineLoads
+    from dmf_sim.solvers.newmark import simulate
+    from dmf_sim.solvers.steady import dmf_modes
     signal, n = VERIFIABLE[objective]
     loads = DrivelineLoads(line.reduce(), engine)
     model = loads.model
@@ -143,7 +143,7 @@ def verify_worst(line, engine, load: float, speed_rpm: float, objective: str, hb
 
 def _cycle_values(r, model, signal: str, n: int, element: int, with_speed: bool = False):
     """Amplitude of half order ``n`` of the signal per whole engine cycle of a Newmark run."""
-    from dmf_sim.cycle_orders import angle_cycle_orders
+    from dmf_sim.analysis.cycle_orders import angle_cycle_orders
     if signal == 'windup':
         x = r.windup
     else:
