@@ -6,6 +6,7 @@ import sys
 import time
 from pathlib import Path
 
+from dmf_sim.commands._options import add_cluster, check_cluster
 from dmf_sim.core.errors import ConfigError
 
 NAME = 'optimize'
@@ -26,13 +27,7 @@ def add_arguments(p) -> None:
                    help='continue the optimization stored in --out (finished designs are not '
                         'recomputed; a larger --budget extends it)')
     p.add_argument('--budget', type=int, help='designs in all (default: the study file\'s)')
-    p.add_argument('--scheduler', metavar='ADDRESS',
-                   help='use an existing Dask cluster, e.g. tcp://HOST:8786 (default: a local '
-                        'cluster on this machine)')
-    p.add_argument('--workers', type=int,
-                   help='worker processes of the local cluster (default: one per core)')
-    p.add_argument('--connect-timeout', type=float, default=5.0,
-                   help='seconds to wait for --scheduler to answer (default 5)')
+    add_cluster(p)
     p.add_argument('--no-baseline', action='store_true',
                    help='skip the Latin-hypercube run of the same budget (in --out/baseline)')
     p.add_argument('--verify', type=int, default=DEFAULT_VERIFY, metavar='N',
@@ -49,15 +44,9 @@ def run(args) -> int:
     from dmf_sim.optimize.problem import load_problem
     from dmf_sim.optimize.runner import BASELINE_DIR, EXTRA
 
-    if args.workers is not None and args.workers < 1:
-        raise ConfigError(f'--workers {args.workers}: must be >= 1')
-    if args.workers is not None and args.scheduler:
-        raise ConfigError('--workers sizes the local cluster; with --scheduler the cluster '
-                          'brings its own workers (leave out one of them)')
+    check_cluster(args)
     if args.verify < 0:
         raise ConfigError(f'--verify {args.verify}: must be >= 0')
-    if not args.connect_timeout > 0:
-        raise ConfigError(f'--connect-timeout {args.connect_timeout}: must be > 0 s')
     problem = load_problem(args.study, budget=args.budget)
     ResultStore(args.out, problem.study, args.resume, extra=EXTRA)   # --out/--resume first
     t0 = time.perf_counter()
