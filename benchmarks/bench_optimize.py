@@ -46,16 +46,6 @@ QUICK_STUDY = {
 }
 
 
-def _cluster(workers: int):
-    from distributed import Client
-
-    from dmf_sim.design.runner import local_cluster
-    cluster = local_cluster(workers)
-    client = Client(cluster)
-    client.wait_for_workers(workers)
-    return cluster, client
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     ap.add_argument('--study', default='config/optimize_example.yaml')
@@ -65,6 +55,7 @@ def main(argv=None) -> int:
     ap.add_argument('--rate-budget', type=int, default=16)
     ap.add_argument('--quick', action='store_true')
     args = ap.parse_args(argv)
+    from dmf_sim.design.runner import close_local, start_local
     from dmf_sim.optimize import load_problem, run_optimization
     from dmf_sim.optimize.report import (
         common_hypervolumes,
@@ -87,7 +78,7 @@ def main(argv=None) -> int:
     load_before = os.getloadavg()
     t_start = time.strftime('%Y-%m-%d %H:%M:%S %Z')
     ratios, first = [], None
-    cluster, client = _cluster(2)
+    cluster, client = start_local(2)
     try:
         for seed in seeds:
             prob = base.with_method(base.method, seed=seed)
@@ -101,8 +92,7 @@ def main(argv=None) -> int:
                   f'({time.perf_counter() - t0:.0f} s)', file=sys.stderr, flush=True)
             first = first or (res, lhs)
     finally:
-        client.close()
-        cluster.close()
+        close_local(cluster, client)
     res, lhs = first
     ref = reference_design(res.problem)
     bvp = compare_with_reference(res, ref)
@@ -118,14 +108,13 @@ def main(argv=None) -> int:
               f'{c.run_up:.5g}', file=sys.stderr, flush=True)
     rates = {}
     for workers in (1, 2):
-        cluster, client = _cluster(workers)
+        cluster, client = start_local(workers)
         try:
             with tempfile.TemporaryDirectory() as tmp:
                 r = run_optimization(base, client, out=Path(tmp), budget=rate_budget)
             rates[workers] = r.n_computed / r.seconds
         finally:
-            client.close()
-            cluster.close()
+            close_local(cluster, client)
     finite = [x for x in ratios if x == x and x != float('inf')]
     out = {
         'quick': bool(args.quick), 'study': base.study.name, 'method': base.method,

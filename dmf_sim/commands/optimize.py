@@ -39,7 +39,7 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
-    from dmf_sim.design.runner import connect, local_cluster
+    from dmf_sim.design.runner import close_local, connect, start_local
     from dmf_sim.design.table import ResultStore
     from dmf_sim.optimize.problem import load_problem
     from dmf_sim.optimize.runner import BASELINE_DIR, EXTRA
@@ -54,10 +54,7 @@ def run(args) -> int:
     if args.scheduler:
         client, cluster = connect(args.scheduler, args.connect_timeout), None
     else:
-        from distributed import Client
-        cluster = local_cluster(args.workers)
-        client = Client(cluster)
-        client.wait_for_workers(len(cluster.workers))
+        cluster, client = start_local(args.workers)
     done = {'run': 'optimizer', 'n': 0}
     try:
         result, baseline = _optimize(problem, client, args, done, say)
@@ -66,9 +63,7 @@ def run(args) -> int:
               f'are stored in {args.out}; continue with --resume', file=sys.stderr)
         return 130
     finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
+        close_local(cluster, client)
     summary = _finish(problem, result, baseline, args, say, time.perf_counter() - t0)
     if baseline is not None:
         summary['baseline_dir'] = str(args.out / BASELINE_DIR)

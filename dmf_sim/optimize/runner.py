@@ -28,7 +28,13 @@ import pyarrow as pa
 
 from dmf_sim.core.errors import ConfigError, one_line
 from dmf_sim.design.evaluate import StudyContext, evaluate_batch
-from dmf_sim.design.runner import StudyPlugin, _bar, local_cluster, wait_for_workers
+from dmf_sim.design.runner import (
+    StudyPlugin,
+    _bar,
+    close_local,
+    start_local,
+    wait_for_workers,
+)
 from dmf_sim.design.table import ResultStore, sort_rows, to_table
 from dmf_sim.optimize.constraints import rank, violation
 from dmf_sim.optimize.hypervolume import hypervolume_history
@@ -74,29 +80,25 @@ class OptimizationResult:
         return len(self.rows('design'))
 
     def summary(self) -> dict:
+        """A design study's summary (``StudyResult.summary``: counts, front, best, failures,
+        throughput, files) plus the optimizer's: method, budget, seed, feasible designs,
+        constraints, final hypervolume, verification."""
+        from dmf_sim.design.result import StudyResult
         p = self.problem
-        s = p.study
-        designs = self.rows('design')
-        keep = ['design_id', *s.variable_names, *s.objectives]
-        front = [{k: r[k] for k in keep} for r in designs if r['pareto']]
-        failed = [r for r in designs if r['status'] != 'ok']
-        return {
-            'study': s.name, 'method': p.method, 'budget': p.budget, 'seed': p.seed,
-            'n_designs': len(designs), 'n_computed': self.n_computed,
-            'n_resumed': len(designs) - self.n_computed,
-            'n_feasible': sum(bool(r['feasible']) for r in designs),
-            'n_failed': len(failed), 'objectives': s.objectives,
-            'constraints': p.constraints.as_dict(), 'pareto': front,
-            'best': ({k: self.design(self.best_id)[k] for k in keep}
-                     if self.best_id is not None else None),
+        out = StudyResult(p.study, self.table, self.pareto_ids, self.best_id,
+                          n_computed=self.n_computed, seconds=self.seconds, workers=self.workers,
+                          files=self.files).summary()
+        for key in ('batch_size', 'context_loads_per_worker'):
+            out.pop(key)
+        out.update({
+            'method': p.method, 'budget': p.budget, 'seed': p.seed,
+            'batch_size': p.batch_size,
+            'n_feasible': sum(bool(r['feasible']) for r in self.rows('design')),
+            'constraints': p.constraints.as_dict(),
             'hypervolume_final': (float(self.hypervolume[-1]) if len(self.hypervolume)
                                   else None),
-            'failed': [{'design_id': r['design_id'], 'error': r['error']} for r in failed],
-            'seconds': self.seconds, 'workers': self.workers,
-            'designs_per_s': self.n_computed / self.seconds if self.seconds > 0 else None,
-            'verification': [v.as_dict() for v in self.verification],
-            'files': self.files,
-        }
+            'verification': [v.as_dict() for v in self.verification]})
+        return out
 
 
 def _sampler(problem: Problem):
@@ -184,10 +186,7 @@ def run_optimization(problem, client=None, *, out=None, resume: bool = False,
         n_workers = 0
         if todo or run.n_finished < problem.budget:
             if own:
-                from distributed import Client
-                cluster = local_cluster(workers)
-                client = Client(cluster)
-                client.wait_for_workers(len(cluster.workers))
+                cluster, client = start_local(workers)
             n_workers = wait_for_workers(client)
             run.compute(client, todo, _bar(progress, problem.budget, run.n_finished))
         rows = [r for r in (store.rows if store else []) + run.rows
@@ -201,10 +200,7 @@ def run_optimization(problem, client=None, *, out=None, resume: bool = False,
         return result
     finally:
         if own:
-            if client is not None:
-                client.close()
-            if cluster is not None:
-                cluster.close()
+            close_local(cluster, client)
         if store:
             store.close()
 
