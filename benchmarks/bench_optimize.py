@@ -34,7 +34,7 @@ from pathlib import Path
 
 QUICK_STUDY = {
     'name': 'bench_optimize_quick', 'driveline': 'truck_dmf', 'engine': 'engine_d13',
-    'variables': {'theta': {'min': 0.16, 'max': 0.30}, 'alpha': {'min': 0.5, 'max': 5.0},
+    'variables': {'theta': {'min': 0.16, 'max': 0.22}, 'alpha': {'min': 0.5, 'max': 5.0},
                   'stages[1].angle_step_rad': {'min': 0.005, 'max': 0.06},
                   'stages[1].stiffness_factor': {'min': 0.5, 'max': 8.0}},
     'conditions': {'load_sets': ['A'], 'loads': [1.0],

@@ -22,7 +22,7 @@ from dmf_sim.optimize.runner import finish
 
 PROBLEM = {   # a cheap problem: 4 variables, one condition, 9 speeds, 8 half orders
     'name': 'test_optimize', 'driveline': 'truck_dmf', 'engine': 'engine_d13',
-    'variables': {'theta': {'min': 0.16, 'max': 0.30}, 'alpha': {'min': 0.5, 'max': 5.0},
+    'variables': {'theta': {'min': 0.16, 'max': 0.22}, 'alpha': {'min': 0.5, 'max': 5.0},
                   'stages[1].angle_step_rad': {'min': 0.005, 'max': 0.06},
                   'stages[1].stiffness_factor': {'min': 0.5, 'max': 8.0}},
     'conditions': {'load_sets': ['A'], 'loads': [1.0],
@@ -149,6 +149,25 @@ def test_resume_after_an_interruption_skips_finished_designs(client, problem, ru
     assert more.n_computed == 2 and more.n_designs == 10
     with pytest.raises(ConfigError, match='another optimization'):
         run_optimization(load_problem(_problem(seed=4)), client, out=tmp_path, resume=True)
+
+
+def test_a_fresh_run_with_resume_enqueues_its_designs(problem, tmp_path):
+    """--resume into an empty directory starts a new run: the Latin hypercube's designs (and a
+    method's initial designs) are enqueued, not left to the fallback sampler (a defect: the
+    journal file was created before asking whether it existed)."""
+    from optuna.trial import TrialState
+
+    from dmf_sim.optimize.runner import _open_study, baseline_problem
+    for sub in ('lhs', 'opt'):
+        (tmp_path / sub).mkdir()
+    lhs = _open_study(baseline_problem(problem), tmp_path / 'lhs', resume=True)
+    waiting = lhs.get_trials(deepcopy=False, states=(TrialState.WAITING,))
+    assert len(waiting) == problem.budget
+    d = _problem(initial=[{'theta': 0.2, 'alpha': 3.0, 'stages[1].angle_step_rad': 0.03,
+                           'stages[1].stiffness_factor': 3.0}])
+    opt = _open_study(load_problem(d), tmp_path / 'opt', resume=True)
+    [first] = opt.get_trials(deepcopy=False, states=(TrialState.WAITING,))
+    assert first.params == d['optimizer']['initial'][0]
 
 
 def test_a_failing_design_is_a_row_and_ranked_last(client, tmp_path):

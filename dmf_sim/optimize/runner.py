@@ -121,11 +121,11 @@ def _open_study(problem: Problem, out: Path | None, resume: bool):
     import optuna
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     storage = None
+    existed = resume and out is not None and (out / JOURNAL).exists()   # before opening it
     if out is not None:
         from optuna.storages import JournalStorage
         from optuna.storages.journal import JournalFileBackend
         storage = JournalStorage(JournalFileBackend(str(out / JOURNAL)))
-    existed = resume and out is not None and (out / JOURNAL).exists()
     study = optuna.create_study(storage=storage, study_name=OPTUNA_STUDY,
                                 directions=['minimize'] * len(problem.objectives),
                                 sampler=_sampler(problem), load_if_exists=existed)
