@@ -166,7 +166,8 @@ def test_a_fresh_run_with_resume_enqueues_its_designs(problem, tmp_path):
     d = _problem(initial=[{'theta': 0.2, 'alpha': 3.0, 'stages[1].angle_step_rad': 0.03,
                            'stages[1].stiffness_factor': 3.0}])
     opt = _open_study(load_problem(d), tmp_path / 'opt', resume=True)
-    [first] = opt.get_trials(deepcopy=False, states=(TrialState.WAITING,))
+    from optuna.distributions import FloatDistribution
+    first = opt.ask({v.name: FloatDistribution(v.low, v.high) for v in problem.variables})
     assert first.params == d['optimizer']['initial'][0]
 
 
