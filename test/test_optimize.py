@@ -255,3 +255,19 @@ def test_cli_bad_study_exits_2_with_one_line(tmp_path, capsys):
     assert cli_main(['optimize', str(study), '--out', str(tmp_path / 'o')]) == 2
     err = capsys.readouterr().err.strip()
     assert 'optimizer.method' in err and len(err.splitlines()) == 1
+
+
+def test_benchmark_quick():
+    import subprocess
+    import sys
+    from pathlib import Path
+    repo = Path(__file__).resolve().parents[1]
+    out = subprocess.run([sys.executable, str(repo / 'benchmarks' / 'bench_optimize.py'),
+                          '--quick'], capture_output=True, text=True, timeout=900, cwd=repo)
+    assert out.returncode == 0, out.stderr[-2000:]
+    data = json.loads(out.stdout.strip().splitlines()[-1])
+    assert data['quick'] is True and len(data['hypervolume_ratio_per_seed']) == 2
+    assert data['hypervolume_ratio'] > 0 and data['designs_per_s_1'] > 0
+    assert data['designs_per_s_2'] > 0
+    assert 0 <= data['verified_max_rel_diff'] < 0.05
+    assert 'dominates_paper' in data['best_vs_paper']

@@ -184,7 +184,7 @@ def run_optimization(problem, client=None, *, out=None, resume: bool = False,
         run = _Run(problem, ostudy, store, on_batch)
         todo = run.reconcile()
         n_workers = 0
-        if todo or run.n_finished < problem.budget:
+        if run.n_finished < problem.budget:      # (left-over running trials wait for it)
             if own:
                 cluster, client = start_local(workers)
             n_workers = wait_for_workers(client)
