@@ -69,7 +69,8 @@ def main(argv=None) -> int:
     settings = VerifySettings()
     if args.quick:
         source, budget, seeds, n_verify, rate_budget = QUICK_STUDY, 8, [1, 2], 1, 4
-        settings = VerifySettings(dt=1e-4, offsets=(0.0, 1.0), window_rpm=10.0, max_cycles=150)
+        settings = VerifySettings(dt=1e-4, offsets=(0.0, 1.0), window_rpm=10.0,
+                                  max_cycles=150, steady_tol=1e-3)
     else:
         source, budget, seeds = args.study, args.budget, args.seeds
         n_verify, rate_budget = args.verify, args.rate_budget
