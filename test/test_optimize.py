@@ -5,8 +5,10 @@ spring's physics; HBM worst values agree with the time domain; bad study files a
 from __future__ import annotations
 
 import copy
+import importlib.util
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -20,18 +22,21 @@ from dmf_sim.optimize.constraints import rank
 from dmf_sim.optimize.hypervolume import hypervolume, hypervolume_history
 from dmf_sim.optimize.runner import finish
 
-PROBLEM = {   # a cheap problem: 4 variables, one condition, 9 speeds, 8 half orders
-    'name': 'test_optimize', 'driveline': 'truck_dmf', 'engine': 'engine_d13',
-    'variables': {'theta': {'min': 0.16, 'max': 0.22}, 'alpha': {'min': 0.5, 'max': 5.0},
-                  'stages[1].angle_step_rad': {'min': 0.005, 'max': 0.06},
-                  'stages[1].stiffness_factor': {'min': 0.5, 'max': 8.0}},
-    'conditions': {'load_sets': ['A'], 'loads': [1.0],
-                   'speeds_rpm': {'from': 1400, 'to': 1800, 'step': 50}},
-    'objectives': ['worst_order_3', 'worst_torque_3'],
-    'solver': {'harmonics': 8, 'search': False},
-    'optimizer': {'method': 'nsga2', 'budget': 12, 'batch_size': 4, 'seed': 3,
-                  'constraints': {'max_travel_rad': 0.29, 'capacity_factor': 1.5}},
-}
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _quick_study() -> dict:
+    """The benchmark's cheap problem (4 variables, one condition, 9 speeds, 8 half orders)."""
+    spec = importlib.util.spec_from_file_location('bench_optimize',
+                                                  REPO / 'benchmarks' / 'bench_optimize.py')
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod.QUICK_STUDY
+
+
+PROBLEM = copy.deepcopy(_quick_study())
+PROBLEM['name'] = 'test_optimize'
+PROBLEM['optimizer'].update(budget=12, seed=3)        # three generations of four
 
 
 def _problem(**opt):
@@ -262,10 +267,8 @@ def test_cli_bad_study_exits_2_with_one_line(tmp_path, capsys):
 def test_benchmark_quick():
     import subprocess
     import sys
-    from pathlib import Path
-    repo = Path(__file__).resolve().parents[1]
-    out = subprocess.run([sys.executable, str(repo / 'benchmarks' / 'bench_optimize.py'),
-                          '--quick'], capture_output=True, text=True, timeout=900, cwd=repo)
+    out = subprocess.run([sys.executable, str(REPO / 'benchmarks' / 'bench_optimize.py'),
+                          '--quick'], capture_output=True, text=True, timeout=900, cwd=REPO)
     assert out.returncode == 0, out.stderr[-2000:]
     data = json.loads(out.stdout.strip().splitlines()[-1])
     assert data['quick'] is True and len(data['hypervolume_ratio_per_seed']) == 2

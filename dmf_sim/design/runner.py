@@ -165,6 +165,14 @@ def close_local(cluster, client) -> None:
         cluster.close()
 
 
+def close_run(cluster, client, store) -> None:
+    """End of a run: close the local cluster and client it started (None: none) and release
+    its store's lock (None: no store)."""
+    close_local(cluster, client)
+    if store:
+        store.close()
+
+
 def connect(address: str, timeout_s: float = CONNECT_TIMEOUT_S):
     """A ``distributed.Client`` of the scheduler at ``address`` (``tcp://HOST:PORT``)."""
     from distributed import Client
@@ -250,10 +258,7 @@ def run_study(study, client=None, *, out=None, resume: bool = False, workers: in
             result.files.update(store.finalize(result.table))
         return result
     finally:
-        if own:
-            close_local(cluster, client)
-        if store:
-            store.close()
+        close_run(cluster if own else None, client if own else None, store)
 
 
 class _Run:

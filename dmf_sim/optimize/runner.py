@@ -28,10 +28,11 @@ import pyarrow as pa
 
 from dmf_sim.core.errors import ConfigError, one_line
 from dmf_sim.design.evaluate import StudyContext, evaluate_batch
+from dmf_sim.design.result import StudyResult
 from dmf_sim.design.runner import (
     StudyPlugin,
     _bar,
-    close_local,
+    close_run,
     start_local,
     wait_for_workers,
 )
@@ -52,42 +53,22 @@ EXTRA = [('method', pa.string()), ('generation', pa.int64()), ('feasible', pa.bo
 
 
 @dataclass
-class OptimizationResult:
-    """Every evaluated design as rows of a design study's table (plus :data:`EXTRA`), the
-    feasible non-dominated designs of the first two objectives, the compromise among them, the
-    hypervolume after each evaluation and run figures."""
+class OptimizationResult(StudyResult):
+    """A design study's result (every evaluated design as rows of its table, plus
+    :data:`EXTRA`; ``pareto_ids``: the *feasible* non-dominated designs of the first two
+    objectives; ``best_id``: the compromise among them) with the problem, the hypervolume after
+    each evaluation and the time-domain verification."""
 
-    problem: Problem
-    table: pa.Table
-    pareto_ids: list[int]
-    best_id: int | None
-    hypervolume: np.ndarray
-    n_computed: int = 0
-    seconds: float = 0.0
-    workers: int = 0
-    files: dict = field(default_factory=dict)
+    problem: Problem | None = None
+    hypervolume: np.ndarray = field(default_factory=lambda: np.zeros(0))
     verification: list = field(default_factory=list)
 
-    def rows(self, kind: str | None = None) -> list[dict]:
-        rows = self.table.to_pylist()
-        return rows if kind is None else [r for r in rows if r['kind'] == kind]
-
-    def design(self, design_id: int) -> dict:
-        return next(r for r in self.rows('design') if r['design_id'] == design_id)
-
-    @property
-    def n_designs(self) -> int:
-        return len(self.rows('design'))
-
     def summary(self) -> dict:
-        """A design study's summary (``StudyResult.summary``: counts, front, best, failures,
-        throughput, files) plus the optimizer's: method, budget, seed, feasible designs,
-        constraints, final hypervolume, verification."""
-        from dmf_sim.design.result import StudyResult
+        """A design study's summary (counts, front, best, failures, throughput, files) plus
+        the optimizer's: method, budget, seed, feasible designs, constraints, final
+        hypervolume, verification."""
         p = self.problem
-        out = StudyResult(p.study, self.table, self.pareto_ids, self.best_id,
-                          n_computed=self.n_computed, seconds=self.seconds, workers=self.workers,
-                          files=self.files).summary()
+        out = super().summary()
         for key in ('batch_size', 'context_loads_per_worker'):
             out.pop(key)
         out.update({
@@ -199,10 +180,7 @@ def run_optimization(problem, client=None, *, out=None, resume: bool = False,
             result.files['journal'] = str(out / JOURNAL)
         return result
     finally:
-        if own:
-            close_local(cluster, client)
-        if store:
-            store.close()
+        close_run(cluster if own else None, client if own else None, store)
 
 
 def finish(problem: Problem, rows: list[dict], **run) -> OptimizationResult:
@@ -230,7 +208,8 @@ def finish(problem: Problem, rows: list[dict], **run) -> OptimizationResult:
     order = np.argsort([r['design_id'] for r in summ], kind='stable')
     hv = hypervolume_history(f1[order], f2[order], feas[order] & ~failed[order],
                              reference_point(problem, f1[feas], f2[feas]))
-    return OptimizationResult(problem, table, sorted(front), best, hv, **run)
+    return OptimizationResult(study, table, sorted(front), best, problem=problem,
+                              hypervolume=hv, **run)
 
 
 def reference_point(problem: Problem, f1, f2) -> tuple[float, float]:
