@@ -34,6 +34,7 @@ setup(
         'pyarrow>=14',                 # dmf-sim design: the Parquet result table
         'fatpack>=0.7',                # dmf-sim durability: rainflow cycles
         'threadpoolctl>=3',            # dmf-sim run: BLAS in one thread for the small products
+        'optuna>=5.0',                 # dmf-sim optimize: NSGA-II / TPE, journal storage
     ],
     extras_require={
         'ros': ['ros-jazzy-rclpy[fastrtps]', 'ros-jazzy-common-interfaces'],

@@ -18,7 +18,8 @@ from dmf_sim.physics.spring import STAGE_ANGLE_MAX_RAD, STIFFNESS_FACTOR_MAX
 __all__ = ['ALPHA_RANGE', 'THETA_RANGE_RAD', 'LOAD_RANGE', 'LOAD_SETS', 'HARMONICS_RANGE',
            'MAX_GRID_POINTS', 'MIN_STEP_RPM', 'DEFAULT_CONFIG', 'DEFAULT_ENGINE', 'add_config',
            'add_engine', 'add_alpha', 'add_theta', 'add_load_set', 'add_load', 'add_speeds',
-           'add_harmonics', 'check_common', 'check_grid', 'check_harmonics', 'check_dmf_options']
+           'add_harmonics', 'check_common', 'check_grid', 'check_harmonics', 'check_dmf_options',
+           'add_cluster', 'check_cluster', 'DEFAULT_CONNECT_TIMEOUT_S']
 
 ALPHA_RANGE = (0.0, STIFFNESS_FACTOR_MAX)    # secondary stiffness factor (the spring's bound)
 THETA_RANGE_RAD = (0.0, STAGE_ANGLE_MAX_RAD)  # knee angle [rad], lower bound excluded
@@ -27,6 +28,7 @@ HARMONICS_RANGE = (6, 64)        # highest half-order index H kept (6 = the 3rd 
 MAX_GRID_POINTS = 2000           # output speed grid points per sweep
 MIN_STEP_RPM = 0.5               # finest output speed grid [rpm]
 DEFAULT_CONFIG = 'truck_dmf'     # config/truck_dmf.yaml: Table 1 with the DMF
+DEFAULT_CONNECT_TIMEOUT_S = 5.0  # waiting for a Dask scheduler to answer
 
 
 def add_config(p, default: str | None = DEFAULT_CONFIG, help_default: str | None = None) -> None:
@@ -146,3 +148,26 @@ def check_common(args) -> None:
     out = getattr(args, 'out', None)
     if out is not None:
         check_output_dir(out)         # before any computation, not after it
+
+
+def add_cluster(p) -> None:
+    """``--scheduler``, ``--workers``, ``--connect-timeout``: where a Dask command runs."""
+    p.add_argument('--scheduler', metavar='ADDRESS',
+                   help='use an existing Dask cluster, e.g. tcp://HOST:8786 (default: a local '
+                        'cluster on this machine)')
+    p.add_argument('--workers', type=int,
+                   help='worker processes of the local cluster (default: one per core)')
+    p.add_argument('--connect-timeout', type=float, default=DEFAULT_CONNECT_TIMEOUT_S,
+                   help=f'seconds to wait for --scheduler to answer (default '
+                        f'{DEFAULT_CONNECT_TIMEOUT_S:g})')
+
+
+def check_cluster(args) -> None:
+    """One-line errors for the options of :func:`add_cluster`."""
+    if args.workers is not None and args.workers < 1:
+        raise ConfigError(f'--workers {args.workers}: must be >= 1')
+    if args.workers is not None and args.scheduler:
+        raise ConfigError('--workers sizes the local cluster; with --scheduler the cluster '
+                          'brings its own workers (leave out one of them)')
+    if not args.connect_timeout > 0:
+        raise ConfigError(f'--connect-timeout {args.connect_timeout}: must be > 0 s')

@@ -5,6 +5,7 @@ import json
 import sys
 from pathlib import Path
 
+from dmf_sim.commands._options import add_cluster, check_cluster
 from dmf_sim.core.errors import ConfigError
 
 NAME = 'design'
@@ -19,15 +20,9 @@ def add_arguments(p) -> None:
                         'finished designs are stored there as they arrive')
     p.add_argument('--resume', action='store_true',
                    help='continue the study stored in --out (finished designs are not recomputed)')
-    p.add_argument('--scheduler', metavar='ADDRESS',
-                   help='use an existing Dask cluster, e.g. tcp://HOST:8786 (default: a local '
-                        'cluster on this machine)')
-    p.add_argument('--workers', type=int,
-                   help='worker processes of the local cluster (default: one per core)')
+    add_cluster(p)
     p.add_argument('--batch-size', type=int, help='designs per Dask task (default: measured, '
                    'see doc/performance.md)')
-    p.add_argument('--connect-timeout', type=float, default=5.0,
-                   help='seconds to wait for --scheduler to answer (default 5)')
     p.add_argument('--no-plots', action='store_true', help='skip the PNG figures')
     p.add_argument('--no-progress', action='store_true', help='no progress bar on stderr')
     p.add_argument('--json', action='store_true', help='print the summary as one JSON object')
@@ -38,15 +33,9 @@ def run(args) -> int:
     from dmf_sim.design.study import load_study
     from dmf_sim.design.table import ResultStore
 
-    if args.workers is not None and args.workers < 1:
-        raise ConfigError(f'--workers {args.workers}: must be >= 1')
-    if args.workers is not None and args.scheduler:
-        raise ConfigError('--workers sizes the local cluster; with --scheduler the cluster '
-                          'brings its own workers (leave out one of them)')
+    check_cluster(args)
     if args.batch_size is not None and args.batch_size < 1:
         raise ConfigError(f'--batch-size {args.batch_size}: must be >= 1')
-    if not args.connect_timeout > 0:
-        raise ConfigError(f'--connect-timeout {args.connect_timeout}: must be > 0 s')
     study = load_study(args.study)
     ResultStore(args.out, study, args.resume)          # --out / --resume problems, before work
     client = connect(args.scheduler, args.connect_timeout) if args.scheduler else None

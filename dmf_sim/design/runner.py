@@ -148,6 +148,31 @@ def local_cluster(workers: int | None = None):
                             silence_logs=logging.CRITICAL)
 
 
+def start_local(workers: int | None = None):
+    """(cluster, client): a :func:`local_cluster` and a client of it, its workers all up."""
+    from distributed import Client
+    cluster = local_cluster(workers)
+    client = Client(cluster)
+    client.wait_for_workers(len(cluster.workers))
+    return cluster, client
+
+
+def close_local(cluster, client) -> None:
+    """Close what :func:`start_local` started (either may be None)."""
+    if client is not None:
+        client.close()
+    if cluster is not None:
+        cluster.close()
+
+
+def close_run(cluster, client, store) -> None:
+    """End of a run: close the local cluster and client it started (None: none) and release
+    its store's lock (None: no store)."""
+    close_local(cluster, client)
+    if store:
+        store.close()
+
+
 def connect(address: str, timeout_s: float = CONNECT_TIMEOUT_S):
     """A ``distributed.Client`` of the scheduler at ``address`` (``tcp://HOST:PORT``)."""
     from distributed import Client
@@ -217,10 +242,7 @@ def run_study(study, client=None, *, out=None, resume: bool = False, workers: in
             store.start()
         if todo:
             if own:
-                from distributed import Client
-                cluster = local_cluster(workers)
-                client = Client(cluster)
-                client.wait_for_workers(len(cluster.workers))
+                cluster, client = start_local(workers)
             n_workers = wait_for_workers(client)
             size = batch_size_for(len(todo), n_workers, batch_size)
             if on_worker_event is None:
@@ -236,13 +258,7 @@ def run_study(study, client=None, *, out=None, resume: bool = False, workers: in
             result.files.update(store.finalize(result.table))
         return result
     finally:
-        if own:
-            if client is not None:
-                client.close()
-            if cluster is not None:
-                cluster.close()
-        if store:
-            store.close()
+        close_run(cluster if own else None, client if own else None, store)
 
 
 class _Run:

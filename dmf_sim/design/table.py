@@ -34,8 +34,9 @@ PARTS = 'parts'
 RESULTS = 'results'
 
 
-def schema(variable_names: list[str], final: bool = False) -> pa.Schema:
-    """Column names and types of the table for a study with these design variables."""
+def schema(variable_names: list[str], final: bool = False, extra=()) -> pa.Schema:
+    """Column names and types of the table for a study with these design variables; ``extra``:
+    (name, pyarrow type) columns a layer above adds (the optimizer's feasibility and rank)."""
     f64, text = pa.float64(), pa.string()
     cols = [('design_id', pa.int64()), ('kind', text), ('status', text), ('error', text)]
     cols += [(v, f64) for v in variable_names]
@@ -47,13 +48,15 @@ def schema(variable_names: list[str], final: bool = False) -> pa.Schema:
              ('max_stable_states', pa.int64()), ('max_stable_states_rpm', f64),
              ('max_stable_states_condition', text), ('n_branches', pa.int64()),
              ('seconds', f64)]
+    cols += list(extra)
     if final:
         cols.append(('pareto', pa.bool_()))
     return pa.schema(cols)
 
 
-def to_table(rows: list[dict], variable_names: list[str], final: bool = False) -> pa.Table:
-    return pa.Table.from_pylist(rows, schema=schema(variable_names, final))
+def to_table(rows: list[dict], variable_names: list[str], final: bool = False,
+             extra=()) -> pa.Table:
+    return pa.Table.from_pylist(rows, schema=schema(variable_names, final, extra))
 
 
 def sort_rows(rows: list[dict], conditions: list[str]) -> list[dict]:
@@ -69,10 +72,11 @@ class ResultStore:
     Raises ConfigError (naming ``out``) when ``out`` holds another study's results, or any
     results while ``resume`` is false, before anything is computed."""
 
-    def __init__(self, out, study, resume: bool = False):
+    def __init__(self, out, study, resume: bool = False, extra=()):
         self.dir = Path(out)
         self.study = study
         self.names = study.variable_names
+        self.extra = tuple(extra)
         self._rows: list[dict] | None = []
         meta = self.dir / STUDY_FILE
         check_output_dir(self.dir)
@@ -144,7 +148,7 @@ class ResultStore:
         """Store one finished batch (one Parquet part, complete or absent)."""
         if not rows:
             return
-        table = to_table(rows, self.names)
+        table = to_table(rows, self.names, extra=self.extra)
         path = self.dir / PARTS / f'part-{self._seq:06d}.parquet'
         self._seq += 1
         _atomic_write(path, lambda p: pq.write_table(table, p))

@@ -1,0 +1,425 @@
+"""The optimization report: figures (PNG), ``report.md`` and a self-contained ``report.html``.
+
+* ``pareto_vs_lhs.png``: every design of the optimizer and of the Latin-hypercube baseline of the
+  same budget in the plane of the first two objectives, feasible fronts joined, the paper's
+  design and the compromise ('best') design marked;
+* ``hypervolume.png``: hypervolume of the feasible designs after each evaluation, both runs, one
+  reference point;
+* ``springs.png``: torque-wind-up curves of the Pareto designs beside the paper's two-step
+  spring, with the travel and the torque capacity;
+* ``fig13_best.png``: the paper's Fig. 13 quantities over speed for the paper's design and the
+  best designs, at the condition where the best design's first objective is worst.
+
+Every number in the report is computed in the run (``summary.json`` holds them).
+"""
+from __future__ import annotations
+
+import base64
+import html
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from matplotlib.figure import Figure
+
+from dmf_sim.design.metrics import OBJECTIVES
+from dmf_sim.design.parameters import design_driveline
+from dmf_sim.optimize.hypervolume import hypervolume_history
+
+FIGURES = {
+    'pareto_vs_lhs.png': 'Designs and feasible Pareto fronts: optimizer vs Latin hypercube of '
+                         'the same budget',
+    'hypervolume.png': 'Convergence: hypervolume of the feasible designs vs evaluations',
+    'springs.png': 'Torque-wind-up curves of the Pareto designs and the paper\'s two-step spring',
+    'fig13_best.png': 'Fig. 13-style sweeps: the paper\'s design and the best designs',
+}
+MAX_SPRINGS = 8              # Pareto designs drawn in springs.png (spread over the front)
+MAX_SWEEP_PANELS = 2         # best designs beside the paper's in fig13_best.png
+SPRING_CURVE_POINTS = 400
+
+
+# ------------------------------------------------------------------------------------------------
+# numbers
+# ------------------------------------------------------------------------------------------------
+
+def reference_design(problem) -> dict:
+    """The paper's design (the study's plots.reference) evaluated on the problem's conditions,
+    with its constraint values: the summary row plus feasible / violation / constraints."""
+    from dmf_sim.design.plots import reference_row
+    from dmf_sim.optimize.constraints import violation
+    study = problem.study
+    row = reference_row(study)
+    line = design_driveline(study.base, study.reference)
+    cons = problem.constraints
+    if row['status'] == 'ok':
+        vals = cons.values(line.spring, row)
+        row.update(feasible=all(v <= 0 for v in vals), violation=violation(vals),
+                   constraints=', '.join(f'{n} {v:+.3g}' for n, v in zip(cons.names, vals)))
+    else:
+        row.update(feasible=False, violation=math.inf, constraints='failed')
+    row['spring'] = line.spring
+    return row
+
+
+def compare_with_reference(result, ref: dict) -> dict:
+    """best_vs_paper: the compromise design's objectives relative to the paper's, and whether a
+    feasible design dominates the paper's (<= in every objective of the front, < in one); the
+    dominating design with the largest smallest improvement."""
+    o1, o2 = result.problem.objectives[:2]
+    out = {'paper': {o1: ref.get(o1), o2: ref.get(o2), 'feasible': bool(ref['feasible']),
+                     'constraints': ref['constraints']}}
+    if result.best_id is not None and ref['status'] == 'ok':
+        b = result.design(result.best_id)
+        out['best'] = {'design_id': b['design_id'], o1: b[o1], o2: b[o2],
+                       f'{o1}_ratio': b[o1] / ref[o1], f'{o2}_ratio': b[o2] / ref[o2]}
+    dom = []
+    if ref['status'] == 'ok':
+        for r in result.rows('design'):
+            if not r['feasible'] or r['status'] != 'ok':
+                continue
+            if r[o1] <= ref[o1] and r[o2] <= ref[o2] and (r[o1] < ref[o1] or r[o2] < ref[o2]):
+                dom.append(r)
+    out['n_dominating'] = len(dom)
+    out['dominates_paper'] = bool(dom)
+    if dom:
+        top = min(dom, key=lambda r: max(r[o1] / ref[o1], r[o2] / ref[o2]))
+        out['dominating'] = {'design_id': top['design_id'], f'{o1}_ratio': top[o1] / ref[o1],
+                             f'{o2}_ratio': top[o2] / ref[o2]}
+    return out
+
+
+def common_hypervolumes(result, baseline) -> dict:
+    """Hypervolume histories of both runs against one reference point (1.1 x the largest
+    feasible value of each objective over both runs), and their final ratio."""
+    o1, o2 = result.problem.objectives[:2]
+    cols = {}
+    for name, res in (('optimizer', result), ('lhs', baseline)):
+        rows = sorted(res.rows('design'), key=lambda r: r['design_id'])
+        cols[name] = (np.array([_f(r.get(o1)) for r in rows]),
+                      np.array([_f(r.get(o2)) for r in rows]),
+                      np.array([bool(r['feasible']) and r['status'] == 'ok' for r in rows]))
+    f1 = np.concatenate([c[0][c[2]] for c in cols.values()])
+    f2 = np.concatenate([c[1][c[2]] for c in cols.values()])
+    if not len(f1):
+        return {'reference_point': None, 'optimizer': [], 'lhs': [], 'ratio': math.nan}
+    ref = (1.1 * float(f1.max()), 1.1 * float(f2.max()))
+    hv = {k: hypervolume_history(*c, ref) for k, c in cols.items()}
+    last = {k: float(v[-1]) if len(v) else 0.0 for k, v in hv.items()}
+    return {'reference_point': list(ref), 'optimizer': hv['optimizer'].tolist(),
+            'lhs': hv['lhs'].tolist(), 'optimizer_final': last['optimizer'],
+            'lhs_final': last['lhs'],
+            'ratio': last['optimizer'] / last['lhs'] if last['lhs'] > 0 else math.inf}
+
+
+def _f(v) -> float:
+    return math.nan if v is None else float(v)
+
+
+def spread(rows: list[dict], objective: str, n: int) -> list[dict]:
+    """Up to ``n`` rows spread evenly along the front (sorted by ``objective``)."""
+    rows = sorted(rows, key=lambda r: r[objective])
+    if len(rows) <= n:
+        return rows
+    idx = np.unique(np.round(np.linspace(0, len(rows) - 1, n)).astype(int))
+    return [rows[i] for i in idx]
+
+
+# ------------------------------------------------------------------------------------------------
+# figures
+# ------------------------------------------------------------------------------------------------
+
+def _label(name: str) -> str:
+    return f'{name}: {OBJECTIVES.get(name, name)}'
+
+
+def pareto_figure(result, baseline, ref: dict) -> Figure:
+    o1, o2 = result.problem.objectives[:2]
+    fig = Figure(figsize=(7.0, 5.2), layout='constrained')
+    ax = fig.subplots()
+    for res, color, name in ((baseline, 'tab:gray', 'Latin hypercube'),
+                             (result, 'tab:blue', f'optimizer ({result.problem.method})')):
+        if res is None:
+            continue
+        rows = [r for r in res.rows('design') if r['status'] == 'ok']
+        feas = [r for r in rows if r['feasible']]
+        bad = [r for r in rows if not r['feasible']]
+        ax.plot([r[o1] for r in bad], [r[o2] for r in bad], 'x', color=color, alpha=0.35, ms=4,
+                label=f'{name}: infeasible ({len(bad)})')
+        ax.plot([r[o1] for r in feas], [r[o2] for r in feas], '.', color=color, alpha=0.6,
+                label=f'{name}: feasible ({len(feas)})')
+        front = sorted((r for r in rows if r['pareto']), key=lambda r: r[o1])
+        ax.plot([r[o1] for r in front], [r[o2] for r in front], 'o-' if res is result else 'o--',
+                color=color, ms=4, label=f'{name}: Pareto front ({len(front)})')
+    if result.best_id is not None:
+        b = result.design(result.best_id)
+        ax.plot(b[o1], b[o2], '*', color='tab:orange', ms=15,
+                label=f'best: design {b["design_id"]}')
+    if ref['status'] == 'ok':
+        ax.plot(ref[o1], ref[o2], 's', color='tab:red', ms=8,
+                label='paper (α 3, θ 0.24)' + ('' if ref['feasible'] else ', infeasible'))
+    ax.set_xscale('log')
+    ax.set_xlabel(_label(o1), fontsize=8)
+    ax.set_ylabel(_label(o2), fontsize=8)
+    ax.grid(alpha=0.3, which='both')
+    ax.legend(fontsize=7)
+    ax.set_title(f'{result.problem.study.name}: both objectives minimized, worst over conditions '
+                 'and states', fontsize=9)
+    return fig
+
+
+def hypervolume_figure(hv: dict, method: str) -> Figure:
+    fig = Figure(figsize=(6.5, 4.0), layout='constrained')
+    ax = fig.subplots()
+    for key, color, name in (('optimizer', 'tab:blue', f'optimizer ({method})'),
+                             ('lhs', 'tab:gray', 'Latin hypercube')):
+        v = np.asarray(hv.get(key) or [])
+        ax.plot(np.arange(1, len(v) + 1), v, color=color, label=name)
+    ax.set_xlabel('designs evaluated')
+    ax.set_ylabel('hypervolume of the feasible designs')
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    ref = hv.get('reference_point')
+    if ref:
+        ax.set_title(f'reference point ({ref[0]:.4g}, {ref[1]:.4g}); final ratio '
+                     f'{hv["ratio"]:.3g}', fontsize=9)
+    return fig
+
+
+def springs_figure(result, ref: dict, rows: list[dict]) -> Figure:
+    p = result.problem
+    study, cons = p.study, p.constraints
+    from dmf_sim.design.evaluate import StudyContext
+    ctx = StudyContext.from_study(study)
+    w_max = 1.15 * (cons.max_travel_rad or max(r.get('max_windup') or 0.3 for r in rows))
+    w = np.linspace(-0.5 * w_max, w_max, SPRING_CURVE_POINTS)
+    fig = Figure(figsize=(7.0, 4.8), layout='constrained')
+    ax = fig.subplots()
+    for r in rows:
+        line = design_driveline(study.base, ctx.design_values([r[v] for v in
+                                                               study.variable_names]))
+        best = r['design_id'] == result.best_id
+        ax.plot(w, line.spring.torque(w), lw=2.2 if best else 1.0,
+                color='tab:orange' if best else 'tab:blue', alpha=1.0 if best else 0.6,
+                label=f'design {r["design_id"]}' + (' (best)' if best else ''))
+    ax.plot(w, ref['spring'].torque(w), color='tab:red', lw=2.0, ls='--',
+            label='paper: α 3, θ 0.24 rad')
+    ax.axhline(cons.capacity_nm, color='k', lw=0.8, ls=':')
+    ax.text(w[0], cons.capacity_nm, f' capacity {cons.capacity_nm:.0f} Nm', fontsize=7,
+            va='bottom')
+    ax.axhline(cons.engine_max_torque_nm, color='0.5', lw=0.8, ls=':')
+    ax.text(w[0], cons.engine_max_torque_nm, f' engine max. mean torque '
+            f'{cons.engine_max_torque_nm:.0f} Nm', fontsize=7, va='bottom', color='0.4')
+    if cons.max_travel_rad is not None:
+        ax.axvline(cons.max_travel_rad, color='k', lw=0.8)
+        ax.text(cons.max_travel_rad, ax.get_ylim()[0], ' travel', fontsize=7, rotation=90,
+                va='bottom')
+    ax.set_xlabel('wind-up w [rad] (positive: engine drives)')
+    ax.set_ylabel('DMF spring torque T(w) [Nm]')
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, ncol=2)
+    ax.set_title('Torque-wind-up curves of the Pareto designs', fontsize=9)
+    return fig
+
+
+def sweeps_figure(result, ref: dict, rows: list[dict]) -> Figure:
+    from dmf_sim.design.evaluate import StudyContext, sweep_condition
+    from dmf_sim.figures import sweep_bands, sweep_curves, windup_figure
+    p = result.problem
+    study = p.study
+    o1 = p.objectives[0]
+    ctx = StudyContext.from_study(study)
+    label = rows[0].get(f'{o1}_condition') if rows else None
+    cond = next((c for c in study.conditions if c.label == label), study.conditions[0])
+    panels = []
+    designs = [('paper: α 3, θ 0.24 rad', study.reference)]
+    for r in rows:
+        designs.append((f'design {r["design_id"]}: ' + _spring_text(r, study),
+                        ctx.design_values([r[v] for v in study.variable_names])))
+    for text, values in designs:
+        line = design_driveline(study.base, values)
+        res = sweep_condition(line, study.engines[cond.load_set], cond.load, ctx.settings)
+        panels.append((text, sweep_curves(res), sweep_bands(res)))
+    return windup_figure(panels, f'DMF wind-up over speed, Load {cond.load_set}, load '
+                                 f'{cond.load:g} (paper Fig. 13): the paper\'s design vs the best')
+
+
+def _spring_text(r: dict, study) -> str:
+    return ', '.join(f'{v} {r[v]:.3g}' for v in study.variable_names)
+
+
+# ------------------------------------------------------------------------------------------------
+# the report: blocks rendered as Markdown and as HTML
+# ------------------------------------------------------------------------------------------------
+
+@dataclass
+class Block:
+    kind: str                 # 'h1' 'h2' 'p' 'table' 'figure' 'list'
+    content: object
+
+
+def write_report(result, baseline, out, *, ref: dict, hv: dict, best_vs_paper: dict,
+                 exported: dict, seconds: float) -> dict[str, str]:
+    """Figures, report.md and report.html in ``out``; returns name -> path."""
+    from dmf_sim.figures import save
+    out = Path(out)
+    p = result.problem
+    o1 = p.objectives[0]
+    front = [r for r in result.rows('design') if r['pareto']]
+    files = {}
+    files['pareto_vs_lhs.png'] = save(pareto_figure(result, baseline, ref),
+                                      out / 'pareto_vs_lhs.png')
+    files['hypervolume.png'] = save(hypervolume_figure(hv, p.method), out / 'hypervolume.png')
+    files['springs.png'] = save(springs_figure(result, ref, spread(front, o1, MAX_SPRINGS)),
+                                out / 'springs.png')
+    best = ([result.design(result.best_id)] if result.best_id is not None else [])
+    others = [r for r in spread(front, o1, MAX_SWEEP_PANELS + 1) if r not in best]
+    files['fig13_best.png'] = save(sweeps_figure(result, ref,
+                                                 (best + others)[:MAX_SWEEP_PANELS]),
+                                   out / 'fig13_best.png')
+    blocks = _blocks(result, baseline, ref, hv, best_vs_paper, exported, seconds, front)
+    (out / 'report.md').write_text(_markdown(blocks))
+    (out / 'report.html').write_text(_html(blocks, out, p.study.name))
+    files.update({'report.md': out / 'report.md', 'report.html': out / 'report.html'})
+    return {k: str(v) for k, v in files.items()}
+
+
+def _blocks(result, baseline, ref, hv, bvp, exported, seconds, front) -> list[Block]:
+    p = result.problem
+    s = p.study
+    o1, o2 = p.objectives[:2]
+    c = p.constraints
+    n_feas = sum(bool(r['feasible']) for r in result.rows('design'))
+    b: list[Block] = [Block('h1', f'DMF spring optimization: {s.name}')]
+    travel = (f'reach {c.capacity_nm:.0f} Nm (capacity) before {c.max_travel_rad:g} rad travel'
+              if c.max_travel_rad is not None else 'no travel constraint')
+    b.append(Block('p', f'{p.method} ({p.budget} designs, {p.batch_size} per generation, seed '
+                        f'{p.seed}) on {len(p.variables)} variables '
+                        f'({", ".join(p.names)}); objectives {", ".join(p.objectives)} '
+                        '(minimized, '
+                        f'worst over conditions {", ".join(x.label for x in s.conditions)}, every '
+                        f'stable state and the non-periodic envelopes); constraints: {travel}'
+                        + (f', largest DMF torque in operation <= {c.capacity_nm:.0f} Nm'
+                           if c.max_dmf_torque else '')
+                        + ''.join(f', {m} in [{lo:g}, {hi:g}]' for m, (lo, hi) in c.bounds.items())
+                        + (f'. The capacity is {c.capacity_factor:g} x the engine\'s largest '
+                           f'mean torque {c.engine_max_torque_nm:.0f} Nm.'
+                           if c.capacity_factor else '.')))
+    b.append(Block('p', f'{result.n_designs} designs, {n_feas} feasible, '
+                        f'{sum(r["status"] != "ok" for r in result.rows("design"))} failed; '
+                        f'{len(front)} on the feasible Pareto front. Computed in '
+                        f'{seconds:.0f} s.'))
+    b.append(Block('h2', 'Optimizer vs Latin hypercube (same budget)'))
+    if baseline is not None:
+        b.append(Block('p', f'Hypervolume of the feasible designs (reference point '
+                            f'{_pt(hv["reference_point"])}): optimizer '
+                            f'{hv.get("optimizer_final", math.nan):.4g}, Latin hypercube '
+                            f'{hv.get("lhs_final", math.nan):.4g}, ratio {hv["ratio"]:.3g}.'))
+    else:
+        b.append(Block('p', 'No baseline run (--no-baseline).'))
+    b.append(Block('h2', 'Best design vs the paper\'s'))
+    rows = [['paper (α 3, θ 0.24)', _g(ref.get(o1)), _g(ref.get(o2)),
+             'yes' if ref['feasible'] else 'no', ref['constraints']]]
+    if result.best_id is not None:
+        r = result.design(result.best_id)
+        rows.append([f'best: design {r["design_id"]}', _g(r[o1]), _g(r[o2]), 'yes',
+                     r['constraints']])
+    b.append(Block('table', (['design', o1, o2, 'feasible', 'constraint values (> 0 violated)'],
+                             rows)))
+    if bvp.get('dominates_paper'):
+        d = bvp['dominating']
+        b.append(Block('p', f'{bvp["n_dominating"]} feasible designs dominate the paper\'s; '
+                            f'design {d["design_id"]}: {o1} x {d[f"{o1}_ratio"]:.3g}, '
+                            f'{o2} x {d[f"{o2}_ratio"]:.3g} of the paper\'s.'))
+    else:
+        b.append(Block('p', 'No feasible design dominates the paper\'s within the bounds.'))
+    b.append(Block('h2', 'Pareto designs'))
+    head = ['design', *s.variable_names, o1, o2, 'max DMF torque [Nm]', 'T(travel) [Nm]',
+            'driveline YAML']
+    b.append(Block('table', (head, [[str(r['design_id']), *[_g(r[v]) for v in
+                                                              s.variable_names],
+                                     _g(r[o1]), _g(r[o2]), _g(r['max_dmf_torque']),
+                                     _g(r['torque_at_travel']),
+                                     Path(exported.get(str(r['design_id']), '')).name]
+                                    for r in sorted(front, key=lambda r: r[o1])])))
+    if result.verification:
+        b.append(Block('h2', 'Verification in the time domain (Newmark)'))
+        b.append(Block('p', 'At the speed and condition of each worst value: shots from several '
+                            'initial states (largest value: "time domain") and slow run-ups up '
+                            'and down through the speed (largest value within half a grid step), '
+                            'beside the harmonic-balance worst value.'))
+        b.append(Block('table', (['design', 'objective', 'condition', 'speed [rpm]', 'HBM',
+                                  'time domain (shots)', 'rel. diff', 'run-ups', 'shots settled'],
+                                 [[str(v.design_id), v.objective, v.condition,
+                                   f'{v.speed_rpm:g}', _g(v.hbm), _g(v.time_domain),
+                                   f'{100 * v.rel_diff:.2f} %', _g(v.run_up),
+                                   f'{v.settled}/{len(v.shots)}']
+                                  for v in result.verification])))
+    b.append(Block('h2', 'Figures'))
+    for name, caption in FIGURES.items():
+        b.append(Block('figure', (name, caption)))
+    return b
+
+
+def _pt(p) -> str:
+    return 'none' if not p else f'({p[0]:.4g}, {p[1]:.4g})'
+
+
+def _g(v) -> str:
+    if v is None:
+        return ''
+    if isinstance(v, float):
+        return f'{v:.4g}'
+    return str(v)
+
+
+def _md_cell(text) -> str:
+    return ' '.join(str(text).split()).replace('|', '\\|')
+
+
+def _markdown(blocks: list[Block]) -> str:
+    out = []
+    for bl in blocks:
+        if bl.kind == 'h1':
+            out += [f'# {bl.content}', '']
+        elif bl.kind == 'h2':
+            out += [f'## {bl.content}', '']
+        elif bl.kind == 'p':
+            out += [bl.content, '']
+        elif bl.kind == 'table':
+            head, rows = bl.content
+            out += ['| ' + ' | '.join(_md_cell(h) for h in head) + ' |', '|---' * len(head) + '|']
+            out += ['| ' + ' | '.join(_md_cell(c) for c in r) + ' |' for r in rows] + ['']
+        elif bl.kind == 'figure':
+            name, caption = bl.content
+            out += [f'### {caption}', '', f'![{caption}]({name})', '']
+    return '\n'.join(out) + '\n'
+
+
+_CSS = """body{font-family:sans-serif;max-width:1250px;margin:2em auto;color:#222}
+table{border-collapse:collapse;font-size:0.85em}td,th{border:1px solid #bbb;padding:3px 6px}
+th{background:#eee}img{max-width:100%}figure{margin:1.5em 0}"""
+
+
+def _html(blocks: list[Block], out: Path, title: str) -> str:
+    e = html.escape
+    parts = ['<!DOCTYPE html><html><head><meta charset="utf-8">',
+             f'<title>dmf_sim optimize: {e(title)}</title><style>{_CSS}</style></head><body>']
+    for bl in blocks:
+        if bl.kind in ('h1', 'h2'):
+            parts.append(f'<{bl.kind}>{e(bl.content)}</{bl.kind}>')
+        elif bl.kind == 'p':
+            parts.append(f'<p>{e(bl.content)}</p>')
+        elif bl.kind == 'table':
+            head, rows = bl.content
+            parts.append('<table><tr>' + ''.join(f'<th>{e(str(h))}</th>' for h in head) + '</tr>')
+            parts += ['<tr>' + ''.join(f'<td>{e(str(c))}</td>' for c in r) + '</tr>'
+                      for r in rows]
+            parts.append('</table>')
+        elif bl.kind == 'figure':
+            name, caption = bl.content
+            data = base64.b64encode((out / name).read_bytes()).decode('ascii')
+            parts.append(f'<figure><img alt="{e(caption)}" src="data:image/png;base64,{data}">'
+                         f'<figcaption>{e(caption)}</figcaption></figure>')
+    parts.append('</body></html>')
+    return '\n'.join(parts) + '\n'

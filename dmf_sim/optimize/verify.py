@@ -1,0 +1,155 @@
+"""Verifying optimized designs in the time domain (Newmark), issue 23.
+
+For a design's worst value of an objective (the speed and condition where the harmonic-balance
+metrics put it), :func:`verify_worst` runs
+
+* shots: steady-state Newmark runs at that speed from several initial states (the static
+  equilibrium and offsets of the wind-up and its rate along the two modes with the most strain
+  energy in the DMF, ``dmf_sim.solvers.steady.dmf_modes``), and
+* run-ups: slow speed ramps through a window around that speed (inside the study's speed
+  range), up to it and down to it (the live node's
+  equation: excitation phase = integral of the speed, d'Alembert loads), each started from a
+  settled state at the window's end,
+
+and takes the objective's quantity per engine cycle (``dmf_sim.analysis.cycle_orders``): the
+wind-up's 1.5th / 3rd order, or the 3rd-order torque into the torque element (``ReducedModel.
+transmitted_torques`` of the recorded states). The shots' largest value is the time-domain worst
+value compared with the harmonic-balance one; the run-ups' largest value near the speed is
+reported beside it, over the cycles within half a grid step of the speed (a ramp passes
+coexisting states one way up and another way down, and it sees peaks between grid speeds).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from dmf_sim.design.parameters import design_driveline
+from dmf_sim.physics.orders import ORDER_1_5, ORDER_3
+
+VERIFIABLE = {'worst_order_1_5': ('windup', ORDER_1_5), 'worst_order_3': ('windup', ORDER_3),
+              'worst_torque_3': ('torque', ORDER_3)}
+"""Objectives the time domain can check: (signal, half-order index)."""
+
+
+@dataclass(frozen=True)
+class VerifySettings:
+    """dt [s]: Newmark step (<= 5e-5 s resolves the 1.5th-order resonance to < 0.5 %);
+    offsets: initial wind-up offsets as multiples of the amplitude scale (0: the static
+    equilibrium), each also with the opposite rate; amplitude_min_rad: smallest amplitude scale;
+    max_cycles / steady_tol: the shots' settling; window_rpm, ramp_rpm_per_s: the run-ups."""
+
+    dt: float = 5e-5
+    offsets: tuple[float, ...] = (0.0, 1.0, -1.0)
+    amplitude_min_rad: float = 0.02
+    max_cycles: int = 200
+    steady_tol: float = 1e-4
+    eval_cycles: int = 4
+    window_rpm: float = 30.0
+    ramp_rpm_per_s: float = 10.0
+    run_ups: bool = True
+
+
+@dataclass
+class Check:
+    """One objective of one design: HBM worst value vs time domain at its speed and condition."""
+
+    design_id: int
+    objective: str
+    condition: str
+    speed_rpm: float
+    hbm: float
+    time_domain: float
+    run_up: float
+    shots: list[float] = field(default_factory=list)
+    settled: int = 0
+
+    @property
+    def rel_diff(self) -> float:
+        return abs(self.time_domain - self.hbm) / abs(self.hbm) if self.hbm else math.nan
+
+    def as_dict(self) -> dict:
+        return {**asdict(self), 'rel_diff': self.rel_diff}
+
+
+def verify_design(problem, row: dict, settings: VerifySettings | None = None) -> list[Check]:
+    """Time-domain checks of every verifiable objective of a design's summary row."""
+    s = settings or VerifySettings()
+    study = problem.study
+    from dmf_sim.design.evaluate import StudyContext
+    ctx = StudyContext.from_study(study)
+    line = design_driveline(study.base, ctx.design_values([row[v] for v in study.variable_names]))
+    out = []
+    for obj in study.objectives:
+        if obj not in VERIFIABLE or row.get(obj) is None or not np.isfinite(row[obj]):
+            continue
+        cond = next(c for c in study.conditions if c.label == row[f'{obj}_condition'])
+        out.append(verify_worst(line, study.engines[cond.load_set], cond.load,
+                                float(row[f'{obj}_rpm']), obj, float(row[obj]),
+                                ctx.settings.torque_element, s, row['design_id'], cond.label,
+                                study.speeds_rpm))
+    return out
+
+
+def verify_worst(line, engine, load: float, speed_rpm: float, objective: str, hbm_value: float,
+                 torque_element: int, s: VerifySettings, design_id: int = -1,
+                 condition: str = '', speeds_rpm: tuple[float, float, float] | None = None
+                 ) -> Check:
+    """The time-domain check of one worst value (see the module docstring); ``speeds_rpm``:
+    the study's speed grid (from, to, step): the run-ups stay inside it."""
+    lo_s, hi_s, step_rpm = speeds_rpm or (0.0, math.inf, 10.0)
+    from dmf_sim.physics.loads import DrivelineLoads
+    from dmf_sim.solvers.newmark import simulate
+    from dmf_sim.solvers.steady import dmf_modes
+    signal, n = VERIFIABLE[objective]
+    loads = DrivelineLoads(line.reduce(), engine)
+    model = loads.model
+    q_s = loads.static_state(speed_rpm, load).q
+    modes = dmf_modes(model, 2)
+    amp = max(s.amplitude_min_rad, 2.0 * hbm_value if signal == 'windup' else 0.0)
+    shots, settled = [], 0
+    for off in s.offsets:
+        dq, dv = np.zeros_like(q_s), np.zeros_like(q_s)
+        for shape, om in modes:
+            dq += off * amp / len(modes) * shape
+            dv -= off * om * amp / len(modes) * shape
+        r = simulate(loads, speed_rpm, load, dt=s.dt, max_cycles=s.max_cycles,
+                     steady_tol=s.steady_tol, eval_cycles=s.eval_cycles, initial=(q_s + dq, dv))
+        settled += bool(r.steady)
+        shots.append(float(np.max(_cycle_values(r, model, signal, n, torque_element))))
+    run_up = math.nan
+    if s.run_ups:
+        vals = []
+        a, b = max(speed_rpm - s.window_rpm, lo_s), min(speed_rpm + s.window_rpm, hi_s)
+        for start, end in ((a, b), (b, a)):
+            if start == speed_rpm:          # the worst speed at the grid's end: one way only
+                continue
+            first = simulate(loads, start, load, dt=s.dt, max_cycles=s.max_cycles,
+                             steady_tol=s.steady_tol, eval_cycles=1)
+            init = (first.q[-1], first.v[-1])
+            t_end = abs(end - start) / s.ramp_rpm_per_s
+            r = simulate(loads, start, load, t_end=t_end, target_speed_rpm=end,
+                         ramp_rpm_per_s=s.ramp_rpm_per_s, dt=s.dt, initial=init)
+            v, speeds = _cycle_values(r, model, signal, n, torque_element, with_speed=True)
+            near = (np.abs(speeds - speed_rpm) <= step_rpm / 2.0) & (speeds >= lo_s) \
+                & (speeds <= hi_s)
+            if near.any():
+                vals.append(float(np.max(v[near])))
+        run_up = max(vals) if vals else math.nan
+    return Check(int(design_id), objective, condition, float(speed_rpm), float(hbm_value),
+                 float(max(shots)), run_up, shots, settled)
+
+
+def _cycle_values(r, model, signal: str, n: int, element: int, with_speed: bool = False):
+    """Amplitude of half order ``n`` of the signal per whole engine cycle of a Newmark run."""
+    from dmf_sim.analysis.cycle_orders import angle_cycle_orders
+    if signal == 'windup':
+        x = r.windup
+    else:
+        a = np.gradient(r.v, r.t, axis=0)
+        p = r.integrator.element_loads(r.psi)
+        x = model.transmitted_torques(r.q, r.v, a, p)[:, element]
+    co = angle_cycle_orders(r.psi, x, t_s=r.t)
+    amp = np.abs(co.coeffs[:, n])
+    return (amp, co.speed_rpm) if with_speed else amp
