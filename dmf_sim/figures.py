@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Mapping, Sequence
 
+import matplotlib
 import numpy as np
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
@@ -41,6 +42,25 @@ _BAND_WIDTH = 4.0         # line width of the red 3rd-order band [pt]
 _LOG_XI_ABOVE = 20.0      # NNM figure: logarithmic xi axis beyond this xi_max
 _LABEL_GAP = 0.03         # NNM figure: smallest gap between flat-branch labels (axis fraction)
 _LINE_WIDTH = 1.3         # other lines [pt]
+
+_OUTSIDE_LOC = tuple(int(p) for p in matplotlib.__version__.split('.')[:2]) >= (3, 7)
+"""matplotlib places a legend with loc='outside ...' from 3.7 on (Ubuntu 24.04 has 3.6.3)."""
+
+
+def legend_below(fig: Figure, handles=None, ncols: int = 2, **kw):
+    """The figure's legend centred under its panels, outside the data; the one way a figure here
+    places a figure legend. ``handles`` None: the labelled artists of every panel.
+
+    matplotlib >= 3.7: ``loc='outside lower center'`` (the constrained layout makes room).
+    matplotlib 3.6 (Ubuntu 24.04's, what rosdep installs for ROS 2 Jazzy) has no 'outside'
+    location: the legend goes to the bottom edge and the constrained layout's rectangle starts
+    above it, so it never covers an axis or its label."""
+    if _OUTSIDE_LOC:
+        return fig.legend(handles=handles, loc='outside lower center', ncols=ncols, **kw)
+    legend = fig.legend(handles=handles, loc='lower center', ncols=ncols, **kw)
+    bottom = legend.get_window_extent().y1 / fig.bbox.height     # legend top [figure fraction]
+    fig.get_layout_engine().set(rect=(0.0, bottom, 1.0, 1.0 - bottom))
+    return legend
 
 
 # ------------------------------------------------------------------------------------------------
@@ -211,9 +231,9 @@ def windup_figure(panels: Sequence[tuple], title: str) -> Figure:
         windup_panel(ax, curves, label, *bands)
     axes[-1].set_xlabel('engine speed [rpm]')
     fig.suptitle(title, fontsize=11)
-    fig.legend(handles=windup_legend_handles(), loc='outside lower center', ncols=3, fontsize=8,
-               title='green above both black lines: primary region only; below both: secondary '
-                     'only; between: both', title_fontsize=8)
+    legend_below(fig, windup_legend_handles(), ncols=3, fontsize=8,
+                 title='green above both black lines: primary region only; below both: secondary '
+                       'only; between: both', title_fontsize=8)
     return fig
 
 
@@ -315,7 +335,7 @@ def nnm_figure(res, xi_max: float = 10.0) -> Figure:
                  f'(mode {res.mode}; paper Fig. 14)\nnumbers: n of flat branches, '
                  'n × frequency = a resonance in front of / behind the DMF', fontsize=9)
     ax.grid(alpha=0.3)
-    fig.legend(loc='outside lower center', ncols=2, fontsize=8)
+    legend_below(fig, ncols=2, fontsize=8)
     return fig
 
 

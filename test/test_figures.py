@@ -8,9 +8,16 @@ import json
 
 import numpy as np
 import pytest
+from matplotlib.figure import Figure
 
 from dmf_sim.cli import main as cli_main
-from dmf_sim.figures import WindupCurves, mode_shapes_figure, sweep_curves, windup_figure
+from dmf_sim.figures import (
+    WindupCurves,
+    legend_below,
+    mode_shapes_figure,
+    sweep_curves,
+    windup_figure,
+)
 from dmf_sim.physics.engine import load_engine
 from dmf_sim.physics.loads import DrivelineLoads
 from dmf_sim.physics.modal import modes
@@ -45,6 +52,34 @@ def test_windup_panel_scaled_to_vibration_and_green_clipped():
     assert any('θ − static wind-up' in t for t in labels) and any('unstable' in t for t in labels)
     assert fig.axes[-1].get_xlabel() == 'engine speed [rpm]'
     assert '[rad]' in ax.get_ylabel()
+
+
+def _legend_clear_of_axes(fig) -> None:
+    """Drawn (the constrained layout runs at draw time): the figure legend's top lies below every
+    axis with its tick labels and axis label [pixels]."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    FigureCanvasAgg(fig).draw()
+    renderer = fig.canvas.get_renderer()
+    top = fig.legends[0].get_window_extent(renderer).y1
+    assert top > 0.0
+    for ax in fig.axes:
+        assert ax.get_tightbbox(renderer).y0 >= top - 1.0, ax.get_title(loc='left')
+
+
+def test_figure_legends_below_the_panels_on_this_matplotlib():
+    """Issue 20.15: loc='outside lower center' is matplotlib >= 3.7 only; Ubuntu 24.04 (ROS 2
+    Jazzy) has 3.6.3, where every figure path raised. legend_below works on both (make
+    test-platform runs this on 3.6.3)."""
+    c = _curves()
+    _legend_clear_of_axes(windup_figure([('a', [c]), ('b', [c])], 'two panels'))
+    fig = Figure(figsize=(6.0, 4.0), layout='constrained')
+    ax = fig.subplots()
+    for k in range(5):
+        ax.plot([0.0, 1.0], [0.0, k], label=f'line {k}')
+    ax.set_xlabel('x [m]')
+    legend = legend_below(fig, ncols=2, fontsize=8)
+    assert [t.get_text() for t in legend.get_texts()] == [f'line {k}' for k in range(5)]
+    _legend_clear_of_axes(fig)
 
 
 def test_unstable_stretches_dashed_and_3rd_order_distinct_from_max_deviation():
