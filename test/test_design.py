@@ -67,6 +67,24 @@ def _without_timing(table) -> list[dict]:
     return [{k: v for k, v in r.items() if k != 'seconds'} for r in table.to_pylist()]
 
 
+REL_TOL = 1e-12
+"""Rows computed in different processes (Dask workers, or a worker and this process) agree to
+this relative tolerance, not bitwise: a worker's BLAS may use another thread count and so another
+summation order, and the last bit of e.g. worst_order_1_5 differed on another machine
+(0.003220760291894178 vs 0.00322076029189417, issue 20). The absolute floor only spares values
+that are zero on one path and ~1e-17 on the other."""
+ABS_TOL = 1e-15
+
+
+def _assert_rows_close(got: list[dict], want: list[dict]) -> None:
+    """Same rows, same keys, equal strings/ints/flags, floats within REL_TOL (NaN == NaN)."""
+    assert len(got) == len(want)
+    for g, w in zip(got, want, strict=True):
+        assert g.keys() == w.keys()
+        assert g == pytest.approx(w, rel=REL_TOL, abs=ABS_TOL, nan_ok=True), \
+            (w.get('design_id'), w.get('condition'))
+
+
 # ------------------------------------------------------------------------------------------------
 # the numbers
 # ------------------------------------------------------------------------------------------------
@@ -141,7 +159,8 @@ def test_distributed_rows_equal_serial_evaluation(full_run, study):
         serial += evaluate_design(ctx, i, row)
     want = [{k: v for k, v in r.items() if k != 'seconds'} for r in serial]
     got = [{k: r[k] for k in w} for r, w in zip(res.rows(), want)]
-    assert len(res.rows()) == len(want) and got == want
+    assert len(res.rows()) == len(want)
+    _assert_rows_close(got, want)
 
 
 def test_every_worker_loads_the_model_once(full_run):
@@ -198,7 +217,7 @@ def test_interrupt_and_resume_gives_the_same_table(client, study, full_run, tmp_
         run_study(study, client, out=tmp_path)           # stored results are never overwritten
     res = run_study(study, client, out=tmp_path, batch_size=2, resume=True)
     assert res.n_computed == 8 and res.n_designs == 12
-    assert _without_timing(res.table) == _without_timing(full_run[0].table)
+    _assert_rows_close(_without_timing(res.table), _without_timing(full_run[0].table))
     again = run_study(study, client, out=tmp_path, resume=True)      # nothing left to do
     assert again.n_computed == 0 and _without_timing(again.table) == _without_timing(res.table)
 
@@ -319,6 +338,7 @@ def test_cli_on_an_existing_scheduler_json_and_files(client, tmp_path, capsys):
     assert json.loads(capsys.readouterr().out)['n_resumed'] == 2
 
 
+@pytest.mark.bench
 def test_benchmark_quick():
     import subprocess
     import sys
