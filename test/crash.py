@@ -15,9 +15,10 @@ REPO = Path(__file__).resolve().parents[1]
 def sigkill_when_ready(script: Path, args: list[str],
                        ready: Callable[[subprocess.Popen], None]) -> int:
     """Run ``python script *args`` (stdout piped, this repository importable), call
-    ``ready(proc)`` until it returns, then SIGKILL the child. Returns the kill time [ns]."""
-    env = {**os.environ,
-           'PYTHONPATH': os.pathsep.join([str(REPO), os.environ.get('PYTHONPATH', '')])}
+    ``ready(proc)`` until it returns, then SIGKILL the child. Returns the kill time [ns]. The
+    test helpers (e.g. ``cdr``) are importable in the child too."""
+    env = {**os.environ, 'PYTHONPATH': os.pathsep.join(
+        [str(REPO), str(Path(__file__).parent), os.environ.get('PYTHONPATH', '')])}
     proc = subprocess.Popen([sys.executable, str(script), *args], stdout=subprocess.PIPE,
                             text=True, env=env)
     try:

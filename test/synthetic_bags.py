@@ -1,23 +1,29 @@
 """Bags with known content for the analysis tests (helpers, not tests).
 
-Synthetic bags are written with real CDR (rclpy's serializer) through BagRecorder and carry known
-half-order content on a speed ramp, so resampling on the crank angle matters. The "node
-recording" is produced offline, without DDS: the node's own simulation core
-(dmf_sim.live.simulation.LiveSimulation, what driveline_node steps) is advanced in chunks and its
-samples
-are serialized and recorded as dmf_sim/node.py does (same topics, messages, custom_data).
+Synthetic bags are written with real CDR (rosbags' serializer, ``cdr``: no ROS installation is
+needed) through BagRecorder and carry known half-order content on a speed ramp, so resampling on
+the crank angle matters. The "node recording" is produced offline, without DDS: the node's own
+simulation core (dmf_sim.live.simulation.LiveSimulation, what driveline_node steps) is advanced in
+chunks and its samples are serialized and recorded as dmf_sim/node.py does (same topics, messages,
+custom_data).
 """
 from __future__ import annotations
 
-import array
 import math
 from pathlib import Path
 
 import numpy as np
-from builtin_interfaces.msg import Time
-from rclpy.serialization import serialize_message
-from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64, String
+from cdr import (
+    DiagnosticArray,
+    DiagnosticStatus,
+    Float64,
+    Header,
+    KeyValue,
+    String,
+    serialize_message,
+    stamp,
+)
+from cdr import joint_state as _joint_state
 
 from dmf_sim.bags.metadata import RunMetadata
 from dmf_sim.bags.writer import BagRecorder
@@ -53,21 +59,14 @@ def ramp(duration: float = 16.0, v0: float = 700.0, v1: float = 1500.0):
     return t, rpm, psi
 
 
-def joint_state(stamp_ns: int, position, effort, names=NAMES, frame='driveline') -> JointState:
-    msg = JointState()
-    msg.header.stamp = Time(sec=stamp_ns // 1_000_000_000, nanosec=stamp_ns % 1_000_000_000)
-    msg.header.frame_id = frame
-    msg.name = list(names)
-    msg.position = array.array('d', position)
-    msg.velocity = array.array('d', np.zeros(len(names)))
-    msg.effort = array.array('d', effort)
-    return msg
+def joint_state(stamp_ns: int, position, effort, names=NAMES, frame='driveline'):
+    return _joint_state(stamp_ns, names, position, effort=effort, frame=frame)
 
 
 def write_synthetic(path: Path, topics=('joints', 'windup', 'speed', 'crank'), *,
                     namespaces=('',), jump_back_s: float = 0.0, custom_data=None,
                     max_duration_s: float | None = None, **kw) -> Path:
-    """A bag like the node's (BagRecorder, rclpy CDR) with known content on a speed ramp.
+    """A bag like the node's (BagRecorder, CDR) with known content on a speed ramp.
 
     ``namespaces``: the node's topics under each of these ('' = none); ``jump_back_s``: stamps
     jump back by this much half-way (a clock re-anchored while recording)."""
@@ -130,8 +129,6 @@ def record_node_run_up(path: Path, v0: float, v1: float, ramp_rpm_s: float, hold
                          alpha=spring.alpha, theta_rad=spring.theta, spring=spring.as_dict(),
                          load=load if store_load else None, speed_rpm=v0, dt_s=sim.dt,
                          publish_rate_hz=1000.0).to_custom_data()
-    js, f = JointState(), Float64()
-    js.name = sim.names
     n_total = int(round((hold_s + abs(v1 - v0) / ramp_rpm_s + hold_end_s) / sim.dt))
     with BagRecorder(path, {**TOPICS, '/diagnostics': 'diagnostic_msgs/msg/DiagnosticArray'},
                      custom_data=custom) as rec:
@@ -141,26 +138,23 @@ def record_node_run_up(path: Path, v0: float, v1: float, ramp_rpm_s: float, hold
                 assert sim.set_speed_setpoint(v1) is None
             s = sim.advance(chunk_steps)
             done += chunk_steps
-            write_samples(rec, s, js, f)
+            write_samples(rec, s, sim.names)
     return path
 
 
-def write_samples(rec, s, js: JointState | None, f: Float64) -> None:
+def write_samples(rec, s, names: list[str] | None) -> None:
     """Record the samples ``s`` of LiveSimulation.advance as the node publishes them: joint
-    states (unless ``js`` is None), wind-up, speed, crank angle; log time T0 + t."""
+    states of the elements ``names`` (none if None), wind-up, speed, crank angle; log time
+    T0 + t."""
     for i in range(len(s)):
         ns = T0 + int(round(float(s.t[i]) * 1e9))
-        if js is not None:
-            js.header.stamp = Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
-            js.position = array.array('d', s.position[i].tobytes())
-            js.velocity = array.array('d', s.velocity[i].tobytes())
-            js.effort = array.array('d', s.effort[i].tobytes())
+        if names is not None:
+            js = _joint_state(ns, names, s.position[i], s.velocity[i], s.effort[i])
             rec.write('/driveline/joint_states', ns, serialize_message(js))
         for topic, val in (('/driveline/dmf_windup', s.windup[i]),
                            ('/engine/speed', s.speed_rpm[i]),
                            ('/engine/crank_angle', s.psi[i])):
-            f.data = float(val)
-            rec.write(topic, ns, serialize_message(f))
+            rec.write(topic, ns, serialize_message(Float64(data=float(val))))
 
 
 # ------------------------------------------------------------------ damaged files (issue 20)
@@ -199,8 +193,6 @@ NODE = '/driveline_node'
 def health_status(sim, node: str = NODE):
     """The node's health status as /diagnostics carries it (the keys and formats of
     dmf_sim.live.health that the analysis reads: load, load_setpoint, alpha, theta_rad)."""
-    from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
-
     from dmf_sim.live.health import status_name
     from dmf_sim.live.pacing import fmt_num
 
@@ -208,7 +200,7 @@ def health_status(sim, node: str = NODE):
     values = {'sim_time_s': f'{sim.t:.4f}', 'speed_rpm': f'{sim.speed:.3f}',
               'load': f'{sim.load:.4f}', 'load_setpoint': fmt_num(sim.load_setpoint),
               'alpha': fmt_num(spring.alpha), 'theta_rad': fmt_num(spring.theta)}
-    return DiagnosticStatus(level=bytes([0]), name=status_name(node), hardware_id=node,
+    return DiagnosticStatus(level=0, name=status_name(node), hardware_id=node,
                             message='offline recording',
                             values=[KeyValue(key=k, value=v) for k, v in values.items()])
 
@@ -222,8 +214,6 @@ def record_load_change(path: Path, speed_rpm: float, load0: float, load1: float,
     status in /diagnostics every 1/``diagnostics_hz`` s and, with ``record_setpoint``, the
     setpoint topic as ``ros2 bag record -a`` would hold it; the joint states only with
     ``joints`` (the wind-up analysis does not read them). custom_data stores the start load."""
-    from diagnostic_msgs.msg import DiagnosticArray
-
     from dmf_sim.live.simulation import LiveSimulation
 
     sim = LiveSimulation.from_config('truck_dmf', 'engine_d13', load_set='A', speed_rpm=speed_rpm,
@@ -238,8 +228,6 @@ def record_load_change(path: Path, speed_rpm: float, load0: float, load1: float,
         del topics['/driveline/joint_states']
     if record_setpoint:
         topics['/engine/load_setpoint'] = 'std_msgs/msg/Float64'
-    js, f = JointState(), Float64()
-    js.name = sim.names
     next_diag = 0.0
     with BagRecorder(path, topics, custom_data=custom) as rec:
         while sim.t < duration_s:
@@ -248,11 +236,11 @@ def record_load_change(path: Path, speed_rpm: float, load0: float, load1: float,
                 if record_setpoint:
                     rec.write('/engine/load_setpoint', T0 + int(round(sim.t * 1e9)),
                               serialize_message(Float64(data=float(load1))))
-            write_samples(rec, sim.advance(chunk_steps), js if joints else None, f)
+            write_samples(rec, sim.advance(chunk_steps), sim.names if joints else None)
             if sim.t >= next_diag:
                 ns = T0 + int(round(sim.t * 1e9))
-                msg = DiagnosticArray(status=[health_status(sim)])
-                msg.header.stamp = Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+                msg = DiagnosticArray(header=Header(stamp=stamp(ns), frame_id=''),
+                                      status=[health_status(sim)])
                 rec.write('/diagnostics', ns, serialize_message(msg))
                 next_diag += 1.0 / diagnostics_hz
     return path

@@ -1,6 +1,6 @@
 """Order analysis of bags (dmf_sim.analysis.pipeline, ``dmf-sim analyze``).
 
-Bags with known content come from ``synthetic_bags`` (BagRecorder + rclpy CDR, or mcap_ros2's
+Bags with known content come from ``synthetic_bags`` (BagRecorder + rosbags CDR, or mcap_ros2's
 writer for the ``ros2 bag record``-style bag); the "node recording" is the node's simulation
 core stepped offline and recorded as the node does.
 """
@@ -15,8 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import rclpy  # noqa: F401  (the ROS tests need it; make test installs it)
-from synthetic_bags import (  # noqa: E402
+from synthetic_bags import (
     CYL1,
     NAMES,
     RATE,
@@ -32,8 +31,8 @@ from synthetic_bags import (  # noqa: E402
     write_synthetic,
 )
 
-from dmf_sim.analysis.pipeline import SignalSpec, analyze_bag, read_bag_series  # noqa: E402
-from dmf_sim.cli import main as cli_main  # noqa: E402
+from dmf_sim.analysis.pipeline import SignalSpec, analyze_bag, read_bag_series
+from dmf_sim.cli import main as cli_main
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -383,6 +382,7 @@ print((kib('VmHWM') - base) / 1024)
 """
 
 
+@pytest.mark.bench
 def test_bench_analyze_quick(tmp_path):
     """The benchmark on a small bag: figures sane, the fast reader agrees with the libraries
     alone and is faster; and (issue 14) the analysis' memory does not grow with the bag: a

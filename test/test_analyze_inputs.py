@@ -10,16 +10,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import rclpy  # noqa: F401  (the ROS tests need it; make test installs it)
 import yaml
-from synthetic_bags import WINDUP, check_table, ramp, synth, write_synthetic  # noqa: E402
+from synthetic_bags import WINDUP, check_table, ramp, synth, write_synthetic
 
-from dmf_sim.analysis.cycle_orders import EDGE_SAMPLES, angle_cycle_orders, cycle_orders  # noqa: E402
-from dmf_sim.analysis.pipeline import SignalSpec, analyze_bag, read_bag_series  # noqa: E402
-from dmf_sim.bags.metadata import RunMetadata  # noqa: E402
-from dmf_sim.cli import main as cli_main  # noqa: E402
-from dmf_sim.core.errors import BagError  # noqa: E402
-from dmf_sim.physics.orders import CYCLE_RAD  # noqa: E402
+from dmf_sim.analysis.cycle_orders import EDGE_SAMPLES, angle_cycle_orders, cycle_orders
+from dmf_sim.analysis.pipeline import SignalSpec, analyze_bag, read_bag_series
+from dmf_sim.bags.metadata import RunMetadata
+from dmf_sim.cli import main as cli_main
+from dmf_sim.core.errors import BagError
+from dmf_sim.physics.orders import CYCLE_RAD
 
 SHORT = {'duration': 3.0, 'v0': 900.0, 'v1': 1100.0}      # 3 s ramp, ~25 cycles
 

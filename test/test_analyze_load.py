@@ -13,13 +13,12 @@ import math
 
 import numpy as np
 import pytest
-import rclpy  # noqa: F401  (the ROS tests need it; make test installs it)
 from synthetic_bags import record_load_change, write_synthetic
 
-from dmf_sim.analysis.load_timeline import HEALTH_KEYS, load_timeline  # noqa: E402
-from dmf_sim.analysis.pipeline import analyze_bag, model_settings, overlay_all  # noqa: E402
-from dmf_sim.bags.metadata import RunMetadata  # noqa: E402
-from dmf_sim.cli import main as cli_main  # noqa: E402
+from dmf_sim.analysis.load_timeline import HEALTH_KEYS, load_timeline
+from dmf_sim.analysis.pipeline import analyze_bag, model_settings, overlay_all
+from dmf_sim.bags.metadata import RunMetadata
+from dmf_sim.cli import main as cli_main
 
 CHANGE_S, DURATION_S = 5.0, 12.0
 # the README's tolerances of a measured steady state against the HBM

@@ -10,19 +10,18 @@ import re
 import matplotlib
 import numpy as np
 import pytest
-import rclpy  # noqa: F401  (the ROS tests need it; make test installs it)
-from synthetic_bags import WINDUP, record_node_run_up, write_synthetic  # noqa: E402
+from synthetic_bags import WINDUP, record_node_run_up, write_synthetic
 
-from dmf_sim.analysis.hbm_overlay import build_model  # noqa: E402
-from dmf_sim.analysis.pipeline import analysis_dict, analyze_bag, model_settings, overlay_all  # noqa: E402
-from dmf_sim.analysis.plots import fig13_figure  # noqa: E402
-from dmf_sim.bags.metadata import RunMetadata  # noqa: E402
-from dmf_sim.cli import main as cli_main  # noqa: E402
-from dmf_sim.core.errors import BagError  # noqa: E402
-from dmf_sim.physics.engine import load_engine  # noqa: E402
-from dmf_sim.physics.loads import DrivelineLoads  # noqa: E402
-from dmf_sim.physics.model import load_driveline  # noqa: E402
-from dmf_sim.physics.spring import Stage  # noqa: E402
+from dmf_sim.analysis.hbm_overlay import build_model
+from dmf_sim.analysis.pipeline import analysis_dict, analyze_bag, model_settings, overlay_all
+from dmf_sim.analysis.plots import fig13_figure
+from dmf_sim.bags.metadata import RunMetadata
+from dmf_sim.cli import main as cli_main
+from dmf_sim.core.errors import BagError
+from dmf_sim.physics.engine import load_engine
+from dmf_sim.physics.loads import DrivelineLoads
+from dmf_sim.physics.model import load_driveline
+from dmf_sim.physics.spring import Stage
 
 matplotlib.use('Agg')
 THREE_STAGES = {'k': 11500.0,

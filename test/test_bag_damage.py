@@ -2,7 +2,7 @@
 a damaged index, a corrupt first chunk, truncations; what ``analyze`` and ``bag-recover`` make
 of them, and the output directory of ``analyze`` checked before anything is computed.
 
-The bags are written by the project's recorder (BagRecorder, rclpy CDR: ``synthetic_bags``) and
+The bags are written by the project's recorder (BagRecorder, CDR: ``synthetic_bags``) and
 damaged on disk as a bad sector or a bit-rotted copy would: 64 bytes inverted in the middle of a
 chunk's records. Chunk CRCs catch it; the readers skip the chunk and report it.
 """
@@ -13,16 +13,15 @@ import shutil
 from pathlib import Path
 
 import pytest
-import rclpy  # noqa: F401  (the ROS tests need it; make test installs it)
 from synthetic_bags import WINDUP, check_table, chunk_spans, flip_chunks, write_synthetic
 from test_analyze_inputs import one_line_error
 
-from dmf_sim.analysis.pipeline import analyze_bag, read_bag_series  # noqa: E402
-from dmf_sim.bags.read import read_messages  # noqa: E402
-from dmf_sim.bags.records import Scan  # noqa: E402
-from dmf_sim.bags.recovery import recover_bag  # noqa: E402
-from dmf_sim.cli import main as cli_main  # noqa: E402
-from dmf_sim.core.errors import BagError  # noqa: E402
+from dmf_sim.analysis.pipeline import analyze_bag, read_bag_series
+from dmf_sim.bags.read import read_messages
+from dmf_sim.bags.records import Scan
+from dmf_sim.bags.recovery import recover_bag
+from dmf_sim.cli import main as cli_main
+from dmf_sim.core.errors import BagError
 
 RAMP = {'duration': 6.0, 'v0': 900.0, 'v1': 1300.0}        # ~55 cycles, 3 files of 2 s
 TOPICS = ('windup', 'speed', 'crank')
