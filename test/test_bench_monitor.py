@@ -6,6 +6,9 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
+pytestmark = pytest.mark.bench
 BENCH = Path(__file__).resolve().parents[1] / 'benchmarks' / 'bench_monitor.py'
 
 

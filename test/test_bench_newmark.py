@@ -5,6 +5,9 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
+pytestmark = pytest.mark.bench
 BENCH = Path(__file__).resolve().parent.parent / 'benchmarks' / 'bench_newmark.py'
 
 

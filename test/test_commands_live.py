@@ -13,7 +13,6 @@ import time
 from pathlib import Path
 
 import pytest
-import rclpy
 from dds_peer import START_TIMEOUT, new_domain
 
 from dmf_sim.commands._ros import select_node
@@ -149,6 +148,7 @@ class Node:
         self.log.close()
 
 
+@pytest.mark.ros
 def test_setpoint_and_monitor_against_a_running_node(tmp_path):
     domain = new_domain()
     env = _env(domain)
@@ -204,6 +204,7 @@ def _monitor_with_monitor_topics(domain: int) -> str:
     """Run ``dmf-sim monitor --plain`` while this process publishes a real per-cycle message
     and a latched prediction on /truck1 (the node's monitor is wired in separately); returns
     the monitor's output."""
+    import rclpy
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
     from rclpy.executors import SingleThreadedExecutor
     from test_prediction import _cycle

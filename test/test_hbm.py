@@ -16,7 +16,6 @@ from fake_engine import FakeEngine
 
 from dmf_sim.cli import main as cli_main
 from dmf_sim.core.paths import config_file
-from dmf_sim.physics.engine import load_engine
 from dmf_sim.physics.harmonic import harmonic_response
 from dmf_sim.physics.loads import DrivelineLoads
 from dmf_sim.physics.model import driveline_from_dict, load_model
@@ -28,12 +27,10 @@ REPO = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope='module')
-def engine_a():
+def engine_a(engine_2500):
     # the 2500 Nm rating these cases were designed around (mean wind-up below the paper knee;
     # the default 2800 Nm engine is exercised by test_paper_regime.py)
-    eng = load_engine('engine_d13_2500nm', load_set='A')
-    eng.warm()
-    return eng
+    return engine_2500
 
 
 def paper_loads(engine, alpha=3.0, theta=None) -> DrivelineLoads:
@@ -287,6 +284,7 @@ def test_cli_sweep_rejects_bad_input(capsys):
     assert '--load' in capsys.readouterr().err
 
 
+@pytest.mark.bench
 def test_benchmark_quick():
     # dt 5e-5 s: at the default engine's 1.5th-order resonance (1000 rpm) Newmark at 1e-4 s is
     # 1.1 % off the HBM and converges to it at 5e-5 s (doc/theory.md §5)

@@ -218,11 +218,11 @@ def test_steady_cli_multistage(yaml_path, capsys):
     assert sum(s['basin']['hits'] for s in states) == 4
 
 
+@pytest.mark.ros
 def test_live_node_runs_the_multistage_yaml(yaml_path, tmp_path):
     """The ROS node with `driveline:=<the YAML>` (default engine, speed and load): its published
     wind-up oscillates about the static wind-up of the multi-stage spring, and its start-up log
     names the YAML's driveline."""
-    import rclpy  # noqa: F401  (make test installs it)
     from dds_peer import START_TIMEOUT, NodeProcess, Peer, new_domain
     from std_msgs.msg import Float64
 

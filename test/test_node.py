@@ -20,9 +20,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import rclpy  # noqa: F401  (the ROS tests need it; make test installs it)
 import yaml
-from dds_peer import START_TIMEOUT, NodeProcess, Peer, new_domain  # noqa: E402
+from dds_peer import START_TIMEOUT, NodeProcess, Peer, new_domain
+
+pytestmark = pytest.mark.ros     # every test runs the node over DDS
 
 REPO = Path(__file__).resolve().parents[1]
 BENCH = REPO / 'benchmarks' / 'bench_node.py'
@@ -572,6 +573,7 @@ def _bench_json(script: Path, *args: str) -> dict:
     return json.loads(res.stdout.strip().splitlines()[-1])
 
 
+@pytest.mark.bench
 def test_bench_node_quick_prints_json():
     data = _bench_json(BENCH, '--duration', '3', '--fast-duration', '1.5', '--warmup', '1')
     for key in ('rtf_mean', 'lag_p99_ms', 'cpu_pct', 'max_rtf_fast'):
@@ -580,6 +582,7 @@ def test_bench_node_quick_prints_json():
     assert data['bag_complete'] and data['node_exit_code'] == 0
 
 
+@pytest.mark.bench
 def test_bench_node_two_trucks_quick():
     data = _bench_json(BENCH, '--nodes', '2', '--duration', '2', '--warmup', '0.5')
     assert data['nodes'] == 2 and [n['node'] for n in data['per_node']] == \
@@ -590,6 +593,7 @@ def test_bench_node_two_trucks_quick():
     assert data['bag_complete'] and data['node_exit_code'] == 0
 
 
+@pytest.mark.bench
 def test_bench_soak_quick_prints_json():
     data = _bench_json(SOAK, '--minutes', '0.2', '--warmup-minutes', '0.05')
     for key in ('rss_growth_mib_per_h', 'cpu_pct', 'rtf_mean', 'lag_p99_ms_total',

@@ -13,6 +13,8 @@ import pytest
 from dds_peer import NodeProcess, Peer, new_domain
 from foxglove_client import first_message
 
+pytestmark = pytest.mark.ros     # every test runs the node over DDS
+
 
 def _free_port() -> int:
     with socket.socket() as s:

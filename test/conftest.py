@@ -1,0 +1,65 @@
+"""Shared fixtures and markers for the whole suite.
+
+Markers (registered in setup.cfg, ``[tool:pytest]``):
+
+``ros``    needs rclpy and DDS (the ``ros`` extra). Without rclpy these tests are skipped with a
+           reason naming the extra, so a plain ``pip install -e '.[test]'`` runs every ROS-free
+           test; with ``DMF_SIM_REQUIRE_ROS=1`` (``make test``) a missing rclpy stops the run.
+``slow``   takes more than ~10 s on a quiet 2-core machine (``-m 'not slow'`` for a quick run).
+``bench``  a benchmark's smoke run (small sizes; the full benchmarks are ``make bench``).
+
+Session fixtures: the default engine and the 2500 Nm engine (Load A, excitation grid computed
+once) and the DMF driveline model, loaded once for the whole run. They are shared: do not modify
+them (``Engine.with_load_set`` and ``load_model(..., alpha=...)`` give variants).
+"""
+from __future__ import annotations
+
+import importlib.util
+import os
+
+import pytest
+
+ROS_EXTRA = "pip install -e '.[ros]'"
+REQUIRE_ROS = 'DMF_SIM_REQUIRE_ROS'
+
+
+def ros_available() -> bool:
+    """rclpy importable (found; not imported here, so ROS-free tests stay ROS-free)."""
+    return importlib.util.find_spec('rclpy') is not None
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    if ros_available():
+        return
+    ros_items = [item for item in items if item.get_closest_marker('ros') is not None]
+    if ros_items and os.environ.get(REQUIRE_ROS) == '1':
+        raise pytest.UsageError(f'{REQUIRE_ROS}=1 but rclpy is not installed: {ROS_EXTRA} '
+                                f'({len(ros_items)} ROS tests would be skipped)')
+    skip = pytest.mark.skip(reason=f'needs rclpy and DDS, the ros extra: {ROS_EXTRA}')
+    for item in ros_items:
+        item.add_marker(skip)
+
+
+@pytest.fixture(scope='session')
+def engine_d13():
+    """The default engine (config/engine_d13.yaml), Load A, every grid node computed."""
+    from dmf_sim.physics.engine import load_engine
+    engine = load_engine('engine_d13', load_set='A')
+    engine.warm()
+    return engine
+
+
+@pytest.fixture(scope='session')
+def engine_2500():
+    """The 2500 Nm rating (config/engine_d13_2500nm.yaml), Load A, every grid node computed."""
+    from dmf_sim.physics.engine import load_engine
+    engine = load_engine('engine_d13_2500nm', load_set='A')
+    engine.warm()
+    return engine
+
+
+@pytest.fixture(scope='session')
+def truck_dmf():
+    """The paper's DMF driveline (config/truck_dmf.yaml) as a reduced model."""
+    from dmf_sim.physics.model import load_model
+    return load_model('truck_dmf')
