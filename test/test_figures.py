@@ -18,7 +18,6 @@ from dmf_sim.figures import (
     sweep_curves,
     windup_figure,
 )
-from dmf_sim.physics.engine import load_engine
 from dmf_sim.physics.loads import DrivelineLoads
 from dmf_sim.physics.modal import modes
 from dmf_sim.physics.model import load_model
@@ -99,8 +98,8 @@ def test_unstable_stretches_dashed_and_3rd_order_distinct_from_max_deviation():
     assert max(ln.get_zorder() for ln in red) < min(ln.get_zorder() for ln in black)
 
 
-def test_mode_plot_names_the_dmf_elements():
-    conv, dmf = modes(load_model('truck_conventional')), modes(load_model('truck_dmf'))
+def test_mode_plot_names_the_dmf_elements(truck_dmf):
+    conv, dmf = modes(load_model('truck_conventional')), modes(truck_dmf)
     fig = mode_shapes_figure(conv, dmf)
     ticks = [t.get_text() for t in fig.axes[-1].get_xticklabels()]
     assert 'PRIMARY FLYWHEEL\n(conv. FLYWHEEL)' in ticks
@@ -112,14 +111,14 @@ def test_mode_plot_names_the_dmf_elements():
         assert box.x0 > 1.0                                   # right of the data
 
 
-def test_sweep_tables_hold_green_line_and_dynamic_mean(tmp_path, capsys):
+def test_sweep_tables_hold_green_line_and_dynamic_mean(tmp_path, capsys, engine_d13):
     assert cli_main(['sweep', '--alpha', '3', '--speeds', '940', '1060', '20', '--no-progress',
                      '--json', '--out', str(tmp_path)]) == 0
     data = json.loads(capsys.readouterr().out)
     with open(tmp_path / 'sweep.csv') as fh:
         rows = list(csv.DictReader(fh))
     assert {'theta_minus_static', 'static_windup', 'mean', 'mean_minus_theta'} <= set(rows[0])
-    hbm = CondensedHBM(DrivelineLoads(load_model('truck_dmf', alpha=3.0), load_engine()), 1.0)
+    hbm = CondensedHBM(DrivelineLoads(load_model('truck_dmf', alpha=3.0), engine_d13), 1.0)
     for r in rows:
         s, theta = float(r['speed_rpm']), data['theta_rad']
         assert float(r['static_windup']) == pytest.approx(hbm.static_windup(s), abs=1e-12)
@@ -131,11 +130,11 @@ def test_sweep_tables_hold_green_line_and_dynamic_mean(tmp_path, capsys):
     assert (tmp_path / 'fig13.png').stat().st_size > 10_000
 
 
-def test_sweep_starts_inside_the_resonance():
+def test_sweep_starts_inside_the_resonance(engine_d13):
     """Newton from the linear response does not converge at 960-1000 rpm (alpha 3, full Load A);
     the sweep then continues its start solution from the engine's lowest speed and lands on the
     same solution as a sweep from 600 rpm."""
-    loads = DrivelineLoads(load_model('truck_dmf', alpha=3.0), load_engine())
+    loads = DrivelineLoads(load_model('truck_dmf', alpha=3.0), engine_d13)
     inside = run_sweep(loads, 1.0, (980.0, 1020.0))
     assert 'continued from 400 rpm' in inside.main().origin
     full = run_sweep(loads, 1.0, (600.0, 1100.0))

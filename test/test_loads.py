@@ -8,21 +8,20 @@ import numpy as np
 import pytest
 from fake_engine import FakeEngine
 
-from dmf_sim.physics.engine import load_engine
 from dmf_sim.physics.loads import DrivelineLoads
 from dmf_sim.physics.model import load_model
 
 
 @pytest.fixture(scope='module')
-def real():
-    return DrivelineLoads(load_model('truck_dmf'), load_engine('engine_d13'))
+def real(truck_dmf, engine_d13):
+    return DrivelineLoads(truck_dmf, engine_d13)
 
 
-def test_rear_load_balances_mean_torque(real):
+def test_rear_load_balances_mean_torque(real, engine_d13):
     m = real.model
     P = real.element_harmonics(1200, 1.0)
     mean_engine = real.mean_engine_torque(1200, 1.0)
-    assert mean_engine == pytest.approx(load_engine('engine_d13').mean_torque(1200, 1.0), rel=1e-9)
+    assert mean_engine == pytest.approx(engine_d13.mean_torque(1200, 1.0), rel=1e-9)
     # rear load = - engine mean torque x cumulative ratio
     assert P[0, real.rear_element].real == pytest.approx(-mean_engine * m.R[real.rear_element])
     # balanced: no net work on a rigid rotation

@@ -11,17 +11,17 @@ from dmf_sim.physics.modal import modes
 from dmf_sim.physics.model import driveline_from_dict, load_model
 
 
-def test_dmf_second_mode_matches_paper():
+def test_dmf_second_mode_matches_paper(truck_dmf):
     # paper: 18 Hz at primary stiffness, 27 Hz at k(1 + alpha), alpha = 3
-    f_primary = modes(load_model('truck_dmf')).frequencies_hz
+    f_primary = modes(truck_dmf).frequencies_hz
     f_alpha3 = modes(load_model('truck_dmf', alpha=3.0), 'secondary').frequencies_hz
     assert round(f_primary[2]) == 18
     assert round(f_alpha3[2]) == 27
 
 
-def test_rigid_body_mode_at_zero_and_dmf_lowers_second_mode():
+def test_rigid_body_mode_at_zero_and_dmf_lowers_second_mode(truck_dmf):
     conv = modes(load_model('truck_conventional')).frequencies_hz
-    dmf = modes(load_model('truck_dmf')).frequencies_hz
+    dmf = modes(truck_dmf).frequencies_hz
     assert conv[0] == 0.0 and dmf[0] == 0.0
     assert conv[1] > 0 and dmf[1] > 0
     assert dmf[2] < conv[2]          # the problematic second (elastic) mode moves down
@@ -34,8 +34,8 @@ def test_mode_shapes_scaled_by_cumulative_ratio():
     assert np.all(np.abs(res.element_shapes).max(axis=0) == pytest.approx(1.0))
 
 
-def test_harmonic_response_equals_dense_solve():
-    m = load_model('truck_dmf')
+def test_harmonic_response_equals_dense_solve(truck_dmf):
+    m = truck_dmf
     p = np.zeros(m.n_elements, complex)
     p[2:8] = 100 * np.exp(1j * np.arange(6))
     speeds = np.array([700.0, 1234.0])

@@ -129,14 +129,13 @@ def test_bad_newmark_parameters():
         NewmarkIntegrator(loads(), beta=0.1, gamma=0.5)
 
 
-def test_step_refinement_real_engine_at_knee_grazing_point():
+def test_step_refinement_real_engine_at_knee_grazing_point(engine_2500):
     """Real engine (2500 Nm rating), alpha 3, Load A at 1000 rpm: the swing just grazes the knee
     and the small 1.5th order is coupled to a lightly damped 125 Hz crank mode (7.5th order). At
     dt = 1e-4 s the Newmark period error there shifts the 1.5th order by ~3 %; at dt = 5e-5 s
     halving the step changes both orders by < 0.5 % (doc/theory.md §5: dt <= 5e-5 s offline near
     such points)."""
-    from dmf_sim.physics.engine import load_engine
-    L = DrivelineLoads(load_model('truck_dmf', alpha=3.0), load_engine('engine_d13_2500nm'))
+    L = DrivelineLoads(load_model('truck_dmf', alpha=3.0), engine_2500)
     runs = [simulate(L, 1000, 1.0, dt=dt, steady_tol=1e-9, max_cycles=120)
             for dt in (5e-5, 2.5e-5)]
     assert runs[0].knee_crossings > 0

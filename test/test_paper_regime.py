@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 
 from dmf_sim.paper.study import stable_peak_1_5
-from dmf_sim.physics.engine import load_engine
 from dmf_sim.physics.loads import DrivelineLoads
 from dmf_sim.physics.model import load_model
 from dmf_sim.solvers.hbm import SweepOptions
@@ -21,10 +20,8 @@ BAND = (720.0, 1080.0)
 
 
 @pytest.fixture(scope='module')
-def engine():
-    eng = load_engine()
-    eng.warm()
-    return eng
+def engine(engine_d13):
+    return engine_d13
 
 
 @pytest.fixture(scope='module')
