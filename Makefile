@@ -1,18 +1,39 @@
 # Two entry points (README quick start): `make node` runs the live node, `make test` the test suite
 # and the docs build. Each sets up its own virtual environment in .venv (ROS 2 Jazzy rclpy from the
 # package index). `make docs` builds the documentation site alone (doc/ -> doc/_build/html).
+# CI (`make ci`, .ci/run) runs the suite in two more environments: the ROS platform's library
+# versions (constraints/platform-jazzy.txt, .venv-jazzy) and a plain install without the ros
+# extra (.venv-noros: the ROS tests are skipped with their reason, everything else must pass).
 PYTHON ?= python3
 VENV := .venv
 STAMP := $(VENV)/.installed
 PY := $(VENV)/bin/python
+DEPS := setup.py setup.cfg package.xml
+PYTEST := -m pytest -q -rs --durations=15 test
 
-$(STAMP): setup.py setup.cfg package.xml
+PLATFORM := constraints/platform-jazzy.txt
+VENV_JAZZY := .venv-jazzy
+VENV_NOROS := .venv-noros
+
+$(STAMP): $(DEPS)
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -e '.[ros,test]'
 	touch $(STAMP)
 
-.PHONY: venv node test docs bench clean
+$(VENV_JAZZY)/.installed: $(DEPS) $(PLATFORM)
+	$(PYTHON) -m venv $(VENV_JAZZY)
+	$(VENV_JAZZY)/bin/python -m pip install --quiet --upgrade pip
+	$(VENV_JAZZY)/bin/python -m pip install --quiet -c $(PLATFORM) -e '.[ros,test]'
+	touch $@
+
+$(VENV_NOROS)/.installed: $(DEPS)
+	$(PYTHON) -m venv $(VENV_NOROS)
+	$(VENV_NOROS)/bin/python -m pip install --quiet --upgrade pip
+	$(VENV_NOROS)/bin/python -m pip install --quiet -e '.[test]'
+	touch $@
+
+.PHONY: venv node test test-platform test-noros ci docs bench clean
 venv: $(STAMP)
 
 node: $(STAMP)
@@ -23,9 +44,25 @@ node: $(STAMP)
 	@echo '  ". $(VENV)/bin/activate" once; e.g. in another terminal: $(VENV)/bin/dmf-sim monitor'
 	$(VENV)/bin/driveline_node $(ARGS)
 
+# everything, ROS included: a missing rclpy is an error here, not a skip
 test: $(STAMP)
-	$(PY) -m pytest -q test
+	DMF_SIM_REQUIRE_ROS=1 $(PY) $(PYTEST)
 	$(MAKE) docs
+
+# the suite on the ROS 2 Jazzy platform's versions (numpy 1.26, matplotlib 3.6, ...)
+test-platform: $(VENV_JAZZY)/.installed
+	$(VENV_JAZZY)/bin/python -c "import numpy, matplotlib; print('platform: numpy', \
+	    numpy.__version__, 'matplotlib', matplotlib.__version__)"
+	DMF_SIM_PLATFORM=jazzy DMF_SIM_REQUIRE_ROS=1 $(VENV_JAZZY)/bin/python $(PYTEST)
+
+# a plain `pip install -e '.[test]'`: the suite collects, ROS tests skipped (-rs shows why)
+test-noros: $(VENV_NOROS)/.installed
+	$(VENV_NOROS)/bin/python -c "import importlib.util, sys; \
+	    sys.exit('rclpy is installed in $(VENV_NOROS)') if importlib.util.find_spec('rclpy') \
+	    else None"
+	$(VENV_NOROS)/bin/python $(PYTEST)
+
+ci: test test-platform test-noros
 
 # -W: any warning (a broken link, a page missing from a toctree, malformed Markdown) fails the
 # build; -E: fresh, so a warning is never hidden by an earlier build; no network needed.
@@ -36,4 +73,4 @@ bench: $(STAMP)
 	for b in benchmarks/bench_*.py; do $(PY) $$b || exit 1; done
 
 clean:
-	rm -rf $(VENV) build *.egg-info doc/_build
+	rm -rf $(VENV) $(VENV_JAZZY) $(VENV_NOROS) build *.egg-info doc/_build
