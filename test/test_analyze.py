@@ -317,18 +317,20 @@ def test_node_run_up_agrees_with_hbm(tmp_path, capsys):
     assert all(r['mean_minus_theta'] > -0.015 for r in rows if r['speed_rpm'] >= 1020)
 
 
+@pytest.mark.ros
 def test_node_end_to_end_killed_recording(tmp_path, capsys):
     """The real driveline_node (separate process, fast pacing, full load at 1100 rpm, where the
     DMF crosses its knee every cycle) records a bag; it is killed with SIGKILL while recording
     (a crash); the truncated bag is analysed and agrees with the steady-state HBM."""
     import os
-    import random
     import time
+
+    from dds_peer import new_domain
 
     import dmf_sim.node  # noqa: F401
     bag = tmp_path / 'nodebag'
     env = {**os.environ, 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST',
-           'ROS_DOMAIN_ID': str(random.randint(101, 140))}
+           'ROS_DOMAIN_ID': str(new_domain())}
     proc = subprocess.Popen(
         [sys.executable, '-m', 'dmf_sim.node', '--ros-args', '-p', 'pacing:=fast', '-p',
          'record:=true', '-p', f'bag_path:={bag}', '-p', 'initial_speed_rpm:=1100.0', '-p',
