@@ -398,9 +398,10 @@ def test_bench_analyze_quick(tmp_path):
     for key in ('analyze_seconds', 'read_seconds', 'library_read_seconds',
                 'joint_analyze_seconds', 'write_seconds'):
         assert math.isfinite(data[key]) and data[key] > 0
-    assert data['analyze_seconds'] < 20
+    # CPU time of this process: the same when both cores are busy (wall time is not)
+    assert data['analyze_cpu_seconds'] < 20
     assert data['reader'] == 'fast' and data['readers_agree']
-    assert data['fast_reader_speedup'] > 1
+    assert data['fast_reader_cpu_speedup'] > 1
     assert data['analyze_rss_growth_mib'] < 0.4 * data['bag_mib']
     assert data['joint_rss_growth_mib'] < 0.4 * data['bag_mib']
     for key in ('order_3_max_rel_error', 'order_1_5_max_rel_error', 'cyl1_order_3_max_rel_error',
