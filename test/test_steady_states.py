@@ -250,11 +250,11 @@ def test_a_sweep_stops_at_its_time_limit_naming_phase_and_speed():
 
     from dmf_sim.core.errors import TimeLimitError
     L = _paper_loads()
-    t0 = time.perf_counter()
+    t0 = time.process_time()          # CPU time: "at once" also when both cores are busy
     with pytest.raises(TimeLimitError, match=r'time limit 0.001 s reached during continuation '
                                              r'at \d+ rpm'):
         sweep(L, 1.0, (600.0, 2000.0), options=SweepOptions(search=None, time_limit_s=1e-3))
-    assert time.perf_counter() - t0 < 1.0
+    assert time.process_time() - t0 < 1.0
     free = sweep(L, 1.0, (600.0, 2000.0), options=SweepOptions(search=None))
     bound = sweep(L, 1.0, (600.0, 2000.0), options=SweepOptions(search=None, time_limit_s=600.0))
     assert bound.n_points == free.n_points
