@@ -20,6 +20,8 @@ import dmf_sim.commands.paper as paper_cmd
 from dmf_sim.cli import main as cli_main
 from dmf_sim.paper.claims import NO, PARTLY, YES, claims
 
+pytestmark = pytest.mark.slow     # the reduced paper study (bench_paper --quick) runs once
+
 FIGS = ('fig8.png', 'fig12.png', 'fig13.png', 'fig13_damping.png', 'fig14.png', 'fig15.png')
 BENCH = Path(__file__).resolve().parent.parent / 'benchmarks' / 'bench_paper.py'
 

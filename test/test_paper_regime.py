@@ -15,6 +15,8 @@ from dmf_sim.physics.model import load_model
 from dmf_sim.solvers.hbm import SweepOptions
 from dmf_sim.solvers.hbm import sweep as run_sweep
 
+pytestmark = pytest.mark.slow     # full sweeps for three alphas and three load sets
+
 GRID = SweepOptions(step_rpm=20.0)
 BAND = (720.0, 1080.0)
 
