@@ -8,6 +8,11 @@ DMF's 1.5th-order resonance (alpha 3, theta 0.2 rad, full load), so the predicti
 again and again. Variants: no monitor; monitor with worker threads; with worker processes.
 
     python benchmarks/bench_monitor.py [--seconds 12] [--hold 1.5]
+    python benchmarks/bench_monitor.py --ticks 2300 --hold 1 --variants process   # smoke run
+
+``--ticks N`` ends a variant after N ticks, and after its monitor's first prediction (waited for
+up to PREDICTION_WAIT_S, the setpoint held from tick N on), instead of after ``--seconds``: the
+counts then do not depend on how busy the machine is (the test suite's smoke run).
 
 Prints a table and, as its LAST line, one JSON object with the figures.
 """
@@ -26,10 +31,11 @@ from dmf_sim.monitor.worker import LiveMonitor, MonitorSettings
 
 SPEEDS_RPM = (960.0, 1010.0, 905.0, 1100.0, 940.0, 1050.0, 980.0, 920.0, 1200.0, 870.0)
 TICK_S = 1e-3          # wall time per tick (the node's 1 kHz publish rate)
+PREDICTION_WAIT_S = 240.0   # --ticks: longest wait for the first prediction [s]
 STEPS_PER_TICK = 10    # dt 1e-4 s
 
 
-def run(variant: str, seconds: float, hold: float) -> dict:
+def run(variant: str, seconds: float, hold: float, ticks: int | None = None) -> dict:
     sim = LiveSimulation.from_config(alpha=3.0, theta=0.2, speed_rpm=1000.0, load=1.0,
                                      speed_ramp_rpm_per_s=500.0)
     mon = None
@@ -46,9 +52,12 @@ def run(variant: str, seconds: float, hold: float) -> dict:
     k, i_speed, next_change, asked = 0, 0, t0, None
     while True:
         now = time.perf_counter()
-        if now - t0 > seconds:
+        if ticks is None and now - t0 > seconds:
             break
-        if now >= next_change:
+        if ticks is not None and k >= ticks and (
+                mon is None or latencies or now - t0 > PREDICTION_WAIT_S):
+            break
+        if now >= next_change and (ticks is None or k < ticks):
             speed = SPEEDS_RPM[i_speed % len(SPEEDS_RPM)]
             i_speed += 1
             sim.set_speed_setpoint(speed)
@@ -86,9 +95,11 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('--seconds', type=float, default=12.0, help='wall time per variant [s]')
     ap.add_argument('--hold', type=float, default=1.5, help='seconds between setpoint changes')
+    ap.add_argument('--ticks', type=int, default=None,
+                    help='end after this many ticks and the first prediction (not --seconds)')
     ap.add_argument('--variants', nargs='+', default=['none', 'thread', 'process'])
     args = ap.parse_args(argv)
-    rows = [run(v, args.seconds, args.hold) for v in args.variants]
+    rows = [run(v, args.seconds, args.hold, args.ticks) for v in args.variants]
     print(f'{"variant":8s} {"ticks":>6s} {"lag p50":>8s} {"p99":>7s} {"max":>7s} {"cycles":>6s} '
           f'{"predictions":>11s} {"latency median/max":>19s} {"start":>6s}')
     for r in rows:

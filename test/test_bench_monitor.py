@@ -13,9 +13,11 @@ BENCH = Path(__file__).resolve().parents[1] / 'benchmarks' / 'bench_monitor.py'
 
 
 def test_bench_monitor_quick():
-    out = subprocess.run([sys.executable, str(BENCH), '--seconds', '4', '--hold', '1',
+    # a number of ticks and the first prediction, not 4 s of wall time: with both cores busy
+    # the loop managed 1275 ticks in 4 s and the worker no prediction
+    out = subprocess.run([sys.executable, str(BENCH), '--ticks', '2300', '--hold', '1',
                           '--variants', 'process'], capture_output=True, text=True,
-                         timeout=300, check=True).stdout
+                         timeout=600, check=True).stdout
     res = json.loads(out.strip().splitlines()[-1])
     assert set(res) == {'process'}
     proc = res['process']
