@@ -29,7 +29,8 @@ LINK = re.compile(r'\]\(([^)#\s]+)(?:#[^)]*)?\)')
 def _repository_files():
     for path in ROOT.rglob('*'):
         rel = path.relative_to(ROOT)
-        if any(part in SKIP_DIRS or part.endswith('.egg-info') for part in rel.parts):
+        if any(part in SKIP_DIRS or part.endswith('.egg-info') or part.startswith('.venv')
+               for part in rel.parts):                       # .venv-jazzy, .venv-noros too
             continue
         if path.is_file() and path.suffix in TEXT_SUFFIXES:
             yield rel, path
