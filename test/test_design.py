@@ -4,6 +4,7 @@ and refuses bad study files (and an unreachable scheduler) with one line before 
 from __future__ import annotations
 
 import json
+import math
 import os
 import socket
 from pathlib import Path
@@ -76,13 +77,26 @@ that are zero on one path and ~1e-17 on the other."""
 ABS_TOL = 1e-15
 
 
+def _close(g, w) -> bool:
+    """Floats within REL_TOL (NaN == NaN), sequences item by item, anything else equal."""
+    if isinstance(w, float) or isinstance(g, float):
+        if not isinstance(g, (int, float)) or not isinstance(w, (int, float)):
+            return False
+        return (math.isnan(g) and math.isnan(w)) or math.isclose(g, w, rel_tol=REL_TOL,
+                                                                 abs_tol=ABS_TOL)
+    if isinstance(w, (list, tuple)):
+        return isinstance(g, (list, tuple)) and len(g) == len(w) and all(
+            _close(a, b) for a, b in zip(g, w))
+    return g == w
+
+
 def _assert_rows_close(got: list[dict], want: list[dict]) -> None:
     """Same rows, same keys, equal strings/ints/flags, floats within REL_TOL (NaN == NaN)."""
     assert len(got) == len(want)
     for g, w in zip(got, want, strict=True):
         assert g.keys() == w.keys()
-        assert g == pytest.approx(w, rel=REL_TOL, abs=ABS_TOL, nan_ok=True), \
-            (w.get('design_id'), w.get('condition'))
+        off = {k: (g[k], w[k]) for k in w if not _close(g[k], w[k])}
+        assert not off, (w.get('design_id'), w.get('condition'), off)
 
 
 # ------------------------------------------------------------------------------------------------
