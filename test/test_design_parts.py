@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from dmf_sim.core.errors import ConfigError
-from dmf_sim.design.metrics import speed_ranges
+from dmf_sim.design.metrics import design_summary, first_max, speed_ranges
 from dmf_sim.design.parameters import check_parameter_set, design_driveline, parse_parameter
 from dmf_sim.design.pareto import compromise, pareto_mask
 from dmf_sim.design.sampling import VariableRange, grid, latin_hypercube, uniform_random
@@ -137,3 +137,26 @@ def test_non_periodic_speeds_count_in_the_worst_values(tmp_path):
     assert envelope and m['rpm_nonperiodic'] >= 20.0 and m['speeds_nonperiodic']
     assert m['max_windup'] >= envelope[0].mean + envelope[0].max_deviation - 1e-12
     assert m['worst_order_1_5'] >= envelope[0].order_1_5
+
+
+def test_worst_condition_and_speed_do_not_hang_on_the_last_bit():
+    """Issue 20: two load sets with the same worst value but for the last bits (as a Dask worker
+    and this process computed them) named either condition; the first within TIE_REL is named."""
+    hi, lo = 0.003220760291894178, 0.00322076029189417      # the field report's two values
+
+    def row(cond, v):
+        return {'condition': cond, **{n: v for n in ('worst_order_1_5', 'worst_order_3',
+                                                     'worst_torque_3', 'max_dmf_torque')},
+                **{f'{n}_rpm': 1000.0 for n in ('worst_order_1_5', 'worst_order_3',
+                                                'worst_torque_3', 'max_dmf_torque',
+                                                'max_stable_states')},
+                'max_stable_states': 1, 'max_windup': 0.1, 'rpm_1_5': 0.0,
+                'rpm_nonperiodic': 0.0, 'speeds_1_5': '', 'speeds_nonperiodic': '',
+                'n_branches': 1}
+    for a, b in ((lo, hi), (hi, lo)):
+        s = design_summary([row('A 1', a), row('B 1', b)])
+        assert s['worst_torque_3_condition'] == 'A 1' and s['worst_order_1_5'] in (a, b)
+    assert design_summary([row('A 1', 1.0), row('B 1', 1.001)])['worst_torque_3_condition'] \
+        == 'B 1'                                                  # a real difference still wins
+    assert first_max(np.array([np.nan, 2.0, 2.0 * (1 + 1e-12), 1.0])) == 1
+    assert first_max(np.array([np.nan, np.nan])) == 0

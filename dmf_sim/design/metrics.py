@@ -36,6 +36,12 @@ OBJECTIVES = {
 }
 WORST = ('worst_order_1_5', 'worst_order_3', 'worst_torque_3', 'max_dmf_torque')
 """Metrics that are a maximum over states, reported with the speed and condition where."""
+TIE_REL = 1e-9
+"""Values within this relative distance of the largest are a tie when a metric names where its
+worst value is (speed, condition): the first in grid or condition order is named. Load sets that
+differ only at low speed give the same worst value above, equal but for the last bits, and a Dask
+worker and this process may round those bits differently: a plain argmax then named either
+condition (issue 20)."""
 
 
 def condition_metrics(states, spring, step_rpm: float) -> dict:
@@ -72,7 +78,7 @@ def design_summary(rows: list[dict]) -> dict:
     out: dict = {}
     for name in WORST + ('max_stable_states',):
         vals = np.array([r[name] for r in rows], dtype=float)
-        k = int(np.argmax(np.where(np.isnan(vals), -np.inf, vals)))
+        k = first_max(vals)
         out[name] = float(vals[k]) if name in WORST else int(vals[k])
         out[f'{name}_rpm'] = rows[k][f'{name}_rpm']
         out[f'{name}_condition'] = rows[k]['condition']
@@ -85,10 +91,19 @@ def design_summary(rows: list[dict]) -> dict:
     return out
 
 
+def first_max(values: np.ndarray) -> int:
+    """Index of the first value within TIE_REL of the largest (NaN never counts; all NaN: 0)."""
+    v = np.where(np.isnan(values), -np.inf, np.asarray(values, dtype=float))
+    top = v.max()
+    if not np.isfinite(top):
+        return int(np.argmax(v))
+    return int(np.flatnonzero(v >= top - TIE_REL * abs(top))[0])
+
+
 def _worst(values: np.ndarray, speeds: np.ndarray) -> tuple[float, float]:
     if len(values) == 0 or np.all(np.isnan(values)):
         return math.nan, math.nan
-    k = int(np.nanargmax(values))
+    k = first_max(values)
     return float(values[k]), float(speeds[k])
 
 
