@@ -171,10 +171,11 @@ def test_encoded_messages_equal_the_serializers(run_bag):
         assert row.tobytes() == bytes(STORE.serialize_cdr(f64(data=v), 'std_msgs/msg/Float64'))
 
 
+@pytest.mark.ros
 def test_encoded_messages_equal_rclpy(run_bag):
     """What the node publishes (rclpy's serializer) is what the run writes, byte for byte but
     for the alignment padding (rclpy leaves it unset)."""
-    rclpy_ser = pytest.importorskip('rclpy.serialization')
+    import rclpy.serialization as rclpy_ser
     from sensor_msgs.msg import JointState
     enc = SampleEncoder(['A', 'BB'])
     msg = JointState()
