@@ -27,7 +27,7 @@ setup(
         'scipy>=1.11',
         'PyYAML>=6',
         'matplotlib>=3.6',
-        'numba>=0.59',                 # the first with Python 3.12 (Jazzy's); noble has no apt numba
+        'numba>=0.59',                 # the first with Python 3.12 (Ubuntu 24.04 has no apt numba)
         'tqdm>=4.66',
         'rosbags>=0.10',
         'mcap>=1.1',
