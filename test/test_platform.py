@@ -58,7 +58,7 @@ def test_every_python_key_of_package_xml_is_pinned():
     # numba has no apt package on Ubuntu 24.04: no key, but pinned for the pip line
     assert 'python3-numba' not in keys and 'numba' in pins
     for pip_only in ('mcap', 'foxglove-sdk', 'dask', 'distributed', 'pyarrow', 'fatpack',
-                     'threadpoolctl'):
+                     'threadpoolctl', 'optuna'):
         assert pip_only in pins
 
 
