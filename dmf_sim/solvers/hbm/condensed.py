@@ -50,7 +50,8 @@ from dmf_sim.core.units import RPM_TO_RAD_S
 from dmf_sim.physics.harmonic import solve_harmonic, solve_static
 from dmf_sim.physics.loads import DrivelineLoads
 from dmf_sim.physics.orders import OrderSummary, summarize_orders, synthesize
-from dmf_sim.solvers.continuation import solve_small
+from dmf_sim.solvers.continuation import CorrectorFailed, solve_small
+from dmf_sim.solvers.hbm import kernels
 from dmf_sim.solvers.hbm.layout import SUB_HARMONICS, times_h, to_complex, to_real
 from dmf_sim.solvers.stability import FlexibleModes
 
@@ -80,6 +81,8 @@ class HBMOptions:
             basin stalls at a kink of the piecewise-linear residual with ever shorter steps;
             converging solves take full steps and need at most ~6 iterations).
         speed_fd_rpm: finite-difference step for the speed derivative of the engine load [rpm].
+        compiled: AFT, residual, Jacobian and Newton through the compiled kernels
+            (:mod:`dmf_sim.solvers.hbm.kernels`); False: the readable numpy reference.
     """
 
     n_harmonics: int = 24
@@ -89,6 +92,7 @@ class HBMOptions:
     stall_iter: int = 8
     stall_ratio: float = 0.5
     speed_fd_rpm: float = 0.05
+    compiled: bool = True
 
     def time_samples(self) -> int:
         if self.n_time is not None:
@@ -107,6 +111,8 @@ class LinearParts:
         h: (H+1,) complex wind-up receptance e.H_n e [rad/Nm] (h_0 static, real).
         wlin: (H+1,) complex linear wind-up response e.H_n P_n [rad] (wlin_0: static mean).
         dh_ds, dwlin_ds: their derivatives with respect to speed [per rpm].
+        lin, dlin: (wlin, h) and (dwlin_ds, dh_ds) with wlin on the real layout, packed for the
+            compiled kernels.
     """
 
     speed_rpm: float
@@ -116,6 +122,8 @@ class LinearParts:
     wlin: np.ndarray
     dh_ds: np.ndarray
     dwlin_ds: np.ndarray
+    lin: tuple = ()
+    dlin: tuple = ()
 
 
 @dataclass
@@ -212,7 +220,8 @@ class CondensedHBM:
                             -np.sin(np.outer(self.phi, n))])
         weights = np.full(2 * H + 1, 2.0 / M)
         weights[0] = 1.0 / M
-        self.F = weights[:, None] * self.E.T
+        self.F = np.ascontiguousarray(weights[:, None] * self.E.T)
+        self.compiled = bool(self.options.compiled)
         m = self.model
         # Static (n = 0) flexibility at the DMF, rigid mode removed: u_0 = K^+ e, h_0 = e.K^+ e.
         self._u0 = solve_static(m, m.e.astype(float))
@@ -232,6 +241,14 @@ class CondensedHBM:
         self._cache: OrderedDict[float, LinearParts] = OrderedDict()
         self._primary = self.spring.primary_bounds()           # (lower, upper) wind-up [rad]
         self._eye = np.eye(2 * H + 1)
+        # what the compiled kernels read: the AFT matrices and the spring's arrays (the same
+        # ones the Newmark kernel reads)
+        m_all = np.arange(2 * H + 1)
+        self._aft_mats = (self.E, weights, np.cos(np.outer(self.phi, m_all)),
+                          np.sin(np.outer(self.phi, m_all)))
+        self._spring_arrays = (*self.spring.arrays(), int(self.spring.primary_index))
+        self._newton_opts = (float(self.options.tol), int(self.options.max_iter),
+                             int(self.options.stall_iter), float(self.options.stall_ratio))
 
     # ---- loads and linear parts -------------------------------------------------------------
     def dof_loads(self, speed_rpm: float) -> np.ndarray:
@@ -279,7 +296,8 @@ class CondensedHBM:
         pole2 = -1j * pole ** 2                                   # d/dOm of the pole
         dh[1:] = (pole2 @ self._a) * dOm
         dw[1:] = (Q * pole2) @ self._ell * dOm + (dQ * pole) @ self._ell
-        lp = LinearParts(key, omega, P, h, wlin, dh, dw)
+        lp = LinearParts(key, omega, P, h, wlin, dh, dw, (to_real(wlin, H), h),
+                         (to_real(dw, H), dh))
         self._cache[key] = lp
         if len(self._cache) > 16:
             self._cache.popitem(last=False)
@@ -374,6 +392,16 @@ class CondensedHBM:
         AFT: w_j = E x -> g(w_j) -> G = F g. Jacobian dG/dx = F diag(g'(w_j)) E, summed over the
         samples where g' != 0 only (the others contribute nothing).
         """
+        if not self.compiled:
+            return self.nonlinear_harmonics_reference(x, jacobian)
+        G, dG, count = kernels.harmonics_py(np.ascontiguousarray(x, dtype=float),
+                                            self._aft_mats, self._spring_arrays, jacobian)
+        if not jacobian:
+            return G
+        return G, (dG if count else None)
+
+    def nonlinear_harmonics_reference(self, x: np.ndarray, jacobian: bool = False):
+        """:meth:`nonlinear_harmonics` in readable numpy (the compiled kernel's reference)."""
         w = self.E @ x
         sp = self.spring
         lo, hi = self._primary
@@ -396,7 +424,16 @@ class CondensedHBM:
 
     def residual_and_jacobian(self, x: np.ndarray, lp: LinearParts):
         """(r, dr/dx) with the analytic AFT Jacobian dr/dx = I + h dG/dx."""
-        G, dG = self.nonlinear_harmonics(x, jacobian=True)
+        if self.compiled:
+            r, Jx, _ = kernels.residual_jacobian_py(np.ascontiguousarray(x, dtype=float),
+                                                    lp.lin, self._aft_mats,
+                                                    self._spring_arrays, True)
+            return r, Jx
+        return self.residual_and_jacobian_reference(x, lp)
+
+    def residual_and_jacobian_reference(self, x: np.ndarray, lp: LinearParts):
+        """:meth:`residual_and_jacobian` in readable numpy (the compiled kernel's reference)."""
+        G, dG = self.nonlinear_harmonics_reference(x, jacobian=True)
         if dG is None:                          # no sample beyond a knee: the linear problem
             return x - to_real(lp.wlin, self.H), self._eye.copy()
         r = x - to_real(lp.wlin, self.H) + times_h(lp.h, G, self.H)
@@ -426,8 +463,28 @@ class CondensedHBM:
 
     def newton(self, x0: np.ndarray, lp: LinearParts) -> tuple[np.ndarray, int, float]:
         """Damped Newton on r(x) = 0 at fixed speed; returns (x, iterations, max|r|)."""
+        if not self.compiled:
+            return self.newton_reference(x0, lp)
+        x0 = np.array(x0, dtype=float)
+        x = np.empty_like(x0)
+        status, it, nr = kernels.newton(x0, lp.lin, self._aft_mats, self._spring_arrays,
+                                        self._newton_opts, x)
+        if status == kernels.CONVERGED:
+            return x, it, nr
+        if status == kernels.STALLED:
+            raise ConvergenceError(f'HBM Newton: stalled at residual {nr:.2e} rad after '
+                                   f'{it} iterations at {lp.speed_rpm:.1f} rpm')
+        if status == kernels.SINGULAR:
+            raise np.linalg.LinAlgError('singular matrix')
+        raise ConvergenceError(f'HBM Newton: residual {nr:.2e} rad after '
+                               f'{self.options.max_iter} iterations '
+                               f'at {lp.speed_rpm:.1f} rpm')
+
+    def newton_reference(self, x0: np.ndarray, lp: LinearParts
+                         ) -> tuple[np.ndarray, int, float]:
+        """:meth:`newton` in readable numpy (the compiled kernel's reference)."""
         x = np.array(x0, dtype=float)
-        r, Jx = self.residual_and_jacobian(x, lp)
+        r, Jx = self.residual_and_jacobian_reference(x, lp)
         nr = np.abs(r).max()
         history = [nr]
         opt = self.options
@@ -443,7 +500,7 @@ class CondensedHBM:
             lam = 1.0
             while True:   # backtracking on the max norm (the residual is only piecewise smooth)
                 xn = x + lam * dx
-                rn, Jn = self.residual_and_jacobian(xn, lp)
+                rn, Jn = self.residual_and_jacobian_reference(xn, lp)
                 nn = np.abs(rn).max()
                 if nn < nr or lam < 1e-3:
                     break
@@ -515,6 +572,26 @@ class CondensedHBM:
         lp = self.linear_parts(speed_rpm)
         r, Jx = self.residual_and_jacobian(x, lp)
         return r, Jx, self.residual_speed_derivative(x, lp)
+
+    def corrector_at(self, y_pred: np.ndarray, xs: float, ss: float, tol: float, max_iter: int):
+        """The continuation corrector of a step landing on a grid speed, compiled
+        (continuation.correct with the normal e_S; scaled unknowns y = [x / xs, s / ss]).
+        Returns (y, iterations, max|r|, (r, dr/dx, dr/ds)); raises CorrectorFailed when it does
+        not converge; None when the reference corrector is to be used (``compiled`` off)."""
+        if not self.compiled:
+            return None
+        n = len(y_pred) - 1
+        lp = self.linear_parts(float(y_pred[n] * ss))
+        y = np.empty(n)
+        r = np.empty(n)
+        Jx = np.empty((n, n))
+        rs = np.empty(n)
+        status, it, res = kernels.corrector_fixed_speed(
+            np.ascontiguousarray(y_pred[:n]), float(xs), lp.lin, lp.dlin, self._aft_mats,
+            self._spring_arrays, float(tol), int(max_iter), y, r, Jx, rs)
+        if status != kernels.CONVERGED:
+            raise CorrectorFailed(f'corrector: max|r| = {res:.2e} after {max_iter} iterations')
+        return np.concatenate([y, y_pred[n:]]), it, res, (r, Jx, rs)
 
     # ---- cross-check by time integration -------------------------------------------------------
     def newmark_from(self, point: HBMPoint, *, perturb: np.ndarray | None = None, **kwargs):

@@ -125,7 +125,7 @@ class SpeedSweep(BranchSwitching, StateSearch):
         self.cont = ContinuationOptions(**{**base.__dict__, 'grid': self.options.step_rpm,
                                            's_scale': self.options.step_rpm,
                                            'tol': hbm.options.tol})
-        self.floquet = FloquetAnalyzer(hbm.model, modes=hbm.modes)
+        self.floquet = FloquetAnalyzer(hbm.model, modes=hbm.modes, compiled=hbm.compiled)
         self.search = self.options.search
         self.events: list[SweepEvent] = []
         self.branches: list[Branch] = []
