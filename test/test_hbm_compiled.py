@@ -204,3 +204,18 @@ def test_sweep_compiled_equals_reference(paper):
             assert p.speed_rpm == pytest.approx(q.speed_rpm, abs=1e-9)
             assert np.abs(p.x - q.x).max() <= 1e-9 * np.abs(q.x).max()
     assert len(a.non_periodic) == len(b.non_periodic) and a.uncovered == b.uncovered
+
+
+def test_warm_up_compiles_what_a_sweep_calls(paper):
+    """kernels.warm_up (run by a design-study worker when it starts) leaves no compilation for
+    the first sweep: the sweep adds no new signature to any kernel."""
+    from dmf_sim.solvers import stability_kernel
+    from dmf_sim.solvers.hbm import kernels
+    kernels.warm_up()
+    fs = [kernels.residual_jacobian_py, kernels.harmonics_py, kernels.newton,
+          kernels.deflated_newton, kernels.corrector_fixed_speed, stability_kernel.floquet]
+    before = [len(f.signatures) for f in fs]
+    assert all(n >= 1 for n in before)
+    loads, _ = paper
+    sweep(loads, 1.0, (1150.0, 1250.0), options=SweepOptions(step_rpm=10.0, search=None))
+    assert [len(f.signatures) for f in fs] == before

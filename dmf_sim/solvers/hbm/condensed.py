@@ -63,6 +63,9 @@ RESONANCE_SHARE = 0.05
 """A sharp resonance is reported where its mode's peak contribution to the wind-up's half order
 reaches this share of the linear wind-up's dynamic amplitude (sum of |w_n|, n >= 1) there."""
 
+#: linear parts kept per problem (one per speed; a sweep's grid + search revisit ~150 speeds)
+LINEAR_PARTS_CACHE = 512
+
 # ------------------------------------------------------------------------------------------------
 # Options, linear parts, solution point
 # ------------------------------------------------------------------------------------------------
@@ -107,7 +110,6 @@ class LinearParts:
     Attributes:
         speed_rpm: engine speed.
         omega: crank speed [rad/s].
-        P: (H+1, n_dof) complex generalized load harmonics [Nm].
         h: (H+1,) complex wind-up receptance e.H_n e [rad/Nm] (h_0 static, real).
         wlin: (H+1,) complex linear wind-up response e.H_n P_n [rad] (wlin_0: static mean).
         dh_ds, dwlin_ds: their derivatives with respect to speed [per rpm].
@@ -117,7 +119,6 @@ class LinearParts:
 
     speed_rpm: float
     omega: float
-    P: np.ndarray
     h: np.ndarray
     wlin: np.ndarray
     dh_ds: np.ndarray
@@ -239,6 +240,16 @@ class CondensedHBM:
         self._B = self.modes.Phi @ Vinv[:, self.modes.nf:].T                   # (n_dof, 2nf)
         self._a = self._ell * (self.modes.er @ Vinv[:, self.modes.nf:].T)      # residues of h
         self._cache: OrderedDict[float, LinearParts] = OrderedDict()
+        # modal load per unit engine coefficient A_n, times the wind-up read-out ell: P_n =
+        # A_n sum_k phase_kn T_k (cylinder rows of T, eq. 17), so e.H_n P_n = A_n sum(pole ml_n)
+        L = loads
+        k = min(L.n_max, H) + 1
+        phase = np.zeros((H + 1, L.phase.shape[0]), dtype=complex)
+        phase[:k] = L.phase[:, :k].T
+        self._modal_load = (phase @ (L.cylinder_dof_vectors @ self._B)) * self._ell
+        # static wind-up per unit cylinder mean torque and per unit rear load
+        self._static_cyl = float(L.cylinder_dof_vectors.sum(axis=0) @ self._u0)
+        self._static_rear = float(L.rear_dof_vector @ self._u0)
         self._primary = self.spring.primary_bounds()           # (lower, upper) wind-up [rad]
         self._eye = np.eye(2 * H + 1)
         # what the compiled kernels read: the AFT matrices and the spring's arrays (the same
@@ -262,44 +273,62 @@ class CondensedHBM:
         P[:k] = Pe[:k]
         return P
 
+    def engine_harmonics(self, speed_rpm: float) -> np.ndarray:
+        """(H+1,) complex per-cylinder engine coefficients A_n [Nm] (eq. 16-17), truncated or
+        zero-padded to H: the one engine query per speed."""
+        A = np.asarray(self.loads.engine.coefficients(speed_rpm, self.load), dtype=complex)
+        if len(A) == self.H + 1:
+            return A
+        out = np.zeros(self.H + 1, dtype=complex)
+        k = min(len(A), self.H + 1)
+        out[:k] = A[:k]
+        return out
+
     def linear_parts(self, speed_rpm: float) -> LinearParts:
-        """h_n, wlin_n and their speed derivatives at ``speed_rpm`` (a few most recent are
-        cached)."""
+        """h_n, wlin_n and their speed derivatives at ``speed_rpm`` (the most recent
+        ``LINEAR_PARTS_CACHE`` speeds are cached: a sweep revisits its grid speeds in the search).
+
+        The load enters only through the engine coefficients: P_n = A_n p_n (p_n: the cylinders'
+        phased DOF load vectors, plus the rear load at n = 0), so ``wlin_n = A_n e.H_n p_n`` with
+        the modal load of p_n computed once per problem (``_modal_load``)."""
         key = float(speed_rpm)
         lp = self._cache.get(key)
         if lp is not None:
+            self._cache.move_to_end(key)
             return lp
         H = self.H
         omega = key * RPM_TO_RAD_S
-        P = self.dof_loads(key)
+        A = self.engine_harmonics(key)
         # engine load derivative by a forward difference (backward at the top of the engine's
         # range)
         ds = self.options.speed_fd_rpm
         if key + ds > self._speed_range()[1]:
             ds = -ds
-        dP = (self.dof_loads(key + ds) - P) / ds
+        A2 = self.engine_harmonics(key + ds)
+        dA = (A2 - A) / ds
         Om = np.arange(1, H + 1) * (omega / 2.0)                 # Om_n = n omega / 2
         dOm = np.arange(1, H + 1) * (RPM_TO_RAD_S / 2.0)         # dOm_n / ds
         pole = 1.0 / (1j * Om[:, None] - self._d[None, :])       # (H, 2nf): 1 / (i Om_n - d_k)
-        Q = P[1:] @ self._B                                      # modal load of each harmonic
-        dQ = dP[1:] @ self._B
+        ml = self._modal_load[1:]
+        unit = (pole * ml).sum(axis=1)                           # wlin_n per unit A_n
+        dunit = (-1j * pole ** 2 * ml).sum(axis=1) * dOm         # its speed derivative
         h = np.empty(H + 1, dtype=complex)
         wlin = np.empty(H + 1, dtype=complex)
         dh = np.zeros(H + 1, dtype=complex)
         dw = np.empty(H + 1, dtype=complex)
         h[0] = self._h0                                          # static: e.K^+ e
         # static: e.K^+ P_0 (rigid mode removed)
-        wlin[0] = self._u0 @ P[0].real
-        dw[0] = self._u0 @ dP[0].real
+        rear, rear2 = self.loads.rear_load_for(A), self.loads.rear_load_for(A2)
+        wlin[0] = A[0].real * self._static_cyl + rear * self._static_rear
+        dw[0] = dA[0].real * self._static_cyl + (rear2 - rear) / ds * self._static_rear
         h[1:] = pole @ self._a
-        wlin[1:] = (Q * pole) @ self._ell
-        pole2 = -1j * pole ** 2                                   # d/dOm of the pole
-        dh[1:] = (pole2 @ self._a) * dOm
-        dw[1:] = (Q * pole2) @ self._ell * dOm + (dQ * pole) @ self._ell
-        lp = LinearParts(key, omega, P, h, wlin, dh, dw, (to_real(wlin, H), h),
+        wlin[1:] = A[1:] * unit
+        dh[1:] = ((-1j * pole ** 2) @ self._a) * dOm
+        dw[1:] = A[1:] * dunit + dA[1:] * unit
+        lp = LinearParts(key, omega, h, wlin, dh, dw, (to_real(wlin, H), h),
                          (to_real(dw, H), dh))
         self._cache[key] = lp
-        if len(self._cache) > 16:
+        if len(self._cache) > LINEAR_PARTS_CACHE:
             self._cache.popitem(last=False)
         return lp
 
@@ -308,12 +337,13 @@ class CondensedHBM:
         receptances as :meth:`linear_parts`): the solution wherever the wind-up stays below the
         knee."""
         speeds = np.atleast_1d(np.asarray(speeds_rpm, dtype=float))
-        P = np.stack([self.dof_loads(s) for s in speeds])                       # (K, H+1, n_dof)
+        A = np.stack([self.engine_harmonics(s) for s in speeds])                 # (K, H+1)
         Om = np.outer(speeds * (RPM_TO_RAD_S / 2.0), np.arange(1, self.H + 1))  # (K, H)
         pole = 1.0 / (1j * Om[..., None] - self._d)                              # (K, H, 2nf)
         w = np.empty((len(speeds), self.H + 1), dtype=complex)
-        w[:, 0] = P[:, 0].real @ self._u0
-        w[:, 1:] = ((P[:, 1:] @ self._B) * pole) @ self._ell
+        rear = np.array([self.loads.rear_load_for(a) for a in A])
+        w[:, 0] = A[:, 0].real * self._static_cyl + rear * self._static_rear
+        w[:, 1:] = A[:, 1:] * (pole * self._modal_load[1:]).sum(axis=-1)
         return w
 
     def time_series_batch(self, C: np.ndarray, n_samples: int = 1024) -> np.ndarray:

@@ -38,6 +38,7 @@ import math
 
 import numpy as np
 
+from dmf_sim.solvers.hbm.layout import to_real
 from dmf_sim.solvers.newmark_kernel import HAVE_NUMBA, region_of
 
 CONVERGED, STALLED, MAX_ITER, SINGULAR, NOT_FINITE = 0, 1, 2, 3, 4
@@ -477,4 +478,49 @@ if HAVE_NUMBA:
     _log_m = _jit(_log_m)
     _log_floor = _jit(_log_floor)
     deflated_newton = _jit(deflated_newton)
+
+
+
+def warm_up() -> float:
+    """Load (or, the first time on a machine, compile) every compiled kernel of a sweep point —
+    these and :mod:`dmf_sim.solvers.stability_kernel` — on a tiny problem with the argument types
+    of the real ones, so no later first call pays for it (a design-study worker does this when it
+    starts). Returns the seconds it took."""
+    import time
+
+    from dmf_sim.physics.spring import PiecewiseLinearSpring
+    from dmf_sim.solvers import stability_kernel
+    t0 = time.perf_counter()
+    H, M = 2, 8
+    n = 2 * H + 1
+    phi = 2.0 * np.pi * np.arange(M) / M
+    harm = np.arange(1, H + 1)
+    E = np.hstack([np.ones((M, 1)), np.cos(np.outer(phi, harm)), -np.sin(np.outer(phi, harm))])
+    weights = np.full(n, 2.0 / M)
+    weights[0] = 1.0 / M
+    m_all = np.arange(n)
+    aft_mats = (E, weights, np.cos(np.outer(phi, m_all)), np.sin(np.outer(phi, m_all)))
+    sp = PiecewiseLinearSpring.two_step(1.0, 0.5, 1.0)
+    spring = (*sp.arrays(), int(sp.primary_index))
+    h = np.full(H + 1, 0.5 + 0.1j)
+    x0 = np.zeros(n)
+    x0[1] = 1.0
+    lin = (x0.copy(), h)
+    out = np.empty(n)
+    residual_jacobian_py(x0, lin, aft_mats, spring, True)
+    harmonics_py(x0, aft_mats, spring, True)
+    newton(x0, lin, aft_mats, spring, (1e-10, 5, 8, 0.5), out)
+    deflated_newton(x0, np.zeros((1, n)), lin, aft_mats, spring, 1e-10,
+                    np.array([2.0, 1.0, 1e-2, 5.0, 0.125, 6.0]), out)
+    corrector_fixed_speed(x0, 1.0, lin, lin, aft_mats, spring, 1e-10, 3, out, np.empty(n),
+                          np.empty((n, n)), np.empty(n))
+    ns = 2
+    W = np.zeros((2, 2, ns, ns))
+    W[:, :] = np.eye(ns)
+    c = np.zeros(H + 1, dtype=complex)
+    c[1] = 1.0
+    stability_kernel.floquet(c, E @ to_real(c, H), 1.0, spring[0], spring[3], 1,
+                             np.array([[1, 2], [1, 2]], dtype=np.int64), -np.ones((2, ns)),
+                             np.ones((2, ns)), W)
+    return time.perf_counter() - t0
 
