@@ -45,7 +45,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dmf_sim.core.errors import ConfigError, ConvergenceError
+from dmf_sim.core.errors import ConfigError, ConvergenceError, OperatingRangeError
 from dmf_sim.core.units import RPM_TO_RAD_S
 from dmf_sim.physics.harmonic import solve_harmonic, solve_static
 from dmf_sim.physics.loads import DrivelineLoads
@@ -65,6 +65,8 @@ reaches this share of the linear wind-up's dynamic amplitude (sum of |w_n|, n >=
 
 #: linear parts kept per problem (one per speed; a sweep's grid + search revisit ~150 speeds)
 LINEAR_PARTS_CACHE = 512
+#: speeds per vectorized batch of :meth:`CondensedHBM.prepare`
+PREPARE_BATCH = 64
 
 # ------------------------------------------------------------------------------------------------
 # Options, linear parts, solution point
@@ -296,41 +298,75 @@ class CondensedHBM:
         if lp is not None:
             self._cache.move_to_end(key)
             return lp
-        H = self.H
-        omega = key * RPM_TO_RAD_S
-        A = self.engine_harmonics(key)
-        # engine load derivative by a forward difference (backward at the top of the engine's
-        # range)
-        ds = self.options.speed_fd_rpm
-        if key + ds > self._speed_range()[1]:
-            ds = -ds
-        A2 = self.engine_harmonics(key + ds)
-        dA = (A2 - A) / ds
-        Om = np.arange(1, H + 1) * (omega / 2.0)                 # Om_n = n omega / 2
-        dOm = np.arange(1, H + 1) * (RPM_TO_RAD_S / 2.0)         # dOm_n / ds
-        pole = 1.0 / (1j * Om[:, None] - self._d[None, :])       # (H, 2nf): 1 / (i Om_n - d_k)
-        ml = self._modal_load[1:]
-        unit = (pole * ml).sum(axis=1)                           # wlin_n per unit A_n
-        dunit = (-1j * pole ** 2 * ml).sum(axis=1) * dOm         # its speed derivative
-        h = np.empty(H + 1, dtype=complex)
-        wlin = np.empty(H + 1, dtype=complex)
-        dh = np.zeros(H + 1, dtype=complex)
-        dw = np.empty(H + 1, dtype=complex)
-        h[0] = self._h0                                          # static: e.K^+ e
-        # static: e.K^+ P_0 (rigid mode removed)
-        rear, rear2 = self.loads.rear_load_for(A), self.loads.rear_load_for(A2)
-        wlin[0] = A[0].real * self._static_cyl + rear * self._static_rear
-        dw[0] = dA[0].real * self._static_cyl + (rear2 - rear) / ds * self._static_rear
-        h[1:] = pole @ self._a
-        wlin[1:] = A[1:] * unit
-        dh[1:] = ((-1j * pole ** 2) @ self._a) * dOm
-        dw[1:] = A[1:] * dunit + dA[1:] * unit
-        lp = LinearParts(key, omega, h, wlin, dh, dw, (to_real(wlin, H), h),
-                         (to_real(dw, H), dh))
-        self._cache[key] = lp
+        lp = self._linear_parts_many([key])[0]
+        self._remember(lp)
+        return lp
+
+    def prepare(self, speeds_rpm) -> None:
+        """Compute the linear parts of many speeds at once (a sweep's grid: the per-speed work done
+        in one vectorized pass before the continuation asks for them); speeds outside the engine's
+        data are left out (asking for them later raises as usual)."""
+        todo = []
+        for s in np.atleast_1d(np.asarray(speeds_rpm, dtype=float)).tolist():
+            if s not in self._cache and self._speed_range()[0] <= s <= self._speed_range()[1]:
+                todo.append(s)
+        todo = todo[-LINEAR_PARTS_CACHE:]
+        for start in range(0, len(todo), PREPARE_BATCH):
+            batch = todo[start:start + PREPARE_BATCH]
+            try:
+                parts = self._linear_parts_many(batch)
+            except OperatingRangeError:        # an engine with narrower data: one by one
+                parts = []
+                for s in batch:
+                    try:
+                        parts.extend(self._linear_parts_many([s]))
+                    except OperatingRangeError:
+                        continue
+            for lp in parts:
+                self._remember(lp)
+
+    def _remember(self, lp: LinearParts) -> None:
+        self._cache[lp.speed_rpm] = lp
         if len(self._cache) > LINEAR_PARTS_CACHE:
             self._cache.popitem(last=False)
-        return lp
+
+    def _linear_parts_many(self, speeds: list[float]) -> list[LinearParts]:
+        H = self.H
+        K = len(speeds)
+        S = np.asarray(speeds, dtype=float)
+        omega = S * RPM_TO_RAD_S
+        A = np.stack([self.engine_harmonics(s) for s in speeds])                 # (K, H+1)
+        # engine load derivative by a forward difference (backward at the top of the engine's
+        # range)
+        ds = np.where(S + self.options.speed_fd_rpm > self._speed_range()[1],
+                      -self.options.speed_fd_rpm, self.options.speed_fd_rpm)
+        A2 = np.stack([self.engine_harmonics(s + d) for s, d in zip(speeds, ds.tolist())])
+        dA = (A2 - A) / ds[:, None]
+        n = np.arange(1, H + 1)
+        Om = omega[:, None] * (n / 2.0)                          # Om_n = n omega / 2
+        dOm = n * (RPM_TO_RAD_S / 2.0)                           # dOm_n / ds
+        pole = 1.0 / (1j * Om[..., None] - self._d)              # (K, H, 2nf): 1/(i Om_n - d_k)
+        ml = self._modal_load[1:]
+        unit = (pole * ml).sum(axis=-1)                          # wlin_n per unit A_n
+        pole2 = -1j * pole ** 2                                  # d/dOm of the pole
+        dunit = (pole2 * ml).sum(axis=-1) * dOm                  # its speed derivative
+        h = np.empty((K, H + 1), dtype=complex)
+        wlin = np.empty((K, H + 1), dtype=complex)
+        dh = np.zeros((K, H + 1), dtype=complex)
+        dw = np.empty((K, H + 1), dtype=complex)
+        h[:, 0] = self._h0                                       # static: e.K^+ e
+        # static: e.K^+ P_0 (rigid mode removed)
+        rear = np.array([self.loads.rear_load_for(a) for a in A])
+        rear2 = np.array([self.loads.rear_load_for(a) for a in A2])
+        wlin[:, 0] = A[:, 0].real * self._static_cyl + rear * self._static_rear
+        dw[:, 0] = dA[:, 0].real * self._static_cyl + (rear2 - rear) / ds * self._static_rear
+        h[:, 1:] = pole @ self._a
+        wlin[:, 1:] = A[:, 1:] * unit
+        dh[:, 1:] = (pole2 @ self._a) * dOm
+        dw[:, 1:] = A[:, 1:] * dunit + dA[:, 1:] * unit
+        return [LinearParts(speeds[k], float(omega[k]), h[k], wlin[k], dh[k], dw[k],
+                            (to_real(wlin[k], H), h[k]), (to_real(dw[k], H), dh[k]))
+                for k in range(K)]
 
     def linear_response(self, speeds_rpm) -> np.ndarray:
         """(K, H+1) complex linear wind-up harmonics wlin_n at K speeds at once (same modal
