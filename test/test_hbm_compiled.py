@@ -83,6 +83,19 @@ def test_aft_residual_and_jacobian_equal_reference(case, request):
         assert set(np.unique(sp.stage(w))) == set(sp.stages())   # every region, coast too
 
 
+@pytest.mark.parametrize('case', CASES)
+def test_linear_parts_equal_reference(case, request):
+    """h_n, wlin_n and their speed derivatives: compiled modal sums vs numpy, one speed and a
+    prepared batch."""
+    loads, speed = request.getfixturevalue(case)
+    hb, ref = both(loads)
+    hb.prepare([speed - 10.0, speed, speed + 10.0])
+    for s in (speed, speed + 3.7):
+        a, b = hb.linear_parts(s), ref.linear_parts(s)
+        for name in ('h', 'wlin', 'dh_ds', 'dwlin_ds'):
+            assert close(getattr(a, name), getattr(b, name)), name
+
+
 def test_primary_only_is_the_linear_problem(paper):
     loads, _ = paper
     hb, _ = both(loads)
@@ -213,7 +226,8 @@ def test_warm_up_compiles_what_a_sweep_calls(paper):
     from dmf_sim.solvers.hbm import kernels
     kernels.warm_up()
     fs = [kernels.residual_jacobian_py, kernels.harmonics_py, kernels.newton,
-          kernels.deflated_newton, kernels.corrector_fixed_speed, stability_kernel.floquet]
+          kernels.deflated_newton, kernels.corrector_fixed_speed, kernels.modal_sums,
+          stability_kernel.floquet]
     before = [len(f.signatures) for f in fs]
     assert all(n >= 1 for n in before)
     loads, _ = paper

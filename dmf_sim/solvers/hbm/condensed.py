@@ -343,26 +343,32 @@ class CondensedHBM:
         A2 = np.stack([self.engine_harmonics(s + d) for s, d in zip(speeds, ds.tolist())])
         dA = (A2 - A) / ds[:, None]
         n = np.arange(1, H + 1)
-        Om = omega[:, None] * (n / 2.0)                          # Om_n = n omega / 2
         dOm = n * (RPM_TO_RAD_S / 2.0)                           # dOm_n / ds
-        pole = 1.0 / (1j * Om[..., None] - self._d)              # (K, H, 2nf): 1/(i Om_n - d_k)
         ml = self._modal_load[1:]
-        unit = (pole * ml).sum(axis=-1)                          # wlin_n per unit A_n
-        pole2 = -1j * pole ** 2                                  # d/dOm of the pole
-        dunit = (pole2 * ml).sum(axis=-1) * dOm                  # its speed derivative
         h = np.empty((K, H + 1), dtype=complex)
         wlin = np.empty((K, H + 1), dtype=complex)
         dh = np.zeros((K, H + 1), dtype=complex)
         dw = np.empty((K, H + 1), dtype=complex)
+        if self.compiled:
+            unit = np.empty((K, H), dtype=complex)
+            dunit = np.empty((K, H), dtype=complex)
+            kernels.modal_sums(omega, dOm, self._d, ml, self._a, unit, dunit, h[:, 1:],
+                               dh[:, 1:])
+        else:
+            Om = omega[:, None] * (n / 2.0)                      # Om_n = n omega / 2
+            pole = 1.0 / (1j * Om[..., None] - self._d)          # (K, H, 2nf): 1/(i Om_n - d_k)
+            unit = (pole * ml).sum(axis=-1)                      # wlin_n per unit A_n
+            pole2 = -1j * pole ** 2                              # d/dOm of the pole
+            dunit = (pole2 * ml).sum(axis=-1) * dOm              # its speed derivative
+            h[:, 1:] = pole @ self._a
+            dh[:, 1:] = (pole2 @ self._a) * dOm
         h[:, 0] = self._h0                                       # static: e.K^+ e
         # static: e.K^+ P_0 (rigid mode removed)
         rear = np.array([self.loads.rear_load_for(a) for a in A])
         rear2 = np.array([self.loads.rear_load_for(a) for a in A2])
         wlin[:, 0] = A[:, 0].real * self._static_cyl + rear * self._static_rear
         dw[:, 0] = dA[:, 0].real * self._static_cyl + (rear2 - rear) / ds * self._static_rear
-        h[:, 1:] = pole @ self._a
         wlin[:, 1:] = A[:, 1:] * unit
-        dh[:, 1:] = (pole2 @ self._a) * dOm
         dw[:, 1:] = A[:, 1:] * dunit + dA[:, 1:] * unit
         return [LinearParts(speeds[k], float(omega[k]), h[k], wlin[k], dh[k], dw[k],
                             (to_real(wlin[k], H), h[k]), (to_real(dw[k], H), dh[k]))

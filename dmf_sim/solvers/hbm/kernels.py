@@ -459,6 +459,39 @@ def corrector_fixed_speed(y_pred, xs, lin, dlin, aft_mats, spring, tol, max_iter
     return status, it, res
 
 
+# ------------------------------------------------------------------------------------------------
+# Linear parts: the modal sums of the condensed receptances
+# ------------------------------------------------------------------------------------------------
+
+def modal_sums(omega, dOm, d, ml, a, unit, dunit, h, dh):
+    """For K crank speeds omega [rad/s] and harmonics n = 1..H (Om_n = n omega / 2, dOm_n its
+    speed derivative): with the poles p_nk = 1 / (i Om_n - d_k) of the chain's complex modes,
+    ``unit_n = sum_k p_nk ml_nk`` (wlin_n per unit A_n), ``h_n = sum_k p_nk a_k`` and their
+    speed derivatives through dp/dOm = -i p^2 (reference: ``CondensedHBM._linear_parts_many``
+    in numpy)."""
+    K = omega.shape[0]
+    H = ml.shape[0]
+    m = d.shape[0]
+    for q in range(K):
+        for n in range(H):
+            Om = omega[q] * ((n + 1) / 2.0)
+            su = 0j
+            sdu = 0j
+            sh = 0j
+            sdh = 0j
+            for k in range(m):
+                p = 1.0 / (1j * Om - d[k])
+                p2 = -1j * (p * p)
+                su += p * ml[n, k]
+                sdu += p2 * ml[n, k]
+                sh += p * a[k]
+                sdh += p2 * a[k]
+            unit[q, n] = su
+            dunit[q, n] = sdu * dOm[n]
+            h[q, n] = sh
+            dh[q, n] = sdh * dOm[n]
+
+
 if HAVE_NUMBA:
     import numba
     _jit = numba.njit(cache=True, nogil=True, error_model='numpy')
@@ -478,6 +511,7 @@ if HAVE_NUMBA:
     _log_m = _jit(_log_m)
     _log_floor = _jit(_log_floor)
     deflated_newton = _jit(deflated_newton)
+    modal_sums = _jit(modal_sums)
 
 
 
@@ -514,6 +548,12 @@ def warm_up() -> float:
                     np.array([2.0, 1.0, 1e-2, 5.0, 0.125, 6.0]), out)
     corrector_fixed_speed(x0, 1.0, lin, lin, aft_mats, spring, 1e-10, 3, out, np.empty(n),
                           np.empty((n, n)), np.empty(n))
+    K, m = 1, 2
+    modal_sums(np.ones(K), np.ones(H), np.array([-1.0 + 1j, -1.0 - 1j]),
+               np.ones((H + 1, m), dtype=complex)[1:], np.ones(m, dtype=complex),
+               np.empty((K, H), dtype=complex), np.empty((K, H), dtype=complex),
+               np.empty((K, H + 1), dtype=complex)[:, 1:],
+               np.empty((K, H + 1), dtype=complex)[:, 1:])
     ns = 2
     W = np.zeros((2, 2, ns, ns))
     W[:, :] = np.eye(ns)
