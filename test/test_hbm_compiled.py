@@ -233,3 +233,28 @@ def test_warm_up_compiles_what_a_sweep_calls(paper):
     loads, _ = paper
     sweep(loads, 1.0, (1150.0, 1250.0), options=SweepOptions(step_rpm=10.0, search=None))
     assert [len(f.signatures) for f in fs] == before
+
+
+def test_constant_speed_shot_is_one_kernel_call(paper, monkeypatch):
+    """A transient Newmark run at constant speed (the long shots of the search and of the
+    non-periodic classification) is one kernel call, with the same result as the run chunked
+    every 10 ms (a target equal to the speed keeps the chunks)."""
+    from dmf_sim.solvers import newmark
+    loads, speed = paper
+    calls = []
+    advance = newmark.NewmarkIntegrator.advance
+
+    def counting(self, *args, **kwargs):
+        calls.append(args[0])
+        return advance(self, *args, **kwargs)
+
+    monkeypatch.setattr(newmark.NewmarkIntegrator, 'advance', counting)
+    one = newmark.simulate(loads, speed, 1.0, t_end=0.2, record_stride=2)
+    n_one = len(calls)
+    calls.clear()
+    chunked = newmark.simulate(loads, speed, 1.0, t_end=0.2, record_stride=2,
+                               target_speed_rpm=speed)
+    assert n_one == 1 and len(calls) >= 20
+    assert len(one.windup) == len(chunked.windup) == 1000
+    assert np.abs(one.windup - chunked.windup).max() <= 1e-9 * np.ptp(chunked.windup)
+    assert np.abs(one.psi - chunked.psi).max() <= 1e-9 * chunked.psi[-1]
