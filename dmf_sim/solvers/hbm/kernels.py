@@ -246,23 +246,32 @@ def harmonics_py(x, aft_mats, spring, jac):
 # Newton at fixed speed, plain and deflated
 # ------------------------------------------------------------------------------------------------
 
+def _newton_start(x0, x):
+    """x <- x0 and the work arrays of a Newton solve of size n: r, J, G, r_new, J_new, x_new,
+    step, -r, LU factors, pivots."""
+    n = x0.shape[0]
+    for i in range(n):
+        x[i] = x0[i]
+    return (np.empty(n), np.empty((n, n)), np.empty(n), np.empty(n), np.empty((n, n)),
+            np.empty(n), np.empty(n), np.empty(n), np.empty((n, n)), np.empty(n, dtype=np.int64))
+
+
+def _accept(xn, rn, Jn, x, r, J):
+    """The trial point becomes the iterate: x, r, J <- xn, rn, Jn."""
+    n = x.shape[0]
+    for i in range(n):
+        x[i] = xn[i]
+        r[i] = rn[i]
+        for j in range(n):
+            J[i, j] = Jn[i, j]
+
+
 def newton(x0, lin, aft_mats, spring, newton_opts, x):
     """Damped Newton from x0 into x (reference ``CondensedHBM.newton``).
     Returns (status, iterations, max|r|)."""
     tol, max_iter, stall_iter, stall_ratio = newton_opts
     n = x0.shape[0]
-    for i in range(n):
-        x[i] = x0[i]
-    r = np.empty(n)
-    J = np.empty((n, n))
-    G = np.empty(n)
-    rn = np.empty(n)
-    Jn = np.empty((n, n))
-    xn = np.empty(n)
-    dx = np.empty(n)
-    mr = np.empty(n)
-    LU = np.empty((n, n))
-    piv = np.empty(n, dtype=np.int64)
+    r, J, G, rn, Jn, xn, dx, mr, LU, piv = _newton_start(x0, x)
     history = np.empty(max_iter + 2)
     residual_jacobian(x, lin, aft_mats, spring, r, J, G, True)
     nr = max_abs(r)
@@ -286,11 +295,7 @@ def newton(x0, lin, aft_mats, spring, newton_opts, x):
             if nn < nr or lam < BACKTRACK_MIN:
                 break
             lam *= 0.5
-        for i in range(n):
-            x[i] = xn[i]
-            r[i] = rn[i]
-            for j in range(n):
-                J[i, j] = Jn[i, j]
+        _accept(xn, rn, Jn, x, r, J)
         nr = nn
         history[nh] = nr
         nh += 1
@@ -335,20 +340,9 @@ def deflated_newton(x0, known, lin, aft_mats, spring, tol, defl, x):
     min_step = defl[4]
     stagnation = int(defl[5])
     n = x0.shape[0]
-    for i in range(n):
-        x[i] = x0[i]
-    r = np.empty(n)
-    J = np.empty((n, n))
-    G = np.empty(n)
-    rn = np.empty(n)
-    Jn = np.empty((n, n))
-    xn = np.empty(n)
-    d = np.empty(n)
-    mr = np.empty(n)
+    r, J, G, rn, Jn, xn, d, mr, LU, piv = _newton_start(x0, x)
     g = np.empty(n)
     gn = np.empty(n)
-    LU = np.empty((n, n))
-    piv = np.empty(n, dtype=np.int64)
     residual_jacobian(x, lin, aft_mats, spring, r, J, G, True)
     nr = max_abs(r)
     lm = _log_m(x, known, defl, g)
@@ -387,12 +381,9 @@ def deflated_newton(x0, known, lin, aft_mats, spring, tol, defl, x):
             lam *= 0.5
         if not math.isfinite(nn):
             return False, it, nn
+        _accept(xn, rn, Jn, x, r, J)
         for i in range(n):
-            x[i] = xn[i]
-            r[i] = rn[i]
             g[i] = gn[i]
-            for j in range(n):
-                J[i, j] = Jn[i, j]
         nr = nn
         lm = lmn
     return nr <= tol, max_iter, nr
@@ -507,6 +498,8 @@ if HAVE_NUMBA:
     residual_jacobian_py = _jit(residual_jacobian_py)
     corrector_fixed_speed = _jit(corrector_fixed_speed)
     harmonics_py = _jit(harmonics_py)
+    _newton_start = _jit(_newton_start)
+    _accept = _jit(_accept)
     newton = _jit(newton)
     _log_m = _jit(_log_m)
     _log_floor = _jit(_log_floor)
