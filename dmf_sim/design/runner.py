@@ -59,6 +59,10 @@ class StudyPlugin(WorkerPlugin):
 
     def setup(self, worker) -> None:
         install_context(self.key, self.context)
+        # the sweep's compiled kernels loaded (compiled the first time on this machine) now,
+        # not in the worker's first design
+        from dmf_sim.solvers.hbm.kernels import warm_up
+        warm_up()
 
     def teardown(self, worker) -> None:
         drop_context(self.key)

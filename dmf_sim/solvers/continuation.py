@@ -127,10 +127,22 @@ def _evaluate(problem: ContinuationProblem, x: np.ndarray, s: float):
 def correct(problem: ContinuationProblem, y_pred: np.ndarray, normal: np.ndarray,
             xs: float, ss: float, tol: float, max_iter: int
             ) -> tuple[np.ndarray, int, float, tuple]:
-    """Newton on [r(x, s); normal . (y - y_pred)] = 0 in scaled coordinates."""
+    """Newton on [r(x, s); normal . (y - y_pred)] = 0 in scaled coordinates.
+
+    With the normal e_S (s fixed on a grid speed) a problem may do the whole corrector in one
+    call, ``problem.corrector_at(y_pred, xs, ss, tol, max_iter)`` (same iteration, compiled;
+    returns None to use this one)."""
     y = y_pred.copy()
     n = len(y) - 1
     fixed_s = normal[n] == 1.0 and not np.any(normal[:n])
+    compiled = getattr(problem, 'corrector_at', None) if fixed_s else None
+    if compiled is not None:        # the problem's own compiled corrector at a fixed s
+        try:
+            out = compiled(y_pred, xs, ss, tol, max_iter)
+        except OperatingRangeError as exc:
+            raise LeftRange(f'parameter {y_pred[n] * ss:g} outside the data: {exc}') from None
+        if out is not None:
+            return out
     A = np.empty((n + 1, n + 1))
     res = np.inf
     for it in range(max_iter + 1):

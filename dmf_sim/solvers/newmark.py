@@ -301,7 +301,8 @@ def simulate(loads: DrivelineLoads, speed_rpm: float, load: float, *, t_end: flo
     its peak-to-peak) is below ``steady_tol``, then return the wind-up orders of the last
     ``eval_cycles`` cycles. With ``t_end`` [s]: a transient run, optionally ramping toward
     ``target_speed_rpm`` at ``ramp_rpm_per_s``, recording every ``record_stride`` steps; the
-    excitation coefficients follow the speed every ``chunk_s`` seconds.
+    excitation coefficients follow the speed every ``chunk_s`` seconds (at constant speed, no
+    target, the run is one kernel call).
     ``initial`` = (q, v) replaces the static equilibrium start.
     """
     integ = NewmarkIntegrator(loads, dt=dt, beta=beta, gamma=gamma, use_numba=use_numba)
@@ -318,6 +319,11 @@ def simulate(loads: DrivelineLoads, speed_rpm: float, load: float, *, t_end: flo
             integ.set_target(target_speed_rpm, ramp_rpm_per_s)
         n_total = int(round(t_end / dt))
         chunk = max(int(round(chunk_s / dt)) // record_stride, 1) * record_stride
+        if target_speed_rpm is None and not progress:
+            # constant speed: the excitation coefficients never change, so the whole run is one
+            # kernel call (no per-chunk Python work; the solution finder's and the non-periodic
+            # classification's long shots)
+            chunk = max(n_total // record_stride, 1) * record_stride
         rows_total = n_total // record_stride
         rec = StepRecord.allocate(rows_total, loads.model.n_dof)
         done = row = 0

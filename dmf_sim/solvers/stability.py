@@ -41,6 +41,10 @@ from dmf_sim.core.errors import ConfigError
 from dmf_sim.core.units import CYCLE_RAD, RPM_TO_RAD_S, cycle_period_s
 from dmf_sim.physics.model import ReducedModel
 from dmf_sim.physics.orders import synthesize
+from dmf_sim.solvers.stability_kernel import floquet
+
+#: Newton steps refining each knee crossing on the wind-up's trigonometric polynomial
+CROSSING_NEWTON_STEPS = 4
 
 
 @dataclass
@@ -84,6 +88,42 @@ class ModeClass:
         if self.sub_harmonic_share > 0.5:
             return 'subharmonic'   # period doubling of the 120 deg solution: 1.5th-order family
         return 'fold' if base == 'real' else 'torus'
+
+
+def real_eigenbasis(d: np.ndarray, V: np.ndarray, Vinv: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Real form of A = V diag(d) V^-1 (a real matrix): (Q, kind, sigma, freq) with
+    A = Q blockdiag(B_i) Q^-1, Q's columns Re v, Im v of each complex pair (Im d > 0 first) and
+    the real eigenvectors; B = [[sigma, freq], [-freq, sigma]] for a pair (kind 1, 2), sigma for a
+    real eigenvalue (kind 0). What the compiled monodromy works in."""
+    n = len(d)
+    Q = np.empty((n, n))
+    kind = np.zeros(n, dtype=np.int64)
+    sigma = np.empty(n)
+    freq = np.zeros(n)
+    used = np.zeros(n, dtype=bool)
+    col = 0
+    scale = max(float(np.abs(d).max()), 1e-300)
+    for i in range(n):
+        if used[i]:
+            continue
+        used[i] = True
+        if abs(d[i].imag) <= 1e-12 * scale:
+            Q[:, col] = V[:, i].real
+            sigma[col] = d[i].real
+            col += 1
+            continue
+        j = next(k for k in range(n) if not used[k]
+                 and abs(d[k] - np.conj(d[i])) <= 1e-9 * scale)
+        used[j] = True
+        i_pos = i if d[i].imag > 0 else j
+        v = V[:, i_pos]
+        Q[:, col], Q[:, col + 1] = v.real, v.imag
+        kind[col], kind[col + 1] = 1, 2
+        sigma[col] = sigma[col + 1] = d[i_pos].real
+        freq[col] = freq[col + 1] = d[i_pos].imag
+        col += 2
+    return Q, kind, sigma, freq
 
 
 class FlexibleModes:
@@ -138,10 +178,13 @@ class FloquetAnalyzer:
         tol: stability tolerance on |mu| (default 1e-7: the lightly damped gearbox modes have
             |mu| within 1e-5 of 1 but below it).
         modes: FlexibleModes to share with the HBM solver (built if None).
+        compiled: crossings, monodromy and multipliers of :meth:`analyze` through the compiled
+            kernel (:func:`dmf_sim.solvers.stability_kernel.floquet`); False: the readable numpy
+            reference below.
     """
 
     def __init__(self, model: ReducedModel, n_fine: int = 1024, tol: float = 1e-7,
-                 modes: FlexibleModes | None = None):
+                 modes: FlexibleModes | None = None, compiled: bool = True):
         if model.spring is None:
             raise ConfigError('model has no DMF: stability of the linear chain is trivial')
         self.model = model
@@ -156,6 +199,19 @@ class FloquetAnalyzer:
         self._eig = {r: self.modes.eig(k) for r, k in self._region_stiffness.items()}
         # wind-up read-out of the first-order state y = [modal angles, modal velocities]
         self._ew = np.concatenate([self.er, np.zeros(self.nf)])
+        self.compiled = bool(compiled)
+        # what the compiled kernel reads: the spring's arrays and each region's real eigenbasis
+        # (stacked by region index 0 .. n_knees, ascending in w)
+        sp = self.spring
+        knees, _, _ = sp.arrays()
+        real_bases = [real_eigenbasis(*self._eig[st]) for st in sp.stages()]
+        Q = [rb[0] for rb in real_bases]
+        Qinv = [np.linalg.inv(q) for q in Q]
+        W = np.stack([np.stack([qa @ qb for qb in Q]) for qa in Qinv])   # W[a, b] = Q_a^-1 Q_b
+        self._kernel_args = (knees, int(sp.primary_index), CROSSING_NEWTON_STEPS,
+                             np.stack([rb[1] for rb in real_bases]),
+                             np.stack([rb[2] for rb in real_bases]),
+                             np.stack([rb[3] for rb in real_bases]), W)
 
     # ---- regions and crossings -------------------------------------------------------------
     def linear_multipliers(self, speeds_rpm: np.ndarray, region: int = 0) -> np.ndarray:
@@ -196,7 +252,7 @@ class FloquetAnalyzer:
         w0, w1 = w[j], w[(j + 1) % N]
         phis = (j + np.clip((level - w0) / (w1 - w0), 0.0, 1.0)) * dphi
         n = np.arange(len(c))
-        for _ in range(4):
+        for _ in range(CROSSING_NEWTON_STEPS):
             z = np.exp(1j * np.outer(phis, n)) * c
             f = z.real.sum(axis=1) - level
             df = (1j * n * z).real.sum(axis=1)
@@ -228,6 +284,26 @@ class FloquetAnalyzer:
                 samples: np.ndarray | None = None) -> FloquetResult:
         """Floquet multipliers of the periodic wind-up with harmonics ``c`` at ``speed_rpm``
         (``samples``: the wind-up on a uniform grid of the cycle, if already computed)."""
+        if not self.compiled:
+            return self.analyze_reference(c, speed_rpm, keep_monodromy, samples)
+        omega = speed_rpm * RPM_TO_RAD_S
+        c = np.ascontiguousarray(c, dtype=complex)
+        w = synthesize(c, self.n_fine) if samples is None else samples
+        X, count, stages, taus = floquet(c, np.ascontiguousarray(w, dtype=float), float(omega),
+                                         *self._kernel_args)
+        segs = list(zip(stages.tolist(), taus.tolist()))
+        if count == 1:
+            mu = np.exp(self._eig[segs[0][0]][0] * segs[0][1])
+        else:
+            mu = np.linalg.eigvals(X)
+        mu = mu[np.argsort(-np.abs(mu))]
+        mx = float(np.abs(mu[0]))
+        return FloquetResult(mu, mx, mx < 1.0 + self.tol, 0 if count == 1 else count,
+                             self.monodromy(segs) if keep_monodromy else None, segs)
+
+    def analyze_reference(self, c: np.ndarray, speed_rpm: float, keep_monodromy: bool = False,
+                          samples: np.ndarray | None = None) -> FloquetResult:
+        """:meth:`analyze` in readable numpy (the compiled kernel's reference)."""
         omega = speed_rpm * RPM_TO_RAD_S
         segs, _ = self.segments_from(c, omega, samples)
         if len(segs) == 1:

@@ -226,7 +226,7 @@ def _basins(out: SteadyStateSet, hb: CondensedHBM, loads: DrivelineLoads, b: Bas
     q_s = loads.static_state(s, load).q
     rng = np.random.default_rng(b.seed)
     matcher = _Matcher(out.states, b.match_tol)
-    floquet = FloquetAnalyzer(model, modes=hb.modes)
+    floquet = FloquetAnalyzer(model, modes=hb.modes, compiled=hb.compiled)
     bar = None
     if progress:
         from tqdm import tqdm

@@ -45,12 +45,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dmf_sim.core.errors import ConfigError, ConvergenceError
+from dmf_sim.core.errors import ConfigError, ConvergenceError, OperatingRangeError
 from dmf_sim.core.units import RPM_TO_RAD_S
 from dmf_sim.physics.harmonic import solve_harmonic, solve_static
 from dmf_sim.physics.loads import DrivelineLoads
 from dmf_sim.physics.orders import OrderSummary, summarize_orders, synthesize
-from dmf_sim.solvers.continuation import solve_small
+from dmf_sim.solvers.continuation import CorrectorFailed, solve_small
+from dmf_sim.solvers.hbm import kernels
 from dmf_sim.solvers.hbm.layout import SUB_HARMONICS, times_h, to_complex, to_real
 from dmf_sim.solvers.stability import FlexibleModes
 
@@ -61,6 +62,11 @@ the wind-up curves (:meth:`CondensedHBM.sharp_resonances`)."""
 RESONANCE_SHARE = 0.05
 """A sharp resonance is reported where its mode's peak contribution to the wind-up's half order
 reaches this share of the linear wind-up's dynamic amplitude (sum of |w_n|, n >= 1) there."""
+
+#: linear parts kept per problem (one per speed; a sweep's grid + search revisit ~150 speeds)
+LINEAR_PARTS_CACHE = 512
+#: speeds per vectorized batch of :meth:`CondensedHBM.prepare`
+PREPARE_BATCH = 64
 
 # ------------------------------------------------------------------------------------------------
 # Options, linear parts, solution point
@@ -80,6 +86,8 @@ class HBMOptions:
             basin stalls at a kink of the piecewise-linear residual with ever shorter steps;
             converging solves take full steps and need at most ~6 iterations).
         speed_fd_rpm: finite-difference step for the speed derivative of the engine load [rpm].
+        compiled: AFT, residual, Jacobian and Newton through the compiled kernels
+            (:mod:`dmf_sim.solvers.hbm.kernels`); False: the readable numpy reference.
     """
 
     n_harmonics: int = 24
@@ -89,6 +97,7 @@ class HBMOptions:
     stall_iter: int = 8
     stall_ratio: float = 0.5
     speed_fd_rpm: float = 0.05
+    compiled: bool = True
 
     def time_samples(self) -> int:
         if self.n_time is not None:
@@ -103,19 +112,21 @@ class LinearParts:
     Attributes:
         speed_rpm: engine speed.
         omega: crank speed [rad/s].
-        P: (H+1, n_dof) complex generalized load harmonics [Nm].
         h: (H+1,) complex wind-up receptance e.H_n e [rad/Nm] (h_0 static, real).
         wlin: (H+1,) complex linear wind-up response e.H_n P_n [rad] (wlin_0: static mean).
         dh_ds, dwlin_ds: their derivatives with respect to speed [per rpm].
+        lin, dlin: (wlin, h) and (dwlin_ds, dh_ds) with wlin on the real layout, packed for the
+            compiled kernels.
     """
 
     speed_rpm: float
     omega: float
-    P: np.ndarray
     h: np.ndarray
     wlin: np.ndarray
     dh_ds: np.ndarray
     dwlin_ds: np.ndarray
+    lin: tuple = ()
+    dlin: tuple = ()
 
 
 @dataclass
@@ -212,7 +223,8 @@ class CondensedHBM:
                             -np.sin(np.outer(self.phi, n))])
         weights = np.full(2 * H + 1, 2.0 / M)
         weights[0] = 1.0 / M
-        self.F = weights[:, None] * self.E.T
+        self.F = np.ascontiguousarray(weights[:, None] * self.E.T)
+        self.compiled = bool(self.options.compiled)
         m = self.model
         # Static (n = 0) flexibility at the DMF, rigid mode removed: u_0 = K^+ e, h_0 = e.K^+ e.
         self._u0 = solve_static(m, m.e.astype(float))
@@ -230,8 +242,26 @@ class CondensedHBM:
         self._B = self.modes.Phi @ Vinv[:, self.modes.nf:].T                   # (n_dof, 2nf)
         self._a = self._ell * (self.modes.er @ Vinv[:, self.modes.nf:].T)      # residues of h
         self._cache: OrderedDict[float, LinearParts] = OrderedDict()
+        # modal load per unit engine coefficient A_n, times the wind-up read-out ell: P_n =
+        # A_n sum_k phase_kn T_k (cylinder rows of T, eq. 17), so e.H_n P_n = A_n sum(pole ml_n)
+        L = loads
+        k = min(L.n_max, H) + 1
+        phase = np.zeros((H + 1, L.phase.shape[0]), dtype=complex)
+        phase[:k] = L.phase[:, :k].T
+        self._modal_load = (phase @ (L.cylinder_dof_vectors @ self._B)) * self._ell
+        # static wind-up per unit cylinder mean torque and per unit rear load
+        self._static_cyl = float(L.cylinder_dof_vectors.sum(axis=0) @ self._u0)
+        self._static_rear = float(L.rear_dof_vector @ self._u0)
         self._primary = self.spring.primary_bounds()           # (lower, upper) wind-up [rad]
         self._eye = np.eye(2 * H + 1)
+        # what the compiled kernels read: the AFT matrices and the spring's arrays (the same
+        # ones the Newmark kernel reads)
+        m_all = np.arange(2 * H + 1)
+        self._aft_mats = (self.E, weights, np.cos(np.outer(self.phi, m_all)),
+                          np.sin(np.outer(self.phi, m_all)))
+        self._spring_arrays = (*self.spring.arrays(), int(self.spring.primary_index))
+        self._newton_opts = (float(self.options.tol), int(self.options.max_iter),
+                             int(self.options.stall_iter), float(self.options.stall_ratio))
 
     # ---- loads and linear parts -------------------------------------------------------------
     def dof_loads(self, speed_rpm: float) -> np.ndarray:
@@ -245,57 +275,120 @@ class CondensedHBM:
         P[:k] = Pe[:k]
         return P
 
+    def engine_harmonics(self, speed_rpm: float) -> np.ndarray:
+        """(H+1,) complex per-cylinder engine coefficients A_n [Nm] (eq. 16-17), truncated or
+        zero-padded to H: the one engine query per speed."""
+        A = np.asarray(self.loads.engine.coefficients(speed_rpm, self.load), dtype=complex)
+        if len(A) == self.H + 1:
+            return A
+        out = np.zeros(self.H + 1, dtype=complex)
+        k = min(len(A), self.H + 1)
+        out[:k] = A[:k]
+        return out
+
     def linear_parts(self, speed_rpm: float) -> LinearParts:
-        """h_n, wlin_n and their speed derivatives at ``speed_rpm`` (a few most recent are
-        cached)."""
+        """h_n, wlin_n and their speed derivatives at ``speed_rpm`` (the most recent
+        ``LINEAR_PARTS_CACHE`` speeds are cached: a sweep revisits its grid speeds in the search).
+
+        The load enters only through the engine coefficients: P_n = A_n p_n (p_n: the cylinders'
+        phased DOF load vectors, plus the rear load at n = 0), so ``wlin_n = A_n e.H_n p_n`` with
+        the modal load of p_n computed once per problem (``_modal_load``)."""
         key = float(speed_rpm)
         lp = self._cache.get(key)
         if lp is not None:
+            self._cache.move_to_end(key)
             return lp
+        lp = self._linear_parts_many([key])[0]
+        self._remember(lp)
+        return lp
+
+    def prepare(self, speeds_rpm) -> None:
+        """Compute the linear parts of many speeds at once (a sweep's grid: the per-speed work done
+        in one vectorized pass before the continuation asks for them); speeds outside the engine's
+        data are left out (asking for them later raises as usual)."""
+        todo = []
+        for s in np.atleast_1d(np.asarray(speeds_rpm, dtype=float)).tolist():
+            if s not in self._cache and self._speed_range()[0] <= s <= self._speed_range()[1]:
+                todo.append(s)
+        todo = todo[-LINEAR_PARTS_CACHE:]
+        for start in range(0, len(todo), PREPARE_BATCH):
+            batch = todo[start:start + PREPARE_BATCH]
+            try:
+                parts = self._linear_parts_many(batch)
+            except OperatingRangeError:        # an engine with narrower data: one by one
+                parts = []
+                for s in batch:
+                    try:
+                        parts.extend(self._linear_parts_many([s]))
+                    except OperatingRangeError:
+                        continue
+            for lp in parts:
+                self._remember(lp)
+
+    def _remember(self, lp: LinearParts) -> None:
+        self._cache[lp.speed_rpm] = lp
+        if len(self._cache) > LINEAR_PARTS_CACHE:
+            self._cache.popitem(last=False)
+
+    def _linear_parts_many(self, speeds: list[float]) -> list[LinearParts]:
         H = self.H
-        omega = key * RPM_TO_RAD_S
-        P = self.dof_loads(key)
+        K = len(speeds)
+        S = np.asarray(speeds, dtype=float)
+        omega = S * RPM_TO_RAD_S
+        A = np.stack([self.engine_harmonics(s) for s in speeds])                 # (K, H+1)
         # engine load derivative by a forward difference (backward at the top of the engine's
         # range)
-        ds = self.options.speed_fd_rpm
-        if key + ds > self._speed_range()[1]:
-            ds = -ds
-        dP = (self.dof_loads(key + ds) - P) / ds
-        Om = np.arange(1, H + 1) * (omega / 2.0)                 # Om_n = n omega / 2
-        dOm = np.arange(1, H + 1) * (RPM_TO_RAD_S / 2.0)         # dOm_n / ds
-        pole = 1.0 / (1j * Om[:, None] - self._d[None, :])       # (H, 2nf): 1 / (i Om_n - d_k)
-        Q = P[1:] @ self._B                                      # modal load of each harmonic
-        dQ = dP[1:] @ self._B
-        h = np.empty(H + 1, dtype=complex)
-        wlin = np.empty(H + 1, dtype=complex)
-        dh = np.zeros(H + 1, dtype=complex)
-        dw = np.empty(H + 1, dtype=complex)
-        h[0] = self._h0                                          # static: e.K^+ e
+        ds = np.where(S + self.options.speed_fd_rpm > self._speed_range()[1],
+                      -self.options.speed_fd_rpm, self.options.speed_fd_rpm)
+        A2 = np.stack([self.engine_harmonics(s + d) for s, d in zip(speeds, ds.tolist())])
+        dA = (A2 - A) / ds[:, None]
+        n = np.arange(1, H + 1)
+        dOm = n * (RPM_TO_RAD_S / 2.0)                           # dOm_n / ds
+        ml = self._modal_load[1:]
+        h = np.empty((K, H + 1), dtype=complex)
+        wlin = np.empty((K, H + 1), dtype=complex)
+        dh = np.zeros((K, H + 1), dtype=complex)
+        dw = np.empty((K, H + 1), dtype=complex)
+        if self.compiled:
+            unit = np.empty((K, H), dtype=complex)
+            dunit = np.empty((K, H), dtype=complex)
+            kernels.modal_sums(omega, dOm, self._d, ml, self._a, unit, dunit, h[:, 1:],
+                               dh[:, 1:])
+        else:
+            Om = omega[:, None] * (n / 2.0)                      # Om_n = n omega / 2
+            pole = 1.0 / (1j * Om[..., None] - self._d)          # (K, H, 2nf): 1/(i Om_n - d_k)
+            unit = (pole * ml).sum(axis=-1)                      # wlin_n per unit A_n
+            pole2 = -1j * pole ** 2                              # d/dOm of the pole
+            dunit = (pole2 * ml).sum(axis=-1) * dOm              # its speed derivative
+            h[:, 1:] = pole @ self._a
+            dh[:, 1:] = (pole2 @ self._a) * dOm
+        h[:, 0] = self._h0                                       # static: e.K^+ e
         # static: e.K^+ P_0 (rigid mode removed)
-        wlin[0] = self._u0 @ P[0].real
-        dw[0] = self._u0 @ dP[0].real
-        h[1:] = pole @ self._a
-        wlin[1:] = (Q * pole) @ self._ell
-        pole2 = -1j * pole ** 2                                   # d/dOm of the pole
-        dh[1:] = (pole2 @ self._a) * dOm
-        dw[1:] = (Q * pole2) @ self._ell * dOm + (dQ * pole) @ self._ell
-        lp = LinearParts(key, omega, P, h, wlin, dh, dw)
-        self._cache[key] = lp
-        if len(self._cache) > 16:
-            self._cache.popitem(last=False)
-        return lp
+        rear = np.array([self.loads.rear_load_for(a) for a in A])
+        rear2 = np.array([self.loads.rear_load_for(a) for a in A2])
+        wlin[:, 0] = A[:, 0].real * self._static_cyl + rear * self._static_rear
+        dw[:, 0] = dA[:, 0].real * self._static_cyl + (rear2 - rear) / ds * self._static_rear
+        wlin[:, 1:] = A[:, 1:] * unit
+        dw[:, 1:] = A[:, 1:] * dunit + dA[:, 1:] * unit
+        return [LinearParts(speeds[k], float(omega[k]), h[k], wlin[k], dh[k], dw[k],
+                            (to_real(wlin[k], H), h[k]), (to_real(dw[k], H), dh[k]))
+                for k in range(K)]
 
     def linear_response(self, speeds_rpm) -> np.ndarray:
         """(K, H+1) complex linear wind-up harmonics wlin_n at K speeds at once (same modal
         receptances as :meth:`linear_parts`): the solution wherever the wind-up stays below the
         knee."""
         speeds = np.atleast_1d(np.asarray(speeds_rpm, dtype=float))
-        P = np.stack([self.dof_loads(s) for s in speeds])                       # (K, H+1, n_dof)
+        cached = [self._cache.get(s) for s in speeds.tolist()]
+        if all(lp is not None for lp in cached):        # prepared (a sweep's grid)
+            return np.stack([lp.wlin for lp in cached])
+        A = np.stack([self.engine_harmonics(s) for s in speeds])                 # (K, H+1)
         Om = np.outer(speeds * (RPM_TO_RAD_S / 2.0), np.arange(1, self.H + 1))  # (K, H)
         pole = 1.0 / (1j * Om[..., None] - self._d)                              # (K, H, 2nf)
         w = np.empty((len(speeds), self.H + 1), dtype=complex)
-        w[:, 0] = P[:, 0].real @ self._u0
-        w[:, 1:] = ((P[:, 1:] @ self._B) * pole) @ self._ell
+        rear = np.array([self.loads.rear_load_for(a) for a in A])
+        w[:, 0] = A[:, 0].real * self._static_cyl + rear * self._static_rear
+        w[:, 1:] = A[:, 1:] * (pole * self._modal_load[1:]).sum(axis=-1)
         return w
 
     def time_series_batch(self, C: np.ndarray, n_samples: int = 1024) -> np.ndarray:
@@ -374,6 +467,16 @@ class CondensedHBM:
         AFT: w_j = E x -> g(w_j) -> G = F g. Jacobian dG/dx = F diag(g'(w_j)) E, summed over the
         samples where g' != 0 only (the others contribute nothing).
         """
+        if not self.compiled:
+            return self.nonlinear_harmonics_reference(x, jacobian)
+        G, dG, count = kernels.harmonics_py(np.ascontiguousarray(x, dtype=float),
+                                            self._aft_mats, self._spring_arrays, jacobian)
+        if not jacobian:
+            return G
+        return G, (dG if count else None)
+
+    def nonlinear_harmonics_reference(self, x: np.ndarray, jacobian: bool = False):
+        """:meth:`nonlinear_harmonics` in readable numpy (the compiled kernel's reference)."""
         w = self.E @ x
         sp = self.spring
         lo, hi = self._primary
@@ -396,7 +499,16 @@ class CondensedHBM:
 
     def residual_and_jacobian(self, x: np.ndarray, lp: LinearParts):
         """(r, dr/dx) with the analytic AFT Jacobian dr/dx = I + h dG/dx."""
-        G, dG = self.nonlinear_harmonics(x, jacobian=True)
+        if self.compiled:
+            r, Jx, _ = kernels.residual_jacobian_py(np.ascontiguousarray(x, dtype=float),
+                                                    lp.lin, self._aft_mats,
+                                                    self._spring_arrays, True)
+            return r, Jx
+        return self.residual_and_jacobian_reference(x, lp)
+
+    def residual_and_jacobian_reference(self, x: np.ndarray, lp: LinearParts):
+        """:meth:`residual_and_jacobian` in readable numpy (the compiled kernel's reference)."""
+        G, dG = self.nonlinear_harmonics_reference(x, jacobian=True)
         if dG is None:                          # no sample beyond a knee: the linear problem
             return x - to_real(lp.wlin, self.H), self._eye.copy()
         r = x - to_real(lp.wlin, self.H) + times_h(lp.h, G, self.H)
@@ -426,8 +538,28 @@ class CondensedHBM:
 
     def newton(self, x0: np.ndarray, lp: LinearParts) -> tuple[np.ndarray, int, float]:
         """Damped Newton on r(x) = 0 at fixed speed; returns (x, iterations, max|r|)."""
+        if not self.compiled:
+            return self.newton_reference(x0, lp)
+        x0 = np.array(x0, dtype=float)
+        x = np.empty_like(x0)
+        status, it, nr = kernels.newton(x0, lp.lin, self._aft_mats, self._spring_arrays,
+                                        self._newton_opts, x)
+        if status == kernels.CONVERGED:
+            return x, it, nr
+        if status == kernels.STALLED:
+            raise ConvergenceError(f'HBM Newton: stalled at residual {nr:.2e} rad after '
+                                   f'{it} iterations at {lp.speed_rpm:.1f} rpm')
+        if status == kernels.SINGULAR:
+            raise np.linalg.LinAlgError('singular matrix')
+        raise ConvergenceError(f'HBM Newton: residual {nr:.2e} rad after '
+                               f'{self.options.max_iter} iterations '
+                               f'at {lp.speed_rpm:.1f} rpm')
+
+    def newton_reference(self, x0: np.ndarray, lp: LinearParts
+                         ) -> tuple[np.ndarray, int, float]:
+        """:meth:`newton` in readable numpy (the compiled kernel's reference)."""
         x = np.array(x0, dtype=float)
-        r, Jx = self.residual_and_jacobian(x, lp)
+        r, Jx = self.residual_and_jacobian_reference(x, lp)
         nr = np.abs(r).max()
         history = [nr]
         opt = self.options
@@ -443,7 +575,7 @@ class CondensedHBM:
             lam = 1.0
             while True:   # backtracking on the max norm (the residual is only piecewise smooth)
                 xn = x + lam * dx
-                rn, Jn = self.residual_and_jacobian(xn, lp)
+                rn, Jn = self.residual_and_jacobian_reference(xn, lp)
                 nn = np.abs(rn).max()
                 if nn < nr or lam < 1e-3:
                     break
@@ -515,6 +647,26 @@ class CondensedHBM:
         lp = self.linear_parts(speed_rpm)
         r, Jx = self.residual_and_jacobian(x, lp)
         return r, Jx, self.residual_speed_derivative(x, lp)
+
+    def corrector_at(self, y_pred: np.ndarray, xs: float, ss: float, tol: float, max_iter: int):
+        """The continuation corrector of a step landing on a grid speed, compiled
+        (continuation.correct with the normal e_S; scaled unknowns y = [x / xs, s / ss]).
+        Returns (y, iterations, max|r|, (r, dr/dx, dr/ds)); raises CorrectorFailed when it does
+        not converge; None when the reference corrector is to be used (``compiled`` off)."""
+        if not self.compiled:
+            return None
+        n = len(y_pred) - 1
+        lp = self.linear_parts(float(y_pred[n] * ss))
+        y = np.empty(n)
+        r = np.empty(n)
+        Jx = np.empty((n, n))
+        rs = np.empty(n)
+        status, it, res = kernels.corrector_fixed_speed(
+            np.ascontiguousarray(y_pred[:n]), float(xs), lp.lin, lp.dlin, self._aft_mats,
+            self._spring_arrays, float(tol), int(max_iter), y, r, Jx, rs)
+        if status != kernels.CONVERGED:
+            raise CorrectorFailed(f'corrector: max|r| = {res:.2e} after {max_iter} iterations')
+        return np.concatenate([y, y_pred[n:]]), it, res, (r, Jx, rs)
 
     # ---- cross-check by time integration -------------------------------------------------------
     def newmark_from(self, point: HBMPoint, *, perturb: np.ndarray | None = None, **kwargs):

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dmf_sim.solvers.continuation import solve_small
+from dmf_sim.solvers.hbm import kernels
 from dmf_sim.solvers.hbm.condensed import CondensedHBM, LinearParts
 
 
@@ -57,12 +58,27 @@ class DeflatedNewton:
     def solve(self, lp: LinearParts, x0: np.ndarray, known: np.ndarray
               ) -> tuple[np.ndarray, int, float] | None:
         """Solution (x, iterations, max|r|) reached from ``x0`` avoiding the rows of ``known``,
-        or None if Newton does not converge."""
+        or None if Newton does not converge (compiled: :func:`kernels.deflated_newton`)."""
+        hb, o = self.hbm, self.options
+        if not hb.compiled:
+            return self.solve_reference(lp, x0, known)
+        x0 = np.array(x0, dtype=float)
+        known = np.ascontiguousarray(np.asarray(known, dtype=float).reshape(-1, len(x0)))
+        x = np.empty_like(x0)
+        defl = np.array([o.power, o.shift, o.scale, o.max_iter, o.min_step, o.stagnation],
+                        dtype=float)
+        found, it, nr = kernels.deflated_newton(x0, known, lp.lin, hb._aft_mats,
+                                                hb._spring_arrays, float(hb.options.tol), defl, x)
+        return (x, it, nr) if found else None
+
+    def solve_reference(self, lp: LinearParts, x0: np.ndarray, known: np.ndarray
+                        ) -> tuple[np.ndarray, int, float] | None:
+        """:meth:`solve` in readable numpy (the compiled kernel's reference)."""
         hb, o = self.hbm, self.options
         tol = hb.options.tol
         x = np.array(x0, dtype=float)
         known = np.asarray(known, dtype=float).reshape(-1, len(x))
-        r, J = hb.residual_and_jacobian(x, lp)
+        r, J = hb.residual_and_jacobian_reference(x, lp)
         nr = float(np.abs(r).max())
         lm, g = self._log_m(x, known)
         best, since = nr, 0
@@ -86,7 +102,7 @@ class DeflatedNewton:
             lam = 1.0
             while True:                 # backtracking on the deflated residual ln(M max|r|)
                 xn = x + lam * d
-                rn, Jn = hb.residual_and_jacobian(xn, lp)
+                rn, Jn = hb.residual_and_jacobian_reference(xn, lp)
                 nn = float(np.abs(rn).max())
                 lmn, gn = self._log_m(xn, known)
                 if np.log(max(nn, 1e-300)) + lmn < merit or lam <= o.min_step:

@@ -68,3 +68,19 @@ def shift(x: np.ndarray, k: int, H: int) -> np.ndarray:
     c = to_complex(np.asarray(x, dtype=float), H)
     n = np.arange(H + 1)
     return to_real(c * np.exp(-1j * n * k * np.pi / 3.0), H)
+
+
+def all_shifts(X: np.ndarray, n_shifts: int, H: int) -> np.ndarray:
+    """Every state of the rows of X (K, 2H+1) delayed by k x 120 deg, k = 0..n_shifts-1, as rows
+    (K n_shifts, 2H+1) in the order [shift(x, k) for x in X for k in range(n_shifts)] (the same
+    products as :func:`shift`, for all rows at once)."""
+    X = np.atleast_2d(np.asarray(X, dtype=float))
+    n = np.arange(1, H + 1)
+    rot = np.exp(-1j * np.outer(np.arange(n_shifts), n) * np.pi / 3.0)      # (n_shifts, H)
+    c = X[:, 1:H + 1] + 1j * X[:, H + 1:]                                    # (K, H)
+    cs = c[:, None, :] * rot[None, :, :]                                     # (K, n_shifts, H)
+    out = np.empty((X.shape[0], n_shifts, 2 * H + 1))
+    out[..., 0] = X[:, :1]
+    out[..., 1:H + 1] = cs.real
+    out[..., H + 1:] = cs.imag
+    return out.reshape(-1, 2 * H + 1)

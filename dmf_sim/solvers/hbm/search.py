@@ -32,7 +32,7 @@ import numpy as np
 from dmf_sim.core.errors import ConvergenceError, OperatingRangeError
 from dmf_sim.solvers.hbm.condensed import HBMPoint
 from dmf_sim.solvers.hbm.deflation import DeflatedNewton, DeflationOptions
-from dmf_sim.solvers.hbm.layout import amplitudes, shift, to_complex, to_real
+from dmf_sim.solvers.hbm.layout import all_shifts, amplitudes, shift, to_complex, to_real
 from dmf_sim.solvers.hbm.results import Branch, NonPeriodicBand, SweepEvent
 from dmf_sim.solvers.newmark import simulate
 from dmf_sim.solvers.nonperiodic import NonPeriodicOptions, analyze
@@ -77,20 +77,21 @@ class SearchOptions:
 def _interp_states(b: Branch, s: float) -> list[tuple[np.ndarray, bool | None]]:
     """(x, stable) of branch b at speed s: linear interpolation on every stretch bracketing s;
     stable only if both ends of the stretch are (at a computed point: that point's stability)."""
-    out = []
     pts = b.points
-    for p, q in zip(pts[:-1], pts[1:]):
-        a, c = p.speed_rpm, q.speed_rpm
-        if not min(a, c) - 1e-9 <= s <= max(a, c) + 1e-9:
-            continue
-        f = 0.0 if abs(c - a) < 1e-12 else (s - a) / (c - a)
+    if len(pts) == 1:
+        return [(pts[0].x, pts[0].stable)] if abs(pts[0].speed_rpm - s) < 1e-9 else []
+    S = np.array([q.speed_rpm for q in pts])
+    a, c = S[:-1], S[1:]
+    idx = np.flatnonzero((np.minimum(a, c) - 1e-9 <= s) & (s <= np.maximum(a, c) + 1e-9))
+    out = []
+    for i in idx.tolist():
+        p, q = pts[i], pts[i + 1]
+        f = 0.0 if abs(c[i] - a[i]) < 1e-12 else (s - a[i]) / (c[i] - a[i])
         st = None if p.stable is None or q.stable is None else bool(p.stable and q.stable)
         for end in (p, q):
             if abs(end.speed_rpm - s) < 1e-9:
                 st = None if end.stable is None else bool(end.stable)
         out.append((p.x + f * (q.x - p.x), st))
-    if len(pts) == 1 and abs(pts[0].speed_rpm - s) < 1e-9:
-        out.append((pts[0].x, pts[0].stable))
     return out
 
 
@@ -106,8 +107,7 @@ class StateSearch:
         return [st for b in self.branches for st in _interp_states(b, s)]
 
     def _deflation_set(self, known: list[np.ndarray]) -> np.ndarray:
-        H = self.hbm.H
-        return np.array([shift(x, k, H) for x in known for k in range(N_SHIFTS)])
+        return all_shifts(np.array(known), N_SHIFTS, self.hbm.H)
 
     def _reaches_knee(self, x: np.ndarray) -> bool:
         w = self.hbm.time_series(x, 256)

@@ -125,7 +125,7 @@ class SpeedSweep(BranchSwitching, StateSearch):
         self.cont = ContinuationOptions(**{**base.__dict__, 'grid': self.options.step_rpm,
                                            's_scale': self.options.step_rpm,
                                            'tol': hbm.options.tol})
-        self.floquet = FloquetAnalyzer(hbm.model, modes=hbm.modes)
+        self.floquet = FloquetAnalyzer(hbm.model, modes=hbm.modes, compiled=hbm.compiled)
         self.search = self.options.search
         self.events: list[SweepEvent] = []
         self.branches: list[Branch] = []
@@ -259,6 +259,9 @@ class SpeedSweep(BranchSwitching, StateSearch):
         if limit is not None:
             self._deadline = t0 + limit
         self.range = (lo, hi)
+        step = self.options.step_rpm
+        self.hbm.prepare(np.arange(np.ceil(lo / step - 1e-9), np.floor(hi / step + 1e-9) + 1)
+                         * step)                    # the grid's linear parts, all at once
         bar = _Progress(progress, hi - lo, desc)
         try:
             origin = f'continuation from {lo:g} rpm'

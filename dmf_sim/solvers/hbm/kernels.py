@@ -1,0 +1,559 @@
+"""Compiled hot paths of a harmonic-balance sweep point (numba: nopython, cached, no Python
+objects in the loops), beside the readable numpy reference they are tested against.
+
+What is compiled, and its reference (same equations, same numbering):
+
+* :func:`aft` — alternating frequency-time pass of the condensed system (eq. 9, 15): wind-up
+  samples ``w_j = E x``, the spring's extra torque ``g(w_j)`` and tangent ``g'(w_j)`` from the
+  SAME arrays the Newmark kernel reads (``PiecewiseLinearSpring.arrays()`` + primary index; the
+  region lookup is :func:`dmf_sim.solvers.newmark_kernel.region_of`, so the law is written once),
+  harmonics ``G = F g`` and ``dG/dx = F diag(g') E``.
+  Reference: ``CondensedHBM.nonlinear_harmonics``.
+* :func:`residual_jacobian` — ``r = x - wlin + h g``, ``dr/dx = I + h dG/dx`` (eq. 15) on the
+  real layout. Reference: ``CondensedHBM.residual_and_jacobian``.
+* :func:`newton` — damped Newton at fixed speed with its step control (backtracking on the max
+  norm, stall detection). Reference: ``CondensedHBM.newton``.
+* :func:`deflated_newton` — Newton on the deflated residual. Reference:
+  ``dmf_sim.solvers.hbm.deflation.DeflatedNewton.solve``.
+* :func:`corrector_fixed_speed` — the continuation corrector of a step that lands on a grid
+  speed (natural parameter, s fixed). Reference: ``dmf_sim.solvers.continuation.correct``.
+
+The Floquet multipliers of a sweep point are compiled beside their reference too:
+:mod:`dmf_sim.solvers.stability_kernel`.
+
+Packed arguments:
+
+* ``aft_mats`` = (E (M, 2H+1), weights (2H+1,), cos and sin tables (M, 2H+1) of m phi_j for
+  m = 0..2H): the AFT matrices of ``CondensedHBM`` (F = diag(weights) E^T);
+* ``spring`` = (knees, slopes, offsets, primary_index) exactly as the Newmark kernel gets them;
+* ``lin`` = (wlin_r (2H+1,), h (H+1,) complex): linear parts of one speed on the real layout;
+* ``newton_opts`` = (tol, max_iter, stall_iter, stall_ratio).
+
+Status codes returned by the solvers: :data:`CONVERGED`, :data:`STALLED`, :data:`MAX_ITER`,
+:data:`SINGULAR`, :data:`NOT_FINITE`.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from dmf_sim.solvers.hbm.layout import to_real
+from dmf_sim.solvers.newmark_kernel import HAVE_NUMBA, region_of
+
+CONVERGED, STALLED, MAX_ITER, SINGULAR, NOT_FINITE = 0, 1, 2, 3, 4
+BACKTRACK_MIN = 1e-3      # smallest backtracking factor of the plain Newton (as the reference)
+PIVOT_TINY = 0.0          # an exactly zero pivot is singular (as LAPACK's dgesv reports)
+
+
+# ------------------------------------------------------------------------------------------------
+# Small linear algebra
+# ------------------------------------------------------------------------------------------------
+
+def lu_solve(A, b, x, LU, piv):
+    """Solve A x = b by LU with partial pivoting (what LAPACK dgesv does); A, b untouched.
+    Returns False on an exactly singular matrix."""
+    n = b.shape[0]
+    for i in range(n):
+        for j in range(n):
+            LU[i, j] = A[i, j]
+        x[i] = b[i]
+    for k in range(n):
+        p = k
+        big = abs(LU[k, k])
+        for i in range(k + 1, n):
+            a = abs(LU[i, k])
+            if a > big:
+                big = a
+                p = i
+        if big <= PIVOT_TINY:
+            return False
+        piv[k] = p
+        if p != k:
+            for j in range(n):
+                t = LU[k, j]
+                LU[k, j] = LU[p, j]
+                LU[p, j] = t
+            t = x[k]
+            x[k] = x[p]
+            x[p] = t
+        inv = 1.0 / LU[k, k]
+        for i in range(k + 1, n):
+            f = LU[i, k] * inv
+            if f != 0.0:
+                LU[i, k] = f
+                for j in range(k + 1, n):
+                    LU[i, j] -= f * LU[k, j]
+                x[i] -= f * x[k]
+    for i in range(n - 1, -1, -1):
+        s = x[i]
+        for j in range(i + 1, n):
+            s -= LU[i, j] * x[j]
+        x[i] = s / LU[i, i]
+    return True
+
+
+def max_abs(v):
+    """max |v_i|, NaN if any entry is NaN (numpy's max does so)."""
+    m = 0.0
+    for i in range(v.shape[0]):
+        a = abs(v[i])
+        if a > m or a != a:
+            m = a
+            if a != a:
+                return a
+    return m
+
+
+# ------------------------------------------------------------------------------------------------
+# AFT, residual, Jacobian
+# ------------------------------------------------------------------------------------------------
+
+def aft(x, aft_mats, spring, G, dG, jac):
+    """G = harmonics of g(w(psi)) on the real layout [Nm]; with ``jac`` also dG = dG/dx
+    [Nm/rad]. Returns the number of samples beyond a knee (0: G = 0, the linear problem).
+    ``G = F g`` with ``F = diag(weights) E^T`` is summed row by row of E (contiguous).
+
+    The Jacobian F diag(g') E is assembled from the cosine and sine sums of g' alone,
+    ``C_m = (1/M) sum_j g'_j cos(m phi_j)``, ``S_m = (1/M) sum_j g'_j sin(m phi_j)``, m = 0..2H
+    (products of two harmonics n, p are harmonics n + p and n - p), instead of one rank-one
+    update per sample: O(M H) instead of O(M H^2)."""
+    E, weights, Tc, Ts = aft_mats
+    knees, slopes, offsets, primary = spring
+    nk = knees.shape[0]
+    lo = knees[primary - 1] if primary > 0 else -np.inf
+    hi = knees[primary] if primary < nk else np.inf
+    M = E.shape[0]
+    n = E.shape[1]
+    H = (n - 1) // 2
+    n2 = 2 * H + 1
+    for a in range(n):
+        G[a] = 0.0
+    Cm = np.zeros(n2)
+    Sm = np.zeros(n2)
+    count = 0
+    for j in range(M):
+        w = 0.0
+        for k in range(n):
+            w += E[j, k] * x[k]
+        if w > hi or w < lo:
+            count += 1
+            r = region_of(w, knees, primary)
+            s = slopes[r]
+            g = s * w + offsets[r]
+            for a in range(n):
+                G[a] += E[j, a] * g
+            if jac and s != 0.0:
+                for m in range(n2):
+                    Cm[m] += s * Tc[j, m]
+                    Sm[m] += s * Ts[j, m]
+    for a in range(n):
+        G[a] *= weights[a]
+    if jac:
+        for m in range(2 * H + 1):
+            Cm[m] /= M
+            Sm[m] /= M
+        dG[0, 0] = Cm[0]
+        for q in range(1, H + 1):
+            dG[0, q] = Cm[q]
+            dG[0, H + q] = -Sm[q]
+            dG[q, 0] = 2.0 * Cm[q]
+            dG[H + q, 0] = -2.0 * Sm[q]
+        for p in range(1, H + 1):
+            for q in range(1, H + 1):
+                d = p - q
+                cd = Cm[d] if d >= 0 else Cm[-d]
+                sd = Sm[d] if d >= 0 else -Sm[-d]          # S_(p-q)
+                dG[p, q] = cd + Cm[p + q]
+                dG[p, H + q] = -(Sm[q + p] - sd)            # -(S_(q+p) + S_(q-p))
+                dG[H + p, q] = -(Sm[p + q] + sd)
+                dG[H + p, H + q] = cd - Cm[p + q]
+    return count
+
+
+def times_h_into(h, v, out):
+    """out <- h_n * v_n on the real layout (complex product per harmonic): the compiled
+    :func:`dmf_sim.solvers.hbm.layout.times_h` of a vector."""
+    H = h.shape[0] - 1
+    out[0] = h[0].real * v[0]
+    for k in range(1, H + 1):
+        hr = h[k].real
+        hi = h[k].imag
+        re = v[k]
+        im = v[H + k]
+        out[k] = hr * re - hi * im
+        out[H + k] = hr * im + hi * re
+
+
+def times_h_matrix(h, V):
+    """Rows of V (2H+1, m) <- h_n * rows_n on the real layout, in place."""
+    H = h.shape[0] - 1
+    m = V.shape[1]
+    h0 = h[0].real
+    for j in range(m):
+        V[0, j] = h0 * V[0, j]
+    for k in range(1, H + 1):
+        hr = h[k].real
+        hi = h[k].imag
+        for j in range(m):
+            re = V[k, j]
+            im = V[H + k, j]
+            V[k, j] = hr * re - hi * im
+            V[H + k, j] = hr * im + hi * re
+
+
+def residual_jacobian(x, lin, aft_mats, spring, r, J, G, jac):
+    """r = x - wlin + h G (eq. 15) and, with ``jac``, J = I + h dG/dx, in place; G keeps the
+    harmonics of g. Returns the number of AFT samples beyond a knee."""
+    wlin_r, h = lin
+    n = x.shape[0]
+    count = aft(x, aft_mats, spring, G, J, jac)
+    times_h_into(h, G, r)
+    for i in range(n):
+        r[i] += x[i] - wlin_r[i]
+    if jac:
+        if count == 0:
+            for a in range(n):
+                for b in range(n):
+                    J[a, b] = 0.0
+        else:
+            times_h_matrix(h, J)
+        for a in range(n):
+            J[a, a] += 1.0
+    return count
+
+
+def residual_jacobian_py(x, lin, aft_mats, spring, jac):
+    """(r, J or None, count) as new arrays: the entry point for Python callers."""
+    n = x.shape[0]
+    r = np.empty(n)
+    J = np.empty((n, n))
+    G = np.empty(n)
+    count = residual_jacobian(x, lin, aft_mats, spring, r, J, G, jac)
+    return r, J, count
+
+
+def harmonics_py(x, aft_mats, spring, jac):
+    """(G, dG/dx, count) as new arrays (the non-linear torque harmonics alone)."""
+    n = x.shape[0]
+    G = np.empty(n)
+    dG = np.empty((n, n))
+    count = aft(x, aft_mats, spring, G, dG, jac)
+    return G, dG, count
+
+
+# ------------------------------------------------------------------------------------------------
+# Newton at fixed speed, plain and deflated
+# ------------------------------------------------------------------------------------------------
+
+def _newton_start(x0, x):
+    """x <- x0 and the work arrays of a Newton solve of size n: r, J, G, r_new, J_new, x_new,
+    step, -r, LU factors, pivots."""
+    n = x0.shape[0]
+    for i in range(n):
+        x[i] = x0[i]
+    return (np.empty(n), np.empty((n, n)), np.empty(n), np.empty(n), np.empty((n, n)),
+            np.empty(n), np.empty(n), np.empty(n), np.empty((n, n)), np.empty(n, dtype=np.int64))
+
+
+def _accept(xn, rn, Jn, x, r, J):
+    """The trial point becomes the iterate: x, r, J <- xn, rn, Jn."""
+    n = x.shape[0]
+    for i in range(n):
+        x[i] = xn[i]
+        r[i] = rn[i]
+        for j in range(n):
+            J[i, j] = Jn[i, j]
+
+
+def newton(x0, lin, aft_mats, spring, newton_opts, x):
+    """Damped Newton from x0 into x (reference ``CondensedHBM.newton``).
+    Returns (status, iterations, max|r|)."""
+    tol, max_iter, stall_iter, stall_ratio = newton_opts
+    n = x0.shape[0]
+    r, J, G, rn, Jn, xn, dx, mr, LU, piv = _newton_start(x0, x)
+    history = np.empty(max_iter + 2)
+    residual_jacobian(x, lin, aft_mats, spring, r, J, G, True)
+    nr = max_abs(r)
+    history[0] = nr
+    nh = 1
+    for it in range(1, max_iter + 1):
+        if nr <= tol:
+            return CONVERGED, it - 1, nr
+        if nh > stall_iter and nr > stall_ratio * history[nh - 1 - stall_iter]:
+            return STALLED, it - 1, nr
+        for i in range(n):
+            mr[i] = -r[i]
+        if not lu_solve(J, mr, dx, LU, piv):
+            return SINGULAR, it - 1, nr
+        lam = 1.0
+        while True:   # backtracking on the max norm (the residual is only piecewise smooth)
+            for i in range(n):
+                xn[i] = x[i] + lam * dx[i]
+            residual_jacobian(xn, lin, aft_mats, spring, rn, Jn, G, True)
+            nn = max_abs(rn)
+            if nn < nr or lam < BACKTRACK_MIN:
+                break
+            lam *= 0.5
+        _accept(xn, rn, Jn, x, r, J)
+        nr = nn
+        history[nh] = nr
+        nh += 1
+    if nr <= tol:
+        return CONVERGED, max_iter, nr
+    return MAX_ITER, max_iter, nr
+
+
+def _log_m(x, known, defl, grad):
+    """ln M(x) of the deflation operator and its gradient into ``grad`` (reference
+    ``DeflatedNewton._log_m``)."""
+    power, sigma, scale = defl[0], defl[1], defl[2]
+    n = x.shape[0]
+    for i in range(n):
+        grad[i] = 0.0
+    lm = 0.0
+    for k in range(known.shape[0]):
+        dist2 = 0.0
+        for i in range(n):
+            d = (x[i] - known[k, i]) / scale
+            dist2 += d * d
+        if dist2 < 1e-300:
+            dist2 = 1e-300
+        m = dist2 ** (-0.5 * power) + sigma
+        coef = -power * dist2 ** (-0.5 * power - 1.0) / (m * scale)
+        lm += math.log(m)
+        for i in range(n):
+            grad[i] += coef * ((x[i] - known[k, i]) / scale)
+    return lm
+
+
+def _log_floor(v):
+    """log(max(v, 1e-300)) with Python's max (a NaN stays NaN)."""
+    return math.log(1e-300 if 1e-300 > v else v)
+
+
+def deflated_newton(x0, known, lin, aft_mats, spring, tol, defl, x):
+    """Newton on M(x) r(x) avoiding the rows of ``known`` (reference ``DeflatedNewton.solve``);
+    ``defl`` = [power, shift, scale, max_iter, min_step, stagnation]. Returns (found,
+    iterations, max|r|); the solution in x."""
+    max_iter = int(defl[3])
+    min_step = defl[4]
+    stagnation = int(defl[5])
+    n = x0.shape[0]
+    r, J, G, rn, Jn, xn, d, mr, LU, piv = _newton_start(x0, x)
+    g = np.empty(n)
+    gn = np.empty(n)
+    residual_jacobian(x, lin, aft_mats, spring, r, J, G, True)
+    nr = max_abs(r)
+    lm = _log_m(x, known, defl, g)
+    best = nr
+    since = 0
+    for it in range(1, max_iter + 1):
+        if nr <= tol:
+            return True, it - 1, nr
+        if nr < 0.5 * best:
+            best = nr
+            since = 0
+        else:
+            since += 1
+            if since >= stagnation:
+                return False, it - 1, nr
+        for i in range(n):
+            mr[i] = -r[i]
+        if not lu_solve(J, mr, d, LU, piv):
+            return False, it - 1, nr
+        denom = 1.0
+        for i in range(n):
+            denom -= g[i] * d[i]
+        if abs(denom) > 1e-12:
+            for i in range(n):
+                d[i] = d[i] / denom
+        merit = _log_floor(nr) + lm
+        lam = 1.0
+        while True:             # backtracking on the deflated residual ln(M max|r|)
+            for i in range(n):
+                xn[i] = x[i] + lam * d[i]
+            residual_jacobian(xn, lin, aft_mats, spring, rn, Jn, G, True)
+            nn = max_abs(rn)
+            lmn = _log_m(xn, known, defl, gn)
+            if _log_floor(nn) + lmn < merit or lam <= min_step:
+                break
+            lam *= 0.5
+        if not math.isfinite(nn):
+            return False, it, nn
+        _accept(xn, rn, Jn, x, r, J)
+        for i in range(n):
+            g[i] = gn[i]
+        nr = nn
+        lm = lmn
+    return nr <= tol, max_iter, nr
+
+
+# ------------------------------------------------------------------------------------------------
+# Continuation corrector on a grid speed (natural parameter)
+# ------------------------------------------------------------------------------------------------
+
+def corrector_fixed_speed(y_pred, xs, lin, dlin, aft_mats, spring, tol, max_iter, y, r, J, rs):
+    """Newton on r(x, s) = 0 at the fixed speed of ``lin`` in scaled unknowns y = x / xs
+    (reference: ``continuation.correct`` with the normal e_S). ``dlin`` = (dwlin_r, dh) the
+    speed derivatives. Writes y, r, J = dr/dx, rs = dr/ds; returns (status, iterations,
+    max|r|)."""
+    dwlin_r, dh = dlin
+    n = y_pred.shape[0]
+    for i in range(n):
+        y[i] = y_pred[i]
+    x = np.empty(n)
+    G = np.empty(n)
+    A = np.empty((n, n))
+    mr = np.empty(n)
+    dy = np.empty(n)
+    LU = np.empty((n, n))
+    piv = np.empty(n, dtype=np.int64)
+    res = np.inf
+    it = 0
+    status = MAX_ITER
+    for it in range(max_iter + 1):
+        for i in range(n):
+            x[i] = y[i] * xs
+        residual_jacobian(x, lin, aft_mats, spring, r, J, G, True)
+        res = max_abs(r)
+        if res <= tol:
+            status = CONVERGED
+            break
+        if it == max_iter or not math.isfinite(res):
+            status = MAX_ITER if math.isfinite(res) else NOT_FINITE
+            return status, it, res
+        for i in range(n):
+            mr[i] = -r[i]
+            for j in range(n):
+                A[i, j] = J[i, j] * xs
+        if not lu_solve(A, mr, dy, LU, piv):
+            return SINGULAR, it, res
+        big = 0.0
+        for i in range(n):
+            y[i] = y[i] + dy[i]
+            a = abs(dy[i])
+            if a > big or a != a:
+                big = a
+        if big < 1e-13 and res < 1e3 * tol:
+            for i in range(n):
+                x[i] = y[i] * xs
+            residual_jacobian(x, lin, aft_mats, spring, r, J, G, True)
+            res = max_abs(r)
+            it += 1
+            status = CONVERGED
+            break
+    # dr/ds at the solution: -dwlin + dh G (G: the harmonics of the last evaluation)
+    times_h_into(dh, G, rs)
+    for i in range(n):
+        rs[i] -= dwlin_r[i]
+    return status, it, res
+
+
+# ------------------------------------------------------------------------------------------------
+# Linear parts: the modal sums of the condensed receptances
+# ------------------------------------------------------------------------------------------------
+
+def modal_sums(omega, dOm, d, ml, a, unit, dunit, h, dh):
+    """For K crank speeds omega [rad/s] and harmonics n = 1..H (Om_n = n omega / 2, dOm_n its
+    speed derivative): with the poles p_nk = 1 / (i Om_n - d_k) of the chain's complex modes,
+    ``unit_n = sum_k p_nk ml_nk`` (wlin_n per unit A_n), ``h_n = sum_k p_nk a_k`` and their
+    speed derivatives through dp/dOm = -i p^2 (reference: ``CondensedHBM._linear_parts_many``
+    in numpy)."""
+    K = omega.shape[0]
+    H = ml.shape[0]
+    m = d.shape[0]
+    for q in range(K):
+        for n in range(H):
+            Om = omega[q] * ((n + 1) / 2.0)
+            su = 0j
+            sdu = 0j
+            sh = 0j
+            sdh = 0j
+            for k in range(m):
+                p = 1.0 / (1j * Om - d[k])
+                p2 = -1j * (p * p)
+                su += p * ml[n, k]
+                sdu += p2 * ml[n, k]
+                sh += p * a[k]
+                sdh += p2 * a[k]
+            unit[q, n] = su
+            dunit[q, n] = sdu * dOm[n]
+            h[q, n] = sh
+            dh[q, n] = sdh * dOm[n]
+
+
+if HAVE_NUMBA:
+    import numba
+    _jit = numba.njit(cache=True, nogil=True, error_model='numpy')
+    lu_solve = _jit(lu_solve)
+    max_abs = _jit(max_abs)
+    # reassociation lets LLVM vectorize the sums (rounding-level differences to the reference);
+    # no 'nnan' flag: the NaN checks of the solvers stay valid
+    aft = numba.njit(cache=True, nogil=True, error_model='numpy',
+                     fastmath={'reassoc', 'contract'})(aft)
+    times_h_into = _jit(times_h_into)
+    times_h_matrix = _jit(times_h_matrix)
+    residual_jacobian = _jit(residual_jacobian)
+    residual_jacobian_py = _jit(residual_jacobian_py)
+    corrector_fixed_speed = _jit(corrector_fixed_speed)
+    harmonics_py = _jit(harmonics_py)
+    _newton_start = _jit(_newton_start)
+    _accept = _jit(_accept)
+    newton = _jit(newton)
+    _log_m = _jit(_log_m)
+    _log_floor = _jit(_log_floor)
+    deflated_newton = _jit(deflated_newton)
+    modal_sums = _jit(modal_sums)
+
+
+
+def warm_up() -> float:
+    """Load (or, the first time on a machine, compile) every compiled kernel of a sweep point —
+    these and :mod:`dmf_sim.solvers.stability_kernel` — on a tiny problem with the argument types
+    of the real ones, so no later first call pays for it (a design-study worker does this when it
+    starts). Returns the seconds it took."""
+    import time
+
+    from dmf_sim.physics.spring import PiecewiseLinearSpring
+    from dmf_sim.solvers import stability_kernel
+    t0 = time.perf_counter()
+    H, M = 2, 8
+    n = 2 * H + 1
+    phi = 2.0 * np.pi * np.arange(M) / M
+    harm = np.arange(1, H + 1)
+    E = np.hstack([np.ones((M, 1)), np.cos(np.outer(phi, harm)), -np.sin(np.outer(phi, harm))])
+    weights = np.full(n, 2.0 / M)
+    weights[0] = 1.0 / M
+    m_all = np.arange(n)
+    aft_mats = (E, weights, np.cos(np.outer(phi, m_all)), np.sin(np.outer(phi, m_all)))
+    sp = PiecewiseLinearSpring.two_step(1.0, 0.5, 1.0)
+    spring = (*sp.arrays(), int(sp.primary_index))
+    h = np.full(H + 1, 0.5 + 0.1j)
+    x0 = np.zeros(n)
+    x0[1] = 1.0
+    lin = (x0.copy(), h)
+    out = np.empty(n)
+    residual_jacobian_py(x0, lin, aft_mats, spring, True)
+    harmonics_py(x0, aft_mats, spring, True)
+    newton(x0, lin, aft_mats, spring, (1e-10, 5, 8, 0.5), out)
+    deflated_newton(x0, np.zeros((1, n)), lin, aft_mats, spring, 1e-10,
+                    np.array([2.0, 1.0, 1e-2, 5.0, 0.125, 6.0]), out)
+    corrector_fixed_speed(x0, 1.0, lin, lin, aft_mats, spring, 1e-10, 3, out, np.empty(n),
+                          np.empty((n, n)), np.empty(n))
+    K, m = 1, 2
+    modal_sums(np.ones(K), np.ones(H), np.array([-1.0 + 1j, -1.0 - 1j]),
+               np.ones((H + 1, m), dtype=complex)[1:], np.ones(m, dtype=complex),
+               np.empty((K, H), dtype=complex), np.empty((K, H), dtype=complex),
+               np.empty((K, H + 1), dtype=complex)[:, 1:],
+               np.empty((K, H + 1), dtype=complex)[:, 1:])
+    ns = 2
+    W = np.zeros((2, 2, ns, ns))
+    W[:, :] = np.eye(ns)
+    c = np.zeros(H + 1, dtype=complex)
+    c[1] = 1.0
+    stability_kernel.floquet(c, E @ to_real(c, H), 1.0, spring[0], spring[3], 1,
+                             np.array([[1, 2], [1, 2]], dtype=np.int64), -np.ones((2, ns)),
+                             np.ones((2, ns)), W)
+    return time.perf_counter() - t0
+

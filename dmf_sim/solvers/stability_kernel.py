@@ -1,0 +1,150 @@
+"""Compiled Floquet analysis of a periodic wind-up (numba: nopython, cached): the knee crossings,
+the exact monodromy of the piecewise-linear system region by region, and the multipliers — the
+hot part of :meth:`dmf_sim.solvers.stability.FloquetAnalyzer.analyze`, whose readable numpy path
+(``segments_from``, ``monodromy``, ``analyze_reference``) is the reference the tests compare it
+with. Region lookup: :func:`dmf_sim.solvers.newmark_kernel.region_of` on the spring's own arrays
+(the law written once).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from dmf_sim.core.units import CYCLE_RAD
+from dmf_sim.solvers.newmark_kernel import HAVE_NUMBA, region_of
+
+
+def floquet_segments(c, w, omega, knees, primary, n_newton, stages, taus):
+    """Knee crossings of the periodic wind-up and the stretches between them (reference
+    ``FloquetAnalyzer.segments_from``). ``c`` complex wind-up harmonics, ``w`` the wind-up on a
+    uniform grid of the cycle, omega [rad/s]. Crossings are bracketed on the grid and refined by
+    ``n_newton`` Newton steps on the trigonometric polynomial w(phi) - knee. Writes the stage and
+    duration [s] of each stretch from the first crossing into ``stages``/``taus`` (capacity at
+    least the number of crossings, or 1); returns (count, t_start [s])."""
+    N = w.shape[0]
+    T = CYCLE_RAD / omega
+    idx = np.empty(N, dtype=np.int64)
+    for i in range(N):
+        idx[i] = region_of(w[i], knees, primary)
+    total = 0
+    for i in range(N):
+        a = idx[i]
+        b = idx[(i + 1) % N]
+        total += abs(b - a)
+    if total == 0:
+        stages[0] = idx[0] - primary
+        taus[0] = T
+        return 1, 0.0
+    phis = np.empty(total)
+    after = np.empty(total, dtype=np.int64)
+    dphi = 2.0 * np.pi / N
+    nc = c.shape[0]
+    m = 0
+    for i in range(N):
+        ia = idx[i]
+        ib = idx[(i + 1) % N]
+        if ia == ib:
+            continue
+        step = 1 if ib > ia else -1
+        for k in range(abs(ib - ia)):
+            ki = ia + k if step > 0 else ia - 1 - k
+            level = knees[ki]
+            after[m] = ki + 1 if step > 0 else ki
+            w0 = w[i]
+            w1 = w[(i + 1) % N]
+            f = (level - w0) / (w1 - w0)
+            f = min(max(f, 0.0), 1.0)
+            ph = (i + f) * dphi
+            lo_ph = i * dphi
+            hi_ph = (i + 1) * dphi
+            for _ in range(n_newton):
+                fv = 0.0
+                dfv = 0.0
+                for n in range(nc):
+                    zr = math.cos(n * ph)
+                    zi = math.sin(n * ph)
+                    re = c[n].real * zr - c[n].imag * zi      # Re(c_n e^{i n ph})
+                    im = c[n].real * zi + c[n].imag * zr
+                    fv += re
+                    dfv += -n * im                           # Re(i n c_n e^{i n ph})
+                fv -= level
+                upd = fv / dfv if dfv != 0.0 else 0.0
+                ph = min(max(ph - upd, lo_ph), hi_ph)
+            phis[m] = ph
+            m += 1
+    for i in range(1, total):                               # crossings in time order
+        if phis[i] < phis[i - 1]:
+            phis[i] = phis[i - 1]
+    for i in range(total):
+        t0 = phis[i] * 2.0 / omega
+        t1 = phis[i + 1] * 2.0 / omega if i + 1 < total else phis[0] * 2.0 / omega + T
+        stages[i] = after[i] - primary
+        taus[i] = t1 - t0
+    return total, phis[0] * 2.0 / omega
+
+
+def monodromy_similar(regions, taus, count, kind, sigma, freq, W, X):
+    """X = W_(r_1, r_k) B_k W_(r_k, r_k-1) ... W_(r_2, r_1) B_1: the monodromy of the
+    piecewise-linear system up to the similarity Q_(r_1) (same multipliers), in the real
+    eigenbasis of each region.
+
+    Per region r, A_r = Q_r blockdiag(B_r) Q_r^-1 with real Q_r (columns Re v, Im v of each
+    complex pair) and blocks exp(B tau) = exp(sigma tau) [[cos w tau, sin w tau],
+    [-sin w tau, cos w tau]] (1 x 1 exp(sigma tau) for a real eigenvalue); crossing from region b
+    into region a is the constant W_(a, b) = Q_a^-1 Q_b. So each stretch costs one block-diagonal
+    scaling and one real matrix product (instead of forming exp(A tau) = V diag V^-1 in complex
+    arithmetic and multiplying). ``kind[r, i]``: 0 real eigenvalue, 1 first of a pair, 2 second.
+    """
+    ns = X.shape[0]
+    for i in range(ns):
+        for j in range(ns):
+            X[i, j] = 1.0 if i == j else 0.0
+    for k in range(count):
+        r = regions[k]
+        tau = taus[k]
+        i = 0
+        while i < ns:
+            e = math.exp(sigma[r, i] * tau)
+            if kind[r, i] == 0:
+                for j in range(ns):
+                    X[i, j] *= e
+                i += 1
+            else:
+                c = e * math.cos(freq[r, i] * tau)
+                sn = e * math.sin(freq[r, i] * tau)
+                for j in range(ns):
+                    a = X[i, j]
+                    b = X[i + 1, j]
+                    X[i, j] = c * a + sn * b
+                    X[i + 1, j] = -sn * a + c * b
+                i += 2
+        nxt = regions[k + 1] if k + 1 < count else regions[0]
+        if nxt != r:
+            X[:, :] = np.dot(W[nxt, r], X)
+    return X
+
+
+def floquet(c, w, omega, knees, primary, n_newton, kind, sigma, freq, W):
+    """(X, count, stages, durations [s]): the stretches of one cycle between knee crossings and
+    the monodromy up to similarity (:func:`monodromy_similar`; its eigenvalues are the Floquet
+    multipliers). With one stretch (no crossing) X is not formed (the multipliers are
+    exp(lambda T) in closed form)."""
+    nk = knees.shape[0]
+    cap = max(w.shape[0] * (nk if nk > 0 else 1), 1)
+    stages = np.empty(cap, dtype=np.int64)
+    taus = np.empty(cap)
+    count, t0 = floquet_segments(c, w, omega, knees, primary, n_newton, stages, taus)
+    ns = sigma.shape[1]
+    X = np.empty((ns, ns))
+    if count > 1:
+        monodromy_similar(stages[:count] + primary, taus, count, kind, sigma, freq, W, X)
+    return X, count, stages[:count].copy(), taus[:count].copy()
+
+
+if HAVE_NUMBA:
+    import numba
+    _jit = numba.njit(cache=True, nogil=True, error_model='numpy')
+    floquet_segments = _jit(floquet_segments)
+    monodromy_similar = _jit(monodromy_similar)
+    floquet = _jit(floquet)

@@ -1,0 +1,260 @@
+"""The compiled hot paths of a sweep point (issue 22) against their readable numpy reference:
+AFT residual and Jacobian, Newton, deflated Newton, the continuation corrector on a grid speed and
+the Floquet multipliers, on the paper's two-step spring and on a spring with three drive stages
+and a coast stage; and a whole sweep both ways (same branches, events and stable states)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import yaml
+from fake_engine import FakeEngine
+
+from dmf_sim.core.paths import config_file
+from dmf_sim.physics.engine import load_engine
+from dmf_sim.physics.loads import DrivelineLoads
+from dmf_sim.physics.model import driveline_from_dict, load_model
+from dmf_sim.solvers import continuation
+from dmf_sim.solvers.hbm import CondensedHBM, HBMOptions, SweepOptions, sweep
+from dmf_sim.solvers.hbm.deflation import DeflatedNewton
+from dmf_sim.solvers.stability import FloquetAnalyzer
+
+REL_TOL = 1e-10          # compiled vs reference, relative to the largest entry
+PAPER_SPEED = 1200.0     # rpm: the paper case crosses the knee here
+STAGED_SPEED = 850.0     # rpm: the staged spring's wind-up visits every stage (test_multistage)
+
+
+@pytest.fixture(scope='module')
+def paper():
+    eng = load_engine('engine_d13', load_set='A')
+    eng.warm()
+    return DrivelineLoads(load_model('truck_dmf', alpha=3.0), eng), PAPER_SPEED
+
+
+@pytest.fixture(scope='module')
+def staged():
+    d = yaml.safe_load(config_file('truck_dmf').read_text())
+    d['dmf'] = {'element': d['dmf']['element'], 'stiffness': 10890,
+                'stages': [{'angle_rad': 0.10, 'stiffness_factor': 1.0},
+                           {'angle_rad': 0.14, 'stiffness_factor': 2.5},
+                           {'angle_rad': 0.18, 'stiffness_factor': 5.0}],
+                'coast_stages': [{'angle_rad': 0.02, 'stiffness_factor': 1.5}]}
+    engine = FakeEngine({0: 180.0, 3: 60 + 20j, 6: 3500 - 300j, 12: 200.0})
+    return DrivelineLoads(driveline_from_dict(d).reduce(), engine), STAGED_SPEED
+
+
+CASES = ['paper', 'staged']
+
+
+def both(loads):
+    return (CondensedHBM(loads, 1.0), CondensedHBM(loads, 1.0, HBMOptions(compiled=False)))
+
+
+def close(a, b):
+    return np.abs(np.asarray(a) - np.asarray(b)).max() <= REL_TOL * np.abs(b).max()
+
+
+def trial_points(hb, speed, n=6, seed=3):
+    """Wind-up harmonics around the linear response, large enough that part of every cycle lies
+    beyond a knee (some on the coast side for the staged spring)."""
+    x0 = hb.linear_solution(speed)
+    rng = np.random.default_rng(seed)
+    return [x0 + 0.5 * np.abs(x0).max() * rng.standard_normal(len(x0)) for _ in range(n)]
+
+
+@pytest.mark.parametrize('case', CASES)
+def test_aft_residual_and_jacobian_equal_reference(case, request):
+    loads, speed = request.getfixturevalue(case)
+    hb, ref = both(loads)
+    lp = hb.linear_parts(speed)
+    sp = loads.model.spring
+    beyond = 0
+    for x in trial_points(hb, speed):
+        w = hb.windup_samples(x)
+        beyond += int(np.count_nonzero(sp.stage(w)))
+        G, dG = hb.nonlinear_harmonics(x, jacobian=True)
+        Gr, dGr = ref.nonlinear_harmonics(x, jacobian=True)
+        assert close(G, Gr) and close(dG, dGr)
+        r, J = hb.residual_and_jacobian(x, lp)
+        rr, Jr = ref.residual_and_jacobian(x, lp)
+        assert close(r, rr) and close(J, Jr)
+    assert beyond > 0                     # the trial points do exercise the stages
+    if case == 'staged':
+        w = np.concatenate([hb.windup_samples(x) for x in trial_points(hb, speed)])
+        assert set(np.unique(sp.stage(w))) == set(sp.stages())   # every region, coast too
+
+
+@pytest.mark.parametrize('case', CASES)
+def test_linear_parts_equal_reference(case, request):
+    """h_n, wlin_n and their speed derivatives: compiled modal sums vs numpy, one speed and a
+    prepared batch."""
+    loads, speed = request.getfixturevalue(case)
+    hb, ref = both(loads)
+    hb.prepare([speed - 10.0, speed, speed + 10.0])
+    for s in (speed, speed + 3.7):
+        a, b = hb.linear_parts(s), ref.linear_parts(s)
+        for name in ('h', 'wlin', 'dh_ds', 'dwlin_ds'):
+            assert close(getattr(a, name), getattr(b, name)), name
+
+
+def test_primary_only_is_the_linear_problem(paper):
+    loads, _ = paper
+    hb, _ = both(loads)
+    lp = hb.linear_parts(700.0)                     # far below the knee
+    x = hb.linear_solution(700.0)
+    r, J = hb.residual_and_jacobian(x, lp)
+    assert np.abs(r).max() == 0.0 and np.array_equal(J, np.eye(len(x)))
+    G, dG = hb.nonlinear_harmonics(x, jacobian=True)
+    assert dG is None and not G.any()
+
+
+@pytest.mark.parametrize('case', CASES)
+def test_newton_equals_reference(case, request):
+    loads, speed = request.getfixturevalue(case)
+    hb, ref = both(loads)
+    p, q = hb.solve(speed), ref.solve(speed)
+    assert p.iterations == q.iterations and p.iterations > 0
+    assert close(p.x, q.x) and p.residual <= hb.options.tol
+
+
+def test_newton_failure_is_the_reference_failure(paper):
+    """At 1000 rpm Newton from the linear response stalls (the sweep approaches this speed by
+    continuation instead): the compiled solver gives up the same way."""
+    loads, _ = paper
+    msgs = []
+    for hb in both(loads):
+        with pytest.raises(Exception) as exc:
+            hb.solve(1000.0)
+        msgs.append(str(exc.value))
+    assert msgs[0] == msgs[1] and 'stalled' in msgs[0]
+
+
+@pytest.mark.parametrize('case', CASES)
+def test_deflated_newton_equals_reference(case, request):
+    loads, speed = request.getfixturevalue(case)
+    hb, ref = both(loads)
+    lp = hb.linear_parts(speed)
+    known = np.array([hb.solve(speed).x])
+    for x0 in trial_points(hb, speed, n=4, seed=7):
+        a = DeflatedNewton(hb).solve(lp, x0, known)
+        b = DeflatedNewton(ref).solve(lp, x0, known)
+        assert (a is None) == (b is None)
+        if a is not None:
+            assert a[1] == b[1] and close(a[0], b[0])
+
+
+@pytest.mark.parametrize('case', CASES)
+def test_grid_corrector_equals_reference(case, request):
+    """continuation.correct on a grid speed: one compiled call (HBM.corrector_at) vs the
+    reference iteration over residual_and_jacobians."""
+    loads, speed = request.getfixturevalue(case)
+    hb, ref = both(loads)
+    xs, ss = 0.01, 10.0
+    x = hb.solve(speed).x
+    y_pred = np.concatenate([x * 1.05 / xs, [(speed + 10.0) / ss]])   # next grid speed
+    normal = np.zeros(len(y_pred))
+    normal[-1] = 1.0
+    a = continuation.correct(hb, y_pred, normal, xs, ss, 1e-10, 12)
+    b = continuation.correct(ref, y_pred, normal, xs, ss, 1e-10, 12)
+    assert a[1] == b[1] and a[1] > 0
+    assert close(a[0], b[0])
+    r, Jx, rs = a[3]
+    assert np.abs(r).max() <= 1e-10 and np.abs(b[3][0]).max() <= 1e-10   # rounding noise
+    assert close(Jx, b[3][1]) and close(rs, b[3][2])                      # dr/dx, dr/ds
+
+
+def test_grid_corrector_failure_raises_corrector_failed(paper):
+    loads, _ = paper
+    hb, _ = both(loads)
+    x = hb.solve(PAPER_SPEED).x
+    y_pred = np.concatenate([x * 40.0 / 0.01, [PAPER_SPEED / 10.0]])   # hopeless predictor
+    normal = np.zeros(len(y_pred))
+    normal[-1] = 1.0
+    with pytest.raises(continuation.CorrectorFailed):
+        continuation.correct(hb, y_pred, normal, 0.01, 10.0, 1e-10, 2)
+
+
+@pytest.mark.parametrize('case', CASES)
+def test_floquet_multipliers_equal_reference(case, request):
+    loads, speed = request.getfixturevalue(case)
+    hb, _ = both(loads)
+    fa = FloquetAnalyzer(loads.model, modes=hb.modes)
+    fr = FloquetAnalyzer(loads.model, modes=hb.modes, compiled=False)
+    crossings = 0
+    for s in (speed - 50.0, speed, speed + 50.0):
+        try:
+            c = hb.solve(s).windup_orders
+        except Exception:
+            continue
+        a, b = fa.analyze(c, s), fr.analyze(c, s)
+        crossings += a.n_crossings
+        assert a.n_crossings == b.n_crossings and a.stable == b.stable
+        assert [st for st, _ in a.segments] == [st for st, _ in b.segments]
+        assert close([t for _, t in a.segments], [t for _, t in b.segments])
+        # each reference multiplier has a compiled one within the tolerance
+        gap = np.abs(a.multipliers[None, :] - b.multipliers[:, None]).min(axis=1)
+        assert gap.max() <= REL_TOL * np.abs(b.multipliers).max()
+        assert a.max_abs == pytest.approx(b.max_abs, rel=REL_TOL)
+    assert crossings > 0
+
+
+def test_sweep_compiled_equals_reference(paper):
+    """A sweep across the paper case's knee region, full search: the same branches, events and
+    stable states, the same points to rounding."""
+    loads, _ = paper
+    out = []
+    for compiled in (True, False):
+        res = sweep(loads, 1.0, (950.0, 1150.0), hbm_options=HBMOptions(compiled=compiled),
+                    options=SweepOptions(step_rpm=10.0))
+        out.append(res)
+    a, b = out
+    assert [(br.kind, len(br.points)) for br in a.branches] == [(br.kind, len(br.points))
+                                                              for br in b.branches]
+    assert [(e.kind, e.branch, round(e.speed_rpm, 6)) for e in a.events] == [
+        (e.kind, e.branch, round(e.speed_rpm, 6)) for e in b.events]
+    for ba, bb in zip(a.branches, b.branches):
+        assert [p.stable for p in ba.points] == [p.stable for p in bb.points]
+        for p, q in zip(ba.points, bb.points):
+            assert p.speed_rpm == pytest.approx(q.speed_rpm, abs=1e-9)
+            assert np.abs(p.x - q.x).max() <= 1e-9 * np.abs(q.x).max()
+    assert len(a.non_periodic) == len(b.non_periodic) and a.uncovered == b.uncovered
+
+
+def test_warm_up_compiles_what_a_sweep_calls(paper):
+    """kernels.warm_up (run by a design-study worker when it starts) leaves no compilation for
+    the first sweep: the sweep adds no new signature to any kernel."""
+    from dmf_sim.solvers import stability_kernel
+    from dmf_sim.solvers.hbm import kernels
+    kernels.warm_up()
+    fs = [kernels.residual_jacobian_py, kernels.harmonics_py, kernels.newton,
+          kernels.deflated_newton, kernels.corrector_fixed_speed, kernels.modal_sums,
+          stability_kernel.floquet]
+    before = [len(f.signatures) for f in fs]
+    assert all(n >= 1 for n in before)
+    loads, _ = paper
+    sweep(loads, 1.0, (1150.0, 1250.0), options=SweepOptions(step_rpm=10.0, search=None))
+    assert [len(f.signatures) for f in fs] == before
+
+
+def test_constant_speed_shot_is_one_kernel_call(paper, monkeypatch):
+    """A transient Newmark run at constant speed (the long shots of the search and of the
+    non-periodic classification) is one kernel call, with the same result as the run chunked
+    every 10 ms (a target equal to the speed keeps the chunks)."""
+    from dmf_sim.solvers import newmark
+    loads, speed = paper
+    calls = []
+    advance = newmark.NewmarkIntegrator.advance
+
+    def counting(self, *args, **kwargs):
+        calls.append(args[0])
+        return advance(self, *args, **kwargs)
+
+    monkeypatch.setattr(newmark.NewmarkIntegrator, 'advance', counting)
+    one = newmark.simulate(loads, speed, 1.0, t_end=0.2, record_stride=2)
+    n_one = len(calls)
+    calls.clear()
+    chunked = newmark.simulate(loads, speed, 1.0, t_end=0.2, record_stride=2,
+                               target_speed_rpm=speed)
+    assert n_one == 1 and len(calls) >= 20
+    assert len(one.windup) == len(chunked.windup) == 1000
+    assert np.abs(one.windup - chunked.windup).max() <= 1e-9 * np.ptp(chunked.windup)
+    assert np.abs(one.psi - chunked.psi).max() <= 1e-9 * chunked.psi[-1]
