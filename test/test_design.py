@@ -281,9 +281,9 @@ def _mutate(path: str, value):
 
 @pytest.mark.parametrize('path, value, field', [
     ('variables', DELETE, "missing key 'variables'"),
-    ('conditions/speeds_rpm', DELETE, "conditions: missing key 'speeds_rpm'"),
+    ('conditions/speeds_rpm', DELETE, "missing key 'conditions.speeds_rpm'"),
     ('objectives', DELETE, "missing key 'objectives'"),
-    ('variables/alpha', {'min': 3.0, 'max': 3.0, 'n': 4}, 'variables.alpha: empty range'),
+    ('variables/alpha', {'min': 3.0, 'max': 3.0, 'n': 4}, "field 'variables.alpha' empty range"),
     ('variables/alpha', {'values': []}, 'variables.alpha.values'),
     ('variables/beta', {'min': 1, 'max': 2, 'n': 2}, "unknown design parameter 'beta'"),
     ('variables/stages[2].angle_rad', {'min': 0.3, 'max': 0.4, 'n': 2}, 'stages[2]'),
@@ -293,10 +293,10 @@ def _mutate(path: str, value):
     ('conditions/loads', [1.5], 'conditions.loads[0]'),
     ('conditions/speeds_rpm', {'from': 100, 'to': 2000, 'step': 10}, 'conditions.speeds_rpm'),
     ('objectives', ['worst_order_1_5', 'comfort'], 'objectives[1]'),
-    ('sampling', {'method': 'lhs'}, "sampling: missing key 'n'"),
+    ('sampling', {'method': 'lhs'}, "missing key 'sampling.n'"),
     ('sampling', {'method': 'sobol'}, 'sampling.method'),
     ('torque_element', 'GEARBOX', 'torque_element'),
-    ('solver', {'time_limit_s': 0}, 'solver.time_limit_s: must be in [0.001, 86400] s'),
+    ('solver', {'time_limit_s': 0}, "field 'solver.time_limit_s' must be in [0.001, 86400] s"),
     ('solver', {'time_limit_s': 'soon'}, 'solver.time_limit_s'),
 ])
 def test_bad_study_is_one_line_naming_the_field(path, value, field):
