@@ -16,6 +16,8 @@ import sys
 from dmf_sim import __version__, commands
 from dmf_sim.core.errors import DmfSimError, one_line
 
+__all__ = ['UNITS', 'build_parser', 'main']
+
 UNITS = """units (SI throughout unless a name says otherwise):
   angles rad, angular speed rad/s (engine speed on the command line in rpm),
   torque Nm, stiffness Nm/rad, damping Nms/rad, inertia kg m^2, time s, frequency Hz.

@@ -27,6 +27,12 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
+__all__ = ['DPI', 'COLORS', 'LOAD_SET_COLORS', 'NO_PERIODIC_SHADE', 'RESONANCE_MARK_COLOR',
+           'legend_below', 'WindupCurves', 'windup_panel', 'panel_title', 'sweep_curves',
+           'order_label', 'sweep_marks', 'sweep_panel', 'sweep_bands', 'windup_legend_handles',
+           'windup_figure', 'mode_shapes_figure', 'nnm_figure', 'mean_torque_panel',
+           'order_bars_panel', 'torque_over_angle_panel', 'two_panel_figure', 'save', 'fig8']
+
 DPI = 120
 """Resolution of the PNG files [dots per inch]."""
 

@@ -52,6 +52,8 @@ from dmf_sim.live.parameters import DMF_PARAMETERS, PARAMETERS, coerce
 from dmf_sim.live.streams import STREAMS
 from dmf_sim.transient.live_profile import NodeProfile
 
+__all__ = ['EXIT_CONFIG_ERROR', 'DrivelineNode', 'usage', 'main']
+
 EXIT_CONFIG_ERROR = 2
 
 try:

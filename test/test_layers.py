@@ -22,3 +22,21 @@ def test_import_contracts_hold():
 def test_few_loose_modules():
     loose = sorted(p.name for p in (ROOT / 'dmf_sim').glob('*.py'))
     assert len(loose) <= MAX_LOOSE_MODULES, loose
+
+
+def test_every_public_module_declares_its_public_names():
+    """``__all__`` in every public module (not ``_private.py``), naming objects that exist."""
+    import ast
+    missing = []
+    for path in sorted((ROOT / 'dmf_sim').rglob('*.py')):
+        if path.name.startswith('_') and path.name != '__init__.py':
+            continue
+        tree = ast.parse(path.read_text())
+        names = {t.id for n in tree.body if isinstance(n, (ast.Assign, ast.AnnAssign))
+                 for t in (n.targets if isinstance(n, ast.Assign) else [n.target])
+                 if isinstance(t, ast.Name)}
+        defined = [n for n in tree.body
+                   if not isinstance(n, (ast.Import, ast.ImportFrom, ast.Expr))]
+        if '__all__' not in names and (path.name != '__init__.py' or defined):
+            missing.append(str(path.relative_to(ROOT)))
+    assert not missing, missing

@@ -14,6 +14,8 @@ import math
 from dataclasses import dataclass, fields
 from typing import Any, Mapping
 
+__all__ = ['CUSTOM_PREFIX', 'RunMetadata']
+
 CUSTOM_PREFIX = 'dmf_sim.'
 
 

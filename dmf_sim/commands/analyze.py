@@ -12,6 +12,9 @@ from dmf_sim.commands import _options as opt
 from dmf_sim.core.errors import ConfigError
 from dmf_sim.core.paths import check_output_dir
 
+__all__ = ['NAME', 'HELP', 'EPILOG', 'BIN_RPM_RANGE', 'MIN_CYCLES_RANGE', 'N_MAX_RANGE',
+           'POINTS_PER_CYCLE_MAX', 'add_arguments', 'check_arguments', 'default_output', 'run']
+
 NAME = 'analyze'
 HELP = ('Order analysis of a recorded bag (rosbag2 MCAP directory, one of its files, or a bare '
         '.mcap; no ROS needed): resample on the crank angle, half-order amplitudes per engine '

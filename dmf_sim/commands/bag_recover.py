@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import argparse
 
+__all__ = ['NAME', 'HELP', 'add_arguments', 'run']
+
 NAME = 'bag-recover'
 HELP = ('Complete a bag a crash left behind (recorder killed) or repair a damaged one: every '
         'complete, intact split is kept as it is; each truncated file, or file with corrupt '

@@ -8,6 +8,8 @@ from pathlib import Path
 from dmf_sim.commands._options import add_cluster, check_cluster
 from dmf_sim.core.errors import ConfigError
 
+__all__ = ['NAME', 'HELP', 'add_arguments', 'run']
+
 NAME = 'design'
 HELP = ('DMF design study: every design of a study file (k, theta, alpha, damping, spring stages) '
         'swept over its operating conditions on Dask; table, Pareto front and plots.')

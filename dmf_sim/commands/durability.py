@@ -10,6 +10,8 @@ from pathlib import Path
 
 from dmf_sim.core.errors import BagExistsError
 
+__all__ = ['NAME', 'HELP', 'add_arguments', 'run']
+
 NAME = 'durability'
 HELP = ('DMF durability of a bag: rainflow counts of the spring torque, damage per hour with an '
         'S-N curve (placeholder defaults in config/durability.yaml), time per spring stage, '

@@ -20,6 +20,8 @@ from dmf_sim.physics.cycle_torque import (
 )
 from dmf_sim.physics.engine import LOAD_SETS, engine_torque_orders, load_engine
 
+__all__ = ['NAME', 'HELP', 'MAX_TORQUE_SPEEDS', 'add_arguments', 'run']
+
 NAME = 'loads'
 HELP = ('Engine mean torque [Nm] over speed [rpm] for load sets A/B/C (Fig. 8 left), the order '
         'content of the engine torque at a speed, and the torque before the flywheel of the '

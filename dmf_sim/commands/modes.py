@@ -10,6 +10,8 @@ from dmf_sim.core.errors import ConfigError
 from dmf_sim.physics.modal import modes, region_names
 from dmf_sim.physics.model import load_model
 
+__all__ = ['NAME', 'HELP', 'VARIANTS', 'add_arguments', 'run', 'fig12']
+
 NAME = 'modes'
 HELP = ('Natural frequencies [Hz] and mode shapes (scaled by cumulative gear ratio, Fig. 12) of '
         'the conventional and DMF drivelines.')

@@ -22,6 +22,9 @@ from dmf_sim.live.health import LEVEL_NAMES as LEVELS
 from dmf_sim.live.health import STATUS_SUFFIX as SIM_STATUS
 from dmf_sim.monitor.messages import MONITOR_NAME as MONITOR_STATUS
 
+__all__ = ['NAME', 'HELP', 'STYLES', 'STALE_S', 'add_arguments', 'Status', 'MonitorView',
+           'render_plain', 'render_rich', 'run']
+
 NAME = 'monitor'
 HELP = ('Live terminal view of a running driveline_node: speed, load, wind-up, live and '
         'predicted orders, DMF region, lag and alarms (needs rclpy)')

@@ -13,6 +13,9 @@ from dmf_sim.core.paths import check_output_dir
 from dmf_sim.physics.model import load_model
 from dmf_sim.solvers.nnm import REGIONS, NNMOptions, nnm_branches, scaling_check
 
+__all__ = ['NAME', 'HELP', 'XI_REPORT', 'XI_MAX_RANGE', 'HARMONICS_RANGE', 'STEP_MAX_RANGE',
+           'add_arguments', 'check_options', 'run', 'summary']
+
 NAME = 'nnm'
 HELP = ('Non-linear normal modes (no damping, no excitation, about the mean torque\'s static '
         'wind-up): base frequency [Hz] against xi = E/E_nl for the static point in the primary '

@@ -9,6 +9,8 @@ from pathlib import Path
 from dmf_sim.commands._options import add_cluster, check_cluster
 from dmf_sim.core.errors import ConfigError
 
+__all__ = ['NAME', 'HELP', 'DEFAULT_VERIFY', 'add_arguments', 'run']
+
 NAME = 'optimize'
 HELP = ('Optimize the DMF spring of a study file with an optimizer section (NSGA-II or TPE, '
         'optuna) on Dask: constraints, resumable journal, Latin-hypercube baseline, time-domain '

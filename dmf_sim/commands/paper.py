@@ -21,6 +21,8 @@ from dmf_sim.paper.claims import NO, PARTLY, YES, claims
 from dmf_sim.paper.report import STATUS_MARK, report_html, report_markdown, write_figures
 from dmf_sim.paper.study import PaperStudy, StudySettings
 
+__all__ = ['NAME', 'HELP', 'add_arguments', 'run']
+
 NAME = 'paper'
 HELP = ('Reproduce the reference paper: Figs. 8, 12, 13, 14, 15 and a report (report.md, '
         'report.html) with one computed row per claim of the paper (about a minute).')

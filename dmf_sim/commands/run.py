@@ -22,6 +22,8 @@ from dmf_sim.commands._options import (
 from dmf_sim.core.errors import ConfigError
 from dmf_sim.transient.defaults import CHUNK_RANGE_S, DEFAULT_CHUNK_S
 
+__all__ = ['NAME', 'HELP', 'add_arguments', 'run']
+
 NAME = 'run'
 HELP = ('Offline transient run of a speed/load profile (run-up, run-down, drive cycle) through '
         "the Newmark kernel, written as a bag with the live node's topics")

@@ -11,6 +11,8 @@ from dmf_sim.analysis.outputs import to_jsonable
 from dmf_sim.core.errors import BagExistsError, ConfigError
 from dmf_sim.transient.defaults import DEFAULT_BIN_RPM, JUMP_WINDOW_CYCLES
 
+__all__ = ['NAME', 'HELP', 'add_arguments', 'run']
+
 NAME = 'runup'
 HELP = ('Run-up analysis: order tracks of run-up/run-down bags (e.g. from dmf-sim run '
         'ramp:...) over the HBM branches, jump speeds vs the sweep\'s fold/stability events')

@@ -25,6 +25,8 @@ import time
 
 from dmf_sim.core.errors import ConfigError, NoResponseError
 
+__all__ = ['NAME', 'HELP', 'REPEAT_EVERY_S', 'ACK_TIMEOUT_S', 'add_arguments', 'check', 'run']
+
 NAME = 'setpoint'
 HELP = ('Send an engine speed [rpm] and/or load [0..1] setpoint to a running driveline_node '
         '(waits until its subscription matched; needs rclpy)')

@@ -6,6 +6,8 @@ import json
 from dmf_sim.commands import _options as opt
 from dmf_sim.core.errors import ConfigError
 
+__all__ = ['NAME', 'HELP', 'SEED_MAX', 'LIMITS', 'add_arguments', 'run']
+
 NAME = 'steady'
 HELP = ('Every steady state of the DMF wind-up at one engine speed and load (harmonic balance '
         'search: continuation, deflated Newton, Newmark shots), with orders, Fig. 13 quantities, '

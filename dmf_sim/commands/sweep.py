@@ -12,6 +12,9 @@ from dmf_sim.commands import _options as opt
 from dmf_sim.core.csv_out import write_csv
 from dmf_sim.core.errors import ConfigError, ConvergenceError, DmfSimError, one_line
 
+__all__ = ['NAME', 'HELP', 'CSV_FIELDS', 'FIG15_ALPHA', 'MAX_SWEEPS', 'add_arguments', 'run',
+           'sweep_dict', 'figures']
+
 NAME = 'sweep'
 HELP = ('Speed sweep of the DMF wind-up (3rd / 1.5th order amplitude, max/min deviation, theta - '
         'static wind-up; rad) by harmonic balance + continuation, all branches with Floquet '

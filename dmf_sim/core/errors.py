@@ -10,6 +10,10 @@ code written against the builtins keeps working.
 """
 from __future__ import annotations
 
+__all__ = ['DmfSimError', 'ConfigError', 'ConfigFileError', 'BagError', 'BagFileError',
+           'ConvergenceError', 'TimeLimitError', 'OperatingRangeError', 'one_line',
+           'BagExistsError', 'NoResponseError']
+
 
 class DmfSimError(Exception):
     """Base class of every error the package reports to a user as one line."""

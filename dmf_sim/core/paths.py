@@ -21,6 +21,9 @@ import yaml
 
 from dmf_sim.core.errors import ConfigError, ConfigFileError
 
+__all__ = ['PACKAGE', 'CONFIG_SUFFIXES', 'config_dir', 'config_file', 'read_text', 'parse_yaml',
+           'read_yaml_mapping', 'check_output_dir']
+
 PACKAGE = 'dmf_sim'
 CONFIG_SUFFIXES = ('.yaml', '.yml', '.csv')
 

@@ -6,6 +6,9 @@ from __future__ import annotations
 
 import math
 
+__all__ = ['RPM_TO_RAD_S', 'RAD_S_TO_RPM', 'CYCLE_RAD', 'rpm_to_rad_s', 'rad_s_to_rpm',
+           'cycle_period_s']
+
 RPM_TO_RAD_S = math.pi / 30.0
 """Engine speed [rpm] times this is the crank angular speed [rad/s]."""
 

@@ -23,6 +23,10 @@ from dmf_sim.core.errors import one_line
 from dmf_sim.design.metrics import condition_metrics, design_summary
 from dmf_sim.design.parameters import Parameter, design_driveline
 
+__all__ = ['install_context', 'drop_context', 'context_loads', 'SolverSettings', 'StudyContext',
+           'solve_condition', 'sweep_condition', 'evaluate_design', 'BatchResult',
+           'evaluate_batch']
+
 _CONTEXTS: dict[str, 'StudyContext'] = {}     # key -> context installed in this process
 _CONTEXT_LOADS = [0]                           # contexts installed in this process so far
 

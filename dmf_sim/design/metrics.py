@@ -25,6 +25,9 @@ import math
 
 import numpy as np
 
+__all__ = ['OBJECTIVES', 'WORST', 'TIE_REL', 'condition_metrics', 'design_summary', 'first_max',
+           'speed_ranges']
+
 OBJECTIVES = {
     'worst_order_1_5': 'largest 1.5th-order wind-up amplitude of a stable state [rad]',
     'worst_order_3': 'largest 3rd-order wind-up amplitude of a stable state [rad]',

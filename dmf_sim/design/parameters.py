@@ -31,6 +31,9 @@ from dmf_sim.core.validation import number
 from dmf_sim.physics.model import Driveline
 from dmf_sim.physics.spring import STAGE_ANGLE_MAX_RAD, STIFFNESS_FACTOR_MAX, Stage
 
+__all__ = ['ALIASES', 'SCALARS', 'STAGE_ATTRS', 'ALLOWED_TEXT', 'Parameter', 'parse_parameter',
+           'check_parameter_set', 'design_driveline']
+
 ALIASES = {'theta': ('stages', 0, 'angle_rad'), 'alpha': ('stages', 0, 'stiffness_factor')}
 SCALARS = ('k', 'damping')
 STAGE_ATTRS = ('angle_rad', 'stiffness_factor')

@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import numpy as np
 
+__all__ = ['pareto_mask', 'compromise']
+
 
 def pareto_mask(f1, f2) -> np.ndarray:
     """True for the points no other point dominates (<= in both objectives, < in one).

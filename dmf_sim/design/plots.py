@@ -20,6 +20,8 @@ from dmf_sim.design.evaluate import StudyContext, evaluate_design, sweep_conditi
 from dmf_sim.design.metrics import OBJECTIVES
 from dmf_sim.design.parameters import design_driveline
 
+__all__ = ['MAX_CELLS', 'PARETO_IDS_LISTED', 'write_plots', 'reference_row']
+
 MAX_CELLS = 40            # bins per map axis for scattered samples
 PARETO_IDS_LISTED = 6     # design ids named in the Pareto legend before 'and n more'
 

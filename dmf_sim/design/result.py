@@ -9,6 +9,8 @@ import pyarrow as pa
 from dmf_sim.design.pareto import compromise, pareto_mask
 from dmf_sim.design.table import sort_rows, to_table
 
+__all__ = ['StudyResult']
+
 
 @dataclass
 class StudyResult:

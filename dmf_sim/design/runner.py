@@ -37,6 +37,11 @@ from dmf_sim.design.result import StudyResult
 from dmf_sim.design.study import load_study
 from dmf_sim.design.table import ResultStore
 
+__all__ = ['LOOPBACK', 'CONNECT_TIMEOUT_S', 'WORKER_WATCH_INTERVAL_S', 'DEFAULT_BATCH_SIZE',
+           'BATCHES_PER_WORKER', 'WORKER_PROFILER', 'StudyPlugin', 'WorkerWatch',
+           'available_cores', 'local_cluster', 'start_local', 'close_local', 'close_run',
+           'connect', 'wait_for_workers', 'batch_size_for', 'run_study']
+
 LOOPBACK = '127.0.0.1'
 CONNECT_TIMEOUT_S = 5.0
 WORKER_WATCH_INTERVAL_S = 1.0

@@ -11,6 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+__all__ = ['METHODS', 'VariableRange', 'grid', 'uniform_random', 'latin_hypercube']
+
 METHODS = ('grid', 'random', 'lhs')
 
 

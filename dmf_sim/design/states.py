@@ -24,6 +24,9 @@ import numpy as np
 from dmf_sim.core.units import RPM_TO_RAD_S
 from dmf_sim.physics.orders import ORDER_3
 
+__all__ = ['SAME_STATE_REL', 'SAME_STATE_ABS', 'GridStates', 'speed_grid', 'grid_states',
+           'order_torques']
+
 _ON_GRID_RPM = 1e-6       # a point this close to a grid speed [rpm] is on it
 SAME_STATE_REL = 0.02     # states closer than this (relative) at one speed are the same state
 SAME_STATE_ABS = 1e-7     # ... plus this [rad]

@@ -42,6 +42,10 @@ from dmf_sim.design.parameters import Parameter, check_parameter_set, parse_para
 from dmf_sim.physics.model import Driveline
 from dmf_sim.solvers.hbm.sweep import TIME_LIMIT_RANGE_S
 
+__all__ = ['REQUIRED', 'OPTIONAL', 'DEFAULT_TORQUE_ELEMENT', 'DEFAULT_HARMONICS', 'MIN_HARMONICS',
+           'MAX_DESIGNS', 'MAX_GRID_SPEEDS', 'PAPER_REFERENCE', 'Condition', 'Study', 'load_study',
+           'study_from_dict']
+
 REQUIRED = ('driveline', 'engine', 'sampling', 'variables', 'conditions', 'objectives')
 OPTIONAL = ('name', 'description', 'fixed', 'torque_element', 'solver', 'plots')
 DEFAULT_TORQUE_ELEMENT = 'INPUT SHAFT'

@@ -28,6 +28,9 @@ from dmf_sim.core.errors import ConfigError
 from dmf_sim.core.paths import check_output_dir
 from dmf_sim.design.metrics import WORST
 
+__all__ = ['STUDY_FILE', 'LOCK_FILE', 'PARTS', 'RESULTS', 'schema', 'to_table', 'sort_rows',
+           'ResultStore']
+
 STUDY_FILE = 'study.json'
 LOCK_FILE = '.lock'
 PARTS = 'parts'

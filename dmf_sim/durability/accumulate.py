@@ -27,6 +27,8 @@ from dmf_sim.durability.rainflow import StreamingRainflow
 from dmf_sim.durability.settings import DurabilitySettings
 from dmf_sim.physics.orders import CYCLE_RAD
 
+__all__ = ['MAX_GAP_STEPS', 'StageStats', 'DurabilityResult', 'DurabilityAccumulator']
+
 MAX_GAP_STEPS = 100     # a time step this many median steps long is a gap (paused clock): its
                         # time is not counted
 

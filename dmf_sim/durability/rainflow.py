@@ -19,6 +19,8 @@ from __future__ import annotations
 import fatpack
 import numpy as np
 
+__all__ = ['StreamingRainflow', 'count_cycles']
+
 
 class StreamingRainflow:
     """Feed batches with :meth:`add`; each call returns the cycles it closed as arrays

@@ -30,6 +30,8 @@ from dmf_sim.core.errors import BagError
 from dmf_sim.durability.accumulate import DurabilityAccumulator, DurabilityResult
 from dmf_sim.durability.settings import DurabilitySettings
 
+__all__ = ['DurabilityRun', 'bag_durability']
+
 
 @dataclass
 class DurabilityRun:

@@ -10,6 +10,8 @@ import numpy as np
 from dmf_sim.analysis.outputs import to_jsonable
 from dmf_sim.durability.read import DurabilityRun
 
+__all__ = ['report_dict', 'write_json', 'plot_report']
+
 _DPI = 110
 _SIZE_IN = (11.0, 8.5)
 

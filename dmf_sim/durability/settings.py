@@ -14,6 +14,8 @@ import numpy as np
 from dmf_sim.core.paths import read_yaml_mapping
 from dmf_sim.core.validation import check_keys, field_error, integer, number
 
+__all__ = ['DEFAULT_SETTINGS', 'SNCurve', 'DurabilitySettings', 'load_settings']
+
 DEFAULT_SETTINGS = 'durability'      # config/durability.yaml
 
 

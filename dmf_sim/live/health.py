@@ -17,6 +17,8 @@ from typing import Callable
 
 from dmf_sim.live.pacing import fmt_num
 
+__all__ = ['LEVEL_NAMES', 'STATUS_SUFFIX', 'status_name', 'HealthReport', 'HealthMonitor']
+
 OK, WARN, ERROR, STALE = 0, 1, 2, 3
 LEVEL_NAMES = {OK: 'OK', WARN: 'WARN', ERROR: 'ERROR', STALE: 'STALE'}
 STATUS_SUFFIX = 'driveline simulation'      # the health status is '<node FQN>: ' + this

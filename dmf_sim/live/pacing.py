@@ -31,6 +31,9 @@ import numpy as np
 
 from dmf_sim.core.errors import ConfigError
 
+__all__ = ['OVERRUN_POLICIES', 'STRIDE_TOLERANCE', 'NS_PER_S', 'fmt_num', 'publish_stride',
+           'TickPlan', 'Pacer', 'LagStats', 'TimeBase']
+
 OVERRUN_POLICIES = ('skip', 'catch_up')
 STRIDE_TOLERANCE = 1e-6     # relative: 1/(rate dt) closer than this to an integer divides
 NS_PER_S = 1_000_000_000

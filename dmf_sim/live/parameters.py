@@ -19,6 +19,9 @@ from dmf_sim.live.run_loop import PACING_MODES
 from dmf_sim.monitor.worker import MONITOR_PARAMETERS
 from dmf_sim.physics.spring import STAGE_ANGLE_MAX_RAD, STIFFNESS_FACTOR_MAX
 
+__all__ = ['ParameterSpec', 'PARAMETERS', 'MONITOR_SETTINGS', 'DMF_PARAMETERS', 'FLOAT_PARAMETERS',
+           'coerce', 'choice_reason']
+
 
 class ParameterSpec(NamedTuple):
     """default (its type is the parameter's type), description, (lo, hi) range or None,

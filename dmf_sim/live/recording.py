@@ -32,6 +32,8 @@ from dmf_sim.bags.metadata import RunMetadata
 from dmf_sim.bags.writer import latched_depth
 from dmf_sim.core.errors import BagError, one_line
 
+__all__ = ['run_metadata', 'RecordingControl']
+
 
 def run_metadata(sim, *, driveline: str, engine: str, node: str,
                  publish_rate_hz: float) -> RunMetadata:

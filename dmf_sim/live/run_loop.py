@@ -40,6 +40,10 @@ import numpy as np
 from dmf_sim.live.pacing import LagStats, Pacer, TimeBase, fmt_num
 from dmf_sim.live.simulation import LiveSimulation, Samples
 
+__all__ = ['PACING_MODES', 'FAST_BUDGET_S', 'FAST_PAUSE_S', 'FAST_CHUNK_S', 'WARN_THROTTLE_S',
+           'SWITCH_INTERVAL_S', 'SETPOINT_KINDS', 'Log', 'Throttle', 'SampleSink', 'SetpointInbox',
+           'RunLoop']
+
 PACING_MODES = ('realtime', 'fast')
 FAST_BUDGET_S = 0.01        # wall time per tick in fast mode ...
 FAST_PAUSE_S = 1e-4         # ... then a short pause so the ROS callbacks get the lock

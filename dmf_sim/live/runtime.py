@@ -24,6 +24,8 @@ from dmf_sim.live.parameters import MONITOR_SETTINGS, choice_reason
 from dmf_sim.live.recording import RecordingControl, run_metadata
 from dmf_sim.live.simulation import LiveSimulation
 
+__all__ = ['load_line', 'LiveRuntime']
+
 
 def load_line(driveline: str):
     """The driveline of parameter ``driveline`` (ConfigError naming the parameter)."""

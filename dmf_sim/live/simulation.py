@@ -26,6 +26,9 @@ from dmf_sim.physics.loads import DrivelineLoads
 from dmf_sim.physics.model import Driveline, load_driveline
 from dmf_sim.solvers.newmark import NewmarkIntegrator, StepRecord
 
+__all__ = ['LOAD_RANGE', 'check_setpoint', 'ramp_toward', 'split_steps', 'Samples',
+           'LiveSimulation']
+
 LOAD_RANGE = (0.0, 1.0)
 
 

@@ -9,6 +9,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+__all__ = ['TorqueOperator']
+
 if TYPE_CHECKING:
     from dmf_sim.solvers.newmark import NewmarkIntegrator
 

@@ -27,6 +27,9 @@ from dmf_sim.core.errors import ConfigError
 from dmf_sim.design.metrics import OBJECTIVES
 from dmf_sim.design.states import speed_grid
 
+__all__ = ['DEFAULT_CAPACITY_FACTOR', 'FULL_LOAD', 'KEYS', 'BOUNDABLE', 'Constraints', 'violation',
+           'engine_max_torque', 'parse_constraints', 'rank']
+
 DEFAULT_CAPACITY_FACTOR = 1.2
 """Torque capacity / engine's largest mean torque (the issue's default margin)."""
 FULL_LOAD = 1.0

@@ -9,6 +9,8 @@ import yaml
 
 from dmf_sim.design.parameters import design_driveline
 
+__all__ = ['design_yaml', 'write_designs']
+
 
 def design_yaml(problem, row: dict) -> str:
     """The driveline YAML text of a design's summary row (validated by loading it back)."""

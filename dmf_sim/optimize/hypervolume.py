@@ -6,6 +6,8 @@ import math
 
 import numpy as np
 
+__all__ = ['hypervolume', 'hypervolume_history']
+
 
 def hypervolume(f1, f2, ref: tuple[float, float]) -> float:
     """Area dominated by the points (f1, f2) inside the box below ``ref`` (both minimized).

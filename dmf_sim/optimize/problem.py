@@ -45,6 +45,10 @@ from dmf_sim.design.parameters import Parameter, parse_parameter
 from dmf_sim.design.study import Study, study_from_dict
 from dmf_sim.optimize.constraints import Constraints, parse_constraints
 
+__all__ = ['METHODS', 'OPTIMIZER_REQUIRED', 'OPTIMIZER_OPTIONAL', 'DEFAULT_BATCH_SIZE',
+           'MAX_BUDGET', 'Variable', 'Problem', 'load_problem', 'problem_from_dict',
+           'unit_to_values']
+
 METHODS = {
     'nsga2': 'NSGA-II (optuna NSGAIISampler): evolutionary, constraint-dominance ranking',
     'tpe': 'multi-objective TPE (optuna TPESampler, multivariate, constrained): model-based',

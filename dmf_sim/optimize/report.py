@@ -27,6 +27,10 @@ from dmf_sim.design.metrics import OBJECTIVES
 from dmf_sim.design.parameters import design_driveline
 from dmf_sim.optimize.hypervolume import hypervolume_history
 
+__all__ = ['FIGURES', 'MAX_SPRINGS', 'MAX_SWEEP_PANELS', 'SPRING_CURVE_POINTS', 'reference_design',
+           'compare_with_reference', 'common_hypervolumes', 'spread', 'pareto_figure',
+           'hypervolume_figure', 'springs_figure', 'sweeps_figure', 'Block', 'write_report']
+
 FIGURES = {
     'pareto_vs_lhs.png': 'Designs and feasible Pareto fronts: optimizer vs Latin hypercube of '
                          'the same budget',

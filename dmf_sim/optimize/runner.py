@@ -41,6 +41,10 @@ from dmf_sim.optimize.constraints import rank, violation
 from dmf_sim.optimize.hypervolume import hypervolume_history
 from dmf_sim.optimize.problem import Problem, load_problem, unit_to_values
 
+__all__ = ['JOURNAL', 'PROBLEM_FILE', 'OPTUNA_STUDY', 'MAX_CONSTRAINT', 'EXTRA',
+           'OptimizationResult', 'run_optimization', 'finish', 'reference_point', 'BASELINE_DIR',
+           'baseline_problem']
+
 JOURNAL = 'optuna.journal'
 PROBLEM_FILE = 'optimizer.json'
 OPTUNA_STUDY = 'dmf-optimize'

@@ -28,6 +28,8 @@ import numpy as np
 from dmf_sim.design.parameters import design_driveline
 from dmf_sim.physics.orders import ORDER_1_5, ORDER_3
 
+__all__ = ['VERIFIABLE', 'VerifySettings', 'Check', 'verify_design', 'verify_worst']
+
 VERIFIABLE = {'worst_order_1_5': ('windup', ORDER_1_5), 'worst_order_3': ('windup', ORDER_3),
               'worst_torque_3': ('torque', ORDER_3)}
 """Objectives the time domain can check: (signal, half-order index)."""

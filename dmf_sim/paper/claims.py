@@ -12,6 +12,10 @@ import numpy as np
 
 from dmf_sim.paper.study import ORDER_1_5_HZ_FACTOR, StudyResults, stable_peak_1_5
 
+__all__ = ['FREQ_TOL_HZ', 'BAND_TOL_RPM', 'RESONANCE_RATIO', 'PEAK_WINDOW_RPM', 'PEAK_RATIO',
+           'PEAK_NEAR_720_RPM', 'CONVERGED_GAP', 'FLAT_MATCH', 'SCALING_SPREAD', 'WORSE_BY',
+           'WORSE_MIN_RAD', 'NEWMARK_MATCH', 'MARGINAL', 'Claim', 'claims']
+
 YES, PARTLY, NO = 'yes', 'partly', 'no'
 
 FREQ_TOL_HZ = 0.5            # the paper's frequencies are whole hertz

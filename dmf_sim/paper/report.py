@@ -9,6 +9,9 @@ from pathlib import Path
 
 from dmf_sim.paper.claims import NO, PARTLY, YES
 
+__all__ = ['FIGURES', 'STATUS_MARK', 'COLUMNS', 'STATUS_COLUMN', 'write_figures',
+           'report_markdown', 'report_html']
+
 FIGURES = {
     'fig8.png': 'Fig. 8: engine mean torque of Loads A/B/C and the torque into the flywheel of '
                 'the conventional driveline (Load A, full load)',

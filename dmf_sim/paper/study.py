@@ -18,6 +18,10 @@ import numpy as np
 
 from dmf_sim.core.errors import DmfSimError
 
+__all__ = ['ORDER_1_5_HZ_FACTOR', 'MAX_STEPS_PER_BRANCH', 'NEWMARK_DT_S', 'NEWMARK_MAX_CYCLES',
+           'StudySettings', 'LoadScan', 'StudyResults', 'OrdersOnly', 'stable_peak_1_5',
+           'stable_solutions', 'grid', 'PaperStudy', 'DISTINCT_REL', 'distinct']
+
 ORDER_1_5_HZ_FACTOR = 1.5 / 60.0     # 1.5th order frequency [Hz] per engine speed [rpm]
 MAX_STEPS_PER_BRANCH = 1000          # continuation steps per branch (a full sweep needs < 300)
 NEWMARK_DT_S = 5e-5                  # coexistence check's step (doc/theory.md §5: dt <= 5e-5 s

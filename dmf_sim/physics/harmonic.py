@@ -22,6 +22,9 @@ from dmf_sim.core.errors import ConfigError
 from dmf_sim.core.units import RPM_TO_RAD_S
 from dmf_sim.physics.model import ReducedModel
 
+__all__ = ['dynamic_stiffness', 'solve_static', 'solve_harmonic', 'HarmonicResponse',
+           'harmonic_response', 'receptance']
+
 
 def dynamic_stiffness(model: ReducedModel, Omega: float, K: np.ndarray | None = None
                       ) -> np.ndarray:

@@ -23,6 +23,8 @@ from dmf_sim.core.errors import ConfigError
 from dmf_sim.physics.harmonic import solve_static
 from dmf_sim.physics.model import ReducedModel
 
+__all__ = ['DrivelineLoads', 'ConstantTorque', 'StaticState']
+
 
 @dataclass
 class DrivelineLoads:

@@ -14,6 +14,8 @@ import scipy.linalg
 from dmf_sim.core.errors import ConfigError
 from dmf_sim.physics.model import ReducedModel
 
+__all__ = ['REGIONS', 'region_names', 'stiffness_matrix', 'ModalResult', 'modes']
+
 REGIONS = ('primary', 'secondary')
 
 

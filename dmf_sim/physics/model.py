@@ -36,6 +36,11 @@ from dmf_sim.physics.spring import (
     Stage,
 )
 
+__all__ = ['ELEMENT_KEYS', 'TOP_KEYS_REQUIRED', 'TOP_KEYS_OPTIONAL', 'DMF_KEYS_REQUIRED',
+           'DMF_KEYS_OPTIONAL', 'COAST_KEYS', 'STAGE_KEYS', 'STAGE_ANGLE_KEYS', 'RIGID_WORDS',
+           'Element', 'DMFSpec', 'Driveline', 'driveline_from_dict', 'load_driveline',
+           'ReducedModel', 'load_model']
+
 ELEMENT_KEYS = ('name', 'ratio', 'stiffness', 'damping', 'inertia')
 TOP_KEYS_REQUIRED = ('name', 'elements')
 TOP_KEYS_OPTIONAL = ('description', 'cylinders', 'firing_phases_deg', 'rear_load_element', 'dmf')

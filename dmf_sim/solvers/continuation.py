@@ -26,6 +26,9 @@ from scipy.linalg.lapack import dgesv
 
 from dmf_sim.core.errors import OperatingRangeError
 
+__all__ = ['solve_small', 'ContinuationProblem', 'ContinuationOptions', 'ContinuationPoint',
+           'CorrectorFailed', 'LeftRange', 'correct', 'continue_branch']
+
 
 def solve_small(A: np.ndarray, b: np.ndarray) -> np.ndarray:
     """LU solve (LAPACK dgesv directly: these systems are small and solved very often)."""

@@ -21,6 +21,8 @@ from dmf_sim.physics.loads import DrivelineLoads
 from dmf_sim.physics.orders import CYCLE_RAD, half_orders, resample_on_angle, summarize_orders
 from dmf_sim.solvers import newmark_kernel as kernel
 
+__all__ = ['StepRecord', 'NewmarkIntegrator', 'SimulationResult', 'simulate']
+
 # ------------------------------------------------------------------------------------------------
 # Integrator object (stepping API for the node; simulate() for offline use)
 # ------------------------------------------------------------------------------------------------

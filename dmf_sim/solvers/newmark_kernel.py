@@ -49,6 +49,9 @@ import math
 
 import numpy as np
 
+__all__ = ['MAX_PIECES', 'SPLIT_MIN_FRACTION', 'newmark_constants', 'thomas', 'factor',
+           'region_of', 'knee_between', 'advance_kernel', 'advance_reference']
+
 try:
     import numba
     HAVE_NUMBA = True

@@ -32,6 +32,8 @@ from dmf_sim.physics.loads import DrivelineLoads
 from dmf_sim.physics.orders import CYCLE_RAD, ORDER_1_5, ORDER_3, half_orders
 from dmf_sim.solvers.newmark import simulate
 
+__all__ = ['LABELS', 'NonPeriodicOptions', 'NonPeriodicResult', 'classify_section', 'analyze']
+
 LABELS = ('periodic', 'long transient', 'quasi-periodic', 'chaotic')
 
 

@@ -43,6 +43,9 @@ from dmf_sim.physics.model import ReducedModel
 from dmf_sim.physics.orders import synthesize
 from dmf_sim.solvers.stability_kernel import floquet
 
+__all__ = ['CROSSING_NEWTON_STEPS', 'FloquetResult', 'ModeClass', 'real_eigenbasis',
+           'FlexibleModes', 'FloquetAnalyzer']
+
 #: Newton steps refining each knee crossing on the wind-up's trigonometric polynomial
 CROSSING_NEWTON_STEPS = 4
 

@@ -14,6 +14,8 @@ import numpy as np
 from dmf_sim.core.units import CYCLE_RAD
 from dmf_sim.solvers.newmark_kernel import HAVE_NUMBA, region_of
 
+__all__ = ['floquet_segments', 'monodromy_similar', 'floquet']
+
 
 def floquet_segments(c, w, omega, knees, primary, n_newton, stages, taus):
     """Knee crossings of the periodic wind-up and the stretches between them (reference

@@ -30,6 +30,9 @@ from dmf_sim.solvers.newmark import simulate
 from dmf_sim.solvers.nonperiodic import NonPeriodicResult
 from dmf_sim.solvers.stability import FlexibleModes, FloquetAnalyzer
 
+__all__ = ['Z_95', 'MATCH_HARMONICS', 'BasinOptions', 'wilson_interval', 'SteadyState',
+           'SteadyStateSet', 'find_steady_states', 'dmf_modes']
+
 Z_95 = 1.959963984540054      # two-sided 95 % normal quantile (Wilson interval)
 MATCH_HARMONICS = 12          # half orders compared when matching a run to a state (to 6th order)
 

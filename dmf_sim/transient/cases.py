@@ -15,6 +15,9 @@ import yaml
 
 from dmf_sim.core.paths import config_file
 
+__all__ = ['DAMPING_DIVISOR', 'THETA_RAD', 'ALPHA', 'A6_NM', 'SPEEDS_RPM', 'N_MAX',
+           'write_fold_case']
+
 DAMPING_DIVISOR = 10.0
 THETA_RAD = 0.05
 ALPHA = 1.0

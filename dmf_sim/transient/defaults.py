@@ -2,6 +2,8 @@
 commands' options, not the solvers)."""
 from __future__ import annotations
 
+__all__ = ['DEFAULT_CHUNK_S', 'CHUNK_RANGE_S', 'DEFAULT_BIN_RPM', 'JUMP_WINDOW_CYCLES']
+
 DEFAULT_CHUNK_S = 0.1       # dmf-sim run: simulated time per chunk at most [s]: the excitation
                             # coefficients and the load are held over a chunk (the speed ramp
                             # is exact in it)

@@ -18,6 +18,8 @@ import numpy as np
 from dmf_sim.bags.columns import FLOAT64, JOINT_STATE, joint_state_layout
 from dmf_sim.live.simulation import Samples
 
+__all__ = ['SampleEncoder']
+
 _NS_PER_S = 1_000_000_000
 _FLOAT64_BYTES = 12            # CDR header 4 + float64 8
 

@@ -15,6 +15,8 @@ from __future__ import annotations
 
 from dmf_sim.transient.profiles import Profile
 
+__all__ = ['MIN_RAMP_RPM_PER_S', 'MIN_LOAD_RAMP_PER_S', 'TIME_EPS_S', 'ProfileFollower']
+
 MIN_RAMP_RPM_PER_S = 1e-6     # a flat segment still gets a (tiny) positive rate
 MIN_LOAD_RAMP_PER_S = 1e-9
 TIME_EPS_S = 1e-9             # a simulated time this close to a row counts as at the row (the

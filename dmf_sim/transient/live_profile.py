@@ -19,6 +19,8 @@ from dmf_sim.core.errors import DmfSimError, one_line
 from dmf_sim.transient.follow import ProfileFollower
 from dmf_sim.transient.profiles import Profile, load_profile
 
+__all__ = ['PLAYER_RATE_HZ', 'check_profile', 'NodeProfile', 'ProfilePlayer']
+
 PLAYER_RATE_HZ = 20.0        # setpoints per wall second from ``dmf-sim setpoint --profile``
 
 

@@ -9,6 +9,8 @@ import numpy as np
 
 from dmf_sim.transient.runup import ORDERS, RunupResult
 
+__all__ = ['plot_runup']
+
 _DPI = 110
 _LABEL = {'order_3': '3rd order', 'order_1_5': '1.5th order'}
 _RUN_COLOR = {1: 'tab:red', -1: 'tab:blue'}

@@ -31,6 +31,10 @@ from dmf_sim.core.errors import ConfigError, OperatingRangeError
 from dmf_sim.core.paths import config_dir, config_file, parse_yaml, read_text
 from dmf_sim.core.validation import check_keys, field_error, number
 
+__all__ = ['COLUMNS', 'DEFAULT_SETTLE_S', 'RAMP_RATE_RANGE', 'SETTLE_RANGE_S', 'LOAD_RANGE',
+           'PROFILE_DIR', 'RAMP_PREFIX', 'Profile', 'make_profile', 'ramp_profile',
+           'packaged_profiles', 'load_profile']
+
 COLUMNS = ('time_s', 'speed_rpm', 'load')
 DEFAULT_SETTLE_S = 2.0            # dwell at a ramp's start speed [s] before it ramps
 RAMP_RATE_RANGE = (1e-3, 1e4)     # accepted ramp rates [rpm/s]

@@ -33,6 +33,10 @@ from dmf_sim.transient.defaults import CHUNK_RANGE_S, DEFAULT_CHUNK_S
 from dmf_sim.transient.follow import TIME_EPS_S, ProfileFollower
 from dmf_sim.transient.profiles import Profile
 
+__all__ = ['WRITER_NAME', 'CHUNK_SPEED_STEP_RPM', 'CHUNK_LOAD_STEP', 'DEFAULT_SPLIT_S',
+           'MEMORY_MARKS', 'BLAS_THREADS', 'BLOCK_ROWS', 'RunOptions', 'SampleBlock', 'RunSummary',
+           'build_simulation', 'open_bag', 'run_profile']
+
 WRITER_NAME = 'dmf-sim run'
 CHUNK_SPEED_STEP_RPM = 5.0  # ... and a chunk is short enough that the speed moves at most this
 CHUNK_LOAD_STEP = 0.02      # ... and the load at most this (gear shifts: ~10 ms chunks)

@@ -33,6 +33,12 @@ from dmf_sim.analysis.pipeline import BagAnalysis, analyze_bag
 from dmf_sim.core.errors import BagError
 from dmf_sim.transient.defaults import DEFAULT_BIN_RPM, JUMP_WINDOW_CYCLES
 
+__all__ = ['ORDERS', 'JUMP_MIN_FRACTION', 'JUMP_FLOOR_FRACTION', 'STEP_RATIO_MAX', 'EVENT_KINDS',
+           'SEGMENT_SPEED_SCALE_RPM', 'SETTLE_TOLERANCE_RPM', 'AWAY_FROM_JUMPS_RPM',
+           'MIN_SHARE_OF_PEAK', 'Jump', 'RunupResult', 'ramp_cycles', 'find_jumps',
+           'stable_stretches', 'on_other_stretch', 'match_events', 'quasi_static_difference',
+           'runup_analysis']
+
 ORDERS = ('order_3', 'order_1_5')
 JUMP_MIN_FRACTION = 0.25    # a jump changes the amplitude by this fraction of its peak at least
 JUMP_FLOOR_FRACTION = 0.05  # ... and by this fraction of the largest order's peak (noise floor)

@@ -29,6 +29,10 @@ from dmf_sim.core.validation import (
 )
 from dmf_sim.physics.orders import half_orders
 
+__all__ = ['N_MAX_RANGE', 'MODEL_KEYS', 'BASE_DEPTH_MAX', 'Geometry', 'GasExchange', 'Combustion',
+           'Grid', 'EngineConfig', 'resolve_ref', 'with_base', 'read_engine_config',
+           'engine_config', 'require_model']
+
 N_MAX_RANGE = (1, 48)
 """Allowed highest half-order index n_max of an engine or a table."""
 

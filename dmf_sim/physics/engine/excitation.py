@@ -14,6 +14,9 @@ from dmf_sim.core.units import RPM_TO_RAD_S
 from dmf_sim.core.validation import Table1D
 from dmf_sim.physics.engine.config import EngineConfig
 
+__all__ = ['EngineExcitation', 'cylinder_torque_signal', 'engine_torque_orders', 'GasGrid',
+           'Engine']
+
 
 @runtime_checkable
 class EngineExcitation(Protocol):

@@ -32,6 +32,8 @@ from dmf_sim.core.units import RPM_TO_RAD_S
 from dmf_sim.physics.engine.config import EngineConfig, require_model
 from dmf_sim.physics.orders import half_orders, synthesize
 
+__all__ = ['CycleResult', 'PressureModel']
+
 
 @dataclass(frozen=True)
 class CycleResult:

@@ -28,6 +28,10 @@ from dmf_sim.core.validation import check_keys, field_error, number_list
 from dmf_sim.physics.engine.config import N_MAX_RANGE, read_engine_config, resolve_ref
 from dmf_sim.physics.engine.excitation import Engine, EngineExcitation, GasGrid
 
+__all__ = ['DEFAULT_ENGINE', 'TABLE_SPEED_RANGE_RPM', 'PEAK_PRESSURE_MAX_PA',
+           'INERTIA_SAMPLES_MIN', 'TableData', 'read_table_csv', 'read_table_yaml',
+           'engine_from_table', 'write_coefficient_table']
+
 DEFAULT_ENGINE = 'engine_d13'
 """Engine YAML a table refers to when it names none."""
 

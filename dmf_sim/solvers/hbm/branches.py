@@ -28,6 +28,8 @@ from dmf_sim.solvers.hbm.condensed import HBMPoint
 from dmf_sim.solvers.hbm.layout import SUB_HARMONICS, amplitudes, sub_part, to_complex, to_real
 from dmf_sim.solvers.hbm.results import Branch, SweepEvent, on_grid, runs
 
+__all__ = ['BranchSwitching']
+
 
 class BranchSwitching:
     """Seeding and following of further branches: a mixin of

@@ -55,6 +55,9 @@ from dmf_sim.solvers.hbm import kernels
 from dmf_sim.solvers.hbm.layout import SUB_HARMONICS, times_h, to_complex, to_real
 from dmf_sim.solvers.stability import FlexibleModes
 
+__all__ = ['SHARP_DAMPING_RATIO', 'RESONANCE_SHARE', 'LINEAR_PARTS_CACHE', 'PREPARE_BATCH',
+           'HBMOptions', 'LinearParts', 'HBMPoint', 'CondensedHBM']
+
 SHARP_DAMPING_RATIO = 0.01
 """A mode damped less than this (damping ratio [-]) makes a resonance a few rpm wide: a spike in
 the wind-up curves (:meth:`CondensedHBM.sharp_resonances`)."""

@@ -21,6 +21,8 @@ from dmf_sim.solvers.continuation import solve_small
 from dmf_sim.solvers.hbm import kernels
 from dmf_sim.solvers.hbm.condensed import CondensedHBM, LinearParts
 
+__all__ = ['DeflationOptions', 'DeflatedNewton']
+
 
 @dataclass(frozen=True)
 class DeflationOptions:

@@ -41,6 +41,10 @@ import numpy as np
 from dmf_sim.solvers.hbm.layout import to_real
 from dmf_sim.solvers.newmark_kernel import HAVE_NUMBA, region_of
 
+__all__ = ['BACKTRACK_MIN', 'PIVOT_TINY', 'lu_solve', 'max_abs', 'aft', 'times_h_into',
+           'times_h_matrix', 'residual_jacobian', 'residual_jacobian_py', 'harmonics_py', 'newton',
+           'deflated_newton', 'corrector_fixed_speed', 'modal_sums', 'warm_up']
+
 CONVERGED, STALLED, MAX_ITER, SINGULAR, NOT_FINITE = 0, 1, 2, 3, 4
 BACKTRACK_MIN = 1e-3      # smallest backtracking factor of the plain Newton (as the reference)
 PIVOT_TINY = 0.0          # an exactly zero pivot is singular (as LAPACK's dgesv reports)

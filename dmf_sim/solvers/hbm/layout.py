@@ -7,6 +7,9 @@ from __future__ import annotations
 
 import numpy as np
 
+__all__ = ['SUB_HARMONICS', 'to_complex', 'to_real', 'times_h', 'amplitudes', 'sub_part', 'shift',
+           'all_shifts']
+
 # half-orders n = 3 mod 6: the 1.5th-order family (1.5, 4.5, 7.5, 10.5)
 SUB_HARMONICS = (3, 9, 15, 21)
 

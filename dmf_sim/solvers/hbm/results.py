@@ -10,6 +10,8 @@ from dmf_sim.core.errors import ConvergenceError
 from dmf_sim.solvers.hbm.condensed import CondensedHBM, HBMPoint
 from dmf_sim.solvers.hbm.layout import amplitudes
 
+__all__ = ['Branch', 'SweepEvent', 'NonPeriodicBand', 'SweepResult', 'runs', 'on_grid']
+
 
 @dataclass
 class Branch:

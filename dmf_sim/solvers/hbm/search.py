@@ -37,6 +37,8 @@ from dmf_sim.solvers.hbm.results import Branch, NonPeriodicBand, SweepEvent
 from dmf_sim.solvers.newmark import simulate
 from dmf_sim.solvers.nonperiodic import NonPeriodicOptions, analyze
 
+__all__ = ['N_SHIFTS', 'SearchOptions', 'StateSearch']
+
 N_SHIFTS = 6        # a 720 deg cycle holds six 120 deg firing intervals
 
 

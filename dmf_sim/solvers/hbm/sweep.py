@@ -16,6 +16,8 @@ from dmf_sim.solvers.hbm.layout import to_real
 from dmf_sim.solvers.hbm.results import Branch, SweepEvent, SweepResult
 from dmf_sim.solvers.hbm.search import SearchOptions, StateSearch
 
+__all__ = ['TIME_LIMIT_RANGE_S', 'check_time_limit', 'SweepOptions', 'SpeedSweep', 'sweep']
+
 TIME_LIMIT_RANGE_S = (1e-3, 86400.0)   # allowed SweepOptions.time_limit_s [s]
 
 

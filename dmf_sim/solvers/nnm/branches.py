@@ -17,6 +17,8 @@ from dmf_sim.solvers.nnm.subsystems import (
 )
 from dmf_sim.solvers.nnm.time_domain import energy_norm, integrate_physical, static_state
 
+__all__ = ['nnm_branches', 'scaling_check']
+
 
 def _flat_branches(result: NNMResult, xi_max: float | None) -> list[FlatBranch]:
     subs = result.subsystem_frequencies_hz

@@ -87,6 +87,8 @@ from dmf_sim.solvers.nnm.results import TWO_PI, NNMBranch, NNMOptions
 from dmf_sim.solvers.nnm.subsystems import require_dmf
 from dmf_sim.solvers.nnm.time_domain import energy_norm, integrate_chain
 
+__all__ = ['ConservativeNNM']
+
 
 class ConservativeNNM:
     """Condensed harmonic balance of the undamped, unforced driveline about a static wind-up.

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+__all__ = ['RampForce']
+
 
 class RampForce:
     """f(u) = sum_j c_j (u - beta_j) on {side_j (u - beta_j) > 0}: piecewise linear,

@@ -5,6 +5,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+__all__ = ['TWO_PI', 'REGIONS', 'NNMOptions', 'NNMBranch', 'FlatBranch', 'NNMResult']
+
 TWO_PI = 2.0 * np.pi
 REGIONS = ('primary', 'secondary')
 

@@ -9,6 +9,8 @@ from dmf_sim.core.errors import ConfigError
 from dmf_sim.physics.model import ReducedModel
 from dmf_sim.solvers.nnm.results import REGIONS, TWO_PI
 
+__all__ = ['require_dmf', 'subsystem_frequencies', 'clamped_frequencies', 'static_windup']
+
 
 def require_dmf(model: ReducedModel) -> None:
     if model.spring is None:

@@ -8,6 +8,8 @@ from dmf_sim.physics.loads import ConstantTorque, DrivelineLoads
 from dmf_sim.physics.model import ReducedModel
 from dmf_sim.solvers.nnm.subsystems import require_dmf
 
+__all__ = ['energy_norm', 'integrate_chain', 'static_state', 'integrate_physical']
+
 
 def energy_norm(K, J, dx, dv, E) -> float:
     return float(np.sqrt(max(dx @ K @ dx + dv @ J @ dv, 0.0) / (2.0 * E)))
