@@ -161,7 +161,9 @@ def test_study_on_a_local_cluster_equals_direct_sweeps(full_run, study):
     for s in res.rows('design'):
         mine = [r for r in rows if r['design_id'] == s['design_id']]
         k = int(np.argmax([r['worst_order_1_5'] for r in mine]))
-        assert s['worst_order_1_5'] == mine[k]['worst_order_1_5']
+        # rel 1e-12: the summary row is reduced in another process than the condition rows
+        # (summation order), so the last bits may differ (see the distributed-rows test)
+        assert math.isclose(s['worst_order_1_5'], mine[k]['worst_order_1_5'], rel_tol=1e-12)
         assert s['worst_order_1_5_condition'] == mine[k]['condition']
 
 

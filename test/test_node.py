@@ -127,8 +127,10 @@ def test_setpoints_outputs_fast_spell_and_a_bag_that_analyses(tmp_path, capsys):
         (res,) = peer.set_params('driveline_node', pacing='fast')
         assert res.successful, res.reason
         assert peer.spin_until(lambda: peer.publishers('/clock') == 1, 5.0)
+        # simulated time gains 1 s on the wall clock; on a loaded machine fast mode can be
+        # little faster than real time, so the wait is generous (it ends as soon as it holds)
         assert peer.spin_until(lambda: float(peer.diagnostics()['wall_minus_stamp_s']) < -1.0,
-                               10.0)
+                               60.0)
         (res,) = peer.set_params('driveline_node', pacing='realtime')
         assert res.successful, res.reason
         assert peer.spin_until(lambda: peer.diagnostics().get('stamp_reanchors') == '1', 5.0)
