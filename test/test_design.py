@@ -19,6 +19,7 @@ from dmf_sim.cli import main as cli_main
 from dmf_sim.core.errors import ConfigError
 from dmf_sim.design import load_study, run_study
 from dmf_sim.design.evaluate import StudyContext, evaluate_design
+from dmf_sim.design.metrics import first_max
 from dmf_sim.design.runner import connect, local_cluster
 from dmf_sim.design.states import speed_grid
 from dmf_sim.physics.loads import DrivelineLoads
@@ -160,7 +161,9 @@ def test_study_on_a_local_cluster_equals_direct_sweeps(full_run, study):
     # a design's summary row holds the worst of its conditions
     for s in res.rows('design'):
         mine = [r for r in rows if r['design_id'] == s['design_id']]
-        k = int(np.argmax([r['worst_order_1_5'] for r in mine]))
+        # the condition named is the first within TIE_REL of the worst (metrics.first_max): two
+        # load sets can tie but for the last bits
+        k = first_max(np.array([r['worst_order_1_5'] for r in mine]))
         # rel 1e-12: the summary row is reduced in another process than the condition rows
         # (summation order), so the last bits may differ (see the distributed-rows test)
         assert math.isclose(s['worst_order_1_5'], mine[k]['worst_order_1_5'], rel_tol=1e-12)

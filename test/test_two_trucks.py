@@ -18,10 +18,13 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
 import yaml
 from dds_peer import START_TIMEOUT, Peer, new_domain
 from mcap.reader import make_reader
 from test_commands_live import _frames, _kill
+
+pytestmark = pytest.mark.ros     # two nodes over DDS
 
 PARENT = '''
 import json, subprocess, sys, time
