@@ -3,8 +3,7 @@
 Each module in ``dmf_sim/commands`` defines ``NAME``, ``HELP``, ``add_arguments(parser)`` and
 ``run(args) -> int``; they are discovered automatically. Errors a user causes are
 :class:`dmf_sim.core.errors.DmfSimError` and are reported as one line with exit code 2; anything
-else
-is a bug and keeps its traceback.
+else is a bug and keeps its traceback.
 """
 from __future__ import annotations
 

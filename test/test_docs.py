@@ -20,8 +20,8 @@ SKIP_DIRS = {'.git', '.venv', 'build', 'install', 'log', '_build', '__pycache__'
 TEXT_SUFFIXES = {'.py', '.md', '.yaml', '.yml', '.xml', '.cfg', '.toml', '.json', '.csv', '.txt',
                  ''}
 README_MAX_BYTES = 12 * 1024          # issue 21: README <= ~12 KB, the rest lives in doc/
-# A citation of the design notes or of anything beside the repository (../shared/...). The page
-# doc/commands/design-study.md is named so that it never matches.
+# A citation of the design notes or of anything beside the repository (the notes folder beside a
+# checkout). The page doc/commands/design-study.md is named so that it never matches.
 OUTSIDE = re.compile(r'(?<![\w-])design\.md|\.\./shared\b|/shared/(design|engine-notes)')
 LINK = re.compile(r'\]\(([^)#\s]+)(?:#[^)]*)?\)')
 

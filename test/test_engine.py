@@ -1,6 +1,5 @@
 """Tests of the engine excitation (dmf_sim.physics.engine): default pressure model, ratings,
-tables,
-Load A/B/C, and how bad engine files are reported."""
+tables, Load A/B/C, and how bad engine files are reported."""
 from __future__ import annotations
 
 import time

@@ -1,6 +1,5 @@
 """Foxglove: the WebSocket server of dmf_sim.live.foxglove_bridge (a real client connects,
-subscribes,
-decodes the CDR messages) and the shipped layout config/foxglove_layout.json."""
+subscribes, decodes the CDR messages) and the shipped layout config/foxglove_layout.json."""
 from __future__ import annotations
 
 import asyncio

@@ -18,8 +18,7 @@ block of ``BLOCK_CYCLES`` cycles.
 
 Same numbers live and offline: a cubic spline's dependence on data m knots away decays like
 0.27**m, so blocks (here) and live windows (dmf_sim.monitor.orders) that carry ``EDGE_SAMPLES`` =
-32
-samples beyond a cycle's ends give the orders of a spline through the whole recording to
+32 samples beyond a cycle's ends give the orders of a spline through the whole recording to
 rounding (tested).
 """
 from __future__ import annotations

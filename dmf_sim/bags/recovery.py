@@ -1,8 +1,7 @@
 """Completing a bag a crash left behind (``dmf-sim bag-recover``).
 
 After a crash (even SIGKILL) a bag written by :class:`dmf_sim.bags.writer.BagRecorder` holds its
-closed
-splits, complete and listed in ``metadata.yaml``, and the split being written: a valid MCAP
+closed splits, complete and listed in ``metadata.yaml``, and the split being written: a valid MCAP
 prefix without summary or footer, not listed yet. :func:`recover_bag` checks every file with the
 record scanner (:mod:`dmf_sim.bags.records`: chunk CRCs, the data section CRC), keeps every
 complete and intact file as it is (copied, or left in place), rewrites each incomplete or

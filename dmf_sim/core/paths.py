@@ -7,8 +7,7 @@ next to the package); the ament index share directory (colcon install);
 A configuration source is a *name* (``truck_dmf``, ``truck_dmf.yaml``: looked up in the config
 directory first) or a *path*. Every problem with it is one line naming the file and what is
 wrong (:class:`dmf_sim.core.errors.ConfigFileError` / :class:`~dmf_sim.core.errors.ConfigError`):
-not found,
-a directory, unreadable, not text, invalid YAML (with line and column), not a mapping.
+not found, a directory, unreadable, not text, invalid YAML (with line and column), not a mapping.
 """
 from __future__ import annotations
 

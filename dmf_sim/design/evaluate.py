@@ -50,8 +50,7 @@ def context_loads() -> int:
 class SolverSettings:
     """Speed grid [rpm] (from, to, step), harmonics H, branch switching, torque element index,
     and the full steady-state search (``dmf_sim.solvers.hbm.search``; off: continuation, stability
-    and
-    branch switching only, as ``dmf-sim sweep --fast``); ``time_limit_s``: wall-clock limit of
+    and branch switching only, as ``dmf-sim sweep --fast``); ``time_limit_s``: wall-clock limit of
     one design x condition sweep (None: none), past which the condition is recorded as failed."""
 
     speeds_rpm: tuple[float, float, float]

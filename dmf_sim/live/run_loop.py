@@ -18,9 +18,8 @@ testable with a fake clock and a list as the sink.
   stamps are re-anchored to the wall clock and the loop says so (log and diagnostics).
 
 Hook points (for per-cycle order analysis, predictions, alarms): ``observers`` are called in the
-tick thread with every chunk of published :class:`dmf_sim.live.simulation.Samples` and their
-stamps [ns]
-(views: copy what you keep, return within ~0.1 ms, hand heavy work to a worker: the node's DMF
+tick thread with every chunk of published :class:`dmf_sim.live.simulation.Samples` and their stamps
+[ns] (views: copy what you keep, return within ~0.1 ms, hand heavy work to a worker: the node's DMF
 monitor, :class:`dmf_sim.monitor.worker.LiveMonitor`, is one); ``setpoint_listeners`` are called
 with
 ``(speed_setpoint_rpm, load_setpoint)`` whenever an applied setpoint changes. Health contributors

@@ -82,8 +82,7 @@ class AlarmReport:
 def evaluate(settings: AlarmSettings, cycle=None, prediction=None) -> AlarmReport:
     """Alarms of the last completed cycle (:class:`dmf_sim.monitor.orders.CycleResult` or None) and
     the prediction at the current operating point (:class:`dmf_sim.monitor.prediction.Prediction`
-    or
-    None)."""
+    or None)."""
     out: list[Alarm] = []
     thr = settings.subharmonic_alarm_rad
     if cycle is not None:

@@ -20,8 +20,7 @@ Same numbers as the bag analysis: the orders come from
 :func:`dmf_sim.analysis.cycle_orders.cycle_orders`,
 the function ``dmf-sim analyze`` applies to a recording (cubic spline over the crank angle, 256
 points per cycle, FFT scaled by :mod:`dmf_sim.physics.orders`' convention). The tracker passes it
-the
-samples of the cycle plus :data:`MARGIN_SAMPLES` samples on either side; a cubic spline's
+the samples of the cycle plus :data:`MARGIN_SAMPLES` samples on either side; a cubic spline's
 dependence on data ``m`` knots away decays like 0.27**m, so with 32 samples of margin the result
 equals the analysis of the whole recording to rounding (tested). Give the tracker the stamps the
 node publishes (``stamps_ns``) so a skip-ahead after an overrun (a gap in the stamps) drops the

@@ -202,8 +202,8 @@ class LiveMonitor:
     """Live orders, prediction and alarms of one node (see the module docstring).
 
     Args:
-        line: the driveline (:class:`dmf_sim.physics.model.Driveline`, with a DMF); engine: the
-        engine.
+        line: the driveline (:class:`dmf_sim.physics.model.Driveline`, with a DMF).
+        engine: the engine.
         settings: :class:`MonitorSettings`.
         node_name: used in the status names.
         solver: the prediction solver (:func:`dmf_sim.monitor.prediction.predict_states` by

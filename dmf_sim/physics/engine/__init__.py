@@ -29,8 +29,7 @@ Default model (``config/engine_d13.yaml``)
 ------------------------------------------
 13-litre inline six (Volvo D13 geometry, a 2800 Nm rating; sources in the YAML); the pressure
 model is described in :mod:`dmf_sim.physics.engine.pressure`. ``config/engine_d13_2500nm.yaml`` is
-the
-same engine with a 2500 Nm rating (``base: engine_d13``). ``A_n`` come from the half orders of
+the same engine with a 2500 Nm rating (``base: engine_d13``). ``A_n`` come from the half orders of
 one sampled cycle. The gas part is cached on a speed/load grid (YAML ``grid``), computed lazily
 cell by cell (or all at once with :meth:`Engine.warm`) and interpolated linearly (complex
 bilinear) in between; the inertia part is exact at any speed.

@@ -2,8 +2,7 @@
 J. Sci. Comput. 37 (2015) A2026): find solutions *other than* the known ones.
 
 For the residual r(x) = 0 (eq. 15, dmf_sim.solvers.hbm.condensed) and known solutions x_i, Newton
-is
-applied to the deflated residual
+is applied to the deflated residual
 
     r~(x) = M(x) r(x),     M(x) = prod_i ( ||(x - x_i) / s||^-p + sigma ),
 

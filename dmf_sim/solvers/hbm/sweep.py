@@ -54,8 +54,7 @@ class SweepOptions:
         max_branches: stop switching after this many extra branches.
         search: the full steady-state search after the branch switching (deflated Newton
             seeds, Newmark shots, non-periodic speeds, re-seeding; dmf_sim.solvers.hbm.search), or
-            None
-            for continuation and branch switching only (the ``--fast`` sweep).
+            None for continuation and branch switching only (the ``--fast`` sweep).
         time_limit_s: wall-clock limit [s] of the whole sweep, or None. Reaching it raises
             :class:`dmf_sim.core.errors.TimeLimitError` naming the phase and the speed reached (a
             design study records that design as failed with this reason and goes on). Checked at
@@ -110,8 +109,7 @@ class SpeedSweep(BranchSwitching, StateSearch):
     points, fast-forwarding linear stretches), covers speeds no branch reached, computes the
     Floquet stability of every point and records events; the branch switching to 1.5th-order
     and other coexisting branches is :class:`dmf_sim.solvers.hbm.branches.BranchSwitching`, the
-    full
-    search for every stable state :class:`dmf_sim.solvers.hbm.search.StateSearch`.
+    full search for every stable state :class:`dmf_sim.solvers.hbm.search.StateSearch`.
 
     Args:
         hbm: CondensedHBM (driveline, engine, load fraction).

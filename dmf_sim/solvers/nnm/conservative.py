@@ -9,8 +9,7 @@ equilibrium and ``u = e.x`` the wind-up deviation:
     f(u) = g(w_s + u) - g(w_s) - g'(w_s) u                    (piecewise linear, f(0) = f'(0) = 0)
 
 ``g`` is the DMF's extra torque (dmf_sim.physics.spring). For the drive-side knee alone: with the
-static
-point in the primary region (``w_s < theta``), ``K_lin`` has the primary stiffness and
+static point in the primary region (``w_s < theta``), ``K_lin`` has the primary stiffness and
 ``f(u) = b max(u - d, 0)`` (stiffening, knee at ``d = theta - w_s`` above); in the secondary
 region ``K_lin`` has ``k(1+alpha)`` and ``f(u) = -b min(u + d, 0)`` (softening, knee at
 ``d = w_s - theta`` below). A coast knee, if configured, is one more ramp term of the same kind.

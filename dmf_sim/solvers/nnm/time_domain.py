@@ -55,8 +55,7 @@ def static_state(model: ReducedModel, windup_static: float) -> tuple[np.ndarray,
     """Static DOF deflection q_s [rad] and the balanced mean load P0 [Nm] (an engine mean torque
     on the cylinder elements, minus it times the cumulative ratio on the rear-load element:
     DrivelineLoads with a :class:`dmf_sim.physics.loads.ConstantTorque` engine) that hold the DMF
-    at
-    ``windup_static`` [rad]."""
+    at ``windup_static`` [rad]."""
     require_dmf(model)
     n_cyl = len(model.line.cylinders)
     unit = DrivelineLoads(model, ConstantTorque(1.0, n_cyl)).static_state(0.0, 1.0)
