@@ -266,9 +266,8 @@ def _draw(ax, x, y, stable, marker, **kw) -> None:
 # ------------------------------------------------------------------------------------------------
 def mode_shapes_figure(conventional, dmf, n_modes: int = 4, dmf_label: str = 'DMF') -> Figure:
     """Modes 1..n_modes (``dmf_sim.physics.modal.ModalResult``) of the conventional driveline
-    (blue) and
-    the DMF driveline (red dashed), angles x cumulative gear ratio; element names of the DMF
-    driveline on the axis, the conventional name below where it differs."""
+    (blue) and the DMF driveline (red dashed), angles x cumulative gear ratio; element names of the
+    DMF driveline on the axis, the conventional name below where it differs."""
     fig = Figure(figsize=(10, 2.3 * n_modes + 2.2), layout='constrained')
     axes = fig.subplots(n_modes, 1, sharex=True, squeeze=False)[:, 0]
     x = np.arange(len(dmf.names))

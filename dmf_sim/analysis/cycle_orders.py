@@ -7,8 +7,7 @@ interpolates x(psi) with a cubic spline onto ``points_per_cycle`` uniform angles
 the half orders ``x(psi) = Re(sum_n c_n exp(i n psi/2))``
 (:func:`dmf_sim.physics.orders.half_orders`)
 and the paper's Fig. 13 quantities (:func:`dmf_sim.physics.orders.fig13_rows`). A speed ramp does
-not
-smear the orders, whatever the ramp rate.
+not smear the orders, whatever the ramp rate.
 
 For a recording, :func:`cycle_orders` first gives each signal sample its crank angle (linear
 interpolation of psi(t); samples published together with a crank-angle sample but stamped with

@@ -269,11 +269,10 @@ def hbm_overlay(table: OrderTable, loads, load: float, *, direction: int = 1,
     quantity over the table's steady rows.
 
     The HBM is swept over the measured range with :func:`dmf_sim.solvers.hbm.sweep`. At each
-    measured
-    speed the stable solutions there are candidates; where several coexist, the one nearest to
-    the measurement (3rd and 1.5th order amplitude, mean) is compared -- which one a run-up
-    lands on depends on its history, not on the speed alone. Speeds no swept branch covers are
-    solved by natural continuation along the recording's ramp direction (``direction`` +1
+    measured speed the stable solutions there are candidates; where several coexist, the one
+    nearest to the measurement (3rd and 1.5th order amplitude, mean) is compared -- which one a
+    run-up lands on depends on its history, not on the speed alone. Speeds no swept branch covers
+    are solved by natural continuation along the recording's ramp direction (``direction`` +1
     rising, -1 falling). Rows outside the engine data's speed range are NaN.
     """
     from dmf_sim.solvers import hbm as hbm_mod

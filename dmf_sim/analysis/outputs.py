@@ -2,9 +2,8 @@
 
 Columns per speed bin (or cycle): speed, cycles, ``steady`` (enough cycles, see
 :mod:`dmf_sim.analysis.order_bins`), 3rd and 1.5th order, max/min deviation from the mean, the
-dynamic
-``mean`` and ``mean_minus_theta``, the model's ``static_windup`` and ``theta_minus_static`` (the
-paper's green line), the HBM values (``hbm_*``) and every half order (``o0``, ``o0.5``, ...).
+dynamic ``mean`` and ``mean_minus_theta``, the model's ``static_windup`` and ``theta_minus_static``
+(the paper's green line), the HBM values (``hbm_*``) and every half order (``o0``, ``o0.5``, ...).
 """
 from __future__ import annotations
 

@@ -21,9 +21,8 @@ Hook points (for per-cycle order analysis, predictions, alarms): ``observers`` a
 tick thread with every chunk of published :class:`dmf_sim.live.simulation.Samples` and their stamps
 [ns] (views: copy what you keep, return within ~0.1 ms, hand heavy work to a worker: the node's DMF
 monitor, :class:`dmf_sim.monitor.worker.LiveMonitor`, is one); ``setpoint_listeners`` are called
-with
-``(speed_setpoint_rpm, load_setpoint)`` whenever an applied setpoint changes. Health contributors
-live in :class:`dmf_sim.live.health.HealthMonitor`.
+with ``(speed_setpoint_rpm, load_setpoint)`` whenever an applied setpoint changes. Health
+contributors live in :class:`dmf_sim.live.health.HealthMonitor`.
 """
 from __future__ import annotations
 

@@ -1,9 +1,8 @@
 """Live order analysis of the DMF wind-up, one result per completed engine cycle (no ROS).
 
 The node hands every chunk of published samples (:class:`dmf_sim.live.simulation.Samples`: stamps,
-crank
-angle psi, wind-up) to a :class:`CycleOrderTracker`; whenever the crank angle has passed the end
-of an engine cycle (720 deg = 4 pi rad, cycles starting at whole multiples of 4 pi as in
+crank angle psi, wind-up) to a :class:`CycleOrderTracker`; whenever the crank angle has passed the
+end of an engine cycle (720 deg = 4 pi rad, cycles starting at whole multiples of 4 pi as in
 ``dmf-sim analyze``) :meth:`CycleOrderTracker.collect` returns a :class:`CycleWindow` and
 :func:`analyze_window` (in a worker, see :mod:`dmf_sim.monitor.worker`; or both at once with
 :meth:`CycleOrderTracker.add`) gives that cycle's :class:`CycleResult`:

@@ -2,9 +2,8 @@
 
 * ``capacity``: the spring reaches the torque capacity before its travel ends,
   ``T(max_travel_rad) >= capacity`` (T the spring's full torque, dmf_sim.physics.spring). The
-  capacity
-  is ``capacity_nm`` or ``capacity_factor`` (default :data:`DEFAULT_CAPACITY_FACTOR`) times the
-  engine's largest mean torque (full load, every load set, the study's speed grid).
+  capacity is ``capacity_nm`` or ``capacity_factor`` (default :data:`DEFAULT_CAPACITY_FACTOR`)
+  times the engine's largest mean torque (full load, every load set, the study's speed grid).
 * ``dmf_torque`` (``max_dmf_torque: true``, the default): the largest DMF torque in operation
   (the design metric ``max_dmf_torque``: every stable state and non-periodic envelope, every
   condition) stays below the capacity.

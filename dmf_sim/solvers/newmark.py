@@ -4,10 +4,9 @@
 The step itself (the numba kernel, exact condensed DMF solve region by region of the spring, knee
 crossings on step boundaries) and its readable numpy reference live in
 :mod:`dmf_sim.solvers.newmark_kernel`; see its docstring for the equations. This module owns the
-state and
-the model arrays the kernel works on (:class:`NewmarkIntegrator`: stepping API for the live node),
-and the offline one-call API :func:`simulate` (like ``scipy.integrate.solve_ivp``: one call, one
-:class:`SimulationResult`).
+state and the model arrays the kernel works on (:class:`NewmarkIntegrator`: stepping API for the
+live node), and the offline one-call API :func:`simulate` (like ``scipy.integrate.solve_ivp``: one
+call, one :class:`SimulationResult`).
 """
 from __future__ import annotations
 

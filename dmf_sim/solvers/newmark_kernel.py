@@ -5,8 +5,8 @@ Equation of motion in vibratory DOF coordinates q (deviation from the reference 
     J q'' + C q' + K q + e g(e q) = P(psi) + a_dal domega/dt                    (eq. 7, merged)
 
 with g the DMF spring's extra torque (dmf_sim.physics.spring) and e the wind-up row. Newmark's
-scheme
-(beta, gamma; average acceleration beta = 1/4, gamma = 1/2 by default) gives per step of length h
+scheme (beta, gamma; average acceleration beta = 1/4, gamma = 1/2 by default) gives per step
+of length h
 
     Khat q_{n+1} + e g(e q_{n+1}) = rhs,   Khat = K + a0 J + a1 C,
     rhs = P_{n+1} + J (a0 q_n + a2 v_n + a3 a_n) + C (a1 q_n + a4 v_n + a5 a_n).
@@ -23,9 +23,8 @@ boundary and the trapezoidal rule never straddles one.
 Khat is tridiagonal (a chain of merged inertias), so each step is O(n): a Thomas solve with a
 precomputed factorization. :func:`advance_compiled` is the numba kernel (arguments packed in
 tuples, see :class:`dmf_sim.solvers.newmark.NewmarkIntegrator`; the cold parts — factorization,
-region
-lookup — are small jitted helpers); :func:`advance_reference` is the readable numpy path with
-dense solves and the spring object itself, which the tests compare against.
+region lookup — are small jitted helpers); :func:`advance_reference` is the readable numpy path
+with dense solves and the spring object itself, which the tests compare against.
 
 Speed: the reference crank speed omega ramps toward its target at ``ramp`` [rad/s^2]; the
 excitation phase is psi = integral of omega dt (trapezoid, exact for a linear ramp), never

@@ -7,9 +7,8 @@ Linearizing J q'' + C q' + K q + e g(e q) = P about a periodic solution q*(t) gi
 
 a linear system with a *piecewise-constant* stiffness: g' is the extra stiffness of the spring
 stage w* is in (0 in the primary region; dmf_sim.physics.spring). The force g is continuous, so no
-jump
-(saltation) matrix is needed at a knee crossing. Over one period T = 4 pi / omega (720 deg of crank
-angle) the state transition (monodromy) matrix is therefore the exact product of matrix
+jump (saltation) matrix is needed at a knee crossing. Over one period T = 4 pi / omega (720 deg of
+crank angle) the state transition (monodromy) matrix is therefore the exact product of matrix
 exponentials
 
     Phi(T) = exp(A_{r_k} tau_k) ... exp(A_{r_2} tau_2) exp(A_{r_1} tau_1),

@@ -70,9 +70,8 @@ on the motored gas torque). Queries outside the table's speed range raise
 :class:`~dmf_sim.core.errors.OperatingRangeError`.
 
 Every invalid file is refused with a one-line :class:`~dmf_sim.core.errors.ConfigError` naming the
-file,
-the field and the allowed range (YAML syntax errors with line and column, a file that is not a
-YAML mapping or a directory said so). :func:`write_coefficient_table` writes the CSV format
+file, the field and the allowed range (YAML syntax errors with line and column, a file that is not
+a YAML mapping or a directory said so). :func:`write_coefficient_table` writes the CSV format
 (``config/engine_table_example.csv`` was generated with it from the default model).
 """
 from __future__ import annotations

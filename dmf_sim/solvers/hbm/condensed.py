@@ -6,8 +6,8 @@ Equation of motion in vibratory DOF coordinates q (model.py, eq. 7 merged):
 
 with ``e`` the wind-up row (w = e q, positive when the engine drives) and ``g(w)`` the extra torque
 of the DMF spring (dmf_sim.physics.spring). The base frequency is omega/2: one 720 deg engine
-cycle, so
-half-orders (the 1.5th order, n = 3) are representable. A periodic steady state is written
+cycle, so half-orders (the 1.5th order, n = 3) are representable. A periodic steady state
+is written
 
     w(psi) = Re( sum_{n=0}^{H} w_n exp(i n psi/2) ),
     g(w(psi)) ~ Re( sum_{n=0}^{H} g_n exp(i n psi/2) )
