@@ -71,23 +71,34 @@ _ROLE = re.compile(r':[\w:+.-]+:`[^`]*`')
 _DIRECTIVE = re.compile(r'^(\s*)\.\. [\w:+.-]+::.*$', re.M)
 
 
+@functools.lru_cache(maxsize=1)
+def _check_settings():
+    """The docutils settings of the check, made once: building them (an option parser of every
+    docutils option) cost more than parsing the docstring itself, once per docstring."""
+    from docutils.frontend import get_default_settings
+    from docutils.parsers.rst import Parser
+
+    settings = get_default_settings(Parser)
+    for name, value in {'report_level': 5, 'halt_level': 5, 'warning_stream': False,
+                        'file_insertion_enabled': False, 'raw_enabled': False}.items():
+        setattr(settings, name, value)
+    return settings
+
+
 @functools.lru_cache(maxsize=None)
 def _parses_cleanly(text):
     """True when the docstring is valid reStructuredText. Checked with plain docutils, its
     Sphinx roles and directives blanked out, so the check registers nothing in the real build;
     parse errors are system_message nodes, an undefined |substitution| (found by the transform)
     leaves a problematic node."""
+    import copy
+
     from docutils import nodes
-    from docutils.frontend import get_default_settings
     from docutils.parsers.rst import Parser
     from docutils.transforms.references import Substitutions
     from docutils.utils import new_document
 
-    settings = get_default_settings(Parser)
-    for name, value in {'report_level': 5, 'halt_level': 5, 'warning_stream': False,
-                        'file_insertion_enabled': False, 'raw_enabled': False}.items():
-        setattr(settings, name, value)
-    document = new_document('<docstring>', settings)
+    document = new_document('<docstring>', copy.copy(_check_settings()))
     Parser().parse(_DIRECTIVE.sub(r'\1..', _ROLE.sub('``x``', text)), document)
     document.transformer.add_transform(Substitutions)
     document.transformer.apply_transforms()
