@@ -276,3 +276,28 @@ def test_benchmark_quick():
     assert data['designs_per_s_2'] > 0
     assert 0 <= data['verified_max_rel_diff'] < 0.05
     assert 'dominates_paper' in data['best_vs_paper']
+    for seed in data['ideal_point_search']:
+        for run in ('optimizer', 'lhs'):
+            assert seed[run]['front_size'] >= 1 and seed[run]['n_near_ideal'] >= 0
+
+
+def test_ideal_point_search_counts_evaluations_to_the_ideal_point():
+    """The ideal point is the best feasible value of each objective over both runs; a run finds
+    it at the first evaluation within 1 % of it in both objectives; infeasible rows never count."""
+    from types import SimpleNamespace
+
+    from dmf_sim.optimize.report import ideal_point_search
+
+    def run(points, pareto):
+        rows = [{'design_id': i, 'feasible': feas, 'status': 'ok', 'pareto': i in pareto,
+                 'a': a, 'b': b} for i, (a, b, feas) in enumerate(points)]
+        return SimpleNamespace(problem=SimpleNamespace(objectives=['a', 'b']),
+                               rows=lambda kind: rows)
+
+    opt = run([(3.0, 3.0, True), (1.0, 1.0, False), (1.005, 1.0, True), (1.0, 1.009, True)],
+              {2, 3})
+    lhs = run([(2.0, 1.5, True), (1.5, 2.0, True), (1.0, 5.0, True)], {0, 1, 2})
+    out = ideal_point_search(opt, lhs, rel=0.01)
+    assert out['ideal'] == {'a': 1.0, 'b': 1.0}         # the infeasible (1, 1) does not count
+    assert out['optimizer'] == {'front_size': 2, 'n_near_ideal': 2, 'evaluations_to_ideal': 3}
+    assert out['lhs'] == {'front_size': 3, 'n_near_ideal': 0, 'evaluations_to_ideal': None}
