@@ -276,6 +276,7 @@ def test_benchmark_quick():
     assert data['designs_per_s_2'] > 0
     assert 0 <= data['verified_max_rel_diff'] < 0.05
     assert 'dominates_paper' in data['best_vs_paper']
+    assert len(data['hypervolume_ratio_vs_paper_per_seed']) in (0, 2)
     for seed in data['ideal_point_search']:
         for run in ('optimizer', 'lhs'):
             assert seed[run]['front_size'] >= 1 and seed[run]['n_near_ideal'] >= 0
@@ -301,3 +302,24 @@ def test_ideal_point_search_counts_evaluations_to_the_ideal_point():
     assert out['ideal'] == {'a': 1.0, 'b': 1.0}         # the infeasible (1, 1) does not count
     assert out['optimizer'] == {'front_size': 2, 'n_near_ideal': 2, 'evaluations_to_ideal': 3}
     assert out['lhs'] == {'front_size': 3, 'n_near_ideal': 0, 'evaluations_to_ideal': None}
+
+
+def test_common_hypervolumes_with_a_given_reference_point():
+    """With the paper's design as the reference point only the area that improves on it counts:
+    a run whose designs are all worse than it in one objective has none."""
+    from types import SimpleNamespace
+
+    from dmf_sim.optimize.report import common_hypervolumes
+
+    def run(points):
+        rows = [{'design_id': i, 'feasible': True, 'status': 'ok', 'a': a, 'b': b}
+                for i, (a, b) in enumerate(points)]
+        return SimpleNamespace(problem=SimpleNamespace(objectives=['a', 'b']),
+                               rows=lambda kind: rows)
+
+    opt, lhs = run([(1.0, 1.0), (4.0, 0.5)]), run([(2.0, 3.0), (0.5, 6.0)])
+    default = common_hypervolumes(opt, lhs)
+    assert default['reference_point'] == pytest.approx([4.4, 6.6])
+    paper = common_hypervolumes(opt, lhs, (2.0, 2.0))
+    assert paper['optimizer_final'] == pytest.approx(1.0)      # (2-1) x (2-1)
+    assert paper['lhs_final'] == 0.0 and paper['ratio'] == math.inf

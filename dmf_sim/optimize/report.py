@@ -94,9 +94,11 @@ def compare_with_reference(result, ref: dict) -> dict:
     return out
 
 
-def common_hypervolumes(result, baseline) -> dict:
-    """Hypervolume histories of both runs against one reference point (1.1 x the largest
-    feasible value of each objective over both runs), and their final ratio."""
+def common_hypervolumes(result, baseline, reference_point: tuple[float, float] | None = None
+                        ) -> dict:
+    """Hypervolume histories of both runs against one reference point (default 1.1 x the
+    largest feasible value of each objective over both runs; e.g. the paper's design's
+    objectives to count only the area that improves on it), and their final ratio."""
     o1, o2 = result.problem.objectives[:2]
     cols = {}
     for name, res in (('optimizer', result), ('lhs', baseline)):
@@ -108,7 +110,8 @@ def common_hypervolumes(result, baseline) -> dict:
     f2 = np.concatenate([c[1][c[2]] for c in cols.values()])
     if not len(f1):
         return {'reference_point': None, 'optimizer': [], 'lhs': [], 'ratio': math.nan}
-    ref = (1.1 * float(f1.max()), 1.1 * float(f2.max()))
+    ref = (tuple(float(v) for v in reference_point) if reference_point is not None
+           else (1.1 * float(f1.max()), 1.1 * float(f2.max())))
     hv = {k: hypervolume_history(*c, ref) for k, c in cols.items()}
     last = {k: float(v[-1]) if len(v) else 0.0 for k, v in hv.items()}
     return {'reference_point': list(ref), 'optimizer': hv['optimizer'].tolist(),
