@@ -545,12 +545,13 @@ def warm_up() -> float:
                     np.array([2.0, 1.0, 1e-2, 5.0, 0.125, 6.0]), out)
     corrector_fixed_speed(x0, 1.0, lin, lin, aft_mats, spring, 1e-10, 3, out, np.empty(n),
                           np.empty((n, n)), np.empty(n))
-    K, m = 1, 2
-    modal_sums(np.ones(K), np.ones(H), np.array([-1.0 + 1j, -1.0 - 1j]),
-               np.ones((H + 1, m), dtype=complex)[1:], np.ones(m, dtype=complex),
-               np.empty((K, H), dtype=complex), np.empty((K, H), dtype=complex),
-               np.empty((K, H + 1), dtype=complex)[:, 1:],
-               np.empty((K, H + 1), dtype=complex)[:, 1:])
+    m = 2
+    for K in (1, 2):     # one speed: h[:, 1:] is C-contiguous; a batch: it is not (two layouts)
+        modal_sums(np.ones(K), np.ones(H), np.array([-1.0 + 1j, -1.0 - 1j]),
+                   np.ones((H + 1, m), dtype=complex)[1:], np.ones(m, dtype=complex),
+                   np.empty((K, H), dtype=complex), np.empty((K, H), dtype=complex),
+                   np.empty((K, H + 1), dtype=complex)[:, 1:],
+                   np.empty((K, H + 1), dtype=complex)[:, 1:])
     ns = 2
     W = np.zeros((2, 2, ns, ns))
     W[:, :] = np.eye(ns)
