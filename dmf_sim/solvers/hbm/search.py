@@ -37,7 +37,7 @@ from dmf_sim.solvers.hbm.results import Branch, NonPeriodicBand, SweepEvent
 from dmf_sim.solvers.newmark import simulate
 from dmf_sim.solvers.nonperiodic import NonPeriodicOptions, analyze
 
-__all__ = ['N_SHIFTS', 'SearchOptions', 'StateSearch']
+__all__ = ['N_SHIFTS', 'SearchOptions', 'branch_speeds', 'StateSearch']
 
 N_SHIFTS = 6        # a 720 deg cycle holds six 120 deg firing intervals
 
@@ -76,13 +76,21 @@ class SearchOptions:
     max_new_branches: int = 16
 
 
-def _interp_states(b: Branch, s: float) -> list[tuple[np.ndarray, bool | None]]:
+def branch_speeds(b: Branch) -> np.ndarray:
+    """The speeds [rpm] of branch b's points, in order."""
+    return np.array([q.speed_rpm for q in b.points])
+
+
+def _interp_states(b: Branch, s: float, S: np.ndarray | None = None
+                   ) -> list[tuple[np.ndarray, bool | None]]:
     """(x, stable) of branch b at speed s: linear interpolation on every stretch bracketing s;
-    stable only if both ends of the stretch are (at a computed point: that point's stability)."""
+    stable only if both ends of the stretch are (at a computed point: that point's stability).
+    ``S``: the speeds of b's points, if at hand (asking at many speeds)."""
     pts = b.points
     if len(pts) == 1:
         return [(pts[0].x, pts[0].stable)] if abs(pts[0].speed_rpm - s) < 1e-9 else []
-    S = np.array([q.speed_rpm for q in pts])
+    if S is None:
+        S = branch_speeds(b)
     a, c = S[:-1], S[1:]
     idx = np.flatnonzero((np.minimum(a, c) - 1e-9 <= s) & (s <= np.maximum(a, c) + 1e-9))
     out = []
@@ -106,7 +114,16 @@ class StateSearch:
     # ---- known states at one speed --------------------------------------------------------------
     def states_at(self, s: float) -> list[tuple[np.ndarray, bool | None]]:
         """(x, stable) of every branch at speed s (interpolated between computed points)."""
-        return [st for b in self.branches for st in _interp_states(b, s)]
+        return [st for b in self.branches for st in _interp_states(b, s, self._speeds_of(b))]
+
+    def _speeds_of(self, b: Branch) -> np.ndarray:
+        """:func:`branch_speeds` of b, kept while b has the same points (branches only grow:
+        a sweep asks for the states at every grid speed, several times)."""
+        cache = self.__dict__.setdefault('_branch_speeds', {})
+        hit = cache.get(id(b))
+        if hit is None or hit[0] is not b.points or len(hit[1]) != len(b.points):
+            hit = cache[id(b)] = (b.points, branch_speeds(b))
+        return hit[1]
 
     def _deflation_set(self, known: list[np.ndarray]) -> np.ndarray:
         return all_shifts(np.array(known), N_SHIFTS, self.hbm.H)
