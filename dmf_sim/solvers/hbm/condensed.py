@@ -440,6 +440,7 @@ class CondensedHBM:
         frequency_hz, damping_ratio, contribution_rad, share, sorted by speed."""
         lo, hi = speed_range
         out = []
+        todo = []                  # (mode k, half order n, speed) inside the range
         for k in np.flatnonzero(self._d.imag > 0):
             d = self._d[k]
             zeta = -d.real / abs(d)
@@ -447,16 +448,20 @@ class CondensedHBM:
                 continue
             for n in range(1, self.H + 1):
                 s = 2.0 * d.imag / n / RPM_TO_RAD_S
-                if not lo <= s <= hi:
-                    continue
-                P = self.dof_loads(s)
-                peak = abs((P[n] @ self._B[:, k]) * self._ell[k] / -d.real)
-                dyn = float(np.abs(self.linear_parts(s).wlin[1:]).sum())
-                if dyn > 0 and peak >= share * dyn:
-                    out.append({'speed_rpm': float(s), 'half_order': n, 'order': n / 2,
-                                'frequency_hz': float(d.imag / (2 * np.pi)),
-                                'damping_ratio': float(zeta), 'contribution_rad': float(peak),
-                                'share': float(peak / dyn)})
+                if lo <= s <= hi:
+                    todo.append((k, n, s))
+        self.prepare([s for _, _, s in todo])      # their linear parts in one batch
+        for k, n, s in todo:
+            d = self._d[k]
+            zeta = -d.real / abs(d)
+            P = self.dof_loads(s)
+            peak = abs((P[n] @ self._B[:, k]) * self._ell[k] / -d.real)
+            dyn = float(np.abs(self.linear_parts(s).wlin[1:]).sum())
+            if dyn > 0 and peak >= share * dyn:
+                out.append({'speed_rpm': float(s), 'half_order': n, 'order': n / 2,
+                            'frequency_hz': float(d.imag / (2 * np.pi)),
+                            'damping_ratio': float(zeta), 'contribution_rad': float(peak),
+                            'share': float(peak / dyn)})
         return sorted(out, key=lambda r: r['speed_rpm'])
 
     def linear_parts_direct(self, speed_rpm: float
