@@ -342,10 +342,9 @@ class CondensedHBM:
         """(K, H+1) :meth:`engine_harmonics` at K speeds: one vectorized engine query for a
         batch (an engine with ``coefficients_many``: bitwise the same values), else one query
         per speed (fewer numpy calls for a speed or two)."""
-        many = getattr(self.loads.engine, 'coefficients_many', None)
-        if many is None or len(speeds) < ENGINE_BATCH_MIN:
+        if len(speeds) < ENGINE_BATCH_MIN:
             return np.stack([self.engine_harmonics(s) for s in speeds.tolist()])
-        A = np.asarray(many(speeds, self.load), dtype=complex)
+        A = self.loads.engine_coefficients_many(speeds, self.load)
         if A.shape[1] == self.H + 1:
             return A
         out = np.zeros((len(speeds), self.H + 1), dtype=complex)
