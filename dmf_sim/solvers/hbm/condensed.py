@@ -392,8 +392,9 @@ class CondensedHBM:
         dw[:, 0] = dA[:, 0].real * self._static_cyl + (rear2 - rear) / ds * self._static_rear
         wlin[:, 1:] = A[:, 1:] * unit
         dw[:, 1:] = A[:, 1:] * dunit + dA[:, 1:] * unit
+        wr, dwr = to_real(wlin, H), to_real(dw, H)              # (K, 2H+1) real layouts
         return [LinearParts(speeds[k], float(omega[k]), h[k], wlin[k], dh[k], dw[k],
-                            (to_real(wlin[k], H), h[k]), (to_real(dw[k], H), dh[k]))
+                            (wr[k], h[k]), (dwr[k], dh[k]))
                 for k in range(K)]
 
     def linear_response(self, speeds_rpm) -> np.ndarray:
