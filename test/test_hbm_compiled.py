@@ -269,7 +269,8 @@ from dmf_sim.solvers import stability_kernel
 from dmf_sim.solvers.hbm import CondensedHBM, SweepOptions, kernels, sweep
 kernels.warm_up()
 fs = [kernels.residual_jacobian_py, kernels.harmonics_py, kernels.newton, kernels.deflated_newton,
-      kernels.corrector_fixed_speed, kernels.modal_sums, stability_kernel.floquet]
+      kernels.corrector_fixed_speed, kernels.modal_sums, kernels.linear_parts,
+      stability_kernel.floquet]
 before = [len(f.signatures) for f in fs]
 loads = DrivelineLoads(load_model('truck_dmf', alpha=3.0), load_engine('engine_d13', load_set='A'))
 sweep(loads, 1.0, (1150.0, 1250.0), options=SweepOptions(step_rpm=10.0, search=None))

@@ -249,6 +249,7 @@ class CondensedHBM:
         self._ell = self.modes.er @ V[:self.modes.nf]                         # (2nf,)
         self._B = self.modes.Phi @ Vinv[:, self.modes.nf:].T                   # (n_dof, 2nf)
         self._a = self._ell * (self.modes.er @ Vinv[:, self.modes.nf:].T)      # residues of h
+        self._dOm = np.arange(1, H + 1) * (RPM_TO_RAD_S / 2.0)                 # dOm_n / ds
         self._cache: OrderedDict[float, LinearParts] = OrderedDict()
         # modal load per unit engine coefficient A_n, times the wind-up read-out ell: P_n =
         # A_n sum_k phase_kn T_k (cylinder rows of T, eq. 17), so e.H_n P_n = A_n sum(pole ml_n)
@@ -364,35 +365,37 @@ class CondensedHBM:
         both = self.engine_harmonics_many(np.concatenate([S, S + ds]))          # (2K, H+1)
         A, A2 = both[:K], both[K:]
         dA = (A2 - A) / ds[:, None]
-        n = np.arange(1, H + 1)
-        dOm = n * (RPM_TO_RAD_S / 2.0)                           # dOm_n / ds
+        # static: e.K^+ P_0 (rigid mode removed) and its speed derivative
+        rear = np.array([self.loads.rear_load_for(a) for a in A])
+        rear2 = np.array([self.loads.rear_load_for(a) for a in A2])
+        wlin0 = A[:, 0].real * self._static_cyl + rear * self._static_rear
+        dwlin0 = dA[:, 0].real * self._static_cyl + (rear2 - rear) / ds * self._static_rear
         ml = self._modal_load[1:]
         h = np.empty((K, H + 1), dtype=complex)
         wlin = np.empty((K, H + 1), dtype=complex)
-        dh = np.zeros((K, H + 1), dtype=complex)
+        dh = np.empty((K, H + 1), dtype=complex)
         dw = np.empty((K, H + 1), dtype=complex)
-        if self.compiled:
-            unit = np.empty((K, H), dtype=complex)
-            dunit = np.empty((K, H), dtype=complex)
-            kernels.modal_sums(omega, dOm, self._d, ml, self._a, unit, dunit, h[:, 1:],
-                               dh[:, 1:])
+        if self.compiled:           # modal sums, wlin, dwlin and their real layouts in one call
+            wr = np.empty((K, 2 * H + 1))
+            dwr = np.empty((K, 2 * H + 1))
+            kernels.linear_parts(omega, self._dOm, self._d, ml, self._a, A, dA, wlin0, dwlin0,
+                                 self._h0, h, dh, wlin, dw, wr, dwr)
         else:
+            n = np.arange(1, H + 1)
             Om = omega[:, None] * (n / 2.0)                      # Om_n = n omega / 2
             pole = 1.0 / (1j * Om[..., None] - self._d)          # (K, H, 2nf): 1/(i Om_n - d_k)
             unit = (pole * ml).sum(axis=-1)                      # wlin_n per unit A_n
             pole2 = -1j * pole ** 2                              # d/dOm of the pole
-            dunit = (pole2 * ml).sum(axis=-1) * dOm              # its speed derivative
+            dunit = (pole2 * ml).sum(axis=-1) * self._dOm        # its speed derivative
             h[:, 1:] = pole @ self._a
-            dh[:, 1:] = (pole2 @ self._a) * dOm
-        h[:, 0] = self._h0                                       # static: e.K^+ e
-        # static: e.K^+ P_0 (rigid mode removed)
-        rear = np.array([self.loads.rear_load_for(a) for a in A])
-        rear2 = np.array([self.loads.rear_load_for(a) for a in A2])
-        wlin[:, 0] = A[:, 0].real * self._static_cyl + rear * self._static_rear
-        dw[:, 0] = dA[:, 0].real * self._static_cyl + (rear2 - rear) / ds * self._static_rear
-        wlin[:, 1:] = A[:, 1:] * unit
-        dw[:, 1:] = A[:, 1:] * dunit + dA[:, 1:] * unit
-        wr, dwr = to_real(wlin, H), to_real(dw, H)              # (K, 2H+1) real layouts
+            dh[:, 1:] = (pole2 @ self._a) * self._dOm
+            h[:, 0] = self._h0                                   # static: e.K^+ e
+            dh[:, 0] = 0.0
+            wlin[:, 0] = wlin0
+            dw[:, 0] = dwlin0
+            wlin[:, 1:] = A[:, 1:] * unit
+            dw[:, 1:] = A[:, 1:] * dunit + dA[:, 1:] * unit
+            wr, dwr = to_real(wlin, H), to_real(dw, H)          # (K, 2H+1) real layouts
         return [LinearParts(speeds[k], float(omega[k]), h[k], wlin[k], dh[k], dw[k],
                             (wr[k], h[k]), (dwr[k], dh[k]))
                 for k in range(K)]

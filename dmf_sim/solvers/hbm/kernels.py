@@ -43,7 +43,7 @@ from dmf_sim.solvers.newmark_kernel import HAVE_NUMBA, region_of
 
 __all__ = ['BACKTRACK_MIN', 'PIVOT_TINY', 'lu_solve', 'max_abs', 'aft', 'times_h_into',
            'times_h_matrix', 'residual_jacobian', 'residual_jacobian_py', 'harmonics_py', 'newton',
-           'deflated_newton', 'corrector_fixed_speed', 'modal_sums', 'warm_up']
+           'deflated_newton', 'corrector_fixed_speed', 'modal_sums', 'linear_parts', 'warm_up']
 
 CONVERGED, STALLED, MAX_ITER, SINGULAR, NOT_FINITE = 0, 1, 2, 3, 4
 BACKTRACK_MIN = 1e-3      # smallest backtracking factor of the plain Newton (as the reference)
@@ -487,6 +487,36 @@ def modal_sums(omega, dOm, d, ml, a, unit, dunit, h, dh):
             dh[q, n] = sdh * dOm[n]
 
 
+def linear_parts(omega, dOm, d, ml, a, A, dA, wlin0, dwlin0, h0, h, dh, wlin, dw, wr, dwr):
+    """The linear parts of K speeds in one call: :func:`modal_sums`, then ``h_0 = h0``,
+    ``wlin_n = A_n unit_n``, ``dwlin_n = A_n dunit_n + dA_n unit_n`` (n >= 1), the static
+    ``wlin_0``, ``dwlin_0`` as given, and wlin, dwlin on the real layout (``wr``, ``dwr``).
+    ``A``, ``dA``: (K, H+1) engine coefficients and their speed derivatives. Reference: the
+    numpy branch of ``CondensedHBM._linear_parts_many``."""
+    K = omega.shape[0]
+    H = ml.shape[0]
+    unit = np.empty((K, H), dtype=np.complex128)
+    dunit = np.empty((K, H), dtype=np.complex128)
+    modal_sums(omega, dOm, d, ml, a, unit, dunit, h[:, 1:], dh[:, 1:])
+    for q in range(K):
+        h[q, 0] = h0
+        dh[q, 0] = 0.0
+        wlin[q, 0] = wlin0[q]
+        dw[q, 0] = dwlin0[q]
+        wr[q, 0] = wlin0[q]
+        dwr[q, 0] = dwlin0[q]
+        for n in range(1, H + 1):
+            u = unit[q, n - 1]
+            w = A[q, n] * u
+            v = A[q, n] * dunit[q, n - 1] + dA[q, n] * u
+            wlin[q, n] = w
+            dw[q, n] = v
+            wr[q, n] = w.real
+            wr[q, H + n] = w.imag
+            dwr[q, n] = v.real
+            dwr[q, H + n] = v.imag
+
+
 if HAVE_NUMBA:
     import numba
     _jit = numba.njit(cache=True, nogil=True, error_model='numpy')
@@ -509,6 +539,7 @@ if HAVE_NUMBA:
     _log_floor = _jit(_log_floor)
     deflated_newton = _jit(deflated_newton)
     modal_sums = _jit(modal_sums)
+    linear_parts = _jit(linear_parts)
 
 
 
@@ -552,6 +583,12 @@ def warm_up() -> float:
                    np.empty((K, H), dtype=complex), np.empty((K, H), dtype=complex),
                    np.empty((K, H + 1), dtype=complex)[:, 1:],
                    np.empty((K, H + 1), dtype=complex)[:, 1:])
+        A = np.ones((K, H + 1), dtype=complex)
+        linear_parts(np.ones(K), np.ones(H), np.array([-1.0 + 1j, -1.0 - 1j]),
+                     np.ones((H + 1, m), dtype=complex)[1:], np.ones(m, dtype=complex), A, A,
+                     np.ones(K), np.ones(K), 1.0, np.empty((K, H + 1), dtype=complex),
+                     np.empty((K, H + 1), dtype=complex), np.empty((K, H + 1), dtype=complex),
+                     np.empty((K, H + 1), dtype=complex), np.empty((K, n)), np.empty((K, n)))
     ns = 2
     W = np.zeros((2, 2, ns, ns))
     W[:, :] = np.eye(ns)
