@@ -676,6 +676,9 @@ class CondensedHBM:
     def residual_and_jacobians(self, x: np.ndarray, speed_rpm: float):
         """(r, dr/dx, dr/ds) at wind-up harmonics x and speed [rpm]."""
         lp = self.linear_parts(speed_rpm)
+        if self.compiled:               # one kernel call: one AFT pass for all three
+            return kernels.residual_jacobians_py(np.ascontiguousarray(x, dtype=float), lp.lin,
+                                                 lp.dlin, self._aft_mats, self._spring_arrays)
         r, Jx = self.residual_and_jacobian(x, lp)
         return r, Jx, self.residual_speed_derivative(x, lp)
 

@@ -42,7 +42,8 @@ from dmf_sim.solvers.hbm.layout import to_real
 from dmf_sim.solvers.newmark_kernel import HAVE_NUMBA, region_of
 
 __all__ = ['BACKTRACK_MIN', 'PIVOT_TINY', 'lu_solve', 'max_abs', 'aft', 'times_h_into',
-           'times_h_matrix', 'residual_jacobian', 'residual_jacobian_py', 'harmonics_py', 'newton',
+           'times_h_matrix', 'residual_jacobian', 'residual_jacobian_py', 'speed_derivative',
+           'residual_jacobians_py', 'harmonics_py', 'newton',
            'deflated_newton', 'corrector_fixed_speed', 'modal_sums', 'linear_parts', 'warm_up']
 
 CONVERGED, STALLED, MAX_ITER, SINGULAR, NOT_FINITE = 0, 1, 2, 3, 4
@@ -237,6 +238,29 @@ def residual_jacobian_py(x, lin, aft_mats, spring, jac):
     return r, J, count
 
 
+def speed_derivative(dlin, G, rs):
+    """rs <- dr/ds = -dwlin + dh G at fixed x (``dlin`` = (dwlin_r, dh), G the harmonics of g):
+    reference ``CondensedHBM.residual_speed_derivative``."""
+    dwlin_r, dh = dlin
+    times_h_into(dh, G, rs)
+    for i in range(rs.shape[0]):
+        rs[i] -= dwlin_r[i]
+
+
+def residual_jacobians_py(x, lin, dlin, aft_mats, spring):
+    """(r, dr/dx, dr/ds) as new arrays in one AFT pass: what the continuation asks at a point
+    off the grid (reference: ``CondensedHBM.residual_and_jacobian_reference`` and
+    ``residual_speed_derivative``)."""
+    n = x.shape[0]
+    r = np.empty(n)
+    J = np.empty((n, n))
+    G = np.empty(n)
+    rs = np.empty(n)
+    residual_jacobian(x, lin, aft_mats, spring, r, J, G, True)
+    speed_derivative(dlin, G, rs)
+    return r, J, rs
+
+
 def harmonics_py(x, aft_mats, spring, jac):
     """(G, dG/dx, count) as new arrays (the non-linear torque harmonics alone)."""
     n = x.shape[0]
@@ -402,7 +426,6 @@ def corrector_fixed_speed(y_pred, xs, lin, dlin, aft_mats, spring, tol, max_iter
     (reference: ``continuation.correct`` with the normal e_S). ``dlin`` = (dwlin_r, dh) the
     speed derivatives. Writes y, r, J = dr/dx, rs = dr/ds; returns (status, iterations,
     max|r|)."""
-    dwlin_r, dh = dlin
     n = y_pred.shape[0]
     for i in range(n):
         y[i] = y_pred[i]
@@ -448,9 +471,7 @@ def corrector_fixed_speed(y_pred, xs, lin, dlin, aft_mats, spring, tol, max_iter
             status = CONVERGED
             break
     # dr/ds at the solution: -dwlin + dh G (G: the harmonics of the last evaluation)
-    times_h_into(dh, G, rs)
-    for i in range(n):
-        rs[i] -= dwlin_r[i]
+    speed_derivative(dlin, G, rs)
     return status, it, res
 
 
@@ -530,6 +551,8 @@ if HAVE_NUMBA:
     times_h_matrix = _jit(times_h_matrix)
     residual_jacobian = _jit(residual_jacobian)
     residual_jacobian_py = _jit(residual_jacobian_py)
+    speed_derivative = _jit(speed_derivative)
+    residual_jacobians_py = _jit(residual_jacobians_py)
     corrector_fixed_speed = _jit(corrector_fixed_speed)
     harmonics_py = _jit(harmonics_py)
     _newton_start = _jit(_newton_start)
@@ -570,6 +593,7 @@ def warm_up() -> float:
     lin = (x0.copy(), h)
     out = np.empty(n)
     residual_jacobian_py(x0, lin, aft_mats, spring, True)
+    residual_jacobians_py(x0, lin, lin, aft_mats, spring)
     harmonics_py(x0, aft_mats, spring, True)
     newton(x0, lin, aft_mats, spring, (1e-10, 5, 8, 0.5), out)
     deflated_newton(x0, np.zeros((1, n)), lin, aft_mats, spring, 1e-10,
