@@ -81,18 +81,23 @@ def branch_speeds(b: Branch) -> np.ndarray:
     return np.array([q.speed_rpm for q in b.points])
 
 
-def _interp_states(b: Branch, s: float, S: np.ndarray | None = None
+def _stretches(S: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(start, end, lowest, highest) speed of every stretch between successive points of speeds
+    S, the bounds widened by the speed tolerance (1e-9 rpm) of :func:`_interp_states`."""
+    a, c = S[:-1], S[1:]
+    return a, c, np.minimum(a, c) - 1e-9, np.maximum(a, c) + 1e-9
+
+
+def _interp_states(b: Branch, s: float, stretches: tuple | None = None
                    ) -> list[tuple[np.ndarray, bool | None]]:
     """(x, stable) of branch b at speed s: linear interpolation on every stretch bracketing s;
     stable only if both ends of the stretch are (at a computed point: that point's stability).
-    ``S``: the speeds of b's points, if at hand (asking at many speeds)."""
+    ``stretches``: :func:`_stretches` of b's speeds, if at hand (asking at many speeds)."""
     pts = b.points
     if len(pts) == 1:
         return [(pts[0].x, pts[0].stable)] if abs(pts[0].speed_rpm - s) < 1e-9 else []
-    if S is None:
-        S = branch_speeds(b)
-    a, c = S[:-1], S[1:]
-    idx = np.flatnonzero((np.minimum(a, c) - 1e-9 <= s) & (s <= np.maximum(a, c) + 1e-9))
+    a, c, lo, hi = stretches if stretches is not None else _stretches(branch_speeds(b))
+    idx = np.flatnonzero((lo <= s) & (s <= hi))
     out = []
     for i in idx.tolist():
         p, q = pts[i], pts[i + 1]
@@ -114,16 +119,16 @@ class StateSearch:
     # ---- known states at one speed --------------------------------------------------------------
     def states_at(self, s: float) -> list[tuple[np.ndarray, bool | None]]:
         """(x, stable) of every branch at speed s (interpolated between computed points)."""
-        return [st for b in self.branches for st in _interp_states(b, s, self._speeds_of(b))]
+        return [st for b in self.branches for st in _interp_states(b, s, self._stretches_of(b))]
 
-    def _speeds_of(self, b: Branch) -> np.ndarray:
-        """:func:`branch_speeds` of b, kept while b has the same points (branches only grow:
-        a sweep asks for the states at every grid speed, several times)."""
-        cache = self.__dict__.setdefault('_branch_speeds', {})
+    def _stretches_of(self, b: Branch) -> tuple:
+        """:func:`_stretches` of b's speeds, kept while b has the same points (branches only
+        grow: a sweep asks for the states at every grid speed, several times)."""
+        cache = self.__dict__.setdefault('_branch_stretches', {})
         hit = cache.get(id(b))
-        if hit is None or hit[0] is not b.points or len(hit[1]) != len(b.points):
-            hit = cache[id(b)] = (b.points, branch_speeds(b))
-        return hit[1]
+        if hit is None or hit[0] is not b.points or hit[1] != len(b.points):
+            hit = cache[id(b)] = (b.points, len(b.points), _stretches(branch_speeds(b)))
+        return hit[2]
 
     def _deflation_set(self, known: list[np.ndarray]) -> np.ndarray:
         return all_shifts(np.array(known), N_SHIFTS, self.hbm.H)
