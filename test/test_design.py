@@ -198,6 +198,19 @@ def test_local_cluster_listens_on_loopback_only(client):
     assert len(ours) >= 4 and {a.ip for a in ours} == {'127.0.0.1'}
 
 
+def test_local_cluster_housekeeping_is_slowed_down(client):
+    """The local cluster's workers run with the slower event-loop and monitor timers of
+    runner.QUIET_CLUSTER (Dask passes the config on to the worker processes)."""
+    import dask
+
+    from dmf_sim.design.runner import QUIET_CLUSTER
+
+    def config():
+        return {k: dask.config.get(k) for k in QUIET_CLUSTER}
+
+    assert list(client.run(config).values()) == [QUIET_CLUSTER, QUIET_CLUSTER]
+
+
 def test_outputs_table_and_pareto_front(full_run, study):
     res, out = full_run
     import pyarrow.csv as pacsv

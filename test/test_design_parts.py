@@ -160,3 +160,26 @@ def test_worst_condition_and_speed_do_not_hang_on_the_last_bit():
         == 'B 1'                                                  # a real difference still wins
     assert first_max(np.array([np.nan, 2.0, 2.0 * (1 + 1e-12), 1.0])) == 1
     assert first_max(np.array([np.nan, np.nan])) == 0
+
+
+def test_study_plugin_limits_the_worker_thread_pools():
+    """A design-study worker computes one design at a time: its plugin limits the BLAS / OpenMP
+    pools to WORKER_THREADS (here from 2, as a worker started without Dask's nanny may have)."""
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    from dmf_sim.design import load_study
+    from dmf_sim.design.evaluate import StudyContext, drop_context
+    from dmf_sim.design.runner import WORKER_THREADS, StudyPlugin
+    study = load_study({'name': 'threads', 'driveline': 'truck_dmf', 'engine': 'engine_d13',
+                        'sampling': {'method': 'grid'},
+                        'variables': {'alpha': {'values': [3.0]}},
+                        'conditions': {'load_sets': ['A'], 'loads': [1.0],
+                                       'speeds_rpm': {'from': 900, 'to': 1000, 'step': 10}},
+                        'objectives': ['worst_order_1_5', 'worst_torque_3']})
+    plugin = StudyPlugin('test-threads', StudyContext.from_study(study))
+    with threadpool_limits(limits=2):
+        pools = threadpool_info()
+        plugin.setup(None)
+        after = threadpool_info()
+    drop_context('test-threads')
+    assert pools and all(p['num_threads'] == WORKER_THREADS for p in after)

@@ -201,6 +201,28 @@ def test_bad_queries(engine):
     _one_line_error(exc, 'load_set', 'A')
 
 
+@pytest.mark.parametrize('load_set', ['A', 'B', 'C'])
+def test_vectorized_query_equals_one_by_one(engines, load_set):
+    """coefficients_many (a sweep's batch of speeds) gives bitwise the values of one query per
+    speed, at grid nodes, between them and at the ends; a bad speed or load is refused with the
+    same one-line message."""
+    eng = engines[load_set]
+    lo, hi = eng.speed_range_rpm
+    speeds = np.concatenate([np.linspace(lo, hi, 301), [lo, hi, 1000.0, 1000.05, 1234.5678]])
+    for load in (1.0, 0.37, 0.0):
+        one = np.stack([eng.coefficients(s, load) for s in speeds.tolist()])
+        assert np.array_equal(eng.coefficients_many(speeds, load), one)
+    for bad_speed, load, needles in ((hi + 1.0, 0.5, ('speed_rpm', '2200')),
+                                     (float('nan'), 0.5, ('speed_rpm',)),
+                                     (1000.0, 1.5, ('load', '[0, 1]'))):
+        with pytest.raises(ValueError) as exc:
+            eng.coefficients_many([1000.0, bad_speed], load)
+        _one_line_error(exc, *needles)
+        with pytest.raises(ValueError) as ref:
+            eng.coefficients(bad_speed, load)
+        assert str(exc.value) == str(ref.value)
+
+
 # ------------------------------------------------------------------------------------------------
 # User tables
 # ------------------------------------------------------------------------------------------------

@@ -96,6 +96,21 @@ def test_linear_parts_equal_reference(case, request):
             assert close(getattr(a, name), getattr(b, name)), name
 
 
+@pytest.mark.parametrize('case', CASES)
+def test_continuation_jacobians_equal_reference(case, request):
+    """What the continuation asks off the grid, (r, dr/dx, dr/ds) in one compiled call, and the
+    real layouts of wlin and dwlin the kernels read, against the numpy reference."""
+    loads, speed = request.getfixturevalue(case)
+    hb, ref = both(loads)
+    s = speed + 3.7
+    a, b = hb.linear_parts(s), ref.linear_parts(s)
+    assert close(a.lin[0], b.lin[0]) and close(a.dlin[0], b.dlin[0])
+    for x in trial_points(hb, speed):
+        got, want = hb.residual_and_jacobians(x, s), ref.residual_and_jacobians(x, s)
+        for g, w in zip(got, want):
+            assert close(g, w)
+
+
 def test_primary_only_is_the_linear_problem(paper):
     loads, _ = paper
     hb, _ = both(loads)
@@ -258,3 +273,37 @@ def test_constant_speed_shot_is_one_kernel_call(paper, monkeypatch):
     assert len(one.windup) == len(chunked.windup) == 1000
     assert np.abs(one.windup - chunked.windup).max() <= 1e-9 * np.ptp(chunked.windup)
     assert np.abs(one.psi - chunked.psi).max() <= 1e-9 * chunked.psi[-1]
+
+
+WARM_THEN_SWEEP = '''
+import json
+from dmf_sim.physics.engine import load_engine
+from dmf_sim.physics.loads import DrivelineLoads
+from dmf_sim.physics.model import load_model
+from dmf_sim.solvers import stability_kernel
+from dmf_sim.solvers.hbm import CondensedHBM, SweepOptions, kernels, sweep
+kernels.warm_up()
+fs = [kernels.residual_jacobian_py, kernels.harmonics_py, kernels.newton, kernels.deflated_newton,
+      kernels.corrector_fixed_speed, kernels.modal_sums, kernels.linear_parts,
+      kernels.residual_jacobians_py, stability_kernel.floquet]
+before = [len(f.signatures) for f in fs]
+loads = DrivelineLoads(load_model('truck_dmf', alpha=3.0), load_engine('engine_d13', load_set='A'))
+sweep(loads, 1.0, (1150.0, 1250.0), options=SweepOptions(step_rpm=10.0, search=None))
+CondensedHBM(loads, 1.0).linear_parts(1001.5)
+print(json.dumps([before, [len(f.signatures) for f in fs]]))
+'''
+
+
+def test_warm_up_compiles_what_a_fresh_worker_calls():
+    """In a fresh process (a design-study worker), warm_up leaves no signature for the first
+    sweep to add: a prepared batch of speeds and a single speed reach the modal sums with
+    different array layouts, and both are loaded by warm_up."""
+    import json
+    import os
+    import subprocess
+    import sys
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
+    out = subprocess.run([sys.executable, '-c', WARM_THEN_SWEEP], capture_output=True,
+                         text=True, env=env, timeout=120, check=True).stdout
+    before, after = json.loads(out.strip().splitlines()[-1])
+    assert all(n >= 1 for n in before) and after == before

@@ -38,7 +38,8 @@ from dmf_sim.design.study import load_study
 from dmf_sim.design.table import ResultStore
 
 __all__ = ['LOOPBACK', 'CONNECT_TIMEOUT_S', 'WORKER_WATCH_INTERVAL_S', 'DEFAULT_BATCH_SIZE',
-           'BATCHES_PER_WORKER', 'WORKER_PROFILER', 'StudyPlugin', 'WorkerWatch',
+           'BATCHES_PER_WORKER', 'WORKER_PROFILER', 'WORKER_THREADS', 'QUIET_CLUSTER',
+           'StudyPlugin', 'limit_threads', 'WorkerWatch',
            'available_cores', 'local_cluster', 'start_local', 'close_local', 'close_run',
            'connect', 'wait_for_workers', 'batch_size_for', 'run_study']
 
@@ -52,6 +53,19 @@ against 58 ms per paper-case design: 1 design per task loses 8 %, 4 lose 2.0 %, 
 BATCHES_PER_WORKER = 4
 """Smaller batches when a study is short, so that every worker gets work until the end."""
 WORKER_PROFILER = 'distributed.worker.profile.enabled'
+WORKER_THREADS = 1
+"""Threads of a worker's BLAS / OpenMP pools: the worker computes one design at a time, on
+matrices of 34 x 34 at most, and more threads only take the other workers' cores."""
+QUIET_CLUSTER = {
+    'distributed.admin.tick.interval': '1s',
+    'distributed.admin.system-monitor.interval': '5s',
+    'distributed.worker.memory.monitor-interval': '1s',
+}
+"""The local cluster's housekeeping timers, slower than Dask's defaults (event-loop check every
+20 ms, system monitor every 0.5 s, memory check every 0.1 s). Every wake-up of a process's event
+loop takes the GIL from the thread computing a design; with the defaults a 2-worker cluster cost
+0.14 cores while idle (scheduler and nannies 0.077, the two workers 0.064; 0.023 with these),
+~7 % of a 2-core machine's second core that two workers need. benchmarks/bench_design.py."""
 _ADDRESS = re.compile(r'^(tcp|tls)://[^\s/:]+:\d{1,5}$')
 
 
@@ -63,6 +77,7 @@ class StudyPlugin(WorkerPlugin):
         self.context = context
 
     def setup(self, worker) -> None:
+        limit_threads()
         install_context(self.key, self.context)
         # the sweep's compiled kernels loaded (compiled the first time on this machine) now,
         # not in the worker's first design
@@ -71,6 +86,17 @@ class StudyPlugin(WorkerPlugin):
 
     def teardown(self, worker) -> None:
         drop_context(self.key)
+
+
+def limit_threads(threads: int = WORKER_THREADS) -> dict[str, int]:
+    """Limit this process's BLAS / OpenMP thread pools to ``threads`` (a design-study worker:
+    Dask's nanny sets OMP_NUM_THREADS etc. for the workers it spawns, but a worker started
+    otherwise, or a library loaded after the environment was read, may still use one thread
+    per core). Returns {library: threads} after the change. The sweep's numba kernels are not
+    parallel and start no threads."""
+    from threadpoolctl import threadpool_info, threadpool_limits
+    threadpool_limits(limits=threads)
+    return {p['internal_api']: int(p['num_threads']) for p in threadpool_info()}
 
 
 class WorkerWatch:
@@ -151,7 +177,7 @@ def local_cluster(workers: int | None = None):
     # tree of the solvers' call paths made worker memory grow by ~10 kB per design
     # (benchmarks/bench_design.py measures the RSS over a long study).
     import dask
-    with dask.config.set({WORKER_PROFILER: False}):
+    with dask.config.set({WORKER_PROFILER: False, **QUIET_CLUSTER}):
         return LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host=LOOPBACK,
                             dashboard_address=f'{LOOPBACK}:0', worker_dashboard_address=None,
                             silence_logs=logging.CRITICAL)

@@ -192,8 +192,8 @@ def order_torques(hb, points, element: int, n: int = ORDER_3) -> np.ndarray:
     L = hb.loads
     pe = np.zeros((len(points), m.n_elements), dtype=complex)
     if n <= L.n_max:             # cylinder torques only (the rear load acts on the mean, n = 0)
-        A = np.array([L.engine.coefficients(s, hb.load) for s in speeds])
-        pe[:, L.cylinder_elements] = np.array([L.cylinder_coefficients_for(a)[:, n] for a in A])
+        A = L.engine_coefficients_many(speeds, hb.load)
+        pe[:, L.cylinder_elements] = L.cylinder_coefficients_for(A)[:, :, n]
     Om = n * speeds * (RPM_TO_RAD_S / 2.0)
     Z = m.K - (Om ** 2)[:, None, None] * m.J + (1j * Om)[:, None, None] * m.C
     q = np.linalg.solve(Z, (pe @ m.T - g[:, None] * m.e)[..., None])[..., 0]

@@ -70,14 +70,25 @@ class DrivelineLoads:
         self._m = m
 
     # ---- frequency domain ------------------------------------------------------------------
+    def engine_coefficients_many(self, speeds_rpm, load: float) -> np.ndarray:
+        """(K, N+1) engine coefficients A_n at K speeds: one vectorized query where the engine
+        has ``coefficients_many`` (bitwise the same values), else one query per speed."""
+        speeds = np.asarray(speeds_rpm, dtype=float).reshape(-1)
+        many = getattr(self.engine, 'coefficients_many', None)
+        if many is not None:
+            return np.asarray(many(speeds, load), dtype=complex)
+        return np.array([self.engine.coefficients(s, load) for s in speeds.tolist()],
+                        dtype=complex).reshape(len(speeds), -1)
+
     def cylinder_coefficients(self, speed_rpm: float, load: float) -> np.ndarray:
         """(n_cyl, N+1) complex amplitudes A_n exp(-i n beta_k/2) [Nm] of each cylinder's
         torque."""
         return self.cylinder_coefficients_for(self.engine.coefficients(speed_rpm, load))
 
     def cylinder_coefficients_for(self, A: np.ndarray) -> np.ndarray:
-        """Eq. (17) phasing of the engine coefficients A_n (n = 0..N) onto every cylinder."""
-        return np.asarray(A, dtype=complex)[None, :] * self.phase
+        """Eq. (17) phasing of the engine coefficients A_n (n = 0..N) onto every cylinder:
+        (n_cyl, N+1); for K sets of coefficients (K, N+1): (K, n_cyl, N+1)."""
+        return np.asarray(A, dtype=complex)[..., None, :] * self.phase
 
     def mean_engine_torque(self, speed_rpm: float, load: float) -> float:
         """Sum of the cylinders' mean torques [Nm] (reflected to element 1)."""

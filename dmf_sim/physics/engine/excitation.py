@@ -110,6 +110,23 @@ class GasGrid:
         b = self._node(i + 1, j) * (1.0 - tl) + self._node(i + 1, j + 1) * tl
         return a * (1.0 - ts) + b * ts
 
+    def many(self, speeds_rpm: np.ndarray, load: float) -> np.ndarray:
+        """(K, n_orders) :meth:`__call__` at K speeds and one load, vectorized: the same
+        brackets and the same operations in the same order (bitwise the same values)."""
+        x = np.asarray(speeds_rpm, dtype=float)
+        n = len(self._speeds_list)
+        i = np.minimum(np.maximum(np.searchsorted(self.speeds, x, side='right') - 1, 0), n - 2)
+        ts = ((x - self.speeds[i]) / (self.speeds[i + 1] - self.speeds[i]))[:, None]
+        j, tl = self._bracket(self._loads_list, load)
+        for k in set(i.tolist()):
+            for kk in (k, k + 1):
+                self._node(kk, j)
+                self._node(kk, j + 1)
+        v = self.values
+        a = v[i, j] * (1.0 - tl) + v[i, j + 1] * tl
+        b = v[i + 1, j] * (1.0 - tl) + v[i + 1, j + 1] * tl
+        return a * (1.0 - ts) + b * ts
+
 
 class Engine:
     """Engine excitation (implements :class:`EngineExcitation`) for one load set.
@@ -186,6 +203,23 @@ class Engine:
     def coefficients(self, speed_rpm: float, load: float) -> np.ndarray:
         """Complex per-cylinder A_0..A_{n_max} [Nm] at ``speed_rpm`` [rpm] and ``load`` [0..1]."""
         return self.gas_coefficients(speed_rpm, load) + self.inertia_coefficients(speed_rpm)
+
+    def coefficients_many(self, speeds_rpm, load: float) -> np.ndarray:
+        """(K, n_max+1) :meth:`coefficients` at K speeds [rpm] and one load in one vectorized
+        pass (a sweep asks for hundreds of speeds): bitwise the same values; a speed outside the
+        data raises the same error."""
+        s = np.asarray(speeds_rpm, dtype=float).reshape(-1)
+        load = float(load)
+        lo, hi = self.speed_range_rpm
+        s_eff = np.minimum(s + self.shift_rpm, np.maximum(s, self.limit_rpm))
+        bad = ~(np.isfinite(s) & (s >= lo) & (s <= hi) & (s_eff >= lo) & (s_eff <= hi))
+        if bad.any():
+            k = int(np.argmax(bad))
+            self._check(float(s[k]), load)
+            self._check(float(s_eff[k]))
+        self._check(lo, load)
+        omega = s * RPM_TO_RAD_S
+        return self._gas.many(s_eff, load) + (omega * omega)[:, None] * self._inertia_unit
 
     def mean_torque(self, speed_rpm: float, load: float) -> float:
         """Whole-engine mean torque n_cylinders * A_0 [Nm]."""

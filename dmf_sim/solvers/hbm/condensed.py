@@ -56,6 +56,7 @@ from dmf_sim.solvers.hbm.layout import SUB_HARMONICS, times_h, to_complex, to_re
 from dmf_sim.solvers.stability import FlexibleModes
 
 __all__ = ['SHARP_DAMPING_RATIO', 'RESONANCE_SHARE', 'LINEAR_PARTS_CACHE', 'PREPARE_BATCH',
+           'ENGINE_BATCH_MIN',
            'HBMOptions', 'LinearParts', 'HBMPoint', 'CondensedHBM']
 
 SHARP_DAMPING_RATIO = 0.01
@@ -70,6 +71,10 @@ reaches this share of the linear wind-up's dynamic amplitude (sum of |w_n|, n >=
 LINEAR_PARTS_CACHE = 512
 #: speeds per vectorized batch of :meth:`CondensedHBM.prepare`
 PREPARE_BATCH = 64
+#: fewest speeds asked of the engine in one vectorized query (``Engine.coefficients_many``);
+#: below it one query per speed costs fewer numpy calls (measured: 2 speeds 24 us each, one
+#: vectorized query ~60 us; 128 speeds 3 ms one by one, 0.3 ms vectorized)
+ENGINE_BATCH_MIN = 8
 
 # ------------------------------------------------------------------------------------------------
 # Options, linear parts, solution point
@@ -244,6 +249,7 @@ class CondensedHBM:
         self._ell = self.modes.er @ V[:self.modes.nf]                         # (2nf,)
         self._B = self.modes.Phi @ Vinv[:, self.modes.nf:].T                   # (n_dof, 2nf)
         self._a = self._ell * (self.modes.er @ Vinv[:, self.modes.nf:].T)      # residues of h
+        self._dOm = np.arange(1, H + 1) * (RPM_TO_RAD_S / 2.0)                 # dOm_n / ds
         self._cache: OrderedDict[float, LinearParts] = OrderedDict()
         # modal load per unit engine coefficient A_n, times the wind-up read-out ell: P_n =
         # A_n sum_k phase_kn T_k (cylinder rows of T, eq. 17), so e.H_n P_n = A_n sum(pole ml_n)
@@ -333,48 +339,65 @@ class CondensedHBM:
         if len(self._cache) > LINEAR_PARTS_CACHE:
             self._cache.popitem(last=False)
 
+    def engine_harmonics_many(self, speeds: np.ndarray) -> np.ndarray:
+        """(K, H+1) :meth:`engine_harmonics` at K speeds: one vectorized engine query for a
+        batch (an engine with ``coefficients_many``: bitwise the same values), else one query
+        per speed (fewer numpy calls for a speed or two)."""
+        if len(speeds) < ENGINE_BATCH_MIN:
+            return np.stack([self.engine_harmonics(s) for s in speeds.tolist()])
+        A = self.loads.engine_coefficients_many(speeds, self.load)
+        if A.shape[1] == self.H + 1:
+            return A
+        out = np.zeros((len(speeds), self.H + 1), dtype=complex)
+        k = min(A.shape[1], self.H + 1)
+        out[:, :k] = A[:, :k]
+        return out
+
     def _linear_parts_many(self, speeds: list[float]) -> list[LinearParts]:
         H = self.H
         K = len(speeds)
         S = np.asarray(speeds, dtype=float)
         omega = S * RPM_TO_RAD_S
-        A = np.stack([self.engine_harmonics(s) for s in speeds])                 # (K, H+1)
         # engine load derivative by a forward difference (backward at the top of the engine's
-        # range)
+        # range): the speeds and their shifted twins in one engine query
         ds = np.where(S + self.options.speed_fd_rpm > self._speed_range()[1],
                       -self.options.speed_fd_rpm, self.options.speed_fd_rpm)
-        A2 = np.stack([self.engine_harmonics(s + d) for s, d in zip(speeds, ds.tolist())])
+        both = self.engine_harmonics_many(np.concatenate([S, S + ds]))          # (2K, H+1)
+        A, A2 = both[:K], both[K:]
         dA = (A2 - A) / ds[:, None]
-        n = np.arange(1, H + 1)
-        dOm = n * (RPM_TO_RAD_S / 2.0)                           # dOm_n / ds
+        # static: e.K^+ P_0 (rigid mode removed) and its speed derivative
+        rear = np.array([self.loads.rear_load_for(a) for a in A])
+        rear2 = np.array([self.loads.rear_load_for(a) for a in A2])
+        wlin0 = A[:, 0].real * self._static_cyl + rear * self._static_rear
+        dwlin0 = dA[:, 0].real * self._static_cyl + (rear2 - rear) / ds * self._static_rear
         ml = self._modal_load[1:]
         h = np.empty((K, H + 1), dtype=complex)
         wlin = np.empty((K, H + 1), dtype=complex)
-        dh = np.zeros((K, H + 1), dtype=complex)
+        dh = np.empty((K, H + 1), dtype=complex)
         dw = np.empty((K, H + 1), dtype=complex)
-        if self.compiled:
-            unit = np.empty((K, H), dtype=complex)
-            dunit = np.empty((K, H), dtype=complex)
-            kernels.modal_sums(omega, dOm, self._d, ml, self._a, unit, dunit, h[:, 1:],
-                               dh[:, 1:])
+        if self.compiled:           # modal sums, wlin, dwlin and their real layouts in one call
+            wr = np.empty((K, 2 * H + 1))
+            dwr = np.empty((K, 2 * H + 1))
+            kernels.linear_parts(omega, self._dOm, self._d, ml, self._a, A, dA, wlin0, dwlin0,
+                                 self._h0, h, dh, wlin, dw, wr, dwr)
         else:
+            n = np.arange(1, H + 1)
             Om = omega[:, None] * (n / 2.0)                      # Om_n = n omega / 2
             pole = 1.0 / (1j * Om[..., None] - self._d)          # (K, H, 2nf): 1/(i Om_n - d_k)
             unit = (pole * ml).sum(axis=-1)                      # wlin_n per unit A_n
             pole2 = -1j * pole ** 2                              # d/dOm of the pole
-            dunit = (pole2 * ml).sum(axis=-1) * dOm              # its speed derivative
+            dunit = (pole2 * ml).sum(axis=-1) * self._dOm        # its speed derivative
             h[:, 1:] = pole @ self._a
-            dh[:, 1:] = (pole2 @ self._a) * dOm
-        h[:, 0] = self._h0                                       # static: e.K^+ e
-        # static: e.K^+ P_0 (rigid mode removed)
-        rear = np.array([self.loads.rear_load_for(a) for a in A])
-        rear2 = np.array([self.loads.rear_load_for(a) for a in A2])
-        wlin[:, 0] = A[:, 0].real * self._static_cyl + rear * self._static_rear
-        dw[:, 0] = dA[:, 0].real * self._static_cyl + (rear2 - rear) / ds * self._static_rear
-        wlin[:, 1:] = A[:, 1:] * unit
-        dw[:, 1:] = A[:, 1:] * dunit + dA[:, 1:] * unit
+            dh[:, 1:] = (pole2 @ self._a) * self._dOm
+            h[:, 0] = self._h0                                   # static: e.K^+ e
+            dh[:, 0] = 0.0
+            wlin[:, 0] = wlin0
+            dw[:, 0] = dwlin0
+            wlin[:, 1:] = A[:, 1:] * unit
+            dw[:, 1:] = A[:, 1:] * dunit + dA[:, 1:] * unit
+            wr, dwr = to_real(wlin, H), to_real(dw, H)          # (K, 2H+1) real layouts
         return [LinearParts(speeds[k], float(omega[k]), h[k], wlin[k], dh[k], dw[k],
-                            (to_real(wlin[k], H), h[k]), (to_real(dw[k], H), dh[k]))
+                            (wr[k], h[k]), (dwr[k], dh[k]))
                 for k in range(K)]
 
     def linear_response(self, speeds_rpm) -> np.ndarray:
@@ -420,6 +443,7 @@ class CondensedHBM:
         frequency_hz, damping_ratio, contribution_rad, share, sorted by speed."""
         lo, hi = speed_range
         out = []
+        todo = []                  # (mode k, half order n, speed) inside the range
         for k in np.flatnonzero(self._d.imag > 0):
             d = self._d[k]
             zeta = -d.real / abs(d)
@@ -427,16 +451,20 @@ class CondensedHBM:
                 continue
             for n in range(1, self.H + 1):
                 s = 2.0 * d.imag / n / RPM_TO_RAD_S
-                if not lo <= s <= hi:
-                    continue
-                P = self.dof_loads(s)
-                peak = abs((P[n] @ self._B[:, k]) * self._ell[k] / -d.real)
-                dyn = float(np.abs(self.linear_parts(s).wlin[1:]).sum())
-                if dyn > 0 and peak >= share * dyn:
-                    out.append({'speed_rpm': float(s), 'half_order': n, 'order': n / 2,
-                                'frequency_hz': float(d.imag / (2 * np.pi)),
-                                'damping_ratio': float(zeta), 'contribution_rad': float(peak),
-                                'share': float(peak / dyn)})
+                if lo <= s <= hi:
+                    todo.append((k, n, s))
+        self.prepare([s for _, _, s in todo])      # their linear parts in one batch
+        for k, n, s in todo:
+            d = self._d[k]
+            zeta = -d.real / abs(d)
+            P = self.dof_loads(s)
+            peak = abs((P[n] @ self._B[:, k]) * self._ell[k] / -d.real)
+            dyn = float(np.abs(self.linear_parts(s).wlin[1:]).sum())
+            if dyn > 0 and peak >= share * dyn:
+                out.append({'speed_rpm': float(s), 'half_order': n, 'order': n / 2,
+                            'frequency_hz': float(d.imag / (2 * np.pi)),
+                            'damping_ratio': float(zeta), 'contribution_rad': float(peak),
+                            'share': float(peak / dyn)})
         return sorted(out, key=lambda r: r['speed_rpm'])
 
     def linear_parts_direct(self, speed_rpm: float
@@ -648,6 +676,9 @@ class CondensedHBM:
     def residual_and_jacobians(self, x: np.ndarray, speed_rpm: float):
         """(r, dr/dx, dr/ds) at wind-up harmonics x and speed [rpm]."""
         lp = self.linear_parts(speed_rpm)
+        if self.compiled:               # one kernel call: one AFT pass for all three
+            return kernels.residual_jacobians_py(np.ascontiguousarray(x, dtype=float), lp.lin,
+                                                 lp.dlin, self._aft_mats, self._spring_arrays)
         r, Jx = self.residual_and_jacobian(x, lp)
         return r, Jx, self.residual_speed_derivative(x, lp)
 

@@ -42,8 +42,9 @@ from dmf_sim.solvers.hbm.layout import to_real
 from dmf_sim.solvers.newmark_kernel import HAVE_NUMBA, region_of
 
 __all__ = ['BACKTRACK_MIN', 'PIVOT_TINY', 'lu_solve', 'max_abs', 'aft', 'times_h_into',
-           'times_h_matrix', 'residual_jacobian', 'residual_jacobian_py', 'harmonics_py', 'newton',
-           'deflated_newton', 'corrector_fixed_speed', 'modal_sums', 'warm_up']
+           'times_h_matrix', 'residual_jacobian', 'residual_jacobian_py', 'speed_derivative',
+           'residual_jacobians_py', 'harmonics_py', 'newton',
+           'deflated_newton', 'corrector_fixed_speed', 'modal_sums', 'linear_parts', 'warm_up']
 
 CONVERGED, STALLED, MAX_ITER, SINGULAR, NOT_FINITE = 0, 1, 2, 3, 4
 BACKTRACK_MIN = 1e-3      # smallest backtracking factor of the plain Newton (as the reference)
@@ -237,6 +238,29 @@ def residual_jacobian_py(x, lin, aft_mats, spring, jac):
     return r, J, count
 
 
+def speed_derivative(dlin, G, rs):
+    """rs <- dr/ds = -dwlin + dh G at fixed x (``dlin`` = (dwlin_r, dh), G the harmonics of g):
+    reference ``CondensedHBM.residual_speed_derivative``."""
+    dwlin_r, dh = dlin
+    times_h_into(dh, G, rs)
+    for i in range(rs.shape[0]):
+        rs[i] -= dwlin_r[i]
+
+
+def residual_jacobians_py(x, lin, dlin, aft_mats, spring):
+    """(r, dr/dx, dr/ds) as new arrays in one AFT pass: what the continuation asks at a point
+    off the grid (reference: ``CondensedHBM.residual_and_jacobian_reference`` and
+    ``residual_speed_derivative``)."""
+    n = x.shape[0]
+    r = np.empty(n)
+    J = np.empty((n, n))
+    G = np.empty(n)
+    rs = np.empty(n)
+    residual_jacobian(x, lin, aft_mats, spring, r, J, G, True)
+    speed_derivative(dlin, G, rs)
+    return r, J, rs
+
+
 def harmonics_py(x, aft_mats, spring, jac):
     """(G, dG/dx, count) as new arrays (the non-linear torque harmonics alone)."""
     n = x.shape[0]
@@ -402,7 +426,6 @@ def corrector_fixed_speed(y_pred, xs, lin, dlin, aft_mats, spring, tol, max_iter
     (reference: ``continuation.correct`` with the normal e_S). ``dlin`` = (dwlin_r, dh) the
     speed derivatives. Writes y, r, J = dr/dx, rs = dr/ds; returns (status, iterations,
     max|r|)."""
-    dwlin_r, dh = dlin
     n = y_pred.shape[0]
     for i in range(n):
         y[i] = y_pred[i]
@@ -448,9 +471,7 @@ def corrector_fixed_speed(y_pred, xs, lin, dlin, aft_mats, spring, tol, max_iter
             status = CONVERGED
             break
     # dr/ds at the solution: -dwlin + dh G (G: the harmonics of the last evaluation)
-    times_h_into(dh, G, rs)
-    for i in range(n):
-        rs[i] -= dwlin_r[i]
+    speed_derivative(dlin, G, rs)
     return status, it, res
 
 
@@ -487,6 +508,36 @@ def modal_sums(omega, dOm, d, ml, a, unit, dunit, h, dh):
             dh[q, n] = sdh * dOm[n]
 
 
+def linear_parts(omega, dOm, d, ml, a, A, dA, wlin0, dwlin0, h0, h, dh, wlin, dw, wr, dwr):
+    """The linear parts of K speeds in one call: :func:`modal_sums`, then ``h_0 = h0``,
+    ``wlin_n = A_n unit_n``, ``dwlin_n = A_n dunit_n + dA_n unit_n`` (n >= 1), the static
+    ``wlin_0``, ``dwlin_0`` as given, and wlin, dwlin on the real layout (``wr``, ``dwr``).
+    ``A``, ``dA``: (K, H+1) engine coefficients and their speed derivatives. Reference: the
+    numpy branch of ``CondensedHBM._linear_parts_many``."""
+    K = omega.shape[0]
+    H = ml.shape[0]
+    unit = np.empty((K, H), dtype=np.complex128)
+    dunit = np.empty((K, H), dtype=np.complex128)
+    modal_sums(omega, dOm, d, ml, a, unit, dunit, h[:, 1:], dh[:, 1:])
+    for q in range(K):
+        h[q, 0] = h0
+        dh[q, 0] = 0.0
+        wlin[q, 0] = wlin0[q]
+        dw[q, 0] = dwlin0[q]
+        wr[q, 0] = wlin0[q]
+        dwr[q, 0] = dwlin0[q]
+        for n in range(1, H + 1):
+            u = unit[q, n - 1]
+            w = A[q, n] * u
+            v = A[q, n] * dunit[q, n - 1] + dA[q, n] * u
+            wlin[q, n] = w
+            dw[q, n] = v
+            wr[q, n] = w.real
+            wr[q, H + n] = w.imag
+            dwr[q, n] = v.real
+            dwr[q, H + n] = v.imag
+
+
 if HAVE_NUMBA:
     import numba
     _jit = numba.njit(cache=True, nogil=True, error_model='numpy')
@@ -500,6 +551,8 @@ if HAVE_NUMBA:
     times_h_matrix = _jit(times_h_matrix)
     residual_jacobian = _jit(residual_jacobian)
     residual_jacobian_py = _jit(residual_jacobian_py)
+    speed_derivative = _jit(speed_derivative)
+    residual_jacobians_py = _jit(residual_jacobians_py)
     corrector_fixed_speed = _jit(corrector_fixed_speed)
     harmonics_py = _jit(harmonics_py)
     _newton_start = _jit(_newton_start)
@@ -509,6 +562,7 @@ if HAVE_NUMBA:
     _log_floor = _jit(_log_floor)
     deflated_newton = _jit(deflated_newton)
     modal_sums = _jit(modal_sums)
+    linear_parts = _jit(linear_parts)
 
 
 
@@ -539,18 +593,26 @@ def warm_up() -> float:
     lin = (x0.copy(), h)
     out = np.empty(n)
     residual_jacobian_py(x0, lin, aft_mats, spring, True)
+    residual_jacobians_py(x0, lin, lin, aft_mats, spring)
     harmonics_py(x0, aft_mats, spring, True)
     newton(x0, lin, aft_mats, spring, (1e-10, 5, 8, 0.5), out)
     deflated_newton(x0, np.zeros((1, n)), lin, aft_mats, spring, 1e-10,
                     np.array([2.0, 1.0, 1e-2, 5.0, 0.125, 6.0]), out)
     corrector_fixed_speed(x0, 1.0, lin, lin, aft_mats, spring, 1e-10, 3, out, np.empty(n),
                           np.empty((n, n)), np.empty(n))
-    K, m = 1, 2
-    modal_sums(np.ones(K), np.ones(H), np.array([-1.0 + 1j, -1.0 - 1j]),
-               np.ones((H + 1, m), dtype=complex)[1:], np.ones(m, dtype=complex),
-               np.empty((K, H), dtype=complex), np.empty((K, H), dtype=complex),
-               np.empty((K, H + 1), dtype=complex)[:, 1:],
-               np.empty((K, H + 1), dtype=complex)[:, 1:])
+    m = 2
+    for K in (1, 2):     # one speed: h[:, 1:] is C-contiguous; a batch: it is not (two layouts)
+        modal_sums(np.ones(K), np.ones(H), np.array([-1.0 + 1j, -1.0 - 1j]),
+                   np.ones((H + 1, m), dtype=complex)[1:], np.ones(m, dtype=complex),
+                   np.empty((K, H), dtype=complex), np.empty((K, H), dtype=complex),
+                   np.empty((K, H + 1), dtype=complex)[:, 1:],
+                   np.empty((K, H + 1), dtype=complex)[:, 1:])
+        A = np.ones((K, H + 1), dtype=complex)
+        linear_parts(np.ones(K), np.ones(H), np.array([-1.0 + 1j, -1.0 - 1j]),
+                     np.ones((H + 1, m), dtype=complex)[1:], np.ones(m, dtype=complex), A, A,
+                     np.ones(K), np.ones(K), 1.0, np.empty((K, H + 1), dtype=complex),
+                     np.empty((K, H + 1), dtype=complex), np.empty((K, H + 1), dtype=complex),
+                     np.empty((K, H + 1), dtype=complex), np.empty((K, n)), np.empty((K, n)))
     ns = 2
     W = np.zeros((2, 2, ns, ns))
     W[:, :] = np.eye(ns)

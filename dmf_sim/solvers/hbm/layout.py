@@ -23,12 +23,12 @@ def to_complex(x: np.ndarray, H: int) -> np.ndarray:
 
 
 def to_real(c: np.ndarray, H: int) -> np.ndarray:
-    """(H+1,) complex w_n -> (2H+1,) real unknowns (Im w_0 dropped)."""
+    """(H+1,) complex w_n -> (2H+1,) real unknowns (Im w_0 dropped); rows (K, H+1) -> (K, 2H+1)."""
     c = np.asarray(c)
-    x = np.empty(2 * H + 1)
-    x[0] = c[0].real
-    x[1:H + 1] = c[1:H + 1].real
-    x[H + 1:] = c[1:H + 1].imag
+    x = np.empty(c.shape[:-1] + (2 * H + 1,))
+    x[..., 0] = c[..., 0].real
+    x[..., 1:H + 1] = c[..., 1:H + 1].real
+    x[..., H + 1:] = c[..., 1:H + 1].imag
     return x
 
 

@@ -37,7 +37,7 @@ from dmf_sim.solvers.hbm.results import Branch, NonPeriodicBand, SweepEvent
 from dmf_sim.solvers.newmark import simulate
 from dmf_sim.solvers.nonperiodic import NonPeriodicOptions, analyze
 
-__all__ = ['N_SHIFTS', 'SearchOptions', 'StateSearch']
+__all__ = ['N_SHIFTS', 'SearchOptions', 'branch_speeds', 'StateSearch']
 
 N_SHIFTS = 6        # a 720 deg cycle holds six 120 deg firing intervals
 
@@ -76,15 +76,28 @@ class SearchOptions:
     max_new_branches: int = 16
 
 
-def _interp_states(b: Branch, s: float) -> list[tuple[np.ndarray, bool | None]]:
+def branch_speeds(b: Branch) -> np.ndarray:
+    """The speeds [rpm] of branch b's points, in order."""
+    return np.array([q.speed_rpm for q in b.points])
+
+
+def _stretches(S: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(start, end, lowest, highest) speed of every stretch between successive points of speeds
+    S, the bounds widened by the speed tolerance (1e-9 rpm) of :func:`_interp_states`."""
+    a, c = S[:-1], S[1:]
+    return a, c, np.minimum(a, c) - 1e-9, np.maximum(a, c) + 1e-9
+
+
+def _interp_states(b: Branch, s: float, stretches: tuple | None = None
+                   ) -> list[tuple[np.ndarray, bool | None]]:
     """(x, stable) of branch b at speed s: linear interpolation on every stretch bracketing s;
-    stable only if both ends of the stretch are (at a computed point: that point's stability)."""
+    stable only if both ends of the stretch are (at a computed point: that point's stability).
+    ``stretches``: :func:`_stretches` of b's speeds, if at hand (asking at many speeds)."""
     pts = b.points
     if len(pts) == 1:
         return [(pts[0].x, pts[0].stable)] if abs(pts[0].speed_rpm - s) < 1e-9 else []
-    S = np.array([q.speed_rpm for q in pts])
-    a, c = S[:-1], S[1:]
-    idx = np.flatnonzero((np.minimum(a, c) - 1e-9 <= s) & (s <= np.maximum(a, c) + 1e-9))
+    a, c, lo, hi = stretches if stretches is not None else _stretches(branch_speeds(b))
+    idx = np.flatnonzero((lo <= s) & (s <= hi))
     out = []
     for i in idx.tolist():
         p, q = pts[i], pts[i + 1]
@@ -106,7 +119,16 @@ class StateSearch:
     # ---- known states at one speed --------------------------------------------------------------
     def states_at(self, s: float) -> list[tuple[np.ndarray, bool | None]]:
         """(x, stable) of every branch at speed s (interpolated between computed points)."""
-        return [st for b in self.branches for st in _interp_states(b, s)]
+        return [st for b in self.branches for st in _interp_states(b, s, self._stretches_of(b))]
+
+    def _stretches_of(self, b: Branch) -> tuple:
+        """:func:`_stretches` of b's speeds, kept while b has the same points (branches only
+        grow: a sweep asks for the states at every grid speed, several times)."""
+        cache = self.__dict__.setdefault('_branch_stretches', {})
+        hit = cache.get(id(b))
+        if hit is None or hit[0] is not b.points or hit[1] != len(b.points):
+            hit = cache[id(b)] = (b.points, len(b.points), _stretches(branch_speeds(b)))
+        return hit[2]
 
     def _deflation_set(self, known: list[np.ndarray]) -> np.ndarray:
         return all_shifts(np.array(known), N_SHIFTS, self.hbm.H)

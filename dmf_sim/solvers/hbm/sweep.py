@@ -198,8 +198,9 @@ class SpeedSweep(BranchSwitching, StateSearch):
         the primary-stiffness eigenvalues. Checked in batches of growing size."""
         from dmf_sim.solvers.continuation import ContinuationPoint, _tangent
         hb, o = self.hbm, self.options
-        here = hb.time_series(cp.x, self.floquet.n_fine)[None]
-        if np.any(hb.nonlinear_harmonics(cp.x)) or not self._in_primary(here)[0]:
+        if np.any(hb.nonlinear_harmonics(cp.x)):      # beyond a knee: nothing to fast-forward
+            return []
+        if not self._in_primary(hb.time_series(cp.x, self.floquet.n_fine)[None])[0]:
             return []
         lo, hi = self.range
         out: list = []
