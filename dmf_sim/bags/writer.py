@@ -38,10 +38,13 @@ embedded in the files. Reading: :mod:`dmf_sim.bags.read` (re-exported here), rec
 """
 from __future__ import annotations
 
+import io
 import math
 import os
+import struct
 import threading
 import time
+import zlib
 from collections import deque
 from collections.abc import Mapping
 from pathlib import Path
@@ -49,8 +52,8 @@ from typing import Any
 
 import numpy as np
 import yaml
-from mcap.records import MessageIndex
-from mcap.writer import CompressionType, Writer
+from mcap.records import ChunkIndex, MessageIndex
+from mcap.writer import CompressionType, IndexType, Writer
 
 from dmf_sim.bags.layout import (
     LIBRARY,
@@ -86,7 +89,7 @@ _QOS_PRESETS: dict[str, dict[str, Any]] = {
 _COMPRESSION = {'none': CompressionType.NONE, 'lz4': CompressionType.LZ4,
                 'zstd': CompressionType.ZSTD}
 _MESSAGE_OVERHEAD = 31 + 16  # message record header + its message index entry, bytes
-_OP_MESSAGE, _OP_MESSAGE_INDEX = 5, 7       # MCAP opcodes
+_OP_MESSAGE, _OP_CHUNK, _OP_MESSAGE_INDEX = 5, 6, 7       # MCAP opcodes
 _MESSAGE_HEAD = 22                          # channel 2 + sequence 4 + log 8 + publish 8 bytes
 
 
@@ -103,6 +106,110 @@ class _ArrayMessageIndex(MessageIndex):
         stream.write(bytes([_OP_MESSAGE_INDEX]) + (6 + len(body)).to_bytes(8, 'little')
                      + int(self.channel_id).to_bytes(2, 'little')
                      + len(body).to_bytes(4, 'little') + body)
+
+
+_CHUNK_HEAD = struct.Struct('<BQQQQIIQ')   # opcode, length, start, end, size, CRC, '', size
+_CRC_BITS = 32
+
+
+def _gf2_apply(op: tuple[int, ...], vec: int) -> int:
+    """A linear map of 32-bit vectors over GF(2) (the images of the unit vectors) applied."""
+    out = i = 0
+    while vec:
+        if vec & 1:
+            out ^= op[i]
+        vec >>= 1
+        i += 1
+    return out
+
+
+def _byte_tables(op: tuple[int, ...]) -> tuple[tuple[int, ...], ...]:
+    """``op`` as four 256-entry tables, one per byte of the vector (apply: 4 lookups)."""
+    tables = []
+    for b in range(4):
+        t = [0] * 256
+        for v in range(1, 256):
+            low = (v & -v).bit_length() - 1
+            t[v] = t[v & (v - 1)] ^ op[8 * b + low]
+        tables.append(tuple(t))
+    return tuple(tables)
+
+
+_ZERO_OPS: list[tuple[int, ...]] = []          # see _crc_zero_op
+_ZERO_TABLES: list[tuple[tuple[int, ...], ...]] = []
+
+
+def _crc_zero_op(k: int) -> tuple[tuple[int, ...], ...]:
+    """The linear map c -> crc32(Z, c) ^ crc32(Z, 0) of 2**k zero bytes Z (zlib's CRC is affine
+    in its start value; the linear part depends only on the length), as byte tables. One zero
+    byte from zlib itself, each next by squaring; computed once, as far as needed."""
+    while len(_ZERO_TABLES) <= k:
+        if not _ZERO_OPS:
+            base = zlib.crc32(b'\0')
+            op = tuple(zlib.crc32(b'\0', 1 << i) ^ base for i in range(_CRC_BITS))
+        else:
+            op = tuple(_gf2_apply(_ZERO_OPS[-1], col) for col in _ZERO_OPS[-1])
+        _ZERO_OPS.append(op)
+        _ZERO_TABLES.append(_byte_tables(op))
+    return _ZERO_TABLES[k]
+
+
+def _crc_combine(crc_a: int, crc_b: int, length_b: int) -> int:
+    """crc32(A + B) from crc32(A), crc32(B) and len(B), as zlib's crc32_combine (which Python's
+    zlib does not offer): one pass over a chunk gives both its own CRC and the data section's
+    (a few us against ~130 us for a second pass over a 270 KB chunk)."""
+    k = 0
+    while length_b:
+        if length_b & 1:
+            t0, t1, t2, t3 = _crc_zero_op(k)
+            crc_a = (t0[crc_a & 255] ^ t1[crc_a >> 8 & 255] ^ t2[crc_a >> 16 & 255]
+                     ^ t3[crc_a >> 24])
+        length_b >>= 1
+        k += 1
+    return crc_a ^ crc_b
+
+
+def _write_chunk(writer: Writer, records: np.ndarray, t0: int, t1: int,
+                 indexes: dict[int, MessageIndex]) -> bool:
+    """Write an uncompressed chunk of ``records`` and its message indexes straight to the
+    writer's stream, as ``Writer.flush`` would write it, keeping the writer's chunk index,
+    statistics and data-section CRC; one CRC pass and no copy of the records in between
+    (the library's chunk builder copies a chunk four times and checksums it twice). False
+    (nothing written) with another ``mcap`` version, whose private state is not the one
+    expected here."""
+    state = {k: getattr(writer, f'_Writer__{k}', None) for k in (
+        'stream', 'record_builder', 'chunk_indices', 'statistics', 'enable_crcs',
+        'enable_data_crcs', 'data_section_crc', 'index_types')}
+    if any(v is None for v in state.values()) or state['record_builder'].count:
+        return False
+    stream = state['stream']
+    data = memoryview(records).cast('B')
+    size = len(data)
+    crc = zlib.crc32(data) if state['enable_crcs'] else 0
+    head = _CHUNK_HEAD.pack(_OP_CHUNK, 40 + size, t0, t1, size, crc, 0, size)
+    start = stream.tell()
+    index_bytes = io.BytesIO()
+    offsets = {}
+    if state['index_types'] & IndexType.MESSAGE:
+        for cid, index in indexes.items():
+            offsets[cid] = start + len(head) + size + index_bytes.tell()
+            index.write(index_bytes)
+    tail = index_bytes.getvalue()
+    if state['enable_data_crcs']:
+        dsc = zlib.crc32(head, state['data_section_crc'])
+        dsc = (_crc_combine(dsc, crc, size) if state['enable_crcs']
+               else zlib.crc32(data, dsc))
+        writer._Writer__data_section_crc = zlib.crc32(tail, dsc)
+    stream.write(head)
+    stream.write(data)
+    stream.write(tail)
+    state['chunk_indices'].append(ChunkIndex(
+        message_start_time=t0, message_end_time=t1, chunk_start_offset=start,
+        chunk_length=len(head) + size, message_index_offsets=offsets,
+        message_index_length=len(tail), compression='', compressed_size=size,
+        uncompressed_size=size))
+    state['statistics'].chunk_count += 1
+    return True
 
 
 def _block_layout(sizes: list[int]) -> np.dtype:
@@ -434,10 +541,9 @@ class BagRecorder:
                     self._write(info.name, int(t[i]), data[i].tobytes())
             return rows
         self._flush_chunk()                       # what write() left open goes first
-        layout, template = self._block_template(tuple((cid, d.shape[1]) for cid, _, d in chans))
-        block = np.empty(rows, layout)
+        block = self._block_buffer(tuple((cid, d.shape[1]) for cid, _, d in chans), rows)
+        layout = block.dtype
         raw = block.view(np.uint8).reshape(rows, layout.itemsize)
-        raw[:] = template                         # opcodes, lengths, channel ids
         row_offsets = np.arange(rows, dtype=np.int64) * layout.itemsize
         index = np.empty((len(chans), rows, 2), dtype='<u8')
         for j, (cid, info, data) in enumerate(chans):
@@ -452,15 +558,17 @@ class BagRecorder:
             f.topic_counts[info.name] = f.topic_counts.get(info.name, 0) + rows
         n = rows * len(chans)
         t0, t1 = int(t[0]), int(t[-1])
-        builder.record_writer.write(raw.data)
-        builder.num_messages = n
-        builder.message_start_time, builder.message_end_time = t0, t1
-        builder.message_indices = {cid: _ArrayMessageIndex(cid, index[j])
-                                   for j, (cid, _, _) in enumerate(chans)}
+        indexes = {cid: _ArrayMessageIndex(cid, index[j]) for j, (cid, _, _) in enumerate(chans)}
         stats.message_start_time = (t0 if stats.message_count == 0
                                     else min(t0, stats.message_start_time))
         stats.message_end_time = max(t1, stats.message_end_time)
         stats.message_count += n
+        if not (builder.count == 0 and self._compression == CompressionType.NONE
+                and _write_chunk(writer, raw, t0, t1, indexes)):
+            builder.record_writer.write(raw.data)   # after the file's schemas and channels
+            builder.num_messages = n
+            builder.message_start_time, builder.message_end_time = t0, t1
+            builder.message_indices = indexes
         if f.count == 0:
             f.start = f.end = t0
         f.start, f.end = min(f.start, t0), max(f.end, t1)
@@ -469,18 +577,22 @@ class BagRecorder:
         writer.flush()                            # the chunk, its indexes, to the OS
         return rows
 
-    def _block_template(self, channels: tuple[tuple[int, int], ...]):
-        """(layout, constant bytes of a row) for rows of (channel id, payload size)."""
-        cache = self.__dict__.setdefault('_templates', {})
-        if channels not in cache:
+    def _block_buffer(self, channels: tuple[tuple[int, int], ...], rows: int) -> np.ndarray:
+        """``rows`` records of (channel id, payload size) with their constant bytes (opcodes,
+        lengths, channel ids) in place: a buffer kept per layout and reused (the caller fills
+        every other field of every row, and the bytes are written or copied before the next
+        call), so a block costs no allocation and no template copy."""
+        cache = self.__dict__.setdefault('_blocks', {})
+        buf = cache.get(channels)
+        if buf is None or len(buf) < rows:
             layout = _block_layout([size for _, size in channels])
-            row = np.zeros(1, layout)
+            buf = np.zeros(max(rows, len(buf) if buf is not None else 0), layout)
             for j, (cid, size) in enumerate(channels):
-                row[f'op{j}'] = _OP_MESSAGE
-                row[f'len{j}'] = _MESSAGE_HEAD + size
-                row[f'cid{j}'] = cid
-            cache[channels] = (layout, row.view(np.uint8).copy())
-        return cache[channels]
+                buf[f'op{j}'] = _OP_MESSAGE
+                buf[f'len{j}'] = _MESSAGE_HEAD + size
+                buf[f'cid{j}'] = cid
+            cache[channels] = buf
+        return buf[:rows]
 
     def _repeat_latched(self, log_ns: int, skip: str) -> None:
         """Write the held latched messages at the start of a file, logged at ``log_ns`` (the

@@ -26,7 +26,7 @@ from dmf_sim.physics.loads import DrivelineLoads
 from dmf_sim.physics.model import Driveline, load_driveline
 from dmf_sim.solvers.newmark import NewmarkIntegrator, StepRecord
 
-__all__ = ['LOAD_RANGE', 'check_setpoint', 'ramp_toward', 'split_steps', 'Samples',
+__all__ = ['LOAD_RANGE', 'check_setpoint', 'ramp_toward', 'split_steps', 'Samples', 'Integrated',
            'LiveSimulation']
 
 LOAD_RANGE = (0.0, 1.0)
@@ -108,6 +108,22 @@ class Samples:
 
     def __len__(self) -> int:
         return int(self.t.shape[0])
+
+
+@dataclass
+class Integrated:
+    """One integrated chunk before its read-out (:meth:`LiveSimulation.integrate`).
+
+    record: the kernel's recorded states (rows from 0); rows: how many; first: step index of the
+    first row; omega_dot: reference acceleration at the chunk's end [rad/s^2]; loads: element
+    loads of the rows (rows x elements) where the read-out needs them, else None.
+    """
+
+    record: StepRecord
+    rows: int
+    first: int
+    omega_dot: float
+    loads: np.ndarray | None = None
 
 
 @dataclass
@@ -330,6 +346,13 @@ class LiveSimulation:
     def advance(self, nsteps: int) -> Samples:
         """Integrate ``nsteps`` steps: load ramp and excitation update once (held over the chunk),
         then the kernel; returns the samples due in the chunk (every ``stride``-th step)."""
+        return self.read_out(self.integrate(nsteps))
+
+    def integrate(self, nsteps: int, record: StepRecord | None = None) -> Integrated:
+        """The first half of :meth:`advance`: setpoint ramps, excitation and the kernel, the
+        recorded states in ``record`` (default: this simulation's own buffer; a caller's must
+        hold the chunk's rows). :meth:`read_out` turns the result into samples; ``dmf-sim run``
+        integrates the next chunk in another thread meanwhile (the kernel releases the GIL)."""
         it = self.integ
         if nsteps > 0:
             self.load = ramp_toward(self.load, self.load_setpoint, self.load_ramp_per_s,
@@ -340,14 +363,17 @@ class LiveSimulation:
                 self._exc_key = key
         calls, phase = split_steps(int(nsteps), self.phase, self.stride)
         rows = sum(c[2] for c in calls)
-        if rows > self._rec.t.shape[0]:
-            self._rec = StepRecord.allocate(max(rows, 2 * self._rec.t.shape[0]), it.model.n_dof)
-            self._qva = np.zeros((self._rec.t.shape[0], 3 * it.model.n_dof))
+        if record is None:
+            if rows > self._rec.t.shape[0]:
+                self._rec = StepRecord.allocate(max(rows, 2 * self._rec.t.shape[0]),
+                                                it.model.n_dof)
+            record = self._rec
+        elif rows > record.t.shape[0]:
+            raise ValueError(f'record holds {record.t.shape[0]} rows, the chunk needs {rows}')
         first = self.steps + (self.stride - self.phase)
-        rec = self._rec
         row = 0
         for k, s, _ in calls:
-            row += it.advance(k, rec if row == 0 else rec.rows_from(row), s)
+            row += it.advance(k, record if row == 0 else record.rows_from(row), s)
         self.steps += int(nsteps)
         self.phase = phase
         if not self.finite:
@@ -356,15 +382,30 @@ class LiveSimulation:
             self.solver_resets += 1
             self.reset()
             row = 0
-        n = it.model.n_dof
-        qva = self._qva[:row]
+        omega_dot = it.omega_dot
+        # element loads with this chunk's excitation, now (the next chunk changes it)
+        loads = (it.element_loads(record.psi[:row], omega_dot) if self._torques.needs_loads
+                 else None)
+        return Integrated(record, row, first, omega_dot, loads)
+
+    def read_out(self, chunk: Integrated, qva: np.ndarray | None = None) -> Samples:
+        """The samples of an integrated chunk: element angles, velocities and transmitted
+        torques (``qva``: a rows x 3 n_dof work buffer, default this simulation's own)."""
+        n = self.integ.model.n_dof
+        row, rec = chunk.rows, chunk.record
+        if qva is None:
+            if row > self._qva.shape[0]:
+                self._qva = np.zeros((max(row, 2 * self._qva.shape[0]), 3 * n))
+            qva = self._qva
+        qva = qva[:row]
         qva[:, :n] = rec.q[:row]
         qva[:, n:2 * n] = rec.v[:row]
         qva[:, 2 * n:] = rec.a[:row]
         psi, w = rec.psi[:row], rec.windup[:row]
         # d'Alembert part with the reference acceleration at the end of the chunk (exact while
         # the speed is constant or ramping; a ramp that ends inside the chunk is off for <= 1 row)
-        position, velocity, effort = self._torques.outputs(qva, w, psi, it.omega_dot)
-        return Samples(step=first + self.stride * np.arange(row, dtype=np.int64),
+        position, velocity, effort = self._torques.outputs(qva, w, psi, chunk.omega_dot,
+                                                           chunk.loads)
+        return Samples(step=chunk.first + self.stride * np.arange(row, dtype=np.int64),
                        t=rec.t[:row], psi=psi, speed_rpm=rec.omega[:row] * RAD_S_TO_RPM,
                        windup=w, position=position, velocity=velocity, effort=effort)

@@ -65,9 +65,11 @@ class TorqueOperator:
         self.M = M
         self.m = m
 
-    def _add_loads(self, out, w, psi, omega_dot: float) -> None:
+    def _add_loads(self, out, w, psi, omega_dot: float, loads=None) -> None:
         if self.needs_loads:
-            out += self.integ.element_loads(psi, omega_dot) @ self.Lp
+            if loads is None:
+                loads = self.integ.element_loads(psi, omega_dot)
+            out += loads @ self.Lp
         elif omega_dot:
             out += omega_dot * self.dal
         if self.spring is not None and not self.spring.is_linear:
@@ -79,11 +81,12 @@ class TorqueOperator:
         self._add_loads(out, w, psi, omega_dot)
         return out
 
-    def outputs(self, qva, w, psi, omega_dot: float):
+    def outputs(self, qva, w, psi, omega_dot: float, loads=None):
         """Element angles, velocities and torques (each rows x elements) from ``qva`` =
-        [q v a] (rows x 3 n_dof)."""
+        [q v a] (rows x 3 n_dof); ``loads``: the rows' element loads when taken earlier (the
+        integrator's excitation may have moved on), else computed now where needed."""
         out = qva @ self.M
         m = self.m
         torques = out[:, 2 * m:]
-        self._add_loads(torques, w, psi, omega_dot)
+        self._add_loads(torques, w, psi, omega_dot, loads)
         return out[:, :m], out[:, m:2 * m], torques

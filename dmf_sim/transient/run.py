@@ -16,8 +16,12 @@ profile's length. An interruption (Ctrl-C) closes the bag: what was simulated is
 from __future__ import annotations
 
 import math
+import queue
 import resource
+import sys
+import threading
 import time
+from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
@@ -27,14 +31,16 @@ from threadpoolctl import threadpool_limits
 from dmf_sim.core.errors import ConfigError, OperatingRangeError, one_line
 from dmf_sim.live.pacing import TimeBase, publish_stride
 from dmf_sim.live.recording import run_metadata
-from dmf_sim.live.simulation import LiveSimulation, Samples
+from dmf_sim.live.simulation import Integrated, LiveSimulation, Samples
 from dmf_sim.live.streams import STREAMS, resolved_topics
+from dmf_sim.solvers.newmark import StepRecord
 from dmf_sim.transient.defaults import CHUNK_RANGE_S, DEFAULT_CHUNK_S
 from dmf_sim.transient.follow import TIME_EPS_S, ProfileFollower
 from dmf_sim.transient.profiles import Profile
 
 __all__ = ['WRITER_NAME', 'CHUNK_SPEED_STEP_RPM', 'CHUNK_LOAD_STEP', 'DEFAULT_SPLIT_S',
-           'MEMORY_MARKS', 'BLAS_THREADS', 'BLOCK_ROWS', 'RunOptions', 'SampleBlock', 'RunSummary',
+           'MEMORY_MARKS', 'BLAS_THREADS', 'BLOCK_ROWS', 'PIPELINE_DEPTH',
+           'SWITCH_INTERVAL_S', 'RunOptions', 'SampleBlock', 'RunSummary',
            'build_simulation', 'open_bag', 'run_profile']
 
 WRITER_NAME = 'dmf-sim run'
@@ -44,6 +50,10 @@ DEFAULT_SPLIT_S = 60.0      # bag files split every this many simulated seconds 
 MEMORY_MARKS = (0.1, 0.5, 1.0)   # fractions of the run where the peak RSS is sampled
 BLAS_THREADS = 1            # the torque read-out's small matrix products in one thread: OpenBLAS
                             # threads them past ~64 rows, ~10x slower on a busy 2-core machine
+PIPELINE_DEPTH = 3          # integrated chunks in flight between the two threads
+SWITCH_INTERVAL_S = 1e-4    # the interpreter's GIL hand-over interval during a threaded run:
+                            # the integrating thread needs the GIL briefly between kernel calls
+                            # (~0.5 ms each), and the default 5 ms would keep it waiting
 BLOCK_ROWS = 256            # samples gathered per bag chunk (~140 KB for the truck model): the
                             # per-chunk cost of encoding and writing is paid 4x per simulated s
 
@@ -55,7 +65,9 @@ class RunOptions:
     driveline, engine, load_set, alpha, theta: the model (names in ``config/`` or paths).
     dt: Newmark step [s]; rate_hz: samples per simulated second in the bag (a whole number of
     steps per sample); chunk_s: simulated time per chunk; split_s: bag file split [s];
-    write: False integrates without writing (for timing); namespace: topics under it.
+    write: False integrates without writing (for timing); namespace: topics under it;
+    threads: 2 integrates the next chunks in a thread of its own while this one reads out and
+    writes the last ones, 1 does both in turn (the same bag, byte for byte).
     """
 
     driveline: str = 'truck_dmf'
@@ -69,6 +81,7 @@ class RunOptions:
     split_s: float = DEFAULT_SPLIT_S
     write: bool = True
     namespace: str = ''
+    threads: int = 2
 
 
 class SampleBlock:
@@ -191,6 +204,73 @@ def open_bag(out, sim: LiveSimulation, profile: Profile, opt: RunOptions, rate_h
                        max_duration_s=opt.split_s, custom_data=custom), topics
 
 
+def _chunk_plan(profile: Profile, sim: LiveSimulation, follower: ProfileFollower, total: int,
+                chunk: int, stop: threading.Event) -> Iterator[int]:
+    """Steps of each chunk, the follower's setpoints applied before it (the caller integrates
+    the chunk before asking for the next one): chunks end at every profile row and are at most
+    ``chunk`` steps and :func:`_chunk_limit` long."""
+    done = 0
+    next_row = -math.inf
+    limit = chunk
+    while done < total and not stop.is_set():
+        if sim.t >= next_row - TIME_EPS_S:        # a new profile segment
+            follower.apply(sim.t)
+            next_row = follower.next_row_s(sim.t)
+            limit = _chunk_limit(profile, follower.segment, chunk, sim.stride, sim.dt)
+        to_row = (int(round((next_row - sim.t) / sim.dt)) if math.isfinite(next_row)
+                  else total)
+        n = min(limit, total - done, max(to_row, 1))
+        yield n
+        done += n
+
+
+class _Integrating:
+    """The chunks integrated in a thread of their own, up to PIPELINE_DEPTH ahead of the
+    caller's read-out and writing (the kernel runs without the GIL, so on two cores the two
+    overlap); iterate for (steps, :class:`Integrated`), then :meth:`release` each record."""
+
+    def __init__(self, sim: LiveSimulation, plan: Iterator[int], rows: int,
+                 stop: threading.Event) -> None:
+        self.sim, self.plan, self.stop = sim, plan, stop
+        self.free: queue.Queue = queue.Queue()
+        self.ready: queue.Queue = queue.Queue()
+        for _ in range(PIPELINE_DEPTH):
+            self.free.put(StepRecord.allocate(rows, sim.model.n_dof))
+        self.thread = threading.Thread(target=self._run, name='dmf-sim run: integrate',
+                                       daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
+        try:
+            for n in self.plan:
+                self.ready.put((n, self.sim.integrate(n, self.free.get())))
+        except BaseException as exc:  # noqa: BLE001 - raised again in the caller's thread
+            self.ready.put(exc)
+        self.ready.put(None)
+
+    def __iter__(self) -> Iterator[tuple[int, Integrated]]:
+        while (item := self.ready.get()) is not None:
+            if isinstance(item, BaseException):
+                raise item
+            yield item
+
+    def release(self, record: StepRecord) -> None:
+        self.free.put(record)
+
+    def close(self) -> None:
+        """Stop after the chunk in hand and wait for the thread (the chunks not read are
+        dropped)."""
+        self.stop.set()
+        while self.thread.is_alive():
+            try:
+                item = self.ready.get(timeout=0.05)
+            except queue.Empty:
+                continue
+            if isinstance(item, tuple):
+                self.free.put(item[1].record)
+        self.thread.join()
+
+
 def run_profile(profile: Profile, out: str | Path | None, options: RunOptions | None = None, *,
                 progress: bool = False) -> RunSummary:
     """Integrate ``profile`` and stream the samples to bag ``out`` (see the module docstring).
@@ -210,6 +290,8 @@ def run_profile(profile: Profile, out: str | Path | None, options: RunOptions | 
     stride = sim.stride
     chunk = max(int(round(opt.chunk_s / sim.dt)) // stride, 1) * stride
     block = SampleBlock(BLOCK_ROWS, len(sim.names)) if write else None
+    max_rows = chunk // stride + 1
+    qva = np.zeros((max_rows, 3 * sim.model.n_dof))
 
     def write_out() -> None:
         if block is not None and block.n:
@@ -227,20 +309,21 @@ def run_profile(profile: Profile, out: str | Path | None, options: RunOptions | 
     peaks: dict[str, float] = {}
     done = samples = 0
     interrupted = False
-    next_row = -math.inf
-    limit = chunk
+    stop = threading.Event()
+    plan = _chunk_plan(profile, sim, follower, total, chunk, stop)
+    switch = sys.getswitchinterval()
     t_wall, t_cpu = time.perf_counter(), time.process_time()
     with threadpool_limits(BLAS_THREADS):
+        if opt.threads > 1:
+            sys.setswitchinterval(SWITCH_INTERVAL_S)
+            chunks = _Integrating(sim, plan, max_rows, stop)
+        else:
+            own = StepRecord.allocate(max_rows, sim.model.n_dof)
+            chunks = None
         try:
-            while done < total:
-                if sim.t >= next_row - TIME_EPS_S:        # a new profile segment
-                    follower.apply(sim.t)
-                    next_row = follower.next_row_s(sim.t)
-                    limit = _chunk_limit(profile, follower.segment, chunk, stride, sim.dt)
-                to_row = (int(round((next_row - sim.t) / sim.dt)) if math.isfinite(next_row)
-                          else total)
-                n = min(limit, total - done, max(to_row, 1))
-                s = sim.advance(n)
+            for n, raw in (chunks if chunks is not None
+                           else ((n, sim.integrate(n, own)) for n in plan)):
+                s = sim.read_out(raw, qva)
                 done += n
                 rows = len(s)
                 samples += rows
@@ -251,6 +334,8 @@ def run_profile(profile: Profile, out: str | Path | None, options: RunOptions | 
                     start += k
                     if block.free == 0:
                         write_out()
+                if chunks is not None:
+                    chunks.release(raw.record)
                 if bar is not None:
                     bar.update(n * sim.dt)
                 while marks and done >= marks[0] * total:
@@ -258,6 +343,9 @@ def run_profile(profile: Profile, out: str | Path | None, options: RunOptions | 
         except KeyboardInterrupt:
             interrupted = True
         finally:
+            if chunks is not None:
+                chunks.close()
+                sys.setswitchinterval(switch)
             if bar is not None:
                 bar.close()
             if recorder is not None:
@@ -275,4 +363,3 @@ def run_profile(profile: Profile, out: str | Path | None, options: RunOptions | 
         messages=recorder.message_count if recorder is not None else 0, rate_hz=rate_hz,
         dt_s=sim.dt, interrupted=interrupted, knee_crossings=sim.knee_crossings,
         solver_resets=sim.solver_resets, peak_rss_mib=peaks)
-
