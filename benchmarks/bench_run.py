@@ -6,7 +6,16 @@ own), on the paper driveline (``truck_dmf``, ``engine_d13``, Load A, full load) 
 * ``realtime_factor``: simulated seconds per wall second of ``dmf-sim run`` writing the bag at
   1 kHz (a run-up ``ramp:800:2000:10``, 122 s simulated), ``realtime_factor_no_write`` the
   same without the bag; ``*_cpu`` per CPU second of the process (the figure a loaded machine
-  distorts least).
+  distorts least). Each is the median of ``--repeat`` runs (alternating, each in a fresh
+  process); ``speed_runs`` lists every run, ``speed_min`` / ``speed_median`` both. The
+  ``*_sequential`` figures are ``--threads 1`` (integrating and writing in turn), the others the
+  default (integrating in a thread of its own, which pays off only with a free core).
+* ``breakdown_ms_per_sim_s``: where the time of one ``--threads 1`` run with the bag goes, in
+  wall milliseconds per simulated second, timed in this process around the stages: the Newmark
+  kernel, the excitation update and the rest of a chunk's integration, the read-out of the
+  element angles and torques, gathering, encoding and writing the bag (``write_block``: the
+  records, their CRC and the file write), and what is left (the loop); ``kernel_ceiling`` is
+  simulated seconds per second of kernel alone, the bound no writing path can beat.
 * ``quasi_static_rel_diff``: that slow run-up (10 rpm/s) against the HBM sweep's stable branch
   (``dmf-sim runup``): the largest |measured / HBM - 1| of the 3rd- and 1.5th-order wind-up
   amplitudes over the 10 rpm bins 30 rpm or more from jumps and sweep events where the HBM
@@ -19,10 +28,12 @@ own), on the paper driveline (``truck_dmf``, ``engine_d13``, Load A, full load) 
   peak RSS after 10 %, 50 % and 100 % of it; then ``dmf-sim durability`` of that bag against
   the same on its first minute (``durability_rss_growth_mib``: what an hour adds).
 
-    python benchmarks/bench_run.py [--small] [--hour-s 3600] [--keep DIR]
+    python benchmarks/bench_run.py [--small] [--repeat 3] [--speed-only] [--hour-s 3600]
+                                   [--keep DIR]
 
 ``--small``: seconds-long profiles, the commands in this process (a smoke test of the whole
-chain, not the figures). Last line: one JSON object.
+chain, not the figures). ``--speed-only``: the speed figures and the breakdown only. Last
+line: one JSON object.
 """
 from __future__ import annotations
 
@@ -31,6 +42,7 @@ import json
 import os
 import platform
 import shutil
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -65,6 +77,91 @@ def cli(*args: str) -> dict:
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
+def speed_runs(profile: str, work: Path, repeat: int) -> dict:
+    """``dmf-sim run`` with and without the bag, threads 2 and 1, ``repeat`` times each
+    (alternating); per variant the wall and CPU factors of every run, min and median."""
+    variants = {'': ('--threads', '2'), '_sequential': ('--threads', '1')}
+    runs: dict[str, list[float]] = {}
+    first = None
+    for i in range(repeat):
+        for suffix, opts in variants.items():
+            for write in (True, False):
+                out = work / f'speed{suffix}_{i}'
+                args = ['--out', str(out)] if write else ['--no-write']
+                r = cli('run', profile, *args, *opts)
+                if write and first is None:
+                    first = (r, out)
+                elif write:
+                    shutil.rmtree(out, ignore_errors=True)
+                key = f'realtime_factor{"" if write else "_no_write"}{suffix}'
+                runs.setdefault(key, []).append(r['realtime_factor'])
+                runs.setdefault(f'{key}_cpu', []).append(r['simulated_s'] / r['cpu_s'])
+    out = {key: statistics.median(v) for key, v in runs.items()}
+    out.update(speed_runs={k: [round(x, 1) for x in v] for k, v in runs.items()},
+               speed_min={k: round(min(v), 1) for k, v in runs.items()},
+               speed_median={k: round(statistics.median(v), 1) for k, v in runs.items()})
+    return out, first
+
+
+def breakdown(profile: str, out: Path) -> dict:
+    """Wall ms per simulated second in each stage of one ``--threads 1`` run with the bag
+    (timers wrapped around the stage functions in this process; their own cost, ~1 us a call
+    over ~5000 calls, is in the figures)."""
+    import functools
+    from collections import defaultdict
+
+    from dmf_sim.bags.writer import BagRecorder
+    from dmf_sim.live.simulation import LiveSimulation
+    from dmf_sim.solvers.newmark import NewmarkIntegrator
+    from dmf_sim.transient import run as run_mod
+    from dmf_sim.transient.encode import SampleEncoder
+    from dmf_sim.transient.profiles import load_profile
+
+    spent: dict[str, float] = defaultdict(float)
+    stages = [(NewmarkIntegrator, 'advance', 'kernel'),
+              (NewmarkIntegrator, 'update_excitation', 'excitation'),
+              (LiveSimulation, 'integrate', 'integrate'),
+              (LiveSimulation, 'read_out', 'read_out'),
+              (run_mod.SampleBlock, 'add', 'gather'),
+              (SampleEncoder, 'samples', 'encode'),
+              (BagRecorder, 'write_block', 'write_block')]
+    saved = [(cls, name, getattr(cls, name)) for cls, name, _ in stages]
+
+    def timed(fn, key):
+        @functools.wraps(fn)
+        def wrapper(*a, **k):
+            t0 = time.perf_counter()
+            try:
+                return fn(*a, **k)
+            finally:
+                spent[key] += time.perf_counter() - t0
+        return wrapper
+    start = run_mod.TimeBase.start
+
+    def loop_starts(self, *a, **k):         # the run's timed loop starts: set-up not counted
+        spent.clear()
+        return start(self, *a, **k)
+    try:
+        for cls, name, key in stages:
+            setattr(cls, name, timed(getattr(cls, name), key))
+        run_mod.TimeBase.start = loop_starts
+        prof = load_profile(profile)
+        run_mod.run_profile(load_profile('ramp:800:900:100:1.0:0.1'), None)   # warm
+        s = run_mod.run_profile(prof, out, run_mod.RunOptions(threads=1))
+    finally:
+        for cls, name, fn in saved:
+            setattr(cls, name, fn)
+        run_mod.TimeBase.start = start
+    sim = s.simulated_s
+    ms = {k: 1000.0 * v / sim for k, v in spent.items()}
+    ms['integrate_rest'] = ms.pop('integrate') - ms['kernel'] - ms['excitation']
+    ms['loop_rest'] = 1000.0 * s.wall_s / sim - sum(ms.values())
+    ms['total'] = 1000.0 * s.wall_s / sim
+    return {'breakdown_ms_per_sim_s': {k: round(v, 3) for k, v in ms.items()},
+            'breakdown_realtime_factor': s.realtime_factor,
+            'kernel_ceiling': sim / spent['kernel']}
+
+
 def hour_profile(path: Path, seconds: float) -> Path:
     """The road cycle repeated to ``seconds`` (CSV)."""
     from dmf_sim.transient.profiles import load_profile
@@ -88,6 +185,10 @@ def main() -> None:
     ap.add_argument('--hour-s', type=float, default=3600.0,
                     help='length of the memory profile [s] (default 3600)')
     ap.add_argument('--keep', type=Path, help='keep the bags and reports in this directory')
+    ap.add_argument('--repeat', type=int, default=3,
+                    help='runs per speed figure (min and median reported; default 3)')
+    ap.add_argument('--speed-only', action='store_true',
+                    help='the speed figures and the breakdown only')
     args = ap.parse_args()
     global IN_PROCESS
     IN_PROCESS = args.small
@@ -102,16 +203,16 @@ def main() -> None:
     try:
         # 1. run-up on the paper driveline: speed with and without the bag, quasi-static check
         up = 'ramp:1200:1300:100:1.0:0.5' if args.small else 'ramp:800:2000:10:1.0:2'
-        w = cli('run', up, '--out', str(work / 'paper_up'))
-        nw = cli('run', up, '--no-write')
-        out.update(profile_runup=up, simulated_s=w['simulated_s'],
-                   realtime_factor=w['realtime_factor'],
-                   realtime_factor_cpu=w['simulated_s'] / w['cpu_s'],
-                   realtime_factor_no_write=nw['realtime_factor'],
-                   realtime_factor_no_write_cpu=nw['simulated_s'] / nw['cpu_s'],
-                   bag_mib=sum(f.stat().st_size for f in (work / 'paper_up').glob('*.mcap'))
-                   / 2 ** 20, messages=w['messages'])
-        qs = runup_analysis([work / 'paper_up']).quasi_static.get('up', {})
+        speeds, (w, bag) = speed_runs(up, work, 1 if args.small else max(args.repeat, 1))
+        out.update(profile_runup=up, simulated_s=w['simulated_s'], **speeds,
+                   bag_mib=sum(f.stat().st_size for f in bag.glob('*.mcap')) / 2 ** 20,
+                   messages=w['messages'])
+        out.update(breakdown(up, work / 'breakdown'))
+        if args.speed_only:
+            out['load_average_1min_end'] = os.getloadavg()[0]
+            print(json.dumps(out))
+            return
+        qs = runup_analysis([bag]).quasi_static.get('up', {})
         out['quasi_static'] = qs
         rel = [v['max_rel_diff'] for v in qs.values() if v.get('max_rel_diff') is not None]
         out['quasi_static_rel_diff'] = max(rel) if rel else None

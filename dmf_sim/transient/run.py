@@ -34,7 +34,7 @@ from dmf_sim.live.recording import run_metadata
 from dmf_sim.live.simulation import Integrated, LiveSimulation, Samples
 from dmf_sim.live.streams import STREAMS, resolved_topics
 from dmf_sim.solvers.newmark import StepRecord
-from dmf_sim.transient.defaults import CHUNK_RANGE_S, DEFAULT_CHUNK_S
+from dmf_sim.transient.defaults import CHUNK_RANGE_S, DEFAULT_CHUNK_S, DEFAULT_THREADS
 from dmf_sim.transient.follow import TIME_EPS_S, ProfileFollower
 from dmf_sim.transient.profiles import Profile
 
@@ -81,7 +81,7 @@ class RunOptions:
     split_s: float = DEFAULT_SPLIT_S
     write: bool = True
     namespace: str = ''
-    threads: int = 2
+    threads: int = DEFAULT_THREADS
 
 
 class SampleBlock:
