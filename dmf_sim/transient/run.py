@@ -18,7 +18,6 @@ from __future__ import annotations
 import math
 import queue
 import resource
-import sys
 import threading
 import time
 from collections.abc import Iterator
@@ -40,7 +39,7 @@ from dmf_sim.transient.profiles import Profile
 
 __all__ = ['WRITER_NAME', 'CHUNK_SPEED_STEP_RPM', 'CHUNK_LOAD_STEP', 'DEFAULT_SPLIT_S',
            'MEMORY_MARKS', 'BLAS_THREADS', 'BLOCK_ROWS', 'PIPELINE_DEPTH',
-           'SWITCH_INTERVAL_S', 'RunOptions', 'SampleBlock', 'RunSummary',
+           'RunOptions', 'SampleBlock', 'RunSummary',
            'build_simulation', 'open_bag', 'run_profile']
 
 WRITER_NAME = 'dmf-sim run'
@@ -51,9 +50,6 @@ MEMORY_MARKS = (0.1, 0.5, 1.0)   # fractions of the run where the peak RSS is sa
 BLAS_THREADS = 1            # the torque read-out's small matrix products in one thread: OpenBLAS
                             # threads them past ~64 rows, ~10x slower on a busy 2-core machine
 PIPELINE_DEPTH = 3          # integrated chunks in flight between the two threads
-SWITCH_INTERVAL_S = 1e-4    # the interpreter's GIL hand-over interval during a threaded run:
-                            # the integrating thread needs the GIL briefly between kernel calls
-                            # (~0.5 ms each), and the default 5 ms would keep it waiting
 BLOCK_ROWS = 1024           # samples gathered per bag chunk (~1.1 MB for the truck model): the
                             # per-chunk cost of encoding and writing is paid once per simulated
                             # s (measured: writing costs ~0.4x the kernel's time, ~0.75x with
@@ -313,11 +309,9 @@ def run_profile(profile: Profile, out: str | Path | None, options: RunOptions | 
     interrupted = False
     stop = threading.Event()
     plan = _chunk_plan(profile, sim, follower, total, chunk, stop)
-    switch = sys.getswitchinterval()
     t_wall, t_cpu = time.perf_counter(), time.process_time()
     with threadpool_limits(BLAS_THREADS):
         if opt.threads > 1:
-            sys.setswitchinterval(SWITCH_INTERVAL_S)
             chunks = _Integrating(sim, plan, max_rows, stop)
         else:
             own = StepRecord.allocate(max_rows, sim.model.n_dof)
@@ -347,7 +341,6 @@ def run_profile(profile: Profile, out: str | Path | None, options: RunOptions | 
         finally:
             if chunks is not None:
                 chunks.close()
-                sys.setswitchinterval(switch)
             if bar is not None:
                 bar.close()
             if recorder is not None:
