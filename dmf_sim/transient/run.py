@@ -12,6 +12,11 @@ node's topics, types, stamps (wall clock at the start + simulated time, as
 (:class:`dmf_sim.bags.metadata.RunMetadata`, plus the profile's name), written a chunk at a time
 (:meth:`dmf_sim.bags.writer.BagRecorder.write_block`), so memory stays flat whatever the
 profile's length. An interruption (Ctrl-C) closes the bag: what was simulated is readable.
+
+Two threads (``RunOptions.threads``, the default): the chunks are integrated
+(:meth:`LiveSimulation.integrate`, the kernel without the GIL) in a thread of their own, up to
+PIPELINE_DEPTH ahead, while this thread reads them out (:meth:`LiveSimulation.read_out`),
+encodes and writes; the chunks, their order and every value are those of one thread.
 """
 from __future__ import annotations
 
