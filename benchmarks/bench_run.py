@@ -8,8 +8,9 @@ own), on the paper driveline (``truck_dmf``, ``engine_d13``, Load A, full load) 
   same without the bag; ``*_cpu`` per CPU second of the process (the figure a loaded machine
   distorts least). Each is the median of ``--repeat`` runs (alternating, each in a fresh
   process); ``speed_runs`` lists every run, ``speed_min`` / ``speed_median`` both. The
-  ``*_sequential`` figures are ``--threads 1`` (integrating and writing in turn), the others the
-  default (integrating in a thread of its own, which pays off only with a free core).
+  headline figures are the default ``--threads 1`` (integrating and writing in turn), the
+  ``*_threads2`` ones ``--threads 2`` (integrating in a thread of its own, which can pay off only
+  with a free core).
 * ``breakdown_ms_per_sim_s``: where the time of one ``--threads 1`` run with the bag goes, in
   wall milliseconds per simulated second, timed in this process around the stages: the Newmark
   kernel, the excitation update and the rest of a chunk's integration, the read-out of the
@@ -78,9 +79,9 @@ def cli(*args: str) -> dict:
 
 
 def speed_runs(profile: str, work: Path, repeat: int) -> dict:
-    """``dmf-sim run`` with and without the bag, threads 2 and 1, ``repeat`` times each
+    """``dmf-sim run`` with and without the bag, threads 1 and 2, ``repeat`` times each
     (alternating); per variant the wall and CPU factors of every run, min and median."""
-    variants = {'': ('--threads', '2'), '_sequential': ('--threads', '1')}
+    variants = {'': ('--threads', '1'), '_threads2': ('--threads', '2')}
     runs: dict[str, list[float]] = {}
     first = None
     for i in range(repeat):

@@ -268,7 +268,7 @@ def test_block_written_files_pass_every_crc_check(run_bag):
 
 def test_threaded_run_writes_the_sequential_bag(tmp_path):
     """Integrating in a thread of its own while the last chunks are read out and written
-    (threads=2, the default) gives the bag one thread gives (threads=1), byte for byte but for
+    (threads=2) gives the bag one thread gives (threads=1, the default), byte for byte but for
     the wall-clock stamps: the same payloads in the same order, the same log times relative to
     the first, the same solver counters."""
     prof = load_profile('ramp:1000:1300:300:1.0:0.2')
@@ -291,12 +291,12 @@ def test_threaded_run_writes_the_sequential_bag(tmp_path):
 
 def test_interrupted_run_leaves_a_readable_bag(tmp_path):
     """SIGINT (Ctrl-C) during a long run: exit 130, the bag holds what was simulated and
-    analyze reads it."""
+    analyze reads it (with two threads: the integrating one is stopped and joined)."""
     out = tmp_path / 'cut'
     env = {**os.environ, 'PYTHONPATH': os.pathsep.join([str(REPO),
                                                          os.environ.get('PYTHONPATH', '')])}
     proc = subprocess.Popen([sys.executable, '-m', 'dmf_sim.cli', 'run', 'ramp:800:2000:1',
-                             '--out', str(out), '--no-progress'], env=env,
+                             '--out', str(out), '--no-progress', '--threads', '2'], env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         deadline = time.monotonic() + 120

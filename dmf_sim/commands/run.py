@@ -52,9 +52,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument('--namespace', default='', help='write the topics under this namespace')
     p.add_argument('--no-write', action='store_true', help='integrate only (timing)')
     p.add_argument('--threads', type=int, choices=(1, 2), default=DEFAULT_THREADS,
-                   help='2: integrate the next chunks in a thread of their own while the last '
-                        'ones are written (the same bag; faster with a free core), 1: in turn '
-                        f'(default {DEFAULT_THREADS})')
+                   help='1: integrate and write in turn; 2: integrate the next chunks in a '
+                        'thread of their own while the last ones are written (the same bag; '
+                        f'can pay off only with a free core) (default {DEFAULT_THREADS})')
     p.add_argument('--json', action='store_true', help='print the summary as JSON')
     p.add_argument('--no-progress', action='store_true', help='no progress bar')
 
