@@ -22,6 +22,8 @@ own), on the paper driveline (``truck_dmf``, ``engine_d13``, Load A, full load) 
   amplitudes over the 10 rpm bins 30 rpm or more from jumps and sweep events where the HBM
   amplitude is >= 5 % of its peak (the 1.5th order of this case is a small imperfect-bifurcation
   hump: compared where it is not negligible).
+  ``quasi_static_rel_diff_slow``: the same for a run-up at 2 rpm/s (``quasi_static_slow``
+  names the order and speed of the largest difference).
 * ``jump_speed_error_rpm``: the hardening fold case (:mod:`dmf_sim.transient.cases`: coexisting
   states between its two folds), run up and down at 5 rpm/s: the largest distance of a jump
   found in the records from the nearest sweep event (fold / stability loss).
@@ -217,6 +219,13 @@ def main() -> None:
         out['quasi_static'] = qs
         rel = [v['max_rel_diff'] for v in qs.values() if v.get('max_rel_diff') is not None]
         out['quasi_static_rel_diff'] = max(rel) if rel else None
+        # the same at 2 rpm/s: a ramp's lag behind the steady state shrinks with its rate
+        slow = 'ramp:1200:1300:50:1.0:0.5' if args.small else 'ramp:800:2000:2:1.0:2'
+        cli('run', slow, '--out', str(work / 'paper_up_slow'))
+        qs = runup_analysis([work / 'paper_up_slow']).quasi_static.get('up', {})
+        out['quasi_static_slow'] = {'profile': slow, **qs}
+        rel = [v['max_rel_diff'] for v in qs.values() if v.get('max_rel_diff') is not None]
+        out['quasi_static_rel_diff_slow'] = max(rel) if rel else None
         # 2. jumps on the fold case, up and down
         line, engine = write_fold_case(work / 'fold_case')
         rate = 50 if args.small else 5

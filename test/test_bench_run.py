@@ -23,5 +23,5 @@ def test_bench_run_small_prints_json():
     assert set(data['run_peak_rss_mib']) == {'0.1', '0.5', '1'}
     assert data['run_rss_growth_mib'] < 50 and data['durability_batches'] >= 2
     assert data['damage_per_hour'] > 0 and data['dissipated_power_mean_w'] > 0
-    for key in ('quasi_static_rel_diff', 'jump_speed_error_rpm'):
+    for key in ('quasi_static_rel_diff', 'quasi_static_rel_diff_slow', 'jump_speed_error_rpm'):
         assert key in data
