@@ -61,3 +61,20 @@ def test_a_process_ends_with_its_parent(tmp_path, mode, expected):
                 os.kill(child, signal.SIGKILL)
             except ProcessLookupError:
                 pass
+
+
+@pytest.mark.skipif(not sys.platform.startswith('linux'), reason='prctl: Linux')
+def test_a_process_whose_parent_died_before_prctl_ends_at_once():
+    """The parent may die while its child is still starting (the monitor's worker imports for a
+    second or two before it asks for the parent-death signal); Linux then never sends it, so
+    die_with_parent compares the parent pid it is given with the current one."""
+    code = ('import os, signal, sys, dmf_sim.core.process as p; '
+            'p.die_with_parent(signal.SIGTERM, parent_pid=int(sys.argv[1])); '
+            'print("alive", flush=True)')
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+    gone = subprocess.run([sys.executable, '-c', code, str(2 ** 22 + 7)], capture_output=True,
+                          text=True, timeout=60, env=env)          # no such parent pid
+    assert gone.returncode == -signal.SIGTERM and 'alive' not in gone.stdout
+    alive = subprocess.run([sys.executable, '-c', code, str(os.getpid())], capture_output=True,
+                           text=True, timeout=60, env=env)          # its real parent
+    assert alive.returncode == 0 and 'alive' in alive.stdout

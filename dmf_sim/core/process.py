@@ -17,16 +17,23 @@ PR_SET_PDEATHSIG = 1        # Linux prctl option: a signal for this process when
 PARENT_POLL_S = 0.5         # fallback (no prctl): how often the parent pid is checked [s]
 
 
-def die_with_parent(signum: int = signal.SIGKILL) -> bool:
+def die_with_parent(signum: int = signal.SIGKILL, parent_pid: int | None = None) -> bool:
     """Ask Linux to send ``signum`` to this process when the thread that started it ends
-    (``prctl(PR_SET_PDEATHSIG)``). False where that is not available (not Linux)."""
+    (``prctl(PR_SET_PDEATHSIG)``). False where that is not available (not Linux).
+
+    ``parent_pid``: the pid of the process that started this one. If it has died already
+    (between this process's start and the prctl call, which Linux does not cover), this
+    process sends itself ``signum`` at once instead of living on as an orphan."""
     try:
         import ctypes
         libc = ctypes.CDLL(None, use_errno=True)
         zero = ctypes.c_ulong(0)            # prctl reads its arguments as unsigned long
-        return libc.prctl(PR_SET_PDEATHSIG, ctypes.c_ulong(int(signum)), zero, zero, zero) == 0
+        ok = libc.prctl(PR_SET_PDEATHSIG, ctypes.c_ulong(int(signum)), zero, zero, zero) == 0
     except (OSError, AttributeError):
-        return False
+        ok = False
+    if parent_pid is not None and os.getppid() != parent_pid:
+        os.kill(os.getpid(), signum)
+    return ok
 
 
 def end_with_parent(on_death: Callable[[int], None], signum: int = signal.SIGTERM,

@@ -104,7 +104,10 @@ def _init_worker(niceness: int) -> None:
     # Ctrl-C in a terminal reaches the whole process group: the node decides when its workers
     # stop (LiveMonitor.close), a worker must not die of the node's SIGINT
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    die_with_parent(signal.SIGKILL)       # a crashed node must not leave orphan workers
+    import multiprocessing
+    parent = multiprocessing.parent_process()
+    # a crashed node must not leave orphan workers, also when it died while this one started
+    die_with_parent(signal.SIGKILL, parent.pid if parent is not None else None)
     if niceness:
         os.nice(niceness)
 
