@@ -97,12 +97,12 @@ def test_split_duration_is_bounded(tmp_path: Path) -> None:
 
 
 CHILD = textwrap.dedent('''
-    import struct, sys
+    import struct, sys, time
     from dmf_sim.bags.writer import BagRecorder
 
     rec = BagRecorder(sys.argv[1], {'/a': 'std_msgs/msg/Float64', '/b': 'std_msgs/msg/Float64'},
                       max_duration_s=1.0)
-    t, i, told = 1_700_000_000_000_000_000, 0, 0
+    t, i, told, after = 1_700_000_000_000_000_000, 0, 0, 0
     while True:                       # 1 kHz of log time, as fast as the recorder takes it
         data = b'\\x00\\x01\\x00\\x00' + struct.pack('<d', float(i))
         rec.write('/a', t, data)
@@ -112,6 +112,11 @@ CHILD = textwrap.dedent('''
             print(told, flush=True)
         t += 1_000_000
         i += 1
+        after += told >= 3
+        if after == 200:              # some chunks into the next split, then wait for SIGKILL
+            rec.flush()               # (the split stays open: no footer, not listed)
+            print('flushed', flush=True)
+            time.sleep(120)
 ''')
 
 
@@ -126,9 +131,10 @@ def test_sigkill_leaves_every_closed_split_readable(tmp_path: Path) -> None:
     bag = tmp_path / 'crash'
 
     def three_splits(proc) -> None:
-        while int(proc.stdout.readline() or 99) < 3:
+        # three closed splits and a flushed chunk in the fourth (a fixed 0.3 s wait here left
+        # the fourth without a chunk on a busy machine)
+        while (proc.stdout.readline() or 'flushed').strip() != 'flushed':
             pass
-        time.sleep(0.3)                               # some chunks into the next split
 
     sigkill_when_ready(script, [str(bag)], three_splits)
     info = info_of(bag)
