@@ -297,3 +297,17 @@ def test_benchmark_quick():
         assert key in data
     assert data['quick'] is True and data['sweep_seconds'] > 0
     assert data['max_rel_diff'] < 0.01
+
+
+def test_fit_harmonics_truncates_pads_and_keeps():
+    """Engine and load harmonics n = 0..N are fitted to the HBM's n = 0..H along their harmonic
+    axis: the first H+1 kept, missing ones zero, the array itself when N = H."""
+    from dmf_sim.solvers.hbm.layout import fit_harmonics
+    a = np.arange(12, dtype=float).reshape(3, 4) * (1 + 1j)        # 3 speeds, n = 0..3
+    assert fit_harmonics(a, 3, axis=1) is a
+    assert np.array_equal(fit_harmonics(a, 1, axis=1), a[:, :2])
+    padded = fit_harmonics(a, 5, axis=1)
+    assert padded.shape == (3, 6) and np.array_equal(padded[:, :4], a)
+    assert not padded[:, 4:].any() and padded.dtype == complex
+    rows = fit_harmonics(a.T, 5)                                     # harmonics on axis 0
+    assert rows.shape == (6, 3) and np.array_equal(rows[:4], a.T) and not rows[4:].any()

@@ -1,18 +1,19 @@
 """Harmonic balance (HBM) of the DMF driveline, condensed onto the DMF wind-up (paper eq. 9-15).
 
 * :mod:`~dmf_sim.solvers.hbm.condensed` — the condensed problem at one speed: residual (eq. 15),
-AFT with
-  analytic Jacobian, Newton, recovery of every element (:class:`CondensedHBM`, :class:`HBMPoint`);
+  AFT with analytic Jacobian, Newton, recovery of every element (:class:`CondensedHBM`);
+* :mod:`~dmf_sim.solvers.hbm.point` — its settings and results: :class:`HBMOptions`,
+  :class:`LinearParts`, :class:`HBMPoint`;
 * :mod:`~dmf_sim.solvers.hbm.sweep` — speed sweeps: pseudo-arc-length continuation, Floquet
-stability,
-  events (:func:`sweep`, :class:`SpeedSweep`);
+  stability, events (:func:`sweep`, :class:`SpeedSweep`);
 * :mod:`~dmf_sim.solvers.hbm.branches` — branch switching to 1.5th-order and other coexisting
-branches;
+  branches;
 * :mod:`~dmf_sim.solvers.hbm.results` — :class:`SweepResult`, :class:`Branch`, :class:`SweepEvent`;
 * :mod:`~dmf_sim.solvers.hbm.layout` — the real unknown layout and shift-invariant fingerprints.
 """
-from dmf_sim.solvers.hbm.condensed import CondensedHBM, HBMOptions, HBMPoint, LinearParts
+from dmf_sim.solvers.hbm.condensed import CondensedHBM
 from dmf_sim.solvers.hbm.layout import SUB_HARMONICS, to_complex, to_real
+from dmf_sim.solvers.hbm.point import HBMOptions, HBMPoint, LinearParts
 from dmf_sim.solvers.hbm.results import Branch, SweepEvent, SweepResult
 from dmf_sim.solvers.hbm.search import SearchOptions
 from dmf_sim.solvers.hbm.sweep import SpeedSweep, SweepOptions, sweep

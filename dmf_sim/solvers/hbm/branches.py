@@ -24,8 +24,8 @@ from __future__ import annotations
 import numpy as np
 
 from dmf_sim.core.errors import ConvergenceError
-from dmf_sim.solvers.hbm.condensed import HBMPoint
 from dmf_sim.solvers.hbm.layout import SUB_HARMONICS, amplitudes, sub_part, to_complex, to_real
+from dmf_sim.solvers.hbm.point import HBMPoint
 from dmf_sim.solvers.hbm.results import Branch, SweepEvent, on_grid, runs
 
 __all__ = ['BranchSwitching']

@@ -39,9 +39,7 @@ Real unknown layout used throughout: ``x = [w_0, Re w_1..Re w_H, Im w_1..Im w_H]
 """
 from __future__ import annotations
 
-import math
 from collections import OrderedDict
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -49,15 +47,15 @@ from dmf_sim.core.errors import ConfigError, ConvergenceError, OperatingRangeErr
 from dmf_sim.core.units import RPM_TO_RAD_S
 from dmf_sim.physics.harmonic import solve_harmonic, solve_static
 from dmf_sim.physics.loads import DrivelineLoads
-from dmf_sim.physics.orders import OrderSummary, summarize_orders, synthesize
+from dmf_sim.physics.orders import summarize_orders, synthesize
 from dmf_sim.solvers.continuation import CorrectorFailed, solve_small
 from dmf_sim.solvers.hbm import kernels
-from dmf_sim.solvers.hbm.layout import SUB_HARMONICS, times_h, to_complex, to_real
+from dmf_sim.solvers.hbm.layout import fit_harmonics, times_h, to_complex, to_real
+from dmf_sim.solvers.hbm.point import HBMOptions, HBMPoint, LinearParts
 from dmf_sim.solvers.stability import FlexibleModes
 
 __all__ = ['SHARP_DAMPING_RATIO', 'RESONANCE_SHARE', 'LINEAR_PARTS_CACHE', 'PREPARE_BATCH',
-           'ENGINE_BATCH_MIN',
-           'HBMOptions', 'LinearParts', 'HBMPoint', 'CondensedHBM']
+           'ENGINE_BATCH_MIN', 'CondensedHBM']
 
 SHARP_DAMPING_RATIO = 0.01
 """A mode damped less than this (damping ratio [-]) makes a resonance a few rpm wide: a spike in
@@ -75,123 +73,6 @@ PREPARE_BATCH = 64
 #: below it one query per speed costs fewer numpy calls (measured: 2 speeds 24 us each, one
 #: vectorized query ~60 us; 128 speeds 3 ms one by one, 0.3 ms vectorized)
 ENGINE_BATCH_MIN = 8
-
-# ------------------------------------------------------------------------------------------------
-# Options, linear parts, solution point
-# ------------------------------------------------------------------------------------------------
-
-@dataclass(frozen=True)
-class HBMOptions:
-    """Numerical settings of the condensed harmonic balance.
-
-    Attributes:
-        n_harmonics: H, highest half-order index kept (24 = 12th engine order).
-        n_time: M, AFT samples per 720 deg cycle (default: 8 (H+1) rounded up to a power of 2).
-        tol: Newton tolerance on the residual's max norm [rad].
-        max_iter: Newton iterations per solve.
-        stall_iter, stall_ratio: Newton gives up when the residual has not fallen below
-            ``stall_ratio`` x its value ``stall_iter`` iterations earlier (a seed outside the
-            basin stalls at a kink of the piecewise-linear residual with ever shorter steps;
-            converging solves take full steps and need at most ~6 iterations).
-        speed_fd_rpm: finite-difference step for the speed derivative of the engine load [rpm].
-        compiled: AFT, residual, Jacobian and Newton through the compiled kernels
-            (:mod:`dmf_sim.solvers.hbm.kernels`); False: the readable numpy reference.
-    """
-
-    n_harmonics: int = 24
-    n_time: int | None = None
-    tol: float = 1e-10
-    max_iter: int = 40
-    stall_iter: int = 8
-    stall_ratio: float = 0.5
-    speed_fd_rpm: float = 0.05
-    compiled: bool = True
-
-    def time_samples(self) -> int:
-        if self.n_time is not None:
-            return int(self.n_time)
-        return 1 << int(math.ceil(math.log2(8 * (self.n_harmonics + 1))))
-
-
-@dataclass
-class LinearParts:
-    """Everything the condensed equation needs at one speed (computed once per speed).
-
-    Attributes:
-        speed_rpm: engine speed.
-        omega: crank speed [rad/s].
-        h: (H+1,) complex wind-up receptance e.H_n e [rad/Nm] (h_0 static, real).
-        wlin: (H+1,) complex linear wind-up response e.H_n P_n [rad] (wlin_0: static mean).
-        dh_ds, dwlin_ds: their derivatives with respect to speed [per rpm].
-        lin, dlin: (wlin, h) and (dwlin_ds, dh_ds) with wlin on the real layout, packed for the
-            compiled kernels.
-    """
-
-    speed_rpm: float
-    omega: float
-    h: np.ndarray
-    wlin: np.ndarray
-    dh_ds: np.ndarray
-    dwlin_ds: np.ndarray
-    lin: tuple = ()
-    dlin: tuple = ()
-
-
-@dataclass
-class HBMPoint:
-    """One periodic steady state of the wind-up (SI; speed in rpm).
-
-    Attributes:
-        speed_rpm: engine speed.
-        x: (2H+1,) real unknowns [w_0, Re w_n, Im w_n] [rad].
-        windup_orders: (H+1,) complex c_n of the wind-up, ``w = Re(sum c_n exp(i n psi/2))`` [rad]
-            (same convention as newmark.SimulationResult.windup_orders).
-        summary: OrderSummary (3rd and 1.5th order amplitude, max/min deviation, mean - theta).
-        residual: max |r_n| at convergence [rad]; iterations: Newton iterations used.
-        stable: Floquet stability (None until computed); multipliers: Floquet multipliers of the
-            full linearized driveline over one 720 deg cycle (rigid-body pair excluded).
-        branch: branch id in a sweep; kind: 'main', 'subharmonic' or 'harmonic'.
-        tangent_speed: d(speed)/d(arc) of the continuation tangent (changes sign at a fold).
-        forced_order_1_5: |wlin_3|, the linear (directly forced) 1.5th-order wind-up [rad].
-    """
-
-    speed_rpm: float
-    x: np.ndarray
-    windup_orders: np.ndarray
-    summary: OrderSummary
-    residual: float
-    iterations: int
-    stable: bool | None = None
-    multipliers: np.ndarray | None = None
-    max_multiplier: float = float('nan')
-    branch: int = 0
-    kind: str = 'main'
-    tangent_speed: float = float('nan')
-    forced_order_1_5: float = float('nan')
-
-    @property
-    def order_3(self) -> float:
-        return self.summary.order_3
-
-    @property
-    def order_1_5(self) -> float:
-        return self.summary.order_1_5
-
-    def subharmonic_amplitude(self) -> float:
-        """rms of the n = 3, 9, 15, 21 wind-up harmonics [rad] (zero on a 120-deg-periodic
-        state)."""
-        c = self.windup_orders
-        return float(np.sqrt(np.sum(np.abs(c[[n for n in SUB_HARMONICS if n < len(c)]]) ** 2)))
-
-    def as_dict(self) -> dict:
-        d = {'speed_rpm': float(self.speed_rpm), 'branch': int(self.branch), 'kind': self.kind,
-             'stable': None if self.stable is None else bool(self.stable)}
-        d.update({k: v for k, v in self.summary.as_dict().items() if k != 'mean'})
-        d['mean'] = float(self.summary.mean)
-        d['max_multiplier'] = float(self.max_multiplier)
-        d['forced_order_1_5'] = float(self.forced_order_1_5)
-        return d
-
 
 # ------------------------------------------------------------------------------------------------
 # The condensed harmonic balance problem
@@ -276,24 +157,14 @@ class CondensedHBM:
     def dof_loads(self, speed_rpm: float) -> np.ndarray:
         """(H+1, n_dof) complex generalized load harmonics P_n [Nm] (DrivelineLoads.dof_harmonics
         truncated or zero-padded to H)."""
-        Pe = self.loads.dof_harmonics(speed_rpm, self.load)
-        if len(Pe) == self.H + 1:
-            return Pe
-        P = np.zeros((self.H + 1, self.model.n_dof), dtype=complex)
-        k = min(len(Pe), self.H + 1)
-        P[:k] = Pe[:k]
-        return P
+        return fit_harmonics(np.asarray(self.loads.dof_harmonics(speed_rpm, self.load),
+                                        dtype=complex), self.H)
 
     def engine_harmonics(self, speed_rpm: float) -> np.ndarray:
         """(H+1,) complex per-cylinder engine coefficients A_n [Nm] (eq. 16-17), truncated or
         zero-padded to H: the one engine query per speed."""
-        A = np.asarray(self.loads.engine.coefficients(speed_rpm, self.load), dtype=complex)
-        if len(A) == self.H + 1:
-            return A
-        out = np.zeros(self.H + 1, dtype=complex)
-        k = min(len(A), self.H + 1)
-        out[:k] = A[:k]
-        return out
+        return fit_harmonics(np.asarray(self.loads.engine.coefficients(speed_rpm, self.load),
+                                        dtype=complex), self.H)
 
     def linear_parts(self, speed_rpm: float) -> LinearParts:
         """h_n, wlin_n and their speed derivatives at ``speed_rpm`` (the most recent
@@ -345,13 +216,8 @@ class CondensedHBM:
         per speed (fewer numpy calls for a speed or two)."""
         if len(speeds) < ENGINE_BATCH_MIN:
             return np.stack([self.engine_harmonics(s) for s in speeds.tolist()])
-        A = self.loads.engine_coefficients_many(speeds, self.load)
-        if A.shape[1] == self.H + 1:
-            return A
-        out = np.zeros((len(speeds), self.H + 1), dtype=complex)
-        k = min(A.shape[1], self.H + 1)
-        out[:, :k] = A[:, :k]
-        return out
+        return fit_harmonics(self.loads.engine_coefficients_many(speeds, self.load), self.H,
+                             axis=1)
 
     def _linear_parts_many(self, speeds: list[float]) -> list[LinearParts]:
         H = self.H
@@ -452,11 +318,10 @@ class CondensedHBM:
             for n in range(1, self.H + 1):
                 s = 2.0 * d.imag / n / RPM_TO_RAD_S
                 if lo <= s <= hi:
-                    todo.append((k, n, s))
-        self.prepare([s for _, _, s in todo])      # their linear parts in one batch
-        for k, n, s in todo:
+                    todo.append((k, n, s, zeta))
+        self.prepare([s for _, _, s, _ in todo])   # their linear parts in one batch
+        for k, n, s, zeta in todo:
             d = self._d[k]
-            zeta = -d.real / abs(d)
             P = self.dof_loads(s)
             peak = abs((P[n] @ self._B[:, k]) * self._ell[k] / -d.real)
             dyn = float(np.abs(self.linear_parts(s).wlin[1:]).sum())

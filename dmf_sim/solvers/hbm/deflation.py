@@ -18,7 +18,8 @@ import numpy as np
 
 from dmf_sim.solvers.continuation import solve_small
 from dmf_sim.solvers.hbm import kernels
-from dmf_sim.solvers.hbm.condensed import CondensedHBM, LinearParts
+from dmf_sim.solvers.hbm.condensed import CondensedHBM
+from dmf_sim.solvers.hbm.point import LinearParts
 
 __all__ = ['DeflationOptions', 'DeflatedNewton']
 

@@ -7,11 +7,26 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ['SUB_HARMONICS', 'to_complex', 'to_real', 'times_h', 'amplitudes', 'sub_part', 'shift',
-           'all_shifts']
+__all__ = ['SUB_HARMONICS', 'fit_harmonics', 'to_complex', 'to_real', 'times_h', 'amplitudes',
+           'sub_part', 'shift', 'all_shifts']
 
 # half-orders n = 3 mod 6: the 1.5th-order family (1.5, 4.5, 7.5, 10.5)
 SUB_HARMONICS = (3, 9, 15, 21)
+
+
+def fit_harmonics(a: np.ndarray, H: int, axis: int = 0) -> np.ndarray:
+    """Complex harmonics n = 0..N along ``axis`` kept to n = 0..H: truncated, or zero-padded when
+    N < H (``a`` itself when N = H)."""
+    n = a.shape[axis]
+    if n == H + 1:
+        return a
+    shape = list(a.shape)
+    shape[axis] = H + 1
+    out = np.zeros(shape, dtype=complex)
+    k = min(n, H + 1)
+    index = (slice(None),) * (axis % a.ndim) + (slice(0, k),)
+    out[index] = a[index]
+    return out
 
 
 def to_complex(x: np.ndarray, H: int) -> np.ndarray:

@@ -7,8 +7,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from dmf_sim.core.errors import ConvergenceError
-from dmf_sim.solvers.hbm.condensed import CondensedHBM, HBMPoint
+from dmf_sim.solvers.hbm.condensed import CondensedHBM
 from dmf_sim.solvers.hbm.layout import amplitudes
+from dmf_sim.solvers.hbm.point import HBMPoint
 
 __all__ = ['Branch', 'SweepEvent', 'NonPeriodicBand', 'SweepResult', 'runs', 'on_grid']
 

@@ -30,9 +30,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from dmf_sim.core.errors import ConvergenceError, OperatingRangeError
-from dmf_sim.solvers.hbm.condensed import HBMPoint
 from dmf_sim.solvers.hbm.deflation import DeflatedNewton, DeflationOptions
 from dmf_sim.solvers.hbm.layout import all_shifts, amplitudes, shift, to_complex, to_real
+from dmf_sim.solvers.hbm.point import HBMPoint
 from dmf_sim.solvers.hbm.results import Branch, NonPeriodicBand, SweepEvent
 from dmf_sim.solvers.newmark import simulate
 from dmf_sim.solvers.nonperiodic import NonPeriodicOptions, analyze

@@ -11,8 +11,9 @@ import numpy as np
 from dmf_sim.core.errors import ConfigError, ConvergenceError, TimeLimitError
 from dmf_sim.physics.loads import DrivelineLoads
 from dmf_sim.solvers.hbm.branches import BranchSwitching
-from dmf_sim.solvers.hbm.condensed import CondensedHBM, HBMOptions, HBMPoint
+from dmf_sim.solvers.hbm.condensed import CondensedHBM
 from dmf_sim.solvers.hbm.layout import to_real
+from dmf_sim.solvers.hbm.point import HBMOptions, HBMPoint
 from dmf_sim.solvers.hbm.results import Branch, SweepEvent, SweepResult
 from dmf_sim.solvers.hbm.search import SearchOptions, StateSearch
 
