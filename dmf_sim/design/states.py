@@ -81,7 +81,7 @@ def grid_states(res, speeds_rpm: tuple[float, float, float], torque_element: int
     grid = speed_grid(lo, hi, step)
     refs = []                # (grid index, branch, point a, point b, weight of b)
     for bi, b in enumerate(res.branches):
-        S = np.array([p.speed_rpm for p in b.points])
+        S = b.column('speed_rpm')
         k = np.rint((S - lo) / step).astype(int)
         exact = (np.abs(S - (lo + k * step)) < _ON_GRID_RPM) & (k >= 0) & (k < len(grid))
         refs += [(k[j], bi, j, j, 0.0) for j in np.flatnonzero(exact)]

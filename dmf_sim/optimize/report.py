@@ -81,7 +81,7 @@ def compare_with_reference(result, ref: dict) -> dict:
     dom = []
     if ref['status'] == 'ok':
         for r in result.rows('design'):
-            if not r['feasible'] or r['status'] != 'ok':
+            if not _counts(r):
                 continue
             if r[o1] <= ref[o1] and r[o2] <= ref[o2] and (r[o1] < ref[o1] or r[o2] < ref[o2]):
                 dom.append(r)
@@ -105,7 +105,7 @@ def common_hypervolumes(result, baseline, reference_point: tuple[float, float] |
         rows = sorted(res.rows('design'), key=lambda r: r['design_id'])
         cols[name] = (np.array([_f(r.get(o1)) for r in rows]),
                       np.array([_f(r.get(o2)) for r in rows]),
-                      np.array([bool(r['feasible']) and r['status'] == 'ok' for r in rows]))
+                      np.array([_counts(r) for r in rows]))
     f1 = np.concatenate([c[0][c[2]] for c in cols.values()])
     f2 = np.concatenate([c[1][c[2]] for c in cols.values()])
     if not len(f1):
@@ -130,8 +130,7 @@ def ideal_point_search(result, baseline, rel: float = 0.01) -> dict:
     o1, o2 = result.problem.objectives[:2]
     runs = {}
     for name, res in (('optimizer', result), ('lhs', baseline)):
-        rows = sorted((r for r in res.rows('design')
-                       if r['feasible'] and r['status'] == 'ok'), key=lambda r: r['design_id'])
+        rows = sorted(filter(_counts, res.rows('design')), key=lambda r: r['design_id'])
         runs[name] = (rows, sum(bool(r.get('pareto')) for r in res.rows('design')))
     every = [r for rows, _ in runs.values() for r in rows]
     if not every:
@@ -144,6 +143,11 @@ def ideal_point_search(result, baseline, rel: float = 0.01) -> dict:
         out[name] = {'front_size': front, 'n_near_ideal': len(near),
                      'evaluations_to_ideal': (near[0]['design_id'] + 1 if near else None)}
     return out
+
+
+def _counts(r: dict) -> bool:
+    """A design row that enters the fronts and hypervolumes: evaluated and feasible."""
+    return bool(r['feasible']) and r['status'] == 'ok'
 
 
 def _f(v) -> float:

@@ -44,7 +44,7 @@ class BranchSwitching:
     def _distance_to_branch(self, x: np.ndarray, s: float, b: Branch) -> float:
         """Smallest max | |w_n| - |w_n|_b(s) | [rad] over the stretches of branch b that bracket
         speed s (linear interpolation of the harmonic amplitudes between its points)."""
-        S = np.array([q.speed_rpm for q in b.points])
+        S = b.column('speed_rpm')
         a0 = self._amplitudes(x)
         if len(S) == 1:
             return (float(np.abs(a0 - self._amplitudes(b.points[0].x)).max())

@@ -37,7 +37,7 @@ from dmf_sim.solvers.hbm.results import Branch, NonPeriodicBand, SweepEvent
 from dmf_sim.solvers.newmark import simulate
 from dmf_sim.solvers.nonperiodic import NonPeriodicOptions, analyze
 
-__all__ = ['N_SHIFTS', 'SearchOptions', 'branch_speeds', 'StateSearch']
+__all__ = ['N_SHIFTS', 'SearchOptions', 'StateSearch']
 
 N_SHIFTS = 6        # a 720 deg cycle holds six 120 deg firing intervals
 
@@ -76,11 +76,6 @@ class SearchOptions:
     max_new_branches: int = 16
 
 
-def branch_speeds(b: Branch) -> np.ndarray:
-    """The speeds [rpm] of branch b's points, in order."""
-    return np.array([q.speed_rpm for q in b.points])
-
-
 def _stretches(S: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(start, end, lowest, highest) speed of every stretch between successive points of speeds
     S, the bounds widened by the speed tolerance (1e-9 rpm) of :func:`_interp_states`."""
@@ -96,7 +91,7 @@ def _interp_states(b: Branch, s: float, stretches: tuple | None = None
     pts = b.points
     if len(pts) == 1:
         return [(pts[0].x, pts[0].stable)] if abs(pts[0].speed_rpm - s) < 1e-9 else []
-    a, c, lo, hi = stretches if stretches is not None else _stretches(branch_speeds(b))
+    a, c, lo, hi = stretches if stretches is not None else _stretches(b.column('speed_rpm'))
     idx = np.flatnonzero((lo <= s) & (s <= hi))
     out = []
     for i in idx.tolist():
@@ -127,7 +122,7 @@ class StateSearch:
         cache = self.__dict__.setdefault('_branch_stretches', {})
         hit = cache.get(id(b))
         if hit is None or hit[0] is not b.points or hit[1] != len(b.points):
-            hit = cache[id(b)] = (b.points, len(b.points), _stretches(branch_speeds(b)))
+            hit = cache[id(b)] = (b.points, len(b.points), _stretches(b.column('speed_rpm')))
         return hit[2]
 
     def _deflation_set(self, known: list[np.ndarray]) -> np.ndarray:

@@ -352,7 +352,7 @@ class SpeedSweep(BranchSwitching, StateSearch):
         grid = self.output_grid()
         covered = np.zeros(len(grid), dtype=bool)
         for b in self.branches:
-            S = np.array([q.speed_rpm for q in b.points])
+            S = b.column('speed_rpm')
             if len(S) == 1:
                 covered |= np.abs(grid - S[0]) < 1e-6
                 continue
