@@ -522,7 +522,7 @@ def test_installed_layout_runs_like_ros2_run(tmp_path):
 
     src = tmp_path / 'src'
     shutil.copytree(REPO, src, ignore=shutil.ignore_patterns(
-        '.venv', '.git', 'build', 'install', 'log', '__pycache__', '*.egg-info', 'dmf_bag_*',
+        '.venv*', '.git', 'build', 'install', 'log', '__pycache__', '*.egg-info', 'dmf_bag_*',
         '.pytest_cache', 'out'))
     prefix = tmp_path / 'prefix'
     subprocess.run([sys.executable, 'setup.py', '-q', 'install', '--prefix', str(prefix),
@@ -566,7 +566,10 @@ def test_installed_layout_runs_like_ros2_run(tmp_path):
         assert all(w in res.stdout for w in words), (exe_name, res.stdout)
 
     domain = new_domain()
-    node = NodeProcess(['--ros-args', '-r', '__node:=my_node', '-p', 'publish_rate:=200.0'],
+    # monitor off: the installed copy is a new path for numba's cache, so its worker would
+    # compile every sweep kernel afresh (tens of seconds beside the node); the layout is the test
+    node = NodeProcess(['--ros-args', '-r', '__node:=my_node', '-p', 'publish_rate:=200.0',
+                        '-p', 'monitor:=false'],
                        tmp_path, domain, exe=[str(Path(found_prefix) / 'lib' / 'dmf_sim' /
                                                   'driveline_node')], env=env)
     peer = Peer(domain)
