@@ -242,7 +242,13 @@ def test_cli_report_yaml_designs_and_json(client, tmp_path, capsys):
     assert rc == 0
     s = json.loads(capsys.readouterr().out)
     assert s['n_designs'] == 4 and s['baseline']['n_designs'] == 4
-    assert set(s['hypervolume']) == {'reference_point', 'optimizer_final', 'lhs_final', 'ratio'}
+    assert set(s['hypervolume']) == {'reference_point', 'optimizer_final', 'lhs_final', 'ratio',
+                                     'front'}
+    front = s['hypervolume']['front']
+    assert set(front) == {'reference_point', 'optimizer_final', 'lhs_final', 'ratio',
+                          'wide_bound'}
+    assert s['hypervolume']['ratio'] <= front['wide_bound'] * (1 + 1e-12)
+    assert "fronts' own reference point" in (out / 'report.md').read_text()
     assert 'dominates_paper' in s['best_vs_paper']
     for name in ('report.md', 'report.html', 'pareto_vs_lhs.png', 'hypervolume.png',
                  'springs.png', 'fig13_best.png'):
@@ -277,6 +283,10 @@ def test_benchmark_quick():
     assert 0 <= data['verified_max_rel_diff'] < 0.05
     assert 'dominates_paper' in data['best_vs_paper']
     assert len(data['hypervolume_ratio_vs_paper_per_seed']) in (0, 2)
+    assert len(data['hypervolume_ratio_wide_per_seed']) == 2
+    for ratio, bound in zip(data['hypervolume_ratio_wide_per_seed'],
+                            data['hypervolume_ratio_wide_bound_per_seed']):
+        assert ratio <= bound * (1 + 1e-12)          # no front beats the ideal point
     for seed in data['ideal_point_search']:
         for run in ('optimizer', 'lhs'):
             assert seed[run]['front_size'] >= 1 and seed[run]['n_near_ideal'] >= 0
@@ -323,3 +333,33 @@ def test_common_hypervolumes_with_a_given_reference_point():
     paper = common_hypervolumes(opt, lhs, (2.0, 2.0))
     assert paper['optimizer_final'] == pytest.approx(1.0)      # (2-1) x (2-1)
     assert paper['lhs_final'] == 0.0 and paper['ratio'] == math.inf
+
+
+def test_front_reference_point_and_the_bound_of_the_wide_one():
+    """The fronts' reference point is their nadir plus 10 % of their range, so both fronts count
+    whole; with the wide reference point (1.1 x the worst feasible design) a design far worse
+    than either front dominates the comparison and the ratio is bounded by the ideal point's."""
+    from types import SimpleNamespace
+
+    from dmf_sim.optimize.report import common_hypervolumes, front_hypervolumes
+
+    def run(points, front):
+        rows = [{'design_id': i, 'feasible': True, 'status': 'ok', 'a': a, 'b': b,
+                 'pareto': i in front} for i, (a, b) in enumerate(points)]
+        return SimpleNamespace(problem=SimpleNamespace(objectives=['a', 'b']),
+                               rows=lambda kind: rows)
+
+    # both fronts near (1, 1); one far design (20, 20) sets the wide reference point
+    opt = run([(1.0, 1.0), (20.0, 20.0)], {0})
+    lhs = run([(1.2, 1.5), (1.5, 1.2)], {0, 1})
+    front = front_hypervolumes(opt, lhs)
+    # nadir (1.5, 1.5), ideal (1, 1), range 0.5 -> reference (1.55, 1.55)
+    assert front['reference_point'] == pytest.approx([1.55, 1.55])
+    assert front['optimizer_final'] == pytest.approx(0.55 ** 2)
+    assert front['lhs_final'] == pytest.approx(2 * 0.35 * 0.05 - 0.05 ** 2)  # overlap once
+    assert front['ratio'] == pytest.approx(0.55 ** 2 / 0.0325)
+    wide = common_hypervolumes(opt, lhs)
+    assert wide['reference_point'] == pytest.approx([22.0, 22.0])
+    # the optimizer's front is the ideal point itself: the wide ratio is the bound, near 1
+    assert wide['ratio'] == pytest.approx(front['wide_bound'])
+    assert 1.0 < front['wide_bound'] < 1.05

@@ -101,6 +101,7 @@ def _finish(problem, result, baseline, args, say, seconds_so_far: float) -> dict
     from dmf_sim.optimize.report import (
         common_hypervolumes,
         compare_with_reference,
+        front_hypervolumes,
         reference_design,
         spread,
         write_report,
@@ -124,8 +125,10 @@ def _finish(problem, result, baseline, args, say, seconds_so_far: float) -> dict
     summary = result.summary()
     summary['best_vs_paper'] = bvp
     if hv:
-        summary['hypervolume'] = {k: hv[k] for k in ('reference_point', 'optimizer_final',
-                                                     'lhs_final', 'ratio')}
+        keys = ('reference_point', 'optimizer_final', 'lhs_final', 'ratio')
+        front = front_hypervolumes(result, baseline)
+        hv['front'] = {k: front[k] for k in (*keys, 'wide_bound') if k in front}
+        summary['hypervolume'] = {**{k: hv[k] for k in keys}, 'front': hv['front']}
         summary['baseline'] = {k: v for k, v in baseline.summary().items()
                                if k in ('n_designs', 'n_feasible', 'n_failed', 'pareto',
                                         'best', 'seconds', 'designs_per_s')}
