@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 from matplotlib.figure import Figure
+from matplotlib.ticker import NullFormatter
 
 from dmf_sim.design.metrics import OBJECTIVES
 from dmf_sim.design.parameters import design_driveline
@@ -245,6 +246,7 @@ def pareto_figure(result, baseline, ref: dict) -> Figure:
         ax.plot(ref[o1], ref[o2], 's', color='tab:red', ms=8,
                 label='paper (α 3, θ 0.24)' + ('' if ref['feasible'] else ', infeasible'))
     ax.set_xscale('log')
+    ax.xaxis.set_minor_formatter(NullFormatter())   # minor labels of a short decade overlap
     ax.set_xlabel(_label(o1), fontsize=8)
     ax.set_ylabel(_label(o2), fontsize=8)
     ax.grid(alpha=0.3, which='both')
@@ -400,7 +402,7 @@ def _blocks(result, baseline, ref, hv, bvp, exported, seconds, front) -> list[Bl
         b.append(Block('p', f'Hypervolume of the feasible designs (reference point '
                             f'{_pt(hv["reference_point"])}): optimizer '
                             f'{hv.get("optimizer_final", math.nan):.4g}, Latin hypercube '
-                            f'{hv.get("lhs_final", math.nan):.4g}, ratio {hv["ratio"]:.3g}.'))
+                            f'{hv.get("lhs_final", math.nan):.4g}, ratio {hv["ratio"]:.4g}.'))
         fhv = hv.get('front') or {}
         if fhv.get('reference_point') is not None:
             b.append(Block('p', f'With the fronts\' own reference point (their nadir + '
