@@ -24,10 +24,11 @@ Khat is tridiagonal (a chain of merged inertias), so each step is O(n): a Thomas
 precomputed factorization. The reference speed, phase and cylinder loads of the regular steps do
 not depend on the vibratory state: :func:`regular_block` computes them LOOKAHEAD_STEPS steps
 ahead in one vectorizable pass, with the step's own arithmetic (the same bits); a split step
-computes its pieces' own and the steps ahead start again from its end. :func:`advance_compiled` is the numba kernel (arguments packed in
-tuples, see :class:`dmf_sim.solvers.newmark.NewmarkIntegrator`; the cold parts — factorization,
-region lookup — are small jitted helpers); :func:`advance_reference` is the readable numpy path
-with dense solves and the spring object itself, which the tests compare against.
+computes its pieces' own and the steps ahead start again from its end.
+:func:`advance_compiled` is the numba kernel (arguments packed in tuples, see
+:class:`dmf_sim.solvers.newmark.NewmarkIntegrator`; the cold parts — factorization, region
+lookup — are small jitted helpers); :func:`advance_reference` is the readable numpy path with
+dense solves and the spring object itself, which the tests compare against.
 
 Speed: the reference crank speed omega ramps toward its target at ``ramp`` [rad/s^2]; the
 excitation phase is psi = integral of omega dt (trapezoid, exact for a linear ramp), never

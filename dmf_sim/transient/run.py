@@ -296,7 +296,7 @@ def run_profile(profile: Profile, out: str | Path | None, options: RunOptions | 
     chunk = max(int(round(opt.chunk_s / sim.dt)) // stride, 1) * stride
     block = SampleBlock(BLOCK_ROWS, len(sim.names)) if write else None
     max_rows = chunk // stride + 1
-    qva = np.zeros((max_rows, 3 * sim.model.n_dof))
+    work = np.zeros((max_rows, 3 * sim.model.n_elements))
 
     def write_out() -> None:
         if block is not None and block.n:
@@ -326,7 +326,7 @@ def run_profile(profile: Profile, out: str | Path | None, options: RunOptions | 
         try:
             for n, raw in (chunks if chunks is not None
                            else ((n, sim.integrate(n, own)) for n in plan)):
-                s = sim.read_out(raw, qva)
+                s = sim.read_out(raw, work)
                 done += n
                 rows = len(s)
                 samples += rows
