@@ -112,27 +112,17 @@ _CHUNK_HEAD = struct.Struct('<BQQQQIIQ')   # opcode, length, start, end, size, C
 _CRC_BITS = 32
 
 
-def _gf2_apply(op: tuple[int, ...], vec: int) -> int:
-    """A linear map of 32-bit vectors over GF(2) (the images of the unit vectors) applied."""
-    out = i = 0
-    while vec:
-        if vec & 1:
-            out ^= op[i]
-        vec >>= 1
-        i += 1
-    return out
+_BYTE_BITS = (np.arange(256)[:, None] >> np.arange(8)) & 1 == 1     # bit i of each byte value
 
 
 def _byte_tables(op: tuple[int, ...]) -> tuple[tuple[int, ...], ...]:
-    """``op`` as four 256-entry tables, one per byte of the vector (apply: 4 lookups)."""
-    tables = []
-    for b in range(4):
-        t = [0] * 256
-        for v in range(1, 256):
-            low = (v & -v).bit_length() - 1
-            t[v] = t[v & (v - 1)] ^ op[8 * b + low]
-        tables.append(tuple(t))
-    return tuple(tables)
+    """A linear map of 32-bit vectors over GF(2), given by the images of the unit vectors, as
+    four 256-entry tables, one per byte of the vector (apply: 4 lookups): entry v of table b
+    is the XOR of the images of the bits set in v (numpy; a loop over the entries cost ~20 ms
+    in the first chunk of every bag)."""
+    ops = np.asarray(op, dtype=np.uint32).reshape(4, 1, 8)
+    tables = np.bitwise_xor.reduce(np.where(_BYTE_BITS, ops, np.uint32(0)), axis=2)
+    return tuple(tuple(t) for t in tables.tolist())
 
 
 _ZERO_OPS: list[tuple[int, ...]] = []          # see _crc_zero_op
@@ -148,7 +138,9 @@ def _crc_zero_op(k: int) -> tuple[tuple[int, ...], ...]:
             base = zlib.crc32(b'\0')
             op = tuple(zlib.crc32(b'\0', 1 << i) ^ base for i in range(_CRC_BITS))
         else:
-            op = tuple(_gf2_apply(_ZERO_OPS[-1], col) for col in _ZERO_OPS[-1])
+            t0, t1, t2, t3 = _ZERO_TABLES[-1]          # squared: the last map applied to itself
+            op = tuple(t0[c & 255] ^ t1[c >> 8 & 255] ^ t2[c >> 16 & 255] ^ t3[c >> 24]
+                       for c in _ZERO_OPS[-1])
         _ZERO_OPS.append(op)
         _ZERO_TABLES.append(_byte_tables(op))
     return _ZERO_TABLES[k]

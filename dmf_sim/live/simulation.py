@@ -188,6 +188,10 @@ class LiveSimulation:
         self.integ.set_target(self.speed_setpoint, self.speed_ramp_rpm_per_s)
         self._rec = StepRecord.allocate(64, self.integ.model.n_dof)
         self._work = np.zeros((64, 3 * self.integ.model.n_elements))
+        # ... and the compiled read-out
+        self.read_out(Integrated(self._rec, 1, 0, 0.0,
+                                 np.zeros((1, self.model.n_elements))
+                                 if self._torques.needs_loads else None))
 
     # ---- building ---------------------------------------------------------------------------
     def _make_integrator(self, line: Driveline, engine):
