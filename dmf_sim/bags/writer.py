@@ -204,6 +204,12 @@ def _write_chunk(writer: Writer, records: np.ndarray, t0: int, t1: int,
     return True
 
 
+def _same_view(a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether ``b`` is ``a`` (the same memory, shape and strides): nothing to copy."""
+    return (a.shape == b.shape and a.strides == b.strides
+            and a.__array_interface__['data'][0] == b.__array_interface__['data'][0])
+
+
 def _block_layout(sizes: list[int]) -> np.dtype:
     """Packed record layout of one row of a block: per topic a message record (opcode,
     length, channel, sequence, log time, publish time, data)."""
@@ -542,7 +548,9 @@ class BagRecorder:
             block[f'seq{j}'] = (info.count + np.arange(rows, dtype=np.int64)) & 0xFFFFFFFF
             block[f'log{j}'] = t
             block[f'pub{j}'] = t
-            block[f'data{j}'] = data
+            field = block[f'data{j}']
+            if not _same_view(field, data):       # not encoded in place (block_payloads)
+                field[...] = data
             index[j, :, 0] = t
             index[j, :, 1] = row_offsets + layout.fields[f'op{j}'][1]
             info.count += rows
@@ -568,6 +576,18 @@ class BagRecorder:
         self.message_count += n
         writer.flush()                            # the chunk, its indexes, to the OS
         return rows
+
+    def block_payloads(self, topics: list[str], sizes: list[int], rows: int
+                       ) -> list[np.ndarray]:
+        """Where :meth:`write_block` puts the payloads of ``rows`` rows of messages of
+        ``topics`` (in that order) with these sizes: (rows, size) uint8 views into the records
+        it writes. Payloads encoded into them (the first rows of each, in the same order) are
+        written without a copy; the views stay valid while the layout and the row count do
+        (a caller encoding into them keeps their bytes between calls only if it rewrites them)."""
+        with self._lock:
+            channels = tuple((self._channels[t][0], int(n)) for t, n in zip(topics, sizes))
+            block = self._block_buffer(channels, rows)
+            return [block[f'data{j}'] for j in range(len(channels))]
 
     def _block_buffer(self, channels: tuple[tuple[int, int], ...], rows: int) -> np.ndarray:
         """``rows`` records of (channel id, payload size) with their constant bytes (opcodes,

@@ -102,17 +102,22 @@ class EncodedBlock:
     a chunk's rows, then :meth:`take` the stamps and the (topic, payloads) of the sample streams
     in the node's order (:data:`dmf_sim.live.streams.SAMPLE_STREAMS`) for
     :meth:`dmf_sim.bags.writer.BagRecorder.write_block`. The views into the messages are made
-    once: ~7 array copies per chunk."""
+    once: ~7 array copies per chunk. With ``recorder``, the messages are the records it writes
+    (:meth:`~dmf_sim.bags.writer.BagRecorder.block_payloads`: no copy of the ~1 MB block)."""
 
-    def __init__(self, encoder: SampleEncoder, rows: int, topics: dict[str, str]) -> None:
+    def __init__(self, encoder: SampleEncoder, rows: int, topics: dict[str, str],
+                 recorder=None) -> None:
         self.encoder = encoder
         self.stamps = np.empty(rows, np.int64)
-        self.js = np.empty((rows, len(encoder.template)), np.uint8)
-        self.js[:] = encoder.template
-        fl = np.empty((len(SAMPLE_STREAMS) - 1, rows, _FLOAT64_BYTES), np.uint8)
-        fl[:] = encoder.float_template
-        self.fl = list(fl)
         self.topics = [topics[k] for k in SAMPLE_STREAMS]
+        sizes = [len(encoder.template)] + [_FLOAT64_BYTES] * (len(SAMPLE_STREAMS) - 1)
+        if recorder is not None:      # encode into the records the bag recorder writes
+            self.js, *self.fl = recorder.block_payloads(self.topics, sizes, rows)
+        else:
+            self.js, *self.fl = (np.empty((rows, size), np.uint8) for size in sizes)
+        self.js[:] = encoder.template
+        for f in self.fl:
+            f[:] = encoder.float_template
         self.js_arrays = encoder.arrays(self.js)
         self.fl_values = [(_FLOAT_FIELDS[k], _float_field(f, 4, 1)[:, 0])
                           for k, f in zip(SAMPLE_STREAMS[1:], self.fl)]

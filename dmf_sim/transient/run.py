@@ -261,7 +261,8 @@ def run_profile(profile: Profile, out: str | Path | None, options: RunOptions | 
     timebase.start(time.time_ns(), sim.t)
     stride = sim.stride
     chunk = max(int(round(opt.chunk_s / sim.dt)) // stride, 1) * stride
-    block = EncodedBlock(SampleEncoder(sim.names), BLOCK_ROWS, topics) if write else None
+    block = (EncodedBlock(SampleEncoder(sim.names), BLOCK_ROWS, topics, recorder) if write
+             else None)
     max_rows = chunk // stride + 1
     work = np.zeros((max_rows, 3 * sim.model.n_elements))
 
