@@ -38,6 +38,7 @@ setup(
         'fatpack>=0.7',                # dmf-sim durability: rainflow cycles
         'threadpoolctl>=3',            # dmf-sim run: BLAS in one thread for the small products
         'optuna>=5.0',                 # dmf-sim optimize: NSGA-II / TPE, journal storage
+        'zlib-ng>=0.4',                # bags: the chunks' CRC-32, ~4.7x faster than zlib's
     ],
     extras_require={
         'ros': ['ros-jazzy-rclpy[fastrtps]', 'ros-jazzy-common-interfaces'],

@@ -14,8 +14,9 @@ own), on the paper driveline (``truck_dmf``, ``engine_d13``, Load A, full load) 
 * ``breakdown_ms_per_sim_s``: where the time of one ``--threads 1`` run with the bag goes, in
   wall milliseconds per simulated second, timed in this process around the stages: the Newmark
   kernel, the excitation update and the rest of a chunk's integration, the read-out of the
-  element angles and torques, gathering, encoding and writing the bag (``write_block``: the
-  records, their CRC and the file write), and what is left (the loop); ``kernel_ceiling`` is
+  element angles and torques, encoding the messages (straight into the block of 1024 samples
+  the bag gets at once) and writing the bag (``write_block``: the records, their CRC and the
+  file write), and what is left (the loop); ``kernel_ceiling`` is
   simulated seconds per second of kernel alone, the bound no writing path can beat.
 * ``quasi_static_rel_diff``: that slow run-up (10 rpm/s) against the HBM sweep's stable branch
   (``dmf-sim runup``): the largest |measured / HBM - 1| of the 3rd- and 1.5th-order wind-up
@@ -117,7 +118,7 @@ def breakdown(profile: str, out: Path) -> dict:
     from dmf_sim.live.simulation import LiveSimulation
     from dmf_sim.solvers.newmark import NewmarkIntegrator
     from dmf_sim.transient import run as run_mod
-    from dmf_sim.transient.encode import SampleEncoder
+    from dmf_sim.transient.encode import EncodedBlock
     from dmf_sim.transient.profiles import load_profile
 
     spent: dict[str, float] = defaultdict(float)
@@ -125,8 +126,7 @@ def breakdown(profile: str, out: Path) -> dict:
               (NewmarkIntegrator, 'update_excitation', 'excitation'),
               (LiveSimulation, 'integrate', 'integrate'),
               (LiveSimulation, 'read_out', 'read_out'),
-              (run_mod.SampleBlock, 'add', 'gather'),
-              (SampleEncoder, 'samples', 'encode'),
+              (EncodedBlock, 'add', 'encode'),
               (BagRecorder, 'write_block', 'write_block')]
     saved = [(cls, name, getattr(cls, name)) for cls, name, _ in stages]
 

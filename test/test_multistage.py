@@ -202,6 +202,20 @@ def test_live_simulation_multistage(yaml_path):
                                it.model.transmitted_torques(q2, v, a,
                                                             it.element_loads(psi, it.omega_dot)),
                                rtol=1e-9, atol=1e-6)
+    # the compiled read-out over M's non-zeros (the samples above) equals the dense product, in
+    # every stage and with a d'Alembert load, to round-off
+    op = sim._torques
+    assert not op.needs_loads          # the compiled path (the d'Alembert part alone)
+    qs, vs, as_ = (np.vstack([x, x2, x]) for x, x2 in ((q, q2), (v, v), (a, a)))
+    ws = qs @ it.model.e
+    psis = np.repeat(psi, 3)
+    for omega_dot in (0.0, 35.0):
+        fast = op.outputs_of(qs, vs, as_, ws, psis, omega_dot)
+        dense = op.outputs(np.hstack([qs, vs, as_]), ws, psis, omega_dot)
+        for f, d in zip(fast, dense):
+            np.testing.assert_allclose(f, d, rtol=1e-12, atol=1e-9 * np.abs(d).max())
+        np.testing.assert_allclose(fast[2], it.model.transmitted_torques(
+            qs, vs, as_, it.element_loads(psis, omega_dot)), rtol=1e-9, atol=1e-6)
 
 
 def test_steady_cli_multistage(yaml_path, capsys):

@@ -233,6 +233,44 @@ def test_block_writing_equals_per_message_writing(tmp_path):
             assert ma == mb and len(ma) > 0
 
 
+def test_encoding_into_the_records_equals_copying_them(tmp_path):
+    """EncodedBlock encoding into the recorder's own records (BagRecorder.block_payloads: no
+    copy) writes the same files as encoding apart and copying, also where a block is split
+    across files (1 s splits, 1024-row blocks)."""
+    from dmf_sim.live.simulation import Samples
+    from dmf_sim.transient.encode import EncodedBlock
+    names = ['a', 'b', 'c']
+    topics = resolved_topics('')
+    types = {topics[k]: STREAMS[k].msgtype for k in ('joint_states', 'dmf_windup', 'speed',
+                                                      'crank_angle')}
+    n = 2600
+    rng = np.random.default_rng(5)
+    t = 10 ** 9 + np.arange(n, dtype=np.int64) * 1_000_000
+    x = rng.normal(size=(n, 3, 3))
+    s = Samples(np.arange(n), t * 1e-9, x[:, 0, 0], x[:, 0, 1], x[:, 0, 2], x[:, 0], x[:, 1],
+                x[:, 2])
+    for name, in_place in (('apart', False), ('inplace', True)):
+        rec = BagRecorder(tmp_path / name / 'bag', types, max_duration_s=1.0)
+        block = EncodedBlock(SampleEncoder(names), 1024, topics, rec if in_place else None)
+        with rec:
+            for a in range(0, n, 300):                  # chunks of 300 rows
+                b = min(a + 300, n)
+                start = a
+                while start < b:
+                    k = min(block.free, b - start)
+                    block.add(s, t, start, start + k)
+                    start += k
+                    if block.free == 0:
+                        rec.write_block(*block.take())
+            rec.write_block(*block.take())
+    one, two = (resolve_bag(tmp_path / name / 'bag').files for name in ('apart', 'inplace'))
+    assert len(one) == len(two) == 3
+    for f1, f2 in zip(one, two):
+        assert f1.read_bytes() == f2.read_bytes()
+    msgs = _read(tmp_path / 'inplace' / 'bag')
+    assert len(msgs) == 4 * n
+
+
 def test_block_written_files_pass_every_crc_check(run_bag):
     """The run's chunks go straight to the file (one CRC pass each, the data-section CRC
     combined from it): every chunk CRC and each file's data-section CRC check out, and the

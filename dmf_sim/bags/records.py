@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import io
 import struct
-import zlib
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -38,6 +37,7 @@ from mcap.opcode import Opcode
 from mcap.reader import make_reader
 from mcap.records import Channel, Chunk, DataEnd, Footer, MessageIndex, Schema
 from mcap.stream_reader import StreamReader, breakup_chunk, get_chunk_data_stream, read_magic
+from zlib_ng import zlib_ng as zlib  # zlib's CRC-32, ~4.7x faster (SIMD; the same values)
 
 __all__ = ['TRUNCATION_ERRORS', 'SUMMARY_ERRORS', 'RECORD_HEAD', 'CheckedChunk', 'CorruptChunk',
            'Scan', 'iter_records', 'record_offsets', 'normalize_type', 'file_topics',

@@ -187,7 +187,11 @@ class LiveSimulation:
         self.integ.reset(self.speed_setpoint, self.load)
         self.integ.set_target(self.speed_setpoint, self.speed_ramp_rpm_per_s)
         self._rec = StepRecord.allocate(64, self.integ.model.n_dof)
-        self._qva = np.zeros((64, 3 * self.integ.model.n_dof))
+        self._work = np.zeros((64, 3 * self.integ.model.n_elements))
+        # ... and the compiled read-out
+        self.read_out(Integrated(self._rec, 1, 0, 0.0,
+                                 np.zeros((1, self.model.n_elements))
+                                 if self._torques.needs_loads else None))
 
     # ---- building ---------------------------------------------------------------------------
     def _make_integrator(self, line: Driveline, engine):
@@ -388,24 +392,21 @@ class LiveSimulation:
                  else None)
         return Integrated(record, row, first, omega_dot, loads)
 
-    def read_out(self, chunk: Integrated, qva: np.ndarray | None = None) -> Samples:
+    def read_out(self, chunk: Integrated, work: np.ndarray | None = None) -> Samples:
         """The samples of an integrated chunk: element angles, velocities and transmitted
-        torques (``qva``: a rows x 3 n_dof work buffer, default this simulation's own)."""
-        n = self.integ.model.n_dof
+        torques (``work``: their rows x 3 n_elements storage, default this simulation's own;
+        the samples are views into it)."""
+        m = self.model.n_elements
         row, rec = chunk.rows, chunk.record
-        if qva is None:
-            if row > self._qva.shape[0]:
-                self._qva = np.zeros((max(row, 2 * self._qva.shape[0]), 3 * n))
-            qva = self._qva
-        qva = qva[:row]
-        qva[:, :n] = rec.q[:row]
-        qva[:, n:2 * n] = rec.v[:row]
-        qva[:, 2 * n:] = rec.a[:row]
+        if work is None:
+            if row > self._work.shape[0]:
+                self._work = np.zeros((max(row, 2 * self._work.shape[0]), 3 * m))
+            work = self._work
         psi, w = rec.psi[:row], rec.windup[:row]
         # d'Alembert part with the reference acceleration at the end of the chunk (exact while
         # the speed is constant or ramping; a ramp that ends inside the chunk is off for <= 1 row)
-        position, velocity, effort = self._torques.outputs(qva, w, psi, chunk.omega_dot,
-                                                           chunk.loads)
+        position, velocity, effort = self._torques.outputs_of(
+            rec.q[:row], rec.v[:row], rec.a[:row], w, psi, chunk.omega_dot, chunk.loads, work)
         return Samples(step=chunk.first + self.stride * np.arange(row, dtype=np.int64),
                        t=rec.t[:row], psi=psi, speed_rpm=rec.omega[:row] * RAD_S_TO_RPM,
                        windup=w, position=position, velocity=velocity, effort=effort)

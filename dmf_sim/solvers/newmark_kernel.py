@@ -21,10 +21,14 @@ it crosses (time from linear interpolation of w), so every kink of the spring fa
 boundary and the trapezoidal rule never straddles one.
 
 Khat is tridiagonal (a chain of merged inertias), so each step is O(n): a Thomas solve with a
-precomputed factorization. :func:`advance_compiled` is the numba kernel (arguments packed in
-tuples, see :class:`dmf_sim.solvers.newmark.NewmarkIntegrator`; the cold parts — factorization,
-region lookup — are small jitted helpers); :func:`advance_reference` is the readable numpy path
-with dense solves and the spring object itself, which the tests compare against.
+precomputed factorization. The reference speed, phase and cylinder loads of the regular steps do
+not depend on the vibratory state: :func:`regular_block` computes them LOOKAHEAD_STEPS steps
+ahead in one vectorizable pass, with the step's own arithmetic (the same bits); a split step
+computes its pieces' own and the steps ahead start again from its end.
+:func:`advance_compiled` is the numba kernel (arguments packed in tuples, see
+:class:`dmf_sim.solvers.newmark.NewmarkIntegrator`; the cold parts — factorization, region
+lookup — are small jitted helpers); :func:`advance_reference` is the readable numpy path with
+dense solves and the spring object itself, which the tests compare against.
 
 Speed: the reference crank speed omega ramps toward its target at ``ramp`` [rad/s^2]; the
 excitation phase is psi = integral of omega dt (trapezoid, exact for a linear ramp), never
@@ -48,8 +52,9 @@ import math
 
 import numpy as np
 
-__all__ = ['MAX_PIECES', 'SPLIT_MIN_FRACTION', 'newmark_constants', 'thomas', 'factor',
-           'region_of', 'knee_between', 'advance_kernel', 'advance_reference']
+__all__ = ['MAX_PIECES', 'SPLIT_MIN_FRACTION', 'LOOKAHEAD_STEPS', 'newmark_constants', 'thomas',
+           'factor', 'region_of', 'knee_between', 'regular_block', 'advance_kernel',
+           'advance_reference']
 
 try:
     import numba
@@ -59,6 +64,8 @@ except ImportError:  # pragma: no cover - numba is a hard dependency, kept optio
 
 MAX_PIECES = 8           # a step is split at most this many times (knees crossed in one step)
 SPLIT_MIN_FRACTION = 0.01  # crossings this close to a step end are not split (no tiny steps)
+LOOKAHEAD_STEPS = 64     # regular steps whose speed, phase and cylinder loads are computed ahead
+                         # in one vectorizable pass (see :func:`regular_block`)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -121,6 +128,60 @@ def knee_between(r_from, r_to, knees):
     return knees[r_from] if r_to > r_from else knees[r_from - 1]
 
 
+def regular_block(nb, h, scal, Br, Bi, blk_scal, blk_cyl, cr, ci, zr, zi):
+    """The next ``nb`` regular steps of length h, ahead of the state: the reference speed, phase
+    and time of each (the kernel's own ramp arithmetic from ``scal``, so the same numbers) into
+    ``blk_scal[0:4, s]`` = t, psi, omega, omega_dot, and each cylinder's excitation
+    Re(sum_k B_ck z^k), z = exp(i psi/2), into ``blk_cyl[c, s]``.
+
+    Neither depends on the vibratory state, so they are computed for many steps at once, the
+    steps in the inner loops (vectorized by the compiler) instead of one step's 25 dependent
+    complex products and n_cyl dot products each step: ~3x less time per step for the
+    excitation. The arithmetic of every value is the step's own (z^k = z^(k-1) z, the sum in k
+    order), so the results are bit for bit those of the step-by-step evaluation.
+    """
+    n_cyl = Br.shape[0]
+    n_h = Br.shape[1]
+    t = scal[0]
+    psi = scal[1]
+    omega = scal[2]
+    lim = scal[4] * h
+    for j in range(nb):
+        diff = scal[3] - omega
+        if diff > lim:
+            diff = lim
+        elif diff < -lim:
+            diff = -lim
+        omega_new = omega + diff
+        psi = psi + 0.5 * (omega + omega_new) * h
+        t += h
+        blk_scal[0, j] = t
+        blk_scal[1, j] = psi
+        blk_scal[2, j] = omega_new
+        blk_scal[3, j] = diff / h
+        omega = omega_new
+        cr[j] = math.cos(0.5 * psi)
+        ci[j] = math.sin(0.5 * psi)
+        zr[j] = 1.0
+        zi[j] = 0.0
+    for c in range(n_cyl):
+        b_r = Br[c, 0]
+        b_i = Bi[c, 0]
+        for j in range(nb):
+            blk_cyl[c, j] = 0.0 + (b_r * zr[j] - b_i * zi[j])
+    for k in range(1, n_h):
+        for j in range(nb):
+            a = zr[j]
+            b = zi[j]
+            zr[j] = a * cr[j] - b * ci[j]
+            zi[j] = a * ci[j] + b * cr[j]
+        for c in range(n_cyl):
+            b_r = Br[c, k]
+            b_i = Bi[c, k]
+            for j in range(nb):
+                blk_cyl[c, j] += b_r * zr[j] - b_i * zi[j]
+
+
 # ------------------------------------------------------------------------------------------------
 # The kernel
 # ------------------------------------------------------------------------------------------------
@@ -158,6 +219,18 @@ def advance_kernel(nsteps, stride, state, system, factors, spring, excitation, o
     s_inv = np.empty(n)
     s_cp = np.empty(max(n - 1, 1))
     s_u = np.empty(n)
+    # regular steps computed ahead (regular_block): speed/phase, cylinder loads, work rows
+    Br = np.empty((n_cyl, n_h))
+    Bi = np.empty((n_cyl, n_h))
+    for cc in range(n_cyl):
+        for k in range(n_h):
+            Br[cc, k] = B[cc, k].real
+            Bi[cc, k] = B[cc, k].imag
+    blk_scal = np.empty((4, LOOKAHEAD_STEPS))
+    blk_cyl = np.empty((n_cyl, LOOKAHEAD_STEPS))
+    blk_w = np.empty((4, LOOKAHEAD_STEPS))
+    nb = 0                           # steps in the block, the next one's index
+    jb = 0
     w_prev = 0.0
     for i in range(n):
         w_prev += e[i] * q[i]
@@ -166,6 +239,11 @@ def advance_kernel(nsteps, stride, state, system, factors, spring, excitation, o
     r = r_prev
     j = 0
     for step in range(nsteps):
+        if jb >= nb:
+            nb = min(LOOKAHEAD_STEPS, nsteps - step)
+            regular_block(nb, dt, scal, Br, Bi, blk_scal, blk_cyl, blk_w[0], blk_w[1], blk_w[2],
+                          blk_w[3])
+            jb = 0
         for i in range(n):
             q0[i] = q[i]
             v0[i] = v[i]
@@ -200,33 +278,46 @@ def advance_kernel(nsteps, stride, state, system, factors, spring, excitation, o
             a5 = c[6]
             gam = c[7]
             hc = c[8]
-            # --- reference speed and excitation phase psi = integral of omega dt ------------
-            omega = scal[2]
-            diff = scal[3] - omega
-            lim = scal[4] * h
-            if diff > lim:
-                diff = lim
-            elif diff < -lim:
-                diff = -lim
-            omega_new = omega + diff
-            omega_dot = diff / h
-            psi = scal[1] + 0.5 * (omega + omega_new) * h
-            scal[0] += h
-            scal[1] = psi
-            scal[2] = omega_new
-            scal[5] = omega_dot
-            # --- load: eq. (16)-(17) with z = exp(i psi/2), plus fixed and d'Alembert loads --
-            for i in range(n):
-                rhs[i] = fixed[i] + dal[i] * omega_dot
-            z = complex(math.cos(0.5 * psi), math.sin(0.5 * psi))
-            zp[0] = 1.0
-            for k in range(1, n_h):
-                zp[k] = zp[k - 1] * z
-            for cc in range(n_cyl):
-                acc = 0.0
-                for k in range(n_h):
-                    acc += B[cc, k].real * zp[k].real - B[cc, k].imag * zp[k].imag
-                rhs[cyl_dof[cc]] += cyl_scale[cc] * acc
+            if phase == 0:
+                # --- the regular step: speed, phase and cylinder loads computed ahead -------
+                omega_dot = blk_scal[3, jb]
+                scal[0] = blk_scal[0, jb]
+                scal[1] = blk_scal[1, jb]
+                scal[2] = blk_scal[2, jb]
+                scal[5] = omega_dot
+                for i in range(n):
+                    rhs[i] = fixed[i] + dal[i] * omega_dot
+                for cc in range(n_cyl):
+                    rhs[cyl_dof[cc]] += cyl_scale[cc] * blk_cyl[cc, jb]
+            else:
+                # --- a piece of a split step: the same, for this piece alone ----------------
+                # reference speed and excitation phase psi = integral of omega dt
+                omega = scal[2]
+                diff = scal[3] - omega
+                lim = scal[4] * h
+                if diff > lim:
+                    diff = lim
+                elif diff < -lim:
+                    diff = -lim
+                omega_new = omega + diff
+                omega_dot = diff / h
+                psi = scal[1] + 0.5 * (omega + omega_new) * h
+                scal[0] += h
+                scal[1] = psi
+                scal[2] = omega_new
+                scal[5] = omega_dot
+                # load: eq. (16)-(17) with z = exp(i psi/2), plus fixed and d'Alembert loads
+                for i in range(n):
+                    rhs[i] = fixed[i] + dal[i] * omega_dot
+                z = complex(math.cos(0.5 * psi), math.sin(0.5 * psi))
+                zp[0] = 1.0
+                for k in range(1, n_h):
+                    zp[k] = zp[k - 1] * z
+                for cc in range(n_cyl):
+                    acc = 0.0
+                    for k in range(n_h):
+                        acc += B[cc, k].real * zp[k].real - B[cc, k].imag * zp[k].imag
+                    rhs[cyl_dof[cc]] += cyl_scale[cc] * acc
             # --- rhs += J (a0 q + a2 v + a3 a) + C (a1 q + a4 v + a5 a) ------------------
             for i in range(n):
                 y[i] = a1 * q[i] + a4 * v[i] + a5 * a[i]
@@ -288,6 +379,9 @@ def advance_kernel(nsteps, stride, state, system, factors, spring, excitation, o
             factor(frac * h_rem, Jd, Klo, Kd, Kup, Clo, Cd, Cup, e, params, s_coef, s_lo, s_inv,
                    s_cp, s_u)
             phase = 1
+        jb += 1
+        if pieces > 0 or phase != 0:
+            nb = 0                       # a split step: the steps ahead start from its end
         if r > primary:
             counters[1] += 1
         elif r < primary:
@@ -314,6 +408,7 @@ if HAVE_NUMBA:
     factor = _jit(factor)
     region_of = _jit(region_of)
     knee_between = _jit(knee_between)
+    regular_block = _jit(regular_block)
     advance_compiled = _jit(advance_kernel)
 else:  # pragma: no cover
     advance_compiled = advance_kernel

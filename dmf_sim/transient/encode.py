@@ -17,8 +17,13 @@ import numpy as np
 
 from dmf_sim.bags.columns import FLOAT64, JOINT_STATE, joint_state_layout
 from dmf_sim.live.simulation import Samples
+from dmf_sim.live.streams import SAMPLE_STREAMS
 
-__all__ = ['SampleEncoder']
+__all__ = ['SampleEncoder', 'EncodedBlock']
+
+# the Float64 sample streams (SAMPLE_STREAMS after the joint states): the Samples field each
+# carries
+_FLOAT_FIELDS = {'dmf_windup': 'windup', 'speed': 'speed_rpm', 'crank_angle': 'psi'}
 
 _NS_PER_S = 1_000_000_000
 _FLOAT64_BYTES = 12            # CDR header 4 + float64 8
@@ -27,6 +32,13 @@ _FLOAT64_BYTES = 12            # CDR header 4 + float64 8
 def _typestore():
     from rosbags.typesys import Stores, get_typestore
     return get_typestore(Stores.ROS2_JAZZY)
+
+
+def _float_field(rows: np.ndarray, offset: int, n: int) -> np.ndarray:
+    """The (rows, n) little-endian float64 field at byte ``offset`` of each row of a (rows,
+    size) uint8 array, as a view (unaligned: CDR puts it where the message layout does), so
+    values are written into the messages in one copy."""
+    return rows[:, offset:offset + 8 * n].view('<f8')
 
 
 class SampleEncoder:
@@ -56,32 +68,79 @@ class SampleEncoder:
     def joint_states(self, stamps_ns: np.ndarray, position: np.ndarray, velocity: np.ndarray,
                      effort: np.ndarray) -> np.ndarray:
         """(rows, size) uint8: one JointState per row."""
-        rows = len(stamps_ns)
-        out = np.empty((rows, len(self.template)), np.uint8)
+        out = np.empty((len(stamps_ns), len(self.template)), np.uint8)
         out[:] = self.template
-        sec, nsec = np.divmod(np.asarray(stamps_ns, np.int64), _NS_PER_S)
-        out[:, 4:8] = sec.astype('<i4').view(np.uint8).reshape(rows, 4)
-        out[:, 8:12] = nsec.astype('<u4').view(np.uint8).reshape(rows, 4)
-        for key, values in (('position', position), ('velocity', velocity), ('effort', effort)):
-            off = self.offsets[key]
-            out[:, off:off + 8 * self.n] = np.ascontiguousarray(
-                values, dtype='<f8').view(np.uint8).reshape(rows, 8 * self.n)
+        self.stamp(out, stamps_ns)
+        arrays = self.arrays(out)
+        for k, values in enumerate((position, velocity, effort)):
+            arrays[k][:] = values
         return out
+
+    def stamp(self, rows: np.ndarray, stamps_ns: np.ndarray) -> None:
+        """Write the header stamps [ns] of JointState ``rows`` (rows, size)."""
+        sec, nsec = np.divmod(np.asarray(stamps_ns, np.int64), _NS_PER_S)
+        rows[:, 4:8] = sec.astype('<i4').view(np.uint8).reshape(-1, 4)
+        rows[:, 8:12] = nsec.astype('<u4').view(np.uint8).reshape(-1, 4)
+
+    def arrays(self, rows: np.ndarray) -> list[np.ndarray]:
+        """The position, velocity and effort arrays of JointState ``rows`` (rows, size) as
+        (rows, elements) float64 views into them."""
+        return [_float_field(rows, self.offsets[k], self.n)
+                for k in ('position', 'velocity', 'effort')]
 
     def floats(self, values: np.ndarray) -> np.ndarray:
         """(rows, 12) uint8: one Float64 per row."""
-        rows = len(values)
-        out = np.empty((rows, _FLOAT64_BYTES), np.uint8)
+        out = np.empty((len(values), _FLOAT64_BYTES), np.uint8)
         out[:, :4] = self.float_template[:4]
-        out[:, 4:] = np.ascontiguousarray(values, dtype='<f8').view(np.uint8).reshape(rows, 8)
+        _float_field(out, 4, 1)[:, 0] = values
         return out
 
-    def samples(self, s: Samples, stamps_ns: np.ndarray, topics: dict[str, str]
-                ) -> list[tuple[str, np.ndarray]]:
-        """(topic, payloads) of the sample streams in the node's order (``topics``: stream key
-        -> topic name)."""
-        return [(topics['joint_states'],
-                 self.joint_states(stamps_ns, s.position, s.velocity, s.effort)),
-                (topics['dmf_windup'], self.floats(s.windup)),
-                (topics['speed'], self.floats(s.speed_rpm)),
-                (topics['crank_angle'], self.floats(s.psi))]
+
+class EncodedBlock:
+    """The sample messages of up to ``rows`` samples, encoded as the chunks arrive (no gathered
+    copy of the samples; the template bytes written once, the stamps once per block): :meth:`add`
+    a chunk's rows, then :meth:`take` the stamps and the (topic, payloads) of the sample streams
+    in the node's order (:data:`dmf_sim.live.streams.SAMPLE_STREAMS`) for
+    :meth:`dmf_sim.bags.writer.BagRecorder.write_block`. The views into the messages are made
+    once: ~7 array copies per chunk. With ``recorder``, the messages are the records it writes
+    (:meth:`~dmf_sim.bags.writer.BagRecorder.block_payloads`: no copy of the ~1 MB block)."""
+
+    def __init__(self, encoder: SampleEncoder, rows: int, topics: dict[str, str],
+                 recorder=None) -> None:
+        self.encoder = encoder
+        self.stamps = np.empty(rows, np.int64)
+        self.topics = [topics[k] for k in SAMPLE_STREAMS]
+        sizes = [len(encoder.template)] + [_FLOAT64_BYTES] * (len(SAMPLE_STREAMS) - 1)
+        if recorder is not None:      # encode into the records the bag recorder writes
+            self.js, *self.fl = recorder.block_payloads(self.topics, sizes, rows)
+        else:
+            self.js, *self.fl = (np.empty((rows, size), np.uint8) for size in sizes)
+        self.js[:] = encoder.template
+        for f in self.fl:
+            f[:] = encoder.float_template
+        self.js_arrays = encoder.arrays(self.js)
+        self.fl_values = [(_FLOAT_FIELDS[k], _float_field(f, 4, 1)[:, 0])
+                          for k, f in zip(SAMPLE_STREAMS[1:], self.fl)]
+        self.n = 0
+
+    @property
+    def free(self) -> int:
+        return len(self.stamps) - self.n
+
+    def add(self, s: Samples, stamps_ns: np.ndarray, start: int, stop: int) -> None:
+        """Encode rows start:stop of ``s`` (stamped ``stamps_ns``, one per row of ``s``)."""
+        sl = slice(self.n, self.n + stop - start)
+        rows = slice(start, stop)
+        self.stamps[sl] = stamps_ns[rows]
+        for dst, values in zip(self.js_arrays, (s.position, s.velocity, s.effort)):
+            dst[sl] = values[rows]
+        for field, dst in self.fl_values:
+            dst[sl] = getattr(s, field)[rows]
+        self.n = sl.stop
+
+    def take(self) -> tuple[np.ndarray, list[tuple[str, np.ndarray]]]:
+        """The stamps and payloads gathered (views; valid until the next :meth:`add`), and
+        empty."""
+        n, self.n = self.n, 0
+        self.encoder.stamp(self.js[:n], self.stamps[:n])
+        return self.stamps[:n], list(zip(self.topics, [self.js[:n]] + [f[:n] for f in self.fl]))

@@ -37,7 +37,7 @@ from threadpoolctl import threadpool_limits
 from dmf_sim.core.errors import ConfigError, OperatingRangeError, one_line
 from dmf_sim.live.pacing import TimeBase, publish_stride
 from dmf_sim.live.recording import run_metadata
-from dmf_sim.live.simulation import Integrated, LiveSimulation, Samples
+from dmf_sim.live.simulation import Integrated, LiveSimulation
 from dmf_sim.live.streams import STREAMS, resolved_topics
 from dmf_sim.solvers.newmark import StepRecord
 from dmf_sim.transient.defaults import CHUNK_RANGE_S, DEFAULT_CHUNK_S, DEFAULT_THREADS
@@ -46,7 +46,7 @@ from dmf_sim.transient.profiles import Profile
 
 __all__ = ['WRITER_NAME', 'CHUNK_SPEED_STEP_RPM', 'CHUNK_LOAD_STEP', 'DEFAULT_SPLIT_S',
            'MEMORY_MARKS', 'BLAS_THREADS', 'BLOCK_ROWS', 'PIPELINE_DEPTH',
-           'RunOptions', 'SampleBlock', 'RunSummary',
+           'RunOptions', 'RunSummary',
            'build_simulation', 'open_bag', 'run_profile']
 
 WRITER_NAME = 'dmf-sim run'
@@ -87,38 +87,6 @@ class RunOptions:
     write: bool = True
     namespace: str = ''
     threads: int = DEFAULT_THREADS
-
-
-class SampleBlock:
-    """Samples gathered over several chunks until a bag chunk is worth writing (preallocated;
-    the live core's samples are views that the next chunk overwrites)."""
-
-    def __init__(self, rows: int, m: int) -> None:
-        self.t = np.empty(rows)
-        self.psi = np.empty(rows)
-        self.speed_rpm = np.empty(rows)
-        self.windup = np.empty(rows)
-        self.position = np.empty((rows, m))
-        self.velocity = np.empty((rows, m))
-        self.effort = np.empty((rows, m))
-        self.n = 0
-
-    @property
-    def free(self) -> int:
-        return len(self.t) - self.n
-
-    def add(self, s, start: int, stop: int) -> None:
-        k = stop - start
-        sl = slice(self.n, self.n + k)
-        for name in ('t', 'psi', 'speed_rpm', 'windup', 'position', 'velocity', 'effort'):
-            getattr(self, name)[sl] = getattr(s, name)[start:stop]
-        self.n += k
-
-    def take(self) -> Samples:
-        """The gathered samples (views; valid until the next :meth:`add`) and empty."""
-        n, self.n = self.n, 0
-        return Samples(np.zeros(0, np.int64), self.t[:n], self.psi[:n], self.speed_rpm[:n],
-                       self.windup[:n], self.position[:n], self.velocity[:n], self.effort[:n])
 
 
 @dataclass
@@ -281,28 +249,26 @@ def run_profile(profile: Profile, out: str | Path | None, options: RunOptions | 
     """Integrate ``profile`` and stream the samples to bag ``out`` (see the module docstring).
 
     ``out`` None or ``options.write`` False: integrate and encode nothing (timing)."""
-    from dmf_sim.transient.encode import SampleEncoder
+    from dmf_sim.transient.encode import EncodedBlock, SampleEncoder
 
     opt = options or RunOptions()
     sim = build_simulation(profile, opt)
     rate_hz = 1.0 / (sim.stride * sim.dt)
     write = opt.write and out is not None
     recorder, topics = open_bag(out, sim, profile, opt, rate_hz) if write else (None, {})
-    encoder = SampleEncoder(sim.names) if write else None
     follower = ProfileFollower(profile, sim)
     timebase = TimeBase()
     timebase.start(time.time_ns(), sim.t)
     stride = sim.stride
     chunk = max(int(round(opt.chunk_s / sim.dt)) // stride, 1) * stride
-    block = SampleBlock(BLOCK_ROWS, len(sim.names)) if write else None
+    block = (EncodedBlock(SampleEncoder(sim.names), BLOCK_ROWS, topics, recorder) if write
+             else None)
     max_rows = chunk // stride + 1
-    qva = np.zeros((max_rows, 3 * sim.model.n_dof))
+    work = np.zeros((max_rows, 3 * sim.model.n_elements))
 
     def write_out() -> None:
         if block is not None and block.n:
-            b = block.take()
-            stamps = timebase.stamps_ns(b.t)
-            recorder.write_block(stamps, encoder.samples(b, stamps, topics))
+            recorder.write_block(*block.take())
     total = int(round(profile.duration_s / sim.dt))
     bar = None
     if progress:
@@ -326,14 +292,15 @@ def run_profile(profile: Profile, out: str | Path | None, options: RunOptions | 
         try:
             for n, raw in (chunks if chunks is not None
                            else ((n, sim.integrate(n, own)) for n in plan)):
-                s = sim.read_out(raw, qva)
+                s = sim.read_out(raw, work)
                 done += n
                 rows = len(s)
                 samples += rows
                 start = 0
+                stamps = timebase.stamps_ns(s.t) if block is not None else None
                 while block is not None and start < rows:
                     k = min(block.free, rows - start)
-                    block.add(s, start, start + k)
+                    block.add(s, stamps, start, start + k)
                     start += k
                     if block.free == 0:
                         write_out()
