@@ -117,6 +117,17 @@ def summarize_orders(c: np.ndarray, samples: np.ndarray, theta: float,
                      static_windup: float = math.nan) -> OrderSummary:
     """Fig. 13 summary of one signal from its half orders ``c`` and its ``samples`` over whole
     cycles; ``theta`` the first knee [rad], ``static_windup`` [rad] if known."""
+    c = np.asarray(c)
+    if c.ndim == 1:       # one signal (every sweep point): the same values, in scalar arithmetic
+        n = c.shape[0]
+        mean = float(c[0].real)
+        samples = np.asarray(samples, dtype=float)
+        return OrderSummary(order_3=float(np.abs(c[ORDER_3])) if n > ORDER_3 else 0.0,
+                            order_1_5=float(np.abs(c[ORDER_1_5])) if n > ORDER_1_5 else 0.0,
+                            max_deviation=float(samples.max()) - mean,
+                            min_deviation=float(samples.min()) - mean, mean=mean,
+                            mean_minus_theta=mean - theta, static_windup=float(static_windup),
+                            theta=float(theta))
     r = fig13_rows(c, samples)
     mean = float(r['mean'])
     return OrderSummary(order_3=float(r['order_3']), order_1_5=float(r['order_1_5']),

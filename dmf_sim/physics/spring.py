@@ -32,6 +32,7 @@ Regions are numbered two ways:
 """
 from __future__ import annotations
 
+import bisect
 import math
 from dataclasses import dataclass
 from functools import cached_property
@@ -298,6 +299,15 @@ class PiecewiseLinearSpring:
         return self.slopes[:-1] * self.knees + self.offsets[:-1]
 
     @cached_property
+    def _g_at_knees_list(self) -> list[float]:
+        return self._g_at_knees.tolist()
+
+    @cached_property
+    def _lists(self) -> tuple[list[float], list[float], list[float]]:
+        """(knees, slopes, offsets) as lists of Python floats (scalar look-ups)."""
+        return self.knees.tolist(), self.slopes.tolist(), self.offsets.tolist()
+
+    @cached_property
     def _energy_constants(self) -> np.ndarray:
         """Per region: constant C_r with G(w) = s_r w^2 / 2 + o_r w + C_r, G(0) = 0 (G' = g)."""
         s, o, x = self.slopes, self.offsets, self.knees
@@ -336,5 +346,9 @@ class PiecewiseLinearSpring:
         ``F(w) = w + h g(w)`` is increasing and linear per region: find the region whose image
         holds ``w_lin`` and invert there (Newton's method on the piecewise-linear g converges in
         one step from inside the right region)."""
-        r = int(np.searchsorted(self.knees + h * self._g_at_knees, w_lin, side='left'))
-        return float((w_lin - h * self.offsets[r]) / (1.0 + h * self.slopes[r]))
+        # scalar arithmetic on lists (the same IEEE operations as the array form, without its
+        # per-call overhead: a sweep calls this at every point)
+        knees, slopes, offsets = self._lists
+        images = [kn + h * gk for kn, gk in zip(knees, self._g_at_knees_list)]
+        r = bisect.bisect_left(images, w_lin)     # = np.searchsorted(images, w_lin, 'left')
+        return float((w_lin - h * offsets[r]) / (1.0 + h * slopes[r]))

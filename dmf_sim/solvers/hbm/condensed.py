@@ -220,6 +220,8 @@ class CondensedHBM:
                              axis=1)
 
     def _linear_parts_many(self, speeds: list[float]) -> list[LinearParts]:
+        if len(speeds) == 1 and self.compiled:
+            return [self._linear_parts_one(float(speeds[0]))]
         H = self.H
         K = len(speeds)
         S = np.asarray(speeds, dtype=float)
@@ -265,6 +267,31 @@ class CondensedHBM:
         return [LinearParts(speeds[k], float(omega[k]), h[k], wlin[k], dh[k], dw[k],
                             (wr[k], h[k]), (dwr[k], dh[k]))
                 for k in range(K)]
+
+    def _linear_parts_one(self, s: float) -> LinearParts:
+        """:meth:`_linear_parts_many` of one speed (each arc-length corrector iteration asks for
+        a new one): the same operations on scalars, without the batch's array bookkeeping."""
+        H = self.H
+        fd = self.options.speed_fd_rpm
+        ds = -fd if s + fd > self._speed_range()[1] else fd
+        A = self.engine_harmonics(s)
+        A2 = self.engine_harmonics(s + ds)
+        dA = (A2 - A) / ds
+        rear = self.loads.rear_load_for(A)
+        rear2 = self.loads.rear_load_for(A2)
+        wlin0 = A[0].real * self._static_cyl + rear * self._static_rear
+        dwlin0 = dA[0].real * self._static_cyl + (rear2 - rear) / ds * self._static_rear
+        omega = s * RPM_TO_RAD_S
+        h = np.empty((1, H + 1), dtype=complex)
+        wlin = np.empty((1, H + 1), dtype=complex)
+        dh = np.empty((1, H + 1), dtype=complex)
+        dw = np.empty((1, H + 1), dtype=complex)
+        wr = np.empty((1, 2 * H + 1))
+        dwr = np.empty((1, 2 * H + 1))
+        kernels.linear_parts(np.array([omega]), self._dOm, self._d, self._modal_load[1:],
+                             self._a, A[None], dA[None], np.array([wlin0]), np.array([dwlin0]),
+                             self._h0, h, dh, wlin, dw, wr, dwr)
+        return LinearParts(s, omega, h[0], wlin[0], dh[0], dw[0], (wr[0], h[0]), (dwr[0], dh[0]))
 
     def linear_response(self, speeds_rpm) -> np.ndarray:
         """(K, H+1) complex linear wind-up harmonics wlin_n at K speeds at once (same modal
