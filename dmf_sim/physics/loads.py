@@ -103,6 +103,11 @@ class DrivelineLoads:
         """Rear element torque [Nm] for engine coefficients A_n (only the mean A_0 counts)."""
         return -float(np.real(A[0])) * self._rear_factor_sum
 
+    def rear_loads_for(self, A: np.ndarray) -> np.ndarray:
+        """(K,) :meth:`rear_load_for` of K sets of coefficients (K, N+1) at once (the same
+        operations, so the same values)."""
+        return -np.real(A[:, 0]) * self._rear_factor_sum
+
     def element_harmonics(self, speed_rpm: float, load: float) -> np.ndarray:
         """(N+1, m) complex element-load amplitudes per half-order n [Nm]; row 0 is the mean."""
         P = np.zeros((self.n_max + 1, self._m), dtype=complex)

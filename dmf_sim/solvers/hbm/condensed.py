@@ -186,10 +186,9 @@ class CondensedHBM:
         """Compute the linear parts of many speeds at once (a sweep's grid: the per-speed work done
         in one vectorized pass before the continuation asks for them); speeds outside the engine's
         data are left out (asking for them later raises as usual)."""
-        todo = []
-        for s in np.atleast_1d(np.asarray(speeds_rpm, dtype=float)).tolist():
-            if s not in self._cache and self._speed_range()[0] <= s <= self._speed_range()[1]:
-                todo.append(s)
+        lo, hi = self._speed_range()
+        todo = [s for s in np.atleast_1d(np.asarray(speeds_rpm, dtype=float)).tolist()
+                if s not in self._cache and lo <= s <= hi]
         todo = todo[-LINEAR_PARTS_CACHE:]
         for start in range(0, len(todo), PREPARE_BATCH):
             batch = todo[start:start + PREPARE_BATCH]
@@ -234,8 +233,8 @@ class CondensedHBM:
         A, A2 = both[:K], both[K:]
         dA = (A2 - A) / ds[:, None]
         # static: e.K^+ P_0 (rigid mode removed) and its speed derivative
-        rear = np.array([self.loads.rear_load_for(a) for a in A])
-        rear2 = np.array([self.loads.rear_load_for(a) for a in A2])
+        rear = self.loads.rear_loads_for(A)
+        rear2 = self.loads.rear_loads_for(A2)
         wlin0 = A[:, 0].real * self._static_cyl + rear * self._static_rear
         dwlin0 = dA[:, 0].real * self._static_cyl + (rear2 - rear) / ds * self._static_rear
         ml = self._modal_load[1:]
@@ -305,7 +304,7 @@ class CondensedHBM:
         Om = np.outer(speeds * (RPM_TO_RAD_S / 2.0), np.arange(1, self.H + 1))  # (K, H)
         pole = 1.0 / (1j * Om[..., None] - self._d)                              # (K, H, 2nf)
         w = np.empty((len(speeds), self.H + 1), dtype=complex)
-        rear = np.array([self.loads.rear_load_for(a) for a in A])
+        rear = self.loads.rear_loads_for(A)
         w[:, 0] = A[:, 0].real * self._static_cyl + rear * self._static_rear
         w[:, 1:] = A[:, 1:] * (pole * self._modal_load[1:]).sum(axis=-1)
         return w
