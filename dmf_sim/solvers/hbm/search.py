@@ -105,6 +105,25 @@ def _interp_states(b: Branch, s: float, stretches: tuple | None = None
     return out
 
 
+def _stable_mask(b: Branch, speeds: np.ndarray, stretches: tuple | None = None) -> np.ndarray:
+    """(K,) bool: does branch b have a stable state at each of ``speeds``, by the rules of
+    :func:`_interp_states` (a stretch bracketing s is stable if both ends are; at a computed
+    point, that point's stability), for many speeds at once without interpolating x."""
+    pts = b.points
+    S = np.asarray(speeds, dtype=float)
+    # stability of every point: 1 stable, 0 unstable, -1 not computed
+    st = np.array([-1 if p.stable is None else int(bool(p.stable)) for p in pts])
+    if len(pts) == 1:
+        return (np.abs(pts[0].speed_rpm - S) < 1e-9) & (st[0] == 1)
+    a, c, lo, hi = stretches if stretches is not None else _stretches(b.column('speed_rpm'))
+    sa, sc = st[:-1, None], st[1:, None]
+    inside = (lo[:, None] <= S) & (S <= hi[:, None])                  # (stretch, speed)
+    value = np.where((sa < 0) | (sc < 0), -1, sa & sc) * np.ones_like(inside, dtype=int)
+    value = np.where(np.abs(a[:, None] - S) < 1e-9, sa, value)         # at a point: its own
+    value = np.where(np.abs(c[:, None] - S) < 1e-9, sc, value)
+    return (inside & (value == 1)).any(axis=0)
+
+
 class StateSearch:
     """The full search: a mixin of :class:`dmf_sim.solvers.hbm.sweep.SpeedSweep` (it uses the
     sweep's ``hbm``, ``options``, ``floquet``, ``branches``, ``events``, ``range``,
@@ -115,6 +134,15 @@ class StateSearch:
     def states_at(self, s: float) -> list[tuple[np.ndarray, bool | None]]:
         """(x, stable) of every branch at speed s (interpolated between computed points)."""
         return [st for b in self.branches for st in _interp_states(b, s, self._stretches_of(b))]
+
+    def stable_at(self, speeds) -> np.ndarray:
+        """(K,) bool: is any state at each of ``speeds`` stable (``any(st for _, st in
+        states_at(s))`` for many speeds at once)?"""
+        S = np.asarray(speeds, dtype=float).reshape(-1)
+        out = np.zeros(len(S), dtype=bool)
+        for b in self.branches:
+            out |= _stable_mask(b, S, self._stretches_of(b) if len(b.points) > 1 else None)
+        return out
 
     def _stretches_of(self, b: Branch) -> tuple:
         """:func:`_stretches` of b's speeds, kept while b has the same points (branches only
@@ -260,8 +288,11 @@ class StateSearch:
         self._reseed_uncovered(bar)
         bar.note('stable states check')
         self._phase = 'the stable-states check (Newmark shots)'
-        for s in grid:
+        stable = self.stable_at(grid)     # a shot only adds branches: stable stays stable
+        for s, known_stable in zip(grid, stable.tolist()):
             self.check_time(s)
+            if known_stable:
+                continue
             states = self.states_at(float(s))
             if states and not any(st for _, st in states) and self.search.newmark_shots:
                 x = max(states, key=lambda t: np.abs(t[0]).max())[0]
@@ -275,7 +306,7 @@ class StateSearch:
             self.not_computed.extend(
                 {'speed_rpm': s, 'reason': 'no stable periodic state; the time integration '
                                            'was switched off (SearchOptions.nonperiodic)'}
-                for s in speeds if not self._has_stable(s))
+                for s, st in zip(speeds, self.stable_at(speeds).tolist()) if not st)
 
     def nonperiodic_speeds(self) -> list[float]:
         """The speeds checked for a stable periodic state: the output grid (or the chosen
@@ -285,15 +316,15 @@ class StateSearch:
             return [float(s) for s in chosen]
         return [float(s) for s in self.output_grid()]
 
-    def _has_stable(self, s: float) -> bool:
-        return any(st for _, st in self.states_at(s))
-
     def _label_nonperiodic(self, speeds: list[float]) -> None:
         """A long time integration at every speed of ``speeds`` without a stable periodic state
         (step 4 of the module docstring); neighbouring speeds of one label form a band."""
         step = self.options.step_rpm
-        for s in speeds:
+        stable = self.stable_at(speeds)   # the time integrations add no branches
+        for s, known_stable in zip(speeds, stable.tolist()):
             self.check_time(s)
+            if known_stable:
+                continue
             states = self.states_at(s)
             if any(st for _, st in states):
                 continue

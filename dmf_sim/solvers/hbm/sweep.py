@@ -340,8 +340,9 @@ class SpeedSweep(BranchSwitching, StateSearch):
                                       '(no Floquet analysis): whether a periodic state is stable, '
                                       'and the non-periodic envelope, are not computed'})
             return
-        for s in self.output_grid():
-            if not any(st for _, st in self.states_at(float(s))):
+        grid = self.output_grid()
+        for s, stable in zip(grid, self.stable_at(grid).tolist()):
+            if not stable:
                 self.not_computed.append({'speed_rpm': float(s), 'reason': (
                     'no stable periodic state found; the non-periodic envelope was not computed '
                     '(the full search is off: --fast / search=None)')})
