@@ -188,6 +188,91 @@ def test_grid_corrector_failure_raises_corrector_failed(paper):
         continuation.correct(hb, y_pred, normal, 0.01, 10.0, 1e-10, 2)
 
 
+def test_compiled_engine_query_is_the_engine(paper):
+    """kernels.engine_at on Engine.speed_table: bitwise Engine.coefficients (speeds across the
+    load set's shift and limit, grid nodes and the top end), zero-padded beyond n_max; outside
+    the data it says so."""
+    from dmf_sim.solvers.hbm import kernels
+    loads, _ = paper
+    eng = loads.engine
+    table = eng.speed_table(1.0)
+    lo, hi = eng.speed_range_rpm
+    for s in np.concatenate([np.linspace(lo, hi, 97), [1000.0, 1000.0 + 1e-9, 1234.567]]):
+        out = np.empty(eng.n_max + 4, dtype=complex)
+        assert kernels.engine_at(float(s), table, out) == kernels.ENGINE_OK
+        assert np.array_equal(out[:eng.n_max + 1], eng.coefficients(float(s), 1.0))
+        assert not out[eng.n_max + 1:].any()
+    for s in (lo - 1.0, hi + 1.0, float('nan')):
+        assert kernels.engine_at(s, table, np.empty(3, dtype=complex)) == kernels.ENGINE_OUTSIDE
+
+
+def test_off_grid_jacobians_in_one_call_are_the_python_path(paper):
+    """(r, dr/dx, dr/ds) at a speed not prepared: the linear parts and the engine query inside
+    the kernel give bitwise what the Python linear parts and the AFT kernel give."""
+    from dmf_sim.solvers.hbm import kernels
+    loads, speed = paper
+    hb = CondensedHBM(loads, 1.0)
+    top = hb._speed_range()[1]
+    for s in (speed + 3.7, speed - 41.3, top - 0.01):
+        for x in trial_points(hb, speed, n=3):
+            got = hb.residual_and_jacobians(x, s)
+            lp = CondensedHBM(loads, 1.0)._linear_parts_one(s)
+            want = kernels.residual_jacobians_py(x, lp.lin, lp.dlin, hb._aft_mats,
+                                                 hb._spring_arrays)
+            for g, w in zip(got, want):
+                assert np.array_equal(g, w)
+        assert s not in hb._cache          # computed in the kernel, not through the cache
+
+
+def _arc_step(hb, speed, h=0.6):
+    """A pseudo-arc-length predictor from the solution at ``speed`` along its tangent."""
+    xs, ss = 0.01, 10.0
+    x = hb.solve(speed).x
+    r, Jx, rs = hb.residual_and_jacobians(x, speed)
+    prev = np.zeros(len(x) + 1)
+    prev[-1] = 1.0
+    t = continuation._tangent(Jx, rs, prev, xs, ss)
+    y = np.concatenate([x / xs, [speed / ss]])
+    return y + h * t, t, xs, ss
+
+
+def test_arc_length_corrector_equals_reference(paper):
+    """continuation.correct with the tangent as normal: one compiled call
+    (CondensedHBM.corrector_arc, every iterate's linear parts in the kernel) vs the reference
+    iteration over the numpy residual and Jacobians."""
+    loads, speed = paper
+    hb, ref = both(loads)
+    y_pred, t, xs, ss = _arc_step(hb, speed)
+    assert hb.corrector_arc(y_pred, t, xs, ss, 1e-10, 12) is not None
+    assert ref.corrector_arc(y_pred, t, xs, ss, 1e-10, 12) is None
+    a = continuation.correct(hb, y_pred, t, xs, ss, 1e-10, 12)
+    b = continuation.correct(ref, y_pred, t, xs, ss, 1e-10, 12)
+    assert a[1] == b[1] and a[1] > 0
+    assert close(a[0], b[0])
+    assert a[0][-1] != y_pred[-1]                      # the speed moved: an arc-length step
+    assert np.abs(a[3][0]).max() <= 1e-10
+    assert close(a[3][1], b[3][1]) and close(a[3][2], b[3][2])
+
+
+def test_arc_length_corrector_on_a_lazy_engine(paper):
+    """An engine whose gas grid is not computed yet: the compiled corrector computes the nodes
+    it needs (through the engine) and gives the same result as on the warmed engine; a
+    predictor beyond the engine data ends the branch (LeftRange), as in Python."""
+    loads, speed = paper
+    lazy = DrivelineLoads(loads.model, load_engine('engine_d13', load_set='A'))
+    assert not lazy.engine._gas.done.all()
+    warm, cold = CondensedHBM(loads, 1.0), CondensedHBM(lazy, 1.0)
+    y_pred, t, xs, ss = _arc_step(warm, speed)
+    a = continuation.correct(warm, y_pred, t, xs, ss, 1e-10, 12)
+    b = continuation.correct(cold, y_pred, t, xs, ss, 1e-10, 12)
+    assert a[1] == b[1] and np.array_equal(a[0], b[0])
+    top = loads.engine.speed_range_rpm[1]
+    y_out = y_pred.copy()
+    y_out[-1] = (top + 5.0) / ss
+    with pytest.raises(continuation.LeftRange):
+        continuation.correct(warm, y_out, t, xs, ss, 1e-10, 12)
+
+
 @pytest.mark.parametrize('case', CASES)
 def test_floquet_multipliers_equal_reference(case, request):
     loads, speed = request.getfixturevalue(case)

@@ -103,6 +103,12 @@ class DrivelineLoads:
         """Rear element torque [Nm] for engine coefficients A_n (only the mean A_0 counts)."""
         return -float(np.real(A[0])) * self._rear_factor_sum
 
+    @property
+    def rear_load_factor(self) -> float:
+        """Rear element torque per unit engine mean coefficient [-]: rear_load_for(A) is
+        -Re(A_0) times this."""
+        return self._rear_factor_sum
+
     def rear_loads_for(self, A: np.ndarray) -> np.ndarray:
         """(K,) :meth:`rear_load_for` of K sets of coefficients (K, N+1) at once (the same
         operations, so the same values)."""

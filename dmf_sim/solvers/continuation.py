@@ -132,16 +132,22 @@ def correct(problem: ContinuationProblem, y_pred: np.ndarray, normal: np.ndarray
             ) -> tuple[np.ndarray, int, float, tuple]:
     """Newton on [r(x, s); normal . (y - y_pred)] = 0 in scaled coordinates.
 
-    With the normal e_S (s fixed on a grid speed) a problem may do the whole corrector in one
-    call, ``problem.corrector_at(y_pred, xs, ss, tol, max_iter)`` (same iteration, compiled;
-    returns None to use this one)."""
+    A problem may do the whole corrector in one call (same iteration, compiled; each returns
+    None to use this one): with the normal e_S (s fixed on a grid speed)
+    ``problem.corrector_at(y_pred, xs, ss, tol, max_iter)``, with any other normal
+    ``problem.corrector_arc(y_pred, normal, xs, ss, tol, max_iter)``."""
     y = y_pred.copy()
     n = len(y) - 1
     fixed_s = normal[n] == 1.0 and not np.any(normal[:n])
-    compiled = getattr(problem, 'corrector_at', None) if fixed_s else None
-    if compiled is not None:        # the problem's own compiled corrector at a fixed s
+    if fixed_s:
+        compiled = getattr(problem, 'corrector_at', None)
+        args = (y_pred, xs, ss, tol, max_iter)
+    else:
+        compiled = getattr(problem, 'corrector_arc', None)
+        args = (y_pred, normal, xs, ss, tol, max_iter)
+    if compiled is not None:        # the problem's own compiled corrector
         try:
-            out = compiled(y_pred, xs, ss, tol, max_iter)
+            out = compiled(*args)
         except OperatingRangeError as exc:
             raise LeftRange(f'parameter {y_pred[n] * ss:g} outside the data: {exc}') from None
         if out is not None:

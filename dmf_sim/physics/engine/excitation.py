@@ -91,7 +91,25 @@ class GasGrid:
         if not self.done[i, j]:
             self.values[i, j] = self._filler(self._speeds_list[i], self._loads_list[j])
             self.done[i, j] = True
+            self.__dict__.pop('_load_rows', None)        # computed from fewer nodes
         return self.values[i, j]
+
+    def load_rows(self, load: float) -> tuple[np.ndarray, np.ndarray]:
+        """(rows, ready): the grid interpolated to ``load`` at every grid speed (S, n_orders) —
+        the load step of :meth:`__call__`, the same operations — and (S,) whether that speed's
+        nodes are computed (rows of the others are zero). What a compiled caller needs to do
+        the speed step itself; nodes are not computed here (the grid stays lazy)."""
+        j, tl = self._bracket(self._loads_list, load)
+        cache = self.__dict__.setdefault('_load_rows', {})
+        hit = cache.get((j, tl))
+        if hit is None:
+            ready = self.done[:, j] & self.done[:, j + 1]
+            rows = np.zeros((self.speeds.size, self.values.shape[2]), dtype=complex)
+            v = self.values
+            for i in np.flatnonzero(ready).tolist():
+                rows[i] = v[i, j] * (1.0 - tl) + v[i, j + 1] * tl
+            hit = cache[(j, tl)] = (rows, ready)
+        return hit
 
     def fill_all(self) -> None:
         for i in range(self.speeds.size):
@@ -220,6 +238,18 @@ class Engine:
         self._check(lo, load)
         omega = s * RPM_TO_RAD_S
         return self._gas.many(s_eff, load) + (omega * omega)[:, None] * self._inertia_unit
+
+    def speed_table(self, load: float) -> tuple:
+        """What a compiled caller needs to evaluate :meth:`coefficients` at any speed at this
+        ``load`` (same operations, same values): (grid speeds [rpm], gas rows at the load
+        (S, n_max+1), ready (S,) bool, inertia part per (rad/s)^2 (n_max+1,), load-set shift
+        [rpm], limit [rpm]); see :meth:`GasGrid.load_rows` (a speed whose nodes are not computed
+        yet is not ready: ask :meth:`coefficients` there)."""
+        load = float(load)
+        self._check(self.speed_range_rpm[0], load)
+        rows, ready = self._gas.load_rows(load)
+        return (self._gas.speeds, rows, ready, self._inertia_unit, float(self.shift_rpm),
+                float(self.limit_rpm))
 
     def mean_torque(self, speed_rpm: float, load: float) -> float:
         """Whole-engine mean torque n_cylinders * A_0 [Nm]."""

@@ -566,12 +566,91 @@ class CondensedHBM:
     # ---- interface for the continuation (continuation.ContinuationProblem) ----------------------
     def residual_and_jacobians(self, x: np.ndarray, speed_rpm: float):
         """(r, dr/dx, dr/ds) at wind-up harmonics x and speed [rpm]."""
+        key = float(speed_rpm)
+        if self.compiled and key not in self._cache:
+            out = self._residual_jacobians_at(x, key)
+            if out is not None:
+                return out
         lp = self.linear_parts(speed_rpm)
         if self.compiled:               # one kernel call: one AFT pass for all three
             return kernels.residual_jacobians_py(np.ascontiguousarray(x, dtype=float), lp.lin,
                                                  lp.dlin, self._aft_mats, self._spring_arrays)
         r, Jx = self.residual_and_jacobian(x, lp)
         return r, Jx, self.residual_speed_derivative(x, lp)
+
+    def _engine_kernel_args(self):
+        """(fd, engine table, statics, modal) for :func:`kernels.residual_jacobians_at`, or None
+        for an engine without ``speed_table`` (then the linear parts are computed in Python)."""
+        args = self.__dict__.get('_kernel_engine')
+        if args is None:
+            table = getattr(self.loads.engine, 'speed_table', None)
+            if table is None:
+                self._kernel_engine = args = ()
+            else:
+                self._kernel_engine = args = (
+                    float(self.options.speed_fd_rpm), table(self.load),
+                    (self._static_cyl, self._static_rear, float(self.loads.rear_load_factor)),
+                    (self._dOm, self._d, np.ascontiguousarray(self._modal_load[1:]), self._a,
+                     float(self._h0)))
+        return args or None
+
+    def _residual_jacobians_at(self, x: np.ndarray, s: float):
+        """(r, dr/dx, dr/ds) at a speed not in the cache, the linear parts computed in the same
+        kernel call (the arc-length corrector: each iteration a new speed); None where the
+        engine has no compiled table or its grid nodes there are not computed yet (then the
+        Python path computes them, and the table is read again next time)."""
+        args = self._engine_kernel_args()
+        if args is None:
+            return None
+        fd, table, statics, modal = args
+        st, r, J, rs = kernels.residual_jacobians_at(np.ascontiguousarray(x, dtype=float), s,
+                                                     fd, table, statics, modal,
+                                                     self._aft_mats, self._spring_arrays)
+        if st == kernels.ENGINE_OK:
+            return r, J, rs
+        if st == kernels.ENGINE_NOT_READY:
+            self.__dict__.pop('_kernel_engine', None)
+        return None                     # outside the data: the Python path raises as usual
+
+    def corrector_arc(self, y_pred: np.ndarray, normal: np.ndarray, xs: float, ss: float,
+                      tol: float, max_iter: int):
+        """The continuation corrector of a pseudo-arc-length step, compiled
+        (:func:`kernels.corrector_arclength`: continuation.correct with the normal ``normal``,
+        the linear parts of each iterate's speed in the same call). Returns (y, iterations,
+        max|r|, (r, dr/dx, dr/ds)); raises CorrectorFailed when it does not converge and
+        OperatingRangeError when an iterate's speed lies outside the engine data; None when the
+        reference corrector is to be used (``compiled`` off, or an engine without a compiled
+        table)."""
+        if not self.compiled:
+            return None
+        n1 = len(y_pred)
+        y_pred = np.ascontiguousarray(y_pred, dtype=float)
+        normal = np.ascontiguousarray(normal, dtype=float)
+        while True:
+            args = self._engine_kernel_args()
+            if args is None:
+                return None
+            fd, table, statics, modal = args
+            y = np.empty(n1)
+            r = np.empty(n1 - 1)
+            Jx = np.empty((n1 - 1, n1 - 1))
+            rs = np.empty(n1 - 1)
+            status, it, res, est = kernels.corrector_arclength(
+                y_pred, normal, float(xs), float(ss), float(tol), int(max_iter), fd, table,
+                statics, modal, self._aft_mats, self._spring_arrays, y, r, Jx, rs)
+            if status == kernels.CONVERGED:
+                return y, it, res, (r, Jx, rs)
+            if status != kernels.ENGINE_FAILED:
+                raise CorrectorFailed(f'corrector: max|r| = {res:.2e} after {max_iter} '
+                                      'iterations')
+            # the speed of the failing iterate: its linear parts in Python raise the engine's
+            # own error outside the data, or compute the grid nodes not computed yet (then the
+            # kernel runs again with the table read anew)
+            s = float(y[n1 - 1] * ss)
+            self.__dict__.pop('_kernel_engine', None)
+            self._linear_parts_one(s)
+            if est != kernels.ENGINE_NOT_READY:      # outside, though Python found it inside
+                return None
 
     def corrector_at(self, y_pred: np.ndarray, xs: float, ss: float, tol: float, max_iter: int):
         """The continuation corrector of a step landing on a grid speed, compiled

@@ -38,15 +38,18 @@ import math
 
 import numpy as np
 
+from dmf_sim.core.units import RPM_TO_RAD_S
 from dmf_sim.solvers.hbm.layout import to_real
 from dmf_sim.solvers.newmark_kernel import HAVE_NUMBA, region_of
 
 __all__ = ['BACKTRACK_MIN', 'PIVOT_TINY', 'lu_solve', 'max_abs', 'aft', 'times_h_into',
            'times_h_matrix', 'residual_jacobian', 'residual_jacobian_py', 'speed_derivative',
            'residual_jacobians_py', 'harmonics_py', 'newton',
-           'deflated_newton', 'corrector_fixed_speed', 'modal_sums', 'linear_parts', 'warm_up']
+           'deflated_newton', 'corrector_fixed_speed', 'modal_sums', 'linear_parts',
+           'engine_at', 'linear_parts_at', 'residual_jacobians_at', 'corrector_arclength',
+           'warm_up']
 
-CONVERGED, STALLED, MAX_ITER, SINGULAR, NOT_FINITE = 0, 1, 2, 3, 4
+CONVERGED, STALLED, MAX_ITER, SINGULAR, NOT_FINITE, ENGINE_FAILED = 0, 1, 2, 3, 4, 5
 BACKTRACK_MIN = 1e-3      # smallest backtracking factor of the plain Newton (as the reference)
 PIVOT_TINY = 0.0          # an exactly zero pivot is singular (as LAPACK's dgesv reports)
 
@@ -538,6 +541,177 @@ def linear_parts(omega, dOm, d, ml, a, A, dA, wlin0, dwlin0, h0, h, dh, wlin, dw
             dwr[q, H + n] = v.imag
 
 
+# ------------------------------------------------------------------------------------------------
+# The linear parts at one speed off the grid, engine query included
+# ------------------------------------------------------------------------------------------------
+
+ENGINE_OK, ENGINE_OUTSIDE, ENGINE_NOT_READY = 0, 1, 2
+
+
+def engine_at(s, table, out):
+    """out <- the engine's A_n at speed s [rpm] (``Engine.coefficients`` from
+    ``Engine.speed_table``: the load set's effective speed, the speed step of
+    ``GasGrid.__call__`` on the load-interpolated rows and the inertia part, the same
+    operations), truncated or zero-padded to out's length. Returns ENGINE_OK, ENGINE_OUTSIDE
+    (s or its effective speed outside the data) or ENGINE_NOT_READY (grid nodes not computed
+    yet)."""
+    speeds, rows, ready, inertia, shift, limit = table
+    n = speeds.shape[0]
+    lo = speeds[0]
+    hi = speeds[n - 1]
+    if not (math.isfinite(s) and lo <= s <= hi):
+        return ENGINE_OUTSIDE
+    s_eff = min(s + shift, max(s, limit))
+    if not (math.isfinite(s_eff) and lo <= s_eff <= hi):
+        return ENGINE_OUTSIDE
+    i = 0
+    while i < n and speeds[i] <= s_eff:        # bisect_right - 1, clipped to [0, n - 2]
+        i += 1
+    i = min(max(i - 1, 0), n - 2)
+    if not (ready[i] and ready[i + 1]):
+        return ENGINE_NOT_READY
+    ts = (s_eff - speeds[i]) / (speeds[i + 1] - speeds[i])
+    omega = s * RPM_TO_RAD_S
+    w2 = omega * omega
+    m = rows.shape[1]
+    for k in range(out.shape[0]):
+        if k < m:
+            out[k] = (rows[i, k] * (1.0 - ts) + rows[i + 1, k] * ts) + w2 * inertia[k]
+        else:
+            out[k] = 0.0
+    return ENGINE_OK
+
+
+def linear_parts_at(s, fd, table, statics, modal, A, A2, dA, h, dh, wlin, dw, wr, dwr):
+    """The linear parts of one speed s [rpm] with the engine query (reference:
+    ``CondensedHBM._linear_parts_one``, the same operations): ``fd`` the finite-difference step
+    [rpm] (backward at the top of the engine data), ``statics`` = (static wind-up per unit
+    cylinder mean torque, per unit rear load, rear load per unit A_0), ``modal`` = (dOm, d, ml,
+    a, h0). Outputs (1, .) rows as :func:`linear_parts`. Returns the engine status."""
+    speeds = table[0]
+    ds = -fd if s + fd > speeds[speeds.shape[0] - 1] else fd
+    st = engine_at(s, table, A[0])
+    if st != ENGINE_OK:
+        return st
+    st = engine_at(s + ds, table, A2[0])
+    if st != ENGINE_OK:
+        return st
+    # (A2 - A) / ds as numpy divides complex by real (Smith's algorithm: times 1 / ds)
+    rat = 0.0 / ds
+    scl = 1.0 / (ds + 0.0 * rat)
+    for k in range(A.shape[1]):
+        d = A2[0, k] - A[0, k]
+        dA[0, k] = complex((d.real + d.imag * rat) * scl, (d.imag - d.real * rat) * scl)
+    static_cyl, static_rear, rear_factor = statics
+    rear = -A[0, 0].real * rear_factor
+    rear2 = -A2[0, 0].real * rear_factor
+    wlin0 = np.empty(1)
+    dwlin0 = np.empty(1)
+    wlin0[0] = A[0, 0].real * static_cyl + rear * static_rear
+    dwlin0[0] = dA[0, 0].real * static_cyl + (rear2 - rear) / ds * static_rear
+    omega = np.empty(1)
+    omega[0] = s * RPM_TO_RAD_S
+    dOm, d_, ml, a, h0 = modal
+    linear_parts(omega, dOm, d_, ml, a, A, dA, wlin0, dwlin0, h0, h, dh, wlin, dw, wr, dwr)
+    return ENGINE_OK
+
+
+def residual_jacobians_at(x, s, fd, table, statics, modal, aft_mats, spring):
+    """(status, r, dr/dx, dr/ds) at wind-up harmonics x and speed s [rpm], the linear parts
+    computed here (:func:`linear_parts_at`) and one AFT pass: what the arc-length corrector asks
+    at every iteration (each a new speed). status: the engine's (r etc. unset unless
+    ENGINE_OK)."""
+    n = x.shape[0]
+    H = (n - 1) // 2
+    A = np.empty((1, H + 1), dtype=np.complex128)
+    A2 = np.empty((1, H + 1), dtype=np.complex128)
+    dA = np.empty((1, H + 1), dtype=np.complex128)
+    h = np.empty((1, H + 1), dtype=np.complex128)
+    dh = np.empty((1, H + 1), dtype=np.complex128)
+    wlin = np.empty((1, H + 1), dtype=np.complex128)
+    dw = np.empty((1, H + 1), dtype=np.complex128)
+    wr = np.empty((1, n))
+    dwr = np.empty((1, n))
+    r = np.empty(n)
+    J = np.empty((n, n))
+    rs = np.empty(n)
+    st = linear_parts_at(s, fd, table, statics, modal, A, A2, dA, h, dh, wlin, dw, wr, dwr)
+    if st != ENGINE_OK:
+        return st, r, J, rs
+    G = np.empty(n)
+    residual_jacobian(x, (wr[0], h[0]), aft_mats, spring, r, J, G, True)
+    speed_derivative((dwr[0], dh[0]), G, rs)
+    return st, r, J, rs
+
+
+def corrector_arclength(y_pred, normal, xs, ss, tol, max_iter, fd, table, statics, modal,
+                        aft_mats, spring, y, r, J, rs):
+    """The pseudo-arc-length corrector in one call (reference: ``continuation.correct`` with a
+    normal other than e_S): Newton on [r(x, s); normal . (y - y_pred)] = 0 in scaled unknowns
+    y = [x / xs, s / ss], the linear parts of every iterate's speed computed here
+    (:func:`residual_jacobians_at`). Writes y (n + 1,), r, J = dr/dx, rs = dr/ds of the last
+    evaluation; returns (status, iterations, max|r|, engine status): CONVERGED, or MAX_ITER /
+    NOT_FINITE / SINGULAR (the corrector failed), or ENGINE_FAILED with the engine's status
+    (a speed outside the data, or grid nodes not computed yet)."""
+    n1 = y_pred.shape[0]
+    n = n1 - 1
+    for i in range(n1):
+        y[i] = y_pred[i]
+    x = np.empty(n)
+    A = np.empty((n1, n1))
+    b = np.empty(n1)
+    dy = np.empty(n1)
+    LU = np.empty((n1, n1))
+    piv = np.empty(n1, dtype=np.int64)
+    res = np.inf
+    for it in range(max_iter + 1):
+        for i in range(n):
+            x[i] = y[i] * xs
+        st, r1, J1, rs1 = residual_jacobians_at(x, y[n] * ss, fd, table, statics, modal,
+                                                aft_mats, spring)
+        if st != ENGINE_OK:
+            return ENGINE_FAILED, it, res, st
+        r[:] = r1
+        J[:, :] = J1
+        rs[:] = rs1
+        res = max_abs(r)
+        g = 0.0
+        for i in range(n1):
+            g += normal[i] * (y[i] - y_pred[i])
+        if res <= tol and abs(g) <= 1e-12:
+            return CONVERGED, it, res, ENGINE_OK
+        if it == max_iter or not math.isfinite(res):
+            return (MAX_ITER if math.isfinite(res) else NOT_FINITE), it, res, ENGINE_OK
+        for i in range(n):
+            for j in range(n):
+                A[i, j] = J[i, j] * xs
+            A[i, n] = rs[i] * ss
+            b[i] = -r[i]
+        for j in range(n1):
+            A[n, j] = normal[j]
+        b[n] = -g
+        if not lu_solve(A, b, dy, LU, piv):
+            return SINGULAR, it, res, ENGINE_OK
+        big = 0.0
+        for i in range(n1):
+            y[i] = y[i] + dy[i]
+            a = abs(dy[i])
+            if a > big or a != a:
+                big = a
+        if big < 1e-13 and res < 1e3 * tol:
+            for i in range(n):
+                x[i] = y[i] * xs
+            st, r1, J1, rs1 = residual_jacobians_at(x, y[n] * ss, fd, table, statics, modal,
+                                                    aft_mats, spring)
+            if st != ENGINE_OK:
+                return ENGINE_FAILED, it + 1, res, st
+            r[:] = r1
+            J[:, :] = J1
+            rs[:] = rs1
+            return CONVERGED, it + 1, max_abs(r), ENGINE_OK
+    return MAX_ITER, max_iter, res, ENGINE_OK
+
+
 if HAVE_NUMBA:
     import numba
     _jit = numba.njit(cache=True, nogil=True, error_model='numpy')
@@ -563,6 +737,10 @@ if HAVE_NUMBA:
     deflated_newton = _jit(deflated_newton)
     modal_sums = _jit(modal_sums)
     linear_parts = _jit(linear_parts)
+    engine_at = _jit(engine_at)
+    linear_parts_at = _jit(linear_parts_at)
+    residual_jacobians_at = _jit(residual_jacobians_at)
+    corrector_arclength = _jit(corrector_arclength)
 
 
 
@@ -613,6 +791,19 @@ def warm_up() -> float:
                      np.ones(K), np.ones(K), 1.0, np.empty((K, H + 1), dtype=complex),
                      np.empty((K, H + 1), dtype=complex), np.empty((K, H + 1), dtype=complex),
                      np.empty((K, H + 1), dtype=complex), np.empty((K, n)), np.empty((K, n)))
+    # the arc-length corrector and the off-grid linear parts with the engine query
+    table = (np.array([0.0, 1.0, 2.0]), np.ones((3, H + 1), dtype=complex),
+             np.ones(3, dtype=bool), np.zeros(H + 1, dtype=complex), 0.0, 0.0)
+    statics = (1.0, 1.0, 1.0)
+    modal = (np.ones(H), np.array([-1.0 + 1j, -1.0 - 1j]),
+             np.ascontiguousarray(np.ones((H + 1, m), dtype=complex)[1:]),
+             np.ones(m, dtype=complex), 1.0)
+    residual_jacobians_at(x0, 1.0, 0.05, table, statics, modal, aft_mats, spring)
+    y1 = np.zeros(n + 1)
+    y1[n] = 1.0
+    corrector_arclength(y1, y1.copy(), 1.0, 1.0, 1e-10, 2, 0.05, table, statics, modal,
+                        aft_mats, spring, np.empty(n + 1), np.empty(n), np.empty((n, n)),
+                        np.empty(n))
     ns = 2
     W = np.zeros((2, 2, ns, ns))
     W[:, :] = np.eye(ns)
