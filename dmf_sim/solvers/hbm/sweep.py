@@ -148,10 +148,10 @@ class SpeedSweep(BranchSwitching, StateSearch):
     def _point(self, x: np.ndarray, s: float, branch: int, kind: str, residual=0.0, iterations=0,
                tangent_speed=float('nan')) -> HBMPoint:
         w = self.hbm.time_series(x, self.floquet.n_fine)
-        p = self.hbm.make_point(s, x, residual, iterations, samples=w)
+        wlin = self.hbm.linear_parts(s).wlin
+        p = self.hbm.make_point(s, x, residual, iterations, samples=w, wlin0=float(wlin[0].real))
         p.branch, p.kind, p.tangent_speed = branch, kind, float(tangent_speed)
-        p.forced_order_1_5 = (float(abs(self.hbm.linear_parts(s).wlin[3])) if self.hbm.H >= 3
-                              else 0.0)
+        p.forced_order_1_5 = float(abs(wlin[3])) if self.hbm.H >= 3 else 0.0
         if self.options.stability:
             fr = self.floquet.analyze(p.windup_orders, p.speed_rpm, samples=w)
             p.stable, p.multipliers, p.max_multiplier = fr.stable, fr.multipliers, fr.max_abs
@@ -220,12 +220,15 @@ class SpeedSweep(BranchSwitching, StateSearch):
             if k == 0:
                 break
             mu = self.floquet.linear_multipliers(speeds[:k]) if o.stability else None
+            if mu is not None:     # each row sorted by decreasing modulus
+                mu = np.take_along_axis(mu, np.argsort(-np.abs(mu), axis=1), axis=1)
+            X = to_real(W[:k], hb.H)
             for j in range(k):
-                x = to_real(W[j], hb.H)
+                x = X[j]
                 p = hb.make_point(speeds[j], x, 0.0, 0, samples=series[j], wlin0=W[j, 0].real)
                 p.forced_order_1_5 = float(abs(W[j, 3])) if hb.H >= 3 else 0.0
                 if mu is not None:
-                    m = mu[j][np.argsort(-np.abs(mu[j]))]
+                    m = mu[j]
                     p.multipliers, p.max_multiplier = m, float(np.abs(m[0]))
                     p.stable = p.max_multiplier < 1.0 + self.floquet.tol
                 q = ContinuationPoint(x, float(speeds[j]), np.zeros(len(x) + 1), 0, 0.0, True)
