@@ -424,6 +424,23 @@ def deflated_newton(x0, known, lin, aft_mats, spring, tol, defl, x):
 # Continuation corrector on a grid speed (natural parameter)
 # ------------------------------------------------------------------------------------------------
 
+def _lu_work(n):
+    """Work arrays of an n x n Newton solve: (matrix, right-hand side, step, LU, pivots)."""
+    return (np.empty((n, n)), np.empty(n), np.empty(n), np.empty((n, n)),
+            np.empty(n, dtype=np.int64))
+
+
+def add_step(y, dy):
+    """y <- y + dy; returns max |dy| (NaN if an entry is NaN)."""
+    big = 0.0
+    for i in range(y.shape[0]):
+        y[i] = y[i] + dy[i]
+        a = abs(dy[i])
+        if a > big or a != a:
+            big = a
+    return big
+
+
 def corrector_fixed_speed(y_pred, xs, lin, dlin, aft_mats, spring, tol, max_iter, y, r, J, rs):
     """Newton on r(x, s) = 0 at the fixed speed of ``lin`` in scaled unknowns y = x / xs
     (reference: ``continuation.correct`` with the normal e_S). ``dlin`` = (dwlin_r, dh) the
@@ -434,11 +451,7 @@ def corrector_fixed_speed(y_pred, xs, lin, dlin, aft_mats, spring, tol, max_iter
         y[i] = y_pred[i]
     x = np.empty(n)
     G = np.empty(n)
-    A = np.empty((n, n))
-    mr = np.empty(n)
-    dy = np.empty(n)
-    LU = np.empty((n, n))
-    piv = np.empty(n, dtype=np.int64)
+    A, mr, dy, LU, piv = _lu_work(n)
     res = np.inf
     it = 0
     status = MAX_ITER
@@ -459,12 +472,7 @@ def corrector_fixed_speed(y_pred, xs, lin, dlin, aft_mats, spring, tol, max_iter
                 A[i, j] = J[i, j] * xs
         if not lu_solve(A, mr, dy, LU, piv):
             return SINGULAR, it, res
-        big = 0.0
-        for i in range(n):
-            y[i] = y[i] + dy[i]
-            a = abs(dy[i])
-            if a > big or a != a:
-                big = a
+        big = add_step(y, dy)
         if big < 1e-13 and res < 1e3 * tol:
             for i in range(n):
                 x[i] = y[i] * xs
@@ -644,6 +652,22 @@ def residual_jacobians_at(x, s, fd, table, statics, modal, aft_mats, spring):
     return st, r, J, rs
 
 
+def _evaluate_scaled(y, xs, ss, fd, table, statics, modal, aft_mats, spring, r, J, rs):
+    """r, J, rs <- :func:`residual_jacobians_at` at the scaled point y = [x / xs, s / ss];
+    returns the engine status (r, J, rs unchanged unless ENGINE_OK)."""
+    n = y.shape[0] - 1
+    x = np.empty(n)
+    for i in range(n):
+        x[i] = y[i] * xs
+    st, r1, J1, rs1 = residual_jacobians_at(x, y[n] * ss, fd, table, statics, modal, aft_mats,
+                                            spring)
+    if st == ENGINE_OK:
+        r[:] = r1
+        J[:, :] = J1
+        rs[:] = rs1
+    return st
+
+
 def corrector_arclength(y_pred, normal, xs, ss, tol, max_iter, fd, table, statics, modal,
                         aft_mats, spring, y, r, J, rs):
     """The pseudo-arc-length corrector in one call (reference: ``continuation.correct`` with a
@@ -657,23 +681,12 @@ def corrector_arclength(y_pred, normal, xs, ss, tol, max_iter, fd, table, static
     n = n1 - 1
     for i in range(n1):
         y[i] = y_pred[i]
-    x = np.empty(n)
-    A = np.empty((n1, n1))
-    b = np.empty(n1)
-    dy = np.empty(n1)
-    LU = np.empty((n1, n1))
-    piv = np.empty(n1, dtype=np.int64)
+    A, b, dy, LU, piv = _lu_work(n1)
     res = np.inf
     for it in range(max_iter + 1):
-        for i in range(n):
-            x[i] = y[i] * xs
-        st, r1, J1, rs1 = residual_jacobians_at(x, y[n] * ss, fd, table, statics, modal,
-                                                aft_mats, spring)
+        st = _evaluate_scaled(y, xs, ss, fd, table, statics, modal, aft_mats, spring, r, J, rs)
         if st != ENGINE_OK:
             return ENGINE_FAILED, it, res, st
-        r[:] = r1
-        J[:, :] = J1
-        rs[:] = rs1
         res = max_abs(r)
         g = 0.0
         for i in range(n1):
@@ -692,22 +705,12 @@ def corrector_arclength(y_pred, normal, xs, ss, tol, max_iter, fd, table, static
         b[n] = -g
         if not lu_solve(A, b, dy, LU, piv):
             return SINGULAR, it, res, ENGINE_OK
-        big = 0.0
-        for i in range(n1):
-            y[i] = y[i] + dy[i]
-            a = abs(dy[i])
-            if a > big or a != a:
-                big = a
+        big = add_step(y, dy)
         if big < 1e-13 and res < 1e3 * tol:
-            for i in range(n):
-                x[i] = y[i] * xs
-            st, r1, J1, rs1 = residual_jacobians_at(x, y[n] * ss, fd, table, statics, modal,
-                                                    aft_mats, spring)
+            st = _evaluate_scaled(y, xs, ss, fd, table, statics, modal, aft_mats, spring, r, J,
+                                  rs)
             if st != ENGINE_OK:
                 return ENGINE_FAILED, it + 1, res, st
-            r[:] = r1
-            J[:, :] = J1
-            rs[:] = rs1
             return CONVERGED, it + 1, max_abs(r), ENGINE_OK
     return MAX_ITER, max_iter, res, ENGINE_OK
 
@@ -727,6 +730,8 @@ if HAVE_NUMBA:
     residual_jacobian_py = _jit(residual_jacobian_py)
     speed_derivative = _jit(speed_derivative)
     residual_jacobians_py = _jit(residual_jacobians_py)
+    _lu_work = _jit(_lu_work)
+    add_step = _jit(add_step)
     corrector_fixed_speed = _jit(corrector_fixed_speed)
     harmonics_py = _jit(harmonics_py)
     _newton_start = _jit(_newton_start)
@@ -740,6 +745,7 @@ if HAVE_NUMBA:
     engine_at = _jit(engine_at)
     linear_parts_at = _jit(linear_parts_at)
     residual_jacobians_at = _jit(residual_jacobians_at)
+    _evaluate_scaled = _jit(_evaluate_scaled)
     corrector_arclength = _jit(corrector_arclength)
 
 
