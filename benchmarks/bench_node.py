@@ -51,6 +51,8 @@ from dmf_sim.live.health import status_name
 SETPOINT_SPEEDS_RPM = (960.0, 1010.0, 905.0, 1100.0, 940.0, 1050.0, 980.0, 920.0, 1200.0, 870.0)
 MAX_LAG_MS = 50.0            # the node's default max_lag: above it a lag is an overrun
 REALTIME_TOLERANCE = 0.02    # every 1-s window within 2 % of factor 1 counts as real time
+SET_PARAMS_TIMEOUT_S = 10.0  # wait for one set_parameters answer ...
+SET_PARAMS_ATTEMPTS = 3      # ... and ask this many times in all
 
 
 def proc_cpu_seconds(pid: int) -> float:
@@ -192,10 +194,16 @@ class Probe:
             raise RuntimeError(f'parameter service of {fqn} not found')
         req = SetParameters.Request()
         req.parameters = [Parameter(k, value=v).to_parameter_msg() for k, v in values.items()]
-        fut = client.call_async(req)
-        if not self.wait(fut.done, 10.0):
-            raise RuntimeError('set_parameters timed out')
-        return fut.result().results
+        # a response can be lost when the service answers before its response writer has
+        # matched this client's reader (DDS discovery, slow on a loaded machine): setting the
+        # same values again is harmless, so ask again instead of failing the run
+        for _ in range(SET_PARAMS_ATTEMPTS):
+            fut = client.call_async(req)
+            if self.wait(fut.done, SET_PARAMS_TIMEOUT_S):
+                return fut.result().results
+            client.remove_pending_request(fut)
+        raise RuntimeError(f'set_parameters of {fqn}: no answer in {SET_PARAMS_ATTEMPTS} x '
+                           f'{SET_PARAMS_TIMEOUT_S:g} s')
 
     def setpoint_publishers(self, namespace: str = '') -> dict:
         """Reliable keep-all publishers of the speed and load setpoints of the node in

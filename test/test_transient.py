@@ -333,7 +333,11 @@ def test_interrupted_run_leaves_a_readable_bag(tmp_path):
     out = tmp_path / 'cut'
     env = {**os.environ, 'PYTHONPATH': os.pathsep.join([str(REPO),
                                                          os.environ.get('PYTHONPATH', '')])}
-    proc = subprocess.Popen([sys.executable, '-m', 'dmf_sim.cli', 'run', 'ramp:800:2000:1',
+    # Ctrl-C's handler set in the child: a process started in the background by a script
+    # (CI launched with `... &`) inherits SIGINT ignored, and Python then keeps it ignored
+    ctrl_c = ('import signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); '
+              'from dmf_sim.cli import main; sys.exit(main(sys.argv[1:]))')
+    proc = subprocess.Popen([sys.executable, '-c', ctrl_c, 'run', 'ramp:800:2000:1',
                              '--out', str(out), '--no-progress', '--threads', '2'], env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
