@@ -189,21 +189,22 @@ def test_grid_corrector_failure_raises_corrector_failed(paper):
 
 
 def test_compiled_engine_query_is_the_engine(paper):
-    """kernels.engine_at on Engine.speed_table: bitwise Engine.coefficients (speeds across the
-    load set's shift and limit, grid nodes and the top end), zero-padded beyond n_max; outside
+    """linear_kernels.engine_at on Engine.speed_table: bitwise Engine.coefficients (speeds across
+    the load set's shift and limit, grid nodes and the top end), zero-padded beyond n_max; outside
     the data it says so."""
-    from dmf_sim.solvers.hbm import kernels
+    from dmf_sim.solvers.hbm import linear_kernels
     loads, _ = paper
     eng = loads.engine
     table = eng.speed_table(1.0)
     lo, hi = eng.speed_range_rpm
     for s in np.concatenate([np.linspace(lo, hi, 97), [1000.0, 1000.0 + 1e-9, 1234.567]]):
         out = np.empty(eng.n_max + 4, dtype=complex)
-        assert kernels.engine_at(float(s), table, out) == kernels.ENGINE_OK
+        assert linear_kernels.engine_at(float(s), table, out) == linear_kernels.ENGINE_OK
         assert np.array_equal(out[:eng.n_max + 1], eng.coefficients(float(s), 1.0))
         assert not out[eng.n_max + 1:].any()
     for s in (lo - 1.0, hi + 1.0, float('nan')):
-        assert kernels.engine_at(s, table, np.empty(3, dtype=complex)) == kernels.ENGINE_OUTSIDE
+        assert (linear_kernels.engine_at(s, table, np.empty(3, dtype=complex))
+                == linear_kernels.ENGINE_OUTSIDE)
 
 
 def test_off_grid_jacobians_in_one_call_are_the_python_path(paper):
@@ -323,10 +324,10 @@ def test_warm_up_compiles_what_a_sweep_calls(paper):
     """kernels.warm_up (run by a design-study worker when it starts) leaves no compilation for
     the first sweep: the sweep adds no new signature to any kernel."""
     from dmf_sim.solvers import stability_kernel
-    from dmf_sim.solvers.hbm import kernels
+    from dmf_sim.solvers.hbm import kernels, linear_kernels
     kernels.warm_up()
     fs = [kernels.residual_jacobian_py, kernels.harmonics_py, kernels.newton,
-          kernels.deflated_newton, kernels.corrector_fixed_speed, kernels.modal_sums,
+          kernels.deflated_newton, kernels.corrector_fixed_speed, linear_kernels.modal_sums,
           stability_kernel.floquet]
     before = [len(f.signatures) for f in fs]
     assert all(n >= 1 for n in before)
@@ -366,10 +367,10 @@ from dmf_sim.physics.engine import load_engine
 from dmf_sim.physics.loads import DrivelineLoads
 from dmf_sim.physics.model import load_model
 from dmf_sim.solvers import stability_kernel
-from dmf_sim.solvers.hbm import CondensedHBM, SweepOptions, kernels, sweep
+from dmf_sim.solvers.hbm import CondensedHBM, SweepOptions, kernels, linear_kernels, sweep
 kernels.warm_up()
 fs = [kernels.residual_jacobian_py, kernels.harmonics_py, kernels.newton, kernels.deflated_newton,
-      kernels.corrector_fixed_speed, kernels.modal_sums, kernels.linear_parts,
+      kernels.corrector_fixed_speed, linear_kernels.modal_sums, linear_kernels.linear_parts,
       kernels.residual_jacobians_py, stability_kernel.floquet]
 before = [len(f.signatures) for f in fs]
 loads = DrivelineLoads(load_model('truck_dmf', alpha=3.0), load_engine('engine_d13', load_set='A'))

@@ -49,7 +49,7 @@ from dmf_sim.physics.harmonic import solve_harmonic, solve_static
 from dmf_sim.physics.loads import DrivelineLoads
 from dmf_sim.physics.orders import summarize_orders, synthesize
 from dmf_sim.solvers.continuation import CorrectorFailed, solve_small
-from dmf_sim.solvers.hbm import kernels
+from dmf_sim.solvers.hbm import kernels, linear_kernels
 from dmf_sim.solvers.hbm.layout import fit_harmonics, times_h, to_complex, to_real
 from dmf_sim.solvers.hbm.point import HBMOptions, HBMPoint, LinearParts
 from dmf_sim.solvers.stability import FlexibleModes
@@ -245,8 +245,8 @@ class CondensedHBM:
         if self.compiled:           # modal sums, wlin, dwlin and their real layouts in one call
             wr = np.empty((K, 2 * H + 1))
             dwr = np.empty((K, 2 * H + 1))
-            kernels.linear_parts(omega, self._dOm, self._d, ml, self._a, A, dA, wlin0, dwlin0,
-                                 self._h0, h, dh, wlin, dw, wr, dwr)
+            linear_kernels.linear_parts(omega, self._dOm, self._d, ml, self._a, A, dA, wlin0,
+                                        dwlin0, self._h0, h, dh, wlin, dw, wr, dwr)
         else:
             n = np.arange(1, H + 1)
             Om = omega[:, None] * (n / 2.0)                      # Om_n = n omega / 2
@@ -287,9 +287,9 @@ class CondensedHBM:
         dw = np.empty((1, H + 1), dtype=complex)
         wr = np.empty((1, 2 * H + 1))
         dwr = np.empty((1, 2 * H + 1))
-        kernels.linear_parts(np.array([omega]), self._dOm, self._d, self._modal_load[1:],
-                             self._a, A[None], dA[None], np.array([wlin0]), np.array([dwlin0]),
-                             self._h0, h, dh, wlin, dw, wr, dwr)
+        linear_kernels.linear_parts(np.array([omega]), self._dOm, self._d, self._modal_load[1:],
+                                    self._a, A[None], dA[None], np.array([wlin0]),
+                                    np.array([dwlin0]), self._h0, h, dh, wlin, dw, wr, dwr)
         return LinearParts(s, omega, h[0], wlin[0], dh[0], dw[0], (wr[0], h[0]), (dwr[0], dh[0]))
 
     def linear_response(self, speeds_rpm) -> np.ndarray:
@@ -606,9 +606,9 @@ class CondensedHBM:
         st, r, J, rs = kernels.residual_jacobians_at(np.ascontiguousarray(x, dtype=float), s,
                                                      fd, table, statics, modal,
                                                      self._aft_mats, self._spring_arrays)
-        if st == kernels.ENGINE_OK:
+        if st == linear_kernels.ENGINE_OK:
             return r, J, rs
-        if st == kernels.ENGINE_NOT_READY:
+        if st == linear_kernels.ENGINE_NOT_READY:
             self.__dict__.pop('_kernel_engine', None)
         return None                     # outside the data: the Python path raises as usual
 
@@ -649,7 +649,7 @@ class CondensedHBM:
             s = float(y[n1 - 1] * ss)
             self.__dict__.pop('_kernel_engine', None)
             self._linear_parts_one(s)
-            if est != kernels.ENGINE_NOT_READY:      # outside, though Python found it inside
+            if est != linear_kernels.ENGINE_NOT_READY:  # outside, though Python found it inside
                 return None
 
     def corrector_at(self, y_pred: np.ndarray, xs: float, ss: float, tol: float, max_iter: int):

@@ -1,0 +1,166 @@
+"""Compiled linear parts of the condensed harmonic-balance system (numba: nopython, cached): the
+modal sums of the condensed receptances for a batch of speeds, and at one speed off the grid the
+engine's A_n query with them (every arc-length corrector iteration is a new speed). The solvers
+that use them are in :mod:`dmf_sim.solvers.hbm.kernels`.
+
+References (the same operations): the numpy branch of ``CondensedHBM._linear_parts_many``,
+``CondensedHBM._linear_parts_one`` and ``Engine.coefficients`` (bitwise).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from dmf_sim.core.units import RPM_TO_RAD_S
+from dmf_sim.solvers.newmark_kernel import HAVE_NUMBA
+
+__all__ = ['ENGINE_OK', 'ENGINE_OUTSIDE', 'ENGINE_NOT_READY', 'modal_sums', 'linear_parts',
+           'engine_at', 'linear_parts_at']
+
+
+# ------------------------------------------------------------------------------------------------
+# Linear parts: the modal sums of the condensed receptances
+# ------------------------------------------------------------------------------------------------
+
+def modal_sums(omega, dOm, d, ml, a, unit, dunit, h, dh):
+    """For K crank speeds omega [rad/s] and harmonics n = 1..H (Om_n = n omega / 2, dOm_n its
+    speed derivative): with the poles p_nk = 1 / (i Om_n - d_k) of the chain's complex modes,
+    ``unit_n = sum_k p_nk ml_nk`` (wlin_n per unit A_n), ``h_n = sum_k p_nk a_k`` and their
+    speed derivatives through dp/dOm = -i p^2 (reference: ``CondensedHBM._linear_parts_many``
+    in numpy)."""
+    K = omega.shape[0]
+    H = ml.shape[0]
+    m = d.shape[0]
+    for q in range(K):
+        for n in range(H):
+            Om = omega[q] * ((n + 1) / 2.0)
+            su = 0j
+            sdu = 0j
+            sh = 0j
+            sdh = 0j
+            for k in range(m):
+                p = 1.0 / (1j * Om - d[k])
+                p2 = -1j * (p * p)
+                su += p * ml[n, k]
+                sdu += p2 * ml[n, k]
+                sh += p * a[k]
+                sdh += p2 * a[k]
+            unit[q, n] = su
+            dunit[q, n] = sdu * dOm[n]
+            h[q, n] = sh
+            dh[q, n] = sdh * dOm[n]
+
+
+def linear_parts(omega, dOm, d, ml, a, A, dA, wlin0, dwlin0, h0, h, dh, wlin, dw, wr, dwr):
+    """The linear parts of K speeds in one call: :func:`modal_sums`, then ``h_0 = h0``,
+    ``wlin_n = A_n unit_n``, ``dwlin_n = A_n dunit_n + dA_n unit_n`` (n >= 1), the static
+    ``wlin_0``, ``dwlin_0`` as given, and wlin, dwlin on the real layout (``wr``, ``dwr``).
+    ``A``, ``dA``: (K, H+1) engine coefficients and their speed derivatives. Reference: the
+    numpy branch of ``CondensedHBM._linear_parts_many``."""
+    K = omega.shape[0]
+    H = ml.shape[0]
+    unit = np.empty((K, H), dtype=np.complex128)
+    dunit = np.empty((K, H), dtype=np.complex128)
+    modal_sums(omega, dOm, d, ml, a, unit, dunit, h[:, 1:], dh[:, 1:])
+    for q in range(K):
+        h[q, 0] = h0
+        dh[q, 0] = 0.0
+        wlin[q, 0] = wlin0[q]
+        dw[q, 0] = dwlin0[q]
+        wr[q, 0] = wlin0[q]
+        dwr[q, 0] = dwlin0[q]
+        for n in range(1, H + 1):
+            u = unit[q, n - 1]
+            w = A[q, n] * u
+            v = A[q, n] * dunit[q, n - 1] + dA[q, n] * u
+            wlin[q, n] = w
+            dw[q, n] = v
+            wr[q, n] = w.real
+            wr[q, H + n] = w.imag
+            dwr[q, n] = v.real
+            dwr[q, H + n] = v.imag
+
+
+# ------------------------------------------------------------------------------------------------
+# The linear parts at one speed off the grid, engine query included
+# ------------------------------------------------------------------------------------------------
+
+ENGINE_OK, ENGINE_OUTSIDE, ENGINE_NOT_READY = 0, 1, 2
+
+
+def engine_at(s, table, out):
+    """out <- the engine's A_n at speed s [rpm] (``Engine.coefficients`` from
+    ``Engine.speed_table``: the load set's effective speed, the speed step of
+    ``GasGrid.__call__`` on the load-interpolated rows and the inertia part, the same
+    operations), truncated or zero-padded to out's length. Returns ENGINE_OK, ENGINE_OUTSIDE
+    (s or its effective speed outside the data) or ENGINE_NOT_READY (grid nodes not computed
+    yet)."""
+    speeds, rows, ready, inertia, shift, limit = table
+    n = speeds.shape[0]
+    lo = speeds[0]
+    hi = speeds[n - 1]
+    if not (math.isfinite(s) and lo <= s <= hi):
+        return ENGINE_OUTSIDE
+    s_eff = min(s + shift, max(s, limit))
+    if not (math.isfinite(s_eff) and lo <= s_eff <= hi):
+        return ENGINE_OUTSIDE
+    i = 0
+    while i < n and speeds[i] <= s_eff:        # bisect_right - 1, clipped to [0, n - 2]
+        i += 1
+    i = min(max(i - 1, 0), n - 2)
+    if not (ready[i] and ready[i + 1]):
+        return ENGINE_NOT_READY
+    ts = (s_eff - speeds[i]) / (speeds[i + 1] - speeds[i])
+    omega = s * RPM_TO_RAD_S
+    w2 = omega * omega
+    m = rows.shape[1]
+    for k in range(out.shape[0]):
+        if k < m:
+            out[k] = (rows[i, k] * (1.0 - ts) + rows[i + 1, k] * ts) + w2 * inertia[k]
+        else:
+            out[k] = 0.0
+    return ENGINE_OK
+
+
+def linear_parts_at(s, fd, table, statics, modal, A, A2, dA, h, dh, wlin, dw, wr, dwr):
+    """The linear parts of one speed s [rpm] with the engine query (reference:
+    ``CondensedHBM._linear_parts_one``, the same operations): ``fd`` the finite-difference step
+    [rpm] (backward at the top of the engine data), ``statics`` = (static wind-up per unit
+    cylinder mean torque, per unit rear load, rear load per unit A_0), ``modal`` = (dOm, d, ml,
+    a, h0). Outputs (1, .) rows as :func:`linear_parts`. Returns the engine status."""
+    speeds = table[0]
+    ds = -fd if s + fd > speeds[speeds.shape[0] - 1] else fd
+    st = engine_at(s, table, A[0])
+    if st != ENGINE_OK:
+        return st
+    st = engine_at(s + ds, table, A2[0])
+    if st != ENGINE_OK:
+        return st
+    # (A2 - A) / ds as numpy divides complex by real (Smith's algorithm: times 1 / ds)
+    rat = 0.0 / ds
+    scl = 1.0 / (ds + 0.0 * rat)
+    for k in range(A.shape[1]):
+        d = A2[0, k] - A[0, k]
+        dA[0, k] = complex((d.real + d.imag * rat) * scl, (d.imag - d.real * rat) * scl)
+    static_cyl, static_rear, rear_factor = statics
+    rear = -A[0, 0].real * rear_factor
+    rear2 = -A2[0, 0].real * rear_factor
+    wlin0 = np.empty(1)
+    dwlin0 = np.empty(1)
+    wlin0[0] = A[0, 0].real * static_cyl + rear * static_rear
+    dwlin0[0] = dA[0, 0].real * static_cyl + (rear2 - rear) / ds * static_rear
+    omega = np.empty(1)
+    omega[0] = s * RPM_TO_RAD_S
+    dOm, d_, ml, a, h0 = modal
+    linear_parts(omega, dOm, d_, ml, a, A, dA, wlin0, dwlin0, h0, h, dh, wlin, dw, wr, dwr)
+    return ENGINE_OK
+
+
+if HAVE_NUMBA:
+    import numba
+    _jit = numba.njit(cache=True, nogil=True, error_model='numpy')
+    modal_sums = _jit(modal_sums)
+    linear_parts = _jit(linear_parts)
+    engine_at = _jit(engine_at)
+    linear_parts_at = _jit(linear_parts_at)
