@@ -105,7 +105,7 @@ def main(argv=None) -> int:
             res = run_optimization(prob, client)
             lhs = run_optimization(baseline_problem(prob), client)
             hv = common_hypervolumes(res, lhs)
-            front = front_hypervolumes(res, lhs)
+            front = front_hypervolumes(res, lhs, hv)
             ratios.append(front['ratio'])
             wide.append(hv['ratio'])
             bounds.append(front['wide_bound'])

@@ -363,3 +363,18 @@ def test_front_reference_point_and_the_bound_of_the_wide_one():
     # the optimizer's front is the ideal point itself: the wide ratio is the bound, near 1
     assert wide['ratio'] == pytest.approx(front['wide_bound'])
     assert 1.0 < front['wide_bound'] < 1.05
+
+
+def test_hypervolumes_without_a_feasible_design_are_empty_not_an_error():
+    """A run with no feasible design (a tight constraint, a small budget): both comparisons give
+    zero hypervolumes and an undefined ratio, with the same keys as a normal run."""
+    from types import SimpleNamespace
+
+    from dmf_sim.optimize.report import common_hypervolumes, front_hypervolumes
+
+    rows = [{'design_id': 0, 'feasible': False, 'status': 'ok', 'a': 1.0, 'b': 1.0,
+             'pareto': False}]
+    run = SimpleNamespace(problem=SimpleNamespace(objectives=['a', 'b']), rows=lambda kind: rows)
+    for hv in (common_hypervolumes(run, run), front_hypervolumes(run, run)):
+        assert hv['reference_point'] is None and math.isnan(hv['ratio'])
+        assert hv['optimizer_final'] == hv['lhs_final'] == 0.0

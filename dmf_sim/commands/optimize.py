@@ -126,7 +126,7 @@ def _finish(problem, result, baseline, args, say, seconds_so_far: float) -> dict
     summary['best_vs_paper'] = bvp
     if hv:
         keys = ('reference_point', 'optimizer_final', 'lhs_final', 'ratio')
-        front = front_hypervolumes(result, baseline)
+        front = front_hypervolumes(result, baseline, hv)
         hv['front'] = {k: front[k] for k in (*keys, 'wide_bound') if k in front}
         summary['hypervolume'] = {**{k: hv[k] for k in keys}, 'front': hv['front']}
         summary['baseline'] = {k: v for k, v in baseline.summary().items()

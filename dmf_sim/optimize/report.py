@@ -112,7 +112,8 @@ def common_hypervolumes(result, baseline, reference_point: tuple[float, float] |
     f1 = np.concatenate([c[0][c[2]] for c in cols.values()])
     f2 = np.concatenate([c[1][c[2]] for c in cols.values()])
     if not len(f1):
-        return {'reference_point': None, 'optimizer': [], 'lhs': [], 'ratio': math.nan}
+        return {'reference_point': None, 'optimizer': [], 'lhs': [], 'optimizer_final': 0.0,
+                'lhs_final': 0.0, 'ratio': math.nan}
     ref = (tuple(float(v) for v in reference_point) if reference_point is not None
            else (1.1 * float(f1.max()), 1.1 * float(f2.max())))
     hv = {k: hypervolume_history(*c, ref) for k, c in cols.items()}
@@ -150,18 +151,20 @@ def front_reference_point(result, baseline, margin: float = FRONT_REFERENCE_MARG
     return float(ref[0]), float(ref[1])
 
 
-def front_hypervolumes(result, baseline, margin: float = FRONT_REFERENCE_MARGIN) -> dict:
+def front_hypervolumes(result, baseline, wide: dict | None = None,
+                       margin: float = FRONT_REFERENCE_MARGIN) -> dict:
     """Both runs' hypervolumes with :func:`front_reference_point` (``common_hypervolumes`` with
     that point), and ``wide_bound``: the largest ratio any optimizer could reach against this
     baseline with the default reference point (a front at the ideal point of both runs, the
     best feasible value of each objective, over the baseline's hypervolume) -- when it is close to
-    1 that reference point cannot tell fronts apart."""
+    1 that reference point cannot tell fronts apart. ``wide``: ``common_hypervolumes(result,
+    baseline)`` when the caller has it already (computed here otherwise)."""
     ref = front_reference_point(result, baseline, margin)
     if ref is None:
-        return {'reference_point': None, 'optimizer': [], 'lhs': [], 'ratio': math.nan,
-                'wide_bound': math.nan}
+        return {'reference_point': None, 'optimizer': [], 'lhs': [], 'optimizer_final': 0.0,
+                'lhs_final': 0.0, 'ratio': math.nan, 'wide_bound': math.nan}
     out = common_hypervolumes(result, baseline, ref)
-    wide = common_hypervolumes(result, baseline)
+    wide = wide if wide is not None else common_hypervolumes(result, baseline)
     ideal = ideal_point_search(result, baseline)['ideal']
     o1, o2 = result.problem.objectives[:2]
     best = hypervolume([ideal[o1]], [ideal[o2]], tuple(wide['reference_point']))
