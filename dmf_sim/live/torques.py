@@ -9,7 +9,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from dmf_sim.solvers.newmark_kernel import HAVE_NUMBA, region_of
+from dmf_sim.solvers.compiled import jit
+from dmf_sim.solvers.newmark_kernel import region_of
 
 __all__ = ['TorqueOperator', 'sparse_outputs']
 
@@ -50,9 +51,7 @@ def sparse_outputs(rows, q, v, a, w, omega_dot, start, index, weight, dal, knees
             out[r, j] = acc
 
 
-if HAVE_NUMBA:
-    import numba
-    sparse_outputs = numba.njit(cache=True, nogil=True, error_model='numpy')(sparse_outputs)
+sparse_outputs = jit(sparse_outputs)
 
 
 class TorqueOperator:

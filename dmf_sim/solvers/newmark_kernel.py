@@ -52,15 +52,12 @@ import math
 
 import numpy as np
 
+from dmf_sim.solvers.compiled import jit
+
 __all__ = ['MAX_PIECES', 'SPLIT_MIN_FRACTION', 'LOOKAHEAD_STEPS', 'newmark_constants', 'thomas',
            'factor', 'region_of', 'knee_between', 'regular_block', 'advance_kernel',
            'advance_reference']
 
-try:
-    import numba
-    HAVE_NUMBA = True
-except ImportError:  # pragma: no cover - numba is a hard dependency, kept optional for readability
-    HAVE_NUMBA = False
 
 MAX_PIECES = 8           # a step is split at most this many times (knees crossed in one step)
 SPLIT_MIN_FRACTION = 0.01  # crossings this close to a step end are not split (no tiny steps)
@@ -401,17 +398,13 @@ def advance_kernel(nsteps, stride, state, system, factors, spring, excitation, o
     return j
 
 
-if HAVE_NUMBA:
-    _jit = numba.njit(cache=True, nogil=True, error_model='numpy')
-    newmark_constants = _jit(newmark_constants)
-    thomas = _jit(thomas)
-    factor = _jit(factor)
-    region_of = _jit(region_of)
-    knee_between = _jit(knee_between)
-    regular_block = _jit(regular_block)
-    advance_compiled = _jit(advance_kernel)
-else:  # pragma: no cover
-    advance_compiled = advance_kernel
+newmark_constants = jit(newmark_constants)
+thomas = jit(thomas)
+factor = jit(factor)
+region_of = jit(region_of)
+knee_between = jit(knee_between)
+regular_block = jit(regular_block)
+advance_compiled = jit(advance_kernel)
 
 
 # ------------------------------------------------------------------------------------------------

@@ -12,7 +12,8 @@ import math
 import numpy as np
 
 from dmf_sim.core.units import CYCLE_RAD
-from dmf_sim.solvers.newmark_kernel import HAVE_NUMBA, region_of
+from dmf_sim.solvers.compiled import jit
+from dmf_sim.solvers.newmark_kernel import region_of
 
 __all__ = ['floquet_segments', 'monodromy_similar', 'floquet']
 
@@ -144,9 +145,6 @@ def floquet(c, w, omega, knees, primary, n_newton, kind, sigma, freq, W):
     return X, count, stages[:count].copy(), taus[:count].copy()
 
 
-if HAVE_NUMBA:
-    import numba
-    _jit = numba.njit(cache=True, nogil=True, error_model='numpy')
-    floquet_segments = _jit(floquet_segments)
-    monodromy_similar = _jit(monodromy_similar)
-    floquet = _jit(floquet)
+floquet_segments = jit(floquet_segments)
+monodromy_similar = jit(monodromy_similar)
+floquet = jit(floquet)

@@ -38,6 +38,7 @@ import math
 
 import numpy as np
 
+from dmf_sim.solvers.compiled import jit
 from dmf_sim.solvers.hbm.layout import to_real
 from dmf_sim.solvers.hbm.linear_kernels import (
     ENGINE_OK,
@@ -45,7 +46,7 @@ from dmf_sim.solvers.hbm.linear_kernels import (
     linear_parts_at,
     modal_sums,
 )
-from dmf_sim.solvers.newmark_kernel import HAVE_NUMBA, region_of
+from dmf_sim.solvers.newmark_kernel import region_of
 
 __all__ = ['BACKTRACK_MIN', 'PIVOT_TINY', 'lu_solve', 'max_abs', 'aft', 'times_h_into',
            'times_h_matrix', 'residual_jacobian', 'residual_jacobian_py', 'speed_derivative',
@@ -581,35 +582,30 @@ def corrector_arclength(y_pred, normal, xs, ss, tol, max_iter, fd, table, static
     return MAX_ITER, max_iter, res, ENGINE_OK
 
 
-if HAVE_NUMBA:
-    import numba
-    _jit = numba.njit(cache=True, nogil=True, error_model='numpy')
-    lu_solve = _jit(lu_solve)
-    max_abs = _jit(max_abs)
-    # reassociation lets LLVM vectorize the sums (rounding-level differences to the reference);
-    # no 'nnan' flag: the NaN checks of the solvers stay valid
-    aft = numba.njit(cache=True, nogil=True, error_model='numpy',
-                     fastmath={'reassoc', 'contract'})(aft)
-    times_h_into = _jit(times_h_into)
-    times_h_matrix = _jit(times_h_matrix)
-    residual_jacobian = _jit(residual_jacobian)
-    residual_jacobian_py = _jit(residual_jacobian_py)
-    speed_derivative = _jit(speed_derivative)
-    residual_jacobians_py = _jit(residual_jacobians_py)
-    _lu_work = _jit(_lu_work)
-    add_step = _jit(add_step)
-    corrector_fixed_speed = _jit(corrector_fixed_speed)
-    harmonics_py = _jit(harmonics_py)
-    _newton_start = _jit(_newton_start)
-    _accept = _jit(_accept)
-    newton = _jit(newton)
-    _log_m = _jit(_log_m)
-    _log_floor = _jit(_log_floor)
-    deflated_newton = _jit(deflated_newton)
-    residual_jacobians_at = _jit(residual_jacobians_at)
-    _evaluate_scaled = _jit(_evaluate_scaled)
-    corrector_arclength = _jit(corrector_arclength)
-
+lu_solve = jit(lu_solve)
+max_abs = jit(max_abs)
+# reassociation lets LLVM vectorize the sums (rounding-level differences to the reference);
+# no 'nnan' flag: the NaN checks of the solvers stay valid
+aft = jit(aft, fastmath={'reassoc', 'contract'})
+times_h_into = jit(times_h_into)
+times_h_matrix = jit(times_h_matrix)
+residual_jacobian = jit(residual_jacobian)
+residual_jacobian_py = jit(residual_jacobian_py)
+speed_derivative = jit(speed_derivative)
+residual_jacobians_py = jit(residual_jacobians_py)
+_lu_work = jit(_lu_work)
+add_step = jit(add_step)
+corrector_fixed_speed = jit(corrector_fixed_speed)
+harmonics_py = jit(harmonics_py)
+_newton_start = jit(_newton_start)
+_accept = jit(_accept)
+newton = jit(newton)
+_log_m = jit(_log_m)
+_log_floor = jit(_log_floor)
+deflated_newton = jit(deflated_newton)
+residual_jacobians_at = jit(residual_jacobians_at)
+_evaluate_scaled = jit(_evaluate_scaled)
+corrector_arclength = jit(corrector_arclength)
 
 
 def warm_up() -> float:

@@ -13,7 +13,7 @@ import math
 import numpy as np
 
 from dmf_sim.core.units import RPM_TO_RAD_S
-from dmf_sim.solvers.newmark_kernel import HAVE_NUMBA
+from dmf_sim.solvers.compiled import jit
 
 __all__ = ['ENGINE_OK', 'ENGINE_OUTSIDE', 'ENGINE_NOT_READY', 'modal_sums', 'linear_parts',
            'engine_at', 'linear_parts_at']
@@ -157,10 +157,7 @@ def linear_parts_at(s, fd, table, statics, modal, A, A2, dA, h, dh, wlin, dw, wr
     return ENGINE_OK
 
 
-if HAVE_NUMBA:
-    import numba
-    _jit = numba.njit(cache=True, nogil=True, error_model='numpy')
-    modal_sums = _jit(modal_sums)
-    linear_parts = _jit(linear_parts)
-    engine_at = _jit(engine_at)
-    linear_parts_at = _jit(linear_parts_at)
+modal_sums = jit(modal_sums)
+linear_parts = jit(linear_parts)
+engine_at = jit(engine_at)
+linear_parts_at = jit(linear_parts_at)
