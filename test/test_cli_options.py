@@ -43,3 +43,21 @@ def test_size_like_options_refused_in_one_line(argv, needles, capsys, monkeypatc
     assert err.count('\n') == 1 and err.startswith(f'dmf-sim {argv[0]}: error: '), err
     for needle in needles:
         assert needle in err, err
+
+
+@pytest.mark.parametrize('argv, needles', [
+    (['--frames', '0'], ('--frames', '>= 1')),
+    (['--timeout', '0'], ('--timeout', '> 0 s')),
+    (['--duration', 'nan'], ('--duration', '> 0 s')),
+    (['--rate', '100'], ('--rate', '[0.1, 50] Hz')),
+])
+def test_monitor_options_refused_in_one_line(argv, needles, capsys, monkeypatch):
+    """Checked before any ROS participant starts (no node needed, no rclpy session)."""
+    def no_session(*args, **kwargs):
+        raise AssertionError('ROS session started before the options were checked')
+    monkeypatch.setattr('dmf_sim.commands._ros.ros_session', no_session)
+    assert cli_main(['monitor', *argv]) == 2
+    err = capsys.readouterr().err
+    assert err.count('\n') == 1 and err.startswith('dmf-sim monitor: error: '), err
+    for needle in needles:
+        assert needle in err, err

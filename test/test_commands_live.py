@@ -241,9 +241,9 @@ def _monitor_with_monitor_topics(domain: int) -> str:
             'n', cyc, compare(cyc, pred, 10, 0.02), pred, report).to_msg(DiagnosticStatus,
                                                                           KeyValue)])
         proc = subprocess.Popen([sys.executable, '-m', 'dmf_sim.cli', 'monitor', '--namespace',
-                                 '/truck1', '--plain', '--rate', '2', '--duration', '9'],
+                                 '/truck1', '--plain', '--rate', '2', '--frames', '6'],
                                 env=_env(domain), stdout=subprocess.PIPE, text=True)
-        # publish until the monitor ends: its 9 s start after its own (loaded: slow) start-up
+        # publish until the monitor ends: its 6 frames start once it has the node's diagnostics
         end = time.monotonic() + 120
         while proc.poll() is None and time.monotonic() < end:
             cyc_pub.publish(cyc_msg)

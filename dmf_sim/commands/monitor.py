@@ -5,8 +5,8 @@ wind-up, DMF region, lag, overruns, the DMF monitor's alarms), ``<ns>/driveline/
 (per engine cycle: live orders, region shares, predicted state, live minus predicted, alarms) and
 ``<ns>/driveline/dmf_predicted`` (the predicted stable states, latched). Refreshes ``--rate``
 times a second with ``rich`` (``--plain``: text frames, for logs and tests); Ctrl-C ends it.
-``--once`` prints one frame as soon as the node's diagnostics arrived; ``--duration S`` stops
-after S seconds.
+``--once`` prints one frame as soon as the node's diagnostics arrived; ``--frames N`` stops after
+N frames that show the node (however long discovery took); ``--duration S`` stops after S seconds.
 """
 from __future__ import annotations
 
@@ -47,9 +47,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     end = parser.add_mutually_exclusive_group()
     end.add_argument('--once', action='store_true',
                      help='print one frame once the node answered, then exit')
+    end.add_argument('--frames', type=int, metavar='N',
+                     help='exit after N frames that show the node (the frames before its first '
+                          'diagnostics do not count)')
     end.add_argument('--duration', type=float, metavar='S', help='exit after S seconds')
     parser.add_argument('--timeout', type=float, default=15.0, metavar='S',
-                        help='with --once: seconds to wait for the node (default 15)')
+                        help='with --once or --frames: seconds to wait for the node (default 15)')
     end.add_argument('--foxglove-layout', type=Path, metavar='FILE',
                      help='write the Foxglove layout for this node (--namespace/--node: its '
                           'topics, its health status selected by its full name) to the new '
@@ -231,6 +234,10 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f'--rate must be in [0.1, 50] Hz, got {args.rate!r}')
     if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
         raise ConfigError(f'--duration must be > 0 s, got {args.duration!r}')
+    if args.frames is not None and args.frames < 1:
+        raise ConfigError(f'--frames must be >= 1, got {args.frames!r}')
+    if not (math.isfinite(args.timeout) and args.timeout > 0):
+        raise ConfigError(f'--timeout must be > 0 s, got {args.timeout!r}')
     view = MonitorView(node=select_node(args.namespace, args.node))
     if args.foxglove_layout is not None:
         return _write_layout(args.foxglove_layout, view.node)
@@ -275,14 +282,9 @@ def _write_layout(path: Path, node: NodeSelector) -> int:
 def _loop(args, view: MonitorView, executor, title: str) -> int:
     period = 1.0 / args.rate
     start = time.monotonic()
+    if args.once or args.frames is not None:
+        _wait_for_node(args, view, executor, start)
     if args.once:
-        end = start + args.timeout
-        while not view.has_data:
-            if time.monotonic() > end:
-                raise NoResponseError(f'no /diagnostics from {view.node.describe()} within '
-                                      f'{args.timeout:g} s (is driveline_node running there '
-                                      'with this ROS_DOMAIN_ID?)')
-            executor.spin_once(timeout_sec=0.05)
         # give the per-cycle and prediction topics a moment to arrive too
         settle = time.monotonic() + min(1.0, args.timeout)
         while time.monotonic() < settle and (view.cycle is None or not view.predicted):
@@ -294,9 +296,14 @@ def _loop(args, view: MonitorView, executor, title: str) -> int:
             Console().print(render_rich(view, time.monotonic(), title))
         return 0
     stop = None if args.duration is None else start + args.duration
+
+    def more(shown: int) -> bool:
+        return ((stop is None or time.monotonic() < stop)
+                and (args.frames is None or shown < args.frames))
+
     if args.plain:
         frame = 0
-        while stop is None or time.monotonic() < stop:
+        while more(frame):
             _spin_for(executor, period)
             frame += 1
             print(f'--- frame {frame} t={time.monotonic() - start:.2f} s', flush=True)
@@ -308,10 +315,23 @@ def _loop(args, view: MonitorView, executor, title: str) -> int:
     console = Console()
     with Live(render_rich(view, time.monotonic(), title), console=console,
               refresh_per_second=args.rate, transient=False) as live:
-        while stop is None or time.monotonic() < stop:
+        frame = 0
+        while more(frame):
             _spin_for(executor, period)
+            frame += 1
             live.update(render_rich(view, time.monotonic(), title))
     return 0
+
+
+def _wait_for_node(args, view: MonitorView, executor, start: float) -> None:
+    """Spin until the node's diagnostics arrived (``--once``, ``--frames``), at most --timeout."""
+    end = start + args.timeout
+    while not view.has_data:
+        if time.monotonic() > end:
+            raise NoResponseError(f'no /diagnostics from {view.node.describe()} within '
+                                  f'{args.timeout:g} s (is driveline_node running there '
+                                  'with this ROS_DOMAIN_ID?)')
+        executor.spin_once(timeout_sec=0.05)
 
 
 def _spin_for(executor, seconds: float) -> None:
