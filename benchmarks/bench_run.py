@@ -8,9 +8,9 @@ own), on the paper driveline (``truck_dmf``, ``engine_d13``, Load A, full load) 
   same without the bag; ``*_cpu`` per CPU second of the process (the figure a loaded machine
   distorts least). Each is the median of ``--repeat`` runs (alternating, each in a fresh
   process); ``speed_runs`` lists every run, ``speed_min`` / ``speed_median`` both. The
-  headline figures are the default ``--threads 1`` (integrating and writing in turn), the
-  ``*_threads2`` ones ``--threads 2`` (integrating in a thread of its own, which can pay off only
-  with a free core).
+  headline figures are the command's default (``threads_default``: 2 threads on a machine with
+  two CPUs), the ``*_threads1`` ones ``--threads 1`` (integrating and writing in turn), the
+  ``*_threads2`` ones ``--threads 2`` (integrating in a thread of its own).
 * ``breakdown_ms_per_sim_s``: where the time of one ``--threads 1`` run with the bag goes, in
   wall milliseconds per simulated second, timed in this process around the stages: the Newmark
   kernel, the excitation update and the rest of a chunk's integration, the read-out of the
@@ -82,17 +82,21 @@ def cli(*args: str) -> dict:
 
 
 def speed_runs(profile: str, work: Path, repeat: int) -> dict:
-    """``dmf-sim run`` with and without the bag, threads 1 and 2, ``repeat`` times each
-    (alternating); per variant the wall and CPU factors of every run, min and median."""
-    variants = {'': ('--threads', '1'), '_threads2': ('--threads', '2')}
+    """``dmf-sim run`` with and without the bag, with its default threads and with 1 and 2,
+    ``repeat`` times each (alternating); per variant the wall and CPU factors of every run, min
+    and median, and the default's thread count (``threads_default``)."""
+    variants = {'': (), '_threads1': ('--threads', '1'), '_threads2': ('--threads', '2')}
     runs: dict[str, list[float]] = {}
     first = None
+    runs_threads = None
     for i in range(repeat):
         for suffix, opts in variants.items():
             for write in (True, False):
                 out = work / f'speed{suffix}_{i}'
                 args = ['--out', str(out)] if write else ['--no-write']
                 r = cli('run', profile, *args, *opts)
+                if not opts:
+                    runs_threads = r['threads']
                 if write and first is None:
                     first = (r, out)
                 elif write:
@@ -101,6 +105,7 @@ def speed_runs(profile: str, work: Path, repeat: int) -> dict:
                 runs.setdefault(key, []).append(r['realtime_factor'])
                 runs.setdefault(f'{key}_cpu', []).append(r['simulated_s'] / r['cpu_s'])
     out = {key: statistics.median(v) for key, v in runs.items()}
+    out['threads_default'] = runs_threads
     out.update(speed_runs={k: [round(x, 1) for x in v] for k, v in runs.items()},
                speed_min={k: round(min(v), 1) for k, v in runs.items()},
                speed_median={k: round(statistics.median(v), 1) for k, v in runs.items()})

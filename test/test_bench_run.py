@@ -15,8 +15,10 @@ def test_bench_run_small_prints_json():
                          check=True, timeout=900).stdout.strip().splitlines()
     data = json.loads(out[-1])
     for key in ('realtime_factor', 'realtime_factor_cpu', 'realtime_factor_no_write',
-                'realtime_factor_no_write_cpu'):
+                'realtime_factor_no_write_cpu', 'realtime_factor_threads1',
+                'realtime_factor_threads2'):
         assert math.isfinite(data[key]) and data[key] > 0
+    assert data['threads_default'] in (1, 2)
     assert data['messages'] == 4 * round(data['simulated_s'] * 1000)
     folds = data['fold_events_rpm']
     assert len(folds) == 2 and 360 < min(folds) < max(folds) < 380

@@ -306,15 +306,16 @@ def test_block_written_files_pass_every_crc_check(run_bag):
 
 def test_threaded_run_writes_the_sequential_bag(tmp_path):
     """Integrating in a thread of its own while the last chunks are read out and written
-    (threads=2) gives the bag one thread gives (threads=1, the default), byte for byte but for
-    the wall-clock stamps: the same payloads in the same order, the same log times relative to
-    the first, the same solver counters."""
+    (threads=2, the default with two CPUs) gives the bag one thread gives (threads=1), byte for
+    byte but for the wall-clock stamps: the same payloads in the same order, the same log times
+    relative to the first, the same solver counters."""
     prof = load_profile('ramp:1000:1300:300:1.0:0.2')
     bags, summaries = {}, {}
     for threads in (1, 2):
         bags[threads] = tmp_path / f'threads{threads}'
         summaries[threads] = run_profile(prof, bags[threads], RunOptions(threads=threads))
     s1, s2 = summaries[1], summaries[2]
+    assert (s1.threads, s2.threads) == (1, 2)
     assert (s1.samples, s1.messages, s1.knee_crossings, s1.solver_resets) == \
         (s2.samples, s2.messages, s2.knee_crossings, s2.solver_resets)
     assert s1.knee_crossings > 0 and s1.samples == round(prof.duration_s * 1000)
@@ -325,6 +326,14 @@ def test_threaded_run_writes_the_sequential_bag(tmp_path):
         return [(tp, t - t0, raw[:4] + raw[12:] if tp.endswith('joint_states') else raw)
                 for tp, t, raw, _ in msgs]
     assert strip(bags[1]) == strip(bags[2])
+
+
+@pytest.mark.parametrize('cpus, threads', [({0}, 1), ({0, 1}, 2), ({0, 1, 2, 3}, 2)])
+def test_default_threads_follow_the_cpus_this_process_may_use(cpus, threads, monkeypatch):
+    from dmf_sim.transient.defaults import default_threads
+    monkeypatch.setattr('os.sched_getaffinity', lambda pid: cpus, raising=False)
+    assert default_threads() == threads
+    assert RunOptions().threads == threads
 
 
 def test_interrupted_run_leaves_a_readable_bag(tmp_path):

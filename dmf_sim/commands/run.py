@@ -20,7 +20,7 @@ from dmf_sim.commands._options import (
     check_common,
 )
 from dmf_sim.core.errors import ConfigError
-from dmf_sim.transient.defaults import CHUNK_RANGE_S, DEFAULT_CHUNK_S, DEFAULT_THREADS
+from dmf_sim.transient.defaults import CHUNK_RANGE_S, DEFAULT_CHUNK_S, default_threads
 
 __all__ = ['NAME', 'HELP', 'add_arguments', 'run']
 
@@ -51,10 +51,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         f'within [{CHUNK_RANGE_S[0]:g}, {CHUNK_RANGE_S[1]:g}])')
     p.add_argument('--namespace', default='', help='write the topics under this namespace')
     p.add_argument('--no-write', action='store_true', help='integrate only (timing)')
-    p.add_argument('--threads', type=int, choices=(1, 2), default=DEFAULT_THREADS,
+    p.add_argument('--threads', type=int, choices=(1, 2), default=None,
                    help='1: integrate and write in turn; 2: integrate the next chunks in a '
-                        'thread of their own while the last ones are written (the same bag; '
-                        f'can pay off only with a free core) (default {DEFAULT_THREADS})')
+                        'thread of their own while the last ones are written (the same bag) '
+                        '(default: 2 when this process may use two or more CPUs, else 1)')
     p.add_argument('--json', action='store_true', help='print the summary as JSON')
     p.add_argument('--no-progress', action='store_true', help='no progress bar')
 
@@ -72,7 +72,7 @@ def run(args: argparse.Namespace) -> int:
     opt = RunOptions(driveline=args.config, engine=args.engine, load_set=args.load_set,
                      alpha=args.alpha, theta=args.theta, dt=args.dt, rate_hz=args.rate,
                      chunk_s=args.chunk, write=not args.no_write, namespace=args.namespace,
-                     threads=args.threads)
+                     threads=default_threads() if args.threads is None else args.threads)
     summary = run_profile(profile, None if args.no_write else args.out, opt,
                           progress=not (args.no_progress or args.json) and sys.stderr.isatty())
     if args.json:

@@ -348,8 +348,9 @@ class LiveSimulation:
 
     # ---- stepping ---------------------------------------------------------------------------
     def advance(self, nsteps: int) -> Samples:
-        """Integrate ``nsteps`` steps: load ramp and excitation update once (held over the chunk),
-        then the kernel; returns the samples due in the chunk (every ``stride``-th step)."""
+        """Integrate ``nsteps`` steps: load ramp and excitation update once (at the chunk's middle,
+        held over the chunk), then the kernel; returns the samples due in the chunk (every
+        ``stride``-th step)."""
         return self.read_out(self.integrate(nsteps))
 
     def integrate(self, nsteps: int, record: StepRecord | None = None) -> Integrated:
@@ -359,9 +360,13 @@ class LiveSimulation:
         integrates the next chunk in another thread meanwhile (the kernel releases the GIL)."""
         it = self.integ
         if nsteps > 0:
+            # the excitation of the chunk's middle (speed and load half-way along their ramps):
+            # held over the chunk, it is off by at most half the chunk's change either way
+            half = 0.5 * nsteps * self.dt
+            key = (it.speed_after_rpm(half),
+                   ramp_toward(self.load, self.load_setpoint, self.load_ramp_per_s, half))
             self.load = ramp_toward(self.load, self.load_setpoint, self.load_ramp_per_s,
                                     nsteps * self.dt)
-            key = (it.speed_rpm, self.load)
             if key != self._exc_key:
                 it.update_excitation(*key)
                 self._exc_key = key

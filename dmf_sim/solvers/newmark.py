@@ -164,6 +164,13 @@ class NewmarkIntegrator:
         self._rear_torque = L.rear_load_for(A)
         self._fixed[:] = self._rear_vec * self._rear_torque
 
+    def speed_after_rpm(self, seconds: float) -> float:
+        """Reference speed [rpm] ``seconds`` [s] ahead on the current ramp (the kernel's ramp
+        toward the target at the ramp rate, clipped there)."""
+        omega, target, ramp = self._scal[2], self._scal[3], self._scal[4]
+        lim = ramp * max(seconds, 0.0)
+        return float(omega + min(max(target - omega, -lim), lim)) / RPM_TO_RAD_S
+
     def set_target(self, speed_rpm: float, ramp_rpm_per_s: float) -> None:
         """Ramp the reference speed toward ``speed_rpm`` at ``ramp_rpm_per_s``."""
         self._scal[3] = speed_rpm * RPM_TO_RAD_S

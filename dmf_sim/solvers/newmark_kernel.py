@@ -404,7 +404,10 @@ factor = jit(factor)
 region_of = jit(region_of)
 knee_between = jit(knee_between)
 regular_block = jit(regular_block)
-advance_compiled = jit(advance_kernel)
+# reassociation and FMA contraction: the sums over the DOFs vectorize (~10 % less time per step,
+# measured 2026-12-02); the results differ from the strict order by round-off (~1e-12 rad over
+# 2e5 steps), which the reference tests' tolerances state
+advance_compiled = jit(advance_kernel, fastmath={'reassoc', 'contract'})
 
 
 # ------------------------------------------------------------------------------------------------

@@ -79,8 +79,10 @@ class SampleEncoder:
     def stamp(self, rows: np.ndarray, stamps_ns: np.ndarray) -> None:
         """Write the header stamps [ns] of JointState ``rows`` (rows, size)."""
         sec, nsec = np.divmod(np.asarray(stamps_ns, np.int64), _NS_PER_S)
-        rows[:, 4:8] = sec.astype('<i4').view(np.uint8).reshape(-1, 4)
-        rows[:, 8:12] = nsec.astype('<u4').view(np.uint8).reshape(-1, 4)
+        stamp = np.empty((len(sec), 2), '<u4')        # builtin_interfaces/Time: int32, uint32
+        stamp[:, 0] = sec.astype('<i4').view('<u4')
+        stamp[:, 1] = nsec
+        rows[:, 4:12] = stamp.view(np.uint8)          # one strided copy of 8 bytes a row
 
     def arrays(self, rows: np.ndarray) -> list[np.ndarray]:
         """The position, velocity and effort arrays of JointState ``rows`` (rows, size) as

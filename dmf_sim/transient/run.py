@@ -13,12 +13,13 @@ node's topics, types, stamps (wall clock at the start + simulated time, as
 (:meth:`dmf_sim.bags.writer.BagRecorder.write_block`), so memory stays flat whatever the
 profile's length. An interruption (Ctrl-C) closes the bag: what was simulated is readable.
 
-Two threads (``RunOptions.threads`` 2; the default is 1): the chunks are integrated
+Two threads (``RunOptions.threads`` 2, the default when the process may use two CPUs, see
+:func:`dmf_sim.transient.defaults.default_threads`): the chunks are integrated
 (:meth:`LiveSimulation.integrate`, the kernel without the GIL) in a thread of their own, up to
 PIPELINE_DEPTH ahead, while this thread reads them out (:meth:`LiveSimulation.read_out`),
-encodes and writes; the chunks, their order and every value are those of one thread. Measured on
-the 2-core machine under load, it was no faster: each thread's CPU time grows by ~35 % when they
-run side by side (the chunks change cores, the GIL changes hands), which eats the overlap.
+encodes and writes; the chunks, their order and every value are those of one thread (1: in
+turn). Each thread's CPU time grows when they run side by side on two cores (caches, the GIL
+changing hands), so the gain is less than the overlap; doc/performance.md has the figures.
 """
 from __future__ import annotations
 
@@ -40,7 +41,7 @@ from dmf_sim.live.recording import run_metadata
 from dmf_sim.live.simulation import Integrated, LiveSimulation
 from dmf_sim.live.streams import STREAMS, resolved_topics
 from dmf_sim.solvers.newmark import StepRecord
-from dmf_sim.transient.defaults import CHUNK_RANGE_S, DEFAULT_CHUNK_S, DEFAULT_THREADS
+from dmf_sim.transient.defaults import CHUNK_RANGE_S, DEFAULT_CHUNK_S, default_threads
 from dmf_sim.transient.follow import TIME_EPS_S, ProfileFollower
 from dmf_sim.transient.profiles import Profile
 
@@ -72,7 +73,8 @@ class RunOptions:
     steps per sample); chunk_s: simulated time per chunk; split_s: bag file split [s];
     write: False integrates without writing (for timing); namespace: topics under it;
     threads: 1 integrates and writes in turn, 2 integrates the next chunks in a thread of its own
-    while this one reads out and writes the last ones (the same bag, byte for byte).
+    while this one reads out and writes the last ones (the same bag, byte for byte); default
+    :func:`~dmf_sim.transient.defaults.default_threads`.
     """
 
     driveline: str = 'truck_dmf'
@@ -86,7 +88,7 @@ class RunOptions:
     split_s: float = DEFAULT_SPLIT_S
     write: bool = True
     namespace: str = ''
-    threads: int = DEFAULT_THREADS
+    threads: int = field(default_factory=default_threads)
 
 
 @dataclass
@@ -106,6 +108,7 @@ class RunSummary:
     interrupted: bool
     knee_crossings: int
     solver_resets: int
+    threads: int = 1              # 1: integrate and write in turn; 2: integrating thread
     peak_rss_mib: dict = field(default_factory=dict)   # fraction of the run -> peak RSS
 
     def as_dict(self) -> dict:
@@ -331,4 +334,4 @@ def run_profile(profile: Profile, out: str | Path | None, options: RunOptions | 
         realtime_factor=simulated / wall if wall > 0 else math.inf, cpu_s=cpu, samples=samples,
         messages=recorder.message_count if recorder is not None else 0, rate_hz=rate_hz,
         dt_s=sim.dt, interrupted=interrupted, knee_crossings=sim.knee_crossings,
-        solver_resets=sim.solver_resets, peak_rss_mib=peaks)
+        solver_resets=sim.solver_resets, threads=opt.threads, peak_rss_mib=peaks)
