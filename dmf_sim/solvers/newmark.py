@@ -309,8 +309,8 @@ def simulate(loads: DrivelineLoads, speed_rpm: float, load: float, *, t_end: flo
     its peak-to-peak) is below ``steady_tol``, then return the wind-up orders of the last
     ``eval_cycles`` cycles. With ``t_end`` [s]: a transient run, optionally ramping toward
     ``target_speed_rpm`` at ``ramp_rpm_per_s``, recording every ``record_stride`` steps; the
-    excitation coefficients follow the speed every ``chunk_s`` seconds (at constant speed, no
-    target, the run is one kernel call).
+    excitation coefficients follow the speed every ``chunk_s`` seconds, each chunk's those of
+    its middle, as in the live core (at constant speed, no target, the run is one kernel call).
     ``initial`` = (q, v) replaces the static equilibrium start.
     """
     integ = NewmarkIntegrator(loads, dt=dt, beta=beta, gamma=gamma, use_numba=use_numba)
@@ -340,9 +340,10 @@ def simulate(loads: DrivelineLoads, speed_rpm: float, load: float, *, t_end: flo
             k = min(chunk, n_total - done)
             k -= k % record_stride if k >= record_stride else 0
             k = max(k, 1)
+            if target_speed_rpm is not None:      # held over the chunk: its middle's speed
+                integ.update_excitation(integ.speed_after_rpm(0.5 * k * dt))
             row += integ.advance(k, rec.rows_from(row), record_stride)
             done += k
-            integ.update_excitation()
             bar.update(k)
         bar.close()
         return SimulationResult(rec.t[:row], rec.psi[:row], rec.omega[:row] / RPM_TO_RAD_S,
