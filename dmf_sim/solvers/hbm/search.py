@@ -156,27 +156,40 @@ class StateSearch:
     def _deflation_set(self, known: list[np.ndarray]) -> np.ndarray:
         return all_shifts(np.array(known), N_SHIFTS, self.hbm.H)
 
-    def _reaches_knee(self, x: np.ndarray) -> bool:
+    def _windup_range(self, x: np.ndarray) -> tuple[float, float]:
+        """(lowest, highest) wind-up [rad] of x over one cycle (256 samples): what the knee tests
+        below read (one synthesis per state and pass)."""
         w = self.hbm.time_series(x, 256)
-        lo, hi = self.hbm.spring.primary_bounds()
-        reach = self.search.reach * max(float(np.ptp(w)), 1e-6)
-        return w.max() > hi - reach or w.min() < lo + reach
+        return float(w.min()), float(w.max())
 
-    def _knee_gap(self, x: np.ndarray) -> float:
-        """Distance [rad] from the wind-up range of x to the nearest knee (0 if it crosses one)."""
-        w = self.hbm.time_series(x, 256)
+    def _reaches_knee(self, x: np.ndarray, span: tuple[float, float] | None = None) -> bool:
+        """Does the wind-up of x come within ``reach`` x its peak-to-peak of a knee? (``span``:
+        its :meth:`_windup_range`, if at hand.)"""
+        w_min, w_max = self._windup_range(x) if span is None else span
+        lo, hi = self.hbm.spring.primary_bounds()
+        reach = self.search.reach * max(w_max - w_min, 1e-6)
+        return w_max > hi - reach or w_min < lo + reach
+
+    def _knee_gap(self, x: np.ndarray, span: tuple[float, float] | None = None) -> float:
+        """Distance [rad] from the wind-up range of x to the nearest knee (0 if it crosses one;
+        ``span``: that range, if at hand)."""
         knees = self.hbm.spring.knees
         if len(knees) == 0:
             return np.inf
-        gaps = np.where(knees > w.max(), knees - w.max(),
-                        np.where(knees < w.min(), w.min() - knees, 0.0))
+        w_min, w_max = self._windup_range(x) if span is None else span
+        gaps = np.where(knees > w_max, knees - w_max,
+                        np.where(knees < w_min, w_min - knees, 0.0))
         return float(gaps.min())
 
     # ---- seeds ----------------------------------------------------------------------------------
-    def _seeds(self, x: np.ndarray) -> list[tuple[str, np.ndarray]]:
+    def _seeds(self, x: np.ndarray, knee_gap: float | None = None
+               ) -> list[tuple[str, np.ndarray]]:
+        """Deflated Newton seeds around the state x (``knee_gap``: its :meth:`_knee_gap`, if at
+        hand)."""
         H = self.hbm.H
         c = to_complex(x, H)
-        ref = max(abs(c[6]) if H >= 6 else 0.0, self._knee_gap(x), 1e-3)
+        gap = self._knee_gap(x) if knee_gap is None else knee_gap
+        ref = max(abs(c[6]) if H >= 6 else 0.0, gap, 1e-3)
         out = []
         for a in self.search.amplitudes:
             for ph in self.search.phases:
@@ -198,19 +211,24 @@ class StateSearch:
         states = self.states_at(s)
         if not states:
             return 0
-        if all(st for _, st in states) and not any(self._reaches_knee(x) for x, _ in states):
+        spans = [self._windup_range(x) for x, _ in states]     # every test below reads them
+        if all(st for _, st in states) and not any(self._reaches_knee(x, span) for (x, _), span
+                                                   in zip(states, spans)):
             return 0
         lp = self.hbm.linear_parts(s)
         solver = DeflatedNewton(self.hbm, self.search.deflation)
         known = [x for x, _ in states]
+        gaps = [self._knee_gap(x, span) for x, span in zip(known, spans)]
+        nearest = min(range(len(known)), key=gaps.__getitem__)  # the state nearest a knee
+        deflate = self._deflation_set(known)     # grows with each solution found, not per seed
         new = 0
-        base = min(known, key=self._knee_gap)            # the state nearest a knee
-        for how, x0 in self._seeds(base):
-            sol = solver.solve(lp, x0, self._deflation_set(known))
+        for how, x0 in self._seeds(known[nearest], gaps[nearest]):
+            sol = solver.solve(lp, x0, deflate)
             if sol is None:
                 continue
             q = self.hbm.make_point(s, sol[0], sol[2], sol[1])
             known.append(q.x)
+            deflate = np.concatenate([deflate, self._deflation_set([q.x])])
             if self._known(q, self._novelty_tol(q)):
                 continue
             self._follow(q, f'deflated Newton at {s:.0f} rpm from a {how}', bar)
