@@ -162,6 +162,12 @@ class StateSearch:
         w = self.hbm.time_series(x, 256)
         return float(w.min()), float(w.max())
 
+    def _windup_ranges(self, xs: list[np.ndarray]) -> list[tuple[float, float]]:
+        """:meth:`_windup_range` of several states, synthesized in one call."""
+        H = self.hbm.H
+        W = self.hbm.time_series_batch(np.stack([to_complex(x, H) for x in xs]), 256)
+        return list(zip(W.min(axis=1).tolist(), W.max(axis=1).tolist()))
+
     def _reaches_knee(self, x: np.ndarray, span: tuple[float, float] | None = None) -> bool:
         """Does the wind-up of x come within ``reach`` x its peak-to-peak of a knee? (``span``:
         its :meth:`_windup_range`, if at hand.)"""
@@ -211,7 +217,7 @@ class StateSearch:
         states = self.states_at(s)
         if not states:
             return 0
-        spans = [self._windup_range(x) for x, _ in states]     # every test below reads them
+        spans = self._windup_ranges([x for x, _ in states])    # every test below reads them
         if all(st for _, st in states) and not any(self._reaches_knee(x, span) for (x, _), span
                                                    in zip(states, spans)):
             return 0
