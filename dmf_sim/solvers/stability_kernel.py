@@ -64,13 +64,20 @@ def floquet_segments(c, w, omega, knees, primary, n_newton, stages, taus):
             for _ in range(n_newton):
                 fv = 0.0
                 dfv = 0.0
+                # e^{i n ph} by the recurrence z_(n+1) = z_n e^{i ph}: one cos/sin per step
+                # instead of one per harmonic (rounding grows as n eps, n <= H)
+                cr = math.cos(ph)
+                ci = math.sin(ph)
+                zr = 1.0
+                zi = 0.0
                 for n in range(nc):
-                    zr = math.cos(n * ph)
-                    zi = math.sin(n * ph)
                     re = c[n].real * zr - c[n].imag * zi      # Re(c_n e^{i n ph})
                     im = c[n].real * zi + c[n].imag * zr
                     fv += re
                     dfv += -n * im                           # Re(i n c_n e^{i n ph})
+                    t = zr * cr - zi * ci
+                    zi = zr * ci + zi * cr
+                    zr = t
                 fv -= level
                 upd = fv / dfv if dfv != 0.0 else 0.0
                 ph = min(max(ph - upd, lo_ph), hi_ph)
@@ -98,8 +105,11 @@ def monodromy_similar(regions, taus, count, kind, sigma, freq, W, X):
     into region a is the constant W_(a, b) = Q_a^-1 Q_b. So each stretch costs one block-diagonal
     scaling and one real matrix product (instead of forming exp(A tau) = V diag V^-1 in complex
     arithmetic and multiplying). ``kind[r, i]``: 0 real eigenvalue, 1 first of a pair, 2 second.
+    The crossing products go into a spare buffer (no temporary per stretch); the result is in X.
     """
     ns = X.shape[0]
+    out = X
+    Y = np.empty((ns, ns))
     for i in range(ns):
         for j in range(ns):
             X[i, j] = 1.0 if i == j else 0.0
@@ -124,8 +134,11 @@ def monodromy_similar(regions, taus, count, kind, sigma, freq, W, X):
                 i += 2
         nxt = regions[k + 1] if k + 1 < count else regions[0]
         if nxt != r:
-            X[:, :] = np.dot(W[nxt, r], X)
-    return X
+            np.dot(W[nxt, r], X, Y)         # into the spare buffer, no temporary
+            X, Y = Y, X
+    if X is not out:
+        out[:, :] = X
+    return out
 
 
 def floquet(c, w, omega, knees, primary, n_newton, kind, sigma, freq, W):
