@@ -185,8 +185,9 @@ def order_torques(hb, points, element: int, n: int = ORDER_3) -> np.ndarray:
     if n < 1:
         raise ValueError(f'half-order n={n}: needs n >= 1 (the static part is not a harmonic)')
     m = hb.model
-    X = np.array([p.x for p in points])
-    G = hb.spring.extra_torque(X @ hb.E.T) @ hb.F.T          # AFT: harmonics of g(w(psi))
+    # AFT: harmonics of g(w(psi)), the solver's own pass per point (compiled: no BLAS call,
+    # whose threads made the (points x samples) products ~100x slower on a busy 2-core machine)
+    G = np.array([hb.nonlinear_harmonics(p.x) for p in points])
     g = G[:, n] + 1j * G[:, hb.H + n]
     speeds = np.array([p.speed_rpm for p in points])
     L = hb.loads
