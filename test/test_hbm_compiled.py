@@ -111,6 +111,46 @@ def test_continuation_jacobians_equal_reference(case, request):
             assert close(g, w)
 
 
+@pytest.mark.parametrize('case', CASES)
+def test_continuation_tangent_equals_reference(case, request):
+    """The continuation's unit tangent at a point (CondensedHBM.tangent, one compiled call with
+    the kernels' LU) against continuation._tangent (numpy, LAPACK): the same vector, oriented
+    along the previous one; a singular bordered system raises LinAlgError both ways, and the
+    reference problem leaves the tangent to the reference."""
+    loads, speed = request.getfixturevalue(case)
+    hb, ref = both(loads)
+    s, xs, ss = speed + 3.7, 0.01, 10.0
+    rng = np.random.default_rng(5)
+    for x in trial_points(hb, speed):
+        _, Jx, rs = hb.residual_and_jacobians(x, s)
+        prev = rng.standard_normal(len(x) + 1)
+        prev /= np.linalg.norm(prev)
+        got = continuation.tangent_of(hb, Jx, rs, prev, xs, ss)
+        want = continuation._tangent(Jx, rs, prev, xs, ss)
+        assert close(got, want)
+        assert abs(np.linalg.norm(got) - 1.0) <= 1e-12 and got @ prev > 0
+        assert np.abs(Jx @ got[:-1] * xs + rs * got[-1] * ss).max() <= 1e-10 * np.abs(Jx).max()
+        flipped = continuation.tangent_of(hb, Jx, rs, -prev, xs, ss)
+        assert close(flipped, -want)
+    assert ref.tangent(Jx, rs, prev, xs, ss) is None
+    zero = np.zeros_like(Jx)
+    for tangent in (lambda: hb.tangent(zero, rs * 0.0, prev, xs, ss),
+                    lambda: continuation._tangent(zero, rs * 0.0, prev, xs, ss)):
+        with pytest.raises(np.linalg.LinAlgError):
+            tangent()
+
+
+def test_warm_up_compiles_the_tangent(paper):
+    """kernels.warm_up loads the tangent kernel too: a sweep adds no signature to it."""
+    from dmf_sim.solvers.hbm import kernels
+    kernels.warm_up()
+    before = len(kernels.tangent.signatures)
+    assert before >= 1
+    loads, _ = paper
+    sweep(loads, 1.0, (1150.0, 1250.0), options=SweepOptions(step_rpm=10.0, search=None))
+    assert len(kernels.tangent.signatures) == before
+
+
 def test_primary_only_is_the_linear_problem(paper):
     loads, _ = paper
     hb, _ = both(loads)

@@ -27,7 +27,7 @@ from scipy.linalg.lapack import dgesv
 from dmf_sim.core.errors import OperatingRangeError
 
 __all__ = ['solve_small', 'ContinuationProblem', 'ContinuationOptions', 'ContinuationPoint',
-           'CorrectorFailed', 'LeftRange', 'correct', 'continue_branch']
+           'CorrectorFailed', 'LeftRange', 'correct', 'tangent_of', 'continue_branch']
 
 
 def solve_small(A: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -117,6 +117,15 @@ def _tangent(Jx: np.ndarray, rs: np.ndarray, prev: np.ndarray, xs: float, ss: fl
     if t @ prev < 0:
         t = -t
     return t
+
+
+def tangent_of(problem: ContinuationProblem, Jx: np.ndarray, rs: np.ndarray, prev: np.ndarray,
+               xs: float, ss: float) -> np.ndarray:
+    """:func:`_tangent`, by the problem's own compiled ``problem.tangent(Jx, rs, prev, xs, ss)``
+    where it has one (None from it: use :func:`_tangent`)."""
+    own = getattr(problem, 'tangent', None)
+    t = own(Jx, rs, prev, xs, ss) if own is not None else None
+    return _tangent(Jx, rs, prev, xs, ss) if t is None else t
 
 
 def _evaluate(problem: ContinuationProblem, x: np.ndarray, s: float):
@@ -267,7 +276,7 @@ def continue_branch(problem: ContinuationProblem, x0: np.ndarray, s0: float,
         prev[n] = 1.0 if direction >= 0 else -1.0
     else:
         prev = np.asarray(tangent0, float)
-    t = _tangent(Jx, rs, prev, xs, ss)
+    t = tangent_of(problem, Jx, rs, prev, xs, ss)
     pts = [ContinuationPoint(np.asarray(x0, float).copy(), float(s0), t, 0, float(np.abs(r).max()),
                              _on_grid(s0, o.grid))]
     if on_point:
@@ -333,7 +342,7 @@ def continue_branch(problem: ContinuationProblem, x0: np.ndarray, s0: float,
                 # converged far from the prediction: maybe onto another branch (e.g. a grid
                 # speed beyond a turning point); retry with a smaller arc-length step
                 raise CorrectorFailed('corrector moved too far from the predictor')
-            t_new = _tangent(Jx, rs, t, xs, ss)
+            t_new = tangent_of(problem, Jx, rs, t, xs, ss)
             turn = float(np.arccos(np.clip(t_new @ t, -1.0, 1.0)))
             if turn > o.max_turn and (grid_mode or h > o.step_min * 1.01):
                 raise CorrectorFailed(f'tangent turned by {turn:.2f} rad')
@@ -392,7 +401,7 @@ def _jump(problem, y, t, xs, ss, o: ContinuationOptions):
         if np.linalg.norm(y_new - y_pred) > hj:
             continue
         secant = y_new - y
-        t_new = _tangent(jac[1], jac[2], secant / np.linalg.norm(secant), xs, ss)
+        t_new = tangent_of(problem, jac[1], jac[2], secant / np.linalg.norm(secant), xs, ss)
         return y_new, it, res, jac, t_new
     return None
 

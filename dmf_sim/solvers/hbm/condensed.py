@@ -672,6 +672,21 @@ class CondensedHBM:
             raise CorrectorFailed(f'corrector: max|r| = {res:.2e} after {max_iter} iterations')
         return np.concatenate([y, y_pred[n:]]), it, res, (r, Jx, rs)
 
+    def tangent(self, Jx: np.ndarray, rs: np.ndarray, prev: np.ndarray, xs: float, ss: float
+                ) -> np.ndarray | None:
+        """The continuation's unit tangent at a point with Jacobians (Jx, rs), oriented along
+        ``prev``, compiled (:func:`kernels.tangent`; reference ``continuation._tangent``).
+        Raises numpy's LinAlgError on a singular system, as the reference; None when the
+        reference is to be used (``compiled`` off)."""
+        if not self.compiled:
+            return None
+        t = np.empty(len(prev))
+        if not kernels.tangent(np.ascontiguousarray(Jx, dtype=float),
+                               np.ascontiguousarray(rs, dtype=float),
+                               np.ascontiguousarray(prev, dtype=float), float(xs), float(ss), t):
+            raise np.linalg.LinAlgError('singular matrix')
+        return t
+
     # ---- cross-check by time integration -------------------------------------------------------
     def newmark_from(self, point: HBMPoint, *, perturb: np.ndarray | None = None, **kwargs):
         """Newmark steady state (newmark.simulate) started on this HBM solution's DOF state at

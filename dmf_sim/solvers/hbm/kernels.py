@@ -17,6 +17,8 @@ What is compiled, and its reference (same equations, same numbering):
   ``dmf_sim.solvers.hbm.deflation.DeflatedNewton.solve``.
 * :func:`corrector_fixed_speed` — the continuation corrector of a step that lands on a grid
   speed (natural parameter, s fixed). Reference: ``dmf_sim.solvers.continuation.correct``.
+* :func:`tangent` — the continuation's unit tangent at a converged point. Reference:
+  ``dmf_sim.solvers.continuation._tangent``.
 
 The Floquet multipliers of a sweep point are compiled beside their reference too:
 :mod:`dmf_sim.solvers.stability_kernel`.
@@ -51,7 +53,7 @@ from dmf_sim.solvers.newmark_kernel import region_of
 __all__ = ['BACKTRACK_MIN', 'PIVOT_TINY', 'lu_solve', 'max_abs', 'aft', 'times_h_into',
            'times_h_matrix', 'residual_jacobian', 'residual_jacobian_py', 'speed_derivative',
            'residual_jacobians_py', 'harmonics_py', 'newton',
-           'deflated_newton', 'corrector_fixed_speed', 'residual_jacobians_at',
+           'deflated_newton', 'tangent', 'corrector_fixed_speed', 'residual_jacobians_at',
            'corrector_arclength', 'warm_up']
 
 CONVERGED, STALLED, MAX_ITER, SINGULAR, NOT_FINITE, ENGINE_FAILED = 0, 1, 2, 3, 4, 5
@@ -433,6 +435,41 @@ def deflated_newton(x0, known, lin, aft_mats, spring, tol, defl, x):
 
 
 # ------------------------------------------------------------------------------------------------
+# Continuation tangent
+# ------------------------------------------------------------------------------------------------
+
+def tangent(Jx, rs, prev, xs, ss, t):
+    """t <- unit null vector of [r_x xs, r_s ss] (scaled unknowns), oriented along ``prev``:
+    the solution of the bordered system [[r_x xs, r_s ss], [prev]] t = e_(n+1), normalized
+    (reference ``continuation._tangent``, solved by :func:`lu_solve` instead of LAPACK).
+    Returns False on an exactly singular system."""
+    n = Jx.shape[0]
+    A, b, _, LU, piv = _lu_work(n + 1)
+    for i in range(n):
+        for j in range(n):
+            A[i, j] = Jx[i, j] * xs
+        A[i, n] = rs[i] * ss
+        b[i] = 0.0
+    for j in range(n + 1):
+        A[n, j] = prev[j]
+    b[n] = 1.0
+    if not lu_solve(A, b, t, LU, piv):
+        return False
+    norm = 0.0
+    for i in range(n + 1):
+        norm += t[i] * t[i]
+    norm = math.sqrt(norm)
+    dot = 0.0
+    for i in range(n + 1):
+        t[i] /= norm
+        dot += t[i] * prev[i]
+    if dot < 0.0:
+        for i in range(n + 1):
+            t[i] = -t[i]
+    return True
+
+
+# ------------------------------------------------------------------------------------------------
 # Continuation corrector on a grid speed (natural parameter)
 # ------------------------------------------------------------------------------------------------
 
@@ -601,6 +638,7 @@ residual_jacobian_py = jit(residual_jacobian_py)
 speed_derivative = jit(speed_derivative)
 residual_jacobians_py = jit(residual_jacobians_py)
 _lu_work = jit(_lu_work)
+tangent = jit(tangent)
 add_step = jit(add_step)
 corrector_fixed_speed = jit(corrector_fixed_speed)
 harmonics_py = jit(harmonics_py)
@@ -649,6 +687,9 @@ def warm_up() -> float:
                     np.array([2.0, 1.0, 1e-2, 5.0, 0.125, 6.0]), out)
     corrector_fixed_speed(x0, 1.0, lin, lin, aft_mats, spring, 1e-10, 3, out, np.empty(n),
                           np.empty((n, n)), np.empty(n))
+    t1 = np.zeros(n + 1)
+    t1[n] = 1.0
+    tangent(np.eye(n), np.ones(n), t1, 1.0, 1.0, np.empty(n + 1))
     m = 2
     for K in (1, 2):     # one speed: h[:, 1:] is C-contiguous; a batch: it is not (two layouts)
         modal_sums(np.ones(K), np.ones(H), np.array([-1.0 + 1j, -1.0 - 1j]),

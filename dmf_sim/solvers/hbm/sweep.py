@@ -197,7 +197,7 @@ class SpeedSweep(BranchSwitching, StateSearch):
         """Grid points ahead of ``cp`` where the wind-up never reaches a knee: there g = 0, the HBM
         solution is the linear response wlin (exact, no iteration) and the stability follows from
         the primary-stiffness eigenvalues. Checked in batches of growing size."""
-        from dmf_sim.solvers.continuation import ContinuationPoint, _tangent
+        from dmf_sim.solvers.continuation import ContinuationPoint, tangent_of
         hb, o = self.hbm, self.options
         if np.any(hb.nonlinear_harmonics(cp.x)):      # beyond a knee: nothing to fast-forward
             return []
@@ -249,7 +249,7 @@ class SpeedSweep(BranchSwitching, StateSearch):
         if out:
             last = out[-1]
             r, Jx, rs = hb.residual_and_jacobians(last.x, last.s)
-            last.tangent = _tangent(Jx, rs, last.tangent, xs, ss)
+            last.tangent = tangent_of(hb, Jx, rs, last.tangent, xs, ss)
             last.point.tangent_speed = float(last.tangent[-1])
         return out
 
