@@ -99,8 +99,8 @@ class Peer:
         def cb(msg):
             self.last[topic] = msg
             self.counts[topic] += 1
-            if keep:
-                self.series[topic].append((time.monotonic(), msg.data))
+            if keep:                    # a Float64's value, else the message itself
+                self.series[topic].append((time.monotonic(), getattr(msg, 'data', msg)))
             if topic == '/diagnostics':
                 for st in msg.status:
                     self.diags[st.name] = {'_level': st.level, '_hardware_id': st.hardware_id,
