@@ -21,7 +21,9 @@ What is compiled, and its reference (same equations, same numbering):
   ``dmf_sim.solvers.continuation._tangent``.
 
 The Floquet multipliers of a sweep point are compiled beside their reference too:
-:mod:`dmf_sim.solvers.stability_kernel`.
+:mod:`dmf_sim.solvers.stability_kernel`; the linear parts and the engine query in
+:mod:`dmf_sim.solvers.hbm.linear_kernels`; the LU solve the Newton steps use in
+:mod:`dmf_sim.solvers.hbm.dense_kernels`.
 
 Packed arguments:
 
@@ -41,6 +43,7 @@ import math
 import numpy as np
 
 from dmf_sim.solvers.compiled import jit
+from dmf_sim.solvers.hbm.dense_kernels import lu_solve, lu_work, max_abs
 from dmf_sim.solvers.hbm.layout import to_real
 from dmf_sim.solvers.hbm.linear_kernels import (
     ENGINE_OK,
@@ -50,7 +53,7 @@ from dmf_sim.solvers.hbm.linear_kernels import (
 )
 from dmf_sim.solvers.newmark_kernel import region_of
 
-__all__ = ['BACKTRACK_MIN', 'PIVOT_TINY', 'lu_solve', 'max_abs', 'aft', 'times_h_into',
+__all__ = ['BACKTRACK_MIN', 'aft', 'times_h_into',
            'times_h_matrix', 'residual_jacobian', 'residual_jacobian_py', 'speed_derivative',
            'residual_jacobians_py', 'harmonics_py', 'newton',
            'deflated_newton', 'tangent', 'corrector_fixed_speed', 'residual_jacobians_at',
@@ -58,73 +61,6 @@ __all__ = ['BACKTRACK_MIN', 'PIVOT_TINY', 'lu_solve', 'max_abs', 'aft', 'times_h
 
 CONVERGED, STALLED, MAX_ITER, SINGULAR, NOT_FINITE, ENGINE_FAILED = 0, 1, 2, 3, 4, 5
 BACKTRACK_MIN = 1e-3      # smallest backtracking factor of the plain Newton (as the reference)
-PIVOT_TINY = 0.0          # an exactly zero pivot is singular (as LAPACK's dgesv reports)
-
-
-# ------------------------------------------------------------------------------------------------
-# Small linear algebra
-# ------------------------------------------------------------------------------------------------
-
-def lu_solve(A, b, x, LU, piv):
-    """Solve A x = b by LU with partial pivoting (what LAPACK dgesv does); A, b untouched.
-    Returns False on an exactly singular matrix. The elimination reads the pivot row from a
-    copy, so its inner loop vectorizes (the same operations in the same order as a plain
-    row update: bitwise the same result, 1.5-2x faster at n = 49)."""
-    n = b.shape[0]
-    row = np.empty(n)
-    for i in range(n):
-        for j in range(n):
-            LU[i, j] = A[i, j]
-        x[i] = b[i]
-    for k in range(n):
-        p = k
-        big = abs(LU[k, k])
-        for i in range(k + 1, n):
-            a = abs(LU[i, k])
-            if a > big:
-                big = a
-                p = i
-        if big <= PIVOT_TINY:
-            return False
-        piv[k] = p
-        if p != k:
-            for j in range(n):
-                t = LU[k, j]
-                LU[k, j] = LU[p, j]
-                LU[p, j] = t
-            t = x[k]
-            x[k] = x[p]
-            x[p] = t
-        inv = 1.0 / LU[k, k]
-        m = n - k - 1
-        for j in range(m):              # pivot row's tail in its own buffer: the update below
-            row[j] = LU[k, k + 1 + j]   # reads no row it writes, so it runs in SIMD
-        for i in range(k + 1, n):
-            f = LU[i, k] * inv
-            if f != 0.0:
-                LU[i, k] = f
-                tail = LU[i, k + 1:]
-                for j in range(m):
-                    tail[j] -= f * row[j]
-                x[i] -= f * x[k]
-    for i in range(n - 1, -1, -1):
-        s = x[i]
-        for j in range(i + 1, n):
-            s -= LU[i, j] * x[j]
-        x[i] = s / LU[i, i]
-    return True
-
-
-def max_abs(v):
-    """max |v_i|, NaN if any entry is NaN (numpy's max does so)."""
-    m = 0.0
-    for i in range(v.shape[0]):
-        a = abs(v[i])
-        if a > m or a != a:
-            m = a
-            if a != a:
-                return a
-    return m
 
 
 # ------------------------------------------------------------------------------------------------
@@ -444,7 +380,7 @@ def tangent(Jx, rs, prev, xs, ss, t):
     (reference ``continuation._tangent``, solved by :func:`lu_solve` instead of LAPACK).
     Returns False on an exactly singular system."""
     n = Jx.shape[0]
-    A, b, _, LU, piv = _lu_work(n + 1)
+    A, b, _, LU, piv = lu_work(n + 1)
     for i in range(n):
         for j in range(n):
             A[i, j] = Jx[i, j] * xs
@@ -473,12 +409,6 @@ def tangent(Jx, rs, prev, xs, ss, t):
 # Continuation corrector on a grid speed (natural parameter)
 # ------------------------------------------------------------------------------------------------
 
-def _lu_work(n):
-    """Work arrays of an n x n Newton solve: (matrix, right-hand side, step, LU, pivots)."""
-    return (np.empty((n, n)), np.empty(n), np.empty(n), np.empty((n, n)),
-            np.empty(n, dtype=np.int64))
-
-
 def add_step(y, dy):
     """y <- y + dy; returns max |dy| (NaN if an entry is NaN)."""
     big = 0.0
@@ -500,7 +430,7 @@ def corrector_fixed_speed(y_pred, xs, lin, dlin, aft_mats, spring, tol, max_iter
         y[i] = y_pred[i]
     x = np.empty(n)
     G = np.empty(n)
-    A, mr, dy, LU, piv = _lu_work(n)
+    A, mr, dy, LU, piv = lu_work(n)
     res = np.inf
     it = 0
     status = MAX_ITER
@@ -592,7 +522,7 @@ def corrector_arclength(y_pred, normal, xs, ss, tol, max_iter, fd, table, static
     n = n1 - 1
     for i in range(n1):
         y[i] = y_pred[i]
-    A, b, dy, LU, piv = _lu_work(n1)
+    A, b, dy, LU, piv = lu_work(n1)
     res = np.inf
     for it in range(max_iter + 1):
         st = _evaluate_scaled(y, xs, ss, fd, table, statics, modal, aft_mats, spring, r, J, rs)
@@ -626,8 +556,6 @@ def corrector_arclength(y_pred, normal, xs, ss, tol, max_iter, fd, table, static
     return MAX_ITER, max_iter, res, ENGINE_OK
 
 
-lu_solve = jit(lu_solve)
-max_abs = jit(max_abs)
 # reassociation lets LLVM vectorize the sums (rounding-level differences to the reference);
 # no 'nnan' flag: the NaN checks of the solvers stay valid
 aft = jit(aft, fastmath={'reassoc', 'contract'})
@@ -637,7 +565,6 @@ residual_jacobian = jit(residual_jacobian)
 residual_jacobian_py = jit(residual_jacobian_py)
 speed_derivative = jit(speed_derivative)
 residual_jacobians_py = jit(residual_jacobians_py)
-_lu_work = jit(_lu_work)
 tangent = jit(tangent)
 add_step = jit(add_step)
 corrector_fixed_speed = jit(corrector_fixed_speed)
