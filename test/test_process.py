@@ -13,12 +13,14 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 CHILD = '''
-import signal, sys, threading
+import os, signal, sys, threading
 import dmf_sim.core.process as proc
 done = threading.Event()
 marker = sys.argv[1]
-def finish(why):
-    open(marker, 'w').write(why)
+def finish(why):                     # written whole, then renamed: the test never reads it half
+    with open(marker + '.part', 'w') as f:
+        f.write(why)
+    os.replace(marker + '.part', marker)
     done.set()
 signal.signal(signal.SIGTERM, lambda s, f: finish('SIGTERM'))
 if sys.argv[2] == 'watch':
