@@ -18,6 +18,7 @@ failed one or a sharp turn of the tangent, between ``step_min`` and ``step_max``
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Callable, Protocol
 
@@ -207,6 +208,7 @@ class _LoopDetector:
         self.tol = o.loop_tol * o.step_max
         self.points = np.empty((64, y0.size))
         self.points[0] = y0
+        self.s_all = [float(y0[-1])] + [0.0] * 63   # the scaled s of each point, as floats
         self.count = 1
         self.s_lo = self.s_hi = float(y0[-1])   # s-range of the points that are far enough back
         self.ranged = 0                         # how many points s_lo/s_hi cover
@@ -215,18 +217,24 @@ class _LoopDetector:
         o = self.o
         if self.count == len(self.points):
             self.points = np.concatenate([self.points, np.empty_like(self.points)])
+            self.s_all += [0.0] * (len(self.points) - len(self.s_all))
         q = self.points[self.count]
-        q[:-1] = p.x / o.x_scale
-        q[-1] = p.s / o.s_scale
+        np.divide(p.x, o.x_scale, out=q[:-1])
+        s_q = q[-1] = p.s / o.s_scale
+        self.s_all[self.count] = s_q
         self.count += 1
         far = self.count - 1 - o.loop_skip      # points[:far] form the earlier part
         if far < 2:
             return False
+        s_all = self.s_all
         while self.ranged < far:
-            s_k = float(self.points[self.ranged, -1])
-            self.s_lo, self.s_hi = min(self.s_lo, s_k), max(self.s_hi, s_k)
+            s_k = s_all[self.ranged]
+            if s_k < self.s_lo:
+                self.s_lo = s_k
+            elif s_k > self.s_hi:
+                self.s_hi = s_k
             self.ranged += 1
-        if not self.s_lo - self.tol <= q[-1] <= self.s_hi + self.tol:
+        if not self.s_lo - self.tol <= s_q <= self.s_hi + self.tol:
             return False
         a = self.points[:far]
         seg = a[1:] - a[:-1]
@@ -338,12 +346,13 @@ def continue_branch(problem: ContinuationProblem, x0: np.ndarray, s0: float,
             y_new, it, res, (r, Jx, rs) = correct(problem, y_pred, normal, xs, ss, o.tol,
                                                   o.max_iter)
             step_len = abs(h_grid) if grid_mode else h
-            if np.linalg.norm(y_new - y_pred) > o.max_correction * max(step_len, o.step_min):
+            moved = y_new - y_pred
+            if math.sqrt(moved @ moved) > o.max_correction * max(step_len, o.step_min):
                 # converged far from the prediction: maybe onto another branch (e.g. a grid
                 # speed beyond a turning point); retry with a smaller arc-length step
                 raise CorrectorFailed('corrector moved too far from the predictor')
             t_new = tangent_of(problem, Jx, rs, t, xs, ss)
-            turn = float(np.arccos(np.clip(t_new @ t, -1.0, 1.0)))
+            turn = math.acos(min(max(float(t_new @ t), -1.0), 1.0))
             if turn > o.max_turn and (grid_mode or h > o.step_min * 1.01):
                 raise CorrectorFailed(f'tangent turned by {turn:.2f} rad')
         except CorrectorFailed as exc:
@@ -416,7 +425,7 @@ def _on_grid(s: float, grid: float | None) -> bool:
 def _next_grid(s: float, sign: float, grid: float) -> float:
     k = s / grid
     if sign > 0:
-        nxt = np.floor(k + 1e-7) + 1
+        nxt = math.floor(k + 1e-7) + 1
     else:
-        nxt = np.ceil(k - 1e-7) - 1
+        nxt = math.ceil(k - 1e-7) - 1
     return float(nxt * grid)

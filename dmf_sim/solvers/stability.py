@@ -35,6 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg
+from scipy.linalg.lapack import dgeev
 
 from dmf_sim.core.errors import ConfigError
 from dmf_sim.core.units import CYCLE_RAD, RPM_TO_RAD_S, cycle_period_s
@@ -171,6 +172,16 @@ class FlexibleModes:
         return self._eig[key]
 
 
+def eigenvalues(X: np.ndarray) -> np.ndarray:
+    """Eigenvalues of a real square matrix, overwriting it: ``np.linalg.eigvals`` (real when all
+    are real, else complex) by LAPACK ``dgeev`` called directly, without numpy's checks and
+    conversions (a sweep asks for one per point off the linear region)."""
+    wr, wi, _, _, info = dgeev(X, compute_vl=0, compute_vr=0, overwrite_a=1)
+    if info != 0:
+        raise np.linalg.LinAlgError('Eigenvalues did not converge')
+    return wr + 1j * wi if wi.any() else wr
+
+
 class FloquetAnalyzer:
     """Monodromy and Floquet multipliers of periodic wind-up solutions of one model.
 
@@ -297,9 +308,11 @@ class FloquetAnalyzer:
         if count == 1:
             mu = np.exp(self._eig[segs[0][0]][0] * segs[0][1])
         else:
-            mu = np.linalg.eigvals(X)
-        mu = mu[np.argsort(-np.abs(mu))]
-        mx = float(np.abs(mu[0]))
+            mu = eigenvalues(X)
+        size = np.abs(mu)
+        order = np.argsort(-size)
+        mu = mu[order]
+        mx = float(size[order[0]])
         return FloquetResult(mu, mx, mx < 1.0 + self.tol, 0 if count == 1 else count,
                              self.monodromy(segs) if keep_monodromy else None, segs)
 

@@ -47,7 +47,7 @@ from dmf_sim.core.errors import ConfigError, ConvergenceError, OperatingRangeErr
 from dmf_sim.core.units import RPM_TO_RAD_S
 from dmf_sim.physics.harmonic import solve_harmonic, solve_static
 from dmf_sim.physics.loads import DrivelineLoads
-from dmf_sim.physics.orders import summarize_orders, synthesize
+from dmf_sim.physics.orders import OrderSummary, fig13_rows, summarize_orders, synthesize
 from dmf_sim.solvers.continuation import CorrectorFailed, solve_small
 from dmf_sim.solvers.hbm import kernels, linear_kernels
 from dmf_sim.solvers.hbm.layout import fit_harmonics, times_h, to_complex, to_real
@@ -345,11 +345,15 @@ class CondensedHBM:
                 s = 2.0 * d.imag / n / RPM_TO_RAD_S
                 if lo <= s <= hi:
                     todo.append((k, n, s, zeta))
-        self.prepare([s for _, _, s, _ in todo])   # their linear parts in one batch
-        for k, n, s, zeta in todo:
+        if not todo:
+            return out
+        speeds = [s for _, _, s, _ in todo]
+        self.prepare(speeds)                       # their linear parts in one batch
+        # P_n . B_k ell_k = A_n (modal load of the phased cylinder vectors)_nk (n >= 1)
+        A = self.engine_harmonics_many(np.asarray(speeds))
+        for (k, n, s, zeta), A_n in zip(todo, A[np.arange(len(todo)), [n for _, n, _, _ in todo]]):
             d = self._d[k]
-            P = self.dof_loads(s)
-            peak = abs((P[n] @ self._B[:, k]) * self._ell[k] / -d.real)
+            peak = abs(A_n * self._modal_load[n, k] / -d.real)
             dyn = float(np.abs(self.linear_parts(s).wlin[1:]).sum())
             if dyn > 0 and peak >= share * dyn:
                 out.append({'speed_rpm': float(s), 'half_order': n, 'order': n / 2,
@@ -512,14 +516,39 @@ class CondensedHBM:
 
     def make_point(self, speed_rpm: float, x: np.ndarray, residual: float = 0.0,
                    iterations: int = 0, samples: np.ndarray | None = None,
-                   wlin0: float | None = None) -> HBMPoint:
+                   wlin0: float | None = None, c: np.ndarray | None = None) -> HBMPoint:
         """Wrap a solution vector with its Fig. 13 summary (``samples``: w over the cycle,
-        ``wlin0``: the linear static wind-up, if at hand)."""
-        c = to_complex(x, self.H)
-        w = self.time_series(x, 1024) if samples is None else samples
+        ``wlin0``: the linear static wind-up, ``c``: x as complex harmonics, if at hand; ``c``
+        becomes the point's ``windup_orders``)."""
+        if c is None:
+            c = to_complex(x, self.H)
+        w = synthesize(c, 1024) if samples is None else samples
         summ = summarize_orders(c, w, self.spring.theta, self.static_windup(speed_rpm, wlin0))
         return HBMPoint(float(speed_rpm), np.array(x, dtype=float), c, summ, float(residual),
                         int(iterations))
+
+    def make_points(self, speeds_rpm: np.ndarray, C: np.ndarray, samples: np.ndarray,
+                    wlin0: np.ndarray) -> list[HBMPoint]:
+        """:meth:`make_point` of K solutions at once (a sweep's linear stretch): complex harmonics
+        ``C`` (K, H+1) at ``speeds_rpm`` (K,), ``samples`` (K, N) each one's wind-up over the
+        cycle, ``wlin0`` (K,) the linear static wind-ups; residual and iterations 0. The same
+        values as K calls of :meth:`make_point`."""
+        C = np.array(C, dtype=complex)
+        X = to_real(C, self.H)
+        rows = fig13_rows(C, samples)
+        theta, h0 = self.spring.theta, self._h0
+        out = []
+        for k, (s, o3, o15, mx, mn, mean, w0) in enumerate(zip(
+                np.asarray(speeds_rpm, dtype=float).tolist(), rows['order_3'].tolist(),
+                rows['order_1_5'].tolist(), rows['max_deviation'].tolist(),
+                rows['min_deviation'].tolist(), rows['mean'].tolist(),
+                np.asarray(wlin0, dtype=float).tolist())):
+            summ = OrderSummary(order_3=o3, order_1_5=o15, max_deviation=mx, min_deviation=mn,
+                                mean=mean, mean_minus_theta=mean - theta,
+                                static_windup=self.spring.solve_condensed(w0, h0),
+                                theta=float(theta))
+            out.append(HBMPoint(s, X[k], C[k], summ, 0.0, 0))
+        return out
 
     # ---- recovery of the whole driveline --------------------------------------------------------
     def time_series(self, x: np.ndarray, n_samples: int = 512) -> np.ndarray:

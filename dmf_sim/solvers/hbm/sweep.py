@@ -10,9 +10,10 @@ import numpy as np
 
 from dmf_sim.core.errors import ConfigError, ConvergenceError, TimeLimitError
 from dmf_sim.physics.loads import DrivelineLoads
+from dmf_sim.physics.orders import synthesize
 from dmf_sim.solvers.hbm.branches import BranchSwitching
 from dmf_sim.solvers.hbm.condensed import CondensedHBM
-from dmf_sim.solvers.hbm.layout import to_real
+from dmf_sim.solvers.hbm.layout import to_complex
 from dmf_sim.solvers.hbm.point import HBMOptions, HBMPoint
 from dmf_sim.solvers.hbm.results import Branch, SweepEvent, SweepResult
 from dmf_sim.solvers.hbm.search import SearchOptions, StateSearch
@@ -135,6 +136,7 @@ class SpeedSweep(BranchSwitching, StateSearch):
         self.not_computed: list[dict] = []
         self.range = (0.0, 0.0)
         self._deadline = math.inf          # perf_counter() value of the time limit
+        self._last_samples = None          # (x, w on n_fine samples) of the last _point
         self._phase = 'continuation'
 
     # ---- time limit -----------------------------------------------------------------------------
@@ -147,9 +149,12 @@ class SpeedSweep(BranchSwitching, StateSearch):
     # ---- one point ------------------------------------------------------------------------------
     def _point(self, x: np.ndarray, s: float, branch: int, kind: str, residual=0.0, iterations=0,
                tangent_speed=float('nan')) -> HBMPoint:
-        w = self.hbm.time_series(x, self.floquet.n_fine)
+        c = to_complex(x, self.hbm.H)
+        w = synthesize(c, self.floquet.n_fine)
+        self._last_samples = (x, w)        # for _linear_stretch, if it starts from this point
         wlin = self.hbm.linear_parts(s).wlin
-        p = self.hbm.make_point(s, x, residual, iterations, samples=w, wlin0=float(wlin[0].real))
+        p = self.hbm.make_point(s, x, residual, iterations, samples=w, wlin0=float(wlin[0].real),
+                                c=c)
         p.branch, p.kind, p.tangent_speed = branch, kind, float(tangent_speed)
         p.forced_order_1_5 = float(abs(wlin[3])) if self.hbm.H >= 3 else 0.0
         if self.options.stability:
@@ -199,9 +204,12 @@ class SpeedSweep(BranchSwitching, StateSearch):
         the primary-stiffness eigenvalues. Checked in batches of growing size."""
         from dmf_sim.solvers.continuation import ContinuationPoint, tangent_of
         hb, o = self.hbm, self.options
-        if np.any(hb.nonlinear_harmonics(cp.x)):      # beyond a knee: nothing to fast-forward
+        last = self._last_samples          # the point's own samples, if _point made them
+        samples = (last[1] if last is not None and last[0] is cp.x
+                   else hb.time_series(cp.x, self.floquet.n_fine))
+        if not self._in_primary(samples[None])[0]:      # reaches a knee: nothing to skip
             return []
-        if not self._in_primary(hb.time_series(cp.x, self.floquet.n_fine)[None])[0]:
+        if np.any(hb.nonlinear_harmonics(cp.x)):
             return []
         lo, hi = self.range
         out: list = []
@@ -222,16 +230,15 @@ class SpeedSweep(BranchSwitching, StateSearch):
             mu = self.floquet.linear_multipliers(speeds[:k]) if o.stability else None
             if mu is not None:     # each row sorted by decreasing modulus
                 mu = np.take_along_axis(mu, np.argsort(-np.abs(mu), axis=1), axis=1)
-            X = to_real(W[:k], hb.H)
-            for j in range(k):
-                x = X[j]
-                p = hb.make_point(speeds[j], x, 0.0, 0, samples=series[j], wlin0=W[j, 0].real)
-                p.forced_order_1_5 = float(abs(W[j, 3])) if hb.H >= 3 else 0.0
+            made = hb.make_points(speeds[:k], W[:k], series[:k], W[:k, 0].real)
+            forced = np.abs(W[:k, 3]).tolist() if hb.H >= 3 else [0.0] * k
+            top = np.abs(mu[:, 0]).tolist() if mu is not None else None
+            for j, p in enumerate(made):
+                p.forced_order_1_5 = forced[j]
                 if mu is not None:
-                    m = mu[j]
-                    p.multipliers, p.max_multiplier = m, float(np.abs(m[0]))
-                    p.stable = p.max_multiplier < 1.0 + self.floquet.tol
-                q = ContinuationPoint(x, float(speeds[j]), np.zeros(len(x) + 1), 0, 0.0, True)
+                    p.multipliers, p.max_multiplier = mu[j], top[j]
+                    p.stable = top[j] < 1.0 + self.floquet.tol
+                q = ContinuationPoint(p.x, p.speed_rpm, None, 0, 0.0, True)
                 q.point = p
                 out.append(q)
             if k < len(ok) or len(speeds) < batch:
@@ -239,14 +246,16 @@ class SpeedSweep(BranchSwitching, StateSearch):
             s0 = speeds[-1]
             batch = min(2 * batch, 32)
         # tangents: secant directions in scaled coordinates, the last one exact
-        prev = np.concatenate([cp.x / xs, [cp.s / ss]])
-        for q in out:
-            y = np.concatenate([q.x / xs, [q.s / ss]])
-            d = y - prev
-            q.tangent = d / np.linalg.norm(d)
-            q.point.tangent_speed = float(q.tangent[-1])
-            prev = y
         if out:
+            Y = np.empty((len(out) + 1, len(cp.x) + 1))
+            Y[0, :-1], Y[0, -1] = cp.x / xs, cp.s / ss
+            Y[1:, :-1] = np.array([q.x for q in out]) / xs
+            Y[1:, -1] = np.array([q.s for q in out]) / ss
+            D = np.diff(Y, axis=0)
+            D /= np.sqrt(np.einsum('ij,ij->i', D, D))[:, None]
+            for q, d in zip(out, D):
+                q.tangent = d
+                q.point.tangent_speed = float(d[-1])
             last = out[-1]
             r, Jx, rs = hb.residual_and_jacobians(last.x, last.s)
             last.tangent = tangent_of(hb, Jx, rs, last.tangent, xs, ss)
