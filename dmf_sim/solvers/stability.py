@@ -152,19 +152,23 @@ class FlexibleModes:
         self._eig: dict[float, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
 
     def state_matrix(self, k_extra: float = 0.0) -> np.ndarray:
+        """A = [[0, I], [-(Lam + k_extra er er^T), -Cr]] (2 nf x 2 nf)."""
         nf = self.nf
-        Z, identity = np.zeros((nf, nf)), np.eye(nf)
-        return np.block([[Z, identity],
-                         [-(np.diag(self.lam) + k_extra * np.outer(self.er, self.er)), -self.Cr]])
+        A = np.zeros((2 * nf, 2 * nf))
+        A[:nf, nf:] = np.eye(nf)
+        A[nf:, :nf] = -(np.diag(self.lam) + k_extra * np.outer(self.er, self.er))
+        A[nf:, nf:] = -self.Cr
+        return A
 
     def eig(self, k_extra: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(d, V, V^-1) with A = V diag(d) V^-1 for the extra DMF stiffness ``k_extra``
         [Nm/rad]."""
         key = float(k_extra)
         if key not in self._eig:
-            d, V = scipy.linalg.eig(self.state_matrix(key))
+            A = self.state_matrix(key)
+            d, V = scipy.linalg.eig(A)
             Vinv = np.linalg.inv(V)
-            err = np.abs((V * d) @ Vinv - self.state_matrix(key)).max()
+            err = np.abs((V * d) @ Vinv - A).max()
             if err > 1e-6 * np.abs(d).max():
                 raise ConfigError(f'state matrix not diagonalizable to accuracy ({err:.1e}); '
                                  'check for repeated undamped modes')
