@@ -48,7 +48,8 @@ def test_size_like_options_refused_in_one_line(argv, needles, capsys, monkeypatc
 @pytest.mark.parametrize('argv, needles', [
     (['--frames', '0'], ('--frames', '>= 1')),
     (['--timeout', '0'], ('--timeout', '> 0 s')),
-    (['--duration', 'nan'], ('--duration', '> 0 s')),
+    (['--timeout', 'inf'], ('--timeout', 'finite', '> 0 s', 'inf')),
+    (['--duration', 'nan'], ('--duration', 'finite', '> 0 s')),
     (['--rate', '100'], ('--rate', '[0.1, 50] Hz')),
 ])
 def test_monitor_options_refused_in_one_line(argv, needles, capsys, monkeypatch):

@@ -233,11 +233,11 @@ def run(args: argparse.Namespace) -> int:
     if not (math.isfinite(args.rate) and 0.1 <= args.rate <= 50):
         raise ConfigError(f'--rate must be in [0.1, 50] Hz, got {args.rate!r}')
     if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
-        raise ConfigError(f'--duration must be > 0 s, got {args.duration!r}')
+        raise ConfigError(f'--duration must be a finite number > 0 s, got {args.duration!r}')
     if args.frames is not None and args.frames < 1:
         raise ConfigError(f'--frames must be >= 1, got {args.frames!r}')
     if not (math.isfinite(args.timeout) and args.timeout > 0):
-        raise ConfigError(f'--timeout must be > 0 s, got {args.timeout!r}')
+        raise ConfigError(f'--timeout must be a finite number > 0 s, got {args.timeout!r}')
     view = MonitorView(node=select_node(args.namespace, args.node))
     if args.foxglove_layout is not None:
         return _write_layout(args.foxglove_layout, view.node)

@@ -1,7 +1,8 @@
 """Harmonic balance (HBM) of the DMF driveline, condensed onto the DMF wind-up (paper eq. 9-15).
 
 * :mod:`~dmf_sim.solvers.hbm.condensed` — the condensed problem at one speed: residual (eq. 15),
-  AFT with analytic Jacobian, Newton, recovery of every element (:class:`CondensedHBM`);
+  AFT with analytic Jacobian, Newton (:class:`CondensedHBM`);
+* :mod:`~dmf_sim.solvers.hbm.recovery` — every element's motion and torque from a solution;
 * :mod:`~dmf_sim.solvers.hbm.point` — its settings and results: :class:`HBMOptions`,
   :class:`LinearParts`, :class:`HBMPoint`;
 * :mod:`~dmf_sim.solvers.hbm.sweep` — speed sweeps: pseudo-arc-length continuation, Floquet
