@@ -1,6 +1,8 @@
-"""The sweep's cheaper per-point paths (issue 22, third step) give what the general code gives:
-the stable-state mask of many speeds, the linear parts of one off-grid speed, the scalar order
-summary and the spring's condensed static solve."""
+"""The sweep's cheaper per-point paths (issue 22, third and fifth steps) give what the general code
+gives: the stable-state mask of many speeds, the linear parts of one off-grid speed, the scalar
+order summary, the spring's condensed static solve, a linear stretch's points made in one batch
+and its check on the point's own samples, the multipliers' eigenvalue call and the sharp
+resonances' modal contributions."""
 from __future__ import annotations
 
 import numpy as np
@@ -12,6 +14,7 @@ from dmf_sim.physics.model import load_model
 from dmf_sim.physics.orders import fig13_rows, summarize_orders, synthesize
 from dmf_sim.physics.spring import PiecewiseLinearSpring
 from dmf_sim.solvers.hbm import CondensedHBM, SweepOptions
+from dmf_sim.solvers.hbm.layout import to_real
 from dmf_sim.solvers.hbm.point import HBMOptions, HBMPoint
 from dmf_sim.solvers.hbm.results import Branch
 from dmf_sim.solvers.hbm.sweep import SpeedSweep
@@ -98,3 +101,74 @@ def test_solve_condensed_equals_the_array_form():
         assert w == ref
         assert w + h * float(sp.extra_torque(np.array([w]))[0]) == pytest.approx(w_lin,
                                                                                  abs=1e-12)
+
+
+def test_points_of_a_linear_stretch_made_in_one_batch_equal_one_by_one(loads):
+    """``make_points`` (a sweep's linear stretch) gives bitwise what ``make_point`` gives for
+    each solution: harmonics, unknowns, the Fig. 13 summary and the static wind-up."""
+    hb = CondensedHBM(loads, 1.0)
+    speeds = np.arange(620.0, 700.0, 10.0)
+    W = hb.linear_response(speeds)
+    series = hb.time_series_batch(W, 1024)
+    made = hb.make_points(speeds, W, series, W[:, 0].real)
+    assert len(made) == len(speeds)
+    for k, p in enumerate(made):
+        q = hb.make_point(float(speeds[k]), to_real(W[k], hb.H), 0.0, 0, samples=series[k],
+                          wlin0=float(W[k, 0].real))
+        assert p.speed_rpm == q.speed_rpm and p.residual == 0.0 and p.iterations == 0
+        assert np.array_equal(p.x, q.x) and np.array_equal(p.windup_orders, q.windup_orders)
+        assert p.summary == q.summary
+    made[0].x[0] += 1.0                     # one point's unknowns are not another's
+    assert made[1].x[0] == to_real(W[1], hb.H)[0]
+
+
+def test_the_linear_stretch_check_uses_the_points_own_samples(loads):
+    """The fast-forward starts only where the point's wind-up stays in the primary region, and
+    reading the samples ``_point`` made gives the same answer as synthesizing them again."""
+    sw = SpeedSweep(CondensedHBM(loads, 1.0), SweepOptions(step_rpm=10.0, search=None))
+    sw.range = (600.0, 2000.0)
+    sw.hbm.prepare(np.arange(600.0, 2001.0, 10.0))
+    from dmf_sim.solvers.continuation import ContinuationPoint
+    for s in (700.0, 1300.0):               # below the knee, and crossing it
+        x = sw.hbm.solve(s).x
+        cp = ContinuationPoint(x, s, np.r_[np.zeros(len(x)), 1.0], 0, 0.0, True)
+        sw._point(cp.x, s, 0, 'main')
+        own = sw._linear_stretch(cp, 1.0)
+        sw._last_samples = None             # forces the synthesis
+        again = sw._linear_stretch(cp, 1.0)
+        assert [q.s for q in own] == [q.s for q in again]
+        assert (len(own) > 0) == (s == 700.0)
+        for a, b in zip(own, again):
+            assert np.array_equal(a.x, b.x) and np.array_equal(a.tangent, b.tangent)
+            assert a.point.stable == b.point.stable and a.point.stable is True
+
+
+def test_eigenvalues_by_lapack_equal_numpys():
+    """The Floquet multipliers' eigenvalue call: numpy's eigvals (complex where any is complex,
+    real where all are real), by dgeev directly."""
+    from dmf_sim.solvers.stability import eigenvalues
+    rng = np.random.default_rng(7)
+    for n in (2, 7, 32):
+        X = rng.standard_normal((n, n))
+        ref = np.linalg.eigvals(X)
+        mu = eigenvalues(X.copy())
+        assert mu.dtype == ref.dtype
+        assert np.allclose(np.sort_complex(mu), np.sort_complex(ref), rtol=1e-12, atol=1e-14)
+    S = rng.standard_normal((6, 6))
+    sym = S + S.T                           # real eigenvalues: a real array, as numpy's
+    assert eigenvalues(sym.copy()).dtype == np.float64
+
+
+def test_sharp_resonance_contribution_is_the_dof_load_formula(loads):
+    """The peak contribution of a lightly damped mode, |(P_n . B_k) ell_k / Re d_k| with the DOF
+    load harmonics P_n, computed from the engine coefficients and the modal loads instead."""
+    hb = CondensedHBM(loads, 1.0)
+    marks = hb.sharp_resonances((600.0, 2000.0))
+    assert marks
+    for m in marks:
+        k = int(np.flatnonzero(np.isclose(hb._d.imag, 2 * np.pi * m['frequency_hz'], rtol=1e-12)
+                               & (hb._d.imag > 0))[0])
+        P = hb.dof_loads(m['speed_rpm'])
+        n = m['half_order']
+        ref = abs((P[n] @ hb._B[:, k]) * hb._ell[k] / -hb._d[k].real)
+        assert m['contribution_rad'] == pytest.approx(ref, rel=1e-12)
