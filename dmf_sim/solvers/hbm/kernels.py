@@ -268,18 +268,14 @@ def newton(x0, lin, aft_mats, spring, newton_opts, x):
         if not lu_solve(J, mr, dx, LU, piv):
             return SINGULAR, it - 1, nr
         lam = 1.0
-        jac = True    # the full step usually holds: its Jacobian at once, a shorter one's later
         while True:   # backtracking on the max norm (the residual is only piecewise smooth)
             for i in range(n):
                 xn[i] = x[i] + lam * dx[i]
-            residual_jacobian(xn, lin, aft_mats, spring, rn, Jn, G, jac)
+            residual_jacobian(xn, lin, aft_mats, spring, rn, Jn, G, True)
             nn = max_abs(rn)
             if nn < nr or lam < BACKTRACK_MIN:
                 break
             lam *= 0.5
-            jac = False
-        if not jac:   # the accepted shorter step's Jacobian (the same r again, bit for bit)
-            residual_jacobian(xn, lin, aft_mats, spring, rn, Jn, G, True)
         _accept(xn, rn, Jn, x, r, J)
         nr = nn
         history[nh] = nr
@@ -355,21 +351,17 @@ def deflated_newton(x0, known, lin, aft_mats, spring, tol, defl, x):
                 d[i] = d[i] / denom
         merit = _log_floor(nr) + lm
         lam = 1.0
-        jac = True              # as in newton: the full step's Jacobian at once
         while True:             # backtracking on the deflated residual ln(M max|r|)
             for i in range(n):
                 xn[i] = x[i] + lam * d[i]
-            residual_jacobian(xn, lin, aft_mats, spring, rn, Jn, G, jac)
+            residual_jacobian(xn, lin, aft_mats, spring, rn, Jn, G, True)
             nn = max_abs(rn)
             lmn = _log_m(xn, known, defl, gn)
             if _log_floor(nn) + lmn < merit or lam <= min_step:
                 break
             lam *= 0.5
-            jac = False
         if not math.isfinite(nn):
             return False, it, nn
-        if not jac:             # the accepted shorter step's Jacobian (the same r, bit for bit)
-            residual_jacobian(xn, lin, aft_mats, spring, rn, Jn, G, True)
         _accept(xn, rn, Jn, x, r, J)
         for i in range(n):
             g[i] = gn[i]
