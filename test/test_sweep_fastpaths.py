@@ -157,6 +157,9 @@ def test_eigenvalues_by_lapack_equal_numpys():
     S = rng.standard_normal((6, 6))
     sym = S + S.T                           # real eigenvalues: a real array, as numpy's
     assert eigenvalues(sym.copy()).dtype == np.float64
+    sym[2, 3] = np.nan
+    with pytest.raises(np.linalg.LinAlgError, match='infs or NaNs'):
+        eigenvalues(sym)
 
 
 def test_sharp_resonance_contribution_is_the_dof_load_formula(loads):

@@ -179,7 +179,10 @@ class FlexibleModes:
 def eigenvalues(X: np.ndarray) -> np.ndarray:
     """Eigenvalues of a real square matrix, overwriting it: ``np.linalg.eigvals`` (real when all
     are real, else complex) by LAPACK ``dgeev`` called directly, without numpy's checks and
-    conversions (a sweep asks for one per point off the linear region)."""
+    conversions (a sweep asks for one per point off the linear region); like numpy, it raises
+    LinAlgError for a matrix with an inf or NaN."""
+    if not np.isfinite(X).all():
+        raise np.linalg.LinAlgError('Array must not contain infs or NaNs')
     wr, wi, _, _, info = dgeev(X, compute_vl=0, compute_vr=0, overwrite_a=1)
     if info != 0:
         raise np.linalg.LinAlgError('Eigenvalues did not converge')
