@@ -22,7 +22,7 @@ from dmf_sim.core.units import CYCLE_RAD
 
 __all__ = ['CYCLE_RAD', 'ORDER_3', 'ORDER_1_5', 'resample_on_angle', 'half_orders',
            'half_order_coefficients', 'synthesize', 'OrderSummary', 'fig13_rows',
-           'summarize_orders', 'summarize']
+           'summarize_orders', 'summarize_rows', 'summarize']
 
 ORDER_3 = 6      # half-order index of the 3rd engine order (the main firing order of a six)
 ORDER_1_5 = 3    # half-order index of the 1.5th engine order (the DMF's sub-harmonic)
@@ -128,13 +128,21 @@ def summarize_orders(c: np.ndarray, samples: np.ndarray, theta: float,
                             min_deviation=float(samples.min()) - mean, mean=mean,
                             mean_minus_theta=mean - theta, static_windup=float(static_windup),
                             theta=float(theta))
+    return summarize_rows(np.reshape(c, (1, -1)), np.reshape(samples, (1, -1)), theta,
+                          [static_windup])[0]
+
+
+def summarize_rows(c: np.ndarray, samples: np.ndarray, theta: float,
+                   static_windups) -> list[OrderSummary]:
+    """:func:`summarize_orders` of K signals at once: half orders ``c`` (K, N+1), ``samples``
+    (K, M) each over whole cycles, ``static_windups`` (K,) [rad]; the same values."""
     r = fig13_rows(c, samples)
-    mean = float(r['mean'])
-    return OrderSummary(order_3=float(r['order_3']), order_1_5=float(r['order_1_5']),
-                        max_deviation=float(r['max_deviation']),
-                        min_deviation=float(r['min_deviation']), mean=mean,
-                        mean_minus_theta=mean - theta, static_windup=float(static_windup),
-                        theta=float(theta))
+    theta = float(theta)
+    return [OrderSummary(order_3=o3, order_1_5=o15, max_deviation=mx, min_deviation=mn, mean=mean,
+                         mean_minus_theta=mean - theta, static_windup=float(st), theta=theta)
+            for o3, o15, mx, mn, mean, st in zip(
+                r['order_3'].tolist(), r['order_1_5'].tolist(), r['max_deviation'].tolist(),
+                r['min_deviation'].tolist(), r['mean'].tolist(), static_windups)]
 
 
 def summarize(samples: np.ndarray, n_cycles: int, theta: float, n_max: int = 24,

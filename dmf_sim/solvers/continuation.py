@@ -208,7 +208,6 @@ class _LoopDetector:
         self.tol = o.loop_tol * o.step_max
         self.points = np.empty((64, y0.size))
         self.points[0] = y0
-        self.s_all = [float(y0[-1])] + [0.0] * 63   # the scaled s of each point, as floats
         self.count = 1
         self.s_lo = self.s_hi = float(y0[-1])   # s-range of the points that are far enough back
         self.ranged = 0                         # how many points s_lo/s_hi cover
@@ -217,18 +216,15 @@ class _LoopDetector:
         o = self.o
         if self.count == len(self.points):
             self.points = np.concatenate([self.points, np.empty_like(self.points)])
-            self.s_all += [0.0] * (len(self.points) - len(self.s_all))
         q = self.points[self.count]
         np.divide(p.x, o.x_scale, out=q[:-1])
         s_q = q[-1] = p.s / o.s_scale
-        self.s_all[self.count] = s_q
         self.count += 1
         far = self.count - 1 - o.loop_skip      # points[:far] form the earlier part
         if far < 2:
             return False
-        s_all = self.s_all
         while self.ranged < far:
-            s_k = s_all[self.ranged]
+            s_k = float(self.points[self.ranged, -1])
             if s_k < self.s_lo:
                 self.s_lo = s_k
             elif s_k > self.s_hi:

@@ -177,9 +177,9 @@ class FlexibleModes:
 
 
 def eigenvalues(X: np.ndarray) -> np.ndarray:
-    """Eigenvalues of a real square matrix, overwriting it: ``np.linalg.eigvals`` (real when all
-    are real, else complex) by LAPACK ``dgeev`` called directly, without numpy's checks and
-    conversions (a sweep asks for one per point off the linear region); like numpy, it raises
+    """Eigenvalues of a real square matrix, which may be overwritten: ``np.linalg.eigvals`` (real
+    when all are real, else complex) by LAPACK ``dgeev`` called directly, without numpy's checks
+    and conversions (a sweep asks for one per point off the linear region); like numpy, it raises
     LinAlgError for a matrix with an inf or NaN."""
     if not np.isfinite(X).all():
         raise np.linalg.LinAlgError('Array must not contain infs or NaNs')

@@ -48,7 +48,7 @@ from dmf_sim.core.errors import ConfigError, ConvergenceError, OperatingRangeErr
 from dmf_sim.core.units import RPM_TO_RAD_S
 from dmf_sim.physics.harmonic import solve_static
 from dmf_sim.physics.loads import DrivelineLoads
-from dmf_sim.physics.orders import OrderSummary, fig13_rows, summarize_orders, synthesize
+from dmf_sim.physics.orders import summarize_orders, summarize_rows, synthesize
 from dmf_sim.solvers.continuation import CorrectorFailed, solve_small
 from dmf_sim.solvers.hbm import kernels, linear_kernels
 from dmf_sim.solvers.hbm.layout import fit_harmonics, times_h, to_complex, to_real
@@ -353,9 +353,9 @@ class CondensedHBM(DrivelineRecovery):
         self.prepare(speeds)                       # their linear parts in one batch
         # P_n . B_k ell_k = A_n (modal load of the phased cylinder vectors)_nk (n >= 1)
         A = self.engine_harmonics_many(np.asarray(speeds))
-        for (k, n, s, zeta), A_n in zip(todo, A[np.arange(len(todo)), [n for _, n, _, _ in todo]]):
+        for (k, n, s, zeta), A_s in zip(todo, A):
             d = self._d[k]
-            peak = abs(A_n * self._modal_load[n, k] / -d.real)
+            peak = abs(A_s[n] * self._modal_load[n, k] / -d.real)
             dyn = float(np.abs(self.linear_parts(s).wlin[1:]).sum())
             if dyn > 0 and peak >= share * dyn:
                 out.append({'speed_rpm': float(s), 'half_order': n, 'order': n / 2,
@@ -521,20 +521,11 @@ class CondensedHBM(DrivelineRecovery):
         values as K calls of :meth:`make_point`."""
         C = np.array(C, dtype=complex)
         X = to_real(C, self.H)
-        rows = fig13_rows(C, samples)
-        theta, h0 = self.spring.theta, self._h0
-        out = []
-        for k, (s, o3, o15, mx, mn, mean, w0) in enumerate(zip(
-                np.asarray(speeds_rpm, dtype=float).tolist(), rows['order_3'].tolist(),
-                rows['order_1_5'].tolist(), rows['max_deviation'].tolist(),
-                rows['min_deviation'].tolist(), rows['mean'].tolist(),
-                np.asarray(wlin0, dtype=float).tolist())):
-            summ = OrderSummary(order_3=o3, order_1_5=o15, max_deviation=mx, min_deviation=mn,
-                                mean=mean, mean_minus_theta=mean - theta,
-                                static_windup=self.spring.solve_condensed(w0, h0),
-                                theta=float(theta))
-            out.append(HBMPoint(s, X[k], C[k], summ, 0.0, 0))
-        return out
+        static = [self.spring.solve_condensed(w0, self._h0)
+                  for w0 in np.asarray(wlin0, dtype=float).tolist()]
+        summaries = summarize_rows(C, samples, self.spring.theta, static)
+        return [HBMPoint(s, X[k], C[k], summ, 0.0, 0) for k, (s, summ) in enumerate(
+            zip(np.asarray(speeds_rpm, dtype=float).tolist(), summaries))]
 
     # ---- the wind-up over the cycle ----------------------------------------------------------
     def time_series(self, x: np.ndarray, n_samples: int = 512) -> np.ndarray:
