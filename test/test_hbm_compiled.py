@@ -217,6 +217,31 @@ def test_grid_corrector_equals_reference(case, request):
     assert close(Jx, b[3][1]) and close(rs, b[3][2])                      # dr/dx, dr/ds
 
 
+@pytest.mark.parametrize('case', CASES)
+def test_grid_step_in_one_call_is_corrector_then_tangent(case, request):
+    """A continuation step on a grid speed in one compiled call (HBM.step_at, through
+    continuation.correct_step) gives bitwise the corrector's point and the tangent there that the
+    two calls give, and the reference problem's two Python calls agree with it."""
+    loads, speed = request.getfixturevalue(case)
+    hb, ref = both(loads)
+    xs, ss = 0.01, 10.0
+    x = hb.solve(speed).x
+    y_pred = np.concatenate([x * 1.05 / xs, [(speed + 10.0) / ss]])
+    normal = np.zeros(len(y_pred))
+    normal[-1] = 1.0
+    prev = np.zeros(len(y_pred))
+    prev[-1], prev[0] = 0.8, 0.6
+    y, it, res, t = continuation.correct_step(hb, y_pred, normal, prev, xs, ss, 1e-10, 12)
+    a = continuation.correct(hb, y_pred, normal, xs, ss, 1e-10, 12)
+    ta = continuation.tangent_of(hb, a[3][1], a[3][2], prev, xs, ss)
+    assert np.array_equal(y, a[0]) and (it, res) == (a[1], a[2]) and np.array_equal(t, ta)
+    assert ref.step_at(y_pred, prev, xs, ss, 1e-10, 12) is None
+    yr, itr, _, tr = continuation.correct_step(ref, y_pred, normal, prev, xs, ss, 1e-10, 12)
+    assert itr == it and close(yr, y) and close(tr, t)
+    with pytest.raises(continuation.CorrectorFailed):
+        hb.step_at(np.concatenate([x * 40.0 / xs, [speed / ss]]), prev, xs, ss, 1e-10, 2)
+
+
 def test_grid_corrector_failure_raises_corrector_failed(paper):
     loads, _ = paper
     hb, _ = both(loads)
@@ -367,8 +392,8 @@ def test_warm_up_compiles_what_a_sweep_calls(paper):
     from dmf_sim.solvers.hbm import kernels, linear_kernels
     kernels.warm_up()
     fs = [kernels.residual_jacobian_py, kernels.harmonics_py, kernels.newton,
-          kernels.deflated_newton, kernels.corrector_fixed_speed, linear_kernels.modal_sums,
-          stability_kernel.floquet]
+          kernels.deflated_newton, kernels.corrector_fixed_speed, kernels.step_fixed_speed,
+          linear_kernels.modal_sums, stability_kernel.floquet, stability_kernel.floquet_many]
     before = [len(f.signatures) for f in fs]
     assert all(n >= 1 for n in before)
     loads, _ = paper
@@ -411,7 +436,8 @@ from dmf_sim.solvers.hbm import CondensedHBM, SweepOptions, kernels, linear_kern
 kernels.warm_up()
 fs = [kernels.residual_jacobian_py, kernels.harmonics_py, kernels.newton, kernels.deflated_newton,
       kernels.corrector_fixed_speed, linear_kernels.modal_sums, linear_kernels.linear_parts,
-      kernels.residual_jacobians_py, stability_kernel.floquet]
+      kernels.residual_jacobians_py, kernels.step_fixed_speed, stability_kernel.floquet,
+      stability_kernel.floquet_many]
 before = [len(f.signatures) for f in fs]
 loads = DrivelineLoads(load_model('truck_dmf', alpha=3.0), load_engine('engine_d13', load_set='A'))
 sweep(loads, 1.0, (1150.0, 1250.0), options=SweepOptions(step_rpm=10.0, search=None))

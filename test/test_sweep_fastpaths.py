@@ -1,8 +1,8 @@
 """The sweep's cheaper per-point paths (issue 22, third and fifth steps) give what the general code
 gives: the stable-state mask of many speeds, the linear parts of one off-grid speed, the scalar
 order summary, the spring's condensed static solve, a linear stretch's points made in one batch
-and its check on the point's own samples, the multipliers' eigenvalue call and the sharp
-resonances' modal contributions."""
+and where it starts, a traced branch's points made in one batch, the multipliers' eigenvalue
+call (in Python and inside the kernels) and the sharp resonances' modal contributions."""
 from __future__ import annotations
 
 import numpy as np
@@ -122,9 +122,10 @@ def test_points_of_a_linear_stretch_made_in_one_batch_equal_one_by_one(loads):
     assert made[1].x[0] == to_real(W[1], hb.H)[0]
 
 
-def test_the_linear_stretch_check_uses_the_points_own_samples(loads):
-    """The fast-forward starts only where the point's wind-up stays in the primary region, and
-    reading the samples ``_point`` made gives the same answer as synthesizing them again."""
+def test_the_linear_stretch_starts_only_below_the_knees(loads):
+    """The fast-forward starts only where the point's wind-up stays in the primary region: on
+    the AFT samples (no torque beyond a knee) and on the finer samples of the stability
+    analysis; its points are stable, with the exact tangent at the last one."""
     sw = SpeedSweep(CondensedHBM(loads, 1.0), SweepOptions(step_rpm=10.0, search=None))
     sw.range = (600.0, 2000.0)
     sw.hbm.prepare(np.arange(600.0, 2001.0, 10.0))
@@ -132,15 +133,63 @@ def test_the_linear_stretch_check_uses_the_points_own_samples(loads):
     for s in (700.0, 1300.0):               # below the knee, and crossing it
         x = sw.hbm.solve(s).x
         cp = ContinuationPoint(x, s, np.r_[np.zeros(len(x)), 1.0], 0, 0.0, True)
-        sw._point(cp.x, s, 0, 'main')
         own = sw._linear_stretch(cp, 1.0)
-        sw._last_samples = None             # forces the synthesis
-        again = sw._linear_stretch(cp, 1.0)
-        assert [q.s for q in own] == [q.s for q in again]
+        crosses = bool(np.any(sw.hbm.nonlinear_harmonics(x)))
+        assert crosses == (s == 1300.0)
         assert (len(own) > 0) == (s == 700.0)
-        for a, b in zip(own, again):
-            assert np.array_equal(a.x, b.x) and np.array_equal(a.tangent, b.tangent)
-            assert a.point.stable == b.point.stable and a.point.stable is True
+        for q in own:
+            assert q.point.stable is True and np.isclose(np.linalg.norm(q.tangent), 1.0)
+            assert not np.any(sw.hbm.nonlinear_harmonics(q.x))
+
+
+def test_points_of_a_traced_branch_made_in_one_batch_equal_one_by_one(loads):
+    """``SpeedSweep._points`` (the points of a traced branch, made after the trace: one FFT, one
+    summary pass, one compiled Floquet call) gives bitwise what making each point and analyzing
+    it alone gives, for points below the knees (closed-form multipliers) and across them."""
+    from dmf_sim.solvers.continuation import ContinuationPoint
+    sw = SpeedSweep(CondensedHBM(loads, 1.0), SweepOptions(step_rpm=10.0, search=None))
+    hb, fl = sw.hbm, sw.floquet
+    cps = []
+    for k, s in enumerate((700.0, 1250.0, 1300.0, 1333.3, 1500.0)):
+        x = hb.solve(s).x
+        t = np.r_[np.zeros(len(x)), 1.0]
+        t[-1] = 0.5 + 0.1 * k
+        cps.append(ContinuationPoint(x, s, t, k + 1, 1e-12 * k, True))
+    made = sw._points(cps, 3, 'subharmonic')
+    assert len(made) == len(cps)
+    crossing = 0
+    for cp, p in zip(cps, made):
+        lp = hb.linear_parts(cp.s)
+        q = hb.make_point(cp.s, cp.x, cp.residual, cp.iterations, wlin0=float(lp.wlin[0].real))
+        fr = fl.analyze(q.windup_orders, cp.s)
+        crossing += fr.n_crossings > 0
+        assert (p.speed_rpm, p.residual, p.iterations) == (q.speed_rpm, q.residual, q.iterations)
+        assert np.array_equal(p.x, q.x) and np.array_equal(p.windup_orders, q.windup_orders)
+        assert p.summary == q.summary
+        assert (p.branch, p.kind, p.tangent_speed) == (3, 'subharmonic', cp.tangent[-1])
+        assert p.forced_order_1_5 == abs(lp.wlin[3])
+        assert p.stable == fr.stable and p.max_multiplier == fr.max_abs
+        assert p.multipliers.dtype == fr.multipliers.dtype
+        assert np.array_equal(p.multipliers, fr.multipliers)
+    assert 0 < crossing < len(cps)
+    assert sw._points([], 0, 'main') == []
+
+
+def test_eigenvalues_inside_a_kernel_are_scipys_dgeev():
+    """The compiled kernels' eigenvalue call (LAPACK dgeev bound for numba) gives the same bits
+    as ``stability.eigenvalues`` (SciPy's dgeev), real and complex spectra, without touching X."""
+    from dmf_sim.solvers.lapack_kernel import eigenvalues_into
+    from dmf_sim.solvers.stability import eigenvalues
+    rng = np.random.default_rng(11)
+    S = rng.standard_normal((6, 6))
+    for X in [rng.standard_normal((n, n)) for n in (1, 2, 7, 32)] + [S + S.T]:
+        keep = X.copy()
+        wr, wi = np.empty(len(X)), np.empty(len(X))
+        assert eigenvalues_into(X, wr, wi) == 0
+        assert np.array_equal(X, keep)
+        got = wr + 1j * wi if wi.any() else wr
+        ref = eigenvalues(X.copy())
+        assert got.dtype == ref.dtype and np.array_equal(got, ref)
 
 
 def test_eigenvalues_by_lapack_equal_numpys():

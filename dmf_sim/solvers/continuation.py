@@ -28,7 +28,8 @@ from scipy.linalg.lapack import dgesv
 from dmf_sim.core.errors import OperatingRangeError
 
 __all__ = ['solve_small', 'ContinuationProblem', 'ContinuationOptions', 'ContinuationPoint',
-           'CorrectorFailed', 'LeftRange', 'correct', 'tangent_of', 'continue_branch']
+           'CorrectorFailed', 'LeftRange', 'correct', 'tangent_of', 'correct_step',
+           'continue_branch']
 
 
 def solve_small(A: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -192,6 +193,28 @@ def correct(problem: ContinuationProblem, y_pred: np.ndarray, normal: np.ndarray
     raise CorrectorFailed(f'corrector: max|r| = {res:.2e} after {max_iter} iterations')
 
 
+def correct_step(problem: ContinuationProblem, y_pred: np.ndarray, normal: np.ndarray,
+                 prev: np.ndarray, xs: float, ss: float, tol: float, max_iter: int
+                 ) -> tuple[np.ndarray, int, float, np.ndarray]:
+    """:func:`correct`, then the unit tangent there oriented along ``prev`` (:func:`tangent_of`):
+    (y, iterations, max|r|, tangent), the tangent None where its system is singular (the caller
+    decides: continue_branch first checks how far the corrector moved). With the normal e_S a
+    problem may do both in one compiled call, ``problem.step_at(y_pred, prev, xs, ss, tol,
+    max_iter)`` (None from it: the two calls)."""
+    n = len(y_pred) - 1
+    if normal[n] == 1.0 and not np.any(normal[:n]):
+        compiled = getattr(problem, 'step_at', None)
+        out = compiled(y_pred, prev, xs, ss, tol, max_iter) if compiled is not None else None
+        if out is not None:
+            return out
+    y, it, res, (r, Jx, rs) = correct(problem, y_pred, normal, xs, ss, tol, max_iter)
+    try:
+        t = tangent_of(problem, Jx, rs, prev, xs, ss)
+    except np.linalg.LinAlgError:
+        t = None
+    return y, it, res, t
+
+
 class _LoopDetector:
     """Tells when a branch has come back onto its own earlier part (see
     ``ContinuationOptions.loop_skip``): the new point lies within ``loop_tol`` x step_max of the
@@ -339,15 +362,16 @@ def continue_branch(problem: ContinuationProblem, x0: np.ndarray, s0: float,
                 y_pred[n] = bound / ss
                 normal = e_s
         try:
-            y_new, it, res, (r, Jx, rs) = correct(problem, y_pred, normal, xs, ss, o.tol,
-                                                  o.max_iter)
+            y_new, it, res, t_new = correct_step(problem, y_pred, normal, t, xs, ss, o.tol,
+                                                 o.max_iter)
             step_len = abs(h_grid) if grid_mode else h
             moved = y_new - y_pred
             if math.sqrt(moved @ moved) > o.max_correction * max(step_len, o.step_min):
                 # converged far from the prediction: maybe onto another branch (e.g. a grid
                 # speed beyond a turning point); retry with a smaller arc-length step
                 raise CorrectorFailed('corrector moved too far from the predictor')
-            t_new = tangent_of(problem, Jx, rs, t, xs, ss)
+            if t_new is None:
+                raise np.linalg.LinAlgError('singular matrix')
             turn = math.acos(min(max(float(t_new @ t), -1.0), 1.0))
             if turn > o.max_turn and (grid_mode or h > o.step_min * 1.01):
                 raise CorrectorFailed(f'tangent turned by {turn:.2f} rad')
@@ -368,7 +392,7 @@ def continue_branch(problem: ContinuationProblem, x0: np.ndarray, s0: float,
                 reason = ('left_range' if isinstance(last_failure, LeftRange)
                           else 'corrector_failed')
                 break
-            y_new, it, res, (r, Jx, rs), t_new = jumped
+            y_new, it, res, t_new = jumped
             h = o.step
         force_arc = False
         y, t = y_new, t_new
@@ -407,7 +431,7 @@ def _jump(problem, y, t, xs, ss, o: ContinuationOptions):
             continue
         secant = y_new - y
         t_new = tangent_of(problem, jac[1], jac[2], secant / np.linalg.norm(secant), xs, ss)
-        return y_new, it, res, jac, t_new
+        return y_new, it, res, t_new
     return None
 
 

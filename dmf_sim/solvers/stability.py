@@ -41,7 +41,7 @@ from dmf_sim.core.errors import ConfigError
 from dmf_sim.core.units import CYCLE_RAD, RPM_TO_RAD_S, cycle_period_s
 from dmf_sim.physics.model import ReducedModel
 from dmf_sim.physics.orders import synthesize
-from dmf_sim.solvers.stability_kernel import floquet
+from dmf_sim.solvers.stability_kernel import floquet, floquet_many
 
 __all__ = ['CROSSING_NEWTON_STEPS', 'FloquetResult', 'ModeClass', 'real_eigenbasis',
            'FlexibleModes', 'FloquetAnalyzer']
@@ -322,6 +322,44 @@ class FloquetAnalyzer:
         mx = float(size[order[0]])
         return FloquetResult(mu, mx, mx < 1.0 + self.tol, 0 if count == 1 else count,
                              self.monodromy(segs) if keep_monodromy else None, segs)
+
+    def analyze_many(self, C: np.ndarray, speeds_rpm, samples: np.ndarray
+                     ) -> tuple[list[np.ndarray], list[float], list[bool]]:
+        """:meth:`analyze` of K periodic wind-ups at once (a sweep's points, after their branch is
+        traced): complex harmonics ``C`` (K, H+1) at ``speeds_rpm`` (K,), ``samples`` (K, N) each
+        one's wind-up over the cycle. Returns the multipliers (sorted by decreasing modulus),
+        max |mu| and stability of each, the same values as K calls of :meth:`analyze`; the
+        crossings, monodromies and eigenvalues in one compiled call
+        (:func:`dmf_sim.solvers.stability_kernel.floquet_many`)."""
+        speeds = np.asarray(speeds_rpm, dtype=float).reshape(-1)
+        if not self.compiled or len(speeds) == 0:
+            res = [self.analyze(c, s, samples=w) for c, s, w in zip(C, speeds.tolist(), samples)]
+            return ([r.multipliers for r in res], [r.max_abs for r in res],
+                    [r.stable for r in res])
+        K, ns = len(speeds), 2 * self.nf
+        counts = np.empty(K, dtype=np.int64)
+        stage0 = np.empty(K, dtype=np.int64)
+        tau0 = np.empty(K)
+        wr = np.zeros((K, ns))
+        wi = np.zeros((K, ns))
+        status = np.empty(K, dtype=np.int64)
+        floquet_many(np.ascontiguousarray(C, dtype=complex),
+                     np.ascontiguousarray(samples, dtype=float), speeds * RPM_TO_RAD_S,
+                     *self._kernel_args, counts, stage0, tau0, wr, wi, status)
+        if status.any():        # as eigenvalues() raises for one point
+            raise np.linalg.LinAlgError('Array must not contain infs or NaNs' if 1 in status
+                                        else 'Eigenvalues did not converge')
+        mu = wr + 1j * wi
+        one = counts == 1
+        for k in np.flatnonzero(one).tolist():      # no knee crossed: exp(lambda T)
+            mu[k] = np.exp(self._eig[int(stage0[k])][0] * float(tau0[k]))
+        size = np.abs(mu)
+        order = np.argsort(-size, axis=1)
+        mu = np.take_along_axis(mu, order, axis=1)
+        top = np.take_along_axis(size, order[:, :1], axis=1)[:, 0].tolist()
+        real = (~one & ~wi.any(axis=1)).tolist()    # eigenvalues() gives these a real dtype
+        return ([mu[k].real.copy() if real[k] else mu[k] for k in range(K)], top,
+                [m < 1.0 + self.tol for m in top])
 
     def analyze_reference(self, c: np.ndarray, speed_rpm: float, keep_monodromy: bool = False,
                           samples: np.ndarray | None = None) -> FloquetResult:

@@ -13,9 +13,10 @@ import numpy as np
 
 from dmf_sim.core.units import CYCLE_RAD
 from dmf_sim.solvers.compiled import jit
+from dmf_sim.solvers.lapack_kernel import eigenvalues_into
 from dmf_sim.solvers.newmark_kernel import region_of
 
-__all__ = ['floquet_segments', 'monodromy_similar', 'floquet']
+__all__ = ['floquet_segments', 'monodromy_similar', 'floquet', 'floquet_many']
 
 
 def floquet_segments(c, w, omega, knees, primary, n_newton, stages, taus):
@@ -158,6 +159,34 @@ def floquet(c, w, omega, knees, primary, n_newton, kind, sigma, freq, W):
     return X, count, stages[:count].copy(), taus[:count].copy()
 
 
+
+def floquet_many(C, w, omegas, knees, primary, n_newton, kind, sigma, freq, W, counts, stage0,
+                 tau0, wr, wi, status):
+    """:func:`floquet` of K periodic wind-ups in one call, with the multipliers: point k's
+    harmonics C[k], samples w[k], omega [rad/s] omegas[k]. Writes counts[k] (stretches), and
+    either (count 1: no knee crossed, the multipliers are exp(lambda T) of that region in closed
+    form) its stage0[k] and duration tau0[k] [s], or (count > 1) the eigenvalues wr[k] + i wi[k]
+    of the monodromy by :func:`dmf_sim.solvers.lapack_kernel.eigenvalues_into` (the same bits as
+    ``stability.eigenvalues`` of :func:`floquet`'s X). status[k]: 0, or 1 for a monodromy with
+    an inf or NaN, 2 where dgeev did not converge (the caller raises as ``eigenvalues`` does)."""
+    K = C.shape[0]
+    for k in range(K):
+        X, count, stages, taus = floquet(C[k], w[k], omegas[k], knees, primary, n_newton, kind,
+                                         sigma, freq, W)
+        counts[k] = count
+        stage0[k] = stages[0]
+        tau0[k] = taus[0]
+        status[k] = 0
+        if count == 1:
+            continue
+        if not np.isfinite(X).all():
+            status[k] = 1
+            continue
+        if eigenvalues_into(X, wr[k], wi[k]) != 0:
+            status[k] = 2
+
+
 floquet_segments = jit(floquet_segments)
 monodromy_similar = jit(monodromy_similar)
 floquet = jit(floquet)
+floquet_many = jit(floquet_many)

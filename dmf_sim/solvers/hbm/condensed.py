@@ -514,13 +514,14 @@ class CondensedHBM(DrivelineRecovery):
                         int(iterations))
 
     def make_points(self, speeds_rpm: np.ndarray, C: np.ndarray, samples: np.ndarray,
-                    wlin0: np.ndarray) -> list[HBMPoint]:
-        """:meth:`make_point` of K solutions at once (a sweep's linear stretch): complex harmonics
-        ``C`` (K, H+1) at ``speeds_rpm`` (K,), ``samples`` (K, N) each one's wind-up over the
-        cycle, ``wlin0`` (K,) the linear static wind-ups; residual and iterations 0. The same
-        values as K calls of :meth:`make_point`."""
+                    wlin0: np.ndarray, X: np.ndarray | None = None) -> list[HBMPoint]:
+        """:meth:`make_point` of K solutions at once (a sweep's linear stretch, or the points of
+        a traced branch): complex harmonics ``C`` (K, H+1) at ``speeds_rpm`` (K,), ``samples``
+        (K, N) each one's wind-up over the cycle, ``wlin0`` (K,) the linear static wind-ups,
+        ``X`` (K, 2H+1) the same solutions as real unknowns if at hand; residual and iterations
+        0. The same values as K calls of :meth:`make_point`."""
         C = np.array(C, dtype=complex)
-        X = to_real(C, self.H)
+        X = to_real(C, self.H) if X is None else np.array(X, dtype=float)
         static = [self.spring.solve_condensed(w0, self._h0)
                   for w0 in np.asarray(wlin0, dtype=float).tolist()]
         summaries = summarize_rows(C, samples, self.spring.theta, static)
@@ -640,6 +641,32 @@ class CondensedHBM(DrivelineRecovery):
         if status != kernels.CONVERGED:
             raise CorrectorFailed(f'corrector: max|r| = {res:.2e} after {max_iter} iterations')
         return np.concatenate([y, y_pred[n:]]), it, res, (r, Jx, rs)
+
+    def step_at(self, y_pred: np.ndarray, prev: np.ndarray, xs: float, ss: float, tol: float,
+                max_iter: int):
+        """A continuation step landing on a grid speed in one compiled call
+        (:func:`kernels.step_fixed_speed`): :meth:`corrector_at`, then :meth:`tangent` at the
+        corrected point oriented along ``prev``. Returns (y, iterations, max|r|, t), t None on
+        a singular tangent system (``continuation.correct_step``); raises CorrectorFailed when
+        the corrector does not converge; None when the reference is to be used (``compiled``
+        off)."""
+        if not self.compiled:
+            return None
+        n = len(y_pred) - 1
+        lp = self.linear_parts(float(y_pred[n] * ss))
+        y = np.empty(n + 1)
+        t = np.empty(n + 1)
+        r = np.empty(n)
+        Jx = np.empty((n, n))
+        rs = np.empty(n)
+        status, it, res = kernels.step_fixed_speed(
+            y_pred, prev, float(xs), float(ss), lp.lin, lp.dlin, self._aft_mats,
+            self._spring_arrays, float(tol), int(max_iter), y, t, r, Jx, rs)
+        if status == kernels.TANGENT_SINGULAR:
+            return y, it, res, None
+        if status != kernels.CONVERGED:
+            raise CorrectorFailed(f'corrector: max|r| = {res:.2e} after {max_iter} iterations')
+        return y, it, res, t
 
     def tangent(self, Jx: np.ndarray, rs: np.ndarray, prev: np.ndarray, xs: float, ss: float
                 ) -> np.ndarray | None:

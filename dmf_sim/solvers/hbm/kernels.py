@@ -19,6 +19,8 @@ What is compiled, and its reference (same equations, same numbering):
   speed (natural parameter, s fixed). Reference: ``dmf_sim.solvers.continuation.correct``.
 * :func:`tangent` — the continuation's unit tangent at a converged point. Reference:
   ``dmf_sim.solvers.continuation._tangent``.
+* :func:`step_fixed_speed` — the two in one call: a continuation step in grid mode. Reference:
+  ``continuation.correct`` then ``continuation.tangent_of``.
 
 The Floquet multipliers of a sweep point are compiled beside their reference too:
 :mod:`dmf_sim.solvers.stability_kernel`; the linear parts and the engine query in
@@ -57,7 +59,7 @@ __all__ = ['BACKTRACK_MIN', 'aft', 'times_h_into',
            'times_h_matrix', 'residual_jacobian', 'residual_jacobian_py', 'speed_derivative',
            'residual_jacobians_py', 'harmonics_py', 'newton',
            'deflated_newton', 'tangent', 'corrector_fixed_speed', 'residual_jacobians_at',
-           'corrector_arclength', 'warm_up']
+           'corrector_arclength', 'TANGENT_SINGULAR', 'step_fixed_speed', 'warm_up']
 
 CONVERGED, STALLED, MAX_ITER, SINGULAR, NOT_FINITE, ENGINE_FAILED = 0, 1, 2, 3, 4, 5
 BACKTRACK_MIN = 1e-3      # smallest backtracking factor of the plain Newton (as the reference)
@@ -556,6 +558,32 @@ def corrector_arclength(y_pred, normal, xs, ss, tol, max_iter, fd, table, static
     return MAX_ITER, max_iter, res, ENGINE_OK
 
 
+# ------------------------------------------------------------------------------------------------
+# A continuation step on a grid speed: the corrector and the new tangent in one call
+# ------------------------------------------------------------------------------------------------
+
+TANGENT_SINGULAR = 6       # step_fixed_speed: converged, but the tangent's system is singular
+
+
+def step_fixed_speed(y_pred, prev, xs, ss, lin, dlin, aft_mats, spring, tol, max_iter, y, t, r,
+                     J, rs):
+    """:func:`corrector_fixed_speed` on the scaled prediction ``y_pred`` = [x / xs, s / ss]
+    (s on a grid speed, kept), then :func:`tangent` at the corrected point oriented along
+    ``prev``: one continuation step of ``continuation.continue_branch`` in grid mode (reference:
+    ``continuation.correct`` with the normal e_S, then ``continuation.tangent_of``). Writes y
+    (n + 1,), the unit tangent t, and r, J = dr/dx, rs = dr/ds there; returns (status,
+    iterations, max|r|): the corrector's status, or TANGENT_SINGULAR."""
+    n = r.shape[0]
+    status, it, res = corrector_fixed_speed(y_pred[:n], xs, lin, dlin, aft_mats, spring, tol,
+                                            max_iter, y[:n], r, J, rs)
+    y[n] = y_pred[n]
+    if status != CONVERGED:
+        return status, it, res
+    if not tangent(J, rs, prev, xs, ss, t):
+        return TANGENT_SINGULAR, it, res
+    return status, it, res
+
+
 # reassociation lets LLVM vectorize the sums (rounding-level differences to the reference);
 # no 'nnan' flag: the NaN checks of the solvers stay valid
 aft = jit(aft, fastmath={'reassoc', 'contract'})
@@ -578,6 +606,7 @@ deflated_newton = jit(deflated_newton)
 residual_jacobians_at = jit(residual_jacobians_at)
 _evaluate_scaled = jit(_evaluate_scaled)
 corrector_arclength = jit(corrector_arclength)
+step_fixed_speed = jit(step_fixed_speed)
 
 
 def warm_up() -> float:
@@ -617,6 +646,8 @@ def warm_up() -> float:
     t1 = np.zeros(n + 1)
     t1[n] = 1.0
     tangent(np.eye(n), np.ones(n), t1, 1.0, 1.0, np.empty(n + 1))
+    step_fixed_speed(t1, t1, 1.0, 1.0, lin, lin, aft_mats, spring, 1e-10, 3, np.empty(n + 1),
+                     np.empty(n + 1), np.empty(n), np.empty((n, n)), np.empty(n))
     m = 2
     for K in (1, 2):     # one speed: h[:, 1:] is C-contiguous; a batch: it is not (two layouts)
         modal_sums(np.ones(K), np.ones(H), np.array([-1.0 + 1j, -1.0 - 1j]),
@@ -648,8 +679,12 @@ def warm_up() -> float:
     W[:, :] = np.eye(ns)
     c = np.zeros(H + 1, dtype=complex)
     c[1] = 1.0
-    stability_kernel.floquet(c, E @ to_real(c, H), 1.0, spring[0], spring[3], 1,
-                             np.array([[1, 2], [1, 2]], dtype=np.int64), -np.ones((2, ns)),
-                             np.ones((2, ns)), W)
+    fl_args = (spring[0], spring[3], 1, np.array([[1, 2], [1, 2]], dtype=np.int64),
+               -np.ones((2, ns)), np.ones((2, ns)), W)
+    stability_kernel.floquet(c, E @ to_real(c, H), 1.0, *fl_args)
+    stability_kernel.floquet_many(c[None], (E @ to_real(c, H))[None], np.ones(1), *fl_args,
+                                  np.empty(1, dtype=np.int64), np.empty(1, dtype=np.int64),
+                                  np.empty(1), np.empty((1, ns)), np.empty((1, ns)),
+                                  np.empty(1, dtype=np.int64))
     return time.perf_counter() - t0
 

@@ -30,10 +30,10 @@ def fit_harmonics(a: np.ndarray, H: int, axis: int = 0) -> np.ndarray:
 
 
 def to_complex(x: np.ndarray, H: int) -> np.ndarray:
-    """(2H+1,) real unknowns -> (H+1,) complex w_n (w_0 real)."""
-    c = np.empty(H + 1, dtype=complex)
-    c[0] = x[0]
-    c[1:] = x[1:H + 1] + 1j * x[H + 1:]
+    """(2H+1,) real unknowns -> (H+1,) complex w_n (w_0 real); rows (K, 2H+1) -> (K, H+1)."""
+    c = np.empty(x.shape[:-1] + (H + 1,), dtype=complex)
+    c[..., 0] = x[..., 0]
+    c[..., 1:] = x[..., 1:H + 1] + 1j * x[..., H + 1:]
     return c
 
 

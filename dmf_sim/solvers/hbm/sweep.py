@@ -136,7 +136,6 @@ class SpeedSweep(BranchSwitching, StateSearch):
         self.not_computed: list[dict] = []
         self.range = (0.0, 0.0)
         self._deadline = math.inf          # perf_counter() value of the time limit
-        self._last_samples = None          # (x, w on n_fine samples) of the last _point
         self._phase = 'continuation'
 
     # ---- time limit -----------------------------------------------------------------------------
@@ -146,25 +145,35 @@ class SpeedSweep(BranchSwitching, StateSearch):
             raise TimeLimitError(f'sweep time limit {self.options.time_limit_s:g} s reached '
                                  f'during {self._phase} at {speed_rpm:.0f} rpm')
 
-    # ---- one point ------------------------------------------------------------------------------
-    def _point(self, x: np.ndarray, s: float, branch: int, kind: str, residual=0.0, iterations=0,
-               tangent_speed=float('nan')) -> HBMPoint:
-        c = to_complex(x, self.hbm.H)
-        w = synthesize(c, self.floquet.n_fine)
-        self._last_samples = (x, w)        # for _linear_stretch, if it starts from this point
-        wlin = self.hbm.linear_parts(s).wlin
-        p = self.hbm.make_point(s, x, residual, iterations, samples=w, wlin0=float(wlin[0].real),
-                                c=c)
-        p.branch, p.kind, p.tangent_speed = branch, kind, float(tangent_speed)
-        p.forced_order_1_5 = float(abs(wlin[3])) if self.hbm.H >= 3 else 0.0
+    # ---- the points of a traced branch --------------------------------------------------------
+    def _points(self, cps: list, branch: int, kind: str) -> list[HBMPoint]:
+        """HBMPoints of continuation points the corrector solved, made after their branch is
+        traced, all at once (nothing during the trace needs them): the wind-up samples in one
+        FFT, the summaries in one pass (:meth:`CondensedHBM.make_points`), the Floquet
+        multipliers in one compiled call (:meth:`FloquetAnalyzer.analyze_many`)."""
+        if not cps:
+            return []
+        hb = self.hbm
+        X = np.array([cp.x for cp in cps], dtype=float)
+        speeds = [cp.s for cp in cps]
+        C = to_complex(X, hb.H)
+        W = synthesize(C, self.floquet.n_fine)
+        lps = [hb.linear_parts(s) for s in speeds]
+        pts = hb.make_points(speeds, C, W, [float(lp.wlin[0].real) for lp in lps], X=X)
+        for p, cp, lp in zip(pts, cps, lps):
+            p.residual, p.iterations = float(cp.residual), int(cp.iterations)
+            p.branch, p.kind, p.tangent_speed = branch, kind, float(cp.tangent[-1])
+            p.forced_order_1_5 = float(abs(lp.wlin[3])) if hb.H >= 3 else 0.0
         if self.options.stability:
-            fr = self.floquet.analyze(p.windup_orders, p.speed_rpm, samples=w)
-            p.stable, p.multipliers, p.max_multiplier = fr.stable, fr.multipliers, fr.max_abs
-        return p
+            mus, tops, stable = self.floquet.analyze_many(C, speeds, W)
+            for p, mu, top, st in zip(pts, mus, tops, stable):
+                p.stable, p.multipliers, p.max_multiplier = st, mu, top
+        return pts
 
     def _trace(self, x0, s0, direction, branch, kind, bar, stop=None) -> list[HBMPoint]:
         from dmf_sim.solvers.continuation import continue_branch
-        pts: list[HBMPoint] = []
+        pts: list[HBMPoint | None] = []
+        solved: list = []              # (index in pts, continuation point): made at the end
         last = [s0]
 
         def on_point(cp):
@@ -173,8 +182,8 @@ class SpeedSweep(BranchSwitching, StateSearch):
                 pre.branch, pre.kind = branch, kind
                 pts.append(pre)
             else:
-                pts.append(self._point(cp.x, cp.s, branch, kind, cp.residual, cp.iterations,
-                                       cp.tangent[-1]))
+                solved.append((len(pts), cp))
+                pts.append(None)
             bar.advance(cp.s - last[0])
             last[0] = cp.s
             self.check_time(cp.s)
@@ -191,6 +200,9 @@ class SpeedSweep(BranchSwitching, StateSearch):
 
         continue_branch(self.hbm, x0, s0, self.range, direction, self.cont, stop=stop,
                         on_point=on_point, fast_forward=self._linear_stretch, on_end=on_end)
+        made = self._points([cp for _, cp in solved], branch, kind)
+        for (i, _), p in zip(solved, made):
+            pts[i] = p
         return pts
 
     def _in_primary(self, w: np.ndarray) -> np.ndarray:
@@ -204,12 +216,12 @@ class SpeedSweep(BranchSwitching, StateSearch):
         the primary-stiffness eigenvalues. Checked in batches of growing size."""
         from dmf_sim.solvers.continuation import ContinuationPoint, tangent_of
         hb, o = self.hbm, self.options
-        last = self._last_samples          # the point's own samples, if _point made them
-        samples = (last[1] if last is not None and last[0] is cp.x
-                   else hb.time_series(cp.x, self.floquet.n_fine))
-        if not self._in_primary(samples[None])[0]:      # reaches a knee: nothing to skip
-            return []
+        # the point must stay below the knees: no torque beyond one on the AFT samples (one
+        # kernel call; this ends the check at a point on the non-linear part of a branch), and
+        # none on the finer samples the stability analysis reads
         if np.any(hb.nonlinear_harmonics(cp.x)):
+            return []
+        if not self._in_primary(hb.time_series(cp.x, self.floquet.n_fine)[None])[0]:
             return []
         lo, hi = self.range
         out: list = []
