@@ -198,6 +198,41 @@ def test_deflated_newton_equals_reference(case, request):
 
 
 @pytest.mark.parametrize('case', CASES)
+def test_deflated_seeds_in_one_call_are_the_seeds_one_by_one(case, request):
+    """DeflatedNewton.solve_first (a search pass's seeds in one kernel call) stops at the first
+    seed from ``start`` on that solve() brings to a solution, with bitwise its result; the
+    reference path agrees; None where no seed converges."""
+    loads, speed = request.getfixturevalue(case)
+    hb, ref = both(loads)
+    lp = hb.linear_parts(speed)
+    sol = hb.solve(speed).x
+    seeds = np.array(trial_points(hb, speed, n=6, seed=7))
+    found = [check_seeds(hb, ref, lp, seeds, known)     # without and with the solution deflated
+             for known in (np.empty((0, len(sol))), sol[None])]
+    seeds[3] = sol                                # a seed on a deflated solution: converged as is
+    with np.errstate(over='ignore', invalid='ignore'):  # the reference's M(x) there is inf
+        found.append(check_seeds(hb, ref, lp, seeds, sol[None]))
+    assert found[0] > 0 and found[2] > 0
+
+
+def check_seeds(hb, ref, lp, seeds, known):
+    one = [DeflatedNewton(hb).solve(lp, x0, known) for x0 in seeds]
+    hits = [i for i, sol in enumerate(one) if sol is not None]
+    for start in range(len(seeds) + 1):
+        got = DeflatedNewton(hb).solve_first(lp, seeds, known, start)
+        later = [i for i in hits if i >= start]
+        if not later:
+            assert got is None and DeflatedNewton(ref).solve_first(lp, seeds, known, start) is None
+            continue
+        i = later[0]
+        assert got[0] == i and np.array_equal(got[1], one[i][0])
+        assert (got[2], got[3]) == (one[i][1], one[i][2])
+        r = DeflatedNewton(ref).solve_first(lp, seeds, known, start)
+        assert r[0] == i and r[2] == got[2] and close(r[1], got[1])
+    return len(hits)
+
+
+@pytest.mark.parametrize('case', CASES)
 def test_grid_corrector_equals_reference(case, request):
     """continuation.correct on a grid speed: one compiled call (HBM.corrector_at) vs the
     reference iteration over residual_and_jacobians."""
@@ -392,7 +427,8 @@ def test_warm_up_compiles_what_a_sweep_calls(paper):
     from dmf_sim.solvers.hbm import kernels, linear_kernels
     kernels.warm_up()
     fs = [kernels.residual_jacobian_py, kernels.harmonics_py, kernels.newton,
-          kernels.deflated_newton, kernels.corrector_fixed_speed, kernels.step_fixed_speed,
+          kernels.deflated_newton, kernels.deflated_newton_first, kernels.corrector_fixed_speed,
+          kernels.step_fixed_speed,
           linear_kernels.modal_sums, stability_kernel.floquet, stability_kernel.floquet_many]
     before = [len(f.signatures) for f in fs]
     assert all(n >= 1 for n in before)

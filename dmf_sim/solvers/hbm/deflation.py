@@ -73,6 +73,28 @@ class DeflatedNewton:
                                                 hb._spring_arrays, float(hb.options.tol), defl, x)
         return (x, it, nr) if found else None
 
+    def solve_first(self, lp: LinearParts, seeds: np.ndarray, known: np.ndarray, start: int = 0
+                    ) -> tuple[int, np.ndarray, int, float] | None:
+        """:meth:`solve` from the rows of ``seeds``, from row ``start`` on, in turn until one
+        converges: (its row, x, iterations, max|r|), or None if none does (compiled: one call,
+        :func:`kernels.deflated_newton_first`; the same values as :meth:`solve` row by row)."""
+        hb, o = self.hbm, self.options
+        seeds = np.ascontiguousarray(seeds, dtype=float)
+        if not hb.compiled:
+            for i in range(start, len(seeds)):
+                sol = self.solve_reference(lp, seeds[i], known)
+                if sol is not None:
+                    return (i, *sol)
+            return None
+        known = np.ascontiguousarray(np.asarray(known, dtype=float).reshape(-1, seeds.shape[1]))
+        x = np.empty(seeds.shape[1])
+        defl = np.array([o.power, o.shift, o.scale, o.max_iter, o.min_step, o.stagnation],
+                        dtype=float)
+        i, it, nr = kernels.deflated_newton_first(seeds, int(start), known, lp.lin, hb._aft_mats,
+                                                  hb._spring_arrays, float(hb.options.tol), defl,
+                                                  x)
+        return None if i < 0 else (int(i), x, int(it), float(nr))
+
     def solve_reference(self, lp: LinearParts, x0: np.ndarray, known: np.ndarray
                         ) -> tuple[np.ndarray, int, float] | None:
         """:meth:`solve` in readable numpy (the compiled kernel's reference)."""

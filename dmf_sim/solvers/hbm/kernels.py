@@ -14,7 +14,8 @@ What is compiled, and its reference (same equations, same numbering):
 * :func:`newton` — damped Newton at fixed speed with its step control (backtracking on the max
   norm, stall detection). Reference: ``CondensedHBM.newton``.
 * :func:`deflated_newton` — Newton on the deflated residual. Reference:
-  ``dmf_sim.solvers.hbm.deflation.DeflatedNewton.solve``.
+  ``dmf_sim.solvers.hbm.deflation.DeflatedNewton.solve``; :func:`deflated_newton_first` runs it
+  from a pass's seeds in turn (reference ``DeflatedNewton.solve_first``).
 * :func:`corrector_fixed_speed` — the continuation corrector of a step that lands on a grid
   speed (natural parameter, s fixed). Reference: ``dmf_sim.solvers.continuation.correct``.
 * :func:`tangent` — the continuation's unit tangent at a converged point. Reference:
@@ -57,8 +58,8 @@ from dmf_sim.solvers.newmark_kernel import region_of
 
 __all__ = ['BACKTRACK_MIN', 'aft', 'times_h_into',
            'times_h_matrix', 'residual_jacobian', 'residual_jacobian_py', 'speed_derivative',
-           'residual_jacobians_py', 'harmonics_py', 'newton',
-           'deflated_newton', 'tangent', 'corrector_fixed_speed', 'residual_jacobians_at',
+           'residual_jacobians_py', 'harmonics_py', 'newton', 'deflated_newton',
+           'deflated_newton_first', 'tangent', 'corrector_fixed_speed', 'residual_jacobians_at',
            'corrector_arclength', 'TANGENT_SINGULAR', 'step_fixed_speed', 'warm_up']
 
 CONVERGED, STALLED, MAX_ITER, SINGULAR, NOT_FINITE, ENGINE_FAILED = 0, 1, 2, 3, 4, 5
@@ -372,6 +373,17 @@ def deflated_newton(x0, known, lin, aft_mats, spring, tol, defl, x):
     return nr <= tol, max_iter, nr
 
 
+
+def deflated_newton_first(X0, start, known, lin, aft_mats, spring, tol, defl, x):
+    """:func:`deflated_newton` from the seeds X0[start], X0[start + 1], ... in turn until one
+    converges (a search pass's seeds in one call). Returns (its index, or -1 if none did,
+    iterations, max|r|); the solution in x."""
+    for i in range(start, X0.shape[0]):
+        found, it, nr = deflated_newton(X0[i], known, lin, aft_mats, spring, tol, defl, x)
+        if found:
+            return i, it, nr
+    return -1, 0, 0.0
+
 # ------------------------------------------------------------------------------------------------
 # Continuation tangent
 # ------------------------------------------------------------------------------------------------
@@ -603,6 +615,7 @@ newton = jit(newton)
 _log_m = jit(_log_m)
 _log_floor = jit(_log_floor)
 deflated_newton = jit(deflated_newton)
+deflated_newton_first = jit(deflated_newton_first)
 residual_jacobians_at = jit(residual_jacobians_at)
 _evaluate_scaled = jit(_evaluate_scaled)
 corrector_arclength = jit(corrector_arclength)
@@ -641,6 +654,8 @@ def warm_up() -> float:
     newton(x0, lin, aft_mats, spring, (1e-10, 5, 8, 0.5), out)
     deflated_newton(x0, np.zeros((1, n)), lin, aft_mats, spring, 1e-10,
                     np.array([2.0, 1.0, 1e-2, 5.0, 0.125, 6.0]), out)
+    deflated_newton_first(x0[None], 0, np.zeros((1, n)), lin, aft_mats, spring, 1e-10,
+                          np.array([2.0, 1.0, 1e-2, 5.0, 0.125, 6.0]), out)
     corrector_fixed_speed(x0, 1.0, lin, lin, aft_mats, spring, 1e-10, 3, out, np.empty(n),
                           np.empty((n, n)), np.empty(n))
     t1 = np.zeros(n + 1)

@@ -124,6 +124,14 @@ def _stable_mask(b: Branch, speeds: np.ndarray, stretches: tuple | None = None) 
     return (inside & (value == 1)).any(axis=0)
 
 
+def _seed_label(label: tuple) -> str:
+    """What a deflated Newton seed is, in words (for the branch's origin)."""
+    if label[0] == 'n = 3':
+        _, a, ref, ph = label
+        return f'n = 3 seed {a:g} x {ref * 1e3:.1f} mrad, phase {np.degrees(ph):.0f} deg'
+    return f'3rd-order seed x {label[1]:g}'
+
+
 class StateSearch:
     """The full search: a mixin of :class:`dmf_sim.solvers.hbm.sweep.SpeedSweep` (it uses the
     sweep's ``hbm``, ``options``, ``floquet``, ``branches``, ``events``, ``range``,
@@ -164,8 +172,7 @@ class StateSearch:
 
     def _windup_ranges(self, xs: list[np.ndarray]) -> list[tuple[float, float]]:
         """:meth:`_windup_range` of several states, synthesized in one call."""
-        H = self.hbm.H
-        W = self.hbm.time_series_batch(np.stack([to_complex(x, H) for x in xs]), 256)
+        W = self.hbm.time_series_batch(to_complex(np.array(xs, dtype=float), self.hbm.H), 256)
         return list(zip(W.min(axis=1).tolist(), W.max(axis=1).tolist()))
 
     def _reaches_knee(self, x: np.ndarray, span: tuple[float, float] | None = None) -> bool:
@@ -189,27 +196,24 @@ class StateSearch:
 
     # ---- seeds ----------------------------------------------------------------------------------
     def _seeds(self, x: np.ndarray, knee_gap: float | None = None
-               ) -> list[tuple[str, np.ndarray]]:
+               ) -> tuple[np.ndarray, list[tuple]]:
         """Deflated Newton seeds around the state x (``knee_gap``: its :meth:`_knee_gap`, if at
-        hand)."""
+        hand): the seeds as rows, and what each is (:func:`_seed_label` says it in words)."""
         H = self.hbm.H
         c = to_complex(x, H)
         gap = self._knee_gap(x) if knee_gap is None else knee_gap
         ref = max(abs(c[6]) if H >= 6 else 0.0, gap, 1e-3)
-        out = []
-        for a in self.search.amplitudes:
-            for ph in self.search.phases:
-                d = np.zeros(H + 1, dtype=complex)
-                d[3] = a * ref * np.exp(1j * ph)
-                out.append((f'n = 3 seed {a:g} x {ref * 1e3:.1f} mrad, '
-                            f'phase {np.degrees(ph):.0f} deg',
-                            x + to_real(d, H)))
+        o = self.search
+        labels = [('n = 3', a, ref, ph) for a in o.amplitudes for ph in o.phases]
+        D = np.zeros((len(labels), H + 1), dtype=complex)
+        D[:, 3] = (np.array([lb[1] for lb in labels]) * ref
+                   * np.exp(1j * np.array([lb[3] for lb in labels])))
         if H >= 6:
-            for f in self.search.scale_3rd:
-                d = np.zeros(H + 1, dtype=complex)
-                d[6] = (f - 1.0) * c[6]
-                out.append((f'3rd-order seed x {f:g}', x + to_real(d, H)))
-        return out
+            scale = np.zeros((len(o.scale_3rd), H + 1), dtype=complex)
+            scale[:, 6] = (np.array(o.scale_3rd, dtype=float) - 1.0) * c[6]
+            D = np.concatenate([D, scale])
+            labels += [('3rd order', f) for f in o.scale_3rd]
+        return x + to_real(D, H), labels
 
     def _deflated_pass(self, s: float, bar) -> int:
         """Deflated Newton from every seed at speed s; new solutions are followed. Returns the
@@ -227,21 +231,24 @@ class StateSearch:
         gaps = [self._knee_gap(x, span) for x, span in zip(known, spans)]
         nearest = min(range(len(known)), key=gaps.__getitem__)  # the state nearest a knee
         deflate = self._deflation_set(known)     # grows with each solution found, not per seed
-        new = 0
-        for how, x0 in self._seeds(known[nearest], gaps[nearest]):
-            sol = solver.solve(lp, x0, deflate)
+        seeds, labels = self._seeds(known[nearest], gaps[nearest])
+        new, start = 0, 0
+        while True:           # the seeds in turn, until one converges: then on from the next
+            sol = solver.solve_first(lp, seeds, deflate, start)
             if sol is None:
-                continue
-            q = self.hbm.make_point(s, sol[0], sol[2], sol[1])
+                return new
+            i, x, it, res = sol
+            start = i + 1
+            q = self.hbm.make_point(s, x, res, it)
             known.append(q.x)
             deflate = np.concatenate([deflate, self._deflation_set([q.x])])
             if self._known(q, self._novelty_tol(q)):
                 continue
-            self._follow(q, f'deflated Newton at {s:.0f} rpm from a {how}', bar)
+            self._follow(q, f'deflated Newton at {s:.0f} rpm from a {_seed_label(labels[i])}',
+                         bar)
             new += 1
             if self._new_branches >= self.search.max_new_branches:
                 return new
-        return new
 
     # ---- Newmark where no stable state is known -------------------------------------------------
     def _shot(self, s: float, x: np.ndarray, bar) -> bool:
