@@ -428,8 +428,8 @@ def test_warm_up_compiles_what_a_sweep_calls(paper):
     kernels.warm_up()
     fs = [kernels.residual_jacobian_py, kernels.harmonics_py, kernels.newton,
           kernels.deflated_newton, kernels.deflated_newton_first, kernels.corrector_fixed_speed,
-          kernels.step_fixed_speed,
-          linear_kernels.modal_sums, stability_kernel.floquet, stability_kernel.floquet_many]
+          kernels.step_fixed_speed, linear_kernels.modal_sums, linear_kernels.linear_parts_many_at,
+          stability_kernel.floquet, stability_kernel.floquet_many]
     before = [len(f.signatures) for f in fs]
     assert all(n >= 1 for n in before)
     loads, _ = paper
@@ -472,8 +472,8 @@ from dmf_sim.solvers.hbm import CondensedHBM, SweepOptions, kernels, linear_kern
 kernels.warm_up()
 fs = [kernels.residual_jacobian_py, kernels.harmonics_py, kernels.newton, kernels.deflated_newton,
       kernels.corrector_fixed_speed, linear_kernels.modal_sums, linear_kernels.linear_parts,
-      kernels.residual_jacobians_py, kernels.step_fixed_speed, stability_kernel.floquet,
-      stability_kernel.floquet_many]
+      kernels.residual_jacobians_py, kernels.step_fixed_speed, linear_kernels.linear_parts_many_at,
+      stability_kernel.floquet, stability_kernel.floquet_many]
 before = [len(f.signatures) for f in fs]
 loads = DrivelineLoads(load_model('truck_dmf', alpha=3.0), load_engine('engine_d13', load_set='A'))
 sweep(loads, 1.0, (1150.0, 1250.0), options=SweepOptions(step_rpm=10.0, search=None))

@@ -77,6 +77,29 @@ def test_linear_parts_of_one_speed_equal_the_batch(loads):
         assert np.allclose(one.wlin, ref.wlin, rtol=1e-12, atol=0.0)
 
 
+def test_linear_parts_of_a_grid_in_one_kernel_call_equal_the_numpy_batch(loads):
+    """A sweep's grid in one kernel call with the engine query compiled (the engine's speed
+    table) gives bitwise the numpy batch's linear parts, at the top of the range too; a speed
+    outside the engine's data is left to the Python path, which raises as usual."""
+    from dmf_sim.core.errors import OperatingRangeError
+    hb = CondensedHBM(loads, 1.0)
+    lo, top = hb._speed_range()
+    speeds = [lo, 610.0, 1234.567, 1500.0, 1700.25, 1800.0, 1900.0, 1950.0, top - 0.01, top]
+    fast = hb._linear_parts_compiled(speeds)
+    assert fast is not None and len(fast) == len(speeds)
+    ref = CondensedHBM(loads, 1.0)
+    ref._kernel_engine = ()                 # no compiled engine query: the numpy batch
+    assert ref._linear_parts_compiled(speeds) is None
+    for a, b in zip(fast, ref._linear_parts_many(speeds)):
+        assert (a.speed_rpm, a.omega) == (b.speed_rpm, b.omega)
+        for name in ('h', 'wlin', 'dh_ds', 'dwlin_ds'):
+            assert np.array_equal(getattr(a, name), getattr(b, name)), name
+        assert np.array_equal(a.lin[0], b.lin[0]) and np.array_equal(a.dlin[0], b.dlin[0])
+    assert hb._linear_parts_compiled([1000.0, top + 50.0]) is None
+    with pytest.raises(OperatingRangeError):
+        hb.linear_parts(top + 50.0)
+
+
 def test_scalar_summary_equals_the_rows():
     rng = np.random.default_rng(5)
     c = rng.standard_normal(25) * 1e-2 + 1j * rng.standard_normal(25) * 1e-2

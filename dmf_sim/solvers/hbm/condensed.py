@@ -221,6 +221,10 @@ class CondensedHBM(DrivelineRecovery):
                              axis=1)
 
     def _linear_parts_many(self, speeds: list[float]) -> list[LinearParts]:
+        if self.compiled:
+            parts = self._linear_parts_compiled(speeds)
+            if parts is not None:
+                return parts
         if len(speeds) == 1 and self.compiled:
             return [self._linear_parts_one(float(speeds[0]))]
         H = self.H
@@ -268,6 +272,33 @@ class CondensedHBM(DrivelineRecovery):
         return [LinearParts(speeds[k], float(omega[k]), h[k], wlin[k], dh[k], dw[k],
                             (wr[k], h[k]), (dwr[k], dh[k]))
                 for k in range(K)]
+
+    def _linear_parts_compiled(self, speeds: list[float]) -> list[LinearParts] | None:
+        """:meth:`_linear_parts_many` in one kernel call with the engine query compiled
+        (:func:`linear_kernels.linear_parts_many_at` on the engine's speed table: the same
+        values); None where the engine has no table, a speed lies outside its data (the Python
+        path raises as usual) or its grid nodes there are not computed yet (the Python path
+        computes them; the table is read anew next time)."""
+        args = self._engine_kernel_args()
+        if args is None:
+            return None
+        fd, table, statics, modal = args
+        H, K = self.H, len(speeds)
+        S = np.array(speeds, dtype=float)
+        A = np.empty((K, H + 1), dtype=complex)
+        A2, dA, h, dh, wlin, dw = (np.empty((K, H + 1), dtype=complex) for _ in range(6))
+        wr = np.empty((K, 2 * H + 1))
+        dwr = np.empty((K, 2 * H + 1))
+        status = np.empty(K, dtype=np.int64)
+        linear_kernels.linear_parts_many_at(S, fd, table, statics, modal, A, A2, dA, h, dh, wlin,
+                                            dw, wr, dwr, status)
+        if status.any():
+            if (status == linear_kernels.ENGINE_NOT_READY).any():
+                self.__dict__.pop('_kernel_engine', None)
+            return None
+        omega = (S * RPM_TO_RAD_S).tolist()
+        return [LinearParts(speeds[k], omega[k], h[k], wlin[k], dh[k], dw[k], (wr[k], h[k]),
+                            (dwr[k], dh[k])) for k in range(K)]
 
     def _linear_parts_one(self, s: float) -> LinearParts:
         """:meth:`_linear_parts_many` of one speed (each arc-length corrector iteration asks for

@@ -52,6 +52,7 @@ from dmf_sim.solvers.hbm.linear_kernels import (
     ENGINE_OK,
     linear_parts,
     linear_parts_at,
+    linear_parts_many_at,
     modal_sums,
 )
 from dmf_sim.solvers.newmark_kernel import region_of
@@ -684,6 +685,10 @@ def warm_up() -> float:
              np.ascontiguousarray(np.ones((H + 1, m), dtype=complex)[1:]),
              np.ones(m, dtype=complex), 1.0)
     residual_jacobians_at(x0, 1.0, 0.05, table, statics, modal, aft_mats, spring)
+    K = 2
+    linear_parts_many_at(np.ones(K), 0.05, table, statics, modal,
+                         *[np.empty((K, H + 1), dtype=complex) for _ in range(7)],
+                         np.empty((K, n)), np.empty((K, n)), np.empty(K, dtype=np.int64))
     y1 = np.zeros(n + 1)
     y1[n] = 1.0
     corrector_arclength(y1, y1.copy(), 1.0, 1.0, 1e-10, 2, 0.05, table, statics, modal,
