@@ -194,15 +194,18 @@ def correct(problem: ContinuationProblem, y_pred: np.ndarray, normal: np.ndarray
 
 
 def correct_step(problem: ContinuationProblem, y_pred: np.ndarray, normal: np.ndarray,
-                 prev: np.ndarray, xs: float, ss: float, tol: float, max_iter: int
-                 ) -> tuple[np.ndarray, int, float, np.ndarray]:
+                 prev: np.ndarray, xs: float, ss: float, tol: float, max_iter: int,
+                 fixed_s: bool | None = None) -> tuple[np.ndarray, int, float, np.ndarray]:
     """:func:`correct`, then the unit tangent there oriented along ``prev`` (:func:`tangent_of`):
     (y, iterations, max|r|, tangent), the tangent None where its system is singular (the caller
     decides: continue_branch first checks how far the corrector moved). With the normal e_S a
     problem may do both in one compiled call, ``problem.step_at(y_pred, prev, xs, ss, tol,
-    max_iter)`` (None from it: the two calls)."""
+    max_iter)`` (None from it: the two calls). ``fixed_s``: whether ``normal`` is e_S, if the
+    caller knows."""
     n = len(y_pred) - 1
-    if normal[n] == 1.0 and not np.any(normal[:n]):
+    if fixed_s is None:
+        fixed_s = bool(normal[n] == 1.0 and not normal[:n].any())
+    if fixed_s:
         compiled = getattr(problem, 'step_at', None)
         out = compiled(y_pred, prev, xs, ss, tol, max_iter) if compiled is not None else None
         if out is not None:
@@ -363,7 +366,7 @@ def continue_branch(problem: ContinuationProblem, x0: np.ndarray, s0: float,
                 normal = e_s
         try:
             y_new, it, res, t_new = correct_step(problem, y_pred, normal, t, xs, ss, o.tol,
-                                                 o.max_iter)
+                                                 o.max_iter, normal is e_s)
             step_len = abs(h_grid) if grid_mode else h
             moved = y_new - y_pred
             if math.sqrt(moved @ moved) > o.max_correction * max(step_len, o.step_min):

@@ -183,12 +183,16 @@ class BranchSwitching:
     def _switch_branches(self, bar) -> None:
         o = self.options
         queue = [self.branches[0]]
+        main_humps = None                  # branch 0's, asked again at the end
         while queue and len(self.branches) <= o.max_branches:
             b = queue.pop(0)
             seeds = []
             for run in runs(b.points, lambda q: q.stable is False):
                 seeds.append(('eigen', max(run, key=lambda q: q.max_multiplier)))
-            for run in self._humps(b.points):
+            humps = self._humps(b.points)
+            if b is self.branches[0]:
+                main_humps = humps
+            for run in humps:
                 peak = max(run, key=lambda q: q.order_1_5 / max(q.forced_order_1_5, 1e-12))
                 seeds.append(('hump', peak))
                 if len(run) >= 4:
@@ -199,7 +203,9 @@ class BranchSwitching:
                 q, how = (self._eigen_seeds(p) if kind == 'eigen' else self._hump_seeds(p))
                 if q is not None and not self._known(q, self._novelty_tol(q)):
                     queue.append(self._follow(q, how, bar))
-        if o.isola_scan and len(self.branches) == 1 and not self._humps(self.branches[0].points):
+        if main_humps is None:
+            main_humps = self._humps(self.branches[0].points)
+        if o.isola_scan and len(self.branches) == 1 and not main_humps:
             self._scan(bar)
 
     def _scan(self, bar) -> None:

@@ -5,6 +5,8 @@ as the real vector ``x = [w_0, Re w_1..Re w_H, Im w_1..Im w_H]`` [rad] for Newto
 """
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 __all__ = ['SUB_HARMONICS', 'fit_harmonics', 'to_complex', 'to_real', 'times_h', 'amplitudes',
@@ -88,13 +90,21 @@ def shift(x: np.ndarray, k: int, H: int) -> np.ndarray:
     return to_real(c * np.exp(-1j * n * k * np.pi / 3.0), H)
 
 
+@functools.lru_cache(maxsize=8)
+def _shift_rotations(n_shifts: int, H: int) -> np.ndarray:
+    """exp(-i n k pi / 3) for k = 0..n_shifts-1 (rows), n = 1..H (columns): the phase factors of
+    :func:`all_shifts`, made once per (n_shifts, H) (read-only)."""
+    rot = np.exp(-1j * np.outer(np.arange(n_shifts), np.arange(1, H + 1)) * np.pi / 3.0)
+    rot.flags.writeable = False
+    return rot
+
+
 def all_shifts(X: np.ndarray, n_shifts: int, H: int) -> np.ndarray:
     """Every state of the rows of X (K, 2H+1) delayed by k x 120 deg, k = 0..n_shifts-1, as rows
     (K n_shifts, 2H+1) in the order [shift(x, k) for x in X for k in range(n_shifts)] (the same
     products as :func:`shift`, for all rows at once)."""
     X = np.atleast_2d(np.asarray(X, dtype=float))
-    n = np.arange(1, H + 1)
-    rot = np.exp(-1j * np.outer(np.arange(n_shifts), n) * np.pi / 3.0)      # (n_shifts, H)
+    rot = _shift_rotations(int(n_shifts), int(H))                           # (n_shifts, H)
     c = X[:, 1:H + 1] + 1j * X[:, H + 1:]                                    # (K, H)
     cs = c[:, None, :] * rot[None, :, :]                                     # (K, n_shifts, H)
     out = np.empty((X.shape[0], n_shifts, 2 * H + 1))
