@@ -275,11 +275,15 @@ def newton(x0, lin, aft_mats, spring, newton_opts, x):
         while True:   # backtracking on the max norm (the residual is only piecewise smooth)
             for i in range(n):
                 xn[i] = x[i] + lam * dx[i]
-            residual_jacobian(xn, lin, aft_mats, spring, rn, Jn, G, True)
+            # the Jacobian with the full step's residual (most steps keep it), not with the
+            # shortened trials': it is formed for the one accepted
+            residual_jacobian(xn, lin, aft_mats, spring, rn, Jn, G, lam == 1.0)
             nn = max_abs(rn)
             if nn < nr or lam < BACKTRACK_MIN:
                 break
             lam *= 0.5
+        if lam != 1.0:
+            residual_jacobian(xn, lin, aft_mats, spring, rn, Jn, G, True)
         _accept(xn, rn, Jn, x, r, J)
         nr = nn
         history[nh] = nr
@@ -358,7 +362,7 @@ def deflated_newton(x0, known, lin, aft_mats, spring, tol, defl, x):
         while True:             # backtracking on the deflated residual ln(M max|r|)
             for i in range(n):
                 xn[i] = x[i] + lam * d[i]
-            residual_jacobian(xn, lin, aft_mats, spring, rn, Jn, G, True)
+            residual_jacobian(xn, lin, aft_mats, spring, rn, Jn, G, lam == 1.0)
             nn = max_abs(rn)
             lmn = _log_m(xn, known, defl, gn)
             if _log_floor(nn) + lmn < merit or lam <= min_step:
@@ -366,6 +370,8 @@ def deflated_newton(x0, known, lin, aft_mats, spring, tol, defl, x):
             lam *= 0.5
         if not math.isfinite(nn):
             return False, it, nn
+        if lam != 1.0:          # a shortened step: its Jacobian now (see newton)
+            residual_jacobian(xn, lin, aft_mats, spring, rn, Jn, G, True)
         _accept(xn, rn, Jn, x, r, J)
         for i in range(n):
             g[i] = gn[i]
