@@ -247,3 +247,25 @@ def test_sharp_resonance_contribution_is_the_dof_load_formula(loads):
         n = m['half_order']
         ref = abs((P[n] @ hb._B[:, k]) * hb._ell[k] / -hb._d[k].real)
         assert m['contribution_rad'] == pytest.approx(ref, rel=1e-12)
+
+
+def test_aft_tables_made_once_and_copied_per_problem(loads):
+    """The AFT matrices are made once per (H, M), read-only, and each problem works on its own
+    copies: the formulas w_j = E x, G = F g (F = diag(weights) E^T), cos / sin tables of
+    m phi_j."""
+    from dmf_sim.solvers.hbm.condensed import aft_tables
+    a, b = CondensedHBM(loads, 1.0), CondensedHBM(loads, 1.0)
+    H, M = a.H, a.M
+    phi, E, weights, F, cos_m, sin_m = aft_tables(H, M)
+    assert aft_tables(H, M)[1] is E and not E.flags.writeable
+    assert np.allclose(phi, 2 * np.pi * np.arange(M) / M, rtol=0, atol=1e-15)
+    n = np.arange(1, H + 1)
+    assert np.allclose(E[:, 1:H + 1], np.cos(np.outer(phi, n)), rtol=0, atol=1e-15)
+    assert np.allclose(E[:, H + 1:], -np.sin(np.outer(phi, n)), rtol=0, atol=1e-15)
+    assert np.allclose(F, weights[:, None] * E.T, rtol=0, atol=1e-18)
+    assert np.allclose(F @ E, np.eye(2 * H + 1), rtol=0, atol=1e-12)      # exact on H harmonics
+    assert np.allclose(sin_m[:, 1], np.sin(phi), rtol=0, atol=1e-15)
+    assert cos_m.shape == (M, 2 * H + 1)
+    assert np.array_equal(a.E, E) and a.E is not b.E and a.E.flags.writeable
+    a.E[0, 0] = 7.0
+    assert b.E[0, 0] == 1.0 and E[0, 0] == 1.0

@@ -40,6 +40,7 @@ Real unknown layout used throughout: ``x = [w_0, Re w_1..Re w_H, Im w_1..Im w_H]
 """
 from __future__ import annotations
 
+import functools
 from collections import OrderedDict
 
 import numpy as np
@@ -56,8 +57,8 @@ from dmf_sim.solvers.hbm.point import HBMOptions, HBMPoint, LinearParts
 from dmf_sim.solvers.hbm.recovery import DrivelineRecovery
 from dmf_sim.solvers.stability import FlexibleModes
 
-__all__ = ['SHARP_DAMPING_RATIO', 'RESONANCE_SHARE', 'LINEAR_PARTS_CACHE', 'PREPARE_BATCH',
-           'ENGINE_BATCH_MIN', 'CondensedHBM']
+__all__ = ['aft_tables', 'SHARP_DAMPING_RATIO', 'RESONANCE_SHARE', 'LINEAR_PARTS_CACHE',
+           'PREPARE_BATCH', 'ENGINE_BATCH_MIN', 'CondensedHBM']
 
 SHARP_DAMPING_RATIO = 0.01
 """A mode damped less than this (damping ratio [-]) makes a resonance a few rpm wide: a spike in
@@ -79,6 +80,29 @@ ENGINE_BATCH_MIN = 8
 # ------------------------------------------------------------------------------------------------
 # The condensed harmonic balance problem
 # ------------------------------------------------------------------------------------------------
+
+@functools.lru_cache(maxsize=8)
+def aft_tables(H: int, M: int) -> tuple[np.ndarray, ...]:
+    """The AFT matrices of H harmonics on M samples of the base angle phi_j = psi_j / 2 =
+    2 pi j / M (one 720 deg cycle), made once per (H, M) (read-only; a problem takes copies):
+    (phi, E, weights, F, cos table, sin table) with
+
+        w_j = E x        (E = [1, cos n phi_j, -sin n phi_j])
+        G   = F g_j      (F = W E^T: mean and 2/M-weighted Fourier sums)
+
+    and the tables cos(m phi_j), sin(m phi_j), m = 0..2H, the compiled Jacobian reads."""
+    phi = 2.0 * np.pi * np.arange(M) / M
+    n = np.arange(1, H + 1)
+    E = np.hstack([np.ones((M, 1)), np.cos(np.outer(phi, n)), -np.sin(np.outer(phi, n))])
+    weights = np.full(2 * H + 1, 2.0 / M)
+    weights[0] = 1.0 / M
+    F = np.ascontiguousarray(weights[:, None] * E.T)
+    m_all = np.arange(2 * H + 1)
+    out = (phi, E, weights, F, np.cos(np.outer(phi, m_all)), np.sin(np.outer(phi, m_all)))
+    for a in out:
+        a.flags.writeable = False
+    return out
+
 
 class CondensedHBM(DrivelineRecovery):
     """Harmonic balance of one driveline at one load fraction, condensed on the DMF wind-up.
@@ -105,16 +129,8 @@ class CondensedHBM(DrivelineRecovery):
         if M < 2 * H + 2:
             raise ConfigError(f'n_time={M}: needs at least 2 (n_harmonics + 1) = '
                               f'{2 * H + 2} samples')
-        # AFT matrices on the base angle phi_j = psi_j / 2 = 2 pi j / M (one 720 deg cycle):
-        #   w_j = E x        (E = [1, cos n phi_j, -sin n phi_j])
-        #   G   = F g_j      (F = W E^T: mean and 2/M-weighted Fourier sums)
-        self.phi = 2.0 * np.pi * np.arange(M) / M
-        n = np.arange(1, H + 1)
-        self.E = np.hstack([np.ones((M, 1)), np.cos(np.outer(self.phi, n)),
-                            -np.sin(np.outer(self.phi, n))])
-        weights = np.full(2 * H + 1, 2.0 / M)
-        weights[0] = 1.0 / M
-        self.F = np.ascontiguousarray(weights[:, None] * self.E.T)
+        # AFT matrices (:func:`aft_tables`, this problem's own copies)
+        self.phi, self.E, weights, self.F, cos_m, sin_m = (a.copy() for a in aft_tables(H, M))
         self.compiled = bool(self.options.compiled)
         m = self.model
         # Static (n = 0) flexibility at the DMF, rigid mode removed: u_0 = K^+ e, h_0 = e.K^+ e.
@@ -148,9 +164,7 @@ class CondensedHBM(DrivelineRecovery):
         self._eye = np.eye(2 * H + 1)
         # what the compiled kernels read: the AFT matrices and the spring's arrays (the same
         # ones the Newmark kernel reads)
-        m_all = np.arange(2 * H + 1)
-        self._aft_mats = (self.E, weights, np.cos(np.outer(self.phi, m_all)),
-                          np.sin(np.outer(self.phi, m_all)))
+        self._aft_mats = (self.E, weights, cos_m, sin_m)
         self._spring_arrays = (*self.spring.arrays(), int(self.spring.primary_index))
         self._newton_opts = (float(self.options.tol), int(self.options.max_iter),
                              int(self.options.stall_iter), float(self.options.stall_ratio))
