@@ -3,7 +3,7 @@
     python benchmarks/bench_hbm.py [--alpha 3] [--load-set A] [--load 1] [--speeds 600 2000 10]
                                    [--newmark-every 10] [--quick]
 
-1. HBM: the whole sweep timed end to end after the warm-up (``kernels.warm_up``, as a design-study
+1. HBM: the whole sweep timed end to end after the warm-up (``warm.warm_up``, as a design-study
    worker does when it starts, and one solve), in its two modes:
    ``fast`` (condensed HBM + pseudo-arc-length continuation landing on the speed grid, Floquet
    stability of every point, branch switching: ``dmf-sim sweep --fast``) and ``full`` (plus the
@@ -59,7 +59,7 @@ def main(argv=None) -> int:
     from dmf_sim.physics.loads import DrivelineLoads
     from dmf_sim.physics.model import load_model
     from dmf_sim.solvers.hbm import CondensedHBM, SweepOptions, sweep
-    from dmf_sim.solvers.hbm.kernels import warm_up
+    from dmf_sim.solvers.hbm.warm import warm_up
     from dmf_sim.solvers.newmark import simulate
 
     lo, hi, step = args.speeds

@@ -141,14 +141,15 @@ def test_continuation_tangent_equals_reference(case, request):
 
 
 def test_warm_up_compiles_the_tangent(paper):
-    """kernels.warm_up loads the tangent kernel too: a sweep adds no signature to it."""
-    from dmf_sim.solvers.hbm import kernels
-    kernels.warm_up()
-    before = len(kernels.tangent.signatures)
+    """warm_up loads the tangent kernel too: a sweep adds no signature to it."""
+    from dmf_sim.solvers.hbm import continuation_kernels
+    from dmf_sim.solvers.hbm.warm import warm_up
+    warm_up()
+    before = len(continuation_kernels.tangent.signatures)
     assert before >= 1
     loads, _ = paper
     sweep(loads, 1.0, (1150.0, 1250.0), options=SweepOptions(step_rpm=10.0, search=None))
-    assert len(kernels.tangent.signatures) == before
+    assert len(continuation_kernels.tangent.signatures) == before
 
 
 def test_primary_only_is_the_linear_problem(paper):
@@ -421,14 +422,16 @@ def test_sweep_compiled_equals_reference(paper):
 
 
 def test_warm_up_compiles_what_a_sweep_calls(paper):
-    """kernels.warm_up (run by a design-study worker when it starts) leaves no compilation for
+    """warm_up (run by a design-study worker when it starts) leaves no compilation for
     the first sweep: the sweep adds no new signature to any kernel."""
     from dmf_sim.solvers import stability_kernel
-    from dmf_sim.solvers.hbm import kernels, linear_kernels
-    kernels.warm_up()
+    from dmf_sim.solvers.hbm import continuation_kernels, kernels, linear_kernels
+    from dmf_sim.solvers.hbm.warm import warm_up
+    warm_up()
     fs = [kernels.residual_jacobian_py, kernels.harmonics_py, kernels.newton,
-          kernels.deflated_newton, kernels.deflated_newton_first, kernels.corrector_fixed_speed,
-          kernels.step_fixed_speed, linear_kernels.modal_sums, linear_kernels.linear_parts_many_at,
+          kernels.deflated_newton, kernels.deflated_newton_first,
+          continuation_kernels.corrector_fixed_speed, continuation_kernels.step_fixed_speed,
+          linear_kernels.modal_sums, linear_kernels.linear_parts_many_at,
           stability_kernel.floquet, stability_kernel.floquet_many]
     before = [len(f.signatures) for f in fs]
     assert all(n >= 1 for n in before)
@@ -469,10 +472,13 @@ from dmf_sim.physics.loads import DrivelineLoads
 from dmf_sim.physics.model import load_model
 from dmf_sim.solvers import stability_kernel
 from dmf_sim.solvers.hbm import CondensedHBM, SweepOptions, kernels, linear_kernels, sweep
-kernels.warm_up()
+from dmf_sim.solvers.hbm import continuation_kernels
+from dmf_sim.solvers.hbm.warm import warm_up
+warm_up()
 fs = [kernels.residual_jacobian_py, kernels.harmonics_py, kernels.newton, kernels.deflated_newton,
-      kernels.corrector_fixed_speed, linear_kernels.modal_sums, linear_kernels.linear_parts,
-      kernels.residual_jacobians_py, kernels.step_fixed_speed, linear_kernels.linear_parts_many_at,
+      continuation_kernels.corrector_fixed_speed, linear_kernels.modal_sums,
+      linear_kernels.linear_parts, kernels.residual_jacobians_py,
+      continuation_kernels.step_fixed_speed, linear_kernels.linear_parts_many_at,
       stability_kernel.floquet, stability_kernel.floquet_many]
 before = [len(f.signatures) for f in fs]
 loads = DrivelineLoads(load_model('truck_dmf', alpha=3.0), load_engine('engine_d13', load_set='A'))

@@ -81,7 +81,7 @@ class StudyPlugin(WorkerPlugin):
         install_context(self.key, self.context)
         # the sweep's compiled kernels loaded (compiled the first time on this machine) now,
         # not in the worker's first design
-        from dmf_sim.solvers.hbm.kernels import warm_up
+        from dmf_sim.solvers.hbm.warm import warm_up
         warm_up()
 
     def teardown(self, worker) -> None:

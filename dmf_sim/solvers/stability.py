@@ -43,7 +43,7 @@ from dmf_sim.physics.model import ReducedModel
 from dmf_sim.physics.orders import synthesize
 from dmf_sim.solvers.stability_kernel import floquet, floquet_many
 
-__all__ = ['CROSSING_NEWTON_STEPS', 'FloquetResult', 'ModeClass', 'real_eigenbasis',
+__all__ = ['CROSSING_NEWTON_STEPS', 'FloquetResult', 'ModeClass', 'by_modulus', 'real_eigenbasis',
            'FlexibleModes', 'FloquetAnalyzer']
 
 #: Newton steps refining each knee crossing on the wind-up's trigonometric polynomial
@@ -176,6 +176,15 @@ class FlexibleModes:
         return self._eig[key]
 
 
+def by_modulus(mu: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Multipliers sorted by decreasing modulus along the last axis (each row of a batch), and
+    the largest modulus (a 0-d array for one point, one per row for a batch)."""
+    size = np.abs(mu)
+    order = np.argsort(-size, axis=-1)
+    return (np.take_along_axis(mu, order, axis=-1),
+            np.take_along_axis(size, order[..., :1], axis=-1)[..., 0])
+
+
 def eigenvalues(X: np.ndarray) -> np.ndarray:
     """Eigenvalues of a real square matrix, which may be overwritten: ``np.linalg.eigvals`` (real
     when all are real, else complex) by LAPACK ``dgeev`` called directly, without numpy's checks
@@ -300,6 +309,11 @@ class FloquetAnalyzer:
             M = self.transition(r, tau) @ M
         return M
 
+    def _one_region(self, stage: int, tau: float) -> np.ndarray:
+        """Multipliers exp(lambda tau) of a solution that stays in region ``stage`` for the
+        whole cycle of duration ``tau`` [s] (closed form: no knee crossed)."""
+        return np.exp(self._eig[stage][0] * tau)
+
     def analyze(self, c: np.ndarray, speed_rpm: float, keep_monodromy: bool = False,
                 samples: np.ndarray | None = None) -> FloquetResult:
         """Floquet multipliers of the periodic wind-up with harmonics ``c`` at ``speed_rpm``
@@ -312,14 +326,8 @@ class FloquetAnalyzer:
         X, count, stages, taus = floquet(c, np.ascontiguousarray(w, dtype=float), float(omega),
                                          *self._kernel_args)
         segs = list(zip(stages.tolist(), taus.tolist()))
-        if count == 1:
-            mu = np.exp(self._eig[segs[0][0]][0] * segs[0][1])
-        else:
-            mu = eigenvalues(X)
-        size = np.abs(mu)
-        order = np.argsort(-size)
-        mu = mu[order]
-        mx = float(size[order[0]])
+        mu, mx = by_modulus(self._one_region(*segs[0]) if count == 1 else eigenvalues(X))
+        mx = float(mx)
         return FloquetResult(mu, mx, mx < 1.0 + self.tol, 0 if count == 1 else count,
                              self.monodromy(segs) if keep_monodromy else None, segs)
 
@@ -351,12 +359,10 @@ class FloquetAnalyzer:
                                         else 'Eigenvalues did not converge')
         mu = wr + 1j * wi
         one = counts == 1
-        for k in np.flatnonzero(one).tolist():      # no knee crossed: exp(lambda T)
-            mu[k] = np.exp(self._eig[int(stage0[k])][0] * float(tau0[k]))
-        size = np.abs(mu)
-        order = np.argsort(-size, axis=1)
-        mu = np.take_along_axis(mu, order, axis=1)
-        top = np.take_along_axis(size, order[:, :1], axis=1)[:, 0].tolist()
+        for k in np.flatnonzero(one).tolist():      # no knee crossed
+            mu[k] = self._one_region(int(stage0[k]), float(tau0[k]))
+        mu, top = by_modulus(mu)
+        top = top.tolist()
         real = (~one & ~wi.any(axis=1)).tolist()    # eigenvalues() gives these a real dtype
         return ([mu[k].real.copy() if real[k] else mu[k] for k in range(K)], top,
                 [m < 1.0 + self.tol for m in top])
@@ -368,14 +374,13 @@ class FloquetAnalyzer:
         segs, _ = self.segments_from(c, omega, samples)
         if len(segs) == 1:
             # one linear region for the whole cycle: multipliers exp(lambda T) in closed form
-            w = self._eig[segs[0][0]][0]
-            mu = np.exp(w * segs[0][1])
+            mu = self._one_region(*segs[0])
             M = self.monodromy(segs) if keep_monodromy else None
         else:
             M = self.monodromy(segs)
             mu = np.linalg.eigvals(M)
-        mu = mu[np.argsort(-np.abs(mu))]
-        mx = float(np.abs(mu[0]))
+        mu, mx = by_modulus(mu)
+        mx = float(mx)
         n_cross = 0 if len(segs) == 1 else len(segs)
         return FloquetResult(mu, mx, mx < 1.0 + self.tol, n_cross,
                              M if keep_monodromy else None, segs)

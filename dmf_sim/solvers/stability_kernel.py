@@ -159,7 +159,6 @@ def floquet(c, w, omega, knees, primary, n_newton, kind, sigma, freq, W):
     return X, count, stages[:count].copy(), taus[:count].copy()
 
 
-
 def floquet_many(C, w, omegas, knees, primary, n_newton, kind, sigma, freq, W, counts, stage0,
                  tau0, wr, wi, status):
     """:func:`floquet` of K periodic wind-ups in one call, with the multipliers: point k's

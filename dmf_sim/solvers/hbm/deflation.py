@@ -43,7 +43,16 @@ class DeflatedNewton:
 
     def __init__(self, hbm: CondensedHBM, options: DeflationOptions | None = None):
         self.hbm = hbm
-        self.options = options or DeflationOptions()
+        self.options = o = options or DeflationOptions()
+        # what the compiled kernels read of the options: [power, shift, scale, max_iter,
+        # min_step, stagnation]
+        self._defl = np.array([o.power, o.shift, o.scale, o.max_iter, o.min_step, o.stagnation],
+                              dtype=float)
+
+    @staticmethod
+    def _rows(known: np.ndarray, n: int) -> np.ndarray:
+        """The known solutions as C-contiguous rows of n unknowns (what the kernels read)."""
+        return np.ascontiguousarray(np.asarray(known, dtype=float).reshape(-1, n))
 
     def _log_m(self, x: np.ndarray, known: np.ndarray) -> tuple[float, np.ndarray]:
         """ln M(x) and its gradient for the known solutions (rows of ``known``)."""
@@ -61,16 +70,14 @@ class DeflatedNewton:
               ) -> tuple[np.ndarray, int, float] | None:
         """Solution (x, iterations, max|r|) reached from ``x0`` avoiding the rows of ``known``,
         or None if Newton does not converge (compiled: :func:`kernels.deflated_newton`)."""
-        hb, o = self.hbm, self.options
+        hb = self.hbm
         if not hb.compiled:
             return self.solve_reference(lp, x0, known)
         x0 = np.array(x0, dtype=float)
-        known = np.ascontiguousarray(np.asarray(known, dtype=float).reshape(-1, len(x0)))
         x = np.empty_like(x0)
-        defl = np.array([o.power, o.shift, o.scale, o.max_iter, o.min_step, o.stagnation],
-                        dtype=float)
-        found, it, nr = kernels.deflated_newton(x0, known, lp.lin, hb._aft_mats,
-                                                hb._spring_arrays, float(hb.options.tol), defl, x)
+        found, it, nr = kernels.deflated_newton(x0, self._rows(known, len(x0)), lp.lin,
+                                                hb._aft_mats, hb._spring_arrays,
+                                                float(hb.options.tol), self._defl, x)
         return (x, it, nr) if found else None
 
     def solve_first(self, lp: LinearParts, seeds: np.ndarray, known: np.ndarray, start: int = 0
@@ -78,7 +85,7 @@ class DeflatedNewton:
         """:meth:`solve` from the rows of ``seeds``, from row ``start`` on, in turn until one
         converges: (its row, x, iterations, max|r|), or None if none does (compiled: one call,
         :func:`kernels.deflated_newton_first`; the same values as :meth:`solve` row by row)."""
-        hb, o = self.hbm, self.options
+        hb = self.hbm
         seeds = np.ascontiguousarray(seeds, dtype=float)
         if not hb.compiled:
             for i in range(start, len(seeds)):
@@ -86,13 +93,11 @@ class DeflatedNewton:
                 if sol is not None:
                     return (i, *sol)
             return None
-        known = np.ascontiguousarray(np.asarray(known, dtype=float).reshape(-1, seeds.shape[1]))
-        x = np.empty(seeds.shape[1])
-        defl = np.array([o.power, o.shift, o.scale, o.max_iter, o.min_step, o.stagnation],
-                        dtype=float)
-        i, it, nr = kernels.deflated_newton_first(seeds, int(start), known, lp.lin, hb._aft_mats,
-                                                  hb._spring_arrays, float(hb.options.tol), defl,
-                                                  x)
+        n = seeds.shape[1]
+        x = np.empty(n)
+        i, it, nr = kernels.deflated_newton_first(seeds, int(start), self._rows(known, n), lp.lin,
+                                                  hb._aft_mats, hb._spring_arrays,
+                                                  float(hb.options.tol), self._defl, x)
         return None if i < 0 else (int(i), x, int(it), float(nr))
 
     def solve_reference(self, lp: LinearParts, x0: np.ndarray, known: np.ndarray

@@ -157,7 +157,6 @@ def linear_parts_at(s, fd, table, statics, modal, A, A2, dA, h, dh, wlin, dw, wr
     return ENGINE_OK
 
 
-
 def linear_parts_many_at(speeds, fd, table, statics, modal, A, A2, dA, h, dh, wlin, dw, wr, dwr,
                          status):
     """:func:`linear_parts_at` of K speeds [rpm] in one call (a sweep's grid), row q of every
@@ -167,6 +166,7 @@ def linear_parts_many_at(speeds, fd, table, statics, modal, A, A2, dA, h, dh, wl
         status[q] = linear_parts_at(speeds[q], fd, table, statics, modal, A[q:q + 1],
                                     A2[q:q + 1], dA[q:q + 1], h[q:q + 1], dh[q:q + 1],
                                     wlin[q:q + 1], dw[q:q + 1], wr[q:q + 1], dwr[q:q + 1])
+
 
 modal_sums = jit(modal_sums)
 linear_parts = jit(linear_parts)

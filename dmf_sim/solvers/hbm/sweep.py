@@ -17,6 +17,7 @@ from dmf_sim.solvers.hbm.layout import to_complex
 from dmf_sim.solvers.hbm.point import HBMOptions, HBMPoint
 from dmf_sim.solvers.hbm.results import Branch, SweepEvent, SweepResult
 from dmf_sim.solvers.hbm.search import SearchOptions, StateSearch
+from dmf_sim.solvers.stability import by_modulus
 
 __all__ = ['TIME_LIMIT_RANGE_S', 'check_time_limit', 'SweepOptions', 'SpeedSweep', 'sweep']
 
@@ -239,12 +240,12 @@ class SpeedSweep(BranchSwitching, StateSearch):
             k = len(ok) if ok.all() else int(np.argmin(ok))
             if k == 0:
                 break
-            mu = self.floquet.linear_multipliers(speeds[:k]) if o.stability else None
-            if mu is not None:     # each row sorted by decreasing modulus
-                mu = np.take_along_axis(mu, np.argsort(-np.abs(mu), axis=1), axis=1)
+            mu = top = None
+            if o.stability:        # each row sorted by decreasing modulus
+                mu, top = by_modulus(self.floquet.linear_multipliers(speeds[:k]))
+                top = top.tolist()
             made = hb.make_points(speeds[:k], W[:k], series[:k], W[:k, 0].real)
             forced = np.abs(W[:k, 3]).tolist() if hb.H >= 3 else [0.0] * k
-            top = np.abs(mu[:, 0]).tolist() if mu is not None else None
             for j, p in enumerate(made):
                 p.forced_order_1_5 = forced[j]
                 if mu is not None:

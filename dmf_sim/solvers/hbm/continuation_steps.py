@@ -1,0 +1,154 @@
+"""The condensed harmonic balance as a continuation problem
+(:class:`dmf_sim.solvers.continuation.ContinuationProblem`): r, dr/dx and dr/ds at any speed, and
+the compiled corrector, tangent and grid step the continuation asks for when the problem has them
+(:mod:`dmf_sim.solvers.hbm.continuation_kernels`). A mixin of
+:class:`dmf_sim.solvers.hbm.condensed.CondensedHBM` (it reads the problem's ``compiled``,
+``_cache``, ``linear_parts``, ``_linear_parts_one``, ``_engine_kernel_args``, ``_aft_mats``,
+``_spring_arrays`` and the reference ``residual_and_jacobian`` /
+``residual_speed_derivative``); each method returns None where the reference is to be used.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from dmf_sim.solvers.continuation import CorrectorFailed
+from dmf_sim.solvers.hbm import continuation_kernels, kernels, linear_kernels
+
+__all__ = ['ContinuationSteps']
+
+
+class ContinuationSteps:
+    """What ``continuation.continue_branch`` calls on a condensed HBM problem."""
+
+    def residual_and_jacobians(self, x: np.ndarray, speed_rpm: float):
+        """(r, dr/dx, dr/ds) at wind-up harmonics x and speed [rpm]."""
+        key = float(speed_rpm)
+        if self.compiled and key not in self._cache:
+            out = self._residual_jacobians_at(x, key)
+            if out is not None:
+                return out
+        lp = self.linear_parts(speed_rpm)
+        if self.compiled:               # one kernel call: one AFT pass for all three
+            return kernels.residual_jacobians_py(np.ascontiguousarray(x, dtype=float), lp.lin,
+                                                 lp.dlin, self._aft_mats, self._spring_arrays)
+        r, Jx = self.residual_and_jacobian(x, lp)
+        return r, Jx, self.residual_speed_derivative(x, lp)
+
+    def _residual_jacobians_at(self, x: np.ndarray, s: float):
+        """(r, dr/dx, dr/ds) at a speed not in the cache, the linear parts computed in the same
+        kernel call (the arc-length corrector: each iteration a new speed); None where the
+        engine has no compiled table or its grid nodes there are not computed yet (then the
+        Python path computes them, and the table is read again next time)."""
+        args = self._engine_kernel_args()
+        if args is None:
+            return None
+        fd, table, statics, modal = args
+        st, r, J, rs = continuation_kernels.residual_jacobians_at(
+            np.ascontiguousarray(x, dtype=float), s, fd, table, statics, modal, self._aft_mats,
+            self._spring_arrays)
+        if st == linear_kernels.ENGINE_OK:
+            return r, J, rs
+        if st == linear_kernels.ENGINE_NOT_READY:
+            self.__dict__.pop('_kernel_engine', None)
+        return None                     # outside the data: the Python path raises as usual
+
+    def corrector_arc(self, y_pred: np.ndarray, normal: np.ndarray, xs: float, ss: float,
+                      tol: float, max_iter: int):
+        """The continuation corrector of a pseudo-arc-length step, compiled
+        (:func:`continuation_kernels.corrector_arclength`: continuation.correct with the normal
+        ``normal``, the linear parts of each iterate's speed in the same call). Returns (y,
+        iterations, max|r|, (r, dr/dx, dr/ds)); raises CorrectorFailed when it does not
+        converge and OperatingRangeError when an iterate's speed lies outside the engine data;
+        None when the reference corrector is to be used (``compiled`` off, or an engine without
+        a compiled table)."""
+        if not self.compiled:
+            return None
+        n1 = len(y_pred)
+        y_pred = np.ascontiguousarray(y_pred, dtype=float)
+        normal = np.ascontiguousarray(normal, dtype=float)
+        while True:
+            args = self._engine_kernel_args()
+            if args is None:
+                return None
+            fd, table, statics, modal = args
+            y = np.empty(n1)
+            r = np.empty(n1 - 1)
+            Jx = np.empty((n1 - 1, n1 - 1))
+            rs = np.empty(n1 - 1)
+            status, it, res, est = continuation_kernels.corrector_arclength(
+                y_pred, normal, float(xs), float(ss), float(tol), int(max_iter), fd, table,
+                statics, modal, self._aft_mats, self._spring_arrays, y, r, Jx, rs)
+            if status == kernels.CONVERGED:
+                return y, it, res, (r, Jx, rs)
+            if status != kernels.ENGINE_FAILED:
+                raise CorrectorFailed(f'corrector: max|r| = {res:.2e} after {max_iter} '
+                                      'iterations')
+            # the speed of the failing iterate: its linear parts in Python raise the engine's
+            # own error outside the data, or compute the grid nodes not computed yet (then the
+            # kernel runs again with the table read anew)
+            s = float(y[n1 - 1] * ss)
+            self.__dict__.pop('_kernel_engine', None)
+            self._linear_parts_one(s)
+            if est != linear_kernels.ENGINE_NOT_READY:  # outside, though Python found it inside
+                return None
+
+    def corrector_at(self, y_pred: np.ndarray, xs: float, ss: float, tol: float, max_iter: int):
+        """The continuation corrector of a step landing on a grid speed, compiled
+        (continuation.correct with the normal e_S; scaled unknowns y = [x / xs, s / ss]).
+        Returns (y, iterations, max|r|, (r, dr/dx, dr/ds)); raises CorrectorFailed when it does
+        not converge; None when the reference corrector is to be used (``compiled`` off)."""
+        if not self.compiled:
+            return None
+        n = len(y_pred) - 1
+        lp = self.linear_parts(float(y_pred[n] * ss))
+        y = np.empty(n)
+        r = np.empty(n)
+        Jx = np.empty((n, n))
+        rs = np.empty(n)
+        status, it, res = continuation_kernels.corrector_fixed_speed(
+            np.ascontiguousarray(y_pred[:n]), float(xs), lp.lin, lp.dlin, self._aft_mats,
+            self._spring_arrays, float(tol), int(max_iter), y, r, Jx, rs)
+        if status != kernels.CONVERGED:
+            raise CorrectorFailed(f'corrector: max|r| = {res:.2e} after {max_iter} iterations')
+        return np.concatenate([y, y_pred[n:]]), it, res, (r, Jx, rs)
+
+    def step_at(self, y_pred: np.ndarray, prev: np.ndarray, xs: float, ss: float, tol: float,
+                max_iter: int):
+        """A continuation step landing on a grid speed in one compiled call
+        (:func:`continuation_kernels.step_fixed_speed`): :meth:`corrector_at`, then
+        :meth:`tangent` at the corrected point oriented along ``prev``. Returns (y, iterations,
+        max|r|, t), t None on a singular tangent system (``continuation.correct_step``); raises
+        CorrectorFailed when the corrector does not converge; None when the reference is to be
+        used (``compiled`` off)."""
+        if not self.compiled:
+            return None
+        n = len(y_pred) - 1
+        lp = self.linear_parts(float(y_pred[n] * ss))
+        y = np.empty(n + 1)
+        t = np.empty(n + 1)
+        r = np.empty(n)
+        Jx = np.empty((n, n))
+        rs = np.empty(n)
+        status, it, res = continuation_kernels.step_fixed_speed(
+            y_pred, prev, float(xs), float(ss), lp.lin, lp.dlin, self._aft_mats,
+            self._spring_arrays, float(tol), int(max_iter), y, t, r, Jx, rs)
+        if status == continuation_kernels.TANGENT_SINGULAR:
+            return y, it, res, None
+        if status != kernels.CONVERGED:
+            raise CorrectorFailed(f'corrector: max|r| = {res:.2e} after {max_iter} iterations')
+        return y, it, res, t
+
+    def tangent(self, Jx: np.ndarray, rs: np.ndarray, prev: np.ndarray, xs: float, ss: float
+                ) -> np.ndarray | None:
+        """The continuation's unit tangent at a point with Jacobians (Jx, rs), oriented along
+        ``prev``, compiled (:func:`continuation_kernels.tangent`; reference
+        ``continuation._tangent``). Raises numpy's LinAlgError on a singular system, as the
+        reference; None when the reference is to be used (``compiled`` off)."""
+        if not self.compiled:
+            return None
+        t = np.empty(len(prev))
+        if not continuation_kernels.tangent(np.ascontiguousarray(Jx, dtype=float),
+                               np.ascontiguousarray(rs, dtype=float),
+                               np.ascontiguousarray(prev, dtype=float), float(xs), float(ss), t):
+            raise np.linalg.LinAlgError('singular matrix')
+        return t
