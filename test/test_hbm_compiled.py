@@ -45,6 +45,16 @@ def staged():
 CASES = ['paper', 'staged']
 
 
+@pytest.fixture(scope='module')
+def staged_d13(staged):
+    """The staged spring driven by the default engine (a compiled engine table, as the grid
+    runs need)."""
+    loads, _ = staged
+    eng = load_engine('engine_d13', load_set='A')
+    eng.warm()
+    return DrivelineLoads(loads.model, eng), 1000.0
+
+
 def both(loads):
     return (CondensedHBM(loads, 1.0), CondensedHBM(loads, 1.0, HBMOptions(compiled=False)))
 
@@ -278,6 +288,83 @@ def test_grid_step_in_one_call_is_corrector_then_tangent(case, request):
         hb.step_at(np.concatenate([x * 40.0 / xs, [speed / ss]]), prev, xs, ss, 1e-10, 2)
 
 
+def _branch(hb, x0, s0, bounds, options, grid_run, fast_forward=None):
+    """continue_branch on hb with ``grid_run`` as its grid runs (None: every step taken by the
+    Python loop); (points, why the branch ended)."""
+    hb.grid_run = grid_run                  # getattr(problem, 'grid_run') finds this
+    ended = []
+    try:
+        pts = continuation.continue_branch(hb, x0, s0, bounds, 1.0, options,
+                                           fast_forward=fast_forward,
+                                           on_end=lambda why, p: ended.append(why))
+    finally:
+        del hb.grid_run
+    return pts, ended[0]
+
+
+GRID_RUN_OPTIONS = {
+    'default': {},
+    'retries': {'max_turn': 0.05, 'step_max': 0.6},     # rejected grid steps: the loop retries
+    'few steps': {'max_steps': 25},                      # the run stops at the step budget
+}
+
+
+@pytest.mark.parametrize('case', ['paper', 'staged_d13'])
+@pytest.mark.parametrize('variant', list(GRID_RUN_OPTIONS))
+def test_grid_runs_are_the_loops_grid_steps(case, variant, request):
+    """continue_branch with the problem's compiled grid runs (ContinuationSteps.grid_run) gives
+    bitwise the points of the Python loop taking every step itself: x, speed, tangent,
+    iterations, residual, on-grid flag, and the same end; across the knee (grid steps, a turning
+    region's arc-length steps), with rejected grid steps retried by the loop and with a step
+    budget the run stops at."""
+    loads, speed = request.getfixturevalue(case)
+    hb = CondensedHBM(loads, 1.0)
+    o = continuation.ContinuationOptions(**{'grid': 10.0, 's_scale': 10.0,
+                                            **GRID_RUN_OPTIONS[variant]})
+    lo, hi = speed - 350.0, speed + 250.0           # from below the knee (a linear start)
+    x0 = hb.solve(lo).x
+    made = []
+
+    def run(*args):
+        out = hb.__class__.grid_run(hb, *args)
+        made.append(len(out[1]))
+        return out
+
+    a, why_a = _branch(hb, x0, lo, (lo, hi), o, run)
+    b, why_b = _branch(hb, x0, lo, (lo, hi), o, None)
+    assert sum(made) >= 5 and why_a == why_b and len(a) == len(b) > 3
+    assert (why_a == "max_steps") == (variant == "few steps")
+    for p, q in zip(a, b):
+        assert p.s == q.s and np.array_equal(p.x, q.x) and np.array_equal(p.tangent, q.tangent)
+        assert (p.iterations, p.residual, p.on_grid) == (q.iterations, q.residual, q.on_grid)
+
+
+def test_grid_run_stops_where_the_fast_forward_may_apply(paper):
+    """With a fast-forward, a grid run returns at every on-grid point whose AFT samples reach no
+    knee and the loop asks the fast-forward there, as it does without runs; the run's own grid
+    steps ask it nothing (at their points the harmonics are not zero: it would return no
+    points), and the points are the loop's own."""
+    loads, _ = paper
+    hb = CondensedHBM(loads, 1.0)
+    o = continuation.ContinuationOptions(grid=10.0, s_scale=10.0)
+    lo, hi = 850.0, 1400.0
+    x0 = hb.solve(lo).x
+    asked = {True: [], False: []}
+
+    def ff(grid_run):
+        def fast_forward(cp, sign):
+            asked[grid_run].append((cp.s, not hb.nonlinear_harmonics(cp.x).any()))
+            return []
+        return fast_forward
+
+    a, _ = _branch(hb, x0, lo, (lo, hi), o, hb.__class__.grid_run.__get__(hb), ff(True))
+    b, _ = _branch(hb, x0, lo, (lo, hi), o, None, ff(False))
+    assert len(a) == len(b) and all(np.array_equal(p.x, q.x) for p, q in zip(a, b))
+    linear = [[s for s, lin in asked[k] if lin] for k in (True, False)]
+    assert linear[0] and linear[0] == linear[1]              # asked at every linear point
+    assert len(asked[True]) < len(asked[False]) - 10         # the runs' steps ask nothing
+
+
 def test_grid_corrector_failure_raises_corrector_failed(paper):
     loads, _ = paper
     hb, _ = both(loads)
@@ -431,7 +518,8 @@ def test_warm_up_compiles_what_a_sweep_calls(paper):
     fs = [kernels.residual_jacobian_py, kernels.harmonics_py, kernels.newton,
           kernels.deflated_newton, kernels.deflated_newton_first,
           continuation_kernels.corrector_fixed_speed, continuation_kernels.step_fixed_speed,
-          linear_kernels.modal_sums, linear_kernels.linear_parts_many_at,
+          continuation_kernels.grid_run, linear_kernels.modal_sums,
+          linear_kernels.linear_parts_many_at,
           stability_kernel.floquet, stability_kernel.floquet_many]
     before = [len(f.signatures) for f in fs]
     assert all(n >= 1 for n in before)

@@ -289,6 +289,11 @@ def continue_branch(problem: ContinuationProblem, x0: np.ndarray, s0: float,
     further grid points (in the direction ``sign`` of s) whose solutions it knows without
     iterating (the HBM: stretches where the wind-up never reaches a knee, so the response is the
     linear one); the last one must carry the exact tangent.
+    A problem with ``grid_run`` (the condensed HBM: ``ContinuationSteps.grid_run``) takes a grid
+    step the loop has chosen and the grid steps after it in one call, each as the loop takes it,
+    and returns before any other step: at every on-grid point where its non-linear torque
+    harmonics are all zero (``fast_forward`` must return no points where they are not, as the
+    sweep's does), before an arc-length step and before a step it would not accept as it stands.
     ``on_end(reason, last_point)`` is told why the branch ended: 'bound' (s reached a bound),
     'stop', 'closed' (the branch came back onto its own earlier part: see
     ``ContinuationOptions.loop_skip``), 'left_range' (the corrector needed parameters outside
@@ -320,9 +325,10 @@ def continue_branch(problem: ContinuationProblem, x0: np.ndarray, s0: float,
     done = False
     reason = 'max_steps'
     last_failure: CorrectorFailed | None = None
-    for _ in range(o.max_steps):
-        if done:
-            break
+    run = getattr(problem, 'grid_run', None) if o.grid is not None else None
+    steps = 0
+    while steps < o.max_steps and not done:
+        steps += 1
         s = pts[-1].s
         if (fast_forward is not None and pts[-1].on_grid and not force_arc
                 and abs(t[n]) >= o.grid_mode_min_ts):
@@ -331,14 +337,8 @@ def continue_branch(problem: ContinuationProblem, x0: np.ndarray, s0: float,
                 pts.append(p)
                 if on_point:
                     on_point(p)
-                if p.s >= hi - 1e-9 or p.s <= lo + 1e-9:
-                    done, reason = True, 'bound'
-                    break
-                if stop is not None and stop(p, pts):
-                    done, reason = True, 'stop'
-                    break
-                if closes(p):
-                    done, reason = True, 'closed'
+                done, reason = _ends(p, pts, lo, hi, stop, closes, reason)
+                if done:
                     break
             if jump:
                 y = np.concatenate([pts[-1].x / xs, [pts[-1].s / ss]])
@@ -351,6 +351,25 @@ def continue_branch(problem: ContinuationProblem, x0: np.ndarray, s0: float,
             target = min(max(target, lo), hi)
             h_grid = (target - s) / ss / t[n]
             grid_mode = 0.0 < h_grid <= min(1.5 * o.step_max, 2.0 * h)
+        if grid_mode and run is not None:
+            # this grid step and those after it in one call, each as this loop takes it; the
+            # call returns before any other step (none made: the loop takes this one itself)
+            ran = run(pts[-1], y, t, h, s_bounds, o, fast_forward is not None,
+                      o.max_steps - steps + 1)
+            if ran is not None and len(ran[1]):
+                X, S, T, IT, RES, ONG, y, t, h, _ = ran
+                steps -= 1
+                for k in range(len(S)):
+                    steps += 1
+                    p = ContinuationPoint(X[k], float(S[k]), T[k], int(IT[k]), float(RES[k]),
+                                          bool(ONG[k]))
+                    pts.append(p)
+                    if on_point:
+                        on_point(p)
+                    done, reason = _ends(p, pts, lo, hi, stop, closes, reason)
+                    if done:
+                        break
+                continue
         if grid_mode:
             y_pred = y + h_grid * t
             y_pred[n] = target / ss
@@ -408,18 +427,23 @@ def continue_branch(problem: ContinuationProblem, x0: np.ndarray, s0: float,
             h = min(h * 1.5, o.step_max)
         elif it > o.easy_iter + 3:
             h = max(h * 0.6, o.step_min)
-        if s_new >= hi - 1e-9 or s_new <= lo + 1e-9:
-            reason = 'bound'
-            break
-        if stop is not None and stop(p, pts):
-            reason = 'stop'
-            break
-        if closes(p):
-            reason = 'closed'
-            break
+        done, reason = _ends(p, pts, lo, hi, stop, closes, reason)
     if on_end is not None:
         on_end(reason, pts[-1])
     return pts
+
+
+def _ends(p: ContinuationPoint, pts: list[ContinuationPoint], lo: float, hi: float, stop,
+          closes: _LoopDetector, reason: str) -> tuple[bool, str]:
+    """Whether the branch ends at its new point p, and why: 'bound' (p on a bound of the
+    range), 'stop' (``stop(p, pts)``) or 'closed' (the loop detector); else (False, reason)."""
+    if p.s >= hi - 1e-9 or p.s <= lo + 1e-9:
+        return True, 'bound'
+    if stop is not None and stop(p, pts):
+        return True, 'stop'
+    if closes(p):
+        return True, 'closed'
+    return False, reason
 
 
 def _jump(problem, y, t, xs, ss, o: ContinuationOptions):

@@ -13,6 +13,9 @@ the residual and Jacobian of :mod:`dmf_sim.solvers.hbm.kernels`.
   (engine query included) computed in the same call.
 * :func:`corrector_arclength` — the pseudo-arc-length corrector, every iterate at a new speed.
   Reference: ``continuation.correct`` with any other normal.
+* :func:`grid_run` — consecutive grid steps of ``continuation.continue_branch`` in one call,
+  with its step control, until a step it does not take the same way (reference: the loop of
+  ``continue_branch`` itself).
 
 Packed arguments and status codes are those of :mod:`dmf_sim.solvers.hbm.kernels`, plus
 :data:`TANGENT_SINGULAR`.
@@ -31,13 +34,15 @@ from dmf_sim.solvers.hbm.kernels import (
     MAX_ITER,
     NOT_FINITE,
     SINGULAR,
+    aft,
     residual_jacobian,
     speed_derivative,
 )
 from dmf_sim.solvers.hbm.linear_kernels import ENGINE_OK, linear_parts_at
 
 __all__ = ['TANGENT_SINGULAR', 'tangent', 'add_step', 'corrector_fixed_speed',
-           'step_fixed_speed', 'residual_jacobians_at', 'corrector_arclength']
+           'step_fixed_speed', 'residual_jacobians_at', 'corrector_arclength', 'grid_run',
+           'RUN_LINEAR', 'RUN_NOT_GRID', 'RUN_RETRY', 'RUN_BOUND', 'RUN_BUDGET', 'RUN_OPTIONS']
 
 # ------------------------------------------------------------------------------------------------
 # Continuation tangent
@@ -251,6 +256,142 @@ def step_fixed_speed(y_pred, prev, xs, ss, lin, dlin, aft_mats, spring, tol, max
     return status, it, res
 
 
+# ------------------------------------------------------------------------------------------------
+# Consecutive grid steps in one call
+# ------------------------------------------------------------------------------------------------
+
+# why grid_run returned (the continuation takes the next step itself, as it would have)
+RUN_LINEAR = 1     # an on-grid point whose AFT samples reach no knee: the fast-forward may apply
+RUN_NOT_GRID = 2   # the next step is not a grid step (|dS/da| small, or the grid speed too far)
+RUN_RETRY = 3      # a step not accepted as it stands (the corrector failed or moved too far,
+#                    the tangent turned too much or is singular, the engine data not at hand)
+RUN_BOUND = 4      # the last point lies on a bound of the speed range
+RUN_BUDGET = 5     # as many steps as allowed
+
+RUN_OPTIONS = ('s_scale', 'x_scale', 'step_min', 'step_max', 'grid', 'grid_mode_min_ts',
+               'max_correction', 'max_turn', 'tol')
+"""The ``ContinuationOptions`` fields in grid_run's float array ``opts``, in this order."""
+
+
+def on_grid(s, grid):
+    """Whether s lies on the grid (``continuation._on_grid``)."""
+    k = round(s / grid)
+    return abs(s - k * grid) < 1e-7 * max(1.0, abs(s))
+
+
+def next_grid(s, sign, grid):
+    """The next grid speed beyond s in the direction ``sign`` (``continuation._next_grid``)."""
+    k = s / grid
+    if sign > 0:
+        nxt = math.floor(k + 1e-7) + 1
+    else:
+        nxt = math.ceil(k - 1e-7) - 1
+    return nxt * grid
+
+
+def grid_run(x0, s0, grid0, y, t, h, lo, hi, opts, max_iter, easy_iter, check_linear, budget,
+             fd, table, statics, modal, aft_mats, spring, X, S, T, IT, RES, ONG):
+    """Grid steps of ``continuation.continue_branch`` one after the other, as its loop takes them
+    (reference: that loop, the step in grid mode and its step control), from the last point
+    (x0, s0 [rpm], ``grid0`` whether s0 is on the grid) with scaled unknowns y, unit tangent t
+    and arc step h, the speed range [lo, hi] [rpm]; the first step is one the loop has chosen
+    (its fast-forward asked already). ``opts``: the floats of
+    :data:`RUN_OPTIONS`; ``max_iter``, ``easy_iter`` the corrector's. Each step predicts the
+    next grid speed along t, corrects there (:func:`step_fixed_speed`, the linear parts by
+    :func:`linear_parts_at`) and is accepted by the loop's tests (corrector displacement, turn
+    of the tangent); then h grows after an easy step and shrinks after a hard one.
+
+    Stops before any step the loop would take otherwise, leaving it to the loop: at an on-grid
+    point whose non-linear torque harmonics are all zero when ``check_linear`` (there the
+    fast-forward may apply), where the next step is not a grid step, and where a step is not
+    accepted as it stands (the loop retries it its way). Stops after a point on a bound and
+    after ``budget`` steps. Writes the points into rows of X (x [rad]), S (s [rpm]), T (unit
+    tangent), IT (iterations), RES (max|r|), ONG (on the grid), and the last state into y, t;
+    returns (points, h, why: a ``RUN_*`` code)."""
+    ss, xs, step_min, step_max, grid, min_ts, max_corr, max_turn, tol = opts
+    n = y.shape[0] - 1
+    H = (n - 1) // 2
+    A = np.empty((1, H + 1), dtype=np.complex128)
+    A2 = np.empty((1, H + 1), dtype=np.complex128)
+    dA = np.empty((1, H + 1), dtype=np.complex128)
+    hh = np.empty((1, H + 1), dtype=np.complex128)
+    dh = np.empty((1, H + 1), dtype=np.complex128)
+    wlin = np.empty((1, H + 1), dtype=np.complex128)
+    dw = np.empty((1, H + 1), dtype=np.complex128)
+    wr = np.empty((1, n))
+    dwr = np.empty((1, n))
+    G = np.empty(n)
+    dG = np.empty((1, 1))
+    y_pred = np.empty(n + 1)
+    y_new = np.empty(n + 1)
+    t_new = np.empty(n + 1)
+    moved = np.empty(n + 1)
+    r = np.empty(n)
+    J = np.empty((n, n))
+    rs = np.empty(n)
+    x = x0
+    s = s0
+    ongrid = grid0
+    count = 0
+    while count < budget:
+        tn = t[n]
+        if check_linear and count > 0 and ongrid and abs(tn) >= min_ts:
+            aft(x, aft_mats, spring, G, dG, False)
+            linear = True
+            for i in range(n):
+                if G[i] != 0.0:
+                    linear = False
+                    break
+            if linear:
+                return count, h, RUN_LINEAR
+        if not abs(tn) >= min_ts:
+            return count, h, RUN_NOT_GRID
+        target = next_grid(s, 1.0 if tn > 0 else -1.0, grid)
+        target = min(max(target, lo), hi)
+        h_grid = (target - s) / ss / tn
+        if not 0.0 < h_grid <= min(1.5 * step_max, 2.0 * h):
+            return count, h, RUN_NOT_GRID
+        for i in range(n + 1):
+            y_pred[i] = y[i] + h_grid * t[i]
+        y_pred[n] = target / ss
+        if linear_parts_at(y_pred[n] * ss, fd, table, statics, modal, A, A2, dA, hh, dh, wlin,
+                           dw, wr, dwr) != ENGINE_OK:
+            return count, h, RUN_RETRY
+        status, it, res = step_fixed_speed(y_pred, t, xs, ss, (wr[0], hh[0]), (dwr[0], dh[0]),
+                                           aft_mats, spring, tol, max_iter, y_new, t_new, r, J,
+                                           rs)
+        if status != CONVERGED:
+            return count, h, RUN_RETRY
+        for i in range(n + 1):
+            moved[i] = y_new[i] - y_pred[i]
+        if math.sqrt(np.dot(moved, moved)) > max_corr * max(abs(h_grid), step_min):
+            return count, h, RUN_RETRY
+        if math.acos(min(max(np.dot(t_new, t), -1.0), 1.0)) > max_turn:
+            return count, h, RUN_RETRY
+        for i in range(n + 1):
+            y[i] = y_new[i]
+            t[i] = t_new[i]
+        s = y[n] * ss
+        for i in range(n):
+            X[count, i] = y[i] * xs
+        for i in range(n + 1):
+            T[count, i] = t[i]
+        S[count] = s
+        IT[count] = it
+        RES[count] = res
+        ongrid = on_grid(s, grid)
+        ONG[count] = ongrid
+        x = X[count]
+        count += 1
+        if it <= easy_iter:
+            h = min(h * 1.5, step_max)
+        elif it > easy_iter + 3:
+            h = max(h * 0.6, step_min)
+        if s >= hi - 1e-9 or s <= lo + 1e-9:
+            return count, h, RUN_BOUND
+    return count, h, RUN_BUDGET
+
+
 tangent = jit(tangent)
 add_step = jit(add_step)
 corrector_fixed_speed = jit(corrector_fixed_speed)
@@ -258,3 +399,6 @@ residual_jacobians_at = jit(residual_jacobians_at)
 _evaluate_scaled = jit(_evaluate_scaled)
 corrector_arclength = jit(corrector_arclength)
 step_fixed_speed = jit(step_fixed_speed)
+on_grid = jit(on_grid)
+next_grid = jit(next_grid)
+grid_run = jit(grid_run)

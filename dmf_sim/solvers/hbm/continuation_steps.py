@@ -138,6 +138,47 @@ class ContinuationSteps:
             raise CorrectorFailed(f'corrector: max|r| = {res:.2e} after {max_iter} iterations')
         return y, it, res, t
 
+    def grid_run(self, last, y: np.ndarray, t: np.ndarray, h: float, s_bounds: tuple[float, float],
+                 options, check_linear: bool, budget: int):
+        """The grid step ``continuation.continue_branch`` has chosen from its last point ``last``
+        (a ContinuationPoint; y, t, h the loop's scaled unknowns, unit tangent and arc step
+        there) and the grid steps after it, in one compiled call
+        (:func:`continuation_kernels.grid_run`: the loop's own steps and step control, until a
+        step it leaves to the loop). With ``check_linear`` it stops at every later on-grid
+        point whose non-linear torque harmonics are all zero (where the sweep's fast-forward
+        may apply). Returns (X, S, T, IT, RES, ONG, y, t, h, why): the new points'
+        rows (x [rad], s [rpm], unit tangent, iterations, max|r|, on the grid), the last state
+        and a ``RUN_*`` code; None where the loop is to take every step itself (``compiled``
+        off, an engine without a compiled table, or no steps allowed)."""
+        if not self.compiled or budget < 1:
+            return None
+        args = self._engine_kernel_args()
+        if args is None:
+            return None
+        fd, table, statics, modal = args
+        n1 = len(y)
+        size = min(budget, self._run_rows(s_bounds, options.grid))
+        X = np.empty((size, n1 - 1))
+        S = np.empty(size)
+        T = np.empty((size, n1))
+        IT = np.empty(size, dtype=np.int64)
+        RES = np.empty(size)
+        ONG = np.empty(size, dtype=np.bool_)
+        y = np.array(y, dtype=float)
+        t = np.array(t, dtype=float)
+        opts = np.array([float(getattr(options, f)) for f in continuation_kernels.RUN_OPTIONS])
+        k, h, why = continuation_kernels.grid_run(
+            np.ascontiguousarray(last.x, dtype=float), float(last.s), bool(last.on_grid), y, t,
+            float(h), float(s_bounds[0]), float(s_bounds[1]), opts, int(options.max_iter),
+            int(options.easy_iter), bool(check_linear), size, fd, table, statics, modal,
+            self._aft_mats, self._spring_arrays, X, S, T, IT, RES, ONG)
+        return X[:k], S[:k], T[:k], IT[:k], RES[:k], ONG[:k], y, t, h, why
+
+    @staticmethod
+    def _run_rows(s_bounds: tuple[float, float], grid: float) -> int:
+        """Rows for one grid run: every grid speed of the range once, plus one."""
+        return int((s_bounds[1] - s_bounds[0]) / grid) + 2
+
     def tangent(self, Jx: np.ndarray, rs: np.ndarray, prev: np.ndarray, xs: float, ss: float
                 ) -> np.ndarray | None:
         """The continuation's unit tangent at a point with Jacobians (Jx, rs), oriented along

@@ -11,8 +11,10 @@ import numpy as np
 from dmf_sim.physics.spring import PiecewiseLinearSpring
 from dmf_sim.solvers import stability_kernel
 from dmf_sim.solvers.hbm.continuation_kernels import (
+    RUN_OPTIONS,
     corrector_arclength,
     corrector_fixed_speed,
+    grid_run,
     residual_jacobians_at,
     step_fixed_speed,
     tangent,
@@ -98,6 +100,10 @@ def warm_up() -> float:
     corrector_arclength(y1, y1.copy(), 1.0, 1.0, 1e-10, 2, 0.05, table, statics, modal,
                         aft_mats, spring, np.empty(n + 1), np.empty(n), np.empty((n, n)),
                         np.empty(n))
+    opts = np.ones(len(RUN_OPTIONS))
+    grid_run(x0, 1.0, True, y1, t1, 1.0, 0.0, 2.0, opts, 3, 3, True, 1, 0.05, table, statics,
+             modal, aft_mats, spring, np.empty((1, n)), np.empty(1), np.empty((1, n + 1)),
+             np.empty(1, dtype=np.int64), np.empty(1), np.empty(1, dtype=np.bool_))
     ns = 2
     W = np.zeros((2, 2, ns, ns))
     W[:, :] = np.eye(ns)
