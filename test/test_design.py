@@ -20,7 +20,7 @@ from dmf_sim.core.errors import ConfigError
 from dmf_sim.design import load_study, run_study
 from dmf_sim.design.evaluate import StudyContext, evaluate_design
 from dmf_sim.design.metrics import first_max
-from dmf_sim.design.runner import connect, local_cluster
+from dmf_sim.design.runner import DEFAULT_BATCH_SIZE, batch_sizes, connect, local_cluster
 from dmf_sim.design.states import speed_grid
 from dmf_sim.physics.loads import DrivelineLoads
 from dmf_sim.physics.orders import ORDER_3
@@ -138,6 +138,18 @@ def _direct(study, alpha, theta, cond) -> dict:
         out['max_dmf_torque'] = max(out['max_dmf_torque'],
                                     float(np.abs(line.spring.torque(ext)).max()))
     return out
+
+
+@pytest.mark.parametrize('n, workers', [(100, 2), (300, 2), (100, 1), (7, 2), (1, 1)])
+def test_default_batches_shrink_towards_the_end(n, workers):
+    """Guided batch sizes: every design once, full batches while much is left, never growing,
+    ending with single designs (so the workers finish together); a given size is kept."""
+    sizes = batch_sizes(n, workers)
+    assert sum(sizes) == n and max(sizes) <= DEFAULT_BATCH_SIZE
+    assert all(a >= b for a, b in zip(sizes, sizes[1:])) and sizes[-1] == 1
+    if n >= 100:
+        assert sizes[0] == DEFAULT_BATCH_SIZE and len(sizes) < n / 3
+    assert batch_sizes(n, workers, 4) == [4] * (n // 4) + ([n % 4] if n % 4 else [])
 
 
 def test_study_on_a_local_cluster_equals_direct_sweeps(full_run, study):

@@ -41,7 +41,7 @@ __all__ = ['LOOPBACK', 'CONNECT_TIMEOUT_S', 'WORKER_WATCH_INTERVAL_S', 'DEFAULT_
            'BATCHES_PER_WORKER', 'WORKER_PROFILER', 'WORKER_THREADS', 'QUIET_CLUSTER',
            'StudyPlugin', 'limit_threads', 'WorkerWatch',
            'available_cores', 'local_cluster', 'start_local', 'close_local', 'close_run',
-           'connect', 'wait_for_workers', 'batch_size_for', 'run_study']
+           'connect', 'wait_for_workers', 'batch_size_for', 'batch_sizes', 'run_study']
 
 LOOPBACK = '127.0.0.1'
 CONNECT_TIMEOUT_S = 5.0
@@ -244,6 +244,24 @@ def batch_size_for(n_designs: int, n_workers: int, batch_size: int | None = None
     return max(1, min(DEFAULT_BATCH_SIZE, per))
 
 
+def batch_sizes(n_designs: int, n_workers: int, batch_size: int | None = None) -> list[int]:
+    """The sizes of a run's batches, in the order they are submitted (their sum is
+    ``n_designs``). A given ``batch_size``: batches of that size, the last one the rest. By
+    default the sizes are guided: each batch carries the designs left divided by
+    BATCHES_PER_WORKER x workers (at least 1, at most DEFAULT_BATCH_SIZE), so the batches are
+    full while much is left and shrink towards the end, and the workers finish together
+    instead of one waiting while another computes a last full batch."""
+    if batch_size is not None:
+        size = batch_size_for(n_designs, n_workers, batch_size)
+        return [min(size, n_designs - k) for k in range(0, n_designs, size)]
+    sizes, left = [], n_designs
+    while left > 0:
+        size = batch_size_for(left, n_workers)
+        sizes.append(size)
+        left -= size
+    return sizes
+
+
 def run_study(study, client=None, *, out=None, resume: bool = False, workers: int | None = None,
               batch_size: int | None = None, progress: bool = False,
               on_batch=None, on_worker_event: Callable[[str], None] | None = None
@@ -255,7 +273,7 @@ def run_study(study, client=None, *, out=None, resume: bool = False, workers: in
             (default one per core) on 127.0.0.1 for this call.
         out: directory for the incremental store and the final table (None: in memory only).
         resume: continue the study stored in ``out`` (finished designs are not recomputed).
-        batch_size: designs per Dask task (default :func:`batch_size_for`).
+        batch_size: designs per Dask task (default: :func:`batch_sizes`, guided).
         progress: tqdm progress bar with ETA on stderr.
         on_batch: called as ``on_batch(n_done, n_total)`` after each stored batch.
         on_worker_event: called with one line per worker lost, joined or restarted while the
@@ -279,12 +297,14 @@ def run_study(study, client=None, *, out=None, resume: bool = False, workers: in
             if own:
                 cluster, client = start_local(workers)
             n_workers = wait_for_workers(client)
-            size = batch_size_for(len(todo), n_workers, batch_size)
+            size = batch_size_for(len(todo), n_workers, batch_size)     # the largest batch
             if on_worker_event is None:
-                run.compute(client, todo, size, _bar(progress, len(designs), len(done)))
+                run.compute(client, todo, n_workers, batch_size,
+                            _bar(progress, len(designs), len(done)))
             else:
                 with WorkerWatch(client, on_worker_event):
-                    run.compute(client, todo, size, _bar(progress, len(designs), len(done)))
+                    run.compute(client, todo, n_workers, batch_size,
+                                _bar(progress, len(designs), len(done)))
         rows = (store.rows if store else []) + run.rows
         result = StudyResult.from_rows(study, rows, n_computed=_n_designs(run.rows),
                                        seconds=time.perf_counter() - t0, workers=n_workers,
@@ -304,7 +324,9 @@ class _Run:
         self.rows: list[dict] = []
         self.loads: dict[int, int] = {}        # worker pid -> contexts installed there
 
-    def compute(self, client, todo: list[int], size: int, bar) -> None:
+    def compute(self, client, todo: list[int], n_workers: int, size: int | None, bar) -> None:
+        """Submit ``todo`` (design indices) in batches (:func:`batch_sizes` on ``n_workers``
+        and the given batch ``size``, None for the default) and collect their rows."""
         if not todo:
             return
         from distributed import as_completed
@@ -313,8 +335,10 @@ class _Run:
         futures = {}
         n_total, n_before = len(self.designs), len(self.designs) - len(todo)
         try:
-            for k in range(0, len(todo), size):
-                ids = todo[k:k + size]
+            k = 0
+            for n in batch_sizes(len(todo), n_workers, size):
+                ids = todo[k:k + n]
+                k += n
                 items = [(i, self.designs[i].tolist()) for i in ids]
                 task = f'dmf-design-{ids[0]}-{uuid.uuid4().hex[:8]}'
                 futures[client.submit(evaluate_batch, key, items, key=task, pure=False)] = ids
