@@ -50,6 +50,8 @@ def main(argv=None) -> int:
     p.add_argument('--quick', action='store_true',
                    help='small run (900-1100 rpm, Newmark on 3 points) for tests')
     args = p.parse_args(argv)
+    if args.repeat < 1:
+        p.error(f'--repeat {args.repeat}: must be an integer >= 1')
     if args.quick:
         args.speeds = [900.0, 1100.0, 10.0]
         args.newmark_every = 10
@@ -78,7 +80,7 @@ def main(argv=None) -> int:
     # the sweeps and the Newmark runs interleaved: after each repetition's two sweeps, the next
     # share of the Newmark speeds, so both sample the same spells of a shared machine
     subset = grid[::max(args.newmark_every, 1)]
-    repeat = max(args.repeat, 1)
+    repeat = args.repeat
     shares = np.array_split(np.arange(len(subset)), repeat)
     times = {'fast': [], 'full': []}
     nm_results, nm_times = [None] * len(subset), [0.0] * len(subset)

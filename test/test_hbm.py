@@ -299,6 +299,14 @@ def test_benchmark_quick():
     assert data['max_rel_diff'] < 0.01
 
 
+def test_benchmark_refuses_a_repeat_below_one():
+    """bench_hbm --repeat 0: one line naming the option and its range, exit 2, no traceback."""
+    out = subprocess.run([sys.executable, str(REPO / 'benchmarks' / 'bench_hbm.py'), '--repeat',
+                          '0'], capture_output=True, text=True, timeout=60, cwd=REPO)
+    assert out.returncode == 2 and 'Traceback' not in out.stderr
+    assert '--repeat 0: must be an integer >= 1' in out.stderr.strip().splitlines()[-1]
+
+
 def test_fit_harmonics_truncates_pads_and_keeps():
     """Engine and load harmonics n = 0..N are fitted to the HBM's n = 0..H along their harmonic
     axis: the first H+1 kept, missing ones zero, the array itself when N = H."""
