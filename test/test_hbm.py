@@ -307,6 +307,27 @@ def test_benchmark_refuses_a_repeat_below_one():
     assert '--repeat 0: must be an integer >= 1' in out.stderr.strip().splitlines()[-1]
 
 
+def test_pairs_benchmark_quick():
+    """bench_pairs --quick against this same tree: two warm workers, three alternating pairs of
+    sweeps, the same points on both sides and a per-pair ratio near 1 (the same code; the
+    bound is loose: single sweeps on a shared machine)."""
+    out = subprocess.run([sys.executable, str(REPO / 'benchmarks' / 'bench_pairs.py'), '--quick',
+                          '--base', str(REPO)], capture_output=True, text=True, timeout=300,
+                         cwd=REPO)
+    assert out.returncode == 0, out.stderr
+    data = json.loads(out.stdout.strip().splitlines()[-1])
+    assert data['pairs'] == 3 and data['points_this']
+    assert data['points_base'] == data['points_this']
+    assert 1 / 3 < data['ratio_median'] < 3 and data['base_ms_min'] > 0
+
+
+def test_pairs_benchmark_refuses_a_base_without_the_package(tmp_path):
+    out = subprocess.run([sys.executable, str(REPO / 'benchmarks' / 'bench_pairs.py'), '--base',
+                          str(tmp_path)], capture_output=True, text=True, timeout=60, cwd=REPO)
+    assert out.returncode == 2 and 'Traceback' not in out.stderr
+    assert out.stderr.strip().splitlines()[-1].endswith('no dmf_sim package in that directory')
+
+
 def test_fit_harmonics_truncates_pads_and_keeps():
     """Engine and load harmonics n = 0..N are fitted to the HBM's n = 0..H along their harmonic
     axis: the first H+1 kept, missing ones zero, the array itself when N = H."""
