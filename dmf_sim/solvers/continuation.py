@@ -327,19 +327,28 @@ def continue_branch(problem: ContinuationProblem, x0: np.ndarray, s0: float,
     last_failure: CorrectorFailed | None = None
     run = getattr(problem, 'grid_run', None) if o.grid is not None else None
     steps = 0
+
+    def extend(new) -> int:
+        """Append the new points in turn (on_point, then the end tests) until the branch ends;
+        how many were appended."""
+        nonlocal done, reason
+        for k, p in enumerate(new):
+            pts.append(p)
+            if on_point:
+                on_point(p)
+            why = _ends(p, pts, lo, hi, stop, closes)
+            if why is not None:
+                done, reason = True, why
+                return k + 1
+        return len(new)
+
     while steps < o.max_steps and not done:
         steps += 1
         s = pts[-1].s
         if (fast_forward is not None and pts[-1].on_grid and not force_arc
                 and abs(t[n]) >= o.grid_mode_min_ts):
             jump = fast_forward(pts[-1], 1.0 if t[n] > 0 else -1.0)
-            for p in jump:
-                pts.append(p)
-                if on_point:
-                    on_point(p)
-                done, reason = _ends(p, pts, lo, hi, stop, closes, reason)
-                if done:
-                    break
+            extend(jump)
             if jump:
                 y = np.concatenate([pts[-1].x / xs, [pts[-1].s / ss]])
                 t = pts[-1].tangent if pts[-1].tangent @ t > 0 else -pts[-1].tangent
@@ -358,17 +367,9 @@ def continue_branch(problem: ContinuationProblem, x0: np.ndarray, s0: float,
                       o.max_steps - steps + 1)
             if ran is not None and len(ran[1]):
                 X, S, T, IT, RES, ONG, y, t, h, _ = ran
-                steps -= 1
-                for k in range(len(S)):
-                    steps += 1
-                    p = ContinuationPoint(X[k], float(S[k]), T[k], int(IT[k]), float(RES[k]),
-                                          bool(ONG[k]))
-                    pts.append(p)
-                    if on_point:
-                        on_point(p)
-                    done, reason = _ends(p, pts, lo, hi, stop, closes, reason)
-                    if done:
-                        break
+                steps += extend([ContinuationPoint(X[k], float(S[k]), T[k], int(IT[k]),
+                                                   float(RES[k]), bool(ONG[k]))
+                                 for k in range(len(S))]) - 1
                 continue
         if grid_mode:
             y_pred = y + h_grid * t
@@ -419,31 +420,27 @@ def continue_branch(problem: ContinuationProblem, x0: np.ndarray, s0: float,
         force_arc = False
         y, t = y_new, t_new
         x_new, s_new = y[:n] * xs, float(y[n] * ss)
-        p = ContinuationPoint(x_new, s_new, t.copy(), it, res, _on_grid(s_new, o.grid))
-        pts.append(p)
-        if on_point:
-            on_point(p)
         if it <= o.easy_iter:
             h = min(h * 1.5, o.step_max)
         elif it > o.easy_iter + 3:
             h = max(h * 0.6, o.step_min)
-        done, reason = _ends(p, pts, lo, hi, stop, closes, reason)
+        extend([ContinuationPoint(x_new, s_new, t.copy(), it, res, _on_grid(s_new, o.grid))])
     if on_end is not None:
         on_end(reason, pts[-1])
     return pts
 
 
 def _ends(p: ContinuationPoint, pts: list[ContinuationPoint], lo: float, hi: float, stop,
-          closes: _LoopDetector, reason: str) -> tuple[bool, str]:
-    """Whether the branch ends at its new point p, and why: 'bound' (p on a bound of the
-    range), 'stop' (``stop(p, pts)``) or 'closed' (the loop detector); else (False, reason)."""
+          closes: _LoopDetector) -> str | None:
+    """Why the branch ends at its new point p: 'bound' (p on a bound of the range), 'stop'
+    (``stop(p, pts)``) or 'closed' (the loop detector); None where it goes on."""
     if p.s >= hi - 1e-9 or p.s <= lo + 1e-9:
-        return True, 'bound'
+        return 'bound'
     if stop is not None and stop(p, pts):
-        return True, 'stop'
+        return 'stop'
     if closes(p):
-        return True, 'closed'
-    return False, reason
+        return 'closed'
+    return None
 
 
 def _jump(problem, y, t, xs, ss, o: ContinuationOptions):

@@ -38,7 +38,7 @@ from dmf_sim.solvers.hbm.kernels import (
     residual_jacobian,
     speed_derivative,
 )
-from dmf_sim.solvers.hbm.linear_kernels import ENGINE_OK, linear_parts_at
+from dmf_sim.solvers.hbm.linear_kernels import ENGINE_OK, linear_parts_at, one_speed_work
 
 __all__ = ['TANGENT_SINGULAR', 'tangent', 'add_step', 'corrector_fixed_speed',
            'step_fixed_speed', 'residual_jacobians_at', 'corrector_arclength', 'grid_run',
@@ -145,16 +145,7 @@ def residual_jacobians_at(x, s, fd, table, statics, modal, aft_mats, spring):
     at every iteration (each a new speed). status: the engine's (r etc. unset unless
     ENGINE_OK)."""
     n = x.shape[0]
-    H = (n - 1) // 2
-    A = np.empty((1, H + 1), dtype=np.complex128)
-    A2 = np.empty((1, H + 1), dtype=np.complex128)
-    dA = np.empty((1, H + 1), dtype=np.complex128)
-    h = np.empty((1, H + 1), dtype=np.complex128)
-    dh = np.empty((1, H + 1), dtype=np.complex128)
-    wlin = np.empty((1, H + 1), dtype=np.complex128)
-    dw = np.empty((1, H + 1), dtype=np.complex128)
-    wr = np.empty((1, n))
-    dwr = np.empty((1, n))
+    A, A2, dA, h, dh, wlin, dw, wr, dwr = one_speed_work(n)
     r = np.empty(n)
     J = np.empty((n, n))
     rs = np.empty(n)
@@ -310,16 +301,7 @@ def grid_run(x0, s0, grid0, y, t, h, lo, hi, opts, max_iter, easy_iter, check_li
     returns (points, h, why: a ``RUN_*`` code)."""
     ss, xs, step_min, step_max, grid, min_ts, max_corr, max_turn, tol = opts
     n = y.shape[0] - 1
-    H = (n - 1) // 2
-    A = np.empty((1, H + 1), dtype=np.complex128)
-    A2 = np.empty((1, H + 1), dtype=np.complex128)
-    dA = np.empty((1, H + 1), dtype=np.complex128)
-    hh = np.empty((1, H + 1), dtype=np.complex128)
-    dh = np.empty((1, H + 1), dtype=np.complex128)
-    wlin = np.empty((1, H + 1), dtype=np.complex128)
-    dw = np.empty((1, H + 1), dtype=np.complex128)
-    wr = np.empty((1, n))
-    dwr = np.empty((1, n))
+    A, A2, dA, hh, dh, wlin, dw, wr, dwr = one_speed_work(n)
     G = np.empty(n)
     dG = np.empty((1, 1))
     y_pred = np.empty(n + 1)

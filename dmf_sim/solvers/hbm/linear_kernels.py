@@ -16,7 +16,7 @@ from dmf_sim.core.units import RPM_TO_RAD_S
 from dmf_sim.solvers.compiled import jit
 
 __all__ = ['ENGINE_OK', 'ENGINE_OUTSIDE', 'ENGINE_NOT_READY', 'modal_sums', 'linear_parts',
-           'engine_at', 'linear_parts_at']
+           'engine_at', 'linear_parts_at', 'one_speed_work', 'linear_parts_many_at']
 
 
 # ------------------------------------------------------------------------------------------------
@@ -157,6 +157,16 @@ def linear_parts_at(s, fd, table, statics, modal, A, A2, dA, h, dh, wlin, dw, wr
     return ENGINE_OK
 
 
+def one_speed_work(n):
+    """The outputs of :func:`linear_parts_at` for one speed, n = 2H + 1 unknowns: A, A2, dA, h,
+    dh, wlin, dw as (1, H + 1) complex rows and wr, dwr as (1, n) real rows."""
+    H = (n - 1) // 2
+    return (np.empty((1, H + 1), dtype=np.complex128), np.empty((1, H + 1), dtype=np.complex128),
+            np.empty((1, H + 1), dtype=np.complex128), np.empty((1, H + 1), dtype=np.complex128),
+            np.empty((1, H + 1), dtype=np.complex128), np.empty((1, H + 1), dtype=np.complex128),
+            np.empty((1, H + 1), dtype=np.complex128), np.empty((1, n)), np.empty((1, n)))
+
+
 def linear_parts_many_at(speeds, fd, table, statics, modal, A, A2, dA, h, dh, wlin, dw, wr, dwr,
                          status):
     """:func:`linear_parts_at` of K speeds [rpm] in one call (a sweep's grid), row q of every
@@ -172,4 +182,5 @@ modal_sums = jit(modal_sums)
 linear_parts = jit(linear_parts)
 engine_at = jit(engine_at)
 linear_parts_at = jit(linear_parts_at)
+one_speed_work = jit(one_speed_work)
 linear_parts_many_at = jit(linear_parts_many_at)
