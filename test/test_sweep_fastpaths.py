@@ -1,8 +1,9 @@
-"""The sweep's cheaper per-point paths (issue 22, third and fifth steps) give what the general code
-gives: the stable-state mask of many speeds, the linear parts of one off-grid speed, the scalar
-order summary, the spring's condensed static solve, a linear stretch's points made in one batch
-and where it starts, a traced branch's points made in one batch, the multipliers' eigenvalue
-call (in Python and inside the kernels) and the sharp resonances' modal contributions."""
+"""The sweep's cheaper per-point paths (issue 22, third to seventh steps) give what the general
+code gives: the stable-state mask of many speeds, the linear parts of one off-grid speed and of
+many speeds, the scalar order summary, the spring's condensed static solve, a linear stretch's
+points made in one batch and where it starts, a traced branch's points made in one batch, the
+multipliers' eigenvalue call (in Python and inside the kernels) and the sharp resonances' modal
+contributions."""
 from __future__ import annotations
 
 import numpy as np
@@ -98,6 +99,27 @@ def test_linear_parts_of_a_grid_in_one_kernel_call_equal_the_numpy_batch(loads):
     assert hb._linear_parts_compiled([1000.0, top + 50.0]) is None
     with pytest.raises(OperatingRangeError):
         hb.linear_parts(top + 50.0)
+
+
+@pytest.mark.parametrize('cache_size', [512, 4])
+def test_linear_parts_of_many_speeds_are_the_calls_one_by_one(loads, cache_size, monkeypatch):
+    """CondensedHBM.linear_parts_of (a branch's points: the speeds not cached computed in one
+    batch) gives bitwise what linear_parts gives speed by speed, and leaves the cache in the same
+    state (the same speeds in the same order), also where the batch itself evicts speeds that
+    were cached when it started (a cache of 4)."""
+    from dmf_sim.solvers.hbm import condensed
+    monkeypatch.setattr(condensed, 'LINEAR_PARTS_CACHE', cache_size)
+    one, many = CondensedHBM(loads, 1.0), CondensedHBM(loads, 1.0)
+    for hb in (one, many):
+        hb.prepare([900.0, 910.0, 920.0])
+    speeds = [905.5, 910.0, 1234.25, 905.5, 900.0, 987.125, 920.0, 1500.75]
+    a = [one.linear_parts(s) for s in speeds]
+    b = many.linear_parts_of(speeds)
+    for p, q in zip(a, b):
+        assert p.speed_rpm == q.speed_rpm
+        for f in ('h', 'wlin', 'dh_ds', 'dwlin_ds'):
+            assert np.array_equal(getattr(p, f), getattr(q, f))
+    assert list(one._cache) == list(many._cache)
 
 
 def test_scalar_summary_equals_the_rows():

@@ -199,6 +199,25 @@ class CondensedHBM(ContinuationSteps, DrivelineRecovery):
         self._remember(lp)
         return lp
 
+    def linear_parts_of(self, speeds_rpm: list[float]) -> list[LinearParts]:
+        """:meth:`linear_parts` of each speed in turn, those not cached computed in one batch
+        first (the points of a traced branch: many arc-length speeds off the grid); the cache
+        ends as after the calls one by one."""
+        todo = list(dict.fromkeys(s for s in map(float, speeds_rpm) if s not in self._cache))
+        fresh = {lp.speed_rpm: lp for lp in self._linear_parts_many(todo)} if todo else {}
+        out = []
+        for key in map(float, speeds_rpm):
+            lp = self._cache.get(key)
+            if lp is not None:
+                self._cache.move_to_end(key)
+            else:
+                lp = fresh.get(key)
+                if lp is None:          # cached at first, evicted since by this batch
+                    lp = self._linear_parts_many([key])[0]
+                self._remember(lp)
+            out.append(lp)
+        return out
+
     def prepare(self, speeds_rpm) -> None:
         """Compute the linear parts of many speeds at once (a sweep's grid: the per-speed work done
         in one vectorized pass before the continuation asks for them); speeds outside the engine's

@@ -159,7 +159,7 @@ class SpeedSweep(BranchSwitching, StateSearch):
         speeds = [cp.s for cp in cps]
         C = to_complex(X, hb.H)
         W = synthesize(C, self.floquet.n_fine)
-        lps = [hb.linear_parts(s) for s in speeds]
+        lps = hb.linear_parts_of(speeds)
         pts = hb.make_points(speeds, C, W, [float(lp.wlin[0].real) for lp in lps], X=X)
         for p, cp, lp in zip(pts, cps, lps):
             p.residual, p.iterations = float(cp.residual), int(cp.iterations)
