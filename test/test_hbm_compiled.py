@@ -339,6 +339,26 @@ def test_grid_runs_are_the_loops_grid_steps(case, variant, request):
         assert (p.iterations, p.residual, p.on_grid) == (q.iterations, q.residual, q.on_grid)
 
 
+def test_grid_run_on_a_range_given_the_wrong_way_round_is_the_loop(paper):
+    """Bounds given as (hi, lo): the loop's first grid step lands on a bound and the branch
+    ends there; the grid run takes that step as the loop does (a run of one row)."""
+    loads, _ = paper
+    hb = CondensedHBM(loads, 1.0)
+    o = continuation.ContinuationOptions(grid=10.0, s_scale=10.0)
+    x0 = hb.solve(845.0).x
+    made = []
+
+    def run(*args):
+        out = hb.__class__.grid_run(hb, *args)
+        made.append(len(out[1]))
+        return out
+
+    a, why_a = _branch(hb, x0, 845.0, (900.0, 850.0), o, run)
+    b, why_b = _branch(hb, x0, 845.0, (900.0, 850.0), o, None)
+    assert made == [1] and why_a == why_b == 'bound' and len(a) == len(b) == 2
+    assert a[1].s == b[1].s == 850.0 and np.array_equal(a[1].x, b[1].x)
+
+
 def test_grid_run_stops_where_the_fast_forward_may_apply(paper):
     """With a fast-forward, a grid run returns at every on-grid point whose AFT samples reach no
     knee and the loop asks the fast-forward there, as it does without runs; the run's own grid

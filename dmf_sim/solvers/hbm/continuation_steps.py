@@ -176,8 +176,9 @@ class ContinuationSteps:
 
     @staticmethod
     def _run_rows(s_bounds: tuple[float, float], grid: float) -> int:
-        """Rows for one grid run: every grid speed of the range once, plus one."""
-        return int((s_bounds[1] - s_bounds[0]) / grid) + 2
+        """Rows for one grid run: every grid speed of the range once, plus one (at least one
+        row: the run the loop has chosen takes its step, whatever the range)."""
+        return max(int((s_bounds[1] - s_bounds[0]) / grid) + 2, 1)
 
     def tangent(self, Jx: np.ndarray, rs: np.ndarray, prev: np.ndarray, xs: float, ss: float
                 ) -> np.ndarray | None:
