@@ -363,8 +363,7 @@ def continue_branch(problem: ContinuationProblem, x0: np.ndarray, s0: float,
         if grid_mode and run is not None:
             # this grid step and those after it in one call, each as this loop takes it; the
             # call returns before any other step (none made: the loop takes this one itself)
-            ran = run(pts[-1], y, t, h, s_bounds, o, fast_forward is not None,
-                      o.max_steps - steps + 1)
+            ran = run(s, y, t, h, s_bounds, o, fast_forward is not None, o.max_steps - steps + 1)
             if ran is not None and len(ran[1]):
                 X, S, T, IT, RES, ONG, y, t, h, _ = ran
                 steps += extend([ContinuationPoint(X[k], float(S[k]), T[k], int(IT[k]),

@@ -185,16 +185,21 @@ def by_modulus(mu: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             np.take_along_axis(size, order[..., :1], axis=-1)[..., 0])
 
 
+# numpy's messages for a matrix eigvals refuses (eigenvalues, and analyze_many for a batch)
+_NOT_FINITE = 'Array must not contain infs or NaNs'
+_NO_CONVERGENCE = 'Eigenvalues did not converge'
+
+
 def eigenvalues(X: np.ndarray) -> np.ndarray:
     """Eigenvalues of a real square matrix, which may be overwritten: ``np.linalg.eigvals`` (real
     when all are real, else complex) by LAPACK ``dgeev`` called directly, without numpy's checks
     and conversions (a sweep asks for one per point off the linear region); like numpy, it raises
     LinAlgError for a matrix with an inf or NaN."""
     if not np.isfinite(X).all():
-        raise np.linalg.LinAlgError('Array must not contain infs or NaNs')
+        raise np.linalg.LinAlgError(_NOT_FINITE)
     wr, wi, _, _, info = dgeev(X, compute_vl=0, compute_vr=0, overwrite_a=1)
     if info != 0:
-        raise np.linalg.LinAlgError('Eigenvalues did not converge')
+        raise np.linalg.LinAlgError(_NO_CONVERGENCE)
     return wr + 1j * wi if wi.any() else wr
 
 
@@ -355,8 +360,7 @@ class FloquetAnalyzer:
                      np.ascontiguousarray(samples, dtype=float), speeds * RPM_TO_RAD_S,
                      *self._kernel_args, counts, stage0, tau0, wr, wi, status)
         if status.any():        # as eigenvalues() raises for one point
-            raise np.linalg.LinAlgError('Array must not contain infs or NaNs' if 1 in status
-                                        else 'Eigenvalues did not converge')
+            raise np.linalg.LinAlgError(_NOT_FINITE if 1 in status else _NO_CONVERGENCE)
         mu = wr + 1j * wi
         one = counts == 1
         for k in np.flatnonzero(one).tolist():      # no knee crossed

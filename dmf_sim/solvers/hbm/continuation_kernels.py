@@ -280,19 +280,18 @@ def next_grid(s, sign, grid):
     return nxt * grid
 
 
-def grid_run(x0, s0, grid0, y, t, h, lo, hi, opts, max_iter, easy_iter, check_linear, budget,
-             fd, table, statics, modal, aft_mats, spring, X, S, T, IT, RES, ONG):
+def grid_run(s0, y, t, h, lo, hi, opts, max_iter, easy_iter, check_linear, budget, fd, table,
+             statics, modal, aft_mats, spring, X, S, T, IT, RES, ONG):
     """Grid steps of ``continuation.continue_branch`` one after the other, as its loop takes them
-    (reference: that loop, the step in grid mode and its step control), from the last point
-    (x0, s0 [rpm], ``grid0`` whether s0 is on the grid) with scaled unknowns y, unit tangent t
-    and arc step h, the speed range [lo, hi] [rpm]; the first step is one the loop has chosen
-    (its fast-forward asked already). ``opts``: the floats of
-    :data:`RUN_OPTIONS`; ``max_iter``, ``easy_iter`` the corrector's. Each step predicts the
-    next grid speed along t, corrects there (:func:`step_fixed_speed`, the linear parts by
-    :func:`linear_parts_at`) and is accepted by the loop's tests (corrector displacement, turn
-    of the tangent); then h grows after an easy step and shrinks after a hard one.
+    (reference: that loop, the step in grid mode and its step control), from the last point at s0
+    [rpm] with scaled unknowns y, unit tangent t and arc step h, the speed range [lo, hi] [rpm];
+    the first step is one the loop has chosen (its fast-forward asked already). ``opts``: the
+    floats of :data:`RUN_OPTIONS`; ``max_iter``, ``easy_iter`` the corrector's. Each step predicts
+    the next grid speed along t, corrects there (:func:`step_fixed_speed`, the linear parts by
+    :func:`linear_parts_at`) and is accepted by the loop's tests (corrector displacement, turn of
+    the tangent); then h grows after an easy step and shrinks after a hard one.
 
-    Stops before any step the loop would take otherwise, leaving it to the loop: at an on-grid
+    Stops before any step the loop would take otherwise, leaving it to the loop: at a new on-grid
     point whose non-linear torque harmonics are all zero when ``check_linear`` (there the
     fast-forward may apply), where the next step is not a grid step, and where a step is not
     accepted as it stands (the loop retries it its way). Stops after a point on a bound and
@@ -311,14 +310,12 @@ def grid_run(x0, s0, grid0, y, t, h, lo, hi, opts, max_iter, easy_iter, check_li
     r = np.empty(n)
     J = np.empty((n, n))
     rs = np.empty(n)
-    x = x0
     s = s0
-    ongrid = grid0
     count = 0
     while count < budget:
         tn = t[n]
-        if check_linear and count > 0 and ongrid and abs(tn) >= min_ts:
-            aft(x, aft_mats, spring, G, dG, False)
+        if check_linear and count > 0 and ONG[count - 1] and abs(tn) >= min_ts:
+            aft(X[count - 1], aft_mats, spring, G, dG, False)
             linear = True
             for i in range(n):
                 if G[i] != 0.0:
@@ -361,9 +358,7 @@ def grid_run(x0, s0, grid0, y, t, h, lo, hi, opts, max_iter, easy_iter, check_li
         S[count] = s
         IT[count] = it
         RES[count] = res
-        ongrid = on_grid(s, grid)
-        ONG[count] = ongrid
-        x = X[count]
+        ONG[count] = on_grid(s, grid)
         count += 1
         if it <= easy_iter:
             h = min(h * 1.5, step_max)

@@ -138,11 +138,11 @@ class ContinuationSteps:
             raise CorrectorFailed(f'corrector: max|r| = {res:.2e} after {max_iter} iterations')
         return y, it, res, t
 
-    def grid_run(self, last, y: np.ndarray, t: np.ndarray, h: float, s_bounds: tuple[float, float],
-                 options, check_linear: bool, budget: int):
-        """The grid step ``continuation.continue_branch`` has chosen from its last point ``last``
-        (a ContinuationPoint; y, t, h the loop's scaled unknowns, unit tangent and arc step
-        there) and the grid steps after it, in one compiled call
+    def grid_run(self, s: float, y: np.ndarray, t: np.ndarray, h: float,
+                 s_bounds: tuple[float, float], options, check_linear: bool, budget: int):
+        """The grid step ``continuation.continue_branch`` has chosen from its last point, at speed
+        s [rpm] (y, t, h the loop's scaled unknowns, unit tangent and arc step there), and the
+        grid steps after it, in one compiled call
         (:func:`continuation_kernels.grid_run`: the loop's own steps and step control, until a
         step it leaves to the loop). With ``check_linear`` it stops at every later on-grid
         point whose non-linear torque harmonics are all zero (where the sweep's fast-forward
@@ -168,10 +168,9 @@ class ContinuationSteps:
         t = np.array(t, dtype=float)
         opts = np.array([float(getattr(options, f)) for f in continuation_kernels.RUN_OPTIONS])
         k, h, why = continuation_kernels.grid_run(
-            np.ascontiguousarray(last.x, dtype=float), float(last.s), bool(last.on_grid), y, t,
-            float(h), float(s_bounds[0]), float(s_bounds[1]), opts, int(options.max_iter),
-            int(options.easy_iter), bool(check_linear), size, fd, table, statics, modal,
-            self._aft_mats, self._spring_arrays, X, S, T, IT, RES, ONG)
+            float(s), y, t, float(h), float(s_bounds[0]), float(s_bounds[1]), opts,
+            int(options.max_iter), int(options.easy_iter), bool(check_linear), size, fd, table,
+            statics, modal, self._aft_mats, self._spring_arrays, X, S, T, IT, RES, ONG)
         return X[:k], S[:k], T[:k], IT[:k], RES[:k], ONG[:k], y, t, h, why
 
     @staticmethod
