@@ -52,6 +52,15 @@ def worker(lo: float, hi: float) -> int:
     for options in modes.values():
         for _ in range(WARM_SWEEPS):
             sweep(loads, 1.0, (lo, hi), options=options)
+    # every dmf_sim module from this worker's tree (a module the tree lacks would otherwise
+    # come from the installed package, and the pair would time a mixture)
+    tree = Path(os.environ['PYTHONPATH']).resolve()
+    strays = sorted(name for name, mod in list(sys.modules.items())
+                    if name.split('.')[0] == 'dmf_sim' and getattr(mod, '__file__', None)
+                    and not Path(mod.__file__).resolve().is_relative_to(tree))
+    if strays:
+        print(f'dmf_sim modules not in {tree}: {", ".join(strays[:3])}', flush=True)
+        return 1
     print('ready', flush=True)
     for line in sys.stdin:
         t0 = time.process_time()
@@ -64,6 +73,7 @@ class Worker:
     """A worker process importing dmf_sim from ``tree``."""
 
     def __init__(self, tree: Path, lo: float, hi: float):
+        self.tree = tree
         env = dict(os.environ, PYTHONPATH=str(tree), OMP_NUM_THREADS='1',
                    OPENBLAS_NUM_THREADS='1')
         self.proc = subprocess.Popen(
@@ -78,8 +88,10 @@ class Worker:
     def sweep(self, mode: str) -> tuple[float, int]:
         self.proc.stdin.write(mode + '\n')
         self.proc.stdin.flush()
-        ms, points = self.proc.stdout.readline().split()
-        return float(ms), int(points)
+        line = self.proc.stdout.readline().split()
+        if len(line) != 2:
+            raise RuntimeError(f'the worker for {self.tree} stopped during a {mode} sweep')
+        return float(line[0]), int(line[1])
 
     def close(self) -> None:
         if self.proc.stdin:
@@ -120,7 +132,11 @@ def main(argv=None) -> int:
             tree, made = base_tree(args.base, Path(tmp) / 'base')
         except ValueError as exc:
             p.error(str(exc))
-        out = compare(tree, made, Path(tmp) / 'base', args, lo, hi)
+        try:
+            out = compare(tree, made, Path(tmp) / 'base', args, lo, hi)
+        except RuntimeError as exc:         # a worker that could not run the sweeps
+            print(f'bench_pairs: {exc}', file=sys.stderr)
+            return 1
     print(f'{args.mode} sweep, {args.pairs} pairs: base {out["base_ms_min"]:.1f} ms min, '
           f'{out["base_ms_median"]:.1f} median; this tree {out["this_ms_min"]:.1f} / '
           f'{out["this_ms_median"]:.1f} ms (CPU); this / base per pair: median '

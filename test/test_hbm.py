@@ -328,6 +328,18 @@ def test_pairs_benchmark_refuses_a_base_without_the_package(tmp_path):
     assert out.stderr.strip().splitlines()[-1].endswith('no dmf_sim package in that directory')
 
 
+def test_pairs_benchmark_refuses_a_tree_that_borrows_modules(tmp_path):
+    """A base directory whose dmf_sim lacks the modules a sweep imports would have them from the
+    installed package: one line saying so, exit 1, no figures, no traceback."""
+    (tmp_path / 'dmf_sim').mkdir()
+    (tmp_path / 'dmf_sim' / '__init__.py').write_text('')
+    out = subprocess.run([sys.executable, str(REPO / 'benchmarks' / 'bench_pairs.py'), '--quick',
+                          '--base', str(tmp_path)], capture_output=True, text=True, timeout=300,
+                         cwd=REPO)
+    assert out.returncode == 1 and 'Traceback' not in out.stderr and not out.stdout.strip()
+    assert f'dmf_sim modules not in {tmp_path.resolve()}' in out.stderr.strip().splitlines()[-1]
+
+
 def test_fit_harmonics_truncates_pads_and_keeps():
     """Engine and load harmonics n = 0..N are fitted to the HBM's n = 0..H along their harmonic
     axis: the first H+1 kept, missing ones zero, the array itself when N = H."""
