@@ -1,9 +1,8 @@
 """The sweep's cheaper per-point paths (issue 22, third to seventh steps) give what the general
 code gives: the stable-state mask of many speeds, the linear parts of one off-grid speed and of
 many speeds, the scalar order summary, the spring's condensed static solve, a linear stretch's
-points made in one batch and where it starts, a traced branch's points made in one batch, the
-multipliers' eigenvalue call (in Python and inside the kernels) and the sharp resonances' modal
-contributions."""
+points made in one batch and where it starts, a traced branch's points made in one batch and
+the sharp resonances' modal contributions (the multipliers' eigenvalue call: test_eigenvalues)."""
 from __future__ import annotations
 
 import numpy as np
@@ -218,42 +217,6 @@ def test_points_of_a_traced_branch_made_in_one_batch_equal_one_by_one(loads):
         assert np.array_equal(p.multipliers, fr.multipliers)
     assert 0 < crossing < len(cps)
     assert sw._points([], 0, 'main') == []
-
-
-def test_eigenvalues_inside_a_kernel_are_scipys_dgeev():
-    """The compiled kernels' eigenvalue call (LAPACK dgeev bound for numba) gives the same bits
-    as ``stability.eigenvalues`` (SciPy's dgeev), real and complex spectra, without touching X."""
-    from dmf_sim.solvers.lapack_kernel import eigenvalues_into
-    from dmf_sim.solvers.stability import eigenvalues
-    rng = np.random.default_rng(11)
-    S = rng.standard_normal((6, 6))
-    for X in [rng.standard_normal((n, n)) for n in (1, 2, 7, 32)] + [S + S.T]:
-        keep = X.copy()
-        wr, wi = np.empty(len(X)), np.empty(len(X))
-        assert eigenvalues_into(X, wr, wi) == 0
-        assert np.array_equal(X, keep)
-        got = wr + 1j * wi if wi.any() else wr
-        ref = eigenvalues(X.copy())
-        assert got.dtype == ref.dtype and np.array_equal(got, ref)
-
-
-def test_eigenvalues_by_lapack_equal_numpys():
-    """The Floquet multipliers' eigenvalue call: numpy's eigvals (complex where any is complex,
-    real where all are real), by dgeev directly."""
-    from dmf_sim.solvers.stability import eigenvalues
-    rng = np.random.default_rng(7)
-    for n in (2, 7, 32):
-        X = rng.standard_normal((n, n))
-        ref = np.linalg.eigvals(X)
-        mu = eigenvalues(X.copy())
-        assert mu.dtype == ref.dtype
-        assert np.allclose(np.sort_complex(mu), np.sort_complex(ref), rtol=1e-12, atol=1e-14)
-    S = rng.standard_normal((6, 6))
-    sym = S + S.T                           # real eigenvalues: a real array, as numpy's
-    assert eigenvalues(sym.copy()).dtype == np.float64
-    sym[2, 3] = np.nan
-    with pytest.raises(np.linalg.LinAlgError, match='infs or NaNs'):
-        eigenvalues(sym)
 
 
 def test_sharp_resonance_contribution_is_the_dof_load_formula(loads):

@@ -35,12 +35,12 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg
-from scipy.linalg.lapack import dgeev
 
 from dmf_sim.core.errors import ConfigError
 from dmf_sim.core.units import CYCLE_RAD, RPM_TO_RAD_S, cycle_period_s
 from dmf_sim.physics.model import ReducedModel
 from dmf_sim.physics.orders import synthesize
+from dmf_sim.solvers.lapack_kernel import eigenvalues_into
 from dmf_sim.solvers.stability_kernel import floquet, floquet_many
 
 __all__ = ['CROSSING_NEWTON_STEPS', 'FloquetResult', 'ModeClass', 'by_modulus', 'real_eigenbasis',
@@ -191,14 +191,17 @@ _NO_CONVERGENCE = 'Eigenvalues did not converge'
 
 
 def eigenvalues(X: np.ndarray) -> np.ndarray:
-    """Eigenvalues of a real square matrix, which may be overwritten: ``np.linalg.eigvals`` (real
-    when all are real, else complex) by LAPACK ``dgeev`` called directly, without numpy's checks
-    and conversions (a sweep asks for one per point off the linear region); like numpy, it raises
-    LinAlgError for a matrix with an inf or NaN."""
+    """Eigenvalues of a real square matrix: ``np.linalg.eigvals`` (real when all are real, else
+    complex) by the compiled call the Floquet kernels make
+    (:func:`dmf_sim.solvers.lapack_kernel.eigenvalues_into`: LAPACK's balancing and Hessenberg
+    reduction, then the double-shift QR of :mod:`dmf_sim.solvers.francis_qr`), so a point
+    analyzed alone gets the same bits as in a sweep's batch; like numpy, it raises LinAlgError
+    for a matrix with an inf or NaN."""
+    X = np.ascontiguousarray(X, dtype=float)
     if not np.isfinite(X).all():
         raise np.linalg.LinAlgError(_NOT_FINITE)
-    wr, wi, _, _, info = dgeev(X, compute_vl=0, compute_vr=0, overwrite_a=1)
-    if info != 0:
+    wr, wi = np.empty(len(X)), np.empty(len(X))
+    if eigenvalues_into(X, wr, wi) != 0:
         raise np.linalg.LinAlgError(_NO_CONVERGENCE)
     return wr + 1j * wi if wi.any() else wr
 

@@ -167,7 +167,8 @@ def floquet_many(C, w, omegas, knees, primary, n_newton, kind, sigma, freq, W, c
     form) its stage0[k] and duration tau0[k] [s], or (count > 1) the eigenvalues wr[k] + i wi[k]
     of the monodromy by :func:`dmf_sim.solvers.lapack_kernel.eigenvalues_into` (the same bits as
     ``stability.eigenvalues`` of :func:`floquet`'s X). status[k]: 0, or 1 for a monodromy with
-    an inf or NaN, 2 where dgeev did not converge (the caller raises as ``eigenvalues`` does)."""
+    an inf or NaN, 2 where the eigenvalues did not converge (the caller raises as ``eigenvalues``
+    does)."""
     K = C.shape[0]
     for k in range(K):
         X, count, stages, taus = floquet(C[k], w[k], omegas[k], knees, primary, n_newton, kind,
