@@ -254,3 +254,49 @@ def test_aft_tables_made_once_and_copied_per_problem(loads):
     assert np.array_equal(a.E, E) and a.E is not b.E and a.E.flags.writeable
     a.E[0, 0] = 7.0
     assert b.E[0, 0] == 1.0 and E[0, 0] == 1.0
+
+
+def _modal_sums_complex(omega, dOm, d, ml, a, unit, dunit, h, dh):
+    """The modal sums in complex arithmetic, one (speed, harmonic) at a time over the modes: what
+    ``linear_kernels.modal_sums`` computes with the harmonics innermost and the complex
+    operations written out."""
+    for q in range(omega.shape[0]):
+        for n in range(ml.shape[0]):
+            Om = omega[q] * ((n + 1) / 2.0)
+            su = sdu = sh = sdh = 0j
+            for k in range(d.shape[0]):
+                p = 1.0 / (1j * Om - d[k])
+                p2 = -1j * (p * p)
+                su += p * ml[n, k]
+                sdu += p2 * ml[n, k]
+                sh += p * a[k]
+                sdh += p2 * a[k]
+            unit[q, n], dunit[q, n] = su, sdu * dOm[n]
+            h[q, n], dh[q, n] = sh, sdh * dOm[n]
+
+
+def test_modal_sums_written_out_equal_complex_arithmetic_bitwise():
+    """The linear parts' modal sums, harmonics innermost with the complex operations written out
+    (SIMD), give the bits of the same sums in numba's complex arithmetic: random poles (one at
+    zero, resonant ones where Im d = Om_n), receptance and residue vectors."""
+    from dmf_sim.solvers.compiled import jit
+    from dmf_sim.solvers.hbm.linear_kernels import modal_sums
+    reference = jit(_modal_sums_complex)
+    rng = np.random.default_rng(21)
+    for trial in range(12):
+        K, H, m = (int(v) for v in rng.integers(1, 30, 3))
+        omega = rng.random(K) * 300.0
+        dOm = rng.random(H)
+        d = -rng.random(m) * 50.0 + 1j * (rng.random(m) - 0.5) * 3000.0
+        if trial % 3 == 0:
+            d[0] = 0.0
+        if trial % 3 == 1:
+            d[-1] = -1e-3 + 1j * omega[0] * 0.5     # Im d on the first harmonic's frequency
+        ml = rng.standard_normal((H, m)) + 1j * rng.standard_normal((H, m))
+        a = rng.standard_normal(m) + 1j * rng.standard_normal(m)
+        got = [np.empty((K, H), dtype=complex) for _ in range(4)]
+        ref = [np.empty((K, H), dtype=complex) for _ in range(4)]
+        modal_sums(omega, dOm, d, ml, a, *got)
+        reference(omega, dOm, d, ml, a, *ref)
+        for g, r in zip(got, ref):
+            assert np.array_equal(g, r)

