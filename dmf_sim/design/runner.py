@@ -297,14 +297,13 @@ def run_study(study, client=None, *, out=None, resume: bool = False, workers: in
             if own:
                 cluster, client = start_local(workers)
             n_workers = wait_for_workers(client)
-            size = batch_size_for(len(todo), n_workers, batch_size)     # the largest batch
+            sizes = batch_sizes(len(todo), n_workers, batch_size)
+            size = sizes[0]                                             # the largest batch
             if on_worker_event is None:
-                run.compute(client, todo, n_workers, batch_size,
-                            _bar(progress, len(designs), len(done)))
+                run.compute(client, todo, sizes, _bar(progress, len(designs), len(done)))
             else:
                 with WorkerWatch(client, on_worker_event):
-                    run.compute(client, todo, n_workers, batch_size,
-                                _bar(progress, len(designs), len(done)))
+                    run.compute(client, todo, sizes, _bar(progress, len(designs), len(done)))
         rows = (store.rows if store else []) + run.rows
         result = StudyResult.from_rows(study, rows, n_computed=_n_designs(run.rows),
                                        seconds=time.perf_counter() - t0, workers=n_workers,
@@ -324,9 +323,9 @@ class _Run:
         self.rows: list[dict] = []
         self.loads: dict[int, int] = {}        # worker pid -> contexts installed there
 
-    def compute(self, client, todo: list[int], n_workers: int, size: int | None, bar) -> None:
-        """Submit ``todo`` (design indices) in batches (:func:`batch_sizes` on ``n_workers``
-        and the given batch ``size``, None for the default) and collect their rows."""
+    def compute(self, client, todo: list[int], sizes: list[int], bar) -> None:
+        """Submit ``todo`` (design indices) in batches of the given ``sizes``
+        (:func:`batch_sizes`, in order) and collect their rows."""
         if not todo:
             return
         from distributed import as_completed
@@ -336,7 +335,7 @@ class _Run:
         n_total, n_before = len(self.designs), len(self.designs) - len(todo)
         try:
             k = 0
-            for n in batch_sizes(len(todo), n_workers, size):
+            for n in sizes:
                 ids = todo[k:k + n]
                 k += n
                 items = [(i, self.designs[i].tolist()) for i in ids]
