@@ -21,7 +21,9 @@ import numpy as np
 from dmf_sim.solvers.compiled import HAVE_NUMBA, jit
 from dmf_sim.solvers.francis_qr import MAX_ITER, hessenberg_eigenvalues
 
-__all__ = ['eigenvalues_into', 'dgeev_into']
+__all__ = ['HRD_WORK_PER_ROW', 'eigenvalues_into', 'dgeev_into']
+
+HRD_WORK_PER_ROW = 64    # dgehrd's workspace per row (its largest block size; n would do here)
 
 if HAVE_NUMBA:
     import llvmlite.binding as _llvm
@@ -76,14 +78,14 @@ def eigenvalues_into(X, wr, wi, max_iter=MAX_ITER):
     a = np.ascontiguousarray(X.T)        # column-major X, as LAPACK reads it
     job = np.array([66], dtype=np.uint8)  # 'B': permute and scale
     # n, lda, ilo, ihi, lwork, info
-    dims = np.array([n, n, 1, n, 64 * n, 0], dtype=np.int32)
+    dims = np.array([n, n, 1, n, HRD_WORK_PER_ROW * n, 0], dtype=np.int32)
     scale = np.empty(n)
     _dgebal(job.ctypes, dims[0:].ctypes, a.ctypes, dims[1:].ctypes, dims[2:].ctypes,
             dims[3:].ctypes, scale.ctypes, dims[5:].ctypes)
     if dims[5] != 0:
         return dgeev_into(X, wr, wi)
     tau = np.empty(max(n - 1, 1))
-    work = np.empty(64 * n)
+    work = np.empty(HRD_WORK_PER_ROW * n)
     _dgehrd(dims[0:].ctypes, dims[2:].ctypes, dims[3:].ctypes, a.ctypes, dims[1:].ctypes,
             tau.ctypes, work.ctypes, dims[4:].ctypes, dims[5:].ctypes)
     if dims[5] != 0:
