@@ -29,7 +29,7 @@ from dmf_sim.core.errors import OperatingRangeError
 
 __all__ = ['solve_small', 'ContinuationProblem', 'ContinuationOptions', 'ContinuationPoint',
            'CorrectorFailed', 'LeftRange', 'correct', 'tangent_of', 'correct_step',
-           'continue_branch']
+           'continue_branch', 'on_grid', 'next_grid']
 
 
 def solve_small(A: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -98,6 +98,11 @@ class ContinuationPoint:
 
 class CorrectorFailed(RuntimeError):
     """The corrector did not converge (or left the problem's data range)."""
+
+    @classmethod
+    def not_converged(cls, res: float, max_iter: int) -> CorrectorFailed:
+        """The error of a corrector still at max|r| = ``res`` after ``max_iter`` iterations."""
+        return cls(f'corrector: max|r| = {res:.2e} after {max_iter} iterations')
 
 
 class LeftRange(CorrectorFailed):
@@ -190,7 +195,7 @@ def correct(problem: ContinuationProblem, y_pred: np.ndarray, normal: np.ndarray
             x, s = y[:n] * xs, y[n] * ss
             r, Jx, rs = _evaluate(problem, x, s)
             return y, it + 1, float(np.abs(r).max()), (r, Jx, rs)
-    raise CorrectorFailed(f'corrector: max|r| = {res:.2e} after {max_iter} iterations')
+    raise CorrectorFailed.not_converged(res, max_iter)
 
 
 def correct_step(problem: ContinuationProblem, y_pred: np.ndarray, normal: np.ndarray,
@@ -356,7 +361,7 @@ def continue_branch(problem: ContinuationProblem, x0: np.ndarray, s0: float,
         # --- choose the step: land on the next grid speed, or a plain arc-length step ----------
         grid_mode = (not force_arc) and o.grid is not None and abs(t[n]) >= o.grid_mode_min_ts
         if grid_mode:
-            target = _next_grid(s, 1.0 if t[n] > 0 else -1.0, o.grid)
+            target = next_grid(s, 1.0 if t[n] > 0 else -1.0, o.grid)
             target = min(max(target, lo), hi)
             h_grid = (target - s) / ss / t[n]
             grid_mode = 0.0 < h_grid <= min(1.5 * o.step_max, 2.0 * h)
@@ -458,17 +463,24 @@ def _jump(problem, y, t, xs, ss, o: ContinuationOptions):
     return None
 
 
-def _on_grid(s: float, grid: float | None) -> bool:
-    if grid is None:
-        return False
+def on_grid(s: float, grid: float) -> bool:
+    """Whether the parameter s lies on the grid of spacing ``grid`` (within 1e-7 of s). Written
+    once: the compiled grid steps use this function, compiled
+    (:mod:`dmf_sim.solvers.hbm.continuation_kernels`)."""
     k = round(s / grid)
     return abs(s - k * grid) < 1e-7 * max(1.0, abs(s))
 
 
-def _next_grid(s: float, sign: float, grid: float) -> float:
+def next_grid(s: float, sign: float, grid: float) -> float:
+    """The next grid value beyond s in the direction ``sign`` (a value within 1e-7 grid spacings
+    of a grid value counts as on it). Compiled for the grid steps as :func:`on_grid` is."""
     k = s / grid
     if sign > 0:
         nxt = math.floor(k + 1e-7) + 1
     else:
         nxt = math.ceil(k - 1e-7) - 1
-    return float(nxt * grid)
+    return nxt * grid
+
+
+def _on_grid(s: float, grid: float | None) -> bool:
+    return grid is not None and on_grid(s, grid)

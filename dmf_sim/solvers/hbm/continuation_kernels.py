@@ -26,6 +26,7 @@ import math
 
 import numpy as np
 
+from dmf_sim.solvers import continuation
 from dmf_sim.solvers.compiled import jit
 from dmf_sim.solvers.hbm.dense_kernels import lu_solve, lu_work, max_abs
 from dmf_sim.solvers.hbm.kernels import (
@@ -264,22 +265,6 @@ RUN_OPTIONS = ('s_scale', 'x_scale', 'step_min', 'step_max', 'grid', 'grid_mode_
 """The ``ContinuationOptions`` fields in grid_run's float array ``opts``, in this order."""
 
 
-def on_grid(s, grid):
-    """Whether s lies on the grid (``continuation._on_grid``)."""
-    k = round(s / grid)
-    return abs(s - k * grid) < 1e-7 * max(1.0, abs(s))
-
-
-def next_grid(s, sign, grid):
-    """The next grid speed beyond s in the direction ``sign`` (``continuation._next_grid``)."""
-    k = s / grid
-    if sign > 0:
-        nxt = math.floor(k + 1e-7) + 1
-    else:
-        nxt = math.ceil(k - 1e-7) - 1
-    return nxt * grid
-
-
 def grid_run(s0, y, t, h, lo, hi, opts, max_iter, easy_iter, check_linear, budget, fd, table,
              statics, modal, aft_mats, spring, X, S, T, IT, RES, ONG):
     """Grid steps of ``continuation.continue_branch`` one after the other, as its loop takes them
@@ -376,6 +361,6 @@ residual_jacobians_at = jit(residual_jacobians_at)
 _evaluate_scaled = jit(_evaluate_scaled)
 corrector_arclength = jit(corrector_arclength)
 step_fixed_speed = jit(step_fixed_speed)
-on_grid = jit(on_grid)
-next_grid = jit(next_grid)
+on_grid = jit(continuation.on_grid)        # the continuation's grid convention, compiled
+next_grid = jit(continuation.next_grid)
 grid_run = jit(grid_run)

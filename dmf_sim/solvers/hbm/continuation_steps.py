@@ -81,8 +81,7 @@ class ContinuationSteps:
             if status == kernels.CONVERGED:
                 return y, it, res, (r, Jx, rs)
             if status != kernels.ENGINE_FAILED:
-                raise CorrectorFailed(f'corrector: max|r| = {res:.2e} after {max_iter} '
-                                      'iterations')
+                raise CorrectorFailed.not_converged(res, max_iter)
             # the speed of the failing iterate: its linear parts in Python raise the engine's
             # own error outside the data, or compute the grid nodes not computed yet (then the
             # kernel runs again with the table read anew)
@@ -109,7 +108,7 @@ class ContinuationSteps:
             np.ascontiguousarray(y_pred[:n]), float(xs), lp.lin, lp.dlin, self._aft_mats,
             self._spring_arrays, float(tol), int(max_iter), y, r, Jx, rs)
         if status != kernels.CONVERGED:
-            raise CorrectorFailed(f'corrector: max|r| = {res:.2e} after {max_iter} iterations')
+            raise CorrectorFailed.not_converged(res, max_iter)
         return np.concatenate([y, y_pred[n:]]), it, res, (r, Jx, rs)
 
     def step_at(self, y_pred: np.ndarray, prev: np.ndarray, xs: float, ss: float, tol: float,
@@ -135,7 +134,7 @@ class ContinuationSteps:
         if status == continuation_kernels.TANGENT_SINGULAR:
             return y, it, res, None
         if status != kernels.CONVERGED:
-            raise CorrectorFailed(f'corrector: max|r| = {res:.2e} after {max_iter} iterations')
+            raise CorrectorFailed.not_converged(res, max_iter)
         return y, it, res, t
 
     def grid_run(self, s: float, y: np.ndarray, t: np.ndarray, h: float,
