@@ -575,10 +575,11 @@ def test_constant_speed_shot_is_one_kernel_call(paper, monkeypatch):
 
 WARM_THEN_SWEEP = '''
 import json
+import numpy as np
 from dmf_sim.physics.engine import load_engine
 from dmf_sim.physics.loads import DrivelineLoads
 from dmf_sim.physics.model import load_model
-from dmf_sim.solvers import stability_kernel
+from dmf_sim.solvers import lapack_kernel, stability, stability_kernel
 from dmf_sim.solvers.hbm import CondensedHBM, SweepOptions, kernels, linear_kernels, sweep
 from dmf_sim.solvers.hbm import continuation_kernels
 from dmf_sim.solvers.hbm.warm import warm_up
@@ -587,11 +588,12 @@ fs = [kernels.residual_jacobian_py, kernels.harmonics_py, kernels.newton, kernel
       continuation_kernels.corrector_fixed_speed, linear_kernels.modal_sums,
       linear_kernels.linear_parts, kernels.residual_jacobians_py,
       continuation_kernels.step_fixed_speed, linear_kernels.linear_parts_many_at,
-      stability_kernel.floquet, stability_kernel.floquet_many]
+      stability_kernel.floquet, stability_kernel.floquet_many, lapack_kernel.eigenvalues_into]
 before = [len(f.signatures) for f in fs]
 loads = DrivelineLoads(load_model('truck_dmf', alpha=3.0), load_engine('engine_d13', load_set='A'))
 sweep(loads, 1.0, (1150.0, 1250.0), options=SweepOptions(step_rpm=10.0, search=None))
 CondensedHBM(loads, 1.0).linear_parts(1001.5)
+stability.eigenvalues(np.eye(3) + 0.5)        # the multipliers of one point analyzed alone
 print(json.dumps([before, [len(f.signatures) for f in fs]]))
 '''
 
@@ -599,7 +601,8 @@ print(json.dumps([before, [len(f.signatures) for f in fs]]))
 def test_warm_up_compiles_what_a_fresh_worker_calls():
     """In a fresh process (a design-study worker), warm_up leaves no signature for the first
     sweep to add: a prepared batch of speeds and a single speed reach the modal sums with
-    different array layouts, and both are loaded by warm_up."""
+    different array layouts, and both are loaded by warm_up; so is the eigenvalue call of one
+    point analyzed alone (from Python, not from a kernel)."""
     import json
     import os
     import subprocess

@@ -29,6 +29,7 @@ from dmf_sim.solvers.hbm.kernels import (
 )
 from dmf_sim.solvers.hbm.layout import to_real
 from dmf_sim.solvers.hbm.linear_kernels import linear_parts, linear_parts_many_at, modal_sums
+from dmf_sim.solvers.lapack_kernel import eigenvalues_into
 
 __all__ = ['warm_up']
 
@@ -36,8 +37,9 @@ __all__ = ['warm_up']
 def warm_up() -> float:
     """Load (or compile) every compiled kernel of a sweep point —
     :mod:`dmf_sim.solvers.hbm.kernels`, :mod:`~dmf_sim.solvers.hbm.continuation_kernels`,
-    :mod:`~dmf_sim.solvers.hbm.linear_kernels` and :mod:`dmf_sim.solvers.stability_kernel` — on
-    a tiny problem with the argument types of the real ones. Returns the seconds it took."""
+    :mod:`~dmf_sim.solvers.hbm.linear_kernels`, :mod:`dmf_sim.solvers.stability_kernel` and the
+    eigenvalue call of one point (:mod:`dmf_sim.solvers.lapack_kernel`) — on a tiny problem
+    with the argument types of the real ones. Returns the seconds it took."""
     t0 = time.perf_counter()
     H, M = 2, 8
     n = 2 * H + 1
@@ -116,5 +118,7 @@ def warm_up() -> float:
                                   np.empty(1, dtype=np.int64), np.empty(1, dtype=np.int64),
                                   np.empty(1), np.empty((1, ns)), np.empty((1, ns)),
                                   np.empty(1, dtype=np.int64))
+    # the multipliers of one point analyzed alone (stability.eigenvalues calls it from Python)
+    eigenvalues_into(np.eye(ns), np.empty(ns), np.empty(ns))
     return time.perf_counter() - t0
 
