@@ -83,11 +83,18 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     if args.repeat < 1:
         p.error(f'--repeat {args.repeat}: must be an integer >= 1')
+    if not (args.speeds[2] > 0 and args.speeds[1] > args.speeds[0]):
+        p.error(f'--speeds {" ".join(f"{v:g}" for v in args.speeds)}: need FROM < TO and '
+                f'STEP > 0 [rpm]')
     if args.quick:
         args.speeds = [900.0, 1100.0, 10.0]
         args.repeat = 3
 
-    Xs = monodromies(args.alpha, tuple(args.speeds))
+    from dmf_sim.core.errors import DmfSimError
+    try:
+        Xs = monodromies(args.alpha, tuple(args.speeds))
+    except DmfSimError as exc:          # a bad model or range: one line, exit 2
+        p.error(str(exc))
     if len(Xs) == 0:
         print(f'no point of the sweep {args.speeds} crosses a knee: nothing to time',
               file=sys.stderr)

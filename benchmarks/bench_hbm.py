@@ -52,11 +52,21 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     if args.repeat < 1:
         p.error(f'--repeat {args.repeat}: must be an integer >= 1')
+    if not (args.speeds[2] > 0 and args.speeds[1] > args.speeds[0]):
+        p.error(f'--speeds {" ".join(f"{v:g}" for v in args.speeds)}: need FROM < TO and '
+                f'STEP > 0 [rpm]')
     if args.quick:
         args.speeds = [900.0, 1100.0, 10.0]
         args.newmark_every = 10
         args.repeat = 1
+    from dmf_sim.core.errors import DmfSimError
+    try:
+        return _measure(args)
+    except DmfSimError as exc:          # a bad model, engine or range: one line, exit 2
+        p.error(str(exc))
 
+
+def _measure(args) -> int:
     from dmf_sim.physics.engine import load_engine
     from dmf_sim.physics.loads import DrivelineLoads
     from dmf_sim.physics.model import load_model

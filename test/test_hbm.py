@@ -307,6 +307,21 @@ def test_benchmark_refuses_a_repeat_below_one():
     assert '--repeat 0: must be an integer >= 1' in out.stderr.strip().splitlines()[-1]
 
 
+@pytest.mark.parametrize('script', ['bench_hbm.py', 'bench_eigen.py'])
+@pytest.mark.parametrize('args, says', [
+    (['--speeds', '2000', '600', '10'], '--speeds 2000 600 10: need FROM < TO and STEP > 0'),
+    (['--speeds', '600', '700', '0'], '--speeds 600 700 0: need FROM < TO and STEP > 0'),
+    (['--alpha', '-1'], 'alpha must be finite and >= 0'),
+])
+def test_sweep_benchmarks_refuse_a_bad_range_or_model(script, args, says):
+    """A speed range the wrong way round, a zero step or a bad DMF: one line naming it, exit 2,
+    no traceback (the model's own message for the model)."""
+    out = subprocess.run([sys.executable, str(REPO / 'benchmarks' / script), *args],
+                         capture_output=True, text=True, timeout=120, cwd=REPO)
+    assert out.returncode == 2 and 'Traceback' not in out.stderr
+    assert says in out.stderr.strip().splitlines()[-1]
+
+
 def test_pairs_benchmark_quick():
     """bench_pairs --quick against this same tree: two warm workers, three alternating pairs of
     sweeps, the same points on both sides and a per-pair ratio near 1 (the same code; the
