@@ -25,6 +25,7 @@ import sys
 import time
 
 import numpy as np
+from sweep_args import check_sweep_args  # beside this script
 
 from dmf_sim.solvers.compiled import jit
 from dmf_sim.solvers.lapack_kernel import dgeev_into, eigenvalues_into
@@ -81,11 +82,7 @@ def main(argv=None) -> int:
     p.add_argument('--repeat', type=int, default=40, help='alternating timed repetitions')
     p.add_argument('--quick', action='store_true', help='small run (900-1100 rpm) for tests')
     args = p.parse_args(argv)
-    if args.repeat < 1:
-        p.error(f'--repeat {args.repeat}: must be an integer >= 1')
-    if not (args.speeds[2] > 0 and args.speeds[1] > args.speeds[0]):
-        p.error(f'--speeds {" ".join(f"{v:g}" for v in args.speeds)}: need FROM < TO and '
-                f'STEP > 0 [rpm]')
+    check_sweep_args(p, args)
     if args.quick:
         args.speeds = [900.0, 1100.0, 10.0]
         args.repeat = 3
