@@ -27,7 +27,7 @@ import time
 import numpy as np
 from sweep_args import check_sweep_args  # beside this script
 
-from dmf_sim.solvers.compiled import jit
+from dmf_sim.core.compiled import jit
 from dmf_sim.solvers.lapack_kernel import dgeev_into, eigenvalues_into
 
 

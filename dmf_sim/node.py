@@ -45,9 +45,9 @@ import threading
 import time
 
 from dmf_sim.core.errors import ConfigError, DmfSimError, one_line
+from dmf_sim.core.numbers import fmt_num
 from dmf_sim.core.process import end_with_parent
 from dmf_sim.live.health import status_name
-from dmf_sim.live.pacing import fmt_num
 from dmf_sim.live.parameters import DMF_PARAMETERS, PARAMETERS, coerce
 from dmf_sim.live.streams import STREAMS
 from dmf_sim.transient.live_profile import NodeProfile

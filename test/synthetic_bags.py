@@ -193,8 +193,8 @@ NODE = '/driveline_node'
 def health_status(sim, node: str = NODE):
     """The node's health status as /diagnostics carries it (the keys and formats of
     dmf_sim.live.health that the analysis reads: load, load_setpoint, alpha, theta_rad)."""
+    from dmf_sim.core.numbers import fmt_num
     from dmf_sim.live.health import status_name
-    from dmf_sim.live.pacing import fmt_num
 
     spring = sim.model.spring
     values = {'sim_time_s': f'{sim.t:.4f}', 'speed_rpm': f'{sim.speed:.3f}',

@@ -13,8 +13,9 @@ import yaml
 
 from dmf_sim.bags.metadata import RunMetadata
 from dmf_sim.core.errors import ConfigError, DmfSimError
+from dmf_sim.core.numbers import fmt_num
 from dmf_sim.live.health import ERROR, OK, WARN, HealthMonitor, HealthReport
-from dmf_sim.live.pacing import LagStats, Pacer, TimeBase, fmt_num, publish_stride
+from dmf_sim.live.pacing import LagStats, Pacer, TimeBase, publish_stride
 from dmf_sim.live.parameters import DMF_PARAMETERS, PARAMETERS, coerce
 from dmf_sim.live.recording import RecordingControl, run_metadata
 from dmf_sim.live.run_loop import RunLoop, SetpointInbox

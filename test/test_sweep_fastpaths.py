@@ -279,7 +279,7 @@ def test_modal_sums_written_out_equal_complex_arithmetic_bitwise():
     """The linear parts' modal sums, harmonics innermost with the complex operations written out
     (SIMD), give the bits of the same sums in numba's complex arithmetic: random poles (one at
     zero, resonant ones where Im d = Om_n), receptance and residue vectors."""
-    from dmf_sim.solvers.compiled import jit
+    from dmf_sim.core.compiled import jit
     from dmf_sim.solvers.hbm.linear_kernels import modal_sums
     reference = jit(_modal_sums_complex)
     rng = np.random.default_rng(21)

@@ -1,1 +1,2 @@
-"""Edges every layer may use: errors, units, packaged paths, field validation."""
+"""Edges every layer may use: errors, units, packaged paths, field validation, how kernels are
+compiled, how numbers are written in messages."""

@@ -15,7 +15,7 @@ import time
 from dataclasses import dataclass, field
 from typing import Callable
 
-from dmf_sim.live.pacing import fmt_num
+from dmf_sim.core.numbers import fmt_num
 
 __all__ = ['LEVEL_NAMES', 'STATUS_SUFFIX', 'status_name', 'HealthReport', 'HealthMonitor']
 

@@ -30,22 +30,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from dmf_sim.core.errors import ConfigError
+from dmf_sim.core.numbers import fmt_num
 
-__all__ = ['OVERRUN_POLICIES', 'STRIDE_TOLERANCE', 'NS_PER_S', 'fmt_num', 'publish_stride',
+__all__ = ['OVERRUN_POLICIES', 'STRIDE_TOLERANCE', 'NS_PER_S', 'publish_stride',
            'TickPlan', 'Pacer', 'LagStats', 'TimeBase']
 
 OVERRUN_POLICIES = ('skip', 'catch_up')
 STRIDE_TOLERANCE = 1e-6     # relative: 1/(rate dt) closer than this to an integer divides
 NS_PER_S = 1_000_000_000
-
-
-def fmt_num(value: float) -> str:
-    """A number with every digit it needs to be told apart (shortest round-trip repr; integral
-    values without '.0'): 2200.001 -> '2200.001', 2200.0 -> '2200'."""
-    v = float(value)
-    if math.isfinite(v) and v == int(v) and abs(v) < 1e15:
-        return str(int(v))
-    return repr(v)
 
 
 def publish_stride(publish_rate_hz: float, dt: float) -> int:

@@ -35,7 +35,8 @@ from typing import Any, Callable, Protocol
 
 import numpy as np
 
-from dmf_sim.live.pacing import LagStats, Pacer, TimeBase, fmt_num
+from dmf_sim.core.numbers import fmt_num
+from dmf_sim.live.pacing import LagStats, Pacer, TimeBase
 from dmf_sim.live.simulation import LiveSimulation, Samples
 
 __all__ = ['PACING_MODES', 'FAST_BUDGET_S', 'FAST_PAUSE_S', 'FAST_CHUNK_S', 'WARN_THROTTLE_S',

@@ -18,8 +18,9 @@ import threading
 from typing import Mapping
 
 from dmf_sim.core.errors import ConfigError, one_line
+from dmf_sim.core.numbers import fmt_num
 from dmf_sim.live.health import HealthMonitor
-from dmf_sim.live.pacing import Pacer, fmt_num, publish_stride
+from dmf_sim.live.pacing import Pacer, publish_stride
 from dmf_sim.live.parameters import MONITOR_SETTINGS, choice_reason
 from dmf_sim.live.recording import RecordingControl, run_metadata
 from dmf_sim.live.simulation import LiveSimulation

@@ -19,8 +19,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from dmf_sim.core.errors import ConfigError, OperatingRangeError
+from dmf_sim.core.numbers import fmt_num
 from dmf_sim.core.units import RAD_S_TO_RPM
-from dmf_sim.live.pacing import fmt_num
 from dmf_sim.live.torques import TorqueOperator
 from dmf_sim.physics.loads import DrivelineLoads
 from dmf_sim.physics.model import Driveline, load_driveline

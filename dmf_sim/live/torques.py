@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from dmf_sim.solvers.compiled import jit
+from dmf_sim.core.compiled import jit
 from dmf_sim.solvers.newmark_kernel import region_of
 
 __all__ = ['TorqueOperator', 'sparse_outputs']

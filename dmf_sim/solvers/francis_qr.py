@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import math
 
-from dmf_sim.solvers.compiled import jit
+from dmf_sim.core.compiled import jit
 
 __all__ = ['hessenberg_eigenvalues', 'MAX_ITER']
 

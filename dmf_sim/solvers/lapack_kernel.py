@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from dmf_sim.solvers.compiled import HAVE_NUMBA, jit
+from dmf_sim.core.compiled import HAVE_NUMBA, jit
 from dmf_sim.solvers.francis_qr import MAX_ITER, hessenberg_eigenvalues
 
 __all__ = ['HRD_WORK_PER_ROW', 'eigenvalues_into', 'dgeev_into']

@@ -52,7 +52,7 @@ import math
 
 import numpy as np
 
-from dmf_sim.solvers.compiled import jit
+from dmf_sim.core.compiled import jit
 
 __all__ = ['MAX_PIECES', 'SPLIT_MIN_FRACTION', 'LOOKAHEAD_STEPS', 'newmark_constants', 'thomas',
            'factor', 'region_of', 'knee_between', 'regular_block', 'advance_kernel',

@@ -11,8 +11,8 @@ import math
 
 import numpy as np
 
+from dmf_sim.core.compiled import jit
 from dmf_sim.core.units import CYCLE_RAD
-from dmf_sim.solvers.compiled import jit
 from dmf_sim.solvers.lapack_kernel import eigenvalues_into
 from dmf_sim.solvers.newmark_kernel import region_of
 

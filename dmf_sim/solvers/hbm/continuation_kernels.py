@@ -26,8 +26,8 @@ import math
 
 import numpy as np
 
+from dmf_sim.core.compiled import jit
 from dmf_sim.solvers import continuation
-from dmf_sim.solvers.compiled import jit
 from dmf_sim.solvers.hbm.dense_kernels import lu_solve, lu_work, max_abs
 from dmf_sim.solvers.hbm.kernels import (
     CONVERGED,

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from dmf_sim.solvers.compiled import jit
+from dmf_sim.core.compiled import jit
 
 __all__ = ['PIVOT_TINY', 'lu_solve', 'lu_work', 'max_abs']
 

@@ -41,7 +41,7 @@ import math
 
 import numpy as np
 
-from dmf_sim.solvers.compiled import jit
+from dmf_sim.core.compiled import jit
 from dmf_sim.solvers.hbm.dense_kernels import lu_solve, max_abs
 from dmf_sim.solvers.newmark_kernel import region_of
 

@@ -12,8 +12,8 @@ import math
 
 import numpy as np
 
+from dmf_sim.core.compiled import jit
 from dmf_sim.core.units import RPM_TO_RAD_S
-from dmf_sim.solvers.compiled import jit
 
 __all__ = ['ENGINE_OK', 'ENGINE_OUTSIDE', 'ENGINE_NOT_READY', 'modal_sums', 'linear_parts',
            'engine_at', 'linear_parts_at', 'one_speed_work', 'linear_parts_many_at']
