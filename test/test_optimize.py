@@ -17,6 +17,7 @@ from dmf_sim.cli import main as cli_main
 from dmf_sim.core.errors import ConfigError
 from dmf_sim.design.parameters import design_driveline
 from dmf_sim.design.runner import local_cluster
+from dmf_sim.design.table import LOCK_FILE
 from dmf_sim.optimize import load_problem, run_optimization
 from dmf_sim.optimize.constraints import rank
 from dmf_sim.optimize.hypervolume import hypervolume, hypervolume_history
@@ -253,6 +254,7 @@ def test_cli_report_yaml_designs_and_json(client, tmp_path, capsys):
     for name in ('report.md', 'report.html', 'pareto_vs_lhs.png', 'hypervolume.png',
                  'springs.png', 'fig13_best.png'):
         assert (out / name).stat().st_size > 0
+    assert not (out / LOCK_FILE).exists() and not (out / 'baseline' / LOCK_FILE).exists()
     for design_id, path in s['files']['designs'].items():
         line = load_driveline(path)
         row = next(r for r in s['pareto'] if str(r['design_id']) == design_id)
