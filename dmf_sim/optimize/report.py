@@ -463,22 +463,36 @@ def _blocks(result, baseline, ref, hv, bvp, exported, seconds, front) -> list[Bl
                                      Path(exported.get(str(r['design_id']), '')).name]
                                     for r in sorted(front, key=lambda r: r[o1])])))
     if result.verification:
+        from dmf_sim.optimize.verify import verification_extremes, verification_lines
+        checks = [v.as_dict() for v in result.verification]
         b.append(Block('h2', 'Verification in the time domain (Newmark)'))
         b.append(Block('p', 'At the speed and condition of each worst value: shots from several '
-                            'initial states (largest value: "time domain") and slow run-ups up '
-                            'and down through the speed (largest value within half a grid step), '
-                            'beside the harmonic-balance worst value.'))
+                            'initial states (their largest value: "Newmark shots"), compared '
+                            'with the harmonic-balance worst value ("shots vs HBM"), and slow '
+                            'run-ups up and down through the speed (their largest value within '
+                            'half a grid step of it: "run-ups"), compared with the same HBM '
+                            'value ("run-ups vs HBM"; a ramp passes between the grid speeds and '
+                            'is not steady).'))
+        for line in verification_lines({'verification': checks,
+                                         **verification_extremes(checks)}):
+            if line.startswith('  '):           # the comparisons, not their heading
+                b.append(Block('p', line.strip()[0].upper() + line.strip()[1:] + '.'))
         b.append(Block('table', (['design', 'objective', 'condition', 'speed [rpm]', 'HBM',
-                                  'time domain (shots)', 'rel. diff', 'run-ups', 'shots settled'],
+                                  'Newmark shots', 'shots vs HBM', 'run-ups', 'run-ups vs HBM',
+                                  'shots settled'],
                                  [[str(v.design_id), v.objective, v.condition,
                                    f'{v.speed_rpm:g}', _g(v.hbm), _g(v.time_domain),
                                    f'{100 * v.rel_diff:.2f} %', _g(v.run_up),
-                                   f'{v.settled}/{len(v.shots)}']
+                                   _pct(v.run_up_rel_diff), f'{v.settled}/{len(v.shots)}']
                                   for v in result.verification])))
     b.append(Block('h2', 'Figures'))
     for name, caption in FIGURES.items():
         b.append(Block('figure', (name, caption)))
     return b
+
+
+def _pct(v: float) -> str:
+    return '' if v is None or not math.isfinite(v) else f'{100 * v:+.1f} %'
 
 
 def _pt(p) -> str:
