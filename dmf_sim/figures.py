@@ -6,7 +6,10 @@ object API (``matplotlib.figure.Figure``: no pyplot state, no GUI backend needed
 Reading rules kept in every figure:
 
 * every axis names its quantity and unit; titles carry alpha, theta, load set and load;
-* legends sit outside the data (below the panels);
+* every text stays on the canvas: :func:`save` wraps a title that would be cut at the figure's
+  edges or run into the title beside it (:func:`fit_titles`), for every figure of the package;
+* legends sit outside the data: a figure's legend below its panels (:func:`legend_below`), a
+  panel's own legend beside it, right of the axes (:func:`legend_beside`);
 * solid = stable, dashed = unstable (Floquet); unknown stability is drawn solid;
 * wind-up panels (Figs. 13/15, :func:`windup_panel`): red 3rd order drawn as a wide translucent
   band under the thin black max/min deviation lines (the two nearly coincide where the 3rd order
@@ -17,6 +20,7 @@ Reading rules kept in every figure:
 """
 from __future__ import annotations
 
+import textwrap
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Mapping, Sequence
@@ -28,7 +32,8 @@ from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
 __all__ = ['DPI', 'COLORS', 'LOAD_SET_COLORS', 'NO_PERIODIC_SHADE', 'RESONANCE_MARK_COLOR',
-           'legend_below', 'WindupCurves', 'windup_panel', 'panel_title', 'sweep_curves',
+           'legend_below', 'legend_beside', 'fit_titles', 'WindupCurves', 'windup_panel',
+           'panel_title', 'sweep_curves',
            'order_label', 'sweep_marks', 'sweep_panel', 'sweep_bands', 'windup_legend_handles',
            'windup_figure', 'mode_shapes_figure', 'nnm_figure', 'mean_torque_panel',
            'order_bars_panel', 'torque_over_angle_panel', 'two_panel_figure', 'save', 'fig8']
@@ -48,6 +53,9 @@ _BAND_WIDTH = 4.0         # line width of the red 3rd-order band [pt]
 _LOG_XI_ABOVE = 20.0      # NNM figure: logarithmic xi axis beyond this xi_max
 _LABEL_GAP = 0.03         # NNM figure: smallest gap between flat-branch labels (axis fraction)
 _LINE_WIDTH = 1.3         # other lines [pt]
+_TITLE_GAP_PX = 6.0       # smallest gap between a title and the canvas edge or the title beside it
+_WRAP_MIN_CHARS = 12      # a title is not wrapped narrower than this many characters
+_LAYOUT_PASSES = 3        # wrapping changes the layout, which changes the room: draw again
 
 _OUTSIDE_LOC = tuple(int(p) for p in matplotlib.__version__.split('.')[:2]) >= (3, 7)
 """matplotlib places a legend with loc='outside ...' from 3.7 on (Ubuntu 24.04 has 3.6.3)."""
@@ -67,6 +75,65 @@ def legend_below(fig: Figure, handles=None, ncols: int = 2, **kw):
     bottom = legend.get_window_extent().y1 / fig.bbox.height     # legend top [figure fraction]
     fig.get_layout_engine().set(rect=(0.0, bottom, 1.0, 1.0 - bottom))
     return legend
+
+
+def legend_beside(ax, **kw):
+    """The panel's legend right of its axes, top-aligned, outside the data; the one way a panel
+    here places its own legend (the constrained layout makes room for it)."""
+    kw.setdefault('fontsize', 8)
+    kw.setdefault('frameon', False)
+    return ax.legend(loc='upper left', bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0, **kw)
+
+
+def fit_titles(fig: Figure) -> None:
+    """Wrap every title that would not fit, at spaces, so that no text is cut: the figure's
+    suptitle and every legend title within the canvas, each panel's left / centre / right titles
+    together within the panel's width (each its share, in proportion to its length). Run by
+    :func:`save`; the constrained layout makes room for the extra lines when the figure is drawn
+    again."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    if not isinstance(fig.canvas, FigureCanvasAgg):
+        FigureCanvasAgg(fig)
+    for _ in range(_LAYOUT_PASSES):
+        fig.draw_without_rendering()
+        renderer = fig.canvas.get_renderer()
+        canvas = fig.bbox.width - 2.0 * _TITLE_GAP_PX
+        texts = [getattr(fig, '_suptitle', None)]
+        texts += [legend.get_title() for legend in fig.legends]
+        texts += [ax.get_legend().get_title() for ax in fig.axes if ax.get_legend()]
+        changed = False
+        for text in texts:
+            if text is not None and text.get_text():
+                changed |= _wrap(text, canvas, renderer)
+        for ax in fig.axes:
+            titles = [t for t in (getattr(ax, '_left_title', None), ax.title,
+                                  getattr(ax, '_right_title', None))
+                      if t is not None and t.get_text()]
+            if not titles:
+                continue
+            widths = [t.get_window_extent(renderer).width for t in titles]
+            room = ax.get_window_extent(renderer).width - _TITLE_GAP_PX * (len(titles) - 1)
+            for t, w in zip(titles, widths):
+                changed |= _wrap(t, room * w / sum(widths) if sum(widths) > room else room,
+                                 renderer)
+        if not changed:
+            return
+
+
+def _wrap(text, width_px: float, renderer) -> bool:
+    """Break ``text`` (a matplotlib Text) into lines no wider than ``width_px``; False if it fits
+    already (or is mathtext, which is not broken)."""
+    full = text.get_window_extent(renderer).width
+    if full <= width_px or '$' in text.get_text():
+        return False
+    lines = text.get_text().split('\n')
+    chars = max(int(max(map(len, lines)) * width_px / full), _WRAP_MIN_CHARS)
+    while True:
+        text.set_text('\n'.join(textwrap.fill(line, chars, break_long_words=False,
+                                               break_on_hyphens=False) for line in lines))
+        if text.get_window_extent(renderer).width <= width_px or chars <= _WRAP_MIN_CHARS:
+            return True
+        chars = max(chars - max(chars // 20, 1), _WRAP_MIN_CHARS)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -157,7 +224,8 @@ def _off_scale_note(curves: Sequence[WindupCurves], bottom: float, top: float) -
             cuts = np.flatnonzero(np.diff(off.astype(int))) + 1
             for run in np.split(np.arange(len(s)), cuts):
                 if off[run[0]]:
-                    spans.append(f'{s[run].min():.0f}-{s[run].max():.0f}')
+                    lo, hi = f'{s[run].min():.0f}', f'{s[run].max():.0f}'
+                    spans.append(lo if lo == hi else f'{lo}-{hi}')
         if extreme is not None:
             parts.append(f'green off scale {word} at {", ".join(dict.fromkeys(spans))} rpm '
                          f'(to {extreme[0]:+.3f} rad at {extreme[1]:.0f} rpm)')
@@ -278,7 +346,7 @@ def mode_shapes_figure(conventional, dmf, n_modes: int = 4, dmf_label: str = 'DM
                 label=f'{dmf_label} {dmf.frequencies_hz[k]:.1f} Hz')
         ax.axhline(0.0, color='0.6', lw=0.6)
         ax.set_ylabel(f'mode {k}\nangle × R [-]', fontsize=9)
-        ax.legend(loc='center left', bbox_to_anchor=(1.01, 0.5), fontsize=8, frameon=False)
+        legend_beside(ax)
         ax.grid(alpha=0.3)
     labels = [d if d == c else f'{d}\n(conv. {c})' for d, c in zip(dmf.names, conventional.names,
                                                                     strict=True)]
@@ -355,7 +423,7 @@ def mean_torque_panel(ax, speeds_rpm: np.ndarray, mean_nm: Mapping[str, Sequence
     ax.set_xlabel('engine speed [rpm]')
     ax.set_ylabel('engine mean torque [Nm]')
     ax.set_title(f'Engine mean torque, load {load:g} (Fig. 8 left)', fontsize=10)
-    ax.legend(loc='center left', bbox_to_anchor=(1.01, 0.5), fontsize=8, frameon=False)
+    legend_beside(ax)
     ax.grid(alpha=0.3)
 
 
@@ -369,7 +437,7 @@ def order_bars_panel(ax, orders: Sequence[Mapping[str, float]], speed_rpm: float
     ax.set_ylabel('torque amplitude [Nm]')
     ax.set_title(f'Order content at {speed_rpm:g} rpm, Load {load_set}, load {load:g}',
                  fontsize=10)
-    ax.legend(loc='center left', bbox_to_anchor=(1.01, 0.5), fontsize=8, frameon=False)
+    legend_beside(ax)
     ax.grid(alpha=0.3)
 
 
@@ -383,7 +451,7 @@ def torque_over_angle_panel(ax, psi_deg: np.ndarray, torque_nm: Mapping[float, n
     ax.set_xlim(0.0, 720.0)
     ax.set_xticks(np.arange(0, 721, 120))
     ax.set_title(what, fontsize=10)
-    ax.legend(loc='center left', bbox_to_anchor=(1.01, 0.5), fontsize=8, frameon=False)
+    legend_beside(ax)
     ax.grid(alpha=0.3)
 
 
@@ -396,8 +464,10 @@ def two_panel_figure(title: str, width: float = 12.0) -> tuple[Figure, object, o
 
 
 def save(fig: Figure, path: str | Path) -> Path:
-    """Write the figure as PNG and return the path."""
+    """Write the figure as PNG (:data:`DPI`) and return the path; every figure of the package
+    is written here, its titles fitted to the canvas first (:func:`fit_titles`)."""
     path = Path(path)
+    fit_titles(fig)
     fig.savefig(path, dpi=DPI)
     return path
 

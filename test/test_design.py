@@ -22,6 +22,7 @@ from dmf_sim.design.evaluate import StudyContext, evaluate_design
 from dmf_sim.design.metrics import first_max
 from dmf_sim.design.runner import DEFAULT_BATCH_SIZE, batch_sizes, connect, local_cluster
 from dmf_sim.design.states import speed_grid
+from dmf_sim.design.table import LOCK_FILE
 from dmf_sim.physics.loads import DrivelineLoads
 from dmf_sim.physics.orders import ORDER_3
 from dmf_sim.solvers.hbm import SweepOptions, sweep
@@ -376,6 +377,7 @@ def test_cli_on_an_existing_scheduler_json_and_files(client, tmp_path, capsys):
     for name in ('results.parquet', 'results.csv', 'summary.json', 'objective_maps.png',
                  'pareto.png', 'fig13_best.png'):
         assert (out / name).stat().st_size > 0
+    assert not (out / LOCK_FILE).exists()                         # the run's lock went with it
     assert cli_main(args) == 2                                    # would overwrite: refused
     assert '--resume' in capsys.readouterr().err
     assert cli_main(args + ['--resume', '--no-plots']) == 0       # nothing left to compute

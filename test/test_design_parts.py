@@ -183,3 +183,34 @@ def test_study_plugin_limits_the_worker_thread_pools():
         after = threadpool_info()
     drop_context('test-threads')
     assert pools and all(p['num_threads'] == WORKER_THREADS for p in after)
+
+
+def test_the_lock_file_lives_only_while_a_run_holds_it(tmp_path, monkeypatch):
+    """design / optimize left an empty .lock in --out, after success and after an error."""
+    from dmf_sim.design import load_study, run_study
+    from dmf_sim.design.table import LOCK_FILE, ResultStore
+    study = load_study({'name': 'lock', 'driveline': 'truck_dmf', 'engine': 'engine_d13',
+                        'sampling': {'method': 'grid'},
+                        'variables': {'alpha': {'values': [2.0, 3.0]}},
+                        'conditions': {'load_sets': ['A'], 'loads': [1.0],
+                                       'speeds_rpm': {'from': 900, 'to': 1000, 'step': 50}},
+                        'objectives': ['worst_order_1_5', 'worst_torque_3']})
+    out = tmp_path / 'out'
+    first, second = ResultStore(out, study), ResultStore(out, study)
+    first.lock()
+    assert (out / LOCK_FILE).exists()
+    with pytest.raises(ConfigError, match='another study run is using'):
+        second.lock()
+    second.close()                          # a refused run leaves the holder's lock alone
+    assert (out / LOCK_FILE).exists()
+    first.close()
+    assert not (out / LOCK_FILE).exists()
+    second.lock()                           # free again
+    second.close()
+
+    def lost(client):
+        raise RuntimeError('the cluster went away')
+    monkeypatch.setattr('dmf_sim.design.runner.wait_for_workers', lost)
+    with pytest.raises(RuntimeError, match='went away'):
+        run_study(study, client=object(), out=tmp_path / 'failed')
+    assert (tmp_path / 'failed').is_dir() and not (tmp_path / 'failed' / LOCK_FILE).exists()

@@ -135,6 +135,40 @@ def test_stage_time_and_dissipated_power_closed_form():
     assert res.largest[0][1] == pytest.approx(res.torque_max_nm)
 
 
+def test_damping_power_has_a_point_per_engine_cycle():
+    """The report's power panel said 'per engine cycle' but drew one point per second (14 points
+    for 152 cycles). Every whole engine cycle is now a point, at c A^2 W^2 / 2 for a pure 3rd
+    order; the cycle the record starts inside and the one it ends inside are left out."""
+    from figure_checks import points_under_legends, texts_off_canvas
+
+    from dmf_sim.durability.read import DurabilityRun
+    from dmf_sim.durability.report import report_figure
+    spring = PiecewiseLinearSpring.two_step(10890.0, 0.24, 3.0)
+    c, amp, speed, fs = 49.5, 0.03, 1300.0, 5000.0
+    om = speed * np.pi / 30
+    t = np.arange(int(14.0 * fs)) / fs
+    psi = 0.3 * CYCLE_RAD + om * t                   # starts inside a cycle
+    w, wdot = 0.1 + amp * np.sin(3 * om * t), amp * 3 * om * np.cos(3 * om * t)
+    acc = DurabilityAccumulator(spring, c, load_settings())
+    for a in range(0, len(t), 7000):
+        sl = slice(a, a + 7000)
+        acc.add((t[sl] * 1e9).astype(np.int64), w[sl], wdot[sl], np.full(len(t[sl]), speed),
+                psi[sl])
+    res = acc.finish()
+    whole = int(psi[-1] // CYCLE_RAD) - 1
+    assert whole > 140 and len(res.cycle_power_w) == whole == len(res.cycle_t_s)
+    assert np.allclose(res.cycle_power_w, c * (amp * 3 * om) ** 2 / 2, rtol=2e-3)
+    assert np.allclose(res.cycle_speed_rpm, speed)
+    assert np.allclose(np.diff(res.cycle_t_s), CYCLE_RAD / om, atol=1.5 / fs)
+    assert res.as_dict()['dissipated_power']['engine_cycles'] == whole
+    fig = report_figure(DurabilityRun(res, 'synthetic', 1, [], {}, 0.0, 0.0, 1))
+    ax = next(a for a in fig.axes if 'damping power' in a.get_title())
+    dots = [line for line in ax.get_lines() if line.get_marker() == '.']
+    assert len(dots) == 1 and len(dots[0].get_xdata()) == whole
+    assert f'each engine cycle ({whole})' in ax.get_title()
+    assert texts_off_canvas(fig) == [] and points_under_legends(fig) == []
+
+
 @pytest.fixture(scope='module')
 def road_bag(tmp_path_factory):
     """The first 8 s of the road cycle (launch, shifts) as a run bag."""

@@ -336,6 +336,16 @@ def test_default_threads_follow_the_cpus_this_process_may_use(cpus, threads, mon
     assert RunOptions().threads == threads
 
 
+def test_run_shows_its_progress_when_stderr_is_not_a_terminal(capsys):
+    """Like sweep, design and paper: progress on stderr unless --no-progress (it was shown only
+    on a terminal, so a log of a long run said nothing until the end)."""
+    assert cli_main(['run', 'ramp:1200:1300:100:1.0:0.5', '--no-write']) == 0
+    captured = capsys.readouterr()
+    assert 'run ramp' in captured.err and 'sim s' in captured.err, captured.err
+    assert cli_main(['run', 'ramp:1200:1300:100:1.0:0.5', '--no-write', '--no-progress']) == 0
+    assert capsys.readouterr().err == ''
+
+
 def test_interrupted_run_leaves_a_readable_bag(tmp_path):
     """SIGINT (Ctrl-C) during a long run: exit 130, the bag holds what was simulated and
     analyze reads it (with two threads: the integrating one is stopped and joined)."""

@@ -133,3 +133,52 @@ def test_study_variable_beyond_the_spring_bound_is_refused_when_read(tmp_path):
                                                     'alpha: {min: 1.0, max: 6e1, n: 9}'))
     with pytest.raises(ConfigError, match=r"'variables.alpha.max' must be in \[0, 50\], got"):
         load_study(tmp_path / 'big.yaml')
+
+
+# ---- one form for every mistake: argparse's and the package's own ------------------------------
+def _exit_code(argv) -> int:
+    """dmf-sim in this process: the exit code, whether argparse exits or a command returns."""
+    try:
+        return cli_main(argv)
+    except SystemExit as exc:
+        return exc.code
+
+
+@pytest.mark.parametrize('argv, command, needle', [
+    # argparse refuses the command line
+    (['sweep', '--harmonics', 'x'], 'sweep', "--harmonics: invalid int value: 'x'"),
+    (['sweep', '--bogus'], 'sweep', 'unrecognized arguments: --bogus'),
+    (['run'], 'run', 'required: PROFILE'),
+    (['bag-recover', 'b', '-o', 'x', '--in-place'], 'bag-recover', 'not allowed with'),
+    (['swep'], None, "invalid choice: 'swep'"),                       # before a command is known
+    # the package refuses a value (ConfigError)
+    (['sweep', '--harmonics', '3', '--no-progress'], 'sweep', '--harmonics=3'),
+    (['run', 'ramp:800:2000:0', '--no-write'], 'run', 'rate_rpm_per_s'),
+])
+def test_every_mistake_is_one_line_in_one_form(argv, command, needle, capsys, monkeypatch):
+    """argparse used to print its usage block and `dmf-sim: error:` without the command (for an
+    unknown option); the package's errors printed `dmf-sim <command>: error: ...`. Both are now
+    the one line `dmf-sim <command>: error: <message>`, exit 2."""
+    monkeypatch.setattr('dmf_sim.solvers.hbm.sweep', _no_compute)
+    assert _exit_code(argv) == 2
+    captured = capsys.readouterr()
+    prog = 'dmf-sim' if command is None else f'dmf-sim {command}'
+    assert captured.err.count('\n') == 1, captured.err
+    assert captured.err.startswith(f'{prog}: error: ') and needle in captured.err, captured.err
+    assert captured.out == ''
+
+
+def test_the_errors_page_shows_what_dmf_sim_prints(capsys, monkeypatch):
+    """doc/errors.md's console examples are run: each prints exactly the line shown."""
+    import re
+    import shlex
+    from pathlib import Path
+
+    monkeypatch.setattr('dmf_sim.solvers.hbm.sweep', _no_compute)
+    page = (Path(__file__).resolve().parents[1] / 'doc' / 'errors.md').read_text()
+    examples = re.findall(r'^\$ dmf-sim (.*)\n(dmf-sim.*)$', page, re.M)
+    assert len(examples) >= 4
+    for command, shown in examples:
+        assert _exit_code(shlex.split(command)) == 2, command
+        assert capsys.readouterr().err == shown + '\n', command
+    assert '`dmf-sim <command>: error: <one line>`' in page

@@ -22,7 +22,7 @@ from matplotlib import colormaps
 from matplotlib.figure import Figure
 
 from dmf_sim.analysis.load_timeline import load_text
-from dmf_sim.figures import save
+from dmf_sim.figures import legend_below, legend_beside, save
 
 __all__ = ['fig13_figure', 'plot_campbell', 'plot_fig13']
 
@@ -30,10 +30,6 @@ _ORDER_STYLE = {'order_3': ('3rd order', 'tab:red'), 'order_1_5': ('1.5th order'
                 'max_deviation': ('max / min deviation', 'k'), 'min_deviation': (None, 'k')}
 _GREEN = 'tab:green'
 _MARGIN = 1.25            # the vibration panel spans the measured/HBM extremes x this
-
-
-def _legend_outside(ax) -> None:
-    ax.legend(loc='upper left', bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
 
 
 def _label(label: str | None, what: str) -> str | None:
@@ -120,11 +116,11 @@ def fig13_figure(res, sig):
         low.axhline(0.0, color='0.6', lw=0.6)
         low.set_ylabel(f'θ − static wind-up [{unit}]\n(whole range, drive positive)')
         low.grid(alpha=0.3)
-        _legend_outside(low)
+        legend_beside(low)
     ax.set_ylabel(f'{sig.signal.description} [{unit}]: order amplitudes,\n'
                   'deviations from the cycle mean' + (', θ − static wind-up' if two else ''))
     ax.grid(alpha=0.3)
-    _legend_outside(ax)
+    legend_beside(ax)
     axes[-1, 0].set_xlabel('engine speed [rpm]')
     fig.suptitle(_title(res, sig) + ' (paper Fig. 13 quantities)', fontsize=10)
     return fig
@@ -184,8 +180,8 @@ def plot_campbell(res, sig, path: Path, natural: Mapping[str, Sequence[float]] |
     ax.set_xlabel('engine speed [rpm]')
     ax.set_ylabel('frequency [Hz]')
     ax.set_title(f'Campbell diagram ({res.crank_source})', fontsize=10)
-    if ax.get_legend_handles_labels()[0]:
-        ax.legend(loc='upper left', fontsize=8, framealpha=0.9)
+    if ax.get_legend_handles_labels()[0]:         # below: a legend beside would push the
+        legend_below(fig, ncols=3, fontsize=8)       # colorbar away from its panel
     ax.grid(alpha=0.3)
     edges_s = _edges(speeds, 1.0)
     edges_o = np.concatenate(([orders[0] - 0.25], orders + 0.25))

@@ -189,7 +189,9 @@ def _output(bag: BagFiles, out_path, in_place: bool) -> tuple[Path, bool]:
     refuse_existing(out)
     as_dir = src.is_dir() if in_place else out.suffix != '.mcap'
     if not as_dir and len(bag.files) > 1:
-        raise BagError(f'{src} has {len(bag.files)} files; recover it into a directory')
+        raise BagError(f'{out}: a bare .mcap file holds one file, and {src} is split into '
+                       f'{len(bag.files)}; give a directory name (e.g. {out.with_suffix("")}) '
+                       'or recover one split file at a time')
     return out, as_dir
 
 

@@ -106,7 +106,7 @@ def _finish(problem, result, baseline, args, say, seconds_so_far: float) -> dict
         spread,
         write_report,
     )
-    from dmf_sim.optimize.verify import verify_design
+    from dmf_sim.optimize.verify import verification_extremes, verify_design
     t0 = time.perf_counter()
     front = [r for r in result.rows('design') if r['pareto']]
     exported = write_designs(problem, front, args.out)
@@ -132,8 +132,7 @@ def _finish(problem, result, baseline, args, say, seconds_so_far: float) -> dict
         summary['baseline'] = {k: v for k, v in baseline.summary().items()
                                if k in ('n_designs', 'n_feasible', 'n_failed', 'pareto',
                                         'best', 'seconds', 'designs_per_s')}
-    if summary['verification']:
-        summary['verified_max_rel_diff'] = max(v['rel_diff'] for v in summary['verification'])
+    summary.update(verification_extremes(summary['verification']))
     if not args.no_report:
         say('figures and report')
         summary['files'].update(write_report(
@@ -158,6 +157,7 @@ def _json(v):
 
 
 def _print(s: dict) -> None:
+    from dmf_sim.optimize.verify import verification_lines
     rate = f'{s["designs_per_s"]:.2f} designs/s' if s['designs_per_s'] else 'nothing computed'
     print(f'{s["study"]} ({s["method"]}): {s["n_designs"]} designs ({s["n_feasible"]} feasible, '
           f'{s["n_failed"]} failed, {s["n_resumed"]} resumed); {s["seconds"]:.1f} s on '
@@ -172,9 +172,8 @@ def _print(s: dict) -> None:
               f'{h["lhs_final"]:.4g}, ratio {h["ratio"]:.3g}')
     bvp = s.get('best_vs_paper', {})
     print(f'designs dominating the paper\'s: {bvp.get("n_dominating", 0)}')
-    if 'verified_max_rel_diff' in s:
-        print(f'time domain vs HBM, largest relative difference: '
-              f'{100 * s["verified_max_rel_diff"]:.2f} %')
+    for line in verification_lines(s):
+        print(line)
     for k in ('report.md', 'report.html', 'parquet'):
         if k in s['files']:
             print(f'{k}: {s["files"][k]}')

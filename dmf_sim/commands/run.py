@@ -74,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
                      chunk_s=args.chunk, write=not args.no_write, namespace=args.namespace,
                      threads=default_threads() if args.threads is None else args.threads)
     summary = run_profile(profile, None if args.no_write else args.out, opt,
-                          progress=not (args.no_progress or args.json) and sys.stderr.isatty())
+                          progress=not (args.no_progress or args.json))
     if args.json:
         print(json.dumps(summary.as_dict()))
     else:

@@ -105,10 +105,11 @@ def _maps(result, ref):
 
 
 def _pareto(result, ref):
+    from dmf_sim.figures import legend_beside
     study = result.study
     o1, o2 = study.objectives[:2]
     ok = [r for r in result.rows('design') if r['status'] == 'ok']
-    fig = Figure(figsize=(6.5, 5.0), layout='constrained')
+    fig = Figure(figsize=(9.0, 5.0), layout='constrained')
     ax = fig.subplots()
     ax.plot([r[o1] for r in ok], [r[o2] for r in ok], '.', color='0.6', label='designs')
     front = sorted((r for r in ok if r['pareto']), key=lambda r: (r[o1], r[o2]))
@@ -131,7 +132,7 @@ def _pareto(result, ref):
     ax.set_xlabel(f'{o1}: {_label(o1)}', fontsize=8)
     ax.set_ylabel(f'{o2}: {_label(o2)}', fontsize=8)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
+    legend_beside(ax)
     ax.set_title(f'{study.name}: Pareto front (both minimized)', fontsize=10)
     return fig
 

@@ -281,14 +281,14 @@ def run_study(study, client=None, *, out=None, resume: bool = False, workers: in
     """
     study = load_study(study)
     store = ResultStore(out, study, resume) if out is not None else None
-    if store:
-        store.lock()                  # before reading what earlier runs stored
     own = client is None
     t0 = time.perf_counter()
-    designs = study.designs()
-    run = _Run(study, designs, store, on_batch)
     cluster, n_workers, size = None, 0, 0
     try:
+        if store:
+            store.lock()              # before reading what earlier runs stored
+        designs = study.designs()
+        run = _Run(study, designs, store, on_batch)
         done = store.finished() if store else set()
         todo = [i for i in range(len(designs)) if i not in done]
         if store:

@@ -101,20 +101,32 @@ class ResultStore:
 
     # ---- one run at a time -----------------------------------------------------------------
     def lock(self) -> None:
-        """Create ``out`` and hold its lock file for this run (another run there is refused)."""
+        """Create ``out`` and hold its lock file for this run (another run there is refused);
+        :meth:`close` removes it. A lock file another run removed between our opening it and
+        locking it is opened again (the path must still name the file we lock)."""
         self.dir.mkdir(parents=True, exist_ok=True)
-        fh = open(self.dir / LOCK_FILE, 'a+')
-        try:
-            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
+        path = self.dir / LOCK_FILE
+        while True:
+            fh = open(path, 'a+')
+            try:
+                fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError:
+                fh.close()
+                raise ConfigError(f'--out {self.dir}: another study run is using this '
+                                  'directory') from None
+            try:
+                if os.stat(path).st_ino == os.fstat(fh.fileno()).st_ino:
+                    break
+            except FileNotFoundError:
+                pass
             fh.close()
-            raise ConfigError(f'--out {self.dir}: another study run is using this '
-                              'directory') from None
         self._lock = fh
 
     def close(self) -> None:
+        """Release and remove the lock file (the end of the run, also after an error)."""
         if self._lock is not None:
-            self._lock.close()          # releases the lock
+            (self.dir / LOCK_FILE).unlink(missing_ok=True)   # while held: no other run has it
+            self._lock.close()
             self._lock = None
 
     # ---- reading --------------------------------------------------------------------------------

@@ -1,26 +1,24 @@
 """The one-page durability report: JSON and a PNG with the torque histogram, the rainflow
-matrix, the damage by speed band and the dissipated power over the record."""
+matrix, the damage by speed band and the dissipated power over the record (one point per engine
+cycle). Drawn with :mod:`dmf_sim.figures`' rules, written by :func:`dmf_sim.figures.save`."""
 from __future__ import annotations
 
 import json
 from pathlib import Path
 
 import numpy as np
+from matplotlib.figure import Figure
 
 from dmf_sim.analysis.outputs import to_jsonable
 from dmf_sim.durability.read import DurabilityRun
+from dmf_sim.figures import legend_beside, save
 
-__all__ = ['report_dict', 'write_json', 'plot_report']
+__all__ = ['report_dict', 'write_json', 'report_figure', 'plot_report']
 
-_DPI = 110
-_SIZE_IN = (11.0, 8.5)
-
-
-def _pyplot():
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
-    return plt
+_SIZE_IN = (11.0, 9.0)
+_POWER_COLOR = 'tab:orange'
+_POWER_MEAN_COLOR = 'saddlebrown'
+_SPEED_COLOR = '0.55'
 
 
 def report_dict(run: DurabilityRun) -> dict:
@@ -61,17 +59,21 @@ def _text(run: DurabilityRun) -> str:
 
 
 def plot_report(run: DurabilityRun, path: Path) -> Path:
+    """Save :func:`report_figure` as ``path`` (PNG)."""
+    return save(report_figure(run), path)
+
+
+def report_figure(run: DurabilityRun) -> Figure:
     """One page: text summary, torque histogram, rainflow matrix, damage by speed band,
-    dissipated power over time."""
-    plt = _pyplot()
+    dissipated power over time (a dot per engine cycle, their mean over ``power_time_s``)."""
     r = run.result
     s = r.settings
-    fig = plt.figure(figsize=_SIZE_IN, dpi=_DPI)
-    grid = fig.add_gridspec(3, 2, height_ratios=[0.55, 1, 1], hspace=0.55, wspace=0.3)
+    fig = Figure(figsize=_SIZE_IN, layout='constrained')
+    grid = fig.add_gridspec(3, 2, height_ratios=[0.42, 1, 1])
     ax_t = fig.add_subplot(grid[0, :])
     ax_t.axis('off')
     ax_t.text(0.0, 1.0, _text(run), va='top', ha='left', fontsize=8.5, family='monospace',
-              wrap=True)
+              transform=ax_t.transAxes)
     ax_t.set_title('DMF durability', loc='left', fontsize=12)
 
     ax = fig.add_subplot(grid[1, 0])
@@ -94,7 +96,9 @@ def plot_report(run: DurabilityRun, path: Path) -> Path:
         im = ax.imshow(np.log10(mat), origin='lower', aspect='auto', cmap='viridis',
                        extent=[m0 * s.mean_bin_nm, (m1 + 1) * s.mean_bin_nm,
                                r0 * s.range_bin_nm, (r1 + 1) * s.range_bin_nm])
-        fig.colorbar(im, ax=ax, label='log10 cycles')
+        # in an inset beside the axes: the column's right margin is shared with the power
+        # panel's speed axis below, so a layout colorbar would sit at the margin's far edge
+        fig.colorbar(im, cax=ax.inset_axes([1.03, 0.0, 0.04, 1.0]), label='log10 cycles')
     ax.set_xlabel('cycle mean torque [Nm]')
     ax.set_ylabel('cycle torque range [Nm]')
     ax.set_title('rainflow matrix', fontsize=10)
@@ -108,7 +112,7 @@ def plot_report(run: DurabilityRun, path: Path) -> Path:
         ax.bar(x, 100 * share, width=0.9 * s.speed_bin_rpm, color='tab:red', label='damage')
         tim = np.array([r.time_by_band.get(k, 0.0) for k in bands])
         ax.plot(x, 100 * tim / max(tim.sum(), 1e-12), 'ko-', ms=3, lw=1, label='time')
-        ax.legend(fontsize=8, frameon=False)
+        legend_beside(ax)
     ax.set_xlabel('engine speed band [rpm]')
     ax.set_ylabel('share [%]')
     resid = r.damage_residue / r.damage if r.damage > 0 else 0.0
@@ -116,15 +120,18 @@ def plot_report(run: DurabilityRun, path: Path) -> Path:
                  + f'\nresidue half cycles (no band): {resid:.0%} of the damage', fontsize=9)
 
     ax = fig.add_subplot(grid[2, 1])
-    if len(r.power_t_s):
-        ax.plot(r.power_t_s, r.power_w, color='tab:orange', lw=1)
+    n = len(r.cycle_t_s)
+    if n:
         ax2 = ax.twinx()
-        ax2.plot(r.power_t_s, r.power_speed_rpm, color='0.6', lw=0.8)
-        ax2.set_ylabel('engine speed [rpm]', color='0.4')
+        ax2.plot(r.cycle_t_s, r.cycle_speed_rpm, color=_SPEED_COLOR, lw=0.8, zorder=1)
+        ax2.set_ylabel('engine speed [rpm] (grey)', color=_SPEED_COLOR)
+        ax.set_zorder(ax2.get_zorder() + 1)          # the power over the speed
+        ax.patch.set_visible(False)
+        ax.plot(r.cycle_t_s, r.cycle_power_w, '.', ms=2.5 if n > 500 else 4,
+                color=_POWER_COLOR)
+        ax.plot(r.power_t_s + s.power_time_s / 2, r.power_w, color=_POWER_MEAN_COLOR, lw=1)
     ax.set_xlabel('time [s]')
-    ax.set_ylabel('power [W]')
-    ax.set_title('DMF damping power c (dw/dt)^2 per engine cycle\n(real arc-spring friction '
-                 'not in the model)', fontsize=9)
-    fig.savefig(path, dpi=_DPI, bbox_inches='tight')
-    plt.close(fig)
-    return path
+    ax.set_ylabel('damping power [W]')
+    ax.set_title(f'DMF damping power c (dw/dt)², viscous only\ndots: each engine cycle ({n}), '
+                 f'line: their mean over {s.power_time_s:g} s', fontsize=9)
+    return fig

@@ -26,12 +26,14 @@ from matplotlib.ticker import NullFormatter
 
 from dmf_sim.design.metrics import OBJECTIVES
 from dmf_sim.design.parameters import design_driveline
+from dmf_sim.figures import legend_beside
 from dmf_sim.optimize.hypervolume import hypervolume, hypervolume_history
 
 __all__ = ['FIGURES', 'MAX_SPRINGS', 'MAX_SWEEP_PANELS', 'SPRING_CURVE_POINTS', 'reference_design',
            'ideal_point_search', 'compare_with_reference', 'common_hypervolumes',
            'FRONT_REFERENCE_MARGIN', 'front_reference_point', 'front_hypervolumes', 'spread',
-           'pareto_figure', 'hypervolume_figure', 'springs_figure', 'sweeps_figure', 'Block',
+           'pareto_figure', 'hypervolume_figure', 'springs_figure', 'spring_axis',
+           'SPRING_AXIS_MARGIN', 'sweeps_figure', 'Block',
            'write_report']
 
 FIGURES = {
@@ -44,6 +46,7 @@ FIGURES = {
 MAX_SPRINGS = 8              # Pareto designs drawn in springs.png (spread over the front)
 MAX_SWEEP_PANELS = 2         # best designs beside the paper's in fig13_best.png
 SPRING_CURVE_POINTS = 400
+SPRING_AXIS_MARGIN = 1.15    # springs.png: wind-up axis this far beyond the travel and every knee
 FRONT_REFERENCE_MARGIN = 0.1  # front reference point: nadir + this x (nadir - ideal) of the fronts
 
 
@@ -225,7 +228,7 @@ def _label(name: str) -> str:
 
 def pareto_figure(result, baseline, ref: dict) -> Figure:
     o1, o2 = result.problem.objectives[:2]
-    fig = Figure(figsize=(7.0, 5.2), layout='constrained')
+    fig = Figure(figsize=(10.0, 5.2), layout='constrained')
     ax = fig.subplots()
     for res, color, name in ((baseline, 'tab:gray', 'Latin hypercube'),
                              (result, 'tab:blue', f'optimizer ({result.problem.method})')):
@@ -253,14 +256,14 @@ def pareto_figure(result, baseline, ref: dict) -> Figure:
     ax.set_xlabel(_label(o1), fontsize=8)
     ax.set_ylabel(_label(o2), fontsize=8)
     ax.grid(alpha=0.3, which='both')
-    ax.legend(fontsize=7)
+    legend_beside(ax, fontsize=7)
     ax.set_title(f'{result.problem.study.name}: both objectives minimized, worst over conditions '
                  'and states', fontsize=9)
     return fig
 
 
 def hypervolume_figure(hv: dict, method: str) -> Figure:
-    fig = Figure(figsize=(6.5, 4.0), layout='constrained')
+    fig = Figure(figsize=(8.5, 4.0), layout='constrained')
     ax = fig.subplots()
     for key, color, name in (('optimizer', 'tab:blue', f'optimizer ({method})'),
                              ('lhs', 'tab:gray', 'Latin hypercube')):
@@ -269,7 +272,7 @@ def hypervolume_figure(hv: dict, method: str) -> Figure:
     ax.set_xlabel('designs evaluated')
     ax.set_ylabel('hypervolume of the feasible designs')
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
+    legend_beside(ax)
     ref = hv.get('reference_point')
     if ref:
         ax.set_title(f'reference point ({ref[0]:.4g}, {ref[1]:.4g}); final ratio '
@@ -278,23 +281,31 @@ def hypervolume_figure(hv: dict, method: str) -> Figure:
 
 
 def springs_figure(result, ref: dict, rows: list[dict]) -> Figure:
+    """Torque over wind-up of the Pareto designs ``rows`` and the paper's spring; the wind-up
+    axis holds every knee of every spring drawn (coast knees at -angle) and the travel."""
     p = result.problem
     study, cons = p.study, p.constraints
     from dmf_sim.design.evaluate import StudyContext
     ctx = StudyContext.from_study(study)
-    w_max = 1.15 * (cons.max_travel_rad or max(r.get('max_windup') or 0.3 for r in rows))
-    w = np.linspace(-0.5 * w_max, w_max, SPRING_CURVE_POINTS)
-    fig = Figure(figsize=(7.0, 4.8), layout='constrained')
-    ax = fig.subplots()
+    springs = []
     for r in rows:
         line = design_driveline(study.base, ctx.design_values([r[v] for v in
                                                                study.variable_names]))
+        springs.append((r, line.spring))
+    w_lo, w_hi = spring_axis(cons.max_travel_rad or max(r.get('max_windup') or 0.3
+                                                        for r in rows),
+                             [sp for _, sp in springs] + [ref['spring']])
+    w = np.linspace(w_lo, w_hi, SPRING_CURVE_POINTS)
+    fig = Figure(figsize=(8.5, 4.8), layout='constrained')
+    ax = fig.subplots()
+    for r, spring in springs:
         best = r['design_id'] == result.best_id
-        ax.plot(w, line.spring.torque(w), lw=2.2 if best else 1.0,
+        ax.plot(w, spring.torque(w), lw=2.2 if best else 1.0,
                 color='tab:orange' if best else 'tab:blue', alpha=1.0 if best else 0.6,
                 label=f'design {r["design_id"]}' + (' (best)' if best else ''))
     ax.plot(w, ref['spring'].torque(w), color='tab:red', lw=2.0, ls='--',
             label='paper: α 3, θ 0.24 rad')
+    ax.set_xlim(w_lo, w_hi)
     ax.axhline(cons.capacity_nm, color='k', lw=0.8, ls=':')
     ax.text(w[0], cons.capacity_nm, f' capacity {cons.capacity_nm:.0f} Nm', fontsize=7,
             va='bottom')
@@ -308,9 +319,18 @@ def springs_figure(result, ref: dict, rows: list[dict]) -> Figure:
     ax.set_xlabel('wind-up w [rad] (positive: engine drives)')
     ax.set_ylabel('DMF spring torque T(w) [Nm]')
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=7, ncol=2)
+    legend_beside(ax, fontsize=7)
     ax.set_title('Torque-wind-up curves of the Pareto designs', fontsize=9)
     return fig
+
+
+def spring_axis(travel_rad: float, springs) -> tuple[float, float]:
+    """Wind-up range [rad] of the springs figure: :data:`SPRING_AXIS_MARGIN` beyond the travel
+    on the drive side and beyond every knee of ``springs`` (drive knees at +angle, coast knees at
+    -angle), and at least half the drive side on the coast side."""
+    drive = max([travel_rad] + [st.angle_rad for sp in springs for st in sp.drive])
+    coast = max([0.5 * drive] + [st.angle_rad for sp in springs for st in sp.coast])
+    return -SPRING_AXIS_MARGIN * coast, SPRING_AXIS_MARGIN * drive
 
 
 def sweeps_figure(result, ref: dict, rows: list[dict]) -> Figure:
@@ -443,22 +463,36 @@ def _blocks(result, baseline, ref, hv, bvp, exported, seconds, front) -> list[Bl
                                      Path(exported.get(str(r['design_id']), '')).name]
                                     for r in sorted(front, key=lambda r: r[o1])])))
     if result.verification:
+        from dmf_sim.optimize.verify import verification_extremes, verification_lines
+        checks = [v.as_dict() for v in result.verification]
         b.append(Block('h2', 'Verification in the time domain (Newmark)'))
         b.append(Block('p', 'At the speed and condition of each worst value: shots from several '
-                            'initial states (largest value: "time domain") and slow run-ups up '
-                            'and down through the speed (largest value within half a grid step), '
-                            'beside the harmonic-balance worst value.'))
+                            'initial states (their largest value: "Newmark shots"), compared '
+                            'with the harmonic-balance worst value ("shots vs HBM"), and slow '
+                            'run-ups up and down through the speed (their largest value within '
+                            'half a grid step of it: "run-ups"), compared with the same HBM '
+                            'value ("run-ups vs HBM"; a ramp passes between the grid speeds and '
+                            'is not steady).'))
+        for line in verification_lines({'verification': checks,
+                                         **verification_extremes(checks)}):
+            if line.startswith('  '):           # the comparisons, not their heading
+                b.append(Block('p', line.strip()[0].upper() + line.strip()[1:] + '.'))
         b.append(Block('table', (['design', 'objective', 'condition', 'speed [rpm]', 'HBM',
-                                  'time domain (shots)', 'rel. diff', 'run-ups', 'shots settled'],
+                                  'Newmark shots', 'shots vs HBM', 'run-ups', 'run-ups vs HBM',
+                                  'shots settled'],
                                  [[str(v.design_id), v.objective, v.condition,
                                    f'{v.speed_rpm:g}', _g(v.hbm), _g(v.time_domain),
                                    f'{100 * v.rel_diff:.2f} %', _g(v.run_up),
-                                   f'{v.settled}/{len(v.shots)}']
+                                   _pct(v.run_up_rel_diff), f'{v.settled}/{len(v.shots)}']
                                   for v in result.verification])))
     b.append(Block('h2', 'Figures'))
     for name, caption in FIGURES.items():
         b.append(Block('figure', (name, caption)))
     return b
+
+
+def _pct(v: float) -> str:
+    return '' if v is None or not math.isfinite(v) else f'{100 * v:+.1f} %'
 
 
 def _pt(p) -> str:

@@ -28,7 +28,8 @@ import numpy as np
 from dmf_sim.design.parameters import design_driveline
 from dmf_sim.physics.orders import ORDER_1_5, ORDER_3
 
-__all__ = ['VERIFIABLE', 'VerifySettings', 'Check', 'verify_design', 'verify_worst']
+__all__ = ['VERIFIABLE', 'VerifySettings', 'Check', 'verify_design', 'verify_worst',
+           'verification_extremes', 'verification_lines']
 
 VERIFIABLE = {'worst_order_1_5': ('windup', ORDER_1_5), 'worst_order_3': ('windup', ORDER_3),
               'worst_torque_3': ('torque', ORDER_3)}
@@ -69,10 +70,20 @@ class Check:
 
     @property
     def rel_diff(self) -> float:
+        """|shots - HBM| / |HBM|: the steady states at the grid speed against harmonic
+        balance."""
         return abs(self.time_domain - self.hbm) / abs(self.hbm) if self.hbm else math.nan
 
+    @property
+    def run_up_rel_diff(self) -> float:
+        """(run-ups - HBM) / |HBM|, signed: what slow ramps through the speed see within half
+        a grid step of it, against the harmonic-balance worst value at the grid speed (NaN
+        without run-ups)."""
+        return (self.run_up - self.hbm) / abs(self.hbm) if self.hbm else math.nan
+
     def as_dict(self) -> dict:
-        return {**asdict(self), 'rel_diff': self.rel_diff}
+        return {**asdict(self), 'rel_diff': self.rel_diff,
+                'run_up_rel_diff': self.run_up_rel_diff}
 
 
 def verify_design(problem, row: dict, settings: VerifySettings | None = None) -> list[Check]:
@@ -141,6 +152,54 @@ def verify_worst(line, engine, load: float, speed_rpm: float, objective: str, hb
         run_up = max(vals) if vals else math.nan
     return Check(int(design_id), objective, condition, float(speed_rpm), float(hbm_value),
                  float(max(shots)), run_up, shots, settled)
+
+
+_CHECK_KEYS = ('design_id', 'objective', 'condition', 'speed_rpm', 'hbm', 'time_domain', 'run_up')
+
+
+def verification_extremes(checks: list[dict]) -> dict:
+    """The two comparisons of the checks (``Check.as_dict`` rows) a summary reports, each with
+    the check it comes from: ``verified_max_rel_diff`` (the largest ``rel_diff``: Newmark shots
+    at the grid speed vs harmonic balance) and ``verified_run_up_rel_diff`` (the
+    ``run_up_rel_diff`` of largest magnitude, signed: slow run-ups through the speed vs harmonic
+    balance); ``verified_shots_worst`` / ``verified_run_ups_worst`` name the checks. Empty
+    without checks."""
+    shots = [c for c in checks if math.isfinite(c['rel_diff'])]
+    ups = [c for c in checks if math.isfinite(c['run_up_rel_diff'])]
+    out = {}
+    if shots:
+        w = max(shots, key=lambda c: c['rel_diff'])
+        out.update(verified_max_rel_diff=w['rel_diff'],
+                   verified_shots_worst={k: w[k] for k in _CHECK_KEYS})
+    if ups:
+        w = max(ups, key=lambda c: abs(c['run_up_rel_diff']))
+        out.update(verified_run_up_rel_diff=w['run_up_rel_diff'],
+                   verified_run_ups_worst={k: w[k] for k in _CHECK_KEYS})
+    return out
+
+
+def verification_lines(summary: dict) -> list[str]:
+    """What the time domain says about the harmonic-balance worst values, in words (the
+    command's summary and the report): what is compared with what, and where the largest
+    difference of each comparison is."""
+    lines = []
+    n = len(summary.get('verification') or [])
+    if 'verified_max_rel_diff' in summary:
+        w = summary['verified_shots_worst']
+        lines += [f'time domain (Newmark) vs harmonic balance (HBM) at each worst value, {n} '
+                  'checks:',
+                  f'  steady shots at the worst grid speed: largest difference '
+                  f'{100 * summary["verified_max_rel_diff"]:.2f} % (design {w["design_id"]}, '
+                  f'{w["objective"]} at {w["speed_rpm"]:g} rpm, {w["condition"]}: '
+                  f'{w["time_domain"]:.4g} vs HBM {w["hbm"]:.4g})']
+    if 'verified_run_up_rel_diff' in summary:
+        w = summary['verified_run_ups_worst']
+        lines.append(f'  slow run-ups through that speed (within half a grid step of it): '
+                     f'largest difference {100 * summary["verified_run_up_rel_diff"]:+.1f} % '
+                     f'(design {w["design_id"]}, {w["objective"]} at {w["speed_rpm"]:g} rpm, '
+                     f'{w["condition"]}: {w["run_up"]:.4g} vs HBM {w["hbm"]:.4g}); a ramp '
+                     'passes between the grid speeds and is not steady')
+    return lines
 
 
 def _cycle_values(r, model, signal: str, n: int, element: int, with_speed: bool = False):
