@@ -41,6 +41,7 @@ __all__ = ['WORKER_MODES', 'MONITOR_PARAMETERS', 'MonitorSettings', 'CycleReport
            'MonitorUpdate', 'LiveMonitor']
 
 WORKER_MODES = ('process', 'thread')
+WORKER_IGNORES = (signal.SIGINT, signal.SIGTERM)   # a worker process ends when the node says so
 PREDICTION_CACHE_SIZE = 256        # operating points kept
 WORKER_MODELS = 4                  # driveline models a worker keeps built
 _uid = itertools.count(1)
@@ -101,9 +102,11 @@ _MODELS: OrderedDict = OrderedDict()
 
 
 def _init_worker(niceness: int) -> None:
-    # Ctrl-C in a terminal reaches the whole process group: the node decides when its workers
-    # stop (LiveMonitor.close), a worker must not die of the node's SIGINT
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # Ctrl-C in a terminal, and `kill -TERM %1` on a `ros2 launch` job, reach the whole process
+    # group: the node decides when its workers stop (LiveMonitor.close), a worker must not die
+    # of the node's SIGINT or SIGTERM (the node would start a new one while it stops)
+    for signum in WORKER_IGNORES:
+        signal.signal(signum, signal.SIG_IGN)
     import multiprocessing
     parent = multiprocessing.parent_process()
     # a crashed node must not leave orphan workers, also when it died while this one started
@@ -174,7 +177,23 @@ class _Worker:
         raise RuntimeError('unreachable')
 
     def close(self) -> None:
-        self.ex.shutdown(wait=True, cancel_futures=True)
+        """Stop at once: queued jobs are cancelled and a worker process is killed, whether it
+        runs a job (a prediction takes up to seconds) or is still starting (importing, one to
+        three seconds): the node is stopping and wants no more results. A thread finishes
+        its job."""
+        processes = list((getattr(self.ex, '_processes', None) or {}).values())
+        self.ex.shutdown(wait=False, cancel_futures=True)
+        for proc in processes:
+            if proc.is_alive():
+                proc.kill()
+        for proc in processes:
+            proc.join()
+        self.ex.shutdown(wait=True)
+
+    @property
+    def pids(self) -> list[int]:
+        """The worker processes' ids (none for a thread)."""
+        return [p.pid for p in (getattr(self.ex, '_processes', None) or {}).values()]
 
 
 # ------------------------------------------------------------------------------------------------
@@ -345,7 +364,12 @@ class LiveMonitor:
         self._cycles_worker.ready.result(timeout)
         self._predict_worker.ready.result(timeout)
 
+    @property
+    def worker_pids(self) -> list[int]:
+        """The ids of the worker processes running now (none with ``worker='thread'``)."""
+        return self._cycles_worker.pids + self._predict_worker.pids
+
     def close(self) -> None:
-        """Stop the workers (waits for a running job)."""
+        """Stop the workers at once (a running job's result is dropped; see ``_Worker.close``)."""
         self._cycles_worker.close()
         self._predict_worker.close()
