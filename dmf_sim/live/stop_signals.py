@@ -11,9 +11,10 @@ node the parent-death SIGTERM a few milliseconds later. Only SIGKILL (launch's l
 ``sigkill_timeout`` after its SIGTERM) stops the node at once; it leaves the bag's last file
 without its footer (``dmf-sim bag-recover`` completes it). See doc/node.md, "Stopping the node".
 
-The handlers only record the signal and set an event (no lock is taken in them), and the logger
-they call is rclpy's (reentrant), so a signal that arrives while the node writes or closes the
-bag changes nothing in what is being written.
+The handlers only record the signal, set an event (no lock is taken in them) and log (rclpy's
+logger; a logging failure is swallowed, since an exception raised in a handler would surface in
+whatever the main thread runs, the bag's close included), so a signal that arrives while the node
+writes or closes the bag changes nothing in what is being written.
 """
 from __future__ import annotations
 
@@ -102,6 +103,9 @@ class StopSignals:
         if len(self.received) == 1:
             self.requested.set()
             return
-        self.log(f'{said} ignored while {self.doing} (the {_ordinal(len(self.received))} stop '
-                 'signal); SIGKILL stops at once, leaving the last bag file to '
-                 'dmf-sim bag-recover')
+        try:
+            self.log(f'{said} ignored while {self.doing} (the {_ordinal(len(self.received))} '
+                     'stop signal); SIGKILL stops at once, leaving the last bag file to '
+                     'dmf-sim bag-recover')
+        except Exception:  # noqa: BLE001 - raised here, it would interrupt what it reports on
+            pass

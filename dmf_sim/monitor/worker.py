@@ -24,7 +24,7 @@ from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field, replace
 
 from dmf_sim.core.errors import ConfigError
-from dmf_sim.core.process import die_with_parent
+from dmf_sim.core.process import blocked_signals, die_with_parent
 from dmf_sim.monitor.alarms import AlarmReport, AlarmSettings, evaluate
 from dmf_sim.monitor.messages import StatusData, cycle_status, monitor_status, prediction_statuses
 from dmf_sim.monitor.orders import CycleOrderTracker, CycleResult, CycleWindow, analyze_window
@@ -105,8 +105,10 @@ def _init_worker(niceness: int) -> None:
     # Ctrl-C in a terminal, and `kill -TERM %1` on a `ros2 launch` job, reach the whole process
     # group: the node decides when its workers stop (LiveMonitor.close), a worker must not die
     # of the node's SIGINT or SIGTERM (the node would start a new one while it stops)
+    # (started with them blocked, see _Worker: unblocked once ignored)
     for signum in WORKER_IGNORES:
         signal.signal(signum, signal.SIG_IGN)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, WORKER_IGNORES)
     import multiprocessing
     parent = multiprocessing.parent_process()
     # a crashed node must not leave orphan workers, also when it died while this one started
@@ -144,7 +146,9 @@ def _job_cycles(key, payload, window: CycleWindow) -> list[CycleResult]:
 
 
 class _Worker:
-    """One single-worker executor (a spawned process, or a thread) and the models sent to it."""
+    """One single-worker executor (a spawned process, or a thread) and the models sent to it.
+    A process is started (in ``submit``) with SIGINT and SIGTERM blocked, so the process
+    group's signals cannot end it before its initializer ignores them."""
 
     def __init__(self, mode: str, niceness: int, name: str) -> None:
         self.mode, self.niceness, self.name = mode, niceness, name
@@ -159,14 +163,16 @@ class _Worker:
         else:
             self.ex = ThreadPoolExecutor(1, thread_name_prefix=self.name)
         self._sent = set()
-        self.ready = self.ex.submit(_job_ready)
+        with blocked_signals(WORKER_IGNORES):
+            self.ready = self.ex.submit(_job_ready)
 
     def submit(self, fn, model, *args) -> Future:
         key, line, engine = model
         for attempt in range(2):
             payload = None if key in self._sent else (line, engine)
             try:
-                fut = self.ex.submit(fn, key, payload, *args)
+                with blocked_signals(WORKER_IGNORES):
+                    fut = self.ex.submit(fn, key, payload, *args)
             except BrokenProcessPool:
                 if attempt:
                     raise
