@@ -337,7 +337,8 @@ def usage() -> str:
     topics = rest[rest.index('Topics'):rest.index('Setpoints are commands')].rstrip()
     return (f'{head.strip()}\n\n{topics}\n\nServices: ~/reset (std_srvs/Trigger), ~/record '
             '(std_srvs/SetBool). Parameters: ros2 param list/describe /driveline_node, or '
-            'config/driveline_node.yaml.\nStop: Ctrl-C or SIGTERM (closes the bag); it also '
+            'config/driveline_node.yaml.\nStop: Ctrl-C or SIGTERM (closes the bag; later '
+            'SIGINT/SIGTERM are ignored until it is closed, SIGKILL stops at once); it also '
             'stops when the process that started it (ros2 launch) ends.')
 
 
