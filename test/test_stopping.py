@@ -181,14 +181,6 @@ def _children(pid: int) -> set[int]:
     return out
 
 
-def _gone(pid: int) -> bool:
-    try:
-        state = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()[0]
-    except (FileNotFoundError, ProcessLookupError, IndexError):
-        return True
-    return state in ('Z', 'X')
-
-
 def _wait_for(path: Path, text: str, timeout: float) -> bool:
     end = time.monotonic() + timeout
     while time.monotonic() < end:
@@ -208,6 +200,7 @@ def test_node_closes_its_bag_whatever_signals_follow(tmp_path):
     or later. Every round: exit code 0, 'stopped recording' logged, the bag complete, no
     traceback, and the monitor's worker processes end with the node. Seeded; ~8 s a round."""
     from dds_peer import START_TIMEOUT, new_domain
+    from test_two_trucks import _gone
 
     rng = random.Random(SEED)
     rounds = ROUNDS or 6
