@@ -512,7 +512,8 @@ def test_startup_error_names_the_node_and_leaves_no_bag(tmp_path):
     res = subprocess.run([sys.executable, '-m', 'dmf_sim.node', '--ros-args', '-r', '__ns:=/t1',
                           '-p', 'record:=true', '-p', f'bag_path:={bag}',
                           '-p', 'profile:=ramp:300:1400:50'],
-                         cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120)
+                         cwd=tmp_path, env=env, capture_output=True, text=True,
+                         timeout=START_TIMEOUT + 60)     # the monitor's workers start first
     err = res.stderr + res.stdout
     assert res.returncode == 2 and 'Traceback' not in err, err
     lines = [ln for ln in err.splitlines() if 'failed' in ln]
