@@ -38,17 +38,15 @@ when pacing returns to it). Parameters: :mod:`dmf_sim.live.parameters`,
 from __future__ import annotations
 
 import array
-import os
-import signal
 import sys
 import threading
 import time
 
 from dmf_sim.core.errors import ConfigError, DmfSimError, one_line
 from dmf_sim.core.numbers import fmt_num
-from dmf_sim.core.process import end_with_parent
 from dmf_sim.live.health import status_name
 from dmf_sim.live.parameters import DMF_PARAMETERS, PARAMETERS, coerce
+from dmf_sim.live.stop_signals import StopSignals
 from dmf_sim.live.streams import STREAMS
 from dmf_sim.transient.live_profile import NodeProfile
 
@@ -109,14 +107,40 @@ def _descriptor(name: str, default, spec) -> ParameterDescriptor:
     return d
 
 
+class StartupFailed(Exception):
+    """The node refused its configuration at start-up; the reason is logged, one line naming
+    the node (``start-up of /truck1/driveline_node failed: ...``)."""
+
+
 class DrivelineNode(Node):
-    """The rclpy shell: parameters, topics, services; the work is in ``self.runtime``."""
+    """The rclpy shell: parameters, topics, services; the work is in ``self.runtime``.
+
+    A configuration the node refuses raises :class:`StartupFailed` after logging why; whatever
+    the start had opened is closed again (the monitor's workers, Foxglove) and a bag it had
+    created is removed (nothing was recorded in it; its ``bag_path`` is free again)."""
 
     def __init__(self, node_name: str = 'driveline_node') -> None:
-        from dmf_sim.live.runtime import LiveRuntime, load_line
-
         super().__init__(node_name)
         self.fqn = self.get_fully_qualified_name()
+        self.runtime = None
+        try:
+            self._start(node_name)
+        except (DmfSimError, ParameterException) as exc:
+            self._abandon()
+            self.get_logger().error(f'start-up of {self.fqn} failed: {one_line(exc)}')
+            self.destroy_node()
+            raise StartupFailed(one_line(exc)) from None
+        except BaseException:
+            self._abandon()
+            raise
+
+    def _abandon(self) -> None:
+        if self.runtime is not None:
+            self.runtime.abandon()
+
+    def _start(self, node_name: str) -> None:
+        from dmf_sim.live.runtime import LiveRuntime, load_line
+
         values = {name: self._declare(name, spec.default, spec)
                   for name, spec in PARAMETERS.items()}
         line = load_line(values['driveline'])
@@ -145,7 +169,7 @@ class DrivelineNode(Node):
         self._update_clock_publisher()
         self.profile = NodeProfile(self.runtime, self.get_logger())     # parameter 'profile'
         if reason := self.profile.start(values['profile']):
-            raise ConfigError(f'parameter {reason}')
+            raise ConfigError(reason)
 
         inbox = self.runtime.loop.inbox
         for kind in ('speed', 'load'):
@@ -313,7 +337,8 @@ def usage() -> str:
     topics = rest[rest.index('Topics'):rest.index('Setpoints are commands')].rstrip()
     return (f'{head.strip()}\n\n{topics}\n\nServices: ~/reset (std_srvs/Trigger), ~/record '
             '(std_srvs/SetBool). Parameters: ros2 param list/describe /driveline_node, or '
-            'config/driveline_node.yaml.\nStop: Ctrl-C or SIGTERM (closes the bag); it also '
+            'config/driveline_node.yaml.\nStop: Ctrl-C or SIGTERM (closes the bag; later '
+            'SIGINT/SIGTERM are ignored until it is closed, SIGKILL stops at once); it also '
             'stops when the process that started it (ros2 launch) ends.')
 
 
@@ -333,60 +358,53 @@ def main(argv: list[str] | None = None) -> int:
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.signals import SignalHandlerOptions
 
-    argv = list(sys.argv if argv is None else argv)
-    stop = threading.Event()
-    why: list[str] = []
+    node = None
 
-    def on_signal(signum, _frame):
-        why.append(signal.Signals(signum).name)
-        stop.set()
-        signal.signal(signum, signal.SIG_DFL)    # a second SIGINT/SIGTERM: default action
+    def log_ignored(line: str) -> None:
+        logger = node.get_logger() if node is not None else rclpy.logging.get_logger(
+            'driveline_node')
+        logger.warning(line)
 
-    def on_parent_death(pid: int) -> None:
-        why.append(f'parent process {pid} ended')
-        stop.set()
-
-    signal.signal(signal.SIGINT, on_signal)
-    signal.signal(signal.SIGTERM, on_signal)
-    # a launch parent that dies (SIGTERM/SIGKILL to `ros2 launch`) ends the node the same clean
-    # way as Ctrl-C: SIGTERM from Linux (or a pid watch elsewhere), the bag closed
-    parent = end_with_parent(on_parent_death, signal.SIGTERM)
+    # The first SIGINT/SIGTERM, or the end of the launch parent (SIGTERM from Linux), stops the
+    # node; later ones are logged and ignored, so nothing interrupts closing the bag.
+    signals = StopSignals(log_ignored).install()
     try:
-        rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     except Exception as exc:  # noqa: BLE001 - RCLError: bad --ros-args / params file
         print(f'driveline_node: error: {one_line(exc)}', file=sys.stderr)
         return EXIT_CONFIG_ERROR
-    node = None
     try:
         try:
             node = DrivelineNode()
-        except (DmfSimError, ParameterException) as exc:
-            rclpy.logging.get_logger('driveline_node').error(f'start-up failed: {one_line(exc)}')
+        except StartupFailed:
             return EXIT_CONFIG_ERROR
         executor = SingleThreadedExecutor()
         executor.add_node(node)
-        node.spin(executor, stop.is_set)
+        node.spin(executor, signals.requested.is_set)
         return 0
     finally:
         if node is not None:
-            _shut_down(node, why, parent)
+            _shut_down(node, signals)
             node.destroy_node()
         rclpy.try_shutdown()
 
 
-def _shut_down(node: DrivelineNode, why: list[str], parent: int) -> None:
-    """Close the runtime (bag, monitor, Foxglove) and say why and where the bag is."""
+def _shut_down(node: DrivelineNode, signals: StopSignals) -> None:
+    """Close the runtime (bag first, then monitor and Foxglove) and say why and where the bag
+    is. Signals that arrive meanwhile are logged and ignored (:class:`StopSignals`)."""
     log = node.get_logger()
-    reason = why[0] if why else 'shutdown'
-    if reason == 'SIGTERM' and os.getppid() != parent:
-        reason = f'SIGTERM: parent process {parent} ended'
-    log.info(f'stopping ({reason})')
-    rec = node.runtime.recording
-    closed = node.runtime.close()       # logs 'stopped recording: bag X closed, N messages'
+    log.info(f'stopping ({signals.reason})')
+    rt = node.runtime
+    rec = rt.recording
+    if rec.active:
+        signals.doing = f'closing the bag {rec.path.absolute()}'
+    closed = rt.close_recording()       # logs 'stopped recording: bag X closed, N messages'
     if closed == 'not recording':
         log.info('stopped; no bag was open' + (f' (last bag: {rec.path.absolute()})'
                                                if rec.path is not None else
                                                ' (record with -p record:=true)'))
+    signals.doing = 'stopping (the bag is closed)' if rec.path is not None else 'stopping'
+    rt.close_services()
 
 
 if __name__ == '__main__':

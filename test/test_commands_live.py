@@ -118,8 +118,14 @@ def test_node_selector_resolves_names_and_refuses_a_mismatch():
     with pytest.raises(ConfigError, match="--node '/truck1/driveline_node' is not in "
                                           "--namespace '/truck2'"):
         select_node('/truck2', '/truck1/driveline_node')
-    with pytest.raises(ConfigError, match='--namespace must be absolute'):
-        select_node('truck1', '')
+    # a relative namespace is taken from the root, as launch takes namespace:=truck1
+    assert select_node('truck1', '') == select_node('/truck1', '')
+    assert select_node('truck1', 'driveline_node').fqn == '/truck1/driveline_node'
+    for bad, why in (('truck1/', "ends with '/'"), ('/a//b', 'empty token'),
+                     ('1truck', 'starts with a digit'), ('truck-1', 'characters other')):
+        with pytest.raises(ConfigError, match=f"--namespace '{bad}' is not a ROS namespace: "
+                                              f'.*{why}'):
+            select_node(bad, '')
 
 
 # ================================================================================================
@@ -169,6 +175,17 @@ def test_setpoint_and_monitor_against_a_running_node(tmp_path):
         assert res.returncode == 0, res.stderr
         assert '/truck1/engine/speed_setpoint: 900 rpm delivered to 1 subscriber' in res.stdout
         assert '/truck1/engine/load_setpoint: load 0.8 delivered' in res.stdout
+
+        # the namespace as launch takes it (relative); a speed outside the node's limits
+        # (read from its parameters) is refused before anything is sent: one line, exit 2
+        limits = "node /truck1/driveline_node's speed_min_rpm/speed_max_rpm [500, 2200] rpm"
+        for args, line in (
+                (['--profile', 'ramp:300:1400:50'],
+                 f'profile ramp:300:1400:50: row 1 (t = 0 s) speed 300 rpm outside {limits}'),
+                (['--speed', '2500'], f'--speed 2500 rpm is outside {limits}; nothing sent')):
+            res = _dmf_sim(['setpoint', *args, '--namespace', 'truck1', '--timeout', '30'], env)
+            assert res.returncode == 2 and res.stdout == '', (res.stdout, res.stderr)
+            assert res.stderr.strip().splitlines() == [f'dmf-sim setpoint: error: {line}']
 
         out, err = nobody[0].communicate(timeout=60)
         assert nobody[0].returncode == 2 and out == ''

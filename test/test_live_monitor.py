@@ -140,3 +140,48 @@ def test_monitor_survives_a_killed_worker():
         assert mon.counters['worker_failures'] >= 1
     finally:
         mon.close()
+
+
+def _slow_solver(loads, speed_rpm, load):
+    """A prediction that takes far longer than any stop may wait (runs in the worker)."""
+    time.sleep(LONG_JOB_S)
+    return []
+
+
+LONG_JOB_S = 120.0     # a running job close() must not wait for [s]
+CLOSE_LIMIT_S = 20.0   # close() with a worker killed, on a loaded machine [s]
+
+
+def test_monitor_workers_end_with_the_node_not_with_its_signals():
+    """``kill -TERM %1`` on a launch job (and Ctrl-C) reaches the node's whole process group.
+    The workers must not die of it (the node then started new ones while it stopped, which
+    outlived it by their start-up time); they end when the node closes the monitor, at once,
+    even in the middle of a long prediction (close() used to wait for the running job)."""
+    import os
+    import signal
+
+    from test_two_trucks import _gone
+
+    sim = LiveSimulation.from_config(speed_rpm=1200.0, load=0.5)
+    mon = LiveMonitor(sim.line, sim.engine, MonitorSettings(worker='process'),
+                      solver=_slow_solver)
+    try:
+        mon.wait_ready(TIMEOUT_S)
+        pids = mon.worker_pids
+        assert len(pids) == 2
+        for pid in pids:
+            os.kill(pid, signal.SIGTERM)
+            os.kill(pid, signal.SIGINT)
+        mon.set_setpoint(1000.0, 0.5)                    # a prediction: the slow solver
+        end = time.monotonic() + TIMEOUT_S
+        while not (mon._job is not None and mon._job[1].running()) and time.monotonic() < end:
+            mon.poll()
+            time.sleep(0.01)
+        time.sleep(0.2)
+        assert not any(_gone(pid) for pid in pids)      # the signals were ignored
+        assert mon.counters['worker_failures'] == 0
+        t0 = time.monotonic()
+    finally:
+        mon.close()
+    assert time.monotonic() - t0 < CLOSE_LIMIT_S
+    assert all(_gone(pid) for pid in pids)

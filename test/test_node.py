@@ -504,6 +504,25 @@ def test_bad_configuration_stops_startup_with_one_line(tmp_path):
         assert len(lines) == 1 and ('error' in lines[0].lower() or 'failed' in lines[0]), err
 
 
+def test_startup_error_names_the_node_and_leaves_no_bag(tmp_path):
+    """A refused start says which node (its namespace: several trucks start at once), and a
+    bag it had created is removed, so the corrected start can use the same bag_path."""
+    env = dict(os.environ, ROS_DOMAIN_ID=str(new_domain()))
+    bag = tmp_path / 'bag'
+    res = subprocess.run([sys.executable, '-m', 'dmf_sim.node', '--ros-args', '-r', '__ns:=/t1',
+                          '-p', 'record:=true', '-p', f'bag_path:={bag}',
+                          '-p', 'profile:=ramp:300:1400:50'],
+                         cwd=tmp_path, env=env, capture_output=True, text=True,
+                         timeout=START_TIMEOUT + 60)     # the monitor's workers start first
+    err = res.stderr + res.stdout
+    assert res.returncode == 2 and 'Traceback' not in err, err
+    lines = [ln for ln in err.splitlines() if 'failed' in ln]
+    assert len(lines) == 1, err
+    assert ('start-up of /t1/driveline_node failed: profile ramp:300:1400:50: row 1 (t = 0 s) '
+            'speed 300 rpm outside') in lines[0], lines
+    assert not bag.exists(), err
+
+
 def test_setup_passes_no_option_setuptools_warns_about():
     """Issue 20 item 14: setuptools >= 72 (what a fresh ``pip install`` builds with) warns
     "Unknown distribution option: 'tests_require'" on every install; the test extra says it."""

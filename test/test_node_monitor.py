@@ -96,6 +96,27 @@ def test_node_publishes_cycle_orders_prediction_and_serves_foxglove(tmp_path: Pa
         assert layout['configById']['DiagnosticStatusPanel!dmfdiag']['selectedHardwareId'] == \
             health['_hardware_id'] == layout['globalVariables']['node']
 
+        # the documented `ros2 topic echo --once /driveline/dmf_predicted` (and the same with
+        # --qos-reliability reliable --qos-durability transient_local) joining late gets the
+        # latched prediction; --qos-durability transient_local alone does not: echo's QoS as
+        # ros2topic (Jazzy, verb/echo.py) builds it, from the sensor_data profile (best effort)
+        from rclpy.qos import qos_profile_sensor_data
+
+        def echo_qos(reliability):
+            return QoSProfile(history=qos_profile_sensor_data.history,
+                              depth=qos_profile_sensor_data.depth, reliability=reliability,
+                              durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+        late = {'documented': [], 'durability flag alone': []}
+        for key, reliability in (('documented', ReliabilityPolicy.RELIABLE),
+                                 ('durability flag alone', ReliabilityPolicy.BEST_EFFORT)):
+            peer.node.create_subscription(DiagnosticArray, '/truck7/driveline/dmf_predicted',
+                                          late[key].append, echo_qos(reliability))
+        assert peer.spin_until(lambda: late['documented'], 20), node.output()
+        assert late['documented'][0].status[0].message == predicted[-1].status[0].message
+        peer.spin_for(2.0)
+        assert late['durability flag alone'] == []
+
         # issue 20 item 3: a recording started after the prediction begins with it
         from std_srvs.srv import SetBool
         bag = tmp_path / 'late_bag'

@@ -421,11 +421,13 @@ def test_node_profile_parameter_follows_and_refuses(tmp_path):
     heard = []
     rt.loop.setpoint_listeners.append(lambda speed, load: heard.append((speed, load)))
     prof = NodeProfile(rt, log)
-    assert 'speed_min_rpm' in prof.check('ramp:400:1000:100')
+    low = prof.check('ramp:400:1000:100')      # one line, the profile named once
+    assert low.startswith('profile ramp:400:1000:100: row 1') and 'speed_min_rpm' in low
     bad = tmp_path / 'bad.csv'
     bad.write_text('time_s,speed_rpm,load\n0,900,1\n0,950,1\n')
     reason = prof.check(str(bad))
-    assert reason.startswith('profile: ') and 'increase strictly' in reason and '\n' not in reason
+    assert reason.startswith(f'profile {bad}:') and 'increase strictly' in reason
+    assert 'profile: profile' not in reason and '\n' not in reason
     assert prof.start('ramp:1000:1200:1000:0.8:0.05') is None
     rt.loop.start()
     while rt.sim.t < 0.3:

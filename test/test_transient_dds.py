@@ -135,7 +135,8 @@ def test_node_profile_parameter_at_start_and_at_run_time(tmp_path):
                            (tmp_path / 'missing.csv', ('missing.csv',))):
             (res,) = peer.set_params('driveline_node', profile=str(bad))
             assert not res.successful
-            assert res.reason.startswith('profile: ') and '\n' not in res.reason, res.reason
+            assert res.reason.startswith('profile ') and '\n' not in res.reason, res.reason
+            assert 'profile: profile' not in res.reason, res.reason
             assert all(w in res.reason for w in words), (words, res.reason)
         n0 = peer.counts['/engine/speed']
         assert peer.spin_until(lambda: peer.counts['/engine/speed'] > n0 + 50, 10.0)

@@ -28,6 +28,7 @@ from dmf_sim.bags.read import TypeDecoder, bag_topics, read_messages
 from dmf_sim.bags.records import Scan
 from dmf_sim.core.errors import BagError
 from dmf_sim.core.units import RPM_TO_RAD_S
+from dmf_sim.core.validation import ros_namespace
 
 __all__ = ['TOPIC_WINDUP', 'TOPIC_JOINTS', 'TOPIC_SPEED', 'TOPIC_CRANK', 'DEFAULT_TOPICS',
            'SIGNAL_KINDS', 'SignalSpec', 'Series', 'BagSeries', 'read_bag_series',
@@ -198,7 +199,7 @@ def bag_topic_names(listed: Mapping[str, str], topics: Mapping[str, str] | None 
             raise BagError(f'the bag holds several drivelines ({names}); choose one with '
                            '--namespace')
         namespace = spaces[0] if spaces else ''
-    ns = '/' + namespace.strip('/') if namespace.strip('/') else ''
+    ns = ros_namespace(namespace, 'namespace')
     out = {key: ns + topic for key, topic in DEFAULT_TOPICS.items()}
     out.update(topics or {})
     return out, ns

@@ -11,16 +11,15 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 
 from dmf_sim.core.errors import ConfigError
+from dmf_sim.core.validation import ros_namespace
 
 RELIABLE_DEPTH = 10     # the node's stream QoS: reliable, volatile, keep-last 10
 
 
 def check_namespace(namespace: str) -> str:
-    """'' (no namespace) or an absolute ROS namespace like '/truck1'; one-line error else."""
-    ns = (namespace or '').rstrip('/')
-    if ns and not ns.startswith('/'):
-        raise ConfigError(f"--namespace must be absolute (start with '/'), got {namespace!r}")
-    return ns
+    """``--namespace``: '' (none) or absolute ('/truck1'; ``truck1`` is taken as ``/truck1``,
+    as launch takes ``namespace:=truck1``), :func:`dmf_sim.core.validation.ros_namespace`."""
+    return ros_namespace(namespace, '--namespace')
 
 
 @dataclass(frozen=True)
@@ -94,6 +93,52 @@ def ros_session(node_name: str, namespace: str = ''):
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown(context=ctx)
+
+
+UNKNOWN_NODE = '_UNKNOWN_'    # in rmw's node name/namespace until discovery tells them
+
+
+def subscriber_nodes(node, executor, topic_name: str, timeout_s: float) -> list[str]:
+    """Fully qualified names of the nodes that subscribe to ``topic_name`` (sorted), once
+    discovery has told every subscription's node (it may take a moment after the match)."""
+    import time
+
+    end = time.monotonic() + timeout_s
+    while True:
+        infos = node.get_subscriptions_info_by_topic(topic_name)
+        names = {f'{i.node_namespace.rstrip("/")}/{i.node_name}' for i in infos}
+        if not any(UNKNOWN_NODE in n for n in names) or time.monotonic() > end:
+            return sorted(n for n in names if UNKNOWN_NODE not in n)
+        executor.spin_once(timeout_sec=0.05)
+
+
+def get_parameters(node, executor, fqn: str, names: list[str], timeout_s: float
+                   ) -> dict | str:
+    """The values of parameters ``names`` of node ``fqn`` through its parameter service
+    (``<fqn>/get_parameters``, rcl_interfaces/GetParameters, what ``ros2 param get`` calls),
+    or why they could not be read (one line)."""
+    import time
+
+    from rcl_interfaces.srv import GetParameters
+    from rclpy.parameter import parameter_value_to_python
+
+    client = node.create_client(GetParameters, f'{fqn}/get_parameters')
+    try:
+        if not client.wait_for_service(timeout_sec=timeout_s):
+            return f'its parameter service {fqn}/get_parameters did not answer within ' \
+                   f'{timeout_s:g} s'
+        future = client.call_async(GetParameters.Request(names=list(names)))
+        end = time.monotonic() + timeout_s
+        while not future.done() and time.monotonic() < end:
+            executor.spin_once(timeout_sec=0.05)
+        if not future.done():
+            return f'{fqn}/get_parameters did not answer within {timeout_s:g} s'
+        values = [parameter_value_to_python(v) for v in future.result().values]
+        if len(values) != len(names):
+            return f'{fqn} does not declare {", ".join(names)}'
+        return dict(zip(names, values))
+    finally:
+        node.destroy_client(client)
 
 
 def reliable_qos(depth: int = RELIABLE_DEPTH, latched: bool = False):

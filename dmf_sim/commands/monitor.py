@@ -34,8 +34,8 @@ STALE_S = 3.0                           # diagnostics older than this [s] are sh
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--namespace', default='', metavar='NS',
-                        help="the node's namespace, e.g. /truck1 (default: none); /diagnostics "
-                             'statuses of nodes in other namespaces are ignored')
+                        help="the node's namespace, e.g. /truck1 or truck1 (default: none); "
+                             '/diagnostics statuses of nodes in other namespaces are ignored')
     parser.add_argument('--node', default='', metavar='NAME',
                         help='only /diagnostics statuses of this node: its full name '
                              '(/truck1/driveline_node, implies the namespace) or its name in '

@@ -8,8 +8,12 @@ publisher so the message is not lost, and repeats it until every subscriber has 
 (setpoints are idempotent; the node's reader can discover this publisher seconds after this
 publisher discovered it, and acknowledges only from then on). Exit 0 when delivered to every
 subscriber; one line and exit 2 when no node subscribes or acknowledges within ``--timeout``.
-The node applies its own limits (speed_min_rpm/speed_max_rpm): a refused setpoint is counted
-in its /diagnostics (``rejected_setpoints``) and logged by the node.
+Before sending, the speeds (``--speed``, every row of ``--profile``) are checked against the
+limits of each node that subscribes (its parameters ``speed_min_rpm``/``speed_max_rpm``, read
+with its parameter service as ``ros2 param get`` does): a speed outside them is refused in one
+line naming it and the limits, exit 2, and nothing is sent. A node whose parameters cannot be
+read is named on stderr and the setpoints are sent unchecked; the node refuses a speed outside
+its limits itself (counted in its /diagnostics, ``rejected_setpoints``, and logged).
 
 ``--profile``: once the node subscribes, the profile (a file, a packaged name or a ``ramp:``
 spec, as ``dmf-sim run`` takes) is published interpolated at
@@ -21,9 +25,10 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 import time
 
-from dmf_sim.core.errors import ConfigError, NoResponseError
+from dmf_sim.core.errors import ConfigError, NoResponseError, OperatingRangeError
 
 __all__ = ['NAME', 'HELP', 'REPEAT_EVERY_S', 'ACK_TIMEOUT_S', 'add_arguments', 'check', 'run']
 
@@ -41,7 +46,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='play a speed/load profile in real time: CSV/YAML file, packaged '
                              'name (truck_road_cycle) or ramp:FROM:TO:RATE[:LOAD[:SETTLE]]')
     parser.add_argument('--namespace', default='', metavar='NS',
-                        help="the node's namespace, e.g. /truck1 (default: none)")
+                        help="the node's namespace, e.g. /truck1 or truck1 (default: none)")
     parser.add_argument('--timeout', type=float, default=10.0, metavar='S',
                         help='seconds to wait for the node (default 10)')
 
@@ -75,6 +80,46 @@ def check(args: argparse.Namespace) -> list[tuple[str, float, str]]:
     return out
 
 
+SPEED_LIMITS = ('speed_min_rpm', 'speed_max_rpm')     # the node's parameters [rpm]
+
+
+def check_speed_limits(args: argparse.Namespace, limits: tuple[float, float], fqn: str) -> None:
+    """OperatingRangeError (one line, exit 2) if ``--speed`` or a row of ``--profile`` lies
+    outside node ``fqn``'s ``limits`` [rpm]."""
+    lo, hi = limits
+    what = f"node {fqn}'s speed_min_rpm/speed_max_rpm"
+    profile = getattr(args, 'profile_data', None)
+    if profile is not None:
+        profile.check_speed_range(lo, hi, what)
+    elif args.speed is not None and not lo <= args.speed <= hi:
+        raise OperatingRangeError(f'--speed {args.speed:g} rpm is outside {what} '
+                                  f'[{lo:g}, {hi:g}] rpm; nothing sent')
+
+
+def _warn(why: str) -> None:
+    print(f'dmf-sim setpoint: warning: {why}; sending unchecked (the node refuses a speed '
+          'outside its limits)', file=sys.stderr)
+
+
+def _check_nodes(args, node, executor, speed_topic: str, timeout_s: float) -> None:
+    """:func:`check_speed_limits` against every node subscribing to ``speed_topic``."""
+    from dmf_sim.commands._ros import get_parameters, subscriber_nodes
+
+    nodes = subscriber_nodes(node, executor, speed_topic, timeout_s)
+    if not nodes:
+        _warn(f'discovery did not name the node subscribing to {speed_topic} within '
+              f'{timeout_s:g} s')
+    for fqn in nodes:
+        values = get_parameters(node, executor, fqn, list(SPEED_LIMITS), timeout_s)
+        if isinstance(values, dict) and None in values.values():
+            values = f'{fqn} does not declare {" and ".join(SPEED_LIMITS)}'
+        if isinstance(values, str):
+            _warn(f'cannot read the speed limits of {fqn} ({values})')
+            continue
+        check_speed_limits(args, (float(values[SPEED_LIMITS[0]]),
+                                  float(values[SPEED_LIMITS[1]])), fqn)
+
+
 def run(args: argparse.Namespace) -> int:
     from dmf_sim.commands._ros import reliable_qos, ros_session
 
@@ -93,6 +138,10 @@ def run(args: argparse.Namespace) -> int:
                     f'no node subscribes to {", ".join(missing)} within {args.timeout:g} s (is '
                     'driveline_node running with this ROS_DOMAIN_ID and namespace?)')
             executor.spin_once(timeout_sec=0.02)
+        speed_pubs = [p for p, _, _ in pubs if p.topic_name.endswith('/engine/speed_setpoint')]
+        if speed_pubs:
+            _check_nodes(args, node, executor, speed_pubs[0].topic_name,
+                         max(end - time.monotonic(), ACK_TIMEOUT_S))
         if getattr(args, 'profile_data', None) is not None:
             _play(args.profile_data, pubs, executor, Float64)
             pubs = [(p, v, f'{v:g} rpm' if 'speed' in p.topic_name else f'load {v:g}')

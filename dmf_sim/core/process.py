@@ -9,9 +9,11 @@ from __future__ import annotations
 import os
 import signal
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 
-__all__ = ['PARENT_POLL_S', 'PR_SET_PDEATHSIG', 'die_with_parent', 'end_with_parent']
+__all__ = ['PARENT_POLL_S', 'PR_SET_PDEATHSIG', 'blocked_signals', 'die_with_parent',
+           'end_with_parent']
 
 PR_SET_PDEATHSIG = 1        # Linux prctl option: a signal for this process when its parent dies
 PARENT_POLL_S = 0.5         # fallback (no prctl): how often the parent pid is checked [s]
@@ -52,3 +54,19 @@ def end_with_parent(on_death: Callable[[int], None], signum: int = signal.SIGTER
     elif os.getppid() != parent:             # died before prctl took effect
         on_death(parent)
     return parent
+
+
+@contextmanager
+def blocked_signals(signums: Sequence[int]) -> Iterator[None]:
+    """Block ``signums`` in the calling thread meanwhile (``pthread_sigmask``). A process
+    started here inherits them blocked, so a signal to the whole process group (Ctrl-C,
+    ``kill -TERM %1``) cannot end it while it is still starting, before it installs its own
+    dispositions (the monitor's workers import for seconds first); it unblocks them itself.
+    This process misses nothing: another thread takes the signal, or it waits until the end
+    of the block."""
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, signums)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+

@@ -15,6 +15,7 @@ taken as the numbers the user meant.
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 from typing import Any, Mapping, Sequence
 
@@ -23,7 +24,8 @@ import numpy as np
 from dmf_sim.core.errors import ConfigError
 
 __all__ = ['field_error', 'check_keys', 'as_number', 'number', 'integer', 'number_list',
-           'nonempty_list', 'Where', 'Table1D', 'table_1d']
+           'nonempty_list', 'Where', 'Table1D', 'table_1d', 'ros_namespace',
+           'NAMESPACE_MAX_LENGTH']
 
 _NO_VALUE = object()
 
@@ -166,3 +168,40 @@ def table_1d(d: Any, where: str, field: str, x_key: str, y_key: str,
         raise field_error(where, f'{field}.{y_key}',
                           f'must have as many entries as {x_key} ({len(x)})')
     return Table1D(x, y)
+
+
+_NAMESPACE_TOKEN = re.compile(r'[A-Za-z_][A-Za-z0-9_]*')
+NAMESPACE_MAX_LENGTH = 245   # characters, '/' included: rmw's RMW_NAMESPACE_MAX_LENGTH (Jazzy)
+
+
+def ros_namespace(value: str | None, what: str = '--namespace') -> str:
+    """A ROS namespace taken as ``ros2 launch ... namespace:=`` and rclpy take it, written one
+    way: ``''`` for the root (``''`` or ``'/'``), else absolute, ``'/truck1'``, ``'/fleet/t1'``.
+    A relative namespace is taken from the root (``truck1`` -> ``/truck1``), as launch_ros and
+    rcl do. ROS's rules (``rmw_validate_namespace``): tokens of ASCII letters, digits and
+    underscores, none starting with a digit, separated by single ``/``, no ``/`` at the end,
+    at most :data:`NAMESPACE_MAX_LENGTH` characters. A one-line :class:`ConfigError` naming
+    ``what`` otherwise."""
+    text = '' if value is None else str(value)
+    if text in ('', '/'):
+        return ''
+    absolute = text if text.startswith('/') else '/' + text
+    problem = None
+    if len(absolute) > NAMESPACE_MAX_LENGTH:
+        problem = f'it is longer than {NAMESPACE_MAX_LENGTH} characters'
+    elif absolute.endswith('/'):
+        problem = "it ends with '/'"
+    elif '//' in absolute:
+        problem = "it has an empty token ('//')"
+    else:
+        for token in absolute[1:].split('/'):
+            if not _NAMESPACE_TOKEN.fullmatch(token):
+                problem = (f'token {token!r} starts with a digit' if token[:1].isdigit()
+                           else f'token {token!r} has characters other than letters, digits '
+                           'and underscores')
+                break
+    if problem:
+        raise ConfigError(f'{what} {text!r} is not a ROS namespace: {problem} (tokens of '
+                          "letters, digits and '_', not starting with a digit, joined by '/', "
+                          'e.g. truck1 or /fleet/truck1)')
+    return absolute

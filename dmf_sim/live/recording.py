@@ -155,6 +155,14 @@ class RecordingControl:
         recorder.close()
         shutil.rmtree(recorder.path, ignore_errors=True)
 
+    def remove_unused(self) -> None:
+        """Remove the live recording's bag: the node's start failed before it recorded
+        anything (its ``bag_path`` is free again for the corrected start)."""
+        rec, self.recorder = self.recorder, None
+        if rec is not None:
+            self.discard(rec)
+            self.log.info(f'removed bag {rec.path}: the node did not start')
+
     def stop(self) -> str:
         """Close the bag; returns what happened (for the log, the ``~/record`` answer)."""
         rec, self.recorder = self.recorder, None

@@ -196,14 +196,34 @@ class LiveRuntime:
         self.recording.start(recorder)
 
     def close(self) -> str:
-        """Stop recording, the monitor's workers and the Foxglove server (shutdown:
-        SIGINT/SIGTERM); returns what happened to the recording."""
+        """Stop recording, then the monitor's workers and the Foxglove server (shutdown:
+        SIGINT/SIGTERM); returns what happened to the recording. The bag is closed first: it
+        is what a SIGKILL during the shutdown would cost (the workers may be busy for a
+        prediction, or still starting)."""
+        closed = self.close_recording()
+        self.close_services()
+        return closed
+
+    def close_recording(self) -> str:
+        """The first half of :meth:`close`: stop recording (the bag closed); returns what
+        happened to it."""
+        with self.lock:
+            return self.recording.stop()
+
+    def abandon(self) -> None:
+        """A start-up that failed after this runtime was built: stop the monitor and Foxglove
+        and remove the bag it had created (nothing was recorded in it)."""
+        with self.lock:
+            self.recording.remove_unused()
+            self.close_services()
+
+    def close_services(self) -> None:
+        """The second half of :meth:`close`: stop the monitor's workers and Foxglove."""
         with self.lock:
             if self.monitor is not None:
                 self.monitor.close()
             if self.foxglove is not None:
                 self.foxglove.close()
-            return self.recording.stop()
 
     def reset(self) -> str:
         """Static equilibrium at the current setpoints (``~/reset``)."""

@@ -24,7 +24,7 @@ from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field, replace
 
 from dmf_sim.core.errors import ConfigError
-from dmf_sim.core.process import die_with_parent
+from dmf_sim.core.process import blocked_signals, die_with_parent
 from dmf_sim.monitor.alarms import AlarmReport, AlarmSettings, evaluate
 from dmf_sim.monitor.messages import StatusData, cycle_status, monitor_status, prediction_statuses
 from dmf_sim.monitor.orders import CycleOrderTracker, CycleResult, CycleWindow, analyze_window
@@ -41,6 +41,7 @@ __all__ = ['WORKER_MODES', 'MONITOR_PARAMETERS', 'MonitorSettings', 'CycleReport
            'MonitorUpdate', 'LiveMonitor']
 
 WORKER_MODES = ('process', 'thread')
+WORKER_IGNORES = (signal.SIGINT, signal.SIGTERM)   # a worker process ends when the node says so
 PREDICTION_CACHE_SIZE = 256        # operating points kept
 WORKER_MODELS = 4                  # driveline models a worker keeps built
 _uid = itertools.count(1)
@@ -101,9 +102,13 @@ _MODELS: OrderedDict = OrderedDict()
 
 
 def _init_worker(niceness: int) -> None:
-    # Ctrl-C in a terminal reaches the whole process group: the node decides when its workers
-    # stop (LiveMonitor.close), a worker must not die of the node's SIGINT
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # Ctrl-C in a terminal, and `kill -TERM %1` on a `ros2 launch` job, reach the whole process
+    # group: the node decides when its workers stop (LiveMonitor.close), a worker must not die
+    # of the node's SIGINT or SIGTERM (the node would start a new one while it stops)
+    # (started with them blocked, see _Worker: unblocked once ignored)
+    for signum in WORKER_IGNORES:
+        signal.signal(signum, signal.SIG_IGN)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, WORKER_IGNORES)
     import multiprocessing
     parent = multiprocessing.parent_process()
     # a crashed node must not leave orphan workers, also when it died while this one started
@@ -141,7 +146,9 @@ def _job_cycles(key, payload, window: CycleWindow) -> list[CycleResult]:
 
 
 class _Worker:
-    """One single-worker executor (a spawned process, or a thread) and the models sent to it."""
+    """One single-worker executor (a spawned process, or a thread) and the models sent to it.
+    A process is started (in ``submit``) with SIGINT and SIGTERM blocked, so the process
+    group's signals cannot end it before its initializer ignores them."""
 
     def __init__(self, mode: str, niceness: int, name: str) -> None:
         self.mode, self.niceness, self.name = mode, niceness, name
@@ -156,14 +163,16 @@ class _Worker:
         else:
             self.ex = ThreadPoolExecutor(1, thread_name_prefix=self.name)
         self._sent = set()
-        self.ready = self.ex.submit(_job_ready)
+        with blocked_signals(WORKER_IGNORES):
+            self.ready = self.ex.submit(_job_ready)
 
     def submit(self, fn, model, *args) -> Future:
         key, line, engine = model
         for attempt in range(2):
             payload = None if key in self._sent else (line, engine)
             try:
-                fut = self.ex.submit(fn, key, payload, *args)
+                with blocked_signals(WORKER_IGNORES):
+                    fut = self.ex.submit(fn, key, payload, *args)
             except BrokenProcessPool:
                 if attempt:
                     raise
@@ -174,7 +183,23 @@ class _Worker:
         raise RuntimeError('unreachable')
 
     def close(self) -> None:
-        self.ex.shutdown(wait=True, cancel_futures=True)
+        """Stop at once: queued jobs are cancelled and a worker process is killed, whether it
+        runs a job (a prediction takes up to seconds) or is still starting (importing, one to
+        three seconds): the node is stopping and wants no more results. A thread finishes
+        its job."""
+        processes = list((getattr(self.ex, '_processes', None) or {}).values())
+        self.ex.shutdown(wait=False, cancel_futures=True)
+        for proc in processes:
+            if proc.is_alive():
+                proc.kill()
+        for proc in processes:
+            proc.join()
+        self.ex.shutdown(wait=True)
+
+    @property
+    def pids(self) -> list[int]:
+        """The worker processes' ids (none for a thread)."""
+        return [p.pid for p in (getattr(self.ex, '_processes', None) or {}).values()]
 
 
 # ------------------------------------------------------------------------------------------------
@@ -345,7 +370,12 @@ class LiveMonitor:
         self._cycles_worker.ready.result(timeout)
         self._predict_worker.ready.result(timeout)
 
+    @property
+    def worker_pids(self) -> list[int]:
+        """The ids of the worker processes running now (none with ``worker='thread'``)."""
+        return self._cycles_worker.pids + self._predict_worker.pids
+
     def close(self) -> None:
-        """Stop the workers (waits for a running job)."""
+        """Stop the workers at once (a running job's result is dropped; see ``_Worker.close``)."""
         self._cycles_worker.close()
         self._predict_worker.close()

@@ -32,8 +32,8 @@ def check_profile(value: str, speed_limits_rpm: tuple[float, float]) -> tuple[Pr
     try:
         prof = load_profile(value)
         prof.check_speed_range(*speed_limits_rpm, 'the node\'s speed_min_rpm/speed_max_rpm')
-    except (DmfSimError, OSError) as exc:
-        return None, f'profile: {one_line(exc)}'
+    except (DmfSimError, OSError) as exc:   # the message names the profile (load_profile)
+        return None, one_line(exc)
     return prof, None
 
 

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dmf_sim.core.errors import ConfigError, OperatingRangeError
+from dmf_sim.core.errors import ConfigError, ConfigFileError, OperatingRangeError, one_line
 from dmf_sim.core.paths import config_dir, config_file, parse_yaml, read_text
 from dmf_sim.core.validation import check_keys, field_error, number
 
@@ -164,6 +164,7 @@ def _parse_ramp_spec(spec: str) -> Profile:
 
 def _read_csv(path: Path) -> Profile:
     text = read_text(path)
+    where = f'profile {path}'
     rows, lines = [], []
     header = None
     for lineno, raw in enumerate(io.StringIO(text), start=1):
@@ -174,41 +175,42 @@ def _read_csv(path: Path) -> Profile:
         if header is None:
             header = cells
             if header != list(COLUMNS):
-                raise field_error(f'{path}:{lineno}', 'header', f'must be {",".join(COLUMNS)}',
+                raise field_error(f'{where}:{lineno}', 'header', f'must be {",".join(COLUMNS)}',
                                   stripped)
             continue
         if len(cells) != len(COLUMNS):
-            raise field_error(f'{path}:{lineno}', 'row', f'must have 3 values '
+            raise field_error(f'{where}:{lineno}', 'row', f'must have 3 values '
                               f'({",".join(COLUMNS)})', stripped)
         rows.append(cells)
         lines.append(lineno)
     if header is None:
-        raise ConfigError(f'{path}: empty profile (expected the header {",".join(COLUMNS)})')
-    return make_profile(rows, name=path.stem, source=str(path), where=str(path), lines=lines)
+        raise ConfigError(f'{where}: empty (expected the header {",".join(COLUMNS)})')
+    return make_profile(rows, name=path.stem, source=str(path), where=where, lines=lines)
 
 
 def _read_yaml(path: Path) -> Profile:
-    data = parse_yaml(read_text(path), str(path))
-    check_keys(data, str(path), '', (), ('name', 'source', 'points', 'ramp', 'columns'))
+    where = f'profile {path}'
+    data = parse_yaml(read_text(path), where)
+    check_keys(data, where, '', (), ('name', 'source', 'points', 'ramp', 'columns'))
     name = str(data.get('name') or path.stem)
     source = str(data.get('source') or path)
     if ('points' in data) == ('ramp' in data):
-        raise ConfigError(f'{path}: give exactly one of points: (rows [time_s, speed_rpm, load]) '
+        raise ConfigError(f'{where}: give exactly one of points: (rows [time_s, speed_rpm, load]) '
                           'or ramp: (from_rpm, to_rpm, rate_rpm_per_s, load, settle_s)')
     if 'columns' in data and list(data['columns']) != list(COLUMNS):
-        raise field_error(str(path), 'columns', f'must be {list(COLUMNS)}', data['columns'])
+        raise field_error(where, 'columns', f'must be {list(COLUMNS)}', data['columns'])
     if 'ramp' in data:
-        ramp = check_keys(data['ramp'], str(path), 'ramp', ('from_rpm', 'to_rpm',
+        ramp = check_keys(data['ramp'], where, 'ramp', ('from_rpm', 'to_rpm',
                                                              'rate_rpm_per_s'),
                           ('load', 'settle_s'))
-        p = ramp_profile(**ramp, where=f'{path}: ramp')
+        p = ramp_profile(**ramp, where=f'{where}: ramp')
         return Profile(p.t_s, p.speed_rpm, p.load, name=name, source=data.get('source')
                        or p.source)
     points = data['points']
     if not isinstance(points, list):
-        raise field_error(str(path), 'points', 'must be a list of [time_s, speed_rpm, load] rows',
+        raise field_error(where, 'points', 'must be a list of [time_s, speed_rpm, load] rows',
                           points)
-    return make_profile(points, name=name, source=source, where=f'{path}: points')
+    return make_profile(points, name=name, source=source, where=f'{where}: points')
 
 
 def packaged_profiles() -> list[str]:
@@ -218,7 +220,9 @@ def packaged_profiles() -> list[str]:
 
 
 def load_profile(spec: str | os.PathLike) -> Profile:
-    """A profile from a CSV/YAML path, a packaged name or a ``ramp:`` spec (module docstring)."""
+    """A profile from a CSV/YAML path, a packaged name or a ``ramp:`` spec (module docstring).
+    Every refusal is one line starting with ``profile <spec or path>``, so a caller (the node's
+    ``profile`` parameter, ``dmf-sim run``, ``dmf-sim setpoint``) adds no prefix of its own."""
     text = os.fspath(spec)
     if text.startswith(RAMP_PREFIX):
         return _parse_ramp_spec(text)
@@ -230,9 +234,13 @@ def load_profile(spec: str | os.PathLike) -> Profile:
         names = ', '.join(packaged_profiles()) or 'none'
         raise ConfigError(f'profile {text!r}: no such file, packaged profile ({names}) or '
                           'ramp:FROM:TO:RATE spec')
-    path = config_file(path)
+    try:
+        path = config_file(path)
+    except ConfigFileError as exc:
+        raise ConfigFileError(f'profile {text!r}: {one_line(exc)}') from None
     if path.suffix.lower() == '.csv':
         return _read_csv(path)
     if path.suffix.lower() in ('.yaml', '.yml'):
         return _read_yaml(path)
-    raise ConfigError(f'{path}: a profile is a .csv or .yaml file, got {path.suffix or "none"}')
+    raise ConfigError(f'profile {path}: a profile is a .csv or .yaml file, got '
+                      f'{path.suffix or "none"}')
