@@ -149,7 +149,9 @@ def analyze_bag(path: str | os.PathLike | BagFiles,
             the wind-up (None: not reported).
         topics, namespace, stamp, reader, progress: see :func:`read_bag_series`.
         start_s, end_s: keep only cycles within this time window [s from the first crank-angle
-            sample] (e.g. to skip a start-up transient).
+            sample] (e.g. to skip a start-up transient). ``start_s`` None: the cycles after the
+            settle from static equilibrium the bag marks (``custom_data`` ``settle_s``, as
+            ``dmf-sim run`` writes it), else all.
         load: the engine load fraction of the whole recording, if the caller knows it (the
             ``--load`` option). None: the load each cycle ran at, from what the bag holds
             (:mod:`dmf_sim.analysis.load_timeline`); rows are then per speed bin *and* load.
@@ -185,6 +187,9 @@ def analyze_bag(path: str | os.PathLike | BagFiles,
                                     f'value (see model_sources); analyse the parts apart with '
                                     '--start/--end')
     out, rates = [], []
+    settle = bag.bag.run_metadata.settle_s if start_s is None else None
+    if settle:
+        start_s = settle
     window = start_s is not None or end_s is not None
     for spec in specs:
         topic = _signal_topic(spec, bag.topic_names)
@@ -200,11 +205,18 @@ def analyze_bag(path: str | os.PathLike | BagFiles,
                 keep &= cyc.t_start >= start_s
             if end_s is not None:
                 keep &= cyc.t_end <= end_s
+            if settle and not out:
+                warnings.append(f'{int(np.count_nonzero(cyc.t_start < settle))} engine '
+                                f'cycle(s) of the first {settle:g} s left out: the driveline '
+                                'settling from static equilibrium, as the bag marks it '
+                                '(custom_data settle_s; --start 0 keeps them)')
             cyc = cyc.select(keep)
         if len(cyc) == 0:
             raise BagError(f'signal {spec.label!r}: no whole engine cycle (720 deg of crank '
                            'angle) recorded with the signal'
-                           + (' in the time window' if window else ''))
+                           + (f' after the settle from static equilibrium ({settle:g} s, '
+                              'custom_data settle_s; --start 0 keeps it)' if settle
+                              else ' in the time window' if window else ''))
         if len(s) > 1:
             rates.append(1e9 / float(np.median(np.diff(s.t_ns))))
         loads = (None if timeline is None else
