@@ -88,10 +88,16 @@ class RunupResult:
     quasi_static: dict = field(default_factory=dict)
 
     def as_dict(self) -> dict:
+        """The result for JSON; per bag (in the order of ``bags``) its analysis' warnings
+        (damaged parts skipped included, as ``dmf-sim analyze`` words them), the corrupt
+        chunks skipped and whether it was truncated."""
         return {'bags': [str(r.bag) for r in self.runs],
                 'directions': ['up' if d > 0 else 'down' for d in self.directions],
                 'jumps': [j.as_dict() for j in self.jumps], 'events': self.events,
-                'quasi_static': self.quasi_static}
+                'quasi_static': self.quasi_static,
+                'warnings': [list(r.warnings) for r in self.runs],
+                'corrupt_chunks': [list(r.corrupt) for r in self.runs],
+                'truncated': [r.truncated for r in self.runs]}
 
 
 def ramp_cycles(cyc: CycleOrders, start_rpm: float | None = None) -> slice:
