@@ -44,7 +44,6 @@ import time
 
 from dmf_sim.core.errors import ConfigError, DmfSimError, one_line
 from dmf_sim.core.numbers import fmt_num
-from dmf_sim.live.health import status_name
 from dmf_sim.live.parameters import DMF_PARAMETERS, PARAMETERS, coerce
 from dmf_sim.live.stop_signals import StopSignals
 from dmf_sim.live.streams import STREAMS
@@ -248,11 +247,7 @@ class DrivelineNode(Node):
         msg = DiagnosticArray()
         stamp_ns = rt.loop.time.stamp_ns(rt.sim.t)
         msg.header.stamp = Time(sec=stamp_ns // 1_000_000_000, nanosec=stamp_ns % 1_000_000_000)
-        status = DiagnosticStatus(level=bytes([report.level]),
-                                  name=status_name(self.fqn),
-                                  hardware_id=self.fqn, message=report.message)
-        status.values = [KeyValue(key=k, value=v) for k, v in report.values.items()]
-        msg.status = [status]
+        msg.status = [report.status(self.fqn).to_msg(DiagnosticStatus, KeyValue)]
         if rt.monitor is not None:                # the DMF monitor: orders, prediction, alarms
             msg.status.append(rt.monitor.diagnostics().to_msg(DiagnosticStatus, KeyValue))
         self._emit('diagnostics', msg, stamp_ns + rt.loop.time.log_offset_ns)

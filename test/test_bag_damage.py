@@ -1,6 +1,8 @@
 """Damaged bags (issue 20, items 9 and 10): real recorded files with flipped bytes inside chunks,
-a damaged index, a corrupt first chunk, truncations; what ``analyze`` and ``bag-recover`` make
-of them, and the output directory of ``analyze`` checked before anything is computed.
+a damaged index, a corrupt first chunk, truncations; what ``analyze``, ``durability``, ``runup``
+and ``bag-recover`` make of them (the same words for what each skipped), stubs and bags whose
+topics hold no message, and the output directory of ``analyze`` checked before anything is
+computed.
 
 The bags are written by the project's recorder (BagRecorder, CDR: ``synthetic_bags``) and
 damaged on disk as a bad sector or a bit-rotted copy would: 64 bytes inverted in the middle of a
@@ -13,15 +15,20 @@ import shutil
 from pathlib import Path
 
 import pytest
-from synthetic_bags import WINDUP, check_table, chunk_spans, flip_chunks, write_synthetic
+import synthetic_bags
+from cdr import Float64, String, serialize_message
+from synthetic_bags import T0, WINDUP, check_table, chunk_spans, flip_chunks, write_synthetic
 from test_analyze_inputs import one_line_error
 
 from dmf_sim.analysis.pipeline import analyze_bag, read_bag_series
 from dmf_sim.bags.read import read_messages
 from dmf_sim.bags.records import Scan
 from dmf_sim.bags.recovery import recover_bag
+from dmf_sim.bags.writer import BagRecorder
 from dmf_sim.cli import main as cli_main
 from dmf_sim.core.errors import BagError
+from dmf_sim.transient.profiles import load_profile
+from dmf_sim.transient.run import RunOptions, run_profile
 
 RAMP = {'duration': 6.0, 'v0': 900.0, 'v1': 1300.0}        # ~55 cycles, 3 files of 2 s
 TOPICS = ('windup', 'speed', 'crank')
@@ -100,7 +107,7 @@ def test_bag_recover_drops_corrupt_chunks(corrupt, tmp_path, capsys):
     assert cli_main(['bag-recover', str(bag), '-o', str(out)]) == 0
     text = capsys.readouterr().out
     assert '3 corrupt part(s) dropped' in text and 'input was complete' not in text
-    assert text.count('dropped: intact_1.mcap chunk at byte') == 3
+    assert text.count('corrupt chunk dropped: intact_1.mcap chunk at byte') == 3
     assert 'rewritten: intact_1.mcap' in text
     assert 'intact_0.mcap' not in text.split('rewritten:')[1]       # intact files copied
     assert (out / 'intact_0.mcap').read_bytes() == (bag / 'intact_0.mcap').read_bytes()
@@ -167,18 +174,105 @@ def test_damaged_index_fails_the_data_section_crc(recorded, tmp_path):
 @pytest.mark.parametrize('size', [10, 100])
 def test_stub_is_refused(recorded, tmp_path, capsys, size):
     """Before: bag-recover of a 100-byte stub exited 0 writing an empty bag, and analyze of a
-    10-byte cut raised OSError from the summary reader. Both are one-line errors now (exit 2)."""
+    10-byte cut raised OSError from the summary reader. Both are one-line errors now (exit 2),
+    and analyze and durability diagnose the stub in bag-recover's words (before: "the bag has
+    neither a crank angle topic ... topics found: none")."""
     stub = tmp_path / 'stub.mcap'
     stub.write_bytes((recorded / 'intact_0.mcap').read_bytes()[:size])
     assert cli_main(['bag-recover', str(stub)]) == 2
-    assert 'nothing to recover' in one_line_error(capsys)
+    err = one_line_error(capsys)
+    assert 'nothing to recover' in err
+    diagnosis = err.split('nothing to recover: ')[1]
+    assert diagnosis.startswith(f'no complete message in {size} bytes (reading stopped at: ')
     assert not (tmp_path / 'stub_recovered.mcap').exists()
+    for command in ('analyze', 'durability'):
+        assert cli_main([command, str(stub), '--json']) == 2
+        err = one_line_error(capsys)
+        assert err.startswith(f'dmf-sim {command}: error: {stub}: nothing to ') \
+            and err.endswith(diagnosis), err
     for cut in (0, 10, 100, 4096):
         stub.write_bytes((recorded / 'intact_0.mcap').read_bytes()[:cut])
         assert cli_main(['analyze', str(stub), '--json']) == 2
         assert one_line_error(capsys).startswith('dmf-sim analyze: error: ')
     with pytest.raises(BagError, match='nothing to recover'):
         recover_bag(stub if size > 8 else stub)
+
+
+def _declared(path: Path, messages: dict[str, int]) -> Path:
+    """A bag declaring the node's topics and /rosout_like, with ``messages`` per topic."""
+    topics = {**synthetic_bags.TOPICS, '/rosout_like': 'std_msgs/msg/String'}
+    with BagRecorder(path, topics) as rec:
+        for topic, n in messages.items():
+            for i in range(n):
+                data = (String(data=f'tick {i}') if topic == '/rosout_like'
+                        else Float64(data=float(i)))
+                rec.write(topic, T0 + i * 1_000_000, serialize_message(data))
+    return path
+
+
+def test_declared_topics_without_messages(tmp_path, capsys):
+    """Before: "neither a crank angle topic (/engine/crank_angle) ... topics found: ...,
+    /engine/crank_angle" for a bag whose crank-angle topic is declared but empty. Now the
+    message says which topics are declared without a message; a bag with no message at all
+    gets bag-recover's diagnosis with the topics it declares."""
+    bag = _declared(tmp_path / 'empty_crank', {'/rosout_like': 3, '/engine/speed': 1})
+    assert cli_main(['analyze', str(bag), '--json']) == 2
+    err = one_line_error(capsys)
+    assert ('neither a crank angle topic (/engine/crank_angle holds no messages) nor an engine '
+            'speed topic (/engine/speed holds 1 message)') in err, err
+    assert '/engine/crank_angle (no messages), /engine/speed, /rosout_like (use' in err, err
+    assert '/rosout_like (no' not in err and '/engine/speed (no' not in err
+    crank_only = _declared(tmp_path / 'crank_only', {'/engine/crank_angle': 3})
+    with pytest.raises(BagError, match='topic /driveline/joint_states holds no messages; '):
+        analyze_bag(crank_only, ['torque:CYL1'])
+    silent = _declared(tmp_path / 'silent', {})
+    assert cli_main(['analyze', str(silent), '--json']) == 2
+    err = one_line_error(capsys)
+    assert 'nothing to analyze: no complete message in' in err
+    assert 'topics declared: /driveline/dmf_windup, /driveline/joint_states' in err, err
+
+
+# ------------------------------------------------------- every command that reads a bag
+
+@pytest.fixture(scope='module')
+def run_damaged(tmp_path_factory):
+    """A ``dmf-sim run`` bag (joint states for durability, a ramp for runup) split every
+    second, and a copy whose third file has its chunk of samples flipped."""
+    root = tmp_path_factory.mktemp('run_damage')
+    intact = root / 'ramp'
+    run_profile(load_profile('ramp:900:1000:20:1.0:0.5'), intact, RunOptions(split_s=1.0))
+    bag = copy(intact, root / 'flipped')
+    file = bag / 'ramp_2.mcap'
+    spans = chunk_spans(file)
+    flip_chunks(file, [max(range(len(spans)), key=lambda i: spans[i][1])])
+    return intact, bag
+
+
+def test_every_command_reports_skipped_chunks_alike(run_damaged, tmp_path, capsys):
+    """Before: durability noted only "1 gap in the time stamps", runup said nothing. Now
+    analyze, durability and runup report the flipped chunk in the same words, in their text
+    and in their JSON (corrupt_chunks)."""
+    intact, bag = run_damaged
+    lines = [w for w in analyze_bag(bag).warnings if w.startswith('corrupt chunk')]
+    assert len(lines) == 1 and lines[0].startswith('corrupt chunk skipped: ramp_2.mcap chunk at')
+    assert 'CRC mismatch' in lines[0] and '/driveline/joint_states' in lines[0]
+    assert not [w for w in analyze_bag(intact).warnings if w.startswith('corrupt chunk')]
+
+    assert cli_main(['durability', str(bag), '--json']) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert [n for n in report['notes'] if n.startswith('corrupt chunk')] == lines
+    (chunk,) = report['corrupt_chunks']
+    assert chunk['file'] == 'ramp_2.mcap' and chunk['messages_lost'] > 0
+    assert f'corrupt chunk skipped: {chunk["text"]}' == lines[0]
+    assert cli_main(['durability', str(bag), '--out', str(tmp_path / 'dur'), '--no-plots']) == 0
+    assert f'note: {lines[0]}' in capsys.readouterr().out
+
+    assert cli_main(['runup', str(bag), '--no-hbm', '--json']) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert [w for w in data['warnings'][0] if w.startswith('corrupt chunk')] == lines
+    assert [c['text'] for c in data['corrupt_chunks'][0]] == [chunk['text']]
+    assert cli_main(['runup', str(bag), '--no-hbm', '--out', str(tmp_path / 'ru')]) == 0
+    assert f': {lines[0]}' in capsys.readouterr().out
 
 
 def test_analyze_out_checked_before_computing(recorded, tmp_path, capsys, monkeypatch):

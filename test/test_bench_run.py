@@ -19,7 +19,8 @@ def test_bench_run_small_prints_json():
                 'realtime_factor_threads2'):
         assert math.isfinite(data[key]) and data[key] > 0
     assert data['threads_default'] in (1, 2)
-    assert data['messages'] == 4 * round(data['simulated_s'] * 1000)
+    # four sample streams, and the node's health status once per simulated second
+    assert data['messages'] == 4 * round(data['simulated_s'] * 1000) + int(data['simulated_s'])
     folds = data['fold_events_rpm']
     assert len(folds) == 2 and 360 < min(folds) < max(folds) < 380
     assert set(data['run_peak_rss_mib']) == {'0.1', '0.5', '1'}

@@ -331,6 +331,11 @@ def test_minimal_good_csv(tmp_path):
     ('full_load_curve.speeds_rpm', [1000, 800], ('full_load_curve.speeds_rpm', 'increasing')),
     ('grid.loads', [0.25, 1.0], ('grid.loads', 'start at 0')),
     ('grid.speed_step_rpm', 70, ('grid.speed_step_rpm', 'divide')),
+    # min above max: both fields named, whichever was changed (not speed_max_rpm blamed)
+    ('grid.speed_min_rpm', 3000, ("'grid.speed_min_rpm' and 'grid.speed_max_rpm'",
+                                  'speed_min_rpm < speed_max_rpm, got 3000 and 2200 rpm')),
+    ('grid.speed_max_rpm', 300, ("'grid.speed_min_rpm' and 'grid.speed_max_rpm'",
+                                 'got 400 and 300 rpm')),
     ('load_sets.shift_rpm', {'B': 50}, ('load_sets.shift_rpm', 'A')),
     ('load_sets.shift_rpm.C', 2000, ('load_sets.shift_rpm.C', '[0, 1000)')),
     ('gas_exchange.evo_deg', float('nan'), ('gas_exchange.evo_deg', '[90, 200]')),

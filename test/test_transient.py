@@ -123,7 +123,13 @@ def test_run_bag_has_the_nodes_topics_and_follows_the_profile(run_bag):
     names = resolved_topics()
     assert topics == {names[k]: s.msgtype for k, s in STREAMS.items()}
     assert len(meta['files']) == 3                       # split every simulated second
-    assert meta['message_count'] == 4 * summary.samples == summary.messages
+    counts = {t['topic_metadata']['name']: t['message_count']
+              for t in meta['topics_with_message_count']}
+    # the node's health status every simulated second (diagnostics_rate 1 Hz), the sample
+    # streams one message per sample
+    assert counts['/diagnostics'] == int(prof.duration_s)
+    assert meta['message_count'] == 4 * summary.samples + int(prof.duration_s) \
+        == summary.messages
     rm = RunMetadata.from_bag_metadata(meta)
     assert rm.profile == prof.name and rm.node == 'dmf-sim run' and rm.publish_rate_hz == 1000
     # the reference speed is on the table at every sample (ramp exact in the kernel)
@@ -323,7 +329,8 @@ def test_threaded_run_writes_the_sequential_bag(tmp_path):
     def strip(bag):
         msgs = _read(bag)
         t0 = msgs[0][1]
-        return [(tp, t - t0, raw[:4] + raw[12:] if tp.endswith('joint_states') else raw)
+        stamped = ('joint_states', 'diagnostics')      # header stamps: the wall clock
+        return [(tp, t - t0, raw[:4] + raw[12:] if tp.endswith(stamped) else raw)
                 for tp, t, raw, _ in msgs]
     assert strip(bags[1]) == strip(bags[2])
 
@@ -373,7 +380,8 @@ def test_interrupted_run_leaves_a_readable_bag(tmp_path):
     assert proc.returncode == 130 and 'interrupted at' in err
     meta = yaml.safe_load((out / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
     assert meta['message_count'] >= 4 * 500 and meta['files']
-    res = analyze_bag(out, bin_rpm=20)
+    # from the start (how far it got varies: the settle, 2 s, may be all there is)
+    res = analyze_bag(out, bin_rpm=20, start_s=0.0)
     assert not res.truncated and res.duration_s > 0.5
 
 

@@ -62,6 +62,7 @@ from dmf_sim.analysis.series import (
     read_bag_series,
 )
 from dmf_sim.bags.layout import BagFiles
+from dmf_sim.bags.records import damage_lines, skipped_chunks
 from dmf_sim.core.errors import BagError
 
 __all__ = [
@@ -105,7 +106,9 @@ class BagAnalysis:
     theta: float | None
     warnings: list[str] = field(default_factory=list)
     model: dict | None = None        # model settings, once :func:`overlay_all` ran
-    corrupt: list[dict] = field(default_factory=list)   # corrupt chunks skipped (see below)
+    corrupt: list[dict] = field(default_factory=list)   # corrupt chunks skipped (skipped_chunks)
+    damage: list[str] = field(default_factory=list)     # what the reading left out, one line
+                                                        # each (damage_lines; in warnings too)
     load_timeline: LoadTimeline | None = None   # the load over the recording, from the bag
 
     def signal(self, label: str = 'windup') -> SignalAnalysis:
@@ -149,7 +152,9 @@ def analyze_bag(path: str | os.PathLike | BagFiles,
             the wind-up (None: not reported).
         topics, namespace, stamp, reader, progress: see :func:`read_bag_series`.
         start_s, end_s: keep only cycles within this time window [s from the first crank-angle
-            sample] (e.g. to skip a start-up transient).
+            sample] (e.g. to skip a start-up transient). ``start_s`` None: the cycles after the
+            settle from static equilibrium the bag marks (``custom_data`` ``settle_s``, as
+            ``dmf-sim run`` writes it), else all.
         load: the engine load fraction of the whole recording, if the caller knows it (the
             ``--load`` option). None: the load each cycle ran at, from what the bag holds
             (:mod:`dmf_sim.analysis.load_timeline`); rows are then per speed bin *and* load.
@@ -165,12 +170,9 @@ def analyze_bag(path: str | os.PathLike | BagFiles,
                           reader=reader, progress=progress)
     crank, source = crank_angle(bag)
     warnings = list(bag.notes)
-    if bag.truncated:
-        warnings.append('truncated bag (recorder crashed?): read up to the last complete chunk '
-                        f'of {", ".join(f.name for f in bag.truncated)}')
-    corrupt = corrupt_report(bag, int(crank.t_ns[0]))
-    warnings += [f'corrupt chunk skipped: {c["text"]}' for c in corrupt]
-    warnings += [s.data_crc_error for s in bag.scans if s.data_crc_error]
+    damage = damage_lines(bag.scans, bag.truncated, int(crank.t_ns[0]))
+    warnings += damage
+    corrupt = skipped_chunks(bag.scans, int(crank.t_ns[0]))
     timeline = None
     if load is None:
         t0_ns = int(crank.t_ns[0])
@@ -185,13 +187,16 @@ def analyze_bag(path: str | os.PathLike | BagFiles,
                                     f'value (see model_sources); analyse the parts apart with '
                                     '--start/--end')
     out, rates = [], []
+    settle = bag.bag.run_metadata.settle_s if start_s is None else None
+    if settle:
+        start_s = settle
     window = start_s is not None or end_s is not None
     for spec in specs:
         topic = _signal_topic(spec, bag.topic_names)
         s = bag.series.get(spec.label)
         if s is None or len(s) == 0:
-            raise BagError(f'signal {spec.label!r}: topic {topic} is not in the bag (or empty); '
-                           f'topics found: {", ".join(sorted(bag.topics)) or "none"}')
+            raise BagError(f'signal {spec.label!r}: topic {bag.topic_state(topic)}; topics found: '
+                           f'{bag.topics_found()}')
         cyc = cycle_orders(s.t_ns, s.values, crank.t_ns, crank.values,
                            points_per_cycle=points_per_cycle, n_max=n_max)
         if window:
@@ -200,11 +205,18 @@ def analyze_bag(path: str | os.PathLike | BagFiles,
                 keep &= cyc.t_start >= start_s
             if end_s is not None:
                 keep &= cyc.t_end <= end_s
+            if settle and not out:
+                warnings.append(f'{int(np.count_nonzero(cyc.t_start < settle))} engine '
+                                f'cycle(s) of the first {settle:g} s left out: the driveline '
+                                'settling from static equilibrium, as the bag marks it '
+                                '(custom_data settle_s; --start 0 keeps them)')
             cyc = cyc.select(keep)
         if len(cyc) == 0:
             raise BagError(f'signal {spec.label!r}: no whole engine cycle (720 deg of crank '
                            'angle) recorded with the signal'
-                           + (' in the time window' if window else ''))
+                           + (f' after the settle from static equilibrium ({settle:g} s, '
+                              'custom_data settle_s; --start 0 keeps it)' if settle
+                              else ' in the time window' if window else ''))
         if len(s) > 1:
             rates.append(1e9 / float(np.median(np.diff(s.t_ns))))
         loads = (None if timeline is None else
@@ -218,13 +230,4 @@ def analyze_bag(path: str | os.PathLike | BagFiles,
     return BagAnalysis(bag.bag.path, source, out, float(bin_rpm), int(min_cycles), int(n_max),
                        int(points_per_cycle), float(min(rates)) if rates else float('nan'), dur,
                        bag, time.perf_counter() - t_start, theta, warnings, corrupt=corrupt,
-                       load_timeline=timeline)
-
-
-def corrupt_report(bag: BagSeries, t0_ns: int) -> list[dict]:
-    """The corrupt chunks the reader skipped: file, byte offset, reason, time range [s from
-    ``t0_ns``], messages lost per topic (None: unknown) and one line of text each."""
-    return [{'file': c.file.name, 'offset': c.offset, 'reason': c.reason,
-             't_start_s': (c.start_ns - t0_ns) * 1e-9, 't_end_s': (c.end_ns - t0_ns) * 1e-9,
-             'messages_lost': c.messages, 'topics': dict(c.topics), 'text': c.describe(t0_ns)}
-            for c in bag.corrupt]
+                       damage=damage, load_timeline=timeline)

@@ -24,8 +24,8 @@ import numpy as np
 
 from dmf_sim.bags.columns import Column, JointStateColumns, McapColumns, ScalarColumn
 from dmf_sim.bags.layout import BagFiles, resolve_bag
-from dmf_sim.bags.read import TypeDecoder, bag_topics, read_messages
-from dmf_sim.bags.records import Scan
+from dmf_sim.bags.read import TypeDecoder, bag_topics, message_counts, read_messages, topics_text
+from dmf_sim.bags.records import Scan, no_message_text
 from dmf_sim.core.errors import BagError
 from dmf_sim.core.units import RPM_TO_RAD_S
 from dmf_sim.core.validation import ros_namespace
@@ -156,6 +156,23 @@ class BagSeries:
     scans: list[Scan] = field(default_factory=list)
     health: tuple[np.ndarray, np.ndarray] | None = None
     load_setpoints: tuple[np.ndarray, np.ndarray] | None = None
+
+    @property
+    def message_counts(self) -> dict[str, int]:
+        """Topic -> messages read (every topic of the files read, not only those analysed)."""
+        return message_counts(self.scans)
+
+    def topic_state(self, topic: str) -> str:
+        """``topic`` and whether the bag declares it and how many messages it holds, for a
+        message: '/t is not in the bag', '/t holds no messages', '/t holds 1 message'."""
+        if topic not in self.topics:
+            return f'{topic} is not in the bag'
+        n = self.message_counts.get(topic, 0)
+        return f'{topic} holds {n or "no"} message{"" if n == 1 else "s"}'
+
+    def topics_found(self) -> str:
+        """The bag's topics for a message (declared topics without messages marked)."""
+        return topics_text(self.topics, self.message_counts)
 
     @property
     def corrupt(self) -> list:
@@ -408,7 +425,8 @@ def _strictly_increasing(s: Series) -> tuple[np.ndarray, np.ndarray]:
 def crank_angle(bag: BagSeries) -> tuple[Series, str]:
     """Crank angle [rad] over time from the crank-angle topic, else from integrating the speed.
 
-    Returns (Series, description of the source). A bag with neither is a one-line BagError."""
+    Returns (Series, description of the source). A bag with neither is a one-line BagError
+    (a bag without any complete message: why, in bag-recover's words)."""
     crank = bag.series.get('crank')
     if crank is not None and len(crank) >= 2:
         t, psi = _strictly_increasing(crank)
@@ -422,8 +440,11 @@ def crank_angle(bag: BagSeries) -> tuple[Series, str]:
         omega = rpm * RPM_TO_RAD_S
         psi = np.concatenate(([0.0], np.cumsum(0.5 * (omega[1:] + omega[:-1]) * np.diff(ts))))
         return Series(t, psi), 'integrated engine speed (no crank angle topic)'
+    if not any(s.messages for s in bag.scans):            # a stub, or an empty recording
+        raise BagError(f'{bag.bag.path}: nothing to analyze: {no_message_text(bag.scans)}'
+                       + (f'; topics declared: {topics_text(bag.topics)}' if bag.topics else ''))
     tp = bag.topic_names
-    found = ', '.join(sorted(bag.topics)) or 'none'
-    raise BagError(f'the bag has neither a crank angle topic ({tp["crank"]}) nor an engine speed '
-                   f'topic ({tp["speed"]}) to resample on; topics found: {found} (use '
-                   '--crank-topic/--speed-topic for other names)')
+    raise BagError(f'the bag has neither a crank angle topic ({bag.topic_state(tp["crank"])}) '
+                   f'nor an engine speed topic ({bag.topic_state(tp["speed"])}) to resample on; '
+                   f'topics found: {bag.topics_found()} (use --crank-topic/--speed-topic for '
+                   'other names)')

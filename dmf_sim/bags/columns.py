@@ -388,6 +388,8 @@ class McapColumns:
             return
         cids = buf[m_offs + _RECORD_HEAD].astype(np.int64) \
             | (buf[m_offs + _RECORD_HEAD + 1].astype(np.int64) << 8)
+        for cid, n in zip(*np.unique(cids, return_counts=True)):
+            self.scan.count(int(cid), int(n))
         times = _u64(buf, m_offs + self._stamp_at)
         self._gather(buf, cids, times, m_offs + _MSG_DATA, m_len - (_MSG_DATA - _RECORD_HEAD))
 
@@ -417,6 +419,7 @@ class McapColumns:
                 self._chunk(record)
             elif isinstance(record, Message):
                 self._flush_chunks()           # file order: the chunks before this message
+                scan.count(record.channel_id)
                 if self._column(record.channel_id) is not None:
                     self._loose.append(record)
                     if len(self._loose) >= _LOOSE_BATCH:

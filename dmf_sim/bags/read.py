@@ -12,7 +12,7 @@ one.
 from __future__ import annotations
 
 import os
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -24,7 +24,7 @@ from dmf_sim.bags.records import Scan, file_topics, iter_records, normalize_type
 from dmf_sim.core.errors import BagError
 
 __all__ = ['BagMessage', 'Scan', 'TypeDecoder', 'bag_topics', 'iter_records', 'normalize_type',
-           'read_messages']
+           'read_messages', 'message_counts', 'topics_text']
 
 _IDL_SEPARATOR = '=' * 80 + '\n'
 
@@ -183,6 +183,7 @@ def read_messages(path: str | os.PathLike[str] | BagFiles,
             scans.append(scan)
         for record in iter_records(file, scan):
             if isinstance(record, Message):
+                scan.count(record.channel_id)
                 info = channels.get(record.channel_id)
                 if info is None:
                     continue
@@ -201,6 +202,22 @@ def read_messages(path: str | os.PathLike[str] | BagFiles,
                     decoder.add_schema(schemas.get(record.schema_id), msgtype)
                 channels[record.id] = (record.topic, msgtype)
         scan.name(names)
+
+
+def message_counts(scans: Iterable[Scan]) -> dict[str, int]:
+    """Topic -> complete messages read, over the scanned files of a bag."""
+    out: dict[str, int] = {}
+    for s in scans:
+        for topic, n in s.messages.items():
+            out[topic] = out.get(topic, 0) + n
+    return out
+
+
+def topics_text(topics: Iterable[str], counts: Mapping[str, int] | None = None) -> str:
+    """A bag's topics for a message, sorted (``none`` if there are none); with the messages
+    read per topic (``counts``), a declared topic that holds none is marked ``(no messages)``."""
+    return ', '.join(t + (' (no messages)' if counts is not None and not counts.get(t) else '')
+                     for t in sorted(topics)) or 'none'
 
 
 def bag_topics(path: str | os.PathLike[str] | BagFiles) -> dict[str, str]:

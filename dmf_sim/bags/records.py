@@ -18,13 +18,15 @@ file was valid. Integrity, as the format provides it:
 Channels and schemas declared only inside a corrupt chunk are taken from the file's summary
 section when it has one (yielded right after the corrupt chunk is found). Every reader of the
 package (:mod:`dmf_sim.bags.read`, :mod:`dmf_sim.bags.columns`, :mod:`dmf_sim.bags.recovery`)
-reads through this scanner, so they skip and report the same chunks.
+reads through this scanner, so they skip the same chunks; every command reports what was skipped
+in the same words (:func:`damage_lines`, :func:`skipped_chunks`), and a bag of which not one
+complete message could be read is diagnosed once (:func:`no_message_text`).
 """
 from __future__ import annotations
 
 import io
 import struct
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -41,7 +43,7 @@ from zlib_ng import zlib_ng as zlib  # zlib's CRC-32, ~4.7x faster (SIMD; the sa
 
 __all__ = ['TRUNCATION_ERRORS', 'SUMMARY_ERRORS', 'RECORD_HEAD', 'CheckedChunk', 'CorruptChunk',
            'Scan', 'iter_records', 'record_offsets', 'normalize_type', 'file_topics',
-           'describe_corrupt']
+           'damage_lines', 'skipped_chunks', 'no_message_text']
 
 # what a truncated or damaged tail raises inside the mcap reader
 TRUNCATION_ERRORS = (McapError, struct.error, EOFError, UnicodeDecodeError, ValueError)
@@ -148,21 +150,25 @@ class Scan:
     corrupt: list[CorruptChunk] = field(default_factory=list)
     data_crc_error: str = ''
 
+    counted: dict[int, int] = field(default_factory=dict)    # channel id -> messages read
+    messages: dict[str, int] = field(default_factory=dict)   # topic -> messages read
+
+    def count(self, channel_id: int, n: int = 1) -> None:
+        """``n`` complete messages of channel ``channel_id`` read (the reader counts them)."""
+        self.counted[channel_id] = self.counted.get(channel_id, 0) + n
+
     def name(self, channels: Mapping[int, str]) -> None:
-        """Give the lost messages of the corrupt chunks their topics (channel id -> topic)."""
+        """Give the lost messages of the corrupt chunks, and the messages read, their topics
+        (channel id -> topic)."""
         for c in self.corrupt:
             c.topics = {}
             for cid, n in c.lost.items():
                 topic = channels.get(cid, f'channel {cid}')
                 c.topics[topic] = c.topics.get(topic, 0) + n
-
-    @property
-    def problems(self) -> list[str]:
-        """What is damaged, one line each (corrupt chunks, data section CRC)."""
-        out = [c.describe() for c in self.corrupt]
-        if self.data_crc_error:
-            out.append(self.data_crc_error)
-        return out
+        self.messages = {}
+        for cid, n in self.counted.items():
+            topic = channels.get(cid, f'channel {cid}')
+            self.messages[topic] = self.messages.get(topic, 0) + n
 
 
 @dataclass(frozen=True, slots=True)
@@ -354,17 +360,41 @@ def file_topics(file: Path) -> dict[str, str]:
     return out
 
 
-def describe_corrupt(scans: Mapping[Path, Scan] | list[Scan], t0_ns: int | None = None
-                     ) -> list[str]:
-    """One line per damaged part of the scanned files (corrupt chunk, data section CRC), with
-    times in s from ``t0_ns`` when given."""
-    items = scans.values() if isinstance(scans, Mapping) else scans
+def damage_lines(scans: Sequence[Scan], truncated: Sequence[Path | str] = (),
+                 t0_ns: int | None = None, done: str = 'skipped') -> list[str]:
+    """What a bag's reading had to leave out, one line each, in the words of every command:
+    the truncated files (read up to their last complete chunk), each corrupt chunk (where, why,
+    its time range -- s from ``t0_ns`` when given -- and the messages lost per topic) and a data
+    section CRC mismatch. ``done``: what was done with the corrupt chunks ('skipped' by a
+    reader, 'dropped' by bag-recover)."""
     out = []
-    for s in items:
-        out += [c.describe(t0_ns) for c in s.corrupt]
+    if truncated:
+        out.append('truncated bag (recorder crashed?): read up to the last complete chunk of '
+                   + ', '.join(Path(f).name for f in truncated))
+    for s in scans:
+        out += [f'corrupt chunk {done}: {c.describe(t0_ns)}' for c in s.corrupt]
         if s.data_crc_error:
             out.append(s.data_crc_error)
     return out
+
+
+def skipped_chunks(scans: Sequence[Scan], t0_ns: int) -> list[dict]:
+    """The corrupt chunks a reader skipped, for a JSON report: file, byte offset, reason, time
+    range [s from ``t0_ns``], messages lost (None: unknown) in total and per topic, and the
+    chunk's line of :func:`damage_lines`."""
+    return [{'file': c.file.name, 'offset': c.offset, 'reason': c.reason,
+             't_start_s': (c.start_ns - t0_ns) * _NS, 't_end_s': (c.end_ns - t0_ns) * _NS,
+             'messages_lost': c.messages, 'topics': dict(c.topics), 'text': c.describe(t0_ns)}
+            for s in scans for c in s.corrupt]
+
+
+def no_message_text(scans: Sequence[Scan]) -> str:
+    """Why nothing can be read from the scanned files of a bag in which no complete message was
+    found (a stub a crash left before its first chunk was written): their size and where
+    reading stopped."""
+    stopped = '; '.join(s.error for s in scans if s.error)
+    return (f'no complete message in {sum(s.size for s in scans)} bytes'
+            + (f' (reading stopped at: {stopped})' if stopped else ''))
 
 
 

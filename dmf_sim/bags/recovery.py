@@ -35,7 +35,14 @@ from dmf_sim.bags.layout import (
     resolve_bag,
     write_metadata,
 )
-from dmf_sim.bags.records import SUMMARY_ERRORS, Scan, iter_records, normalize_type
+from dmf_sim.bags.records import (
+    SUMMARY_ERRORS,
+    Scan,
+    damage_lines,
+    iter_records,
+    no_message_text,
+    normalize_type,
+)
 from dmf_sim.core.errors import BagError
 
 __all__ = ['CHUNK_BYTES_RANGE', 'RecoverReport', 'recover_bag']
@@ -144,6 +151,7 @@ class _Rewrite:
         elif isinstance(record, Channel) and record.id not in self._channels:
             self._channel(record)
         elif isinstance(record, Message):
+            self.scan.count(record.channel_id)
             cid, topic = self._channels[record.channel_id]
             self.writer.add_message(cid, record.log_time, record.data, record.publish_time,
                                     record.sequence)
@@ -236,10 +244,7 @@ def recover_bag(path: str | os.PathLike[str], out_path: str | os.PathLike[str] |
                 rewritten.append(name)
             infos.append(info)
         if not any(i.count for i in infos) and scans:
-            stopped = '; '.join(f'{s.error}' for s in scans if s.error)
-            raise BagError(f'{src}: nothing to recover: no complete message in '
-                           f'{sum(s.size for s in scans)} bytes'
-                           + (f' (reading stopped at: {stopped})' if stopped else ''))
+            raise BagError(f'{src}: nothing to recover: {no_message_text(scans)}')
         if as_dir:
             old = bag.metadata or {}
             write_metadata(out, bag_metadata(list(known.values()), infos,
@@ -272,7 +277,7 @@ def recover_bag(path: str | os.PathLike[str], out_path: str | os.PathLike[str] |
         truncated=not all(s.complete for s in scans),
         dropped_bytes=sum(s.size - s.valid_end for s in scans if not s.complete),
         errors=tuple(s.error for s in scans if s.error), rewritten=tuple(rewritten),
-        corrupt=tuple(line for s in scans for line in s.problems),
+        corrupt=tuple(damage_lines(scans, done='dropped')),
         dropped_messages=sum(c.messages or 0 for s in scans for c in s.corrupt))
 
 

@@ -72,7 +72,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         'not compared with the HBM (default %(default)d)')
     p.add_argument('--start', type=float, metavar='S',
                    help='analyse only cycles after S seconds from the start of the recording '
-                        '(e.g. skip a start-up transient)')
+                        '(e.g. skip a start-up transient; default: after the settle from static '
+                        'equilibrium the bag marks, as dmf-sim run does; 0 keeps it)')
     p.add_argument('--end', type=float, metavar='S', help='... and before S seconds')
     p.add_argument('--points-per-cycle', type=int, default=256,
                    help=f'crank-angle grid points per 720 deg cycle, 2 n_max + 2 .. '

@@ -38,5 +38,5 @@ def run(args: argparse.Namespace) -> int:
     for error in report.errors:
         print(f'  reading stopped at: {error}')
     for line in report.corrupt:
-        print(f'  dropped: {line}')
+        print(f'  {line}')
     return 0

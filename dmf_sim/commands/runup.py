@@ -54,6 +54,9 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(data))
     else:
+        for r in res.runs:               # what the reading had to leave out, as analyze says
+            for line in r.damage:
+                print(f'warning: {r.bag}: {line}')
         for j in res.jumps:
             ev = (f'; sweep {j.event["kind"]} at {j.event["speed_rpm"]:.1f} rpm '
                   f'({j.error_rpm:.1f} rpm away)' if j.event else '')

@@ -11,13 +11,16 @@ w = phi_(s-1) / r_s - phi_s and its rate from the recorded velocities (exact, no
 differentiation); engine speed and crank angle are interpolated onto the joint-state stamps.
 The model (the DMF spring, its damping) is the one the bag's ``custom_data`` names
 (:func:`dmf_sim.analysis.hbm_overlay.model_settings`), as ``dmf-sim analyze`` rebuilds it.
+What the reading had to leave out (truncated files, corrupt chunks skipped) goes into the notes
+in the words ``dmf-sim analyze`` uses (:func:`dmf_sim.bags.records.damage_lines`) and, chunk by
+chunk, into ``corrupt_chunks`` (:func:`dmf_sim.bags.records.skipped_chunks`).
 """
 from __future__ import annotations
 
 import os
 import resource
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -25,7 +28,8 @@ from dmf_sim.analysis.hbm_overlay import build_model, model_settings
 from dmf_sim.analysis.series import bag_topic_names
 from dmf_sim.bags.columns import JointStateColumns, McapColumns, ScalarColumn
 from dmf_sim.bags.layout import BagFiles, resolve_bag
-from dmf_sim.bags.read import TypeDecoder, bag_topics
+from dmf_sim.bags.read import TypeDecoder, bag_topics, message_counts, topics_text
+from dmf_sim.bags.records import Scan, damage_lines, no_message_text, skipped_chunks
 from dmf_sim.core.errors import BagError
 from dmf_sim.durability.accumulate import DurabilityAccumulator, DurabilityResult
 from dmf_sim.durability.settings import DurabilitySettings
@@ -45,6 +49,7 @@ class DurabilityRun:
     read_seconds: float
     peak_rss_mib: float
     batches: int
+    corrupt: list[dict] = field(default_factory=list)   # corrupt chunks skipped
 
 
 class _Aligner:
@@ -106,11 +111,12 @@ def bag_durability(path: str | os.PathLike | BagFiles, settings: DurabilitySetti
     bag = path if isinstance(path, BagFiles) else resolve_bag(path)
     listed = bag_topics(bag)
     tp, _ = bag_topic_names(listed, None, namespace)
+    needs = ("durability needs the joint states, engine speed and crank angle of the node's "
+             'recording')
     for key in ('joints', 'speed', 'crank'):
-        if tp[key] not in listed:
-            raise BagError(f'the bag has no {tp[key]} topic (durability needs the joint states, '
-                           'engine speed and crank angle of the node\'s recording); topics found: '
-                           f'{", ".join(sorted(listed)) or "none"}')
+        if listed and tp[key] not in listed:     # (no topic at all: read, then say why)
+            raise BagError(f'the bag has no {tp[key]} topic ({needs}); topics found: '
+                           f'{topics_text(listed)}')
     st = model_settings(bag.metadata)
     model = build_model(st)
     if model.spring is None:
@@ -127,6 +133,7 @@ def bag_durability(path: str | os.PathLike | BagFiles, settings: DurabilitySetti
                 tp['speed']: ScalarColumn, tp['crank']: ScalarColumn}
     decoder = TypeDecoder()
     truncated = []
+    scans: list[Scan] = []
     bar = None
     if progress:
         from tqdm import tqdm
@@ -136,20 +143,23 @@ def bag_durability(path: str | os.PathLike | BagFiles, settings: DurabilitySetti
         for file in bag.files:
             reader = McapColumns(file, requests, decoder, 'log',
                                  bar.update if bar is not None else None, sink=align).read()
+            scans.append(reader.scan)
             if reader.truncated:
                 truncated.append(str(file))
     finally:
         if bar is not None:
             bar.close()
+    if not any(s.messages for s in scans):
+        raise BagError(f'{bag.path}: nothing to assess: {no_message_text(scans)}')
     align.process(final=True)
     if acc.samples == 0:
-        raise BagError(f'{bag.path}: no joint states with engine speed and crank angle to assess')
+        raise BagError(f'{bag.path}: no joint states with engine speed and crank angle to '
+                       f'assess ({needs}); topics found: '
+                       f'{topics_text(listed or message_counts(scans), message_counts(scans))}')
     result = acc.finish()
-    if truncated:
-        result.notes.append('truncated bag (recorder crashed?): read up to the last complete '
-                            f'chunk of {", ".join(truncated)}')
+    result.notes += damage_lines(scans, truncated, acc.t0_ns)
     keep = ('driveline', 'engine', 'load_set', 'alpha', 'theta_rad')
     return DurabilityRun(result, str(bag.path), len(bag.files), truncated,
                          {k: st.get(k) for k in keep}, time.perf_counter() - t0,
                          resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
-                         align.batches)
+                         align.batches, skipped_chunks(scans, acc.t0_ns))

@@ -24,7 +24,8 @@ _SPEED_COLOR = '0.55'
 def report_dict(run: DurabilityRun) -> dict:
     d = run.result.as_dict()
     d.update(bag=run.bag, files=run.files, model=run.model, read_seconds=run.read_seconds,
-             peak_rss_mib=run.peak_rss_mib, batches=run.batches)
+             peak_rss_mib=run.peak_rss_mib, batches=run.batches, truncated=run.truncated,
+             corrupt_chunks=run.corrupt)
     return to_jsonable(d)
 
 

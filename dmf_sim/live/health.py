@@ -1,8 +1,14 @@
 """The live node's health report without ROS: level, problems and key/values per window.
 
 :class:`HealthMonitor` turns what happened since its last report (counters of the run loop, the
-simulation, the setpoint inbox and the recording) into a :class:`HealthReport`; the node turns
-that into one ``diagnostic_msgs/DiagnosticStatus`` (levels are the message's numbers).
+simulation, the setpoint inbox and the recording) into a :class:`HealthReport`;
+:meth:`HealthReport.status` makes it the node's one ``diagnostic_msgs/DiagnosticStatus``
+(levels are the message's numbers) on ``/diagnostics``.
+
+:class:`SimulationHealth` is the part about the simulation itself: the operating point (engine
+speed and load with their setpoints: what a bag analysis reads the load each engine cycle ran at
+from, :mod:`dmf_sim.analysis.load_timeline`), the DMF and the solver. ``dmf-sim run`` has no
+pacing, setpoint inbox or recording control, and writes this part alone, as the same status.
 
 Levels: OK; WARN for overruns, lag above ``max_lag``, refused or lost setpoints, a failed
 recording; ERROR for a solver restart (non-finite state). ``contributors`` is the hook for
@@ -16,8 +22,10 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 from dmf_sim.core.numbers import fmt_num
+from dmf_sim.monitor.messages import StatusData
 
-__all__ = ['LEVEL_NAMES', 'STATUS_SUFFIX', 'status_name', 'HealthReport', 'HealthMonitor']
+__all__ = ['LEVEL_NAMES', 'STATUS_SUFFIX', 'status_name', 'HealthReport', 'SimulationHealth',
+           'HealthMonitor']
 
 OK, WARN, ERROR, STALE = 0, 1, 2, 3
 LEVEL_NAMES = {OK: 'OK', WARN: 'WARN', ERROR: 'ERROR', STALE: 'STALE'}
@@ -47,13 +55,71 @@ class HealthReport:
     def message(self) -> str:
         return '; '.join(self.problems) if self.problems else self.summary
 
+    def status(self, node_fqn: str) -> StatusData:
+        """The node's health status on /diagnostics: named :func:`status_name` of
+        ``node_fqn``, whose ``hardware_id`` is ``node_fqn`` itself."""
+        return StatusData(self.level, status_name(node_fqn), self.message,
+                          tuple(self.values.items()), node_fqn)
+
 
 def _ms(x: float) -> str:
     return 'nan' if not math.isfinite(x) else f'{x * 1e3:.3f}'
 
 
+class SimulationHealth:
+    """The simulation's part of the health report, per window of steps (the last
+    :meth:`report`): ERROR for a solver restart (non-finite state); the operating point, DMF and
+    solver values.
+
+    Args:
+        sim: the :class:`dmf_sim.live.simulation.LiveSimulation`.
+    """
+
+    def __init__(self, sim) -> None:
+        self.sim = sim
+        self._win = self._snapshot()
+
+    def _snapshot(self) -> tuple[int, int, int]:
+        sim = self.sim
+        return sim.steps_secondary, sim.steps, sim.solver_resets
+
+    def start(self) -> None:
+        """Open a window at the current step."""
+        self._win = self._snapshot()
+
+    def report(self, lead: str) -> HealthReport:
+        """The report of the window that ends now (and open the next one); its summary starts
+        with ``lead`` (the node: pacing and real-time factor)."""
+        sim = self.sim
+        sec0, steps0, res0 = self._win
+        self._win = snap = self._snapshot()
+        nsteps = snap[1] - steps0
+        finite = sim.finite
+        r = HealthReport(summary=f'{lead}, {sim.speed:.0f} rpm, load {sim.load:.2f}, DMF '
+                                 f'{sim.region}')
+        if not finite or snap[2] - res0:
+            r.problem(f'solver restarted {snap[2] - res0}x (non-finite state)', ERROR)
+        spring = sim.model.spring
+        r.values = {
+            'sim_time_s': f'{sim.t:.4f}',
+            'steps': str(sim.steps), 'dt_s': f'{sim.dt:g}',
+            'publish_rate_hz': f'{1.0 / (sim.stride * sim.dt):g}',
+            'speed_rpm': f'{sim.speed:.3f}', 'speed_setpoint_rpm': fmt_num(sim.speed_setpoint),
+            'load': f'{sim.load:.4f}', 'load_setpoint': fmt_num(sim.load_setpoint),
+            'windup_rad': f'{sim.windup:.6f}', 'dmf_region': sim.region,
+            'dmf_secondary_fraction': f'{(snap[0] - sec0) / nsteps if nsteps else 0.0:.4f}',
+            'knee_crossings': str(sim.knee_crossings),
+            'state_finite': str(finite).lower(), 'solver_resets': str(sim.solver_resets),
+            'alpha': fmt_num(spring.alpha) if spring is not None else 'none',
+            'theta_rad': fmt_num(spring.theta) if spring is not None else 'none',
+            'load_set': str(getattr(sim.engine, 'load_set', '')),
+        }
+        return r
+
+
 class HealthMonitor:
-    """Reports of a :class:`dmf_sim.live.run_loop.RunLoop` (and a recording, if any) per window.
+    """Reports of a :class:`dmf_sim.live.run_loop.RunLoop` (and a recording, if any) per window:
+    the simulation's part (:class:`SimulationHealth`), then pacing, lag, setpoints, recording.
 
     Args:
         loop: the run loop (simulation, pacer, lag statistics, inbox, stamps).
@@ -64,41 +130,36 @@ class HealthMonitor:
     def __init__(self, loop, recording=None, *,
                  cpu_clock: Callable[[], float] = time.process_time) -> None:
         self.loop, self.recording, self.cpu_clock = loop, recording, cpu_clock
+        self.simulation = SimulationHealth(loop.sim)
         self.contributors: list[Callable[[HealthReport], None]] = []
         self._win: tuple | None = None
 
     def _snapshot(self, now: float) -> tuple:
-        loop, sim = self.loop, self.loop.sim
-        return (now, sim.t, self.cpu_clock(), sim.steps_secondary, sim.steps,
-                loop.pacer.overruns, loop.inbox.total('rejected') + loop.refused_on_apply,
-                loop.inbox.total('lost'), sim.solver_resets)
+        loop = self.loop
+        return (now, loop.sim.t, self.cpu_clock(), loop.pacer.overruns,
+                loop.inbox.total('rejected') + loop.refused_on_apply, loop.inbox.total('lost'))
 
     def start(self, now: float) -> None:
         """Open the first window at wall time ``now``."""
         self._win = self._snapshot(now)
+        self.simulation.start()
 
     def report(self, now: float) -> HealthReport:
         """The report of the window that ends at ``now`` (and open the next one)."""
         if self._win is None:
             self.start(now)
         loop, sim, pacer = self.loop, self.loop.sim, self.loop.pacer
-        w0, t0, c0, sec0, steps0, ovr0, rej0, lost0, res0 = self._win
+        w0, t0, c0, ovr0, rej0, lost0 = self._win
         self._win = snap = self._snapshot(now)
         wall = max(now - w0, 1e-9)
         rtf = (sim.t - t0) / wall
-        nsteps = sim.steps - steps0
-        new_overruns, new_rejected = snap[5] - ovr0, snap[6] - rej0
-        new_lost, new_resets = snap[7] - lost0, snap[8] - res0
+        new_overruns, new_rejected, new_lost = snap[3] - ovr0, snap[4] - rej0, snap[5] - lost0
         lw = loop.lag.take_window()
         late_max, busy_max = loop.take_tick_maxima()
-        finite = sim.finite
         inbox, tb = loop.inbox, loop.time
         fast = pacer.fast
 
-        r = HealthReport(summary=f'{loop.mode} x{rtf:.3f}, {sim.speed:.0f} rpm, load '
-                                 f'{sim.load:.2f}, DMF {sim.region}')
-        if not finite or new_resets:
-            r.problem(f'solver restarted {new_resets}x (non-finite state)', ERROR)
+        r = self.simulation.report(f'{loop.mode} x{rtf:.3f}')
         if new_overruns:
             r.problem(f'{new_overruns} overrun(s)')
         if not fast and lw['n'] and lw['max'] > pacer.max_lag:
@@ -107,12 +168,10 @@ class HealthMonitor:
             r.problem(f'{new_rejected} setpoint(s) rejected')
         if new_lost:
             r.problem(f'{new_lost} setpoint(s) lost before they reached the node')
-        spring = sim.model.spring
         r.values = {
             'pacing': loop.mode,
             'real_time_factor_target': 'max' if fast else f'{pacer.rtf:g}',
             'real_time_factor': f'{rtf:.4f}',
-            'sim_time_s': f'{sim.t:.4f}',
             'lag_ms': 'nan' if fast else _ms(loop.last_lag),
             'lag_p50_ms': _ms(lw['p50']), 'lag_p99_ms': _ms(lw['p99']),
             'lag_max_ms': _ms(lw['max']), 'lag_samples': str(lw['n']),
@@ -127,21 +186,11 @@ class HealthMonitor:
             'cpu_pct': f'{100.0 * (snap[2] - c0) / wall:.1f}',
             'tick_wake_late_max_ms': _ms(late_max),
             'tick_busy_max_ms': _ms(busy_max),
-            'steps': str(sim.steps), 'dt_s': f'{sim.dt:g}',
-            'publish_rate_hz': f'{loop.publish_rate_hz:g}',
             'clock_published': str(loop.clock_on).lower(),
-            'speed_rpm': f'{sim.speed:.3f}', 'speed_setpoint_rpm': fmt_num(sim.speed_setpoint),
-            'load': f'{sim.load:.4f}', 'load_setpoint': fmt_num(sim.load_setpoint),
-            'windup_rad': f'{sim.windup:.6f}', 'dmf_region': sim.region,
-            'dmf_secondary_fraction': f'{(snap[3] - sec0) / nsteps if nsteps else 0.0:.4f}',
-            'knee_crossings': str(sim.knee_crossings),
-            'state_finite': str(finite).lower(), 'solver_resets': str(sim.solver_resets),
+            **r.values,
             'setpoints_received': str(inbox.total('received')),
-            'rejected_setpoints': str(snap[6]),
-            'setpoints_lost': str(snap[7]),
-            'alpha': fmt_num(spring.alpha) if spring is not None else 'none',
-            'theta_rad': fmt_num(spring.theta) if spring is not None else 'none',
-            'load_set': str(getattr(sim.engine, 'load_set', '')),
+            'rejected_setpoints': str(snap[4]),
+            'setpoints_lost': str(snap[5]),
         }
         rec = self.recording
         if rec is not None:

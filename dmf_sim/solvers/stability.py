@@ -43,11 +43,14 @@ from dmf_sim.physics.orders import synthesize
 from dmf_sim.solvers.lapack_kernel import eigenvalues_into
 from dmf_sim.solvers.stability_kernel import floquet, floquet_many
 
-__all__ = ['CROSSING_NEWTON_STEPS', 'FloquetResult', 'ModeClass', 'by_modulus', 'real_eigenbasis',
-           'FlexibleModes', 'FloquetAnalyzer']
+__all__ = ['CROSSING_NEWTON_STEPS', 'EXTREME_SPREAD', 'FloquetResult', 'ModeClass', 'by_modulus',
+           'real_eigenbasis', 'extreme_quantity', 'FlexibleModes', 'FloquetAnalyzer']
 
 #: Newton steps refining each knee crossing on the wind-up's trigonometric polynomial
 CROSSING_NEWTON_STEPS = 4
+#: a connection's rate this many times the lowest natural frequency is named as the cause when a
+#: modal decomposition fails (its small eigenvalues lose ~log10 of it of double's 16 digits)
+EXTREME_SPREAD = 1e6
 
 
 @dataclass
@@ -129,6 +132,80 @@ def real_eigenbasis(d: np.ndarray, V: np.ndarray, Vinv: np.ndarray
     return Q, kind, sigma, freq
 
 
+_FIELD_UNITS = {'stiffness': ' Nm/rad', 'damping': ' Nms/rad', 'inertia': ' kg m^2', 'ratio': ''}
+
+
+def _decades(value: float, typical: float) -> float:
+    """How many decades ``value`` lies from ``typical`` (inf for a zero or non-finite one)."""
+    if not (value > 0 and typical > 0 and np.isfinite(value) and np.isfinite(typical)):
+        return np.inf
+    return abs(float(np.log10(value / typical)))
+
+
+def extreme_quantity(model: ReducedModel, lam: np.ndarray | None = None) -> str | None:
+    """The element field whose size puts the model's modes out of double precision's reach, as
+    the start of an error message, or None if none stands out (the solvers' error path: a
+    decomposition of the modal state matrix that fails).
+
+    Each flexible connection moves an inertia m = 1 / (d^T J^-1 d) (d its elongation row): its
+    damping gives the rate c / m [1/s], its stiffness the natural frequency sqrt(k / m) [rad/s].
+    The connection with the fastest of them is blamed when that is more than EXTREME_SPREAD times
+    the lowest natural frequency of the model (``lam``: the flexible eigenvalues omega^2 of
+    (K, J), when known), or not finite; of the fields that make it (its damping or stiffness,
+    whichever gives the faster rate, the smaller inertia it moves, its gear ratio) the one that
+    lies furthest, in decades, from the model's median of that field (a ratio: from 1) is
+    named."""
+    line = model.line
+    D, k, c = model.D, model.spring_k, model.spring_c
+    if not len(k):
+        return None
+    jd = np.diag(model.J).astype(float)
+    with np.errstate(all='ignore'):
+        share = D ** 2 / jd                            # 1/m of each row, DOF by DOF
+        m = 1.0 / share.sum(axis=1)
+        omega = np.sqrt(k / m)
+        gamma = c / m
+        fastest = np.nan_to_num(np.maximum(omega, gamma), nan=np.inf)
+        flexible = np.asarray(lam if lam is not None else [], float)
+        flexible = flexible[np.isfinite(flexible) & (flexible > 0)]
+        low = (float(np.sqrt(flexible.min())) if len(flexible)
+               else float(np.min(np.where(omega > 0, omega, np.inf))))
+    r = int(np.argmax(fastest))
+    rate = float(fastest[r])
+    if np.isfinite(rate) and not rate > EXTREME_SPREAD * low:
+        return None
+    element = int(model.spring_elements[r])
+    if not gamma[r] < omega[r]:
+        own, values, what, unit = 'damping', c, 'a damping rate', '1/s'
+    else:
+        own, values, what, unit = 'stiffness', k, 'a natural frequency', 'rad/s'
+    dof = int(np.argmax(share[r]))                     # the smaller inertia it moves
+    group = np.flatnonzero(model.dof_of_element == dof)
+    owner = int(group[np.argmax([line.elements[i].inertia * model.T[i, dof] ** 2
+                                 for i in group])])
+    typical = float(np.median(values[values > 0])) if (values > 0).any() else float(values[r])
+    candidates = [(_decades(float(values[r]), typical), own, element),
+                  (_decades(float(jd[dof]), float(np.median(jd))), 'inertia', owner),
+                  (_decades(line.elements[element].ratio, 1.0), 'ratio', element)]
+    _, field, element = max(candidates, key=lambda x: x[0] if np.isfinite(x[0]) else -1.0)
+    el = line.elements[element]
+    times = (f', {rate / low:.3g} times the lowest natural frequency ({low:.3g} rad/s)'
+             if np.isfinite(rate) and 0 < low < np.inf else '')
+    return (f"element {element + 1} ({el.name}): field '{field}' {getattr(el, field):g}"
+            f'{_FIELD_UNITS[field]} gives {what} of {rate:.3g} {unit}{times}: beyond what the '
+            'modal decomposition resolves in double precision')
+
+
+def _modal_error(model: ReducedModel, lam: np.ndarray | None, failure: str,
+                 otherwise: str = '') -> ConfigError:
+    """A failed modal decomposition: the quantity responsible (:func:`extreme_quantity`) with
+    the ``failure`` in brackets, else the failure and the ``otherwise`` hint."""
+    cause = extreme_quantity(model, lam)
+    if cause is not None:
+        return ConfigError(f'{cause} ({failure})')
+    return ConfigError(f'{failure}{"; " + otherwise if otherwise else ""}')
+
+
 class FlexibleModes:
     """The flexible part of the free-free chain in J-orthonormal modal coordinates.
 
@@ -139,7 +216,11 @@ class FlexibleModes:
     """
 
     def __init__(self, model: ReducedModel):
-        lam, V = scipy.linalg.eigh(model.K, model.J)
+        self.model = model
+        try:
+            lam, V = scipy.linalg.eigh(model.K, model.J)
+        except (ValueError, np.linalg.LinAlgError) as exc:
+            raise _modal_error(model, None, f'natural modes: {exc}') from None
         if model.rigid_mode is not None:
             keep = np.sort(np.argsort(np.abs(lam))[1:])       # drop the rigid-body mode
         else:
@@ -169,9 +250,9 @@ class FlexibleModes:
             d, V = scipy.linalg.eig(A)
             Vinv = np.linalg.inv(V)
             err = np.abs((V * d) @ Vinv - A).max()
-            if err > 1e-6 * np.abs(d).max():
-                raise ConfigError(f'state matrix not diagonalizable to accuracy ({err:.1e}); '
-                                 'check for repeated undamped modes')
+            if not err <= 1e-6 * np.abs(d).max():
+                raise _modal_error(self.model, self.lam, f'state matrix not diagonalizable to '
+                                   f'accuracy ({err:.1e})', 'check for repeated undamped modes')
             self._eig[key] = (d, V, Vinv)
         return self._eig[key]
 
@@ -243,7 +324,10 @@ class FloquetAnalyzer:
         knees, _, _ = sp.arrays()
         real_bases = [real_eigenbasis(*self._eig[st]) for st in sp.stages()]
         Q = [rb[0] for rb in real_bases]
-        Qinv = [np.linalg.inv(q) for q in Q]
+        try:
+            Qinv = [np.linalg.inv(q) for q in Q]
+        except np.linalg.LinAlgError as exc:
+            raise _modal_error(model, self.modes.lam, f'modal basis: {exc}') from None
         W = np.stack([np.stack([qa @ qb for qb in Q]) for qa in Qinv])   # W[a, b] = Q_a^-1 Q_b
         self._kernel_args = (knees, int(sp.primary_index), CROSSING_NEWTON_STEPS,
                              np.stack([rb[1] for rb in real_bases]),

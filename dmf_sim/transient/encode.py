@@ -8,6 +8,10 @@ has the same length and layout, so a block is a template row repeated with the s
 numbers written in place. The template comes from ``rosbags``' serializer (the readers' decoder)
 and the field offsets from :func:`dmf_sim.bags.columns.joint_state_layout`, the layout the fast
 reader checks; a test compares the bytes with ``rosbags``' and rclpy's serialization.
+
+:class:`StatusEncoder` writes status arrays (``diagnostic_msgs/DiagnosticArray`` of
+:class:`dmf_sim.monitor.messages.StatusData`, e.g. the node's health status on ``/diagnostics``)
+as the node publishes them (:meth:`StatusData.to_msg`), one message at a time.
 """
 from __future__ import annotations
 
@@ -17,9 +21,10 @@ import numpy as np
 
 from dmf_sim.bags.columns import FLOAT64, JOINT_STATE, joint_state_layout
 from dmf_sim.live.simulation import Samples
-from dmf_sim.live.streams import SAMPLE_STREAMS
+from dmf_sim.live.streams import SAMPLE_STREAMS, STREAMS
+from dmf_sim.monitor.messages import StatusData
 
-__all__ = ['SampleEncoder', 'EncodedBlock']
+__all__ = ['SampleEncoder', 'EncodedBlock', 'StatusEncoder']
 
 # the Float64 sample streams (SAMPLE_STREAMS after the joint states): the Samples field each
 # carries
@@ -96,6 +101,33 @@ class SampleEncoder:
         out[:, :4] = self.float_template[:4]
         _float_field(out, 4, 1)[:, 0] = values
         return out
+
+
+class StatusEncoder:
+    """CDR payloads of status arrays (the node's ``diagnostic_msgs/DiagnosticArray`` streams,
+    e.g. ``/diagnostics``): the header stamp and the statuses with their level, name, message,
+    hardware id and key/values, as :meth:`StatusData.to_msg` fills the rclpy message."""
+
+    def __init__(self) -> None:
+        store = _typestore()
+        self.store = store
+        self.msgtype = STREAMS['diagnostics'].msgtype
+        self._array = store.types[self.msgtype]
+        self._status = store.types['diagnostic_msgs/msg/DiagnosticStatus']
+        self._key_value = store.types['diagnostic_msgs/msg/KeyValue']
+        self._header = store.types['std_msgs/msg/Header']
+        self._time = store.types['builtin_interfaces/msg/Time']
+
+    def array(self, stamp_ns: int, statuses: Sequence[StatusData]) -> bytes:
+        """One DiagnosticArray of ``statuses`` stamped ``stamp_ns`` [ns]."""
+        sec, nsec = divmod(int(stamp_ns), _NS_PER_S)
+        msg = self._array(
+            header=self._header(stamp=self._time(sec=sec, nanosec=nsec), frame_id=''),
+            status=[self._status(level=s.level, name=s.name, message=s.message,
+                                 hardware_id=s.hardware_id,
+                                 values=[self._key_value(key=k, value=v) for k, v in s.values])
+                    for s in statuses])
+        return bytes(self.store.serialize_cdr(msg, self.msgtype))
 
 
 class EncodedBlock:

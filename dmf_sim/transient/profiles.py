@@ -22,7 +22,7 @@ import csv
 import io
 import math
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -51,6 +51,8 @@ class Profile:
     Attributes:
         t_s: times [s], from 0, strictly increasing; speed_rpm: engine speed [rpm]; load: 0..1.
         name: short name (file stem or the ramp spec); source: where the table comes from.
+        settle_s: a ramp's dwell at its start speed [s] (None: a table; see
+            :attr:`start_settle_s`).
     """
 
     t_s: np.ndarray
@@ -58,6 +60,15 @@ class Profile:
     load: np.ndarray
     name: str = 'profile'
     source: str = ''
+    settle_s: float | None = None
+
+    @property
+    def start_settle_s(self) -> float:
+        """Time [s] from the start in which a run started from static equilibrium at the first
+        row settles (its cycles are not steady running): a ramp's settle, else
+        :data:`DEFAULT_SETTLE_S`; at most the profile's duration."""
+        settle = DEFAULT_SETTLE_S if self.settle_s is None else self.settle_s
+        return min(float(settle), self.duration_s)
 
     @property
     def duration_s(self) -> float:
@@ -147,10 +158,11 @@ def ramp_profile(from_rpm: float, to_rpm: float, rate_rpm_per_s: float, load: fl
     speeds = ([from_rpm, from_rpm, to_rpm] if settle_s > 0 else [from_rpm, to_rpm])
     kind = 'run-up' if to_rpm > from_rpm else 'run-down'
     name = f'ramp:{float(from_rpm):g}:{float(to_rpm):g}:{float(rate_rpm_per_s):g}'
-    return make_profile([(t, s, load) for t, s in zip(times, speeds)], name=name,
-                        source=f'built-in {kind} {float(from_rpm):g} -> {float(to_rpm):g} rpm at '
-                        f'{float(rate_rpm_per_s):g} rpm/s, load {float(load):g}, after '
-                        f'{float(settle_s):g} s at the start speed', where=where)
+    p = make_profile([(t, s, load) for t, s in zip(times, speeds)], name=name,
+                     source=f'built-in {kind} {float(from_rpm):g} -> {float(to_rpm):g} rpm at '
+                     f'{float(rate_rpm_per_s):g} rpm/s, load {float(load):g}, after '
+                     f'{float(settle_s):g} s at the start speed', where=where)
+    return replace(p, settle_s=float(settle_s))
 
 
 def _parse_ramp_spec(spec: str) -> Profile:
@@ -204,8 +216,7 @@ def _read_yaml(path: Path) -> Profile:
                                                              'rate_rpm_per_s'),
                           ('load', 'settle_s'))
         p = ramp_profile(**ramp, where=f'{where}: ramp')
-        return Profile(p.t_s, p.speed_rpm, p.load, name=name, source=data.get('source')
-                       or p.source)
+        return replace(p, name=name, source=data.get('source') or p.source)
     points = data['points']
     if not isinstance(points, list):
         raise field_error(where, 'points', 'must be a list of [time_s, speed_rpm, load] rows',

@@ -9,9 +9,14 @@ ramped per chunk, the excitation coefficients updated per chunk), driven by
 reference speed is on the table exactly. Samples every ``1 / rate_hz`` s go to a bag with the
 node's topics, types, stamps (wall clock at the start + simulated time, as
 :class:`dmf_sim.live.pacing.TimeBase`), split files and ``custom_data``
-(:class:`dmf_sim.bags.metadata.RunMetadata`, plus the profile's name), written a chunk at a time
+(:class:`dmf_sim.bags.metadata.RunMetadata`, plus the profile's name and the settle from static
+equilibrium, :attr:`dmf_sim.transient.profiles.Profile.start_settle_s`), written a chunk at a time
 (:meth:`dmf_sim.bags.writer.BagRecorder.write_block`), so memory stays flat whatever the
-profile's length. An interruption (Ctrl-C) closes the bag: what was simulated is readable.
+profile's length. On ``/diagnostics``, the node's health status as the node builds it
+(:class:`dmf_sim.live.health.SimulationHealth`, :meth:`dmf_sim.live.health.HealthReport.status`:
+speed, load and their setpoints, DMF, solver), at the node's default ``diagnostics_rate`` in
+simulated time: chunks also end at each report, which is taken of the chunk's own end state. An
+interruption (Ctrl-C) closes the bag: what was simulated is readable.
 
 Two threads (``RunOptions.threads`` 2, the default when the process may use two CPUs, see
 :func:`dmf_sim.transient.defaults.default_threads`): the chunks are integrated
@@ -28,7 +33,7 @@ import queue
 import resource
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
@@ -36,16 +41,20 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from dmf_sim.core.errors import ConfigError, OperatingRangeError, one_line
+from dmf_sim.live.health import SimulationHealth
 from dmf_sim.live.pacing import TimeBase, publish_stride
+from dmf_sim.live.parameters import PARAMETERS
 from dmf_sim.live.recording import run_metadata
 from dmf_sim.live.simulation import Integrated, LiveSimulation
 from dmf_sim.live.streams import STREAMS, resolved_topics
+from dmf_sim.monitor.messages import StatusData
 from dmf_sim.solvers.newmark import StepRecord
 from dmf_sim.transient.defaults import CHUNK_RANGE_S, DEFAULT_CHUNK_S, default_threads
 from dmf_sim.transient.follow import TIME_EPS_S, ProfileFollower
 from dmf_sim.transient.profiles import Profile
 
 __all__ = ['WRITER_NAME', 'CHUNK_SPEED_STEP_RPM', 'CHUNK_LOAD_STEP', 'DEFAULT_SPLIT_S',
+           'DEFAULT_DIAGNOSTICS_HZ',
            'MEMORY_MARKS', 'BLAS_THREADS', 'BLOCK_ROWS', 'PIPELINE_DEPTH',
            'RunOptions', 'RunSummary',
            'build_simulation', 'open_bag', 'run_profile']
@@ -54,6 +63,8 @@ WRITER_NAME = 'dmf-sim run'
 CHUNK_SPEED_STEP_RPM = 5.0  # ... and a chunk is short enough that the speed moves at most this
 CHUNK_LOAD_STEP = 0.02      # ... and the load at most this (gear shifts: ~10 ms chunks)
 DEFAULT_SPLIT_S = 60.0      # bag files split every this many simulated seconds (as the node)
+DEFAULT_DIAGNOSTICS_HZ = PARAMETERS['diagnostics_rate'].default   # health statuses per
+                                                                   # simulated s (as the node)
 MEMORY_MARKS = (0.1, 0.5, 1.0)   # fractions of the run where the peak RSS is sampled
 BLAS_THREADS = 1            # the torque read-out's small matrix products in one thread: OpenBLAS
                             # threads them past ~64 rows, ~10x slower on a busy 2-core machine
@@ -71,6 +82,7 @@ class RunOptions:
     driveline, engine, load_set, alpha, theta: the model (names in ``config/`` or paths).
     dt: Newmark step [s]; rate_hz: samples per simulated second in the bag (a whole number of
     steps per sample); chunk_s: simulated time per chunk; split_s: bag file split [s];
+    diagnostics_hz: health statuses on /diagnostics per simulated second;
     write: False integrates without writing (for timing); namespace: topics under it;
     threads: 1 integrates and writes in turn, 2 integrates the next chunks in a thread of its own
     while this one reads out and writes the last ones (the same bag, byte for byte); default
@@ -86,6 +98,7 @@ class RunOptions:
     rate_hz: float = 1000.0
     chunk_s: float = DEFAULT_CHUNK_S
     split_s: float = DEFAULT_SPLIT_S
+    diagnostics_hz: float = DEFAULT_DIAGNOSTICS_HZ
     write: bool = True
     namespace: str = ''
     threads: int = field(default_factory=default_threads)
@@ -142,6 +155,10 @@ def build_simulation(profile: Profile, opt: RunOptions) -> LiveSimulation:
     if not (CHUNK_RANGE_S[0] <= opt.chunk_s <= CHUNK_RANGE_S[1]):
         raise ConfigError(f'chunk_s must be within [{CHUNK_RANGE_S[0]:g}, {CHUNK_RANGE_S[1]:g}]'
                           f' s, got {opt.chunk_s!r}')
+    lo_hz, hi_hz = PARAMETERS['diagnostics_rate'].range
+    if not (lo_hz <= opt.diagnostics_hz <= hi_hz):
+        raise ConfigError(f'diagnostics_hz must be within [{lo_hz:g}, {hi_hz:g}] Hz, got '
+                          f'{opt.diagnostics_hz!r}')
     try:
         line = load_driveline(opt.driveline, alpha=opt.alpha, theta=opt.theta)
         engine = load_engine(opt.engine, load_set=opt.load_set)
@@ -174,17 +191,42 @@ def open_bag(out, sim: LiveSimulation, profile: Profile, opt: RunOptions, rate_h
     topics = resolved_topics(opt.namespace)
     meta = run_metadata(sim, driveline=opt.driveline, engine=opt.engine, node=WRITER_NAME,
                         publish_rate_hz=rate_hz)
-    custom = replace(meta, profile=profile.name).to_custom_data()
+    custom = replace(meta, profile=profile.name,
+                     settle_s=profile.start_settle_s).to_custom_data()
     return BagRecorder(out, {topics[k]: s.msgtype for k, s in STREAMS.items()},
                        qos={topics[k]: s.qos_profile() for k, s in STREAMS.items()},
                        max_duration_s=opt.split_s, custom_data=custom), topics
 
 
+class _Health:
+    """The node's health status every ``period_s`` of simulated time, built as the node builds
+    it (:class:`SimulationHealth`, :meth:`HealthReport.status` under the writer's name), taken
+    right after the chunk that reaches the report time is integrated (in the integrating
+    thread: the state is the chunk's end state, not that of a chunk integrated ahead)."""
+
+    def __init__(self, sim: LiveSimulation, period_s: float) -> None:
+        self.sim, self.period_s = sim, period_s
+        self.health = SimulationHealth(sim)
+        self.next_s = sim.t + period_s
+
+    def steps_to_next(self) -> int:
+        """Newmark steps from now to the next report time."""
+        return int(round((self.next_s - self.sim.t) / self.sim.dt))
+
+    def take(self) -> tuple[float, StatusData] | None:
+        """(simulated time [s], status) when a report is due now, else None."""
+        sim = self.sim
+        if sim.t < self.next_s - TIME_EPS_S:
+            return None
+        self.next_s = max(self.next_s + self.period_s, sim.t + TIME_EPS_S)
+        return sim.t, self.health.report(WRITER_NAME).status(WRITER_NAME)
+
+
 def _chunk_plan(profile: Profile, sim: LiveSimulation, follower: ProfileFollower, total: int,
-                chunk: int, stop: threading.Event) -> Iterator[int]:
+                chunk: int, stop: threading.Event, health: _Health | None) -> Iterator[int]:
     """Steps of each chunk, the follower's setpoints applied before it (the caller integrates
-    the chunk before asking for the next one): chunks end at every profile row and are at most
-    ``chunk`` steps and :func:`_chunk_limit` long."""
+    the chunk before asking for the next one): chunks end at every profile row and health report
+    time and are at most ``chunk`` steps and :func:`_chunk_limit` long."""
     done = 0
     next_row = -math.inf
     limit = chunk
@@ -195,19 +237,31 @@ def _chunk_plan(profile: Profile, sim: LiveSimulation, follower: ProfileFollower
             limit = _chunk_limit(profile, follower.segment, chunk, sim.stride, sim.dt)
         to_row = (int(round((next_row - sim.t) / sim.dt)) if math.isfinite(next_row)
                   else total)
-        n = min(limit, total - done, max(to_row, 1))
+        to_report = health.steps_to_next() if health is not None else total
+        n = min(limit, total - done, max(to_row, 1), max(to_report, 1))
         yield n
         done += n
+
+
+def _integrated(sim: LiveSimulation, plan: Iterator[int], health: _Health | None,
+                record: Callable[[], StepRecord]
+                ) -> Iterator[tuple[int, Integrated, tuple[float, StatusData] | None]]:
+    """Each chunk of ``plan`` integrated into a ``record()``, with the health report due after
+    it (or None)."""
+    for n in plan:
+        raw = sim.integrate(n, record())
+        yield n, raw, health.take() if health is not None else None
 
 
 class _Integrating:
     """The chunks integrated in a thread of their own, up to PIPELINE_DEPTH ahead of the
     caller's read-out and writing (the kernel runs without the GIL, so on two cores the two
-    overlap); iterate for (steps, :class:`Integrated`), then :meth:`release` each record."""
+    overlap); iterate for (steps, :class:`Integrated`, health report or None), then
+    :meth:`release` each record."""
 
-    def __init__(self, sim: LiveSimulation, plan: Iterator[int], rows: int,
-                 stop: threading.Event) -> None:
-        self.sim, self.plan, self.stop = sim, plan, stop
+    def __init__(self, sim: LiveSimulation, plan: Iterator[int], health: _Health | None,
+                 rows: int, stop: threading.Event) -> None:
+        self.sim, self.plan, self.health, self.stop = sim, plan, health, stop
         self.free: queue.Queue = queue.Queue()
         self.ready: queue.Queue = queue.Queue()
         for _ in range(PIPELINE_DEPTH):
@@ -218,13 +272,13 @@ class _Integrating:
 
     def _run(self) -> None:
         try:
-            for n in self.plan:
-                self.ready.put((n, self.sim.integrate(n, self.free.get())))
+            for item in _integrated(self.sim, self.plan, self.health, self.free.get):
+                self.ready.put(item)
         except BaseException as exc:  # noqa: BLE001 - raised again in the caller's thread
             self.ready.put(exc)
         self.ready.put(None)
 
-    def __iter__(self) -> Iterator[tuple[int, Integrated]]:
+    def __iter__(self) -> Iterator[tuple[int, Integrated, tuple[float, StatusData] | None]]:
         while (item := self.ready.get()) is not None:
             if isinstance(item, BaseException):
                 raise item
@@ -252,7 +306,7 @@ def run_profile(profile: Profile, out: str | Path | None, options: RunOptions | 
     """Integrate ``profile`` and stream the samples to bag ``out`` (see the module docstring).
 
     ``out`` None or ``options.write`` False: integrate and encode nothing (timing)."""
-    from dmf_sim.transient.encode import EncodedBlock, SampleEncoder
+    from dmf_sim.transient.encode import EncodedBlock, SampleEncoder, StatusEncoder
 
     opt = options or RunOptions()
     sim = build_simulation(profile, opt)
@@ -266,6 +320,8 @@ def run_profile(profile: Profile, out: str | Path | None, options: RunOptions | 
     chunk = max(int(round(opt.chunk_s / sim.dt)) // stride, 1) * stride
     block = (EncodedBlock(SampleEncoder(sim.names), BLOCK_ROWS, topics, recorder) if write
              else None)
+    statuses = StatusEncoder() if write else None
+    health = _Health(sim, 1.0 / opt.diagnostics_hz)
     max_rows = chunk // stride + 1
     work = np.zeros((max_rows, 3 * sim.model.n_elements))
 
@@ -284,17 +340,17 @@ def run_profile(profile: Profile, out: str | Path | None, options: RunOptions | 
     done = samples = 0
     interrupted = False
     stop = threading.Event()
-    plan = _chunk_plan(profile, sim, follower, total, chunk, stop)
+    plan = _chunk_plan(profile, sim, follower, total, chunk, stop, health)
     t_wall, t_cpu = time.perf_counter(), time.process_time()
     with threadpool_limits(BLAS_THREADS):
         if opt.threads > 1:
-            chunks = _Integrating(sim, plan, max_rows, stop)
+            chunks = _Integrating(sim, plan, health, max_rows, stop)
         else:
             own = StepRecord.allocate(max_rows, sim.model.n_dof)
             chunks = None
         try:
-            for n, raw in (chunks if chunks is not None
-                           else ((n, sim.integrate(n, own)) for n in plan)):
+            for n, raw, report in (chunks if chunks is not None
+                                   else _integrated(sim, plan, health, lambda: own)):
                 s = sim.read_out(raw, work)
                 done += n
                 rows = len(s)
@@ -307,6 +363,11 @@ def run_profile(profile: Profile, out: str | Path | None, options: RunOptions | 
                     start += k
                     if block.free == 0:
                         write_out()
+                if report is not None and statuses is not None:
+                    write_out()             # the samples before it first: files in time order
+                    t_report, status = report
+                    stamp = timebase.stamp_ns(t_report)
+                    recorder.write(topics['diagnostics'], stamp, statuses.array(stamp, [status]))
                 if chunks is not None:
                     chunks.release(raw.record)
                 if bar is not None:

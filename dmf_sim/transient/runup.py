@@ -6,7 +6,11 @@ Each bag goes through the bag analysis (:func:`dmf_sim.analysis.pipeline.analyze
 domain resampling, half orders per engine cycle, speed bins) and its HBM overlay
 (:func:`dmf_sim.analysis.hbm_overlay.overlay_all`: the same model, from the bag's
 ``custom_data``, swept by pseudo-arc-length continuation with Floquet stability and branch
-switching). Cycles at the run's start speed (a ``ramp:`` profile's settle time) are left out.
+switching). The settle from static equilibrium a bag marks (``dmf-sim run``'s, ``custom_data``
+``settle_s``) is left out by the bag analysis itself, as ``dmf-sim analyze`` leaves it out; of the
+rest, the cycles before the speed leaves the run's start speed (a node recording's dwell, a
+``ramp:`` settle longer than the mark) are left out here (:func:`ramp_cycles`): the ramp is what
+is tracked.
 
 A slow ramp follows a stable branch quasi-statically; where that branch ends (a fold) or loses
 stability, the state jumps onto another one -- at different speeds going up and down when
@@ -47,7 +51,7 @@ STEP_RATIO_MAX = 1.5        # a step seen over the whole window at most this man
 EVENT_KINDS = ('fold', 'stability_loss')
 SEGMENT_SPEED_SCALE_RPM = 10.0   # speed distance that counts like the amplitude's peak when
                                  # a state is placed on the nearest stable HBM stretch
-SETTLE_TOLERANCE_RPM = 0.5  # cycles within this of the start speed are the settle part
+SETTLE_TOLERANCE_RPM = 0.5  # cycles within this of the start speed are before the ramp
 AWAY_FROM_JUMPS_RPM = 30.0  # quasi-static comparison: rows this far from jumps and events
 MIN_SHARE_OF_PEAK = 0.05    # ... and where the HBM amplitude is at least this share of its peak
 
@@ -84,18 +88,26 @@ class RunupResult:
     quasi_static: dict = field(default_factory=dict)
 
     def as_dict(self) -> dict:
+        """The result for JSON; per bag (in the order of ``bags``) its analysis' warnings
+        (damaged parts skipped included, as ``dmf-sim analyze`` words them), the corrupt
+        chunks skipped and whether it was truncated."""
         return {'bags': [str(r.bag) for r in self.runs],
                 'directions': ['up' if d > 0 else 'down' for d in self.directions],
                 'jumps': [j.as_dict() for j in self.jumps], 'events': self.events,
-                'quasi_static': self.quasi_static}
+                'quasi_static': self.quasi_static,
+                'warnings': [list(r.warnings) for r in self.runs],
+                'corrupt_chunks': [list(r.corrupt) for r in self.runs],
+                'truncated': [r.truncated for r in self.runs]}
 
 
-def ramp_cycles(cyc: CycleOrders) -> CycleOrders:
-    """The cycles after the speed left the start speed (the settle part left out)."""
+def ramp_cycles(cyc: CycleOrders, start_rpm: float | None = None) -> slice:
+    """The cycles after the speed left ``start_rpm`` (the run's start speed; None: the first
+    cycle's), as a slice of ``cyc``."""
     if len(cyc) == 0:
-        return cyc
-    moved = np.flatnonzero(np.abs(cyc.speed_rpm - cyc.speed_rpm[0]) > SETTLE_TOLERANCE_RPM)
-    return cyc.select(slice(int(moved[0]), None)) if len(moved) else cyc.select(slice(0, 0))
+        return slice(0, 0)
+    start = float(cyc.speed_rpm[0]) if start_rpm is None else float(start_rpm)
+    moved = np.flatnonzero(np.abs(cyc.speed_rpm - start) > SETTLE_TOLERANCE_RPM)
+    return slice(int(moved[0]), None) if len(moved) else slice(0, 0)
 
 
 def _steps(c: np.ndarray, idx: np.ndarray, w: int) -> np.ndarray:
@@ -223,12 +235,15 @@ def runup_analysis(bags: list[str | os.PathLike], *, bin_rpm: float = DEFAULT_BI
     for bag in bags:
         res = analyze_bag(bag, bin_rpm=bin_rpm)
         sig = res.signal('windup')
-        cyc = ramp_cycles(sig.cycles)
+        ramp = ramp_cycles(sig.cycles, res.series.bag.run_metadata.speed_rpm)
+        cyc = sig.cycles.select(ramp)
         if len(cyc) < 2:
             raise BagError(f'{bag}: the speed does not ramp (a run-up or run-down bag is needed)')
         direction = 1 if cyc.speed_rpm[-1] >= cyc.speed_rpm[0] else -1
         sig.cycles = cyc
-        sig.table = bin_cycles(cyc, bin_rpm, res.theta, res.min_cycles)
+        if sig.cycle_load is not None:
+            sig.cycle_load = sig.cycle_load[ramp]
+        sig.table = bin_cycles(cyc, bin_rpm, res.theta, res.min_cycles, sig.cycle_load)
         if hbm:
             overlay_all(res, model_settings(res.metadata))
             sig = res.signal('windup')

@@ -363,7 +363,10 @@ def _grid(gr: Any, where: str) -> Grid:
     gr = check_keys(gr, where, 'grid',
                     ['speed_min_rpm', 'speed_max_rpm', 'speed_step_rpm', 'loads'])
     s0 = number(gr['speed_min_rpm'], where, 'grid.speed_min_rpm', 50.0, 10000.0)
-    s1 = number(gr['speed_max_rpm'], where, 'grid.speed_max_rpm', s0, 10000.0, lo_open=True)
+    s1 = number(gr['speed_max_rpm'], where, 'grid.speed_max_rpm', 50.0, 10000.0)
+    if not s0 < s1:                 # either may be the one changed: both named
+        raise field_error(where, '', "fields 'grid.speed_min_rpm' and 'grid.speed_max_rpm' must "
+                          f'satisfy speed_min_rpm < speed_max_rpm, got {s0:g} and {s1:g} rpm')
     ds = number(gr['speed_step_rpm'], where, 'grid.speed_step_rpm', 0.0, s1 - s0, lo_open=True)
     n_steps = round((s1 - s0) / ds)
     if abs(n_steps * ds - (s1 - s0)) > 1e-6 * ds:
