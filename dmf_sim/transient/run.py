@@ -36,6 +36,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from dmf_sim.core.errors import ConfigError, OperatingRangeError, one_line
+from dmf_sim.core.names import check_namespace
 from dmf_sim.live.pacing import TimeBase, publish_stride
 from dmf_sim.live.recording import run_metadata
 from dmf_sim.live.simulation import Integrated, LiveSimulation
@@ -89,6 +90,9 @@ class RunOptions:
     write: bool = True
     namespace: str = ''
     threads: int = field(default_factory=default_threads)
+
+    def __post_init__(self) -> None:
+        self.namespace = check_namespace(self.namespace, 'namespace')
 
 
 @dataclass
