@@ -282,6 +282,48 @@ def test_cli_report_yaml_designs_and_json(client, tmp_path, capsys):
     assert '| design |' in (out / 'report.md').read_text()
 
 
+def test_a_smaller_budget_on_resume_never_drops_stored_designs(client, tmp_path, capsys):
+    """The field report's case: `--resume --budget 8` after a 16-design run rewrote
+    results.parquet and summary.json with designs 0-7 only (the best design gone), leaving
+    designs/*.yaml and report.md of the full run. Now it is refused in one line and nothing
+    stored changes; the full budget resumes with every design."""
+    import yaml
+    study = tmp_path / 'study.yaml'
+    study.write_text(yaml.safe_dump(_problem(budget=8, batch_size=4)))
+    out = tmp_path / 'out'
+    args = ['optimize', str(study), '--out', str(out), '--scheduler', client.scheduler.address,
+            '--verify', '0', '--no-report', '--no-baseline', '--no-progress', '--json']
+    assert cli_main(args) == 0
+    first = json.loads(capsys.readouterr().out)
+    assert first['n_designs'] == 8
+    stored = {f: (out / f).read_bytes() for f in ('results.parquet', 'summary.json')}
+    assert cli_main(args + ['--resume', '--budget', '4']) == 2
+    err = capsys.readouterr().err
+    assert err.count('\n') == 1 and 'budget 4' in err and 'holds 8 designs' in err, err
+    assert 'pass --budget 8 or more' in err
+    assert {f: (out / f).read_bytes() for f in stored} == stored
+    with pytest.raises(ConfigError, match='holds 8 designs'):      # the library route too
+        run_optimization(load_problem(_problem(budget=8, batch_size=4)), client, out=out,
+                         resume=True, budget=5)
+    assert cli_main(args + ['--resume']) == 0                       # the same budget: all kept
+    again = json.loads(capsys.readouterr().out)
+    assert again['n_designs'] == 8 and again['n_resumed'] == 8
+    assert again['pareto'] == first['pareto']
+
+
+def test_design_files_of_a_former_front_are_removed(run, problem, tmp_path):
+    from dmf_sim.optimize.export import write_designs
+    res, _ = run
+    front = [r for r in res.rows('design') if r['pareto']]
+    stale = tmp_path / 'designs' / 'design_999.yaml'
+    stale.parent.mkdir()
+    stale.write_text('name: an earlier front\n')
+    files = write_designs(problem, front[:1], tmp_path)
+    assert sorted(p.name for p in stale.parent.iterdir()) == [f'design_{front[0]["design_id"]}'
+                                                               '.yaml']
+    assert list(files) == [str(front[0]['design_id'])]
+
+
 def test_cli_bad_study_exits_2_with_one_line(tmp_path, capsys):
     import yaml
     study = tmp_path / 'bad.yaml'

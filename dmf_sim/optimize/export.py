@@ -48,7 +48,9 @@ def design_yaml(problem, row: dict) -> str:
 
 
 def write_designs(problem, rows: list[dict], out) -> dict[str, str]:
-    """``out/designs/design_<id>.yaml`` for every row; returns id -> path."""
+    """``out/designs/design_<id>.yaml`` for every row; returns id -> path. The directory holds
+    these designs only: files of an earlier run's designs that are no longer among ``rows``
+    (a resumed run's front moved) are removed, so none is taken for a current design."""
     d = Path(out) / 'designs'
     d.mkdir(parents=True, exist_ok=True)
     files = {}
@@ -56,4 +58,7 @@ def write_designs(problem, rows: list[dict], out) -> dict[str, str]:
         path = d / f'design_{r["design_id"]}.yaml'
         path.write_text(design_yaml(problem, r))
         files[str(r['design_id'])] = str(path)
+    for old in d.glob('design_*.yaml'):
+        if str(old) not in files.values():
+            old.unlink()
     return files

@@ -42,8 +42,8 @@ from dmf_sim.optimize.hypervolume import hypervolume_history
 from dmf_sim.optimize.problem import Problem, load_problem, unit_to_values
 
 __all__ = ['JOURNAL', 'PROBLEM_FILE', 'OPTUNA_STUDY', 'MAX_CONSTRAINT', 'EXTRA',
-           'OptimizationResult', 'run_optimization', 'finish', 'reference_point', 'BASELINE_DIR',
-           'baseline_problem']
+           'OptimizationResult', 'check_budget', 'run_optimization', 'finish', 'reference_point',
+           'BASELINE_DIR', 'baseline_problem']
 
 JOURNAL = 'optuna.journal'
 PROBLEM_FILE = 'optimizer.json'
@@ -139,6 +139,18 @@ def _check_problem_file(problem: Problem, out: Path, resume: bool) -> None:
                                indent=1, default=float))
 
 
+def check_budget(problem: Problem, store: ResultStore | None) -> None:
+    """A resumed run keeps every design stored in its directory: a budget below their number
+    is a one-line ConfigError (nothing is computed, nothing stored is changed)."""
+    if store is None:
+        return
+    stored = len(store.finished())
+    if problem.budget < stored:
+        raise ConfigError(f'budget {problem.budget}: {store.dir} holds {stored} designs '
+                          f'already, and a resumed run keeps every one of them; pass --budget '
+                          f'{stored} or more (or choose another --out)')
+
+
 def run_optimization(problem, client=None, *, out=None, resume: bool = False,
                      workers: int | None = None, progress: bool = False, on_batch=None,
                      budget: int | None = None) -> OptimizationResult:
@@ -150,7 +162,8 @@ def run_optimization(problem, client=None, *, out=None, resume: bool = False,
         resume: continue the optimization stored in ``out``.
         progress: tqdm progress bar with ETA on stderr.
         on_batch: ``on_batch(n_done, n_total)`` after every stored design.
-        budget: overrides the problem's budget (e.g. to extend a finished run with resume).
+        budget: overrides the problem's budget (e.g. to extend a finished run with resume;
+            never below the designs stored in ``out``: :func:`check_budget`).
     """
     problem = load_problem(problem, budget=budget)
     study = problem.study
@@ -162,6 +175,7 @@ def run_optimization(problem, client=None, *, out=None, resume: bool = False,
     cluster = None
     t0 = time.perf_counter()
     try:
+        check_budget(problem, store)
         if out is not None:
             _check_problem_file(problem, out, resume)
             store.start()
@@ -174,8 +188,7 @@ def run_optimization(problem, client=None, *, out=None, resume: bool = False,
                 cluster, client = start_local(workers)
             n_workers = wait_for_workers(client)
             run.compute(client, todo, _bar(progress, problem.budget, run.n_finished))
-        rows = [r for r in (store.rows if store else []) + run.rows
-                if r['design_id'] < problem.budget]   # a smaller budget: the first designs
+        rows = (store.rows if store else []) + run.rows
         result = finish(problem, rows,
                         n_computed=run.n_computed, seconds=time.perf_counter() - t0,
                         workers=n_workers)
