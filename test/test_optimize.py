@@ -243,6 +243,19 @@ def test_bad_optimizer_section_is_one_line(change, field):
     assert field in str(e.value) and '\n' not in str(e.value)
 
 
+def test_an_increment_over_the_base_springs_knee(tmp_path):
+    """A knee increment whose stage before is neither a variable nor fixed takes that stage's
+    angle from the base spring (a defect: the lookup imported a name that does not exist, a
+    traceback instead of the problem)."""
+    d = _problem()
+    del d['variables']['theta']
+    p = load_problem(d)
+    step = next(v for v in p.variables if v.name == 'stages[1].angle_step_rad')
+    assert step.step_of.name == 'stages[0].angle_rad'
+    reach = p.study.ranges[p.study.variable_names.index('stages[1].angle_rad')]
+    assert (reach.low, reach.high) == pytest.approx((0.24 + 0.005, 0.24 + 0.06))
+
+
 def test_absolute_later_stage_angle_asks_for_an_increment():
     d = _problem()
     d['variables']['stages[1].angle_rad'] = d['variables'].pop('stages[1].angle_step_rad')
