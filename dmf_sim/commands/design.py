@@ -7,6 +7,7 @@ from pathlib import Path
 
 from dmf_sim.commands._options import add_cluster, check_cluster
 from dmf_sim.core.errors import ConfigError
+from dmf_sim.core.optional import require_extra
 
 __all__ = ['NAME', 'HELP', 'add_arguments', 'run']
 
@@ -31,6 +32,7 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
+    require_extra('design')                 # dask, distributed, pyarrow: one line if missing
     from dmf_sim.design.runner import connect, run_study
     from dmf_sim.design.study import load_study
     from dmf_sim.design.table import ResultStore

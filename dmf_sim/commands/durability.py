@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 from dmf_sim.core.errors import BagExistsError
+from dmf_sim.core.optional import require_extra
 
 __all__ = ['NAME', 'HELP', 'add_arguments', 'run']
 
@@ -38,6 +39,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    require_extra('durability')             # fatpack: one line if missing
     from dmf_sim.durability.read import bag_durability
     from dmf_sim.durability.report import plot_report, report_dict, write_json
     from dmf_sim.durability.settings import load_settings

@@ -8,6 +8,7 @@ from pathlib import Path
 
 from dmf_sim.commands._options import add_cluster, check_cluster
 from dmf_sim.core.errors import ConfigError
+from dmf_sim.core.optional import require_extra
 
 __all__ = ['NAME', 'HELP', 'DEFAULT_VERIFY', 'add_arguments', 'run']
 
@@ -42,6 +43,7 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
+    require_extra('optimize')               # optuna, dask, pyarrow: one line if missing
     from dmf_sim.design.runner import close_local, connect, start_local
     from dmf_sim.design.table import ResultStore
     from dmf_sim.optimize.problem import load_problem
