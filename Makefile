@@ -1,5 +1,6 @@
 # Two entry points (README quick start): `make node` runs the live node, `make test` the test suite
-# and the docs build. Each sets up its own virtual environment in .venv (ROS 2 Jazzy rclpy from the
+# and the docs build. Installing runs `dmf-sim warm-up` once: the numerical kernels compile into
+# numba's cache (~1 min) where one expects to wait, not in the first command or node start. Each sets up its own virtual environment in .venv (ROS 2 Jazzy rclpy from the
 # package index). `make docs` builds the documentation site alone (doc/ -> doc/_build/html).
 # CI (`make ci`, .ci/run) runs the suite in two more environments: the ROS platform's library
 # versions (constraints/platform-jazzy.txt, .venv-jazzy) and an install without the ros extra
@@ -21,26 +22,30 @@ $(STAMP): $(DEPS)
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -e '.[all,ros,test]'
+	$(VENV)/bin/dmf-sim warm-up
 	touch $(STAMP)
 
 $(VENV_JAZZY)/.installed: $(DEPS) $(PLATFORM)
 	$(PYTHON) -m venv $(VENV_JAZZY)
 	$(VENV_JAZZY)/bin/python -m pip install --quiet --upgrade pip
 	$(VENV_JAZZY)/bin/python -m pip install --quiet -c $(PLATFORM) -e '.[all,ros,test]'
+	$(VENV_JAZZY)/bin/dmf-sim warm-up
 	touch $@
 
 $(VENV_NOROS)/.installed: $(DEPS)
 	$(PYTHON) -m venv $(VENV_NOROS)
 	$(VENV_NOROS)/bin/python -m pip install --quiet --upgrade pip
 	$(VENV_NOROS)/bin/python -m pip install --quiet -e '.[all,test]'
+	$(VENV_NOROS)/bin/dmf-sim warm-up
 	touch $@
 
 .PHONY: venv node test test-platform test-noros ci docs bench clean
 venv: $(STAMP)
 
 node: $(STAMP)
-	@echo 'make node: starting driveline_node, the live driveline (truck_dmf, real time); the first'
-	@echo '  start loads and compiles for ~20 s before it logs its topics, rates and how to stop.'
+	@echo 'make node: starting driveline_node, the live driveline (truck_dmf, real time); it loads'
+	@echo '  for a few seconds (make venv compiled its kernels: dmf-sim warm-up) before it logs its'
+	@echo '  topics, rates and how to stop.'
 	@echo '  Stop: Ctrl-C (a recording, ARGS="--ros-args -p record:=true", is closed and its bag named).'
 	@echo '  The dmf-sim CLI is ready now (after make venv): $(VENV)/bin/dmf-sim, or run'
 	@echo '  ". $(VENV)/bin/activate" once; e.g. in another terminal: $(VENV)/bin/dmf-sim monitor'

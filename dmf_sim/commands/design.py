@@ -36,12 +36,14 @@ def run(args) -> int:
     from dmf_sim.design.runner import connect, run_study
     from dmf_sim.design.study import load_study
     from dmf_sim.design.table import ResultStore
+    from dmf_sim.live.warm import load as load_kernels
 
     check_cluster(args)
     if args.batch_size is not None and args.batch_size < 1:
         raise ConfigError(f'--batch-size {args.batch_size}: must be >= 1')
     study = load_study(args.study)
     ResultStore(args.out, study, args.resume)          # --out / --resume problems, before work
+    load_kernels(NAME, 'sweep')     # compiled once here, then every worker loads them
     client = connect(args.scheduler, args.connect_timeout) if args.scheduler else None
     done = [0, study.n_designs]
     try:

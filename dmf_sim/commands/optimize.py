@@ -46,6 +46,7 @@ def run(args) -> int:
     require_extra('optimize')               # optuna, dask, pyarrow: one line if missing
     from dmf_sim.design.runner import close_local, connect, start_local
     from dmf_sim.design.table import ResultStore
+    from dmf_sim.live.warm import load as load_kernels
     from dmf_sim.optimize.problem import load_problem
     from dmf_sim.optimize.runner import BASELINE_DIR, EXTRA, check_budget
 
@@ -58,6 +59,7 @@ def run(args) -> int:
     if not args.no_baseline:
         check_budget(problem, ResultStore(args.out / BASELINE_DIR, problem.study, args.resume,
                                           extra=EXTRA))
+    load_kernels(NAME, 'sweep', *(['time integration'] if args.verify else []))
     t0 = time.perf_counter()
     say = _say(args.no_progress, t0)
     if args.scheduler:

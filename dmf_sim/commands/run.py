@@ -62,6 +62,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from dmf_sim.live.warm import load as load_kernels
     from dmf_sim.transient.profiles import load_profile
     from dmf_sim.transient.run import RunOptions, run_profile
 
@@ -76,6 +77,7 @@ def run(args: argparse.Namespace) -> int:
                      alpha=args.alpha, theta=args.theta, dt=args.dt, rate_hz=args.rate,
                      chunk_s=args.chunk, write=not args.no_write, namespace=namespace,
                      threads=default_threads() if args.threads is None else args.threads)
+    load_kernels(NAME, 'time integration')      # before the bar: its rate without a compile
     summary = run_profile(profile, None if args.no_write else args.out, opt,
                           progress=not (args.no_progress or args.json))
     if args.json:
