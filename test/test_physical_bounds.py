@@ -83,27 +83,26 @@ def _set(path: str):
     return mutate
 
 
+def _section(d: dict, section: str) -> tuple[dict, str]:
+    *outer, name = section.split('.')
+    for k in outer:
+        d = d[k]
+    return d, name
+
+
 def _table(section: str, y_key: str):
-    """A one-point table whose y (or, for 'speeds_rpm', x) is the value."""
+    """A one-point table (at 1000 rpm) whose y is the value."""
     def mutate(d, v):
-        *outer, name = section.split('.')
-        for k in outer:
-            d = d[k]
-        x_key = 'speeds_rpm'
-        other = {'torque_nm': 2000.0, 'pressure_pa': 1e5, 'angle_deg': -3.0,
-                 'duration_deg': 60.0}[y_key]
-        d[name] = ({x_key: [v], y_key: [other]} if y_key == x_key
-                   else {x_key: [1000.0], y_key: [v]})
+        d, name = _section(d, section)
+        d[name] = {'speeds_rpm': [1000.0], y_key: [v]}
     return mutate
 
 
-def _speed_table(section: str, y_key: str):
+def _speed_table(section: str, y_key: str, y: float):
+    """A one-point table whose speed is the value."""
     def mutate(d, v):
-        *outer, name = section.split('.')
-        for k in outer:
-            d = d[k]
-        other = {'torque_nm': 2000.0, 'pressure_pa': 1e5}[y_key]
-        d[name] = {'speeds_rpm': [v], y_key: [other]}
+        d, name = _section(d, section)
+        d[name] = {'speeds_rpm': [v], y_key: [y]}
     return mutate
 
 
@@ -161,7 +160,8 @@ CASES = [
      "field 'geometry.oscillating_mass_kg'", True),
     ('engine_speed', True, 'engine_d13', _engine, _set('load_sets.limit_rpm'),
      "field 'load_sets.limit_rpm'", False),
-    ('engine_speed', False, 'engine_d13', _engine, _speed_table('full_load_curve', 'torque_nm'),
+    ('engine_speed', False, 'engine_d13', _engine,
+     _speed_table('full_load_curve', 'torque_nm', 2000.0),
      "field 'full_load_curve.speeds_rpm[0]'", True),
     ('torque', False, 'engine_d13', _engine, _table('full_load_curve', 'torque_nm'),
      "field 'full_load_curve.torque_nm[0]'", True),
