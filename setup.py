@@ -5,6 +5,22 @@ from setuptools import find_packages, setup
 
 PACKAGE = 'dmf_sim'
 
+# The features whose libraries the rest of the package does not need: an extra each
+# (dmf_sim/core/optional.py imports them and names the extra when one is missing); `make`
+# installs [all]. pyarrow < 26: pyarrow 26 refuses to import with numpy < 2 ("pyarrow requires
+# NumPy 2.0 or newer") but does not declare numpy, so pip would pick it next to the ROS 2 Jazzy
+# platform's numpy 1.26 (constraints/platform-jazzy.txt); environment markers cannot see the
+# installed numpy, so the bound is an upper one. 25.0.1 imports with numpy 1.26 and 2.x alike.
+DASK = 'dask[distributed]>=2024.1'
+PYARROW = 'pyarrow>=14,<26'
+EXTRAS = {
+    'design': [DASK, PYARROW],                  # dmf-sim design: Dask, the Parquet table
+    'optimize': [DASK, PYARROW, 'optuna>=5.0'],  # dmf-sim optimize: NSGA-II / TPE, journal
+    'durability': ['fatpack>=0.7'],             # dmf-sim durability: rainflow cycles
+    'foxglove': ['foxglove-sdk>=0.30'],         # the node's Foxglove server (foxglove_port)
+}
+EXTRAS['all'] = sorted({req for reqs in EXTRAS.values() for req in reqs})
+
 setup(
     name=PACKAGE,
     version='0.1.0',
@@ -32,19 +48,16 @@ setup(
         'rosbags>=0.10',
         'mcap>=1.1',
         'rich>=13',
-        'foxglove-sdk>=0.30',
-        'dask[distributed]>=2024.1',   # dmf-sim design: a LocalCluster or a real cluster
-        'pyarrow>=14',                 # dmf-sim design: the Parquet result table
-        'fatpack>=0.7',                # dmf-sim durability: rainflow cycles
         'threadpoolctl>=3',            # dmf-sim run: BLAS in one thread for the small products
-        'optuna>=5.0',                 # dmf-sim optimize: NSGA-II / TPE, journal storage
         'zlib-ng>=0.4',                # bags: the chunks' CRC-32, ~4.7x faster than zlib's
     ],
     extras_require={
+        **EXTRAS,
         'ros': ['ros-jazzy-rclpy[fastrtps]', 'ros-jazzy-common-interfaces'],
+        # the suite tests every feature, so the test extra has the feature extras' libraries
         'test': ['pytest>=7', 'mcap-ros2-support>=0.5', 'websockets>=10.4', 'ruff>=0.5',
                  'import-linter>=2.1',
-                 'sphinx>=7.2', 'myst-parser>=2'],   # make docs (run by make test)
+                 'sphinx>=7.2', 'myst-parser>=2'] + EXTRAS['all'],   # sphinx: make docs
     },
     zip_safe=True,
     maintainer='dmf_sim developers',

@@ -63,6 +63,7 @@ _API = {
     'OperatingRangeError': 'dmf_sim.core.errors',
     'TimeLimitError': 'dmf_sim.core.errors',
     'NoResponseError': 'dmf_sim.core.errors',
+    'MissingExtraError': 'dmf_sim.core.errors',
 }
 
 __all__ = ['__version__', *_API]

@@ -273,6 +273,18 @@ def test_resume_refuses_a_different_study(client, study, full_run):
         run_study(other, client, out=full_run[1], resume=True)
 
 
+def test_resume_with_fewer_designs_is_refused_and_drops_nothing(client, study, full_run):
+    """A resume never drops stored designs: a study with fewer designs (here one alpha level
+    less) is another study to the store, refused before anything is read or written."""
+    out = full_run[1]
+    parts = sorted(p.read_bytes() for p in (out / 'parts').glob('part-*.parquet'))
+    fewer = dict(STUDY, variables={**STUDY['variables'], 'alpha': {'values': [2.0, 3.0]}})
+    with pytest.raises(ConfigError, match='different study'):
+        run_study(fewer, client, out=out, resume=True)
+    assert sorted(p.read_bytes() for p in (out / 'parts').glob('part-*.parquet')) == parts
+    assert run_study(study, client, out=out, resume=True).n_designs == study.n_designs
+
+
 def test_a_failing_design_is_reported_and_the_rest_complete(client):
     data = dict(STUDY, variables={'theta': {'values': [0.2, 0.3, 0.22]}},
                 fixed={'stages[1].angle_rad': 0.28, 'stages[1].stiffness_factor': 6.0},

@@ -46,7 +46,7 @@ def test_parameter_names_checked():
                              parse_parameter('stages[0].angle_rad', 't')], base, 't')
     with pytest.raises(ConfigError, match='unknown design parameter'):
         parse_parameter('stages[0].angle', 't')
-    with pytest.raises(ConfigError, match='>= 0'):
+    with pytest.raises(ConfigError, match=r"'damping' must be in \[0, 1e\+06\] Nms/rad, got -1"):
         parse_parameter('damping', 't').check_value(-1.0, 't')
     # stage angles out of order: that one design is invalid, with the spring's own message
     with pytest.raises(ConfigError, match=r'stages\[1\]\.angle_rad'):

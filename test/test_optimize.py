@@ -243,6 +243,19 @@ def test_bad_optimizer_section_is_one_line(change, field):
     assert field in str(e.value) and '\n' not in str(e.value)
 
 
+def test_an_increment_over_the_base_springs_knee(tmp_path):
+    """A knee increment whose stage before is neither a variable nor fixed takes that stage's
+    angle from the base spring (a defect: the lookup imported a name that does not exist, a
+    traceback instead of the problem)."""
+    d = _problem()
+    del d['variables']['theta']
+    p = load_problem(d)
+    step = next(v for v in p.variables if v.name == 'stages[1].angle_step_rad')
+    assert step.step_of.name == 'stages[0].angle_rad'
+    reach = p.study.ranges[p.study.variable_names.index('stages[1].angle_rad')]
+    assert (reach.low, reach.high) == pytest.approx((0.24 + 0.005, 0.24 + 0.06))
+
+
 def test_absolute_later_stage_angle_asks_for_an_increment():
     d = _problem()
     d['variables']['stages[1].angle_rad'] = d['variables'].pop('stages[1].angle_step_rad')
@@ -280,6 +293,48 @@ def test_cli_report_yaml_designs_and_json(client, tmp_path, capsys):
         assert line.spring.theta == pytest.approx(row['theta'])
         assert line.spring.drive[1].angle_rad == pytest.approx(row['stages[1].angle_rad'])
     assert '| design |' in (out / 'report.md').read_text()
+
+
+def test_a_smaller_budget_on_resume_never_drops_stored_designs(client, tmp_path, capsys):
+    """The field report's case: `--resume --budget 8` after a 16-design run rewrote
+    results.parquet and summary.json with designs 0-7 only (the best design gone), leaving
+    designs/*.yaml and report.md of the full run. Now it is refused in one line and nothing
+    stored changes; the full budget resumes with every design."""
+    import yaml
+    study = tmp_path / 'study.yaml'
+    study.write_text(yaml.safe_dump(_problem(budget=8, batch_size=4)))
+    out = tmp_path / 'out'
+    args = ['optimize', str(study), '--out', str(out), '--scheduler', client.scheduler.address,
+            '--verify', '0', '--no-report', '--no-baseline', '--no-progress', '--json']
+    assert cli_main(args) == 0
+    first = json.loads(capsys.readouterr().out)
+    assert first['n_designs'] == 8
+    stored = {f: (out / f).read_bytes() for f in ('results.parquet', 'summary.json')}
+    assert cli_main(args + ['--resume', '--budget', '4']) == 2
+    err = capsys.readouterr().err
+    assert err.count('\n') == 1 and 'budget 4' in err and 'holds 8 designs' in err, err
+    assert 'pass --budget 8 or more' in err
+    assert {f: (out / f).read_bytes() for f in stored} == stored
+    with pytest.raises(ConfigError, match='holds 8 designs'):      # the library route too
+        run_optimization(load_problem(_problem(budget=8, batch_size=4)), client, out=out,
+                         resume=True, budget=5)
+    assert cli_main(args + ['--resume']) == 0                       # the same budget: all kept
+    again = json.loads(capsys.readouterr().out)
+    assert again['n_designs'] == 8 and again['n_resumed'] == 8
+    assert again['pareto'] == first['pareto']
+
+
+def test_design_files_of_a_former_front_are_removed(run, problem, tmp_path):
+    from dmf_sim.optimize.export import write_designs
+    res, _ = run
+    front = [r for r in res.rows('design') if r['pareto']]
+    stale = tmp_path / 'designs' / 'design_999.yaml'
+    stale.parent.mkdir()
+    stale.write_text('name: an earlier front\n')
+    files = write_designs(problem, front[:1], tmp_path)
+    assert sorted(p.name for p in stale.parent.iterdir()) == [f'design_{front[0]["design_id"]}'
+                                                               '.yaml']
+    assert list(files) == [str(front[0]['design_id'])]
 
 
 def test_cli_bad_study_exits_2_with_one_line(tmp_path, capsys):

@@ -4,8 +4,8 @@ every rosdep key of package.xml that names a Python library, setup.py's minimums
 ``make test-platform`` runs in has exactly those versions."""
 from __future__ import annotations
 
-import ast
 import os
+import re
 import xml.etree.ElementTree as ET
 from importlib import metadata
 from pathlib import Path
@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 from packaging.requirements import Requirement
 from packaging.version import Version
+from setup_args import setup_kwargs
 
 ROOT = Path(__file__).resolve().parents[1]
 CONSTRAINTS = ROOT / 'constraints' / 'platform-jazzy.txt'
@@ -39,13 +40,10 @@ def _pins() -> dict[str, Version]:
 
 
 def _setup_requirements() -> list[Requirement]:
-    """install_requires and the test extra, read from setup.py's setup(...) call."""
-    tree = ast.parse((ROOT / 'setup.py').read_text())
-    call = next(n for n in ast.walk(tree) if isinstance(n, ast.Call)
-                and getattr(n.func, 'id', None) == 'setup')
-    kw = {k.arg: ast.literal_eval(k.value) for k in call.keywords
-          if k.arg in ('install_requires', 'extras_require')}
-    return [Requirement(r) for r in kw['install_requires'] + kw['extras_require']['test']]
+    """install_requires, the feature extras ([all]) and the test extra of setup.py."""
+    kw = setup_kwargs()
+    extras = kw['extras_require']
+    return [Requirement(r) for r in kw['install_requires'] + extras['all'] + extras['test']]
 
 
 def test_every_python_key_of_package_xml_is_pinned():
@@ -71,7 +69,7 @@ def test_setup_minimums_admit_the_platform_versions():
         if name in pins:
             assert req.specifier.contains(pins[name]), (str(req), str(pins[name]))
             checked += 1
-    assert checked >= 12
+    assert checked >= 17
     assert pins['pyarrow'] < Version('26')        # 26 refuses to import with numpy < 2
     assert pins['numpy'] < Version('2')
 
@@ -81,3 +79,34 @@ def test_setup_minimums_admit_the_platform_versions():
 def test_this_environment_has_the_platform_versions():
     for name, version in _pins().items():
         assert Version(metadata.version(name)) == version, name
+
+
+def test_setup_refuses_the_pyarrow_that_refuses_numpy_1():
+    """pyarrow 26 refuses to import with numpy < 2 but does not declare numpy: pip picked it
+    beside the platform's numpy 1.26 (`pip install --dry-run -c numpy==1.26.4 -e '.[...]'`
+    chose pyarrow 26.0.1 before the bound, 25.0.1 after)."""
+    (req,) = [r for r in _setup_requirements() if r.name == 'pyarrow'][:1]
+    assert not req.specifier.contains('26.0.1') and req.specifier.contains('25.0.1')
+
+
+PIP_LINE = re.compile(r"pip install --break-system-packages 'numpy<2' ((?:.*\\\n)*.*)")
+
+
+@pytest.mark.parametrize('page', ['getting-started.md', 'guide/platform-versions.md'])
+def test_the_colcon_pip_line_installs_what_rosdep_does_not(page):
+    """The colcon route's pip line names every library of install_requires and the feature
+    extras that has no rosdep key in package.xml, at the platform's pin, and nothing else."""
+    keys = {e.text for e in ET.parse(ROOT / 'package.xml').getroot() if e.tag == 'exec_depend'}
+    by_rosdep = {PYTHON_KEYS[k].lower() for k in keys if k in PYTHON_KEYS} | {'rosbags'}
+    kw = setup_kwargs()
+    needed = {Requirement(r).name.lower() for r in kw['install_requires']
+              + kw['extras_require']['all']} - by_rosdep - {'setuptools'}
+    line = PIP_LINE.search((ROOT / 'doc' / page).read_text()).group(1)
+    named = {}
+    for word in line.replace('\\', ' ').split():
+        req = Requirement(word.strip("'"))
+        (spec,) = req.specifier
+        named[req.name.lower()] = Version(spec.version)
+    assert set(named) == needed, (set(named), needed)
+    pins = _pins()
+    assert all(named[n] == pins[n] for n in named), named

@@ -101,7 +101,7 @@ def test_yaml_numbers_with_an_exponent_but_no_dot(tmp_path):
     line = load_driveline(tmp_path / 'good.yaml')
     assert (line.spring.alpha, line.spring.theta) == (2.5, 0.24)
     (tmp_path / 'big.yaml').write_text(text.replace('alpha: 2.5', 'alpha: 1e300'))
-    with pytest.raises(ConfigError, match=r"field 'alpha' must be in \[0, 50\], got '1e300'"):
+    with pytest.raises(ConfigError, match=r"field 'alpha' must be in \[0, 50\], got 1e\+300"):
         load_driveline(tmp_path / 'big.yaml')
 
 

@@ -27,8 +27,8 @@ from dmf_sim.bags.layout import BagFiles, resolve_bag
 from dmf_sim.bags.read import TypeDecoder, bag_topics, message_counts, read_messages, topics_text
 from dmf_sim.bags.records import Scan, no_message_text
 from dmf_sim.core.errors import BagError
+from dmf_sim.core.names import check_namespace
 from dmf_sim.core.units import RPM_TO_RAD_S
-from dmf_sim.core.validation import ros_namespace
 
 __all__ = ['TOPIC_WINDUP', 'TOPIC_JOINTS', 'TOPIC_SPEED', 'TOPIC_CRANK', 'DEFAULT_TOPICS',
            'SIGNAL_KINDS', 'SignalSpec', 'Series', 'BagSeries', 'read_bag_series',
@@ -216,7 +216,7 @@ def bag_topic_names(listed: Mapping[str, str], topics: Mapping[str, str] | None 
             raise BagError(f'the bag holds several drivelines ({names}); choose one with '
                            '--namespace')
         namespace = spaces[0] if spaces else ''
-    ns = ros_namespace(namespace, 'namespace')
+    ns = check_namespace(namespace, 'namespace')
     out = {key: ns + topic for key, topic in DEFAULT_TOPICS.items()}
     out.update(topics or {})
     return out, ns

@@ -11,15 +11,9 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 
 from dmf_sim.core.errors import ConfigError
-from dmf_sim.core.validation import ros_namespace
+from dmf_sim.core.names import check_namespace
 
 RELIABLE_DEPTH = 10     # the node's stream QoS: reliable, volatile, keep-last 10
-
-
-def check_namespace(namespace: str) -> str:
-    """``--namespace``: '' (none) or absolute ('/truck1'; ``truck1`` is taken as ``/truck1``,
-    as launch takes ``namespace:=truck1``), :func:`dmf_sim.core.validation.ros_namespace`."""
-    return ros_namespace(namespace, '--namespace')
 
 
 @dataclass(frozen=True)

@@ -147,6 +147,7 @@ def run(args) -> int:
     from dmf_sim.analysis.outputs import write_outputs
     from dmf_sim.analysis.pipeline import analysis_dict, analyze_bag, model_settings, overlay_all
     from dmf_sim.bags.layout import resolve_bag
+    from dmf_sim.live.warm import load as load_kernels
 
     check_arguments(args)
     out = None if args.out is None and args.json else check_output_dir(
@@ -159,6 +160,7 @@ def run(args) -> int:
     settings = model_settings(bag.metadata, config=args.config, engine=args.engine,
                               alpha=args.alpha, theta=args.theta, load=args.load,
                               load_set=args.load_set)
+    load_kernels(NAME, 'bag reading', *(['sweep'] if args.hbm else []))
     res = analyze_bag(bag, args.signal or ['windup'], bin_rpm=args.bin_rpm,
                       min_cycles=args.min_cycles, points_per_cycle=args.points_per_cycle,
                       n_max=args.n_max, theta=settings['theta_rad'], topics=topics,

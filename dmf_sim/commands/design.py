@@ -7,6 +7,7 @@ from pathlib import Path
 
 from dmf_sim.commands._options import add_cluster, check_cluster
 from dmf_sim.core.errors import ConfigError
+from dmf_sim.core.optional import require_extra
 
 __all__ = ['NAME', 'HELP', 'add_arguments', 'run']
 
@@ -31,15 +32,18 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
+    require_extra('design')                 # dask, distributed, pyarrow: one line if missing
     from dmf_sim.design.runner import connect, run_study
     from dmf_sim.design.study import load_study
     from dmf_sim.design.table import ResultStore
+    from dmf_sim.live.warm import load as load_kernels
 
     check_cluster(args)
     if args.batch_size is not None and args.batch_size < 1:
         raise ConfigError(f'--batch-size {args.batch_size}: must be >= 1')
     study = load_study(args.study)
     ResultStore(args.out, study, args.resume)          # --out / --resume problems, before work
+    load_kernels(NAME, 'sweep')     # compiled once here, then every worker loads them
     client = connect(args.scheduler, args.connect_timeout) if args.scheduler else None
     done = [0, study.n_designs]
     try:

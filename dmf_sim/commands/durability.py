@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 from dmf_sim.core.errors import BagExistsError
+from dmf_sim.core.optional import require_extra
 
 __all__ = ['NAME', 'HELP', 'add_arguments', 'run']
 
@@ -38,9 +39,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    require_extra('durability')             # fatpack: one line if missing
     from dmf_sim.durability.read import bag_durability
     from dmf_sim.durability.report import plot_report, report_dict, write_json
     from dmf_sim.durability.settings import load_settings
+    from dmf_sim.live.warm import load as load_kernels
 
     settings = load_settings(args.settings, exponent=args.exponent,
                              reference_range_nm=args.reference_range,
@@ -50,6 +53,7 @@ def run(args: argparse.Namespace) -> int:
         out = Path(f'{Path(args.bag).resolve().name}_durability')
     if out is not None and out.exists() and any(out.iterdir()):
         raise BagExistsError(f'output directory {out} exists and is not empty; not overwriting')
+    load_kernels(NAME, 'bag reading')
     result = bag_durability(args.bag, settings, namespace=args.namespace,
                             progress=args.progress and sys.stderr.isatty())
     written = []

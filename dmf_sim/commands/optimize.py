@@ -8,6 +8,7 @@ from pathlib import Path
 
 from dmf_sim.commands._options import add_cluster, check_cluster
 from dmf_sim.core.errors import ConfigError
+from dmf_sim.core.optional import require_extra
 
 __all__ = ['NAME', 'HELP', 'DEFAULT_VERIFY', 'add_arguments', 'run']
 
@@ -27,7 +28,8 @@ def add_arguments(p) -> None:
                         'figures, report.md/html and summary.json')
     p.add_argument('--resume', action='store_true',
                    help='continue the optimization stored in --out (finished designs are not '
-                        'recomputed; a larger --budget extends it)')
+                        'recomputed; a larger --budget extends it, a budget below the designs '
+                        'stored is refused)')
     p.add_argument('--budget', type=int, help='designs in all (default: the study file\'s)')
     add_cluster(p)
     p.add_argument('--no-baseline', action='store_true',
@@ -41,16 +43,23 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
+    require_extra('optimize')               # optuna, dask, pyarrow: one line if missing
     from dmf_sim.design.runner import close_local, connect, start_local
     from dmf_sim.design.table import ResultStore
+    from dmf_sim.live.warm import load as load_kernels
     from dmf_sim.optimize.problem import load_problem
-    from dmf_sim.optimize.runner import BASELINE_DIR, EXTRA
+    from dmf_sim.optimize.runner import BASELINE_DIR, EXTRA, check_budget
 
     check_cluster(args)
     if args.verify < 0:
         raise ConfigError(f'--verify {args.verify}: must be >= 0')
     problem = load_problem(args.study, budget=args.budget)
-    ResultStore(args.out, problem.study, args.resume, extra=EXTRA)   # --out/--resume first
+    # --out / --resume / the budget against what is stored there, before any work
+    check_budget(problem, ResultStore(args.out, problem.study, args.resume, extra=EXTRA))
+    if not args.no_baseline:
+        check_budget(problem, ResultStore(args.out / BASELINE_DIR, problem.study, args.resume,
+                                          extra=EXTRA))
+    load_kernels(NAME, 'sweep', *(['time integration'] if args.verify else []))
     t0 = time.perf_counter()
     say = _say(args.no_progress, t0)
     if args.scheduler:

@@ -40,6 +40,7 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
+    from dmf_sim.live.warm import load as load_kernels
     from dmf_sim.physics.engine import load_engine
     load_engine(args.engine)                       # a bad engine file: one line before any work
     check_output_dir(args.out)
@@ -51,6 +52,7 @@ def run(args) -> int:
             print(f'dmf-sim paper [{time.perf_counter() - t0:5.1f} s] {text}', file=sys.stderr,
                   flush=True)
 
+    load_kernels(NAME, 'sweep', 'time integration')
     results = PaperStudy(settings, progress=say).run()
     rows = claims(results)
     args.out.mkdir(parents=True, exist_ok=True)

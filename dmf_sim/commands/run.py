@@ -20,6 +20,7 @@ from dmf_sim.commands._options import (
     check_common,
 )
 from dmf_sim.core.errors import ConfigError
+from dmf_sim.core.names import check_namespace
 from dmf_sim.transient.defaults import CHUNK_RANGE_S, DEFAULT_CHUNK_S, default_threads
 
 __all__ = ['NAME', 'HELP', 'add_arguments', 'run']
@@ -49,7 +50,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help='simulated time per chunk: excitation coefficients and load are held '
                         f'over a chunk, the speed ramp is exact (default {DEFAULT_CHUNK_S:g}, '
                         f'within [{CHUNK_RANGE_S[0]:g}, {CHUNK_RANGE_S[1]:g}])')
-    p.add_argument('--namespace', default='', help='write the topics under this namespace')
+    p.add_argument('--namespace', default='', help='write the topics under this ROS 2 namespace '
+                   '(e.g. /truck1; checked by ROS 2\'s rules)')
     p.add_argument('--no-write', action='store_true', help='integrate only (timing)')
     p.add_argument('--threads', type=int, choices=(1, 2), default=None,
                    help='1: integrate and write in turn; 2: integrate the next chunks in a '
@@ -60,10 +62,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from dmf_sim.live.warm import load as load_kernels
     from dmf_sim.transient.profiles import load_profile
     from dmf_sim.transient.run import RunOptions, run_profile
 
     check_common(args)
+    namespace = check_namespace(args.namespace, '--namespace')
     if not args.no_write and not args.out:
         raise ConfigError('give --out BAG (the bag directory to create) or --no-write')
     if not (math.isfinite(args.dt) and 1e-6 <= args.dt <= 1e-2):
@@ -71,8 +75,9 @@ def run(args: argparse.Namespace) -> int:
     profile = load_profile(args.profile)
     opt = RunOptions(driveline=args.config, engine=args.engine, load_set=args.load_set,
                      alpha=args.alpha, theta=args.theta, dt=args.dt, rate_hz=args.rate,
-                     chunk_s=args.chunk, write=not args.no_write, namespace=args.namespace,
+                     chunk_s=args.chunk, write=not args.no_write, namespace=namespace,
                      threads=default_threads() if args.threads is None else args.threads)
+    load_kernels(NAME, 'time integration')      # before the bar: its rate without a compile
     summary = run_profile(profile, None if args.no_write else args.out, opt,
                           progress=not (args.no_progress or args.json))
     if args.json:

@@ -32,6 +32,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from dmf_sim.live.warm import load as load_kernels
     from dmf_sim.transient.plots import plot_runup
     from dmf_sim.transient.runup import runup_analysis
 
@@ -44,6 +45,7 @@ def run(args: argparse.Namespace) -> int:
         out = Path(f'{Path(args.bags[0]).resolve().name}_runup')
     if out is not None and out.exists() and any(out.iterdir()):
         raise BagExistsError(f'output directory {out} exists and is not empty; not overwriting')
+    load_kernels(NAME, 'bag reading', *([] if args.no_hbm else ['sweep']))
     res = runup_analysis(args.bags, bin_rpm=args.bin_rpm, hbm=not args.no_hbm,
                          window=args.window)
     data = to_jsonable(res.as_dict())

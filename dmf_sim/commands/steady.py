@@ -54,6 +54,7 @@ def _check(args) -> None:
 
 
 def run(args) -> int:
+    from dmf_sim.live.warm import load as load_kernels
     from dmf_sim.physics.engine import load_engine
     from dmf_sim.physics.loads import DrivelineLoads
     from dmf_sim.physics.model import load_driveline
@@ -65,6 +66,7 @@ def run(args) -> int:
     if line.dmf is None:
         raise ConfigError(f'driveline {line.name!r} has no dmf section: nothing to search')
     loads = DrivelineLoads(line.reduce(), load_engine(args.engine, load_set=args.load_set))
+    load_kernels(NAME, 'sweep', 'time integration')
     res = find_steady_states(
         loads, args.speed, args.load, window_rpm=args.window,
         hbm_options=HBMOptions(n_harmonics=args.harmonics),

@@ -64,6 +64,7 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
+    from dmf_sim.live.warm import load as load_kernels
     from dmf_sim.physics.engine import load_engine
     from dmf_sim.physics.loads import DrivelineLoads
     from dmf_sim.physics.model import load_driveline
@@ -91,6 +92,7 @@ def run(args) -> int:
                         newmark_seed=args.newmark_seed, time_limit_s=time_limit)
     if args.fast:
         sopt = SweepOptions(**{**sopt.__dict__, 'search': None})
+    load_kernels(NAME, 'sweep')       # before the bars: their rate without a first compile
     results, failures = [], []
     for ls, eng in engines.items():
         for a in alphas:

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 __all__ = ['DmfSimError', 'ConfigError', 'ConfigFileError', 'BagError', 'BagFileError',
            'ConvergenceError', 'TimeLimitError', 'OperatingRangeError', 'one_line',
-           'BagExistsError', 'NoResponseError']
+           'BagExistsError', 'NoResponseError', 'MissingExtraError']
 
 
 class DmfSimError(Exception):
@@ -60,3 +60,9 @@ class BagExistsError(BagError, FileExistsError):
 
 class NoResponseError(DmfSimError, TimeoutError):
     """No ROS node answered within the timeout (``dmf-sim setpoint`` / ``monitor``)."""
+
+
+class MissingExtraError(DmfSimError, ImportError):
+    """An optional library a feature needs is not installed, or cannot be imported here (e.g.
+    a release that refuses the installed numpy); the message names the extra and the pip line
+    (:func:`dmf_sim.core.optional.require`)."""

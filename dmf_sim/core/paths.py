@@ -80,10 +80,35 @@ def read_text(path: Path) -> str:
         raise ConfigFileError(f'{path}: cannot be read ({exc.strerror or exc})') from None
 
 
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """PyYAML's safe loader refusing a key given twice in one mapping (PyYAML keeps the last
+    one silently; YAML 1.2 says keys are unique). Keys merged in with ``<<`` may be overridden,
+    as YAML's merge key allows."""
+
+    def construct_mapping(self, node, deep=False):
+        if isinstance(node, yaml.MappingNode):
+            seen: dict = {}
+            for key_node, _ in node.value:
+                if key_node.tag == 'tag:yaml.org,2002:merge':
+                    continue
+                key = self.construct_object(key_node, deep=deep)
+                try:
+                    first = seen.setdefault(key, key_node)
+                except TypeError:            # an unhashable key: PyYAML's own error follows
+                    continue
+                if first is not key_node:
+                    raise yaml.constructor.ConstructorError(
+                        'while constructing a mapping', node.start_mark,
+                        f'duplicate key {key!r} (first given on line '
+                        f'{first.start_mark.line + 1})', key_node.start_mark)
+        return super().construct_mapping(node, deep=deep)
+
+
 def parse_yaml(text: str, where: str) -> Any:
-    """``yaml.safe_load`` with errors as one line ``where:line:column: problem``."""
+    """``yaml.safe_load`` with errors as one line ``where:line:column: problem``; a key given
+    twice in one mapping is such an error (named, at its second occurrence)."""
     try:
-        return yaml.safe_load(text)
+        return yaml.load(text, Loader=_UniqueKeyLoader)
     except yaml.MarkedYAMLError as exc:
         mark = exc.problem_mark or exc.context_mark
         pos = f':{mark.line + 1}:{mark.column + 1}' if mark is not None else ''

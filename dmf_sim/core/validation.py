@@ -3,29 +3,30 @@ study or optimizer file (and every option the commands share) is checked here, a
 reads the same way, on one line, as a :class:`~dmf_sim.core.errors.ConfigError`::
 
     <where>: field '<field>' <requirement>, got <value>
-    element 4 (CYL2): field 'inertia' must be > 0 kg m^2, got 0.0
-    engine_x.yaml: field 'geometry.bore_m' must be in (0, 2] m, got -1
+    element 4 (CYL2): field 'inertia' must be in (0, 1e+06] kg m^2, got 1e+308
+    engine_x.yaml: field 'geometry.bore_m' must be in (0, 2] m, got -1.0
     study.yaml: missing key 'conditions.speeds_rpm'
 
 ``where`` names the file or the part of it (``element 4 (CYL2)``, ``dmf``); ``field`` is the
-dotted path inside it. :class:`Where` binds a ``where`` for a reader that checks many fields.
+dotted path inside it. The bound of every physical quantity is in the one table
+:data:`dmf_sim.core.bounds.BOUNDS` (with its reason), and :func:`bounded` checks a field against
+it. :class:`Where` binds a ``where`` for a reader that checks many fields.
 Numbers written the YAML 1.1 way without a dot (``1e300``), which PyYAML reads as strings, are
 taken as the numbers the user meant.
 """
 from __future__ import annotations
 
 import math
-import re
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from dmf_sim.core.bounds import BOUNDS
 from dmf_sim.core.errors import ConfigError
 
-__all__ = ['field_error', 'check_keys', 'as_number', 'number', 'integer', 'number_list',
-           'nonempty_list', 'Where', 'Table1D', 'table_1d', 'ros_namespace',
-           'NAMESPACE_MAX_LENGTH']
+__all__ = ['field_error', 'check_keys', 'as_number', 'number', 'bounded', 'integer', 'number_list',
+           'nonempty_list', 'Where', 'Table1D', 'table_1d']
 
 _NO_VALUE = object()
 
@@ -92,8 +93,26 @@ def number(value: Any, where: str, field: str, lo: float = -math.inf, hi: float 
                                                                           'finite number'), value)
     x = float(x)
     if not math.isfinite(x) or x < lo or x > hi or (lo_open and x == lo) or (hi_open and x == hi):
-        raise field_error(where, field, f'must be {rng}', value)
+        raise field_error(where, field, f'must be {rng}', x)
     return x
+
+
+def bounded(value: Any, where: str, field: str, quantity: str, *,
+            positive: bool = False) -> float:
+    """A finite number within the bound of the physical ``quantity``
+    (:data:`dmf_sim.core.bounds.BOUNDS`: the one table, with the reasons), e.g.
+    ``element 4 (CYL2): field 'inertia' must be in (0, 1e+06] kg m^2, got 1e+308``.
+    ``positive``: 0 excluded too, where the use needs it (a spring that carries torque)."""
+    b = BOUNDS[quantity]
+    if positive and b.lo == 0.0 and not b.lo_open:
+        b = replace(b, lo_open=True)
+    if b.signed:
+        x = number(value, where, field)
+        if not b.contains(x):
+            raise field_error(where, field, f'must be {b.text()}', x)
+        return x
+    return number(value, where, field, b.lo, b.hi, lo_open=b.lo_open, hi_open=b.hi_open,
+                  unit=b.unit)
 
 
 def integer(value: Any, where: str, field: str, lo: int, hi: int) -> int:
@@ -127,6 +146,9 @@ class Where:
                unit: str = '', **kw) -> float:
         return number(value, self.source, field, lo, hi, unit=unit, **kw)
 
+    def bounded(self, value: Any, field: str, quantity: str, **kw) -> float:
+        return bounded(value, self.source, field, quantity, **kw)
+
     def integer(self, value: Any, field: str, lo: int, hi: int) -> int:
         return integer(value, self.source, field, lo, hi)
 
@@ -134,16 +156,19 @@ class Where:
         return nonempty_list(value, self.source, field)
 
 
-def number_list(value: Any, where: str, field: str, lo: float, hi: float, *,
-                min_len: int = 1, increasing: bool = False) -> np.ndarray:
-    """A list of at least ``min_len`` numbers in [lo, hi] (strictly increasing if asked)."""
+def number_list(value: Any, where: str, field: str, lo: float = -math.inf,
+                hi: float = math.inf, *, min_len: int = 1, increasing: bool = False,
+                quantity: str | None = None) -> np.ndarray:
+    """A list of at least ``min_len`` numbers in [lo, hi], or within the bound of the physical
+    ``quantity`` (:func:`bounded`) when one is given (strictly increasing if asked)."""
+    rng = BOUNDS[quantity].text() if quantity else f'in [{lo:g}, {hi:g}]'
     if not isinstance(value, (list, tuple)) or len(value) < min_len:
-        raise field_error(where, field,
-                          f'must be a list of at least {min_len} numbers in [{lo:g}, {hi:g}]',
+        raise field_error(where, field, f'must be a list of at least {min_len} numbers {rng}',
                           value)
-    arr = np.array([number(v, where, f'{field}[{i}]', lo, hi) for i, v in enumerate(value)])
+    arr = np.array([bounded(v, where, f'{field}[{i}]', quantity) if quantity
+                    else number(v, where, f'{field}[{i}]', lo, hi) for i, v in enumerate(value)])
     if increasing and np.any(np.diff(arr) <= 0):
-        raise field_error(where, field, f'must be strictly increasing within [{lo:g}, {hi:g}]')
+        raise field_error(where, field, f'must be strictly increasing, each {rng}')
     return arr
 
 
@@ -159,49 +184,14 @@ class Table1D:
 
 
 def table_1d(d: Any, where: str, field: str, x_key: str, y_key: str,
-             x_range: tuple[float, float], y_range: tuple[float, float]) -> Table1D:
-    """A ``{x_key: [...], y_key: [...]}`` table with strictly increasing x."""
+             x_quantity: str, y_quantity: str) -> Table1D:
+    """A ``{x_key: [...], y_key: [...]}`` table with strictly increasing x, x and y within the
+    bounds of their physical quantities (:func:`bounded`)."""
     check_keys(d, where, field, [x_key, y_key])
-    x = number_list(d[x_key], where, f'{field}.{x_key}', *x_range, min_len=1, increasing=True)
-    y = number_list(d[y_key], where, f'{field}.{y_key}', *y_range, min_len=1)
+    x = number_list(d[x_key], where, f'{field}.{x_key}', min_len=1, increasing=True,
+                    quantity=x_quantity)
+    y = number_list(d[y_key], where, f'{field}.{y_key}', min_len=1, quantity=y_quantity)
     if len(x) != len(y):
         raise field_error(where, f'{field}.{y_key}',
                           f'must have as many entries as {x_key} ({len(x)})')
     return Table1D(x, y)
-
-
-_NAMESPACE_TOKEN = re.compile(r'[A-Za-z_][A-Za-z0-9_]*')
-NAMESPACE_MAX_LENGTH = 245   # characters, '/' included: rmw's RMW_NAMESPACE_MAX_LENGTH (Jazzy)
-
-
-def ros_namespace(value: str | None, what: str = '--namespace') -> str:
-    """A ROS namespace taken as ``ros2 launch ... namespace:=`` and rclpy take it, written one
-    way: ``''`` for the root (``''`` or ``'/'``), else absolute, ``'/truck1'``, ``'/fleet/t1'``.
-    A relative namespace is taken from the root (``truck1`` -> ``/truck1``), as launch_ros and
-    rcl do. ROS's rules (``rmw_validate_namespace``): tokens of ASCII letters, digits and
-    underscores, none starting with a digit, separated by single ``/``, no ``/`` at the end,
-    at most :data:`NAMESPACE_MAX_LENGTH` characters. A one-line :class:`ConfigError` naming
-    ``what`` otherwise."""
-    text = '' if value is None else str(value)
-    if text in ('', '/'):
-        return ''
-    absolute = text if text.startswith('/') else '/' + text
-    problem = None
-    if len(absolute) > NAMESPACE_MAX_LENGTH:
-        problem = f'it is longer than {NAMESPACE_MAX_LENGTH} characters'
-    elif absolute.endswith('/'):
-        problem = "it ends with '/'"
-    elif '//' in absolute:
-        problem = "it has an empty token ('//')"
-    else:
-        for token in absolute[1:].split('/'):
-            if not _NAMESPACE_TOKEN.fullmatch(token):
-                problem = (f'token {token!r} starts with a digit' if token[:1].isdigit()
-                           else f'token {token!r} has characters other than letters, digits '
-                           'and underscores')
-                break
-    if problem:
-        raise ConfigError(f'{what} {text!r} is not a ROS namespace: {problem} (tokens of '
-                          "letters, digits and '_', not starting with a digit, joined by '/', "
-                          'e.g. truck1 or /fleet/truck1)')
-    return absolute

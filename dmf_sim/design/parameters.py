@@ -15,10 +15,12 @@ A design is a mapping ``{name: value}`` (SI units) applied to the study's base d
 ``coast_stages[j].stiffness_factor``      coast stage j: stiffness factor (>= 0)
 ========================================  ===================================================
 
-Stages not named keep the base spring's values; a stage index one beyond the base spring's
-stages adds a stage (both its angle and its factor must then be given). Stage angles that do
-not increase with the stage index make that one design invalid (a per-design failure, reported
-with the spring's own message), not the study.
+Every value lies within the bound of its physical quantity (the table
+:data:`dmf_sim.core.bounds.BOUNDS`, as in the driveline file). Stages not named keep the base
+spring's values; a stage index one beyond the base spring's stages adds a stage (both its angle
+and its factor must then be given). Stage angles that do not increase with the stage index make
+that one design invalid (a per-design failure, reported with the spring's own message), not the
+study.
 """
 from __future__ import annotations
 
@@ -26,10 +28,11 @@ import math
 import re
 from dataclasses import dataclass
 
+from dmf_sim.core.bounds import BOUNDS
 from dmf_sim.core.errors import ConfigError
-from dmf_sim.core.validation import number
+from dmf_sim.core.validation import bounded
 from dmf_sim.physics.model import Driveline
-from dmf_sim.physics.spring import STAGE_ANGLE_MAX_RAD, STIFFNESS_FACTOR_MAX, Stage
+from dmf_sim.physics.spring import Stage
 
 __all__ = ['ALIASES', 'SCALARS', 'STAGE_ATTRS', 'ALLOWED_TEXT', 'Parameter', 'parse_parameter',
            'check_parameter_set', 'design_driveline']
@@ -41,11 +44,10 @@ _STAGE_RE = re.compile(r'^(stages|coast_stages)\[(\d+)\]\.(angle_rad|stiffness_f
 ALLOWED_TEXT = ('k, damping, theta, alpha, stages[i].angle_rad, stages[i].stiffness_factor, '
                 'coast_stages[j].angle_rad, coast_stages[j].stiffness_factor')
 
-# (lower bound, bound included, unit) of each kind of parameter
-_BOUNDS = {'k': (0.0, False, 'Nm/rad'), 'damping': (0.0, True, 'Nms/rad'),
-           'angle_rad': (0.0, False, 'rad'), 'stiffness_factor': (0.0, True, '')}
-# upper bounds: the spring's own (dmf_sim.physics.spring), so a study is refused when read
-_UPPER = {'angle_rad': STAGE_ANGLE_MAX_RAD, 'stiffness_factor': STIFFNESS_FACTOR_MAX}
+# the physical quantity of each kind of parameter (its bound: the one table,
+# dmf_sim.core.bounds.BOUNDS, as for the driveline file), and whether 0 is excluded
+_QUANTITY = {'k': ('stiffness', True), 'damping': ('damping', False),
+             'angle_rad': ('windup_angle', False), 'stiffness_factor': ('stiffness_factor', False)}
 
 
 @dataclass(frozen=True)
@@ -67,14 +69,14 @@ class Parameter:
 
     @property
     def unit(self) -> str:
-        return _BOUNDS[self.kind][2]
+        return BOUNDS[_QUANTITY[self.kind][0]].unit
 
     def check_value(self, value, where: str, field: str | None = None) -> float:
-        """``value`` as a float within the parameter's allowed range, else a one-line error
-        naming ``where`` and ``field`` (default: the parameter's name)."""
-        lo, closed, unit = _BOUNDS[self.kind]
-        return number(value, where, field or self.name, lo, _UPPER.get(self.kind, math.inf),
-                      lo_open=not closed, unit=unit)
+        """``value`` as a float within the parameter's allowed range (the bound of its physical
+        quantity), else a one-line error naming ``where`` and ``field`` (default: the
+        parameter's name)."""
+        quantity, positive = _QUANTITY[self.kind]
+        return bounded(value, where, field or self.name, quantity, positive=positive)
 
 
 def parse_parameter(name: str, where: str) -> Parameter:

@@ -4,10 +4,12 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-import pyarrow as pa
 
+from dmf_sim.core.optional import require
 from dmf_sim.design.pareto import compromise, pareto_mask
 from dmf_sim.design.table import sort_rows, to_table
+
+pa = require('pyarrow', 'design')
 
 __all__ = ['StudyResult']
 

@@ -23,9 +23,8 @@ import time
 import uuid
 from collections.abc import Callable
 
-from distributed.diagnostics.plugin import WorkerPlugin
-
 from dmf_sim.core.errors import ConfigError, one_line
+from dmf_sim.core.optional import require
 from dmf_sim.design.evaluate import (
     BatchResult,
     StudyContext,
@@ -36,6 +35,9 @@ from dmf_sim.design.evaluate import (
 from dmf_sim.design.result import StudyResult
 from dmf_sim.design.study import load_study
 from dmf_sim.design.table import ResultStore
+
+distributed = require('distributed', 'design')
+WorkerPlugin = require('distributed.diagnostics.plugin', 'design').WorkerPlugin
 
 __all__ = ['LOOPBACK', 'CONNECT_TIMEOUT_S', 'WORKER_WATCH_INTERVAL_S', 'DEFAULT_BATCH_SIZE',
            'BATCHES_PER_WORKER', 'WORKER_PROFILER', 'WORKER_THREADS', 'QUIET_CLUSTER',
@@ -166,7 +168,6 @@ def available_cores() -> int:
 
 def local_cluster(workers: int | None = None):
     """A LocalCluster of ``workers`` processes (default: one per core) on 127.0.0.1."""
-    from distributed import LocalCluster
     n = workers or available_cores()
     if not (isinstance(n, int) and n >= 1):
         raise ConfigError(f'--workers {n!r}: must be an integer >= 1')
@@ -176,18 +177,18 @@ def local_cluster(workers: int | None = None):
     # The workers' statistical profiler is off: it keeps an hour of stack samples, and its
     # tree of the solvers' call paths made worker memory grow by ~10 kB per design
     # (benchmarks/bench_design.py measures the RSS over a long study).
-    import dask
+    dask = require('dask', 'design')
     with dask.config.set({WORKER_PROFILER: False, **QUIET_CLUSTER}):
-        return LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host=LOOPBACK,
-                            dashboard_address=f'{LOOPBACK}:0', worker_dashboard_address=None,
-                            silence_logs=logging.CRITICAL)
+        return distributed.LocalCluster(
+            n_workers=n, threads_per_worker=1, processes=True, host=LOOPBACK,
+            dashboard_address=f'{LOOPBACK}:0', worker_dashboard_address=None,
+            silence_logs=logging.CRITICAL)
 
 
 def start_local(workers: int | None = None):
     """(cluster, client): a :func:`local_cluster` and a client of it, its workers all up."""
-    from distributed import Client
     cluster = local_cluster(workers)
-    client = Client(cluster)
+    client = distributed.Client(cluster)
     client.wait_for_workers(len(cluster.workers))
     return cluster, client
 
@@ -210,12 +211,11 @@ def close_run(cluster, client, store) -> None:
 
 def connect(address: str, timeout_s: float = CONNECT_TIMEOUT_S):
     """A ``distributed.Client`` of the scheduler at ``address`` (``tcp://HOST:PORT``)."""
-    from distributed import Client
     if not isinstance(address, str) or not _ADDRESS.match(address.strip()):
         raise ConfigError(f'--scheduler {address!r}: expected tcp://HOST:PORT (e.g. '
                           'tcp://10.0.0.5:8786)')
     try:
-        return Client(address.strip(), timeout=timeout_s)
+        return distributed.Client(address.strip(), timeout=timeout_s)
     except (OSError, TimeoutError) as exc:
         raise ConfigError(f'--scheduler {address}: no Dask scheduler answers there within '
                           f'{timeout_s:g} s ({one_line(exc)}); start one with `dask scheduler` '
@@ -328,7 +328,6 @@ class _Run:
         (:func:`batch_sizes`, in order) and collect their rows."""
         if not todo:
             return
-        from distributed import as_completed
         key = f'dmf-study-{self.study.fingerprint()}-{uuid.uuid4().hex[:8]}'
         client.register_plugin(StudyPlugin(key, StudyContext.from_study(self.study)), name=key)
         futures = {}
@@ -341,7 +340,7 @@ class _Run:
                 items = [(i, self.designs[i].tolist()) for i in ids]
                 task = f'dmf-design-{ids[0]}-{uuid.uuid4().hex[:8]}'
                 futures[client.submit(evaluate_batch, key, items, key=task, pure=False)] = ids
-            for fut in as_completed(list(futures)):
+            for fut in distributed.as_completed(list(futures)):
                 ids = futures.pop(fut)
                 rows = self._rows_of(fut, ids)
                 fut.release()

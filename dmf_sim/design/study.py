@@ -313,11 +313,11 @@ def _conditions(w: Where, raw, engine_source, base_dir: Path):
     w.mapping(raw, 'conditions', ('load_sets', 'loads', 'speeds_rpm'), ())
     load_sets = w.nonempty_list(raw['load_sets'], 'conditions.load_sets')
     loads = w.nonempty_list(raw['loads'], 'conditions.loads')
-    loads = [w.number(x, f'conditions.loads[{i}]', 0.0, 1.0) for i, x in enumerate(loads)]
+    loads = [w.bounded(x, f'conditions.loads[{i}]', 'load') for i, x in enumerate(loads)]
     sp = w.mapping(raw['speeds_rpm'], 'conditions.speeds_rpm', ('from', 'to', 'step'), ())
-    lo = w.number(sp['from'], 'conditions.speeds_rpm.from', 0.0, unit='rpm')
-    hi = w.number(sp['to'], 'conditions.speeds_rpm.to', 0.0, unit='rpm')
-    step = w.number(sp['step'], 'conditions.speeds_rpm.step', 0.0, unit='rpm')
+    lo = w.bounded(sp['from'], 'conditions.speeds_rpm.from', 'engine_speed')
+    hi = w.bounded(sp['to'], 'conditions.speeds_rpm.to', 'engine_speed')
+    step = w.bounded(sp['step'], 'conditions.speeds_rpm.step', 'engine_speed', positive=True)
     if not (hi > lo and step > 0):
         raise w.error('conditions.speeds_rpm', f'need to > from and step > 0 rpm, got from '
                       f'{lo:g}, to {hi:g}, step {step:g}')

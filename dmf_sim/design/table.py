@@ -20,13 +20,14 @@ import json
 import os
 from pathlib import Path
 
-import pyarrow as pa
-import pyarrow.parquet as pq
-
 from dmf_sim.core.csv_out import write_csv
 from dmf_sim.core.errors import ConfigError
+from dmf_sim.core.optional import require
 from dmf_sim.core.paths import check_output_dir
 from dmf_sim.design.metrics import WORST
+
+pa = require('pyarrow', 'design')
+pq = require('pyarrow.parquet', 'design')
 
 __all__ = ['STUDY_FILE', 'LOCK_FILE', 'PARTS', 'RESULTS', 'schema', 'to_table', 'sort_rows',
            'ResultStore']

@@ -16,8 +16,11 @@ samples of the record are reversals, repeated values are one point.
 """
 from __future__ import annotations
 
-import fatpack
 import numpy as np
+
+from dmf_sim.core.optional import require
+
+fatpack = require('fatpack')
 
 __all__ = ['StreamingRainflow', 'count_cycles']
 

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dmf_sim.core.paths import read_yaml_mapping
-from dmf_sim.core.validation import check_keys, field_error, integer, number
+from dmf_sim.core.validation import bounded, check_keys, field_error, integer, number
 
 __all__ = ['DEFAULT_SETTINGS', 'SNCurve', 'DurabilitySettings', 'load_settings']
 
@@ -65,10 +65,17 @@ class DurabilitySettings:
     source: str = ''
 
 
-_SN_FIELDS = {'exponent': (0.5, 50.0), 'reference_range_nm': (1e-6, 1e9),
-              'reference_cycles': (1.0, 1e18), 'endurance_range_nm': (0.0, 1e9)}
+_SN_FIELDS = {'exponent': ('sn_exponent', False), 'reference_range_nm': ('torque_range', True),
+              'reference_cycles': ('sn_cycles', False),
+              'endurance_range_nm': ('torque_range', False)}
+"""S-N field -> (its physical quantity in dmf_sim.core.bounds.BOUNDS, 0 excluded)."""
 _BIN_FIELDS = {'torque_nm': (1e-3, 1e6), 'range_nm': (1e-3, 1e6), 'mean_nm': (1e-3, 1e6),
                'speed_rpm': (1.0, 5000.0), 'power_time_s': (1e-3, 3600.0)}
+
+
+def _sn_value(value, where: str, field: str, key: str) -> float:
+    quantity, positive = _SN_FIELDS[key]
+    return bounded(value, where, field, quantity, positive=positive)
 
 
 def _section(data: dict, key: str, path, fields) -> dict:
@@ -89,7 +96,7 @@ def load_settings(source: str | os.PathLike = DEFAULT_SETTINGS, **overrides) -> 
                                          'window_s'))
     user_sn = _section(data, 'sn_curve', path, _SN_FIELDS)
     sn = {**base['sn_curve'], **user_sn}
-    values = {k: number(sn[k], str(path), f'sn_curve.{k}', *_SN_FIELDS[k]) for k in _SN_FIELDS}
+    values = {k: _sn_value(sn[k], str(path), f'sn_curve.{k}', k) for k in _SN_FIELDS}
     own = path.resolve() != read_yaml_mapping(DEFAULT_SETTINGS)[0].resolve() and any(
         k in user_sn for k in _SN_FIELDS)
     placeholder = user_sn.get('placeholder', sn['placeholder'] and not own)
@@ -97,7 +104,7 @@ def load_settings(source: str | os.PathLike = DEFAULT_SETTINGS, **overrides) -> 
         raise field_error(str(path), 'sn_curve.placeholder', 'must be true or false', placeholder)
     given = {k: v for k, v in overrides.items() if v is not None}
     for k, v in given.items():
-        values[k] = number(v, 'command line', f'--{k.replace("_", "-")}', *_SN_FIELDS[k])
+        values[k] = _sn_value(v, 'command line', f'--{k.replace("_", "-")}', k)
     bins = {**base['bins'], **_section(data, 'bins', path, _BIN_FIELDS)}
     b = {k: number(bins[k], str(path), f'bins.{k}', *_BIN_FIELDS[k]) for k in _BIN_FIELDS}
     largest = integer(data.get('largest', base['largest']), str(path), 'largest', 1, 1000)

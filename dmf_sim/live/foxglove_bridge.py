@@ -23,6 +23,7 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping
 
 from dmf_sim.core.errors import ConfigError
+from dmf_sim.core.optional import require
 
 __all__ = ['SUBPROTOCOL', 'FOXGLOVE_PARAMETERS', 'LAYOUT_FILE', 'FoxgloveBridge', 'foxglove_hint',
            'foxglove_layout', 'message_definition']
@@ -64,8 +65,8 @@ class FoxgloveBridge:
 
     def __init__(self, streams: Mapping[str, str], *, host: str = '127.0.0.1', port: int = 8765,
                  name: str = SERVER_NAME, latched: Iterable[str] = ()) -> None:
-        import foxglove
-        from foxglove.websocket import ServerListener
+        foxglove = require('foxglove')
+        ServerListener = require('foxglove.websocket').ServerListener
 
         if not (isinstance(port, int) and 0 <= port <= 65535):
             raise ConfigError(f'foxglove_port must be in 0..65535, got {port!r}')

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from typing import Any, NamedTuple
 
-from dmf_sim.core.validation import ros_namespace
+from dmf_sim.core.names import check_namespace
 from dmf_sim.monitor.messages import TOPIC_CYCLE, TOPIC_PREDICTED
 
 __all__ = ['DIAGNOSTICS_DEPTH', 'LATCHED_DEPTH', 'SAMPLE_STREAMS', 'STATUS_STREAMS', 'STREAMS',
@@ -65,6 +65,6 @@ STATUS_STREAMS = ('diagnostics', 'dmf_orders', 'dmf_predicted')
 def resolved_topics(namespace: str = '') -> dict[str, str]:
     """Stream key -> absolute topic name under ``namespace`` ('' = none), as rclpy resolves
     the relative names (absolute ones stay)."""
-    ns = ros_namespace(namespace, 'namespace')
+    ns = check_namespace(namespace, 'namespace')
     return {k: (s.topic if s.topic.startswith('/') else f'{ns}/{s.topic}')
             for k, s in STREAMS.items()}

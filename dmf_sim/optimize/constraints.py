@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from dmf_sim.core.errors import ConfigError
+from dmf_sim.core.validation import bounded
 from dmf_sim.design.metrics import OBJECTIVES
 from dmf_sim.design.states import speed_grid
 
@@ -104,11 +105,11 @@ def parse_constraints(raw, where: str, study) -> Constraints:
         raise ConfigError(f'{where}: give capacity_nm or capacity_factor, not both')
     travel = raw.get('max_travel_rad')
     if travel is not None:
-        travel = _positive(travel, f'{where}.max_travel_rad', 'rad')
+        travel = bounded(travel, where, 'max_travel_rad', 'windup_angle')
     t_max = engine_max_torque(study)
     factor = None
     if 'capacity_nm' in raw:
-        cap = _positive(raw['capacity_nm'], f'{where}.capacity_nm', 'Nm')
+        cap = bounded(raw['capacity_nm'], where, 'capacity_nm', 'torque', positive=True)
     else:
         factor = _positive(raw.get('capacity_factor', DEFAULT_CAPACITY_FACTOR),
                            f'{where}.capacity_factor', '')

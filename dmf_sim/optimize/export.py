@@ -14,13 +14,13 @@ __all__ = ['design_yaml', 'write_designs']
 
 def design_yaml(problem, row: dict) -> str:
     """The driveline YAML text of a design's summary row (validated by loading it back)."""
-    from dmf_sim.core.paths import config_file
+    from dmf_sim.core.paths import parse_yaml, read_yaml_mapping
     from dmf_sim.design.evaluate import StudyContext
     from dmf_sim.physics.model import driveline_from_dict
     study = problem.study
     ctx = StudyContext.from_study(study)
     line = design_driveline(study.base, ctx.design_values([row[v] for v in study.variable_names]))
-    data = yaml.safe_load(Path(config_file(study.driveline)).read_text())
+    _, data = read_yaml_mapping(study.driveline, 'driveline')
     el = line.dmf_element
     for raw in data['elements']:
         if raw['name'] == el.name:
@@ -43,12 +43,14 @@ def design_yaml(problem, row: dict) -> str:
         del data['dmf']['coast_stages']
     text = (f'# {data["description"]}\n# written by dmf-sim optimize; use with --config or the '
             "node's driveline parameter\n" + yaml.safe_dump(data, sort_keys=False, width=99))
-    driveline_from_dict(yaml.safe_load(text), data['name'])      # it loads back
+    driveline_from_dict(parse_yaml(text, data['name']), data['name'])      # it loads back
     return text
 
 
 def write_designs(problem, rows: list[dict], out) -> dict[str, str]:
-    """``out/designs/design_<id>.yaml`` for every row; returns id -> path."""
+    """``out/designs/design_<id>.yaml`` for every row; returns id -> path. The directory holds
+    these designs only: files of an earlier run's designs that are no longer among ``rows``
+    (a resumed run's front moved) are removed, so none is taken for a current design."""
     d = Path(out) / 'designs'
     d.mkdir(parents=True, exist_ok=True)
     files = {}
@@ -56,4 +58,7 @@ def write_designs(problem, rows: list[dict], out) -> dict[str, str]:
         path = d / f'design_{r["design_id"]}.yaml'
         path.write_text(design_yaml(problem, r))
         files[str(r['design_id'])] = str(path)
+    for old in d.glob('design_*.yaml'):
+        if str(old) not in files.values():
+            old.unlink()
     return files

@@ -33,7 +33,6 @@ from __future__ import annotations
 import copy
 import hashlib
 import json
-import math
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -41,6 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from dmf_sim.core.errors import ConfigError
+from dmf_sim.core.validation import Where, bounded
 from dmf_sim.design.parameters import Parameter, parse_parameter
 from dmf_sim.design.study import Study, study_from_dict
 from dmf_sim.optimize.constraints import Constraints, parse_constraints
@@ -219,8 +219,8 @@ def problem_from_dict(data: dict, source: str = 'study', *, base_dir: Path | Non
                             f'{side}[0].angle_rad' + (' (or theta)' if side == 'stages' else ''))
             param = parse_parameter(f'{side}[{index}].angle_rad', f'{source}: variables')
             step_of = Parameter(f'{side}[{index - 1}].angle_rad', 'angle_rad', side, index - 1)
-            lo = _bound(error, spec['min'], f'variables.{name}.min', strict=True)
-            hi = _bound(error, spec['max'], f'variables.{name}.max', strict=True)
+            lo = bounded(spec['min'], source, f'variables.{name}.min', 'windup_angle')
+            hi = bounded(spec['max'], source, f'variables.{name}.max', 'windup_angle')
         else:
             param = parse_parameter(name, f'{source}: variables')
             if param.kind == 'angle_rad' and param.index:
@@ -240,7 +240,7 @@ def problem_from_dict(data: dict, source: str = 'study', *, base_dir: Path | Non
         if v.step_of is not None:
             prev = reach.get(v.step_of.key)
             if prev is None:
-                prev = _base_angle(data, v.step_of, base_dir)
+                prev = _base_angle(data, v.step_of, base_dir, source)
             reach[v.param.key] = (prev[0] + v.low, prev[1] + v.high)
             study_vars[v.param.name] = list(reach[v.param.key])
     study_data = {k: val for k, val in data.items() if k != 'optimizer'}
@@ -259,15 +259,7 @@ def _integer(error, value, field_name: str, lo: int, hi: int) -> int:
     return int(value)
 
 
-def _bound(error, value, field_name: str, strict: bool) -> float:
-    ok = (not isinstance(value, bool) and isinstance(value, (int, float))
-          and math.isfinite(value) and (value > 0 if strict else value >= 0))
-    if not ok:
-        raise error(field_name, f'must be a finite number > 0 rad, got {value!r}')
-    return float(value)
-
-
-def _base_angle(data: dict, p: Parameter, base_dir) -> tuple[float, float]:
+def _base_angle(data: dict, p: Parameter, base_dir, source: str) -> tuple[float, float]:
     """The angle of a stage that is not a variable: its fixed value or the base spring's."""
     fixed = data.get('fixed') or {}
     for key, value in fixed.items() if isinstance(fixed, dict) else ():
@@ -276,8 +268,8 @@ def _base_angle(data: dict, p: Parameter, base_dir) -> tuple[float, float]:
                 return float(value), float(value)
         except ConfigError:
             pass
-    from dmf_sim.design.study import _load_driveline, _Where
-    line = _load_driveline(_Where('study'), data.get('driveline'), base_dir or Path.cwd())
+    from dmf_sim.design.study import _load_driveline
+    line = _load_driveline(Where(source), data.get('driveline'), base_dir or Path.cwd())
     stages = line.spring.drive if p.side == 'stages' else line.spring.coast
     if p.index >= len(stages):
         raise ConfigError(f'variables: {p.side}[{p.index + 1}].angle_step_rad needs '

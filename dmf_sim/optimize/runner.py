@@ -24,9 +24,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import pyarrow as pa
 
 from dmf_sim.core.errors import ConfigError, one_line
+from dmf_sim.core.optional import require
 from dmf_sim.design.evaluate import StudyContext, evaluate_batch
 from dmf_sim.design.result import StudyResult
 from dmf_sim.design.runner import (
@@ -42,8 +42,13 @@ from dmf_sim.optimize.hypervolume import hypervolume_history
 from dmf_sim.optimize.problem import Problem, load_problem, unit_to_values
 
 __all__ = ['JOURNAL', 'PROBLEM_FILE', 'OPTUNA_STUDY', 'MAX_CONSTRAINT', 'EXTRA',
-           'OptimizationResult', 'run_optimization', 'finish', 'reference_point', 'BASELINE_DIR',
-           'baseline_problem']
+           'OptimizationResult', 'check_budget', 'run_optimization', 'finish', 'reference_point',
+           'BASELINE_DIR', 'baseline_problem']
+
+pa = require('pyarrow', 'optimize')
+distributed = require('distributed', 'optimize')
+optuna = require('optuna')
+JournalFileBackend = require('optuna.storages.journal').JournalFileBackend
 
 JOURNAL = 'optuna.journal'
 PROBLEM_FILE = 'optimizer.json'
@@ -88,7 +93,6 @@ class OptimizationResult(StudyResult):
 
 def _sampler(problem: Problem):
     """optuna's sampler of the method; constraints reach it through ``Trial.set_constraint``."""
-    import optuna
     seed = problem.seed
     if problem.method == 'nsga2':
         return optuna.samplers.NSGAIISampler(population_size=max(problem.batch_size, 2),
@@ -103,14 +107,11 @@ def _sampler(problem: Problem):
 def _open_study(problem: Problem, out: Path | None, resume: bool):
     """The optuna study in ``out``'s journal (or in memory); new ones get their enqueued
     designs (the initial designs; for 'lhs' the whole Latin hypercube)."""
-    import optuna
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     storage = None
     existed = resume and out is not None and (out / JOURNAL).exists()   # before opening it
     if out is not None:
-        from optuna.storages import JournalStorage
-        from optuna.storages.journal import JournalFileBackend
-        storage = JournalStorage(JournalFileBackend(str(out / JOURNAL)))
+        storage = optuna.storages.JournalStorage(JournalFileBackend(str(out / JOURNAL)))
     study = optuna.create_study(storage=storage, study_name=OPTUNA_STUDY,
                                 directions=['minimize'] * len(problem.objectives),
                                 sampler=_sampler(problem), load_if_exists=existed)
@@ -139,6 +140,18 @@ def _check_problem_file(problem: Problem, out: Path, resume: bool) -> None:
                                indent=1, default=float))
 
 
+def check_budget(problem: Problem, store: ResultStore | None) -> None:
+    """A resumed run keeps every design stored in its directory: a budget below their number
+    is a one-line ConfigError (nothing is computed, nothing stored is changed)."""
+    if store is None:
+        return
+    stored = len(store.finished())
+    if problem.budget < stored:
+        raise ConfigError(f'budget {problem.budget}: {store.dir} holds {stored} designs '
+                          f'already, and a resumed run keeps every one of them; pass --budget '
+                          f'{stored} or more (or choose another --out)')
+
+
 def run_optimization(problem, client=None, *, out=None, resume: bool = False,
                      workers: int | None = None, progress: bool = False, on_batch=None,
                      budget: int | None = None) -> OptimizationResult:
@@ -150,7 +163,8 @@ def run_optimization(problem, client=None, *, out=None, resume: bool = False,
         resume: continue the optimization stored in ``out``.
         progress: tqdm progress bar with ETA on stderr.
         on_batch: ``on_batch(n_done, n_total)`` after every stored design.
-        budget: overrides the problem's budget (e.g. to extend a finished run with resume).
+        budget: overrides the problem's budget (e.g. to extend a finished run with resume;
+            never below the designs stored in ``out``: :func:`check_budget`).
     """
     problem = load_problem(problem, budget=budget)
     study = problem.study
@@ -162,6 +176,7 @@ def run_optimization(problem, client=None, *, out=None, resume: bool = False,
     cluster = None
     t0 = time.perf_counter()
     try:
+        check_budget(problem, store)
         if out is not None:
             _check_problem_file(problem, out, resume)
             store.start()
@@ -174,8 +189,7 @@ def run_optimization(problem, client=None, *, out=None, resume: bool = False,
                 cluster, client = start_local(workers)
             n_workers = wait_for_workers(client)
             run.compute(client, todo, _bar(progress, problem.budget, run.n_finished))
-        rows = [r for r in (store.rows if store else []) + run.rows
-                if r['design_id'] < problem.budget]   # a smaller budget: the first designs
+        rows = (store.rows if store else []) + run.rows
         result = finish(problem, rows,
                         n_computed=run.n_computed, seconds=time.perf_counter() - t0,
                         workers=n_workers)
@@ -243,7 +257,7 @@ class _Run:
     # ---- resume ---------------------------------------------------------------------------
     def reconcile(self) -> list:
         """Tell stored designs an interruption left untold; return trials to evaluate again."""
-        from optuna.trial import Trial, TrialState
+        Trial, TrialState = optuna.trial.Trial, optuna.trial.TrialState
         stored = {}
         if self.store:
             for r in self.store.rows:
@@ -263,12 +277,11 @@ class _Run:
 
     # ---- the loop -----------------------------------------------------------------------------
     def compute(self, client, todo: list, bar) -> None:
-        from distributed import as_completed
-        from optuna.distributions import FloatDistribution
         p = self.problem
         key = f'dmf-optimize-{p.study.fingerprint()}-{uuid.uuid4().hex[:8]}'
         client.register_plugin(StudyPlugin(key, self.ctx), name=key)
-        dists = {v.name: FloatDistribution(v.low, v.high) for v in p.variables}
+        dists = {v.name: optuna.distributions.FloatDistribution(v.low, v.high)
+                 for v in p.variables}
         futures: dict = {}
         generation = self.n_finished // max(p.batch_size, 1)
         try:
@@ -285,7 +298,7 @@ class _Run:
                                         key=f'dmf-opt-{t.number}-{uuid.uuid4().hex[:8]}')
                     futures[fut] = t
                 summaries = {}
-                for fut in as_completed(list(futures)):
+                for fut in distributed.as_completed(list(futures)):
                     t = futures.pop(fut)
                     rows = self._rows_of(fut, t, generation)
                     fut.release()
@@ -348,7 +361,7 @@ class _Run:
                 'torque_at_travel': t_travel, '_constraint_values': values}
 
     def _tell(self, trial, summary: dict) -> None:
-        from optuna.trial import TrialState
+        TrialState = optuna.trial.TrialState
         p = self.problem
         values = summary.pop('_constraint_values', None)
         if values is None and summary.get('status') == 'ok':

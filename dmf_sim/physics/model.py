@@ -26,15 +26,11 @@ from functools import cached_property
 
 import numpy as np
 
+from dmf_sim.core.bounds import BOUNDS
 from dmf_sim.core.errors import ConfigError
 from dmf_sim.core.paths import read_yaml_mapping
-from dmf_sim.core.validation import as_number, check_keys, field_error, number
-from dmf_sim.physics.spring import (
-    STAGE_ANGLE_MAX_RAD,
-    STIFFNESS_FACTOR_MAX,
-    PiecewiseLinearSpring,
-    Stage,
-)
+from dmf_sim.core.validation import as_number, bounded, check_keys, field_error
+from dmf_sim.physics.spring import PiecewiseLinearSpring, Stage
 
 __all__ = ['ELEMENT_KEYS', 'TOP_KEYS_REQUIRED', 'TOP_KEYS_OPTIONAL', 'DMF_KEYS_REQUIRED',
            'DMF_KEYS_OPTIONAL', 'COAST_KEYS', 'STAGE_KEYS', 'STAGE_ANGLE_KEYS', 'RIGID_WORDS',
@@ -155,9 +151,7 @@ class Driveline:
         s = self.index(self.dmf.element)
         el = els[s]
         if k is not None or damping is not None:
-            d = el.damping if damping is None else float(damping)
-            if not (math.isfinite(d) and d >= 0):
-                raise ConfigError(f'dmf: damping must be finite and >= 0 Nms/rad, got {damping!r}')
+            d = el.damping if damping is None else bounded(damping, 'dmf', 'damping', 'damping')
             els[s] = replace(el, stiffness=spring.k, damping=d)
         dmf = replace(self.dmf, stages=spring.drive, coast_stages=spring.coast)
         line = replace(self, elements=tuple(els), dmf=dmf)
@@ -173,16 +167,22 @@ class Driveline:
 # YAML loading and validation
 # --------------------------------------------------------------------------------------------
 
-def _num(value, where: str, field_name: str, allow_rigid: bool = False) -> float:
-    """A finite number (or, with ``allow_rigid``, 'rigid' = inf) through the one validation."""
-    if allow_rigid:
-        if isinstance(value, str) and value.strip().lower() in RIGID_WORDS:
-            return math.inf
-        if isinstance(value, (int, float)) and not isinstance(value, bool) and value == math.inf:
-            return math.inf
-        if not isinstance(as_number(value), (int, float)) or isinstance(value, bool):
-            raise field_error(where, field_name, "must be a number or 'rigid'", value)
-    return number(value, where, field_name)
+def _num(value, where: str, field_name: str, quantity: str, allow_rigid: bool = False) -> float:
+    """A finite number within the bound of its physical ``quantity`` (the one table,
+    :data:`dmf_sim.core.bounds.BOUNDS`), or with ``allow_rigid`` also 'rigid' = inf."""
+    if not allow_rigid:
+        return bounded(value, where, field_name, quantity)
+    if isinstance(value, str) and value.strip().lower() in RIGID_WORDS:
+        return math.inf
+    if isinstance(value, (int, float)) and not isinstance(value, bool) and value == math.inf:
+        return math.inf
+    if not isinstance(as_number(value), (int, float)) or isinstance(value, bool):
+        raise field_error(where, field_name, "must be a number or 'rigid'", value)
+    try:
+        return bounded(value, where, field_name, quantity)
+    except ConfigError:
+        raise field_error(where, field_name, f"must be {BOUNDS[quantity].text()} or 'rigid'",
+                          float(as_number(value))) from None
 
 
 def _check_keys(data: dict, required, optional, where: str) -> None:
@@ -195,20 +195,10 @@ def _parse_element(raw, pos: int) -> Element:
         where = f'element {pos + 1} ({raw["name"]})'
     _check_keys(raw, ELEMENT_KEYS, (), where)
     name = str(raw['name'])
-    ratio = _num(raw['ratio'], where, 'ratio')
-    if ratio == 0:
-        raise ConfigError(f'{where}: field \'ratio\' must be non-zero '
-                          '(allowed: any finite number != 0)')
-    stiffness = _num(raw['stiffness'], where, 'stiffness', allow_rigid=True)
-    if stiffness < 0:
-        raise ConfigError(f'{where}: field \'stiffness\' must be >= 0 Nm/rad or \'rigid\', '
-                          f'got {stiffness}')
-    damping = _num(raw['damping'], where, 'damping')
-    if damping < 0:
-        raise ConfigError(f'{where}: field \'damping\' must be >= 0 Nms/rad, got {damping}')
-    inertia = _num(raw['inertia'], where, 'inertia')
-    if inertia <= 0:
-        raise ConfigError(f'{where}: field \'inertia\' must be > 0 kg m^2, got {inertia}')
+    ratio = _num(raw['ratio'], where, 'ratio', 'ratio')
+    stiffness = _num(raw['stiffness'], where, 'stiffness', 'stiffness', allow_rigid=True)
+    damping = _num(raw['damping'], where, 'damping', 'damping')
+    inertia = _num(raw['inertia'], where, 'inertia', 'inertia')
     if math.isinf(stiffness) and damping != 0:
         raise ConfigError(f'{where}: field \'damping\' must be 0 on a rigid connection, '
                           f'got {damping}')
@@ -234,17 +224,16 @@ def _parse_stages(raw, where: str) -> tuple[Stage, ...]:
         if len(angles) != 1:
             raise ConfigError(f'{w}: give the stage angle [rad] once, '
                               'as \'angle_rad\' (or \'angle\')')
-        out.append(Stage(_num(item[angles[0]], w, angles[0]),
-                         _num(item['stiffness_factor'], w, 'stiffness_factor')))
+        out.append(Stage(_num(item[angles[0]], w, angles[0], 'windup_angle'),
+                         _num(item['stiffness_factor'], w, 'stiffness_factor',
+                              'stiffness_factor')))
     return tuple(out)
 
 
 def _shorthand_stage(raw: dict, where: str) -> Stage:
     """The paper's (theta_rad, alpha) as one stage, with errors naming those fields."""
-    theta = number(raw['theta_rad'], where, 'theta_rad', 0.0, STAGE_ANGLE_MAX_RAD, lo_open=True,
-                   unit='rad')
-    alpha = number(raw['alpha'], where, 'alpha', 0.0, STIFFNESS_FACTOR_MAX)
-    return Stage(theta, alpha)
+    return Stage(bounded(raw['theta_rad'], where, 'theta_rad', 'windup_angle'),
+                 bounded(raw['alpha'], where, 'alpha', 'stiffness_factor'))
 
 
 def _parse_dmf(raw, names: list[str]) -> DMFSpec:
@@ -313,8 +302,8 @@ def driveline_from_dict(data: dict, source: str = 'driveline') -> Driveline:
                           '(it connects to ground)')
 
     cylinders = tuple(str(c) for c in data.get('cylinders') or ())
-    phases = tuple(_num(p, source, 'firing_phases_deg')
-                   for p in data.get('firing_phases_deg') or ())
+    phases = tuple(_num(p, source, f'firing_phases_deg[{i}]', 'firing_phase')
+                   for i, p in enumerate(data.get('firing_phases_deg') or ()))
     if len(cylinders) != len(phases):
         raise ConfigError(f'{source}: field \'firing_phases_deg\' needs one phase per cylinder '
                           f'({len(cylinders)} cylinders, {len(phases)} phases)')
@@ -332,7 +321,7 @@ def driveline_from_dict(data: dict, source: str = 'driveline') -> Driveline:
     if raw_dmf is not None:
         dmf = _parse_dmf(raw_dmf, names)
         if 'stiffness' in raw_dmf:
-            k = _num(raw_dmf['stiffness'], 'dmf', 'stiffness')
+            k = _num(raw_dmf['stiffness'], 'dmf', 'stiffness', 'stiffness')
             el = elements[names.index(dmf.element)]
             if k != el.stiffness:
                 raise ConfigError(f'dmf: field \'stiffness\' = {k:g} Nm/rad differs from the '

@@ -39,16 +39,20 @@ from functools import cached_property
 
 import numpy as np
 
+from dmf_sim.core.bounds import BOUNDS
 from dmf_sim.core.errors import ConfigError
+from dmf_sim.core.validation import bounded
 
 __all__ = ['Stage', 'PiecewiseLinearSpring', 'STIFFNESS_FACTOR_MAX', 'STAGE_ANGLE_MAX_RAD']
 
-STIFFNESS_FACTOR_MAX = 50.0
+STIFFNESS_FACTOR_MAX = BOUNDS['stiffness_factor'].hi
 """Largest stage stiffness factor [-]: a stage stiffer than 51 k is an end stop, which a
-piecewise-linear arc-spring model does not describe (and the Newmark step cannot resolve)."""
+piecewise-linear arc-spring model does not describe (and the Newmark step cannot resolve); from
+the table of bounds, :data:`dmf_sim.core.bounds.BOUNDS`."""
 
-STAGE_ANGLE_MAX_RAD = 2.0
-"""Largest stage angle [rad] (115 deg: beyond any arc-spring travel of a DMF)."""
+STAGE_ANGLE_MAX_RAD = BOUNDS['windup_angle'].hi
+"""Largest stage angle [rad] (115 deg: beyond any arc-spring travel of a DMF; the table of
+bounds)."""
 
 
 @dataclass(frozen=True)
@@ -88,10 +92,7 @@ class PiecewiseLinearSpring:
     """
 
     def __init__(self, k: float, drive=(), coast=()) -> None:
-        k = float(k)
-        if not (math.isfinite(k) and k > 0):
-            raise ConfigError(f'dmf: primary stiffness k must be finite and > 0 Nm/rad, got {k!r}')
-        self.k = k
+        self.k = bounded(k, 'dmf', 'k', 'stiffness', positive=True)
         self.drive = _check_stages(drive, 'dmf.stages')
         self.coast = _check_stages(coast, 'dmf.coast_stages')
         nc = len(self.coast)

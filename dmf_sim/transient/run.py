@@ -41,6 +41,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from dmf_sim.core.errors import ConfigError, OperatingRangeError, one_line
+from dmf_sim.core.names import check_namespace
 from dmf_sim.live.health import SimulationHealth
 from dmf_sim.live.pacing import TimeBase, publish_stride
 from dmf_sim.live.parameters import PARAMETERS
@@ -102,6 +103,9 @@ class RunOptions:
     write: bool = True
     namespace: str = ''
     threads: int = field(default_factory=default_threads)
+
+    def __post_init__(self) -> None:
+        self.namespace = check_namespace(self.namespace, 'namespace')
 
 
 @dataclass

@@ -20,6 +20,7 @@ from dmf_sim.core.paths import config_file, read_yaml_mapping
 from dmf_sim.core.units import CYCLE_RAD
 from dmf_sim.core.validation import (
     Table1D,
+    bounded,
     check_keys,
     field_error,
     integer,
@@ -41,8 +42,6 @@ MODEL_KEYS = ('full_load_curve', 'gas_exchange', 'combustion', 'samples_per_cycl
 
 BASE_DEPTH_MAX = 8
 """Longest chain of ``base:`` references followed."""
-
-_SPEED_RANGE_RPM = (0.0, 10000.0)
 
 
 @dataclass(frozen=True)
@@ -231,12 +230,11 @@ def engine_config(doc: Mapping[str, Any], path: str | Path, *,
     if not isinstance(d['name'], str) or not d['name']:
         raise field_error(where, 'name', 'must be a non-empty string')
     n_cyl = integer(d['n_cylinders'], where, 'n_cylinders', 1, 24)
-    phases = number_list(d['firing_phases_deg'], where, 'firing_phases_deg', 0.0, 720.0)
+    phases = number_list(d['firing_phases_deg'], where, 'firing_phases_deg',
+                         quantity='firing_phase')
     if len(phases) != n_cyl:
         raise field_error(where, 'firing_phases_deg',
                           f'must have n_cylinders = {n_cyl} entries in [0, 720)')
-    if np.any(phases >= 720.0):
-        raise field_error(where, 'firing_phases_deg', 'entries must be in [0, 720)')
     n_max = integer(d['n_max'], where, 'n_max', *N_MAX_RANGE)
     cfg: dict[str, Any] = dict(
         path=path, name=d['name'], n_cylinders=n_cyl, firing_phases_deg=phases, n_max=n_max,
@@ -258,13 +256,13 @@ def _geometry(g: Any, where: str) -> Geometry:
                    ['bore_m', 'stroke_m', 'conrod_m', 'compression_ratio', 'oscillating_mass_kg'])
     f = 'geometry.'
     geometry = Geometry(
-        bore_m=number(g['bore_m'], where, f + 'bore_m', 0.0, 2.0, lo_open=True),
-        stroke_m=number(g['stroke_m'], where, f + 'stroke_m', 0.0, 3.0, lo_open=True),
-        conrod_m=number(g['conrod_m'], where, f + 'conrod_m', 0.0, 10.0, lo_open=True),
-        compression_ratio=number(g['compression_ratio'], where, f + 'compression_ratio',
-                                 1.0, 40.0, lo_open=True),
-        oscillating_mass_kg=number(g['oscillating_mass_kg'], where, f + 'oscillating_mass_kg',
-                                   0.0, 5000.0),
+        bore_m=bounded(g['bore_m'], where, f + 'bore_m', 'bore'),
+        stroke_m=bounded(g['stroke_m'], where, f + 'stroke_m', 'stroke'),
+        conrod_m=bounded(g['conrod_m'], where, f + 'conrod_m', 'conrod'),
+        compression_ratio=bounded(g['compression_ratio'], where, f + 'compression_ratio',
+                                  'compression_ratio'),
+        oscillating_mass_kg=bounded(g['oscillating_mass_kg'], where, f + 'oscillating_mass_kg',
+                                    'oscillating_mass'),
     )
     if geometry.conrod_m <= geometry.crank_radius_m:
         raise field_error(where, f + 'conrod_m', 'must exceed the crank radius stroke_m/2 = '
@@ -274,7 +272,7 @@ def _geometry(g: Any, where: str) -> Geometry:
 
 def _load_sets(ls: Any, where: str) -> dict[str, Any]:
     ls = check_keys(ls, where, 'load_sets', ['limit_rpm', 'shift_rpm'])
-    limit = number(ls['limit_rpm'], where, 'load_sets.limit_rpm', 0.0, 10000.0, lo_open=True)
+    limit = bounded(ls['limit_rpm'], where, 'load_sets.limit_rpm', 'engine_speed', positive=True)
     shifts_raw = ls['shift_rpm']
     if not isinstance(shifts_raw, Mapping) or 'A' not in shifts_raw:
         raise field_error(where, 'load_sets.shift_rpm',
@@ -289,7 +287,7 @@ def _load_sets(ls: Any, where: str) -> dict[str, Any]:
 
 def _model_sections(d: Mapping[str, Any], where: str, n_max: int) -> dict[str, Any]:
     curve = table_1d(d['full_load_curve'], where, 'full_load_curve', 'speeds_rpm', 'torque_nm',
-                     _SPEED_RANGE_RPM, (0.0, 1.0e6))
+                     'engine_speed', 'torque')
     samples = integer(d['samples_per_cycle'], where, 'samples_per_cycle', 720, 100000)
     if samples % 2 or samples <= 4 * (n_max + 1):
         raise field_error(where, 'samples_per_cycle',
@@ -306,21 +304,23 @@ def _gas_exchange(ge: Any, where: str) -> GasExchange:
                      'exhaust_backpressure_full_load_pa'])
     f = 'gas_exchange.'
 
-    def pa(key: str, lo: float, hi: float) -> float:
-        return number(ge[key], where, f + key, lo, hi)
+    def num(key: str, quantity: str) -> float:
+        return bounded(ge[key], where, f + key, quantity)
 
     gas = GasExchange(
-        ambient_pa=pa('ambient_pa', 1.0e4, 2.0e5),
-        crankcase_pa=pa('crankcase_pa', 1.0e4, 2.0e5),
-        ivc_deg=number(ge['ivc_deg'], where, f + 'ivc_deg', -240.0, -90.0),
-        evo_deg=number(ge['evo_deg'], where, f + 'evo_deg', 90.0, 200.0),
-        blowdown_deg=number(ge['blowdown_deg'], where, f + 'blowdown_deg', 1.0, 120.0),
-        overlap_deg=number(ge['overlap_deg'], where, f + 'overlap_deg', 1.0, 120.0),
+        ambient_pa=num('ambient_pa', 'ambient_pressure'),
+        crankcase_pa=num('crankcase_pa', 'ambient_pressure'),
+        ivc_deg=num('ivc_deg', 'ivc_angle'),
+        evo_deg=num('evo_deg', 'evo_angle'),
+        blowdown_deg=num('blowdown_deg', 'blowdown_duration'),
+        overlap_deg=num('overlap_deg', 'valve_overlap'),
         boost_gauge_full_load=table_1d(ge['boost_gauge_full_load'], where,
                                        f + 'boost_gauge_full_load', 'speeds_rpm', 'pressure_pa',
-                                       _SPEED_RANGE_RPM, (0.0, 1.0e6)),
-        exhaust_backpressure_zero_load_pa=pa('exhaust_backpressure_zero_load_pa', 0.0, 5.0e5),
-        exhaust_backpressure_full_load_pa=pa('exhaust_backpressure_full_load_pa', 0.0, 5.0e5),
+                                       'engine_speed', 'boost_pressure'),
+        exhaust_backpressure_zero_load_pa=num('exhaust_backpressure_zero_load_pa',
+                                              'exhaust_backpressure'),
+        exhaust_backpressure_full_load_pa=num('exhaust_backpressure_full_load_pa',
+                                              'exhaust_backpressure'),
     )
     if gas.evo_deg + gas.blowdown_deg > 360.0 - 0.5 * gas.overlap_deg:
         raise field_error(where, f + 'blowdown_deg', 'evo_deg + blowdown_deg must not exceed '
@@ -338,24 +338,24 @@ def _combustion(cb: Any, where: str) -> Combustion:
                      'diffusion_shape'])
     f = 'combustion.'
 
-    def num(key: str, lo: float, hi: float, **kw) -> float:
-        return number(cb[key], where, f + key, lo, hi, **kw)
+    def num(key: str, quantity: str) -> float:
+        return bounded(cb[key], where, f + key, quantity)
 
     return Combustion(
-        polytropic_exponent=num('polytropic_exponent', 1.0, 1.67, lo_open=True),
-        wiebe_a=num('wiebe_a', 0.0, 20.0, lo_open=True),
+        polytropic_exponent=num('polytropic_exponent', 'polytropic_exponent'),
+        wiebe_a=num('wiebe_a', 'wiebe_efficiency'),
         start_deg=table_1d(cb['start_deg'], where, f + 'start_deg', 'speeds_rpm', 'angle_deg',
-                           _SPEED_RANGE_RPM, (-60.0, 30.0)),
-        premixed_fraction_zero_load=num('premixed_fraction_zero_load', 0.0, 1.0),
-        premixed_fraction_full_load=num('premixed_fraction_full_load', 0.0, 1.0),
-        premixed_duration_deg=num('premixed_duration_deg', 0.0, 90.0, lo_open=True),
-        premixed_shape=num('premixed_shape', 0.0, 10.0),
+                           'engine_speed', 'combustion_start'),
+        premixed_fraction_zero_load=num('premixed_fraction_zero_load', 'fraction'),
+        premixed_fraction_full_load=num('premixed_fraction_full_load', 'fraction'),
+        premixed_duration_deg=num('premixed_duration_deg', 'premixed_duration'),
+        premixed_shape=num('premixed_shape', 'wiebe_shape'),
         diffusion_duration_full_load_deg=table_1d(
             cb['diffusion_duration_full_load_deg'], where, f + 'diffusion_duration_full_load_deg',
-            'speeds_rpm', 'duration_deg', _SPEED_RANGE_RPM, (1.0, 180.0)),
-        diffusion_duration_zero_load_factor=num('diffusion_duration_zero_load_factor', 0.0, 1.0,
-                                                lo_open=True),
-        diffusion_shape=num('diffusion_shape', 0.0, 10.0),
+            'speeds_rpm', 'duration_deg', 'engine_speed', 'diffusion_duration'),
+        diffusion_duration_zero_load_factor=num('diffusion_duration_zero_load_factor',
+                                                'duration_factor'),
+        diffusion_shape=num('diffusion_shape', 'wiebe_shape'),
     )
 
 

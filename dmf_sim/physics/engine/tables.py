@@ -20,6 +20,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from dmf_sim.core.bounds import BOUNDS
 from dmf_sim.core.csv_out import write_csv
 from dmf_sim.core.errors import ConfigFileError
 from dmf_sim.core.paths import read_text
@@ -38,9 +39,10 @@ DEFAULT_ENGINE = 'engine_d13'
 TABLE_SPEED_RANGE_RPM = (100.0, 5000.0)
 """Speeds a table may hold [rpm]."""
 
-PEAK_PRESSURE_MAX_PA = 3.5e7
+PEAK_PRESSURE_MAX_PA = BOUNDS['cylinder_pressure'].hi
 """Highest cylinder pressure [Pa] a table's gas part may imply (350 bar: above the 250-300 bar
-peak firing pressures of current heavy-duty diesels). A table coefficient's gas part is bounded by
+peak firing pressures of current heavy-duty diesels; the table of bounds,
+:data:`dmf_sim.core.bounds.BOUNDS`). A table coefficient's gas part is bounded by
 twice the largest gas torque one cylinder can produce at that pressure (|A_n| <= 2 max |P_k|, n >
 0), :meth:`~dmf_sim.physics.engine.config.Geometry.max_gas_torque_nm`."""
 

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dmf_sim.core.errors import ConfigError, ConvergenceError, TimeLimitError
+from dmf_sim.core.kernel_cache import warm
 from dmf_sim.physics.loads import DrivelineLoads
 from dmf_sim.physics.orders import synthesize
 from dmf_sim.solvers.hbm.branches import BranchSwitching
@@ -17,6 +18,7 @@ from dmf_sim.solvers.hbm.layout import to_complex
 from dmf_sim.solvers.hbm.point import HBMOptions, HBMPoint
 from dmf_sim.solvers.hbm.results import Branch, SweepEvent, SweepResult
 from dmf_sim.solvers.hbm.search import SearchOptions, StateSearch
+from dmf_sim.solvers.hbm.warm import SWEEP
 from dmf_sim.solvers.stability import by_modulus
 
 __all__ = ['TIME_LIMIT_RANGE_S', 'check_time_limit', 'SweepOptions', 'SpeedSweep', 'sweep']
@@ -278,6 +280,8 @@ class SpeedSweep(BranchSwitching, StateSearch):
     # ---- the sweep ------------------------------------------------------------------------------
     def run(self, speed_range: tuple[float, float], progress=False,
             start_x: np.ndarray | None = None, desc: str = 'HBM sweep') -> SweepResult:
+        if progress:      # compiled first if needed (with a notice): the bar's rate without it
+            warm((SWEEP,), prefix='dmf_sim')
         t0 = time.perf_counter()
         lo, hi = float(speed_range[0]), float(speed_range[1])
         if not hi > lo:

@@ -1,6 +1,7 @@
 """Loading (or, the first time on a machine, compiling) every compiled kernel of a sweep in one
 call, so that no later first call pays for it: a design-study worker does this when it starts
-(the study's worker plugin), ``bench_hbm`` before it times anything.
+(the study's worker plugin), ``bench_hbm`` before it times anything; :data:`SWEEP` is the group
+``dmf-sim warm-up`` and the sweeping commands load (:mod:`dmf_sim.core.kernel_cache`).
 """
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ import time
 
 import numpy as np
 
+from dmf_sim.core.kernel_cache import KernelGroup
 from dmf_sim.physics.spring import PiecewiseLinearSpring
 from dmf_sim.solvers import stability_kernel
 from dmf_sim.solvers.hbm.continuation_kernels import (
@@ -31,7 +33,7 @@ from dmf_sim.solvers.hbm.layout import to_real
 from dmf_sim.solvers.hbm.linear_kernels import linear_parts, linear_parts_many_at, modal_sums
 from dmf_sim.solvers.lapack_kernel import eigenvalues_into
 
-__all__ = ['warm_up']
+__all__ = ['warm_up', 'kernels', 'SWEEP', 'SWEEP_COMPILE_S']
 
 
 def warm_up() -> float:
@@ -122,3 +124,20 @@ def warm_up() -> float:
     eigenvalues_into(np.eye(ns), np.empty(ns), np.empty(ns))
     return time.perf_counter() - t0
 
+
+
+def kernels() -> tuple:
+    """The entry points :func:`warm_up` loads (numba dispatchers)."""
+    return (residual_jacobian_py, residual_jacobians_py, harmonics_py, newton, deflated_newton,
+            deflated_newton_first, corrector_fixed_speed, tangent, step_fixed_speed, modal_sums,
+            linear_parts, residual_jacobians_at, linear_parts_many_at, corrector_arclength,
+            grid_run, stability_kernel.floquet, stability_kernel.floquet_many, eigenvalues_into)
+
+
+SWEEP_COMPILE_S = 40.0
+"""Seconds :func:`warm_up` took to compile on the 2-core reference machine (the field report's
+first sweep: 35 s of 40 compiling)."""
+
+SWEEP = KernelGroup('sweep', 'harmonic balance, continuation, Floquet stability (sweep, steady, '
+                    'runup, paper, design, optimize, the monitor\'s prediction)', warm_up,
+                    kernels, SWEEP_COMPILE_S)

@@ -1,0 +1,62 @@
+"""Every compiled kernel of the package, in groups (:mod:`dmf_sim.core.kernel_cache`): what
+``dmf-sim warm-up`` compiles into numba's cache once per machine, and what a command loads before
+its work starts.
+
+* :data:`TIME_INTEGRATION`: the Newmark step and the torque read-out, as the node and ``dmf-sim
+  run`` call them (through :class:`~dmf_sim.live.simulation.LiveSimulation`);
+* :data:`~dmf_sim.solvers.hbm.warm.SWEEP`: harmonic balance, continuation and Floquet stability;
+* :data:`~dmf_sim.bags.warm.BAG_READING`: the MCAP record scanner.
+"""
+from __future__ import annotations
+
+from dmf_sim.bags.warm import BAG_READING
+from dmf_sim.core.kernel_cache import KernelGroup, warm
+from dmf_sim.solvers.hbm.warm import SWEEP
+
+__all__ = ['TIME_INTEGRATION', 'TIME_INTEGRATION_COMPILE_S', 'GROUPS', 'group', 'load']
+
+TIME_INTEGRATION_COMPILE_S = 15.0
+"""Seconds the group took to compile on the 2-core reference machine."""
+
+_CHUNK_STEPS = 25           # a chunk of a few samples: every code path of a real chunk
+
+
+def _load() -> None:
+    """The live core on the shipped truck: the kernels load when it is built; one chunk through
+    :meth:`~LiveSimulation.advance` and one through integrate / read_out with a caller's buffers,
+    as ``dmf-sim run`` does."""
+    import numpy as np
+
+    from dmf_sim.live.simulation import LiveSimulation
+    from dmf_sim.solvers.newmark import StepRecord
+    sim = LiveSimulation.from_config()
+    sim.advance(_CHUNK_STEPS)
+    record = StepRecord.allocate(_CHUNK_STEPS, sim.model.n_dof)
+    sim.read_out(sim.integrate(_CHUNK_STEPS, record),
+                 np.zeros((_CHUNK_STEPS, 3 * sim.model.n_elements)))
+
+
+def _kernels() -> tuple:
+    from dmf_sim.live.torques import sparse_outputs
+    from dmf_sim.solvers import newmark_kernel
+    return (newmark_kernel.factor, newmark_kernel.advance_compiled, sparse_outputs)
+
+
+TIME_INTEGRATION = KernelGroup('time integration', 'the Newmark step and the torque read-out '
+                               '(the node, run, steady, runup, the optimizer\'s verification)',
+                               _load, _kernels, TIME_INTEGRATION_COMPILE_S)
+
+GROUPS = (SWEEP, TIME_INTEGRATION, BAG_READING)
+"""Every group: together, every compiled kernel of the package."""
+
+
+def group(name: str) -> KernelGroup:
+    """The group called ``name``."""
+    return next(g for g in GROUPS if g.name == name)
+
+
+def load(command: str, *names: str) -> None:
+    """Load the named groups before ``command``'s work (and its progress bar) starts: one line
+    ``dmf-sim COMMAND: compiling the numerical kernels once (...)`` on stderr when they must be
+    compiled first (:func:`dmf_sim.core.kernel_cache.warm`)."""
+    warm([group(n) for n in names], prefix=f'dmf-sim {command}')
