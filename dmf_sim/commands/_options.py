@@ -5,13 +5,17 @@
 command adds them with the ``add_*`` functions and calls :func:`check_common` first thing in its
 ``run``; a value out of range is a one-line :class:`~dmf_sim.core.errors.ConfigError` naming the
 option and the allowed range.
+
+Every command that writes files adds ``--overwrite`` with :func:`add_overwrite` and checks its
+output path with :func:`output` before computing (the one rule of
+:mod:`dmf_sim.core.destinations`).
 """
 from __future__ import annotations
 
 import math
 
+from dmf_sim.core.destinations import Destination, claim
 from dmf_sim.core.errors import ConfigError
-from dmf_sim.core.paths import check_output_dir
 from dmf_sim.physics.engine import DEFAULT_ENGINE, LOAD_SETS
 from dmf_sim.physics.spring import STAGE_ANGLE_MAX_RAD, STIFFNESS_FACTOR_MAX
 
@@ -19,7 +23,8 @@ __all__ = ['ALPHA_RANGE', 'THETA_RANGE_RAD', 'LOAD_RANGE', 'LOAD_SETS', 'HARMONI
            'MAX_GRID_POINTS', 'MIN_STEP_RPM', 'DEFAULT_CONFIG', 'DEFAULT_ENGINE', 'add_config',
            'add_engine', 'add_alpha', 'add_theta', 'add_load_set', 'add_load', 'add_speeds',
            'add_harmonics', 'check_common', 'check_grid', 'check_harmonics', 'check_dmf_options',
-           'add_cluster', 'check_cluster', 'DEFAULT_CONNECT_TIMEOUT_S']
+           'add_cluster', 'check_cluster', 'DEFAULT_CONNECT_TIMEOUT_S', 'OVERWRITE_HELP',
+           'add_overwrite', 'output', 'resumable_output']
 
 ALPHA_RANGE = (0.0, STIFFNESS_FACTOR_MAX)    # secondary stiffness factor (the spring's bound)
 THETA_RANGE_RAD = (0.0, STAGE_ANGLE_MAX_RAD)  # knee angle [rad], lower bound excluded
@@ -129,8 +134,8 @@ def _as_list(value) -> list:
 
 def check_common(args) -> None:
     """Check every shared option ``args`` has (``--alpha``, ``--theta``, ``--load``,
-    ``--load-set``, ``--speeds``, ``--harmonics``, an output directory ``--out``): one-line
-    errors with the allowed range."""
+    ``--load-set``, ``--speeds``, ``--harmonics``): one-line errors with the allowed range. The
+    output path is checked by :func:`output`."""
     alphas = _as_list(getattr(args, 'alpha', None))
     check_dmf_options(alphas, getattr(args, 'theta', None))
     load = getattr(args, 'load', None)
@@ -145,9 +150,33 @@ def check_common(args) -> None:
     h = getattr(args, 'harmonics', None)
     if h is not None:
         check_harmonics(h)
-    out = getattr(args, 'out', None)
-    if out is not None:
-        check_output_dir(out)         # before any computation, not after it
+
+
+OVERWRITE_HELP = ("replace the output an earlier run of this command left at the output path "
+                  "(only the files it wrote there; anything else there is refused). Without it "
+                  "the output path must be new or an empty directory")
+
+
+def add_overwrite(p) -> None:
+    """``--overwrite``: the same option and help in every command that writes files."""
+    p.add_argument('--overwrite', action='store_true', help=OVERWRITE_HELP)
+
+
+def output(args, command: str, path=None, *, option: str = '--out', kind: str = 'dir',
+           resume: bool = False, resume_option: str | None = None, owned=None) -> Destination:
+    """The output path of ``command`` (``path``, default ``args.out``) checked under the one
+    rule of :mod:`dmf_sim.core.destinations`, before anything is computed."""
+    return claim(args.out if path is None else path, command, option=option,
+                 overwrite=args.overwrite, kind=kind, resume=resume,
+                 resume_option=resume_option, owned=owned)
+
+
+def resumable_output(args, command: str) -> Destination:
+    """``--out`` of a command that continues its earlier output there with ``--resume``."""
+    if args.resume and args.overwrite:
+        raise ConfigError('--resume continues the output in --out and --overwrite replaces it: '
+                          'give one of them')
+    return output(args, command, resume=args.resume, resume_option='--resume')
 
 
 def add_cluster(p) -> None:

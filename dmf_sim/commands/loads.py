@@ -45,10 +45,12 @@ def add_arguments(p) -> None:
     p.add_argument('--out', type=Path,
                    help='directory for loads.csv, loads.json, loads.png (mean torque, orders) and '
                         'fig8.png (mean torque, torque before the flywheel)')
+    opt.add_overwrite(p)
 
 
 def run(args) -> int:
     opt.check_common(args)
+    dest = opt.output(args, NAME) if args.out is not None else None
     lo, hi, step = args.speeds
     engines = {s: load_engine(args.engine, load_set=s) for s in dict.fromkeys(args.load_set)}
     first = engines[args.load_set[0]]
@@ -66,13 +68,14 @@ def run(args) -> int:
             'mean_torque_nm': mean,
             'orders_at_speed': {'speed_rpm': args.speed, 'load_set': args.load_set[0],
                                 'orders': orders}}
-    if args.out:
+    if dest is not None:
         psi, tq = torque_before_flywheel(first, args.torque_speeds, args.load)
         data['torque_before_flywheel'] = {
             'driveline': FIG8_DRIVELINE, 'element': FIG8_ELEMENT, 'load_set': args.load_set[0],
             'crank_angle_deg': psi.tolist(),
             'torque_nm': {f'{s:g}': v.tolist() for s, v in tq.items()}}
-        _write(args.out, data, speeds, mean, orders, args, psi, tq)
+        with dest.writing() as out:
+            _write(out, data, speeds, mean, orders, args, psi, tq)
     if args.json:
         print(json.dumps(data))
     else:
@@ -89,7 +92,6 @@ def run(args) -> int:
 
 def _write(out: Path, data: dict, speeds, mean, orders, args, psi, tq) -> None:
     from dmf_sim.figures import fig8, mean_torque_panel, order_bars_panel, save, two_panel_figure
-    out.mkdir(parents=True, exist_ok=True)
     (out / 'loads.json').write_text(json.dumps(data, indent=2))
     write_csv(out / 'loads.csv', ['speed_rpm', *[f'mean_torque_{s}_nm' for s in mean]],
               ([v, *[mean[s][i] for s in mean]] for i, v in enumerate(speeds)))

@@ -24,8 +24,8 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from dmf_sim.core.csv_out import write_csv
+from dmf_sim.core.destinations import check_output_dir
 from dmf_sim.core.errors import ConfigError
-from dmf_sim.core.paths import check_output_dir
 from dmf_sim.design.metrics import WORST
 
 __all__ = ['STUDY_FILE', 'LOCK_FILE', 'PARTS', 'RESULTS', 'schema', 'to_table', 'sort_rows',

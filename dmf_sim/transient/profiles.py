@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dmf_sim.core.errors import ConfigError, OperatingRangeError
+from dmf_sim.core.errors import ConfigError, ConfigFileError, OperatingRangeError
 from dmf_sim.core.paths import config_dir, config_file, parse_yaml, read_text
 from dmf_sim.core.validation import check_keys, field_error, number
 
@@ -223,7 +223,11 @@ def load_profile(spec: str | os.PathLike) -> Profile:
     if text.startswith(RAMP_PREFIX):
         return _parse_ramp_spec(text)
     path = Path(text)
-    if path.parent == Path('.') and path.suffix == '' and not path.exists():
+    try:
+        bare_name = path.parent == Path('.') and path.suffix == '' and not path.exists()
+    except OSError as exc:              # e.g. a name longer than the file system allows
+        raise ConfigFileError(f'profile {text}: cannot be read ({exc.strerror or exc})') from None
+    if bare_name:
         packaged = config_dir() / PROFILE_DIR / f'{text}.yaml'
         if packaged.is_file():
             return _read_yaml(packaged)
