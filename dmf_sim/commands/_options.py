@@ -16,6 +16,7 @@ import math
 
 from dmf_sim.core.destinations import Destination, claim
 from dmf_sim.core.errors import ConfigError
+from dmf_sim.core.limits import MAX_WAIT_S, MAX_WORKERS_PER_CPU, max_local_workers
 from dmf_sim.physics.engine import DEFAULT_ENGINE, LOAD_SETS
 from dmf_sim.physics.spring import STAGE_ANGLE_MAX_RAD, STIFFNESS_FACTOR_MAX
 
@@ -24,7 +25,7 @@ __all__ = ['ALPHA_RANGE', 'THETA_RANGE_RAD', 'LOAD_RANGE', 'LOAD_SETS', 'HARMONI
            'add_engine', 'add_alpha', 'add_theta', 'add_load_set', 'add_load', 'add_speeds',
            'add_harmonics', 'check_common', 'check_grid', 'check_harmonics', 'check_dmf_options',
            'add_cluster', 'check_cluster', 'DEFAULT_CONNECT_TIMEOUT_S', 'OVERWRITE_HELP',
-           'add_overwrite', 'output', 'resumable_output']
+           'add_overwrite', 'output', 'resumable_output', 'check_wait']
 
 ALPHA_RANGE = (0.0, STIFFNESS_FACTOR_MAX)    # secondary stiffness factor (the spring's bound)
 THETA_RANGE_RAD = (0.0, STAGE_ANGLE_MAX_RAD)  # knee angle [rad], lower bound excluded
@@ -179,24 +180,34 @@ def resumable_output(args, command: str) -> Destination:
     return output(args, command, resume=args.resume, resume_option='--resume')
 
 
+def check_wait(seconds: float, option: str = '--timeout') -> float:
+    """A wait for something to answer: > 0 and at most :data:`MAX_WAIT_S`."""
+    if not (math.isfinite(seconds) and 0 < seconds <= MAX_WAIT_S):
+        raise ConfigError(f'{option} must be a finite number > 0 s and at most {MAX_WAIT_S:g} s, '
+                          f'got {seconds!r}')
+    return float(seconds)
+
+
 def add_cluster(p) -> None:
     """``--scheduler``, ``--workers``, ``--connect-timeout``: where a Dask command runs."""
     p.add_argument('--scheduler', metavar='ADDRESS',
                    help='use an existing Dask cluster, e.g. tcp://HOST:8786 (default: a local '
                         'cluster on this machine)')
     p.add_argument('--workers', type=int,
-                   help='worker processes of the local cluster (default: one per core)')
+                   help='worker processes of the local cluster (default: one per core; at most '
+                        f'{MAX_WORKERS_PER_CPU} per core)')
     p.add_argument('--connect-timeout', type=float, default=DEFAULT_CONNECT_TIMEOUT_S,
                    help=f'seconds to wait for --scheduler to answer (default '
-                        f'{DEFAULT_CONNECT_TIMEOUT_S:g})')
+                        f'{DEFAULT_CONNECT_TIMEOUT_S:g}, at most {MAX_WAIT_S:g})')
 
 
 def check_cluster(args) -> None:
     """One-line errors for the options of :func:`add_cluster`."""
-    if args.workers is not None and args.workers < 1:
-        raise ConfigError(f'--workers {args.workers}: must be >= 1')
+    limit = max_local_workers()
+    if args.workers is not None and not 1 <= args.workers <= limit:
+        raise ConfigError(f'--workers {args.workers}: allowed 1..{limit} on this machine '
+                          f'({MAX_WORKERS_PER_CPU} per usable CPU)')
     if args.workers is not None and args.scheduler:
         raise ConfigError('--workers sizes the local cluster; with --scheduler the cluster '
                           'brings its own workers (leave out one of them)')
-    if not args.connect_timeout > 0:
-        raise ConfigError(f'--connect-timeout {args.connect_timeout}: must be > 0 s')
+    check_wait(args.connect_timeout, '--connect-timeout')
