@@ -25,7 +25,7 @@ __all__ = ['ALPHA_RANGE', 'THETA_RANGE_RAD', 'LOAD_RANGE', 'LOAD_SETS', 'HARMONI
            'add_engine', 'add_alpha', 'add_theta', 'add_load_set', 'add_load', 'add_speeds',
            'add_harmonics', 'check_common', 'check_grid', 'check_harmonics', 'check_dmf_options',
            'add_cluster', 'check_cluster', 'DEFAULT_CONNECT_TIMEOUT_S', 'OVERWRITE_HELP',
-           'add_overwrite', 'output', 'resumable_output', 'check_wait']
+           'add_overwrite', 'output', 'resumable_output', 'check_names', 'check_wait']
 
 ALPHA_RANGE = (0.0, STIFFNESS_FACTOR_MAX)    # secondary stiffness factor (the spring's bound)
 THETA_RANGE_RAD = (0.0, STAGE_ANGLE_MAX_RAD)  # knee angle [rad], lower bound excluded
@@ -133,10 +133,20 @@ def _as_list(value) -> list:
     return list(value) if isinstance(value, (list, tuple)) else [value]
 
 
+def check_names(args) -> None:
+    """``--config`` and ``--engine`` given as an empty name: refused (not the default)."""
+    for option in ('config', 'engine'):
+        value = getattr(args, option, None)
+        if isinstance(value, str) and not value.strip():
+            raise ConfigError(f'--{option}: empty name (give a name in config/ or a path, or '
+                              'leave the option out for the default)')
+
+
 def check_common(args) -> None:
-    """Check every shared option ``args`` has (``--alpha``, ``--theta``, ``--load``,
-    ``--load-set``, ``--speeds``, ``--harmonics``): one-line errors with the allowed range. The
-    output path is checked by :func:`output`."""
+    """Check every shared option ``args`` has (``--config``, ``--engine``, ``--alpha``,
+    ``--theta``, ``--load``, ``--load-set``, ``--speeds``, ``--harmonics``): one-line errors
+    with the allowed range. The output path is checked by :func:`output`."""
+    check_names(args)
     alphas = _as_list(getattr(args, 'alpha', None))
     check_dmf_options(alphas, getattr(args, 'theta', None))
     load = getattr(args, 'load', None)

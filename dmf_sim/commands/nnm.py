@@ -83,6 +83,7 @@ def check_options(args, model) -> None:
 
 
 def run(args) -> int:
+    opt.check_names(args)
     opt.check_dmf_options([args.alpha], args.theta)
     dest = opt.output(args, NAME) if args.out is not None else None
     model = load_model(args.config, alpha=args.alpha, theta=args.theta)

@@ -41,6 +41,7 @@ def add_arguments(p) -> None:
 
 def run(args) -> int:
     from dmf_sim.physics.engine import load_engine
+    opt.check_names(args)
     dest = opt.output(args, NAME)
     load_engine(args.engine)                       # a bad engine file: one line before any work
     settings = (StudySettings.quick if args.quick else StudySettings)(engine=args.engine)

@@ -12,15 +12,17 @@ from dmf_sim.commands import _options as opt
 from dmf_sim.core.errors import ConfigError
 from dmf_sim.transient.defaults import DEFAULT_BIN_RPM, JUMP_WINDOW_CYCLES
 
-__all__ = ['NAME', 'HELP', 'add_arguments', 'run']
+__all__ = ['NAME', 'HELP', 'MAX_BAGS', 'add_arguments', 'run']
 
 NAME = 'runup'
 HELP = ('Run-up analysis: order tracks of run-up/run-down bags (e.g. from dmf-sim run '
         'ramp:...) over the HBM branches, jump speeds vs the sweep\'s fold/stability events')
+MAX_BAGS = 2                    # a run-up and a run-down
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument('bags', nargs='+', metavar='BAG', help='run-up and/or run-down bags')
+    p.add_argument('bags', nargs='+', metavar='BAG',
+                   help='a run-up bag, a run-down bag, or one of each')
     p.add_argument('--bin-rpm', type=float, default=DEFAULT_BIN_RPM,
                    help=f'speed bin for the quasi-static comparison [rpm] (default '
                         f'{DEFAULT_BIN_RPM:g})')
@@ -42,6 +44,9 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f'--bin-rpm must be within (0, 500] rpm, got {args.bin_rpm!r}')
     if not 2 <= args.window <= 200:
         raise ConfigError(f'--window must be within [2, 200] cycles, got {args.window!r}')
+    if len(args.bags) > MAX_BAGS:
+        raise ConfigError(f'BAG: {len(args.bags)} bags given; give a run-up bag, a run-down bag '
+                          'or one of each')
     bags = [resolve_bag(b) for b in args.bags]
     out = args.out
     if out is None and not args.json:
