@@ -151,6 +151,18 @@ def test_a_bag_larger_than_the_free_disk_space_is_refused_before_running(tmp_pat
     assert '1 MB free' in err and not out.exists()
 
 
+def test_a_refused_run_keeps_the_bag_it_would_replace(tmp_path, capsys, monkeypatch):
+    out = tmp_path / 'bag'
+    argv = ['run', 'ramp:1000:1100:500', '--out', str(out), '--no-progress']
+    assert cli_main(argv) == 0
+    before = {p.name: p.stat().st_size for p in out.iterdir()}
+    monkeypatch.setattr('dmf_sim.core.destinations.free_bytes', lambda path: 10**6)
+    assert cli_main([*argv, '--overwrite']) == 2
+    assert {p.name: p.stat().st_size for p in out.iterdir()} == before     # kept
+    err = capsys.readouterr().err
+    assert 'MB of the output it replaces' in err and err.count('\n') == 1
+
+
 def test_a_rate_giving_no_sample_is_refused(capsys):
     """`run --rate 1e-3` integrated the whole profile and wrote 0 samples, exit 0."""
     assert cli_main(['run', 'ramp:1000:1100:500', '--no-write', '--rate', '1e-3']) == 2
@@ -169,10 +181,6 @@ def test_the_bag_size_estimate_is_close(tmp_path):
 
 # ---- waits and workers -------------------------------------------------------------------------
 
-def _never(*args, **kwargs):
-    raise AssertionError('started before the options were checked')
-
-
 @pytest.mark.parametrize('argv, needles', [
     (['design', '{config}/study_example.yaml', '--out', '{tmp}', '--workers', '100000'],
      ('--workers 100000', 'per usable CPU')),
@@ -184,10 +192,9 @@ def _never(*args, **kwargs):
     (['setpoint', '--profile', 'ramp:800:900:10', '--timeout', '1e12'], ('--timeout',)),
     (['monitor', '--once', '--timeout', '1e12'], ('--timeout', 'at most 3600 s')),
 ])
-def test_waits_and_workers_are_bounded(argv, needles, tmp_path, capsys, monkeypatch):
-    for target in ('dmf_sim.commands._ros.ros_session', 'dmf_sim.design.runner.start_local',
-                   'dmf_sim.design.runner.run_study', 'dmf_sim.design.runner.connect'):
-        monkeypatch.setattr(target, _never)
+def test_waits_and_workers_are_bounded(argv, needles, tmp_path, capsys, forbid):
+    forbid('dmf_sim.commands._ros.ros_session', 'dmf_sim.design.runner.start_local',
+           'dmf_sim.design.runner.run_study', 'dmf_sim.design.runner.connect')
     from dmf_sim.core.paths import config_dir
     argv = [a.replace('{tmp}', str(tmp_path / 'out')).replace('{config}', str(config_dir()))
             for a in argv]

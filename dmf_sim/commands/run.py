@@ -7,7 +7,6 @@ PROFILE: a CSV (``time_s,speed_rpm,load``) or YAML file, a packaged profile
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import math
 import sys
@@ -78,9 +77,8 @@ def run(args: argparse.Namespace) -> int:
                      alpha=args.alpha, theta=args.theta, dt=args.dt, rate_hz=args.rate,
                      chunk_s=args.chunk, write=not args.no_write, namespace=args.namespace,
                      threads=default_threads() if args.threads is None else args.threads)
-    with dest.writing() if dest is not None else contextlib.nullcontext():
-        summary = run_profile(profile, None if args.no_write else args.out, opt,
-                              progress=not (args.no_progress or args.json))
+    summary = run_profile(profile, None if args.no_write else args.out, opt,
+                          progress=not (args.no_progress or args.json), destination=dest)
     if args.json:
         print(json.dumps(summary.as_dict()))
     else:

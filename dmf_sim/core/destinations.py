@@ -10,8 +10,9 @@ The rule (``doc/errors.md``, "Output paths"):
   there, and only that: every command leaves a small manifest (:data:`MANIFEST`, naming the
   command and its files) beside its output. A path holding a file the manifest does not list, or
   written by another command, or with no manifest, is refused even with ``--overwrite``, naming
-  one such file. The earlier files are removed just before the new ones are written, after the
-  computation, so a run that fails keeps the earlier output.
+  one such file. The earlier files are removed just before the new ones are written (after the
+  computation for most commands, so a run that fails keeps the earlier output; when the
+  computation starts for those that write as they compute).
 * A bare output *file* (``bag-recover -o OUT.mcap``) has no room for a manifest: the command
   says, from the file's content, whether it wrote it.
 * Whether the path can be created and written is tried for real (a directory made and removed
@@ -246,6 +247,14 @@ class Destination:
                                  f'{self.option})')
         return present
 
+    def replaced_bytes(self) -> int:
+        """Bytes of the earlier output :meth:`writing` will remove (``overwrite``)."""
+        if not self.overwrite:
+            return 0
+        if self.kind == 'file':
+            return self.path.stat().st_size if self.path.is_file() else 0
+        return sum((self.path / f).lstat().st_size for f in self._earlier())
+
     # ---- writing ---------------------------------------------------------------------------
     @contextlib.contextmanager
     def writing(self) -> Iterator[Path]:
@@ -348,10 +357,13 @@ def human_bytes(n: float) -> str:
     return f'{n:.3g} TB'
 
 
-def check_free_space(path: str | os.PathLike, need_bytes: float, what: str, advice: str) -> None:
+def check_free_space(path: str | os.PathLike, need_bytes: float, what: str, advice: str, *,
+                     freed_bytes: int = 0) -> None:
     """Refuse (one line) an output of about ``need_bytes`` that would not fit on the disk of
-    ``path`` with :data:`DISK_MARGIN` and :data:`DISK_RESERVE_BYTES` to spare."""
+    ``path`` with :data:`DISK_MARGIN` and :data:`DISK_RESERVE_BYTES` to spare; ``freed_bytes``:
+    what the earlier output it replaces frees."""
     free = free_bytes(path)
-    if need_bytes * DISK_MARGIN + DISK_RESERVE_BYTES > free:
+    if need_bytes * DISK_MARGIN + DISK_RESERVE_BYTES > free + freed_bytes:
+        also = f' (+ {human_bytes(freed_bytes)} of the output it replaces)' if freed_bytes else ''
         raise ConfigError(f'{path}: {what} would take about {human_bytes(need_bytes)}, '
-                          f'{human_bytes(free)} free on that disk; {advice}')
+                          f'{human_bytes(free)} free on that disk{also}; {advice}')

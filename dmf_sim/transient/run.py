@@ -23,6 +23,7 @@ changing hands), so the gain is less than the overlap; doc/performance.md has th
 """
 from __future__ import annotations
 
+import contextlib
 import math
 import queue
 import resource
@@ -35,7 +36,7 @@ from pathlib import Path
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from dmf_sim.core.destinations import check_free_space
+from dmf_sim.core.destinations import Destination, check_free_space
 from dmf_sim.core.errors import ConfigError, OperatingRangeError, one_line
 from dmf_sim.live.pacing import TimeBase, publish_stride
 from dmf_sim.live.recording import run_metadata
@@ -287,14 +288,14 @@ def bag_bytes(sim: LiveSimulation, samples: int) -> float:
 
 
 def run_profile(profile: Profile, out: str | Path | None, options: RunOptions | None = None, *,
-                progress: bool = False) -> RunSummary:
+                progress: bool = False, destination: Destination | None = None) -> RunSummary:
     """Integrate ``profile`` and stream the samples to bag ``out`` (see the module docstring).
 
     ``out`` None or ``options.write`` False: integrate and encode nothing (timing). Refused
     before integrating (one line): a rate giving fewer than MIN_SAMPLES samples, a bag larger
-    than the free space on its disk."""
-    from dmf_sim.transient.encode import EncodedBlock, SampleEncoder
-
+    than the free space on its disk. ``destination``: the command's checked output path ``out``
+    (:func:`dmf_sim.core.destinations.claim`): the earlier output it replaces counts as free
+    space, and is removed only after these checks."""
     opt = options or RunOptions()
     sim = build_simulation(profile, opt)
     rate_hz = 1.0 / (sim.stride * sim.dt)
@@ -304,10 +305,23 @@ def run_profile(profile: Profile, out: str | Path | None, options: RunOptions | 
         raise ConfigError(f'rate (--rate) {rate_hz:g} Hz gives {samples_due} samples over the '
                           f"profile's {profile.duration_s:g} s; a run records at least "
                           f'{MIN_SAMPLES}: raise the rate')
-    if write:
-        check_free_space(out, bag_bytes(sim, samples_due),
-                         f'the bag ({samples_due} samples at {rate_hz:g} Hz)',
-                         'shorten the profile or lower --rate')
+    if not write:
+        return _stream(profile, None, opt, sim, progress)
+    check_free_space(out, bag_bytes(sim, samples_due),
+                     f'the bag ({samples_due} samples at {rate_hz:g} Hz)',
+                     'shorten the profile or lower --rate',
+                     freed_bytes=destination.replaced_bytes() if destination else 0)
+    with destination.writing() if destination is not None else contextlib.nullcontext():
+        return _stream(profile, out, opt, sim, progress)
+
+
+def _stream(profile: Profile, out, opt: RunOptions, sim: LiveSimulation,
+            progress: bool) -> RunSummary:
+    """The run itself (:func:`run_profile`): ``out`` None writes nothing."""
+    from dmf_sim.transient.encode import EncodedBlock, SampleEncoder
+
+    rate_hz = 1.0 / (sim.stride * sim.dt)
+    write = out is not None
     recorder, topics = open_bag(out, sim, profile, opt, rate_hz) if write else (None, {})
     follower = ProfileFollower(profile, sim)
     timebase = TimeBase()
