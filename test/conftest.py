@@ -63,3 +63,23 @@ def truck_dmf():
     """The paper's DMF driveline (config/truck_dmf.yaml) as a reduced model."""
     from dmf_sim.physics.model import load_model
     return load_model('truck_dmf')
+
+
+@pytest.fixture
+def forbid(monkeypatch):
+    """``forbid(*targets)``: each ``'module.attribute'`` raises AssertionError when called (a
+    computation that must not start). Every ``dmf-sim`` command and every target's module is
+    imported first, so that no module imported meanwhile binds a stand-in for good."""
+    import importlib
+
+    def no_call(*args, **kwargs):
+        raise AssertionError('started before the options and paths were checked')
+
+    def forbid_(*targets: str) -> None:
+        from dmf_sim.cli import build_parser
+        build_parser()                      # imports every command module
+        for target in targets:
+            importlib.import_module(target.rsplit('.', 1)[0])
+        for target in targets:
+            monkeypatch.setattr(target, no_call)
+    return forbid_

@@ -452,7 +452,8 @@ def test_cli_bag_recover(bag: Path, tmp_path: Path, capsys: pytest.CaptureFixtur
     with AnyReader([out]) as reader:
         assert reader.message_count == n
     assert cli_main(['bag-recover', str(cut), '--output', str(out)]) == 2
-    assert 'exists already' in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert 'not empty' in err and 'pass --overwrite' in err
     with pytest.raises(SystemExit):
         cli_main(['bag-recover', str(cut), '--output', str(out), '--in-place'])
     assert cli_main(['bag-recover', str(cut), '--in-place']) == 0

@@ -1,5 +1,7 @@
 """Issue 14: every size-like option of sweep / loads / modes / nnm / paper is bounded and refused
-with one line naming the option and the allowed range (exit 2), before any computation."""
+with one line naming the option and the allowed range (exit 2), before any computation; an
+option that was silently accepted (an empty --config, --torque-speeds without --out) is refused
+the same way."""
 from __future__ import annotations
 
 import pytest
@@ -23,7 +25,7 @@ from dmf_sim.cli import main as cli_main
     (['loads', '--speeds', '600', '2000', '0.01'], ('--speeds', 'STEP >= 0.5')),
     (['loads', '--speeds', '0', '1e7', '100'], ('--speeds', '100001 grid points')),
     (['loads', '--speeds', '100', '1000', '100'], ('--speeds', '400..2200')),
-    (['loads', '--speed', '5000'], ('speed_rpm', '[400, 2200]')),
+    (['loads', '--speed', '5000'], ('--speed 5000', '400..2200')),
     (['loads', '--torque-speeds', *['1000'] * 13], ('--torque-speeds', '12')),
     (['modes', '--modes', '100'], ('--modes=100', '1..17')),
     (['modes', '--alpha', '-1'], ('--alpha', '0..50')),
@@ -62,3 +64,29 @@ def test_monitor_options_refused_in_one_line(argv, needles, capsys, monkeypatch)
     assert err.count('\n') == 1 and err.startswith('dmf-sim monitor: error: '), err
     for needle in needles:
         assert needle in err, err
+
+
+@pytest.mark.parametrize('argv, needles', [
+    (['modes', '--config', ''], ('--config: empty name',)),
+    (['loads', '--engine', ''], ('--engine: empty name',)),
+    (['sweep', '--config', ' '], ('--config: empty name',)),
+    (['nnm', '--config', ''], ('--config: empty name',)),
+    (['paper', '--engine', '', '--out', '{tmp}'], ('--engine: empty name',)),
+    (['run', 'ramp:800:900:100', '--no-write', '--config', ''], ('--config: empty name',)),
+    (['loads', '--torque-speeds', '800', '-5'], ('--torque-speeds', 'give --out too')),
+    (['loads', '--torque-speeds', '800', '-5', '--out', '{tmp}'],
+     ('--torque-speeds -5', '400..2200 rpm')),
+])
+def test_options_no_longer_accepted_silently(argv, needles, tmp_path, capsys, forbid):
+    """`--config ''` ran the default driveline, `--torque-speeds ... -5` without --out was
+    ignored (with --out refused after computing)."""
+    forbid('dmf_sim.commands.modes.modes', 'dmf_sim.commands.loads.mean_torques',
+           'dmf_sim.solvers.hbm.sweep', 'dmf_sim.commands.nnm.nnm_branches',
+           'dmf_sim.commands.paper.PaperStudy')
+    out = tmp_path / 'out'
+    assert cli_main([a.replace('{tmp}', str(out)) for a in argv]) == 2
+    err = capsys.readouterr().err
+    assert err.count('\n') == 1 and err.startswith(f'dmf-sim {argv[0]}: error: '), err
+    for needle in needles:
+        assert needle in err, err
+    assert not out.exists()

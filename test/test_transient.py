@@ -310,6 +310,15 @@ def test_block_written_files_pass_every_crc_check(run_bag):
             assert n > 0
 
 
+@pytest.mark.parametrize('times, needle', [(3, '3 bags given'), (2, 'a second run-up bag')])
+def test_runup_takes_one_run_up_and_one_run_down(run_bag, times, needle, tmp_path, capsys):
+    """`runup up down up` analysed all three and kept the last run-up's comparison."""
+    out = tmp_path / 'out'
+    assert cli_main(['runup', *[str(run_bag[1])] * times, '--no-hbm', '--out', str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count('\n') == 1 and needle in err and not out.exists()
+
+
 def test_threaded_run_writes_the_sequential_bag(tmp_path):
     """Integrating in a thread of its own while the last chunks are read out and written
     (threads=2, the default with two CPUs) gives the bag one thread gives (threads=1), byte for

@@ -148,7 +148,10 @@ def write_metadata(directory: Path, meta: Mapping[str, Any]) -> None:
 
 
 def refuse_existing(path: Path) -> None:
-    """Bags are never overwritten: refuse a path that exists (one-line BagExistsError)."""
+    """Bags are never overwritten: refuse a path that exists, other than an empty directory
+    (one-line BagExistsError)."""
+    if path.is_dir() and not path.is_symlink() and not any(path.iterdir()):
+        return
     if path.exists() or path.is_symlink():
         raise BagExistsError(f'{path} exists already, not overwriting')
 
@@ -284,10 +287,16 @@ def _file(path: Path) -> BagFiles:
 def resolve_bag(path: str | os.PathLike[str]) -> BagFiles:
     """The MCAP files and metadata of a bag (see the module docstring for the rules).
 
-    Raises BagFileError (one line) if nothing is there, BagError if it is not a bag."""
+    Raises BagFileError (one line) if nothing is there or the path cannot be used (e.g. a name
+    longer than the file system allows), BagError if it is not a bag."""
     p = Path(path)
-    if p.name == METADATA_FILE and p.is_file():
-        p = p.parent
-    if not p.exists():
-        raise BagFileError(f'bag {p} does not exist')
-    return _directory(p) if p.is_dir() else _file(p)
+    try:
+        if p.name == METADATA_FILE and p.is_file():
+            p = p.parent
+        if not p.exists():
+            raise BagFileError(f'bag {p} does not exist')
+        return _directory(p) if p.is_dir() else _file(p)
+    except BagError:
+        raise
+    except OSError as exc:
+        raise BagFileError(f'bag {p}: cannot be read ({exc.strerror or exc})') from None

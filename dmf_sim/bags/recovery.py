@@ -44,10 +44,13 @@ from dmf_sim.bags.records import (
     normalize_type,
 )
 from dmf_sim.core.errors import BagError
+from dmf_sim.core.paths import PACKAGE
 
-__all__ = ['CHUNK_BYTES_RANGE', 'RecoverReport', 'recover_bag']
+__all__ = ['CHUNK_BYTES_RANGE', 'RECOVERY_TAG', 'RecoverReport', 'recover_bag', 'recovery_output',
+           'recovery_library', 'written_by_recovery']
 
 CHUNK_BYTES_RANGE = (1024, 1 << 30)      # chunk size of rewritten files [bytes]
+RECOVERY_TAG = 'bag-recover'             # the library field of a rewritten file names the command
 
 
 @dataclass(frozen=True)
@@ -120,7 +123,7 @@ class _Rewrite:
 
     def _start(self, header: Header | None) -> None:
         if not self._started:
-            lib = f'{LIBRARY} bag-recover' + (f' of {header.library}' if header else '')
+            lib = recovery_library(header.library if header else None)
             self.writer.start(profile=header.profile if header else 'ros2', library=lib)
             self._started = True
 
@@ -182,8 +185,9 @@ class _Rewrite:
         return self.info
 
 
-def _output(bag: BagFiles, out_path, in_place: bool) -> tuple[Path, bool]:
-    """Where to write, and whether as a bag directory."""
+def recovery_output(bag: BagFiles, out_path=None, in_place: bool = False) -> tuple[Path, bool]:
+    """Where :func:`recover_bag` writes, and whether as a bag directory (else a bare MCAP file:
+    an output path ending in ``.mcap``)."""
     src = bag.path
     if in_place and out_path is not None:
         raise BagError('give either an output path or in_place, not both')
@@ -194,13 +198,33 @@ def _output(bag: BagFiles, out_path, in_place: bool) -> tuple[Path, bool]:
     else:
         out = (src.with_name(f'{src.stem}_recovered.mcap') if src.is_file()
                else src.with_name(f'{src.name}_recovered'))
-    refuse_existing(out)
     as_dir = src.is_dir() if in_place else out.suffix != '.mcap'
     if not as_dir and len(bag.files) > 1:
         raise BagError(f'{out}: a bare .mcap file holds one file, and {src} is split into '
                        f'{len(bag.files)}; give a directory name (e.g. {out.with_suffix("")}) '
                        'or recover one split file at a time')
     return out, as_dir
+
+
+def recovery_library(original: str | None) -> str:
+    """The MCAP header's library field of a file :func:`recover_bag` rewrote: this package's
+    :data:`~dmf_sim.bags.layout.LIBRARY`, ``bag-recover`` and the original's library."""
+    return f'{LIBRARY} {RECOVERY_TAG}' + (f' of {original}' if original else '')
+
+
+def written_by_recovery(path: Path) -> bool:
+    """Whether the MCAP file ``path`` was written by :func:`recover_bag` (any version of this
+    package: its header's library field, :func:`recovery_library`)."""
+    from mcap.stream_reader import StreamReader
+    try:
+        with open(path, 'rb') as fh:
+            header = next(iter(StreamReader(fh).records), None)
+    except Exception:  # noqa: BLE001 - a file that cannot be read is not one of ours
+        return False
+    if not isinstance(header, Header):
+        return False
+    words = header.library.split(' ')
+    return len(words) > 1 and words[0].startswith(f'{PACKAGE}-') and words[1] == RECOVERY_TAG
 
 
 def recover_bag(path: str | os.PathLike[str], out_path: str | os.PathLike[str] | None = None,
@@ -222,14 +246,16 @@ def recover_bag(path: str | os.PathLike[str], out_path: str | os.PathLike[str] |
         raise BagError(f'chunk_bytes must be an integer within [{lo}, {hi}], got {chunk_bytes!r}')
     bag = resolve_bag(path)
     src = bag.path
-    out, as_dir = _output(bag, out_path, in_place)
+    out, as_dir = recovery_output(bag, out_path, in_place)
+    refuse_existing(out)
     known: dict[str, TopicInfo] = {}
     infos: list[FileInfo] = []
     scans: list[Scan] = []
     rewritten: list[str] = []
+    existed = out.is_dir()              # an empty directory (_output)
     try:
         if as_dir:
-            out.mkdir(parents=True)
+            out.mkdir(parents=True, exist_ok=existed)
         for i, file in enumerate(bag.files):
             name = file.name if (in_place or src.is_dir()) else f'{out.name}_{i}.mcap'
             target = out / name if as_dir else out
@@ -253,6 +279,8 @@ def recover_bag(path: str | os.PathLike[str], out_path: str | os.PathLike[str] |
     except BaseException:
         if out.is_dir():
             shutil.rmtree(out, ignore_errors=True)
+            if existed:
+                out.mkdir(exist_ok=True)
         else:
             out.unlink(missing_ok=True)
         raise

@@ -293,8 +293,9 @@ class BagRecorder:
     """Write pre-serialized CDR messages to a new rosbag2 MCAP bag directory.
 
     Args:
-        path: Bag directory to create; it must not exist. Missing parents are created, as
-            rosbag2 does, and listed in ``created_dirs`` (for the caller to log).
+        path: Bag directory to create; it must not exist (or be an empty directory). Missing
+            parents are created, as rosbag2 does, and listed in ``created_dirs`` (for the caller
+            to log).
         topics: Topic name -> ROS type name, e.g. ``'sensor_msgs/msg/JointState'``.
         max_duration_s: Start a new file once the current one spans this much log time [s]
             (``ros2 bag record --max-bag-duration``), within ``MAX_DURATION_RANGE_S``.
@@ -357,11 +358,11 @@ class BagRecorder:
         self._chunk_seconds = float(chunk_seconds)
         self._chunk_bytes = int(chunk_bytes)
 
-        refuse_existing(self.path)
+        refuse_existing(self.path)          # an empty directory is taken
         #: parent directories that did not exist and were created (rosbag2 does the same)
         self.created_dirs = [p for p in reversed(self.path.parents) if not p.exists()]
         try:
-            self.path.mkdir(parents=True)
+            self.path.mkdir(parents=True, exist_ok=self.path.is_dir())
         except FileExistsError:
             raise BagExistsError(f'{self.path} exists already, not overwriting') from None
         self.message_count = 0

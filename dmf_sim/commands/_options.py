@@ -5,13 +5,18 @@
 command adds them with the ``add_*`` functions and calls :func:`check_common` first thing in its
 ``run``; a value out of range is a one-line :class:`~dmf_sim.core.errors.ConfigError` naming the
 option and the allowed range.
+
+Every command that writes files adds ``--overwrite`` with :func:`add_overwrite` and checks its
+output path with :func:`output` before computing (the one rule of
+:mod:`dmf_sim.core.destinations`).
 """
 from __future__ import annotations
 
 import math
 
+from dmf_sim.core.destinations import Destination, claim
 from dmf_sim.core.errors import ConfigError
-from dmf_sim.core.paths import check_output_dir
+from dmf_sim.core.limits import MAX_WAIT_S, MAX_WORKERS_PER_CPU, max_local_workers
 from dmf_sim.physics.engine import DEFAULT_ENGINE, LOAD_SETS
 from dmf_sim.physics.spring import STAGE_ANGLE_MAX_RAD, STIFFNESS_FACTOR_MAX
 
@@ -19,7 +24,8 @@ __all__ = ['ALPHA_RANGE', 'THETA_RANGE_RAD', 'LOAD_RANGE', 'LOAD_SETS', 'HARMONI
            'MAX_GRID_POINTS', 'MIN_STEP_RPM', 'DEFAULT_CONFIG', 'DEFAULT_ENGINE', 'add_config',
            'add_engine', 'add_alpha', 'add_theta', 'add_load_set', 'add_load', 'add_speeds',
            'add_harmonics', 'check_common', 'check_grid', 'check_harmonics', 'check_dmf_options',
-           'add_cluster', 'check_cluster', 'DEFAULT_CONNECT_TIMEOUT_S']
+           'add_cluster', 'check_cluster', 'DEFAULT_CONNECT_TIMEOUT_S', 'OVERWRITE_HELP',
+           'add_overwrite', 'output', 'resumable_output', 'check_names', 'check_wait']
 
 ALPHA_RANGE = (0.0, STIFFNESS_FACTOR_MAX)    # secondary stiffness factor (the spring's bound)
 THETA_RANGE_RAD = (0.0, STAGE_ANGLE_MAX_RAD)  # knee angle [rad], lower bound excluded
@@ -127,10 +133,20 @@ def _as_list(value) -> list:
     return list(value) if isinstance(value, (list, tuple)) else [value]
 
 
+def check_names(args) -> None:
+    """``--config`` and ``--engine`` given as an empty name: refused (not the default)."""
+    for option in ('config', 'engine'):
+        value = getattr(args, option, None)
+        if isinstance(value, str) and not value.strip():
+            raise ConfigError(f'--{option}: empty name (give a name in config/ or a path, or '
+                              'leave the option out for the default)')
+
+
 def check_common(args) -> None:
-    """Check every shared option ``args`` has (``--alpha``, ``--theta``, ``--load``,
-    ``--load-set``, ``--speeds``, ``--harmonics``, an output directory ``--out``): one-line
-    errors with the allowed range."""
+    """Check every shared option ``args`` has (``--config``, ``--engine``, ``--alpha``,
+    ``--theta``, ``--load``, ``--load-set``, ``--speeds``, ``--harmonics``): one-line errors
+    with the allowed range. The output path is checked by :func:`output`."""
+    check_names(args)
     alphas = _as_list(getattr(args, 'alpha', None))
     check_dmf_options(alphas, getattr(args, 'theta', None))
     load = getattr(args, 'load', None)
@@ -145,9 +161,41 @@ def check_common(args) -> None:
     h = getattr(args, 'harmonics', None)
     if h is not None:
         check_harmonics(h)
-    out = getattr(args, 'out', None)
-    if out is not None:
-        check_output_dir(out)         # before any computation, not after it
+
+
+OVERWRITE_HELP = ("replace the output an earlier run of this command left at the output path "
+                  "(only the files it wrote there; anything else there is refused). Without it "
+                  "the output path must be new or an empty directory")
+
+
+def add_overwrite(p) -> None:
+    """``--overwrite``: the same option and help in every command that writes files."""
+    p.add_argument('--overwrite', action='store_true', help=OVERWRITE_HELP)
+
+
+def output(args, command: str, path=None, *, option: str = '--out', kind: str = 'dir',
+           resume: bool = False, resume_option: str | None = None, owned=None) -> Destination:
+    """The output path of ``command`` (``path``, default ``args.out``) checked under the one
+    rule of :mod:`dmf_sim.core.destinations`, before anything is computed."""
+    return claim(args.out if path is None else path, command, option=option,
+                 overwrite=args.overwrite, kind=kind, resume=resume,
+                 resume_option=resume_option, owned=owned)
+
+
+def resumable_output(args, command: str) -> Destination:
+    """``--out`` of a command that continues its earlier output there with ``--resume``."""
+    if args.resume and args.overwrite:
+        raise ConfigError('--resume continues the output in --out and --overwrite replaces it: '
+                          'give one of them')
+    return output(args, command, resume=args.resume, resume_option='--resume')
+
+
+def check_wait(seconds: float, option: str = '--timeout') -> float:
+    """A wait for something to answer: > 0 and at most :data:`MAX_WAIT_S`."""
+    if not (math.isfinite(seconds) and 0 < seconds <= MAX_WAIT_S):
+        raise ConfigError(f'{option} must be a finite number > 0 s and at most {MAX_WAIT_S:g} s, '
+                          f'got {seconds!r}')
+    return float(seconds)
 
 
 def add_cluster(p) -> None:
@@ -156,18 +204,20 @@ def add_cluster(p) -> None:
                    help='use an existing Dask cluster, e.g. tcp://HOST:8786 (default: a local '
                         'cluster on this machine)')
     p.add_argument('--workers', type=int,
-                   help='worker processes of the local cluster (default: one per core)')
+                   help='worker processes of the local cluster (default: one per core; at most '
+                        f'{MAX_WORKERS_PER_CPU} per core)')
     p.add_argument('--connect-timeout', type=float, default=DEFAULT_CONNECT_TIMEOUT_S,
                    help=f'seconds to wait for --scheduler to answer (default '
-                        f'{DEFAULT_CONNECT_TIMEOUT_S:g})')
+                        f'{DEFAULT_CONNECT_TIMEOUT_S:g}, at most {MAX_WAIT_S:g})')
 
 
 def check_cluster(args) -> None:
     """One-line errors for the options of :func:`add_cluster`."""
-    if args.workers is not None and args.workers < 1:
-        raise ConfigError(f'--workers {args.workers}: must be >= 1')
+    limit = max_local_workers()
+    if args.workers is not None and not 1 <= args.workers <= limit:
+        raise ConfigError(f'--workers {args.workers}: allowed 1..{limit} on this machine '
+                          f'({MAX_WORKERS_PER_CPU} per usable CPU)')
     if args.workers is not None and args.scheduler:
         raise ConfigError('--workers sizes the local cluster; with --scheduler the cluster '
                           'brings its own workers (leave out one of them)')
-    if not args.connect_timeout > 0:
-        raise ConfigError(f'--connect-timeout {args.connect_timeout}: must be > 0 s')
+    check_wait(args.connect_timeout, '--connect-timeout')

@@ -10,7 +10,6 @@ from pathlib import Path
 
 from dmf_sim.commands import _options as opt
 from dmf_sim.core.errors import ConfigError
-from dmf_sim.core.paths import check_output_dir
 
 __all__ = ['NAME', 'HELP', 'EPILOG', 'BIN_RPM_RANGE', 'MIN_CYCLES_RANGE', 'N_MAX_RANGE',
            'POINTS_PER_CYCLE_MAX', 'add_arguments', 'check_arguments', 'default_output', 'run']
@@ -86,6 +85,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         '<signal>_cycles.csv, <signal>_campbell.png, <signal>_fig13.png), '
                         'checked before anything is computed; default: beside the bag, '
                         '<BAG>_analysis (none with --json)')
+    opt.add_overwrite(p)
     p.add_argument('--json', action='store_true',
                    help='print one JSON object (order amplitudes per speed bin, Fig. 13 '
                         'quantities, HBM comparison) on stdout')
@@ -150,8 +150,8 @@ def run(args) -> int:
     from dmf_sim.live.warm import load as load_kernels
 
     check_arguments(args)
-    out = None if args.out is None and args.json else check_output_dir(
-        args.out if args.out is not None else default_output(args.bag))
+    dest = None if args.out is None and args.json else opt.output(
+        args, NAME, args.out if args.out is not None else default_output(args.bag))
     topics = {key: value for key, value in (('windup', args.windup_topic),
                                             ('crank', args.crank_topic),
                                             ('speed', args.speed_topic),
@@ -172,8 +172,11 @@ def run(args) -> int:
     if res.load_timeline is not None:      # each row at the load the bag recorded for it
         model['load'], sources['load'] = res.model['load'], 'bag (per engine cycle)'
     extra = {'model': model, 'model_sources': sources, 'natural_frequencies_hz': natural}
-    written = write_outputs(res, out, natural=natural, plots=not args.no_plots,
-                            extra=extra) if out is not None else []
+    written = []
+    if dest is not None:
+        with dest.writing() as out:
+            written = write_outputs(res, out, natural=natural, plots=not args.no_plots,
+                                    extra=extra)
     if args.json:
         print(json.dumps(analysis_dict(res, extra)))
         return 0

@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import argparse
 
+from dmf_sim.commands import _options as opt
+
 __all__ = ['NAME', 'HELP', 'add_arguments', 'run']
 
 NAME = 'bag-recover'
@@ -18,18 +20,32 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('bag', metavar='BAG', help='rosbag2 bag directory or bare .mcap file')
     where = parser.add_mutually_exclusive_group()
     where.add_argument('-o', '--output', metavar='OUT',
-                       help='output bag (never overwritten); a name ending in .mcap gives a bare '
-                            'MCAP file, anything else a bag directory. Default: BAG_recovered')
+                       help='output bag: a name ending in .mcap gives a bare MCAP file, '
+                            'anything else a bag directory. Default: BAG_recovered')
     where.add_argument('--in-place', action='store_true',
                        help='replace the truncated files of BAG (and its metadata.yaml) once '
                             'the rewrite succeeded')
+    opt.add_overwrite(parser)
 
 
 def run(args: argparse.Namespace) -> int:
     """Recover the bag and print what was kept."""
-    from dmf_sim.bags.recovery import recover_bag
+    from dmf_sim.bags.layout import resolve_bag
+    from dmf_sim.bags.recovery import recover_bag, recovery_output, written_by_recovery
+    from dmf_sim.core.errors import ConfigError
 
-    report = recover_bag(args.bag, args.output, in_place=args.in_place)
+    bag = resolve_bag(args.bag)
+    if args.in_place:
+        if args.overwrite:
+            raise ConfigError('--overwrite is for an output path; --in-place replaces the '
+                              "bag's own incomplete files")
+        report = recover_bag(bag.path, in_place=True)
+    else:
+        out, as_dir = recovery_output(bag, args.output)
+        dest = opt.output(args, NAME, out, option='--output', kind='bag' if as_dir else 'file',
+                          owned=written_by_recovery)
+        with dest.writing():
+            report = recover_bag(bag.path, out)
     print(report)
     for topic, count in sorted(report.topics.items()):
         print(f'  {topic}: {count}')

@@ -5,7 +5,7 @@ import json
 import sys
 from pathlib import Path
 
-from dmf_sim.commands._options import add_cluster, check_cluster
+from dmf_sim.commands import _options as opt
 from dmf_sim.core.errors import ConfigError
 from dmf_sim.core.optional import require_extra
 
@@ -23,7 +23,8 @@ def add_arguments(p) -> None:
                         'finished designs are stored there as they arrive')
     p.add_argument('--resume', action='store_true',
                    help='continue the study stored in --out (finished designs are not recomputed)')
-    add_cluster(p)
+    opt.add_overwrite(p)
+    opt.add_cluster(p)
     p.add_argument('--batch-size', type=int, help='designs per Dask task (default: measured, '
                    'see doc/performance.md)')
     p.add_argument('--no-plots', action='store_true', help='skip the PNG figures')
@@ -38,32 +39,35 @@ def run(args) -> int:
     from dmf_sim.design.table import ResultStore
     from dmf_sim.live.warm import load as load_kernels
 
-    check_cluster(args)
+    opt.check_cluster(args)
     if args.batch_size is not None and args.batch_size < 1:
         raise ConfigError(f'--batch-size {args.batch_size}: must be >= 1')
+    dest = opt.resumable_output(args, NAME)
     study = load_study(args.study)
-    ResultStore(args.out, study, args.resume)          # --out / --resume problems, before work
+    if args.resume:
+        ResultStore(args.out, study, args.resume)      # --resume problems, before work
     load_kernels(NAME, 'sweep')     # compiled once here, then every worker loads them
     client = connect(args.scheduler, args.connect_timeout) if args.scheduler else None
     done = [0, study.n_designs]
-    try:
-        result = run_study(study, client, out=args.out, resume=args.resume,
-                           workers=args.workers, batch_size=args.batch_size,
-                           progress=not args.no_progress,
-                           on_batch=lambda n, total: done.__setitem__(0, n),
-                           on_worker_event=_say)
-    except KeyboardInterrupt:
-        print(f'dmf-sim design: interrupted; {done[0]} of {done[1]} designs are stored in '
-              f'{args.out}; continue with --resume', file=sys.stderr)
-        return 130
-    finally:
-        if client is not None:
-            client.close()
-    if not args.no_plots:
-        from dmf_sim.design.plots import write_plots
-        result.files.update(write_plots(result, args.out))
-    summary = result.summary()
-    (Path(args.out) / 'summary.json').write_text(json.dumps(summary, indent=1))
+    with dest.writing() as out:
+        try:
+            result = run_study(study, client, out=out, resume=args.resume,
+                               workers=args.workers, batch_size=args.batch_size,
+                               progress=not args.no_progress,
+                               on_batch=lambda n, total: done.__setitem__(0, n),
+                               on_worker_event=_say)
+        except KeyboardInterrupt:
+            print(f'dmf-sim design: interrupted; {done[0]} of {done[1]} designs are stored in '
+                  f'{out}; continue with --resume', file=sys.stderr)
+            return 130
+        finally:
+            if client is not None:
+                client.close()
+        if not args.no_plots:
+            from dmf_sim.design.plots import write_plots
+            result.files.update(write_plots(result, out))
+        summary = result.summary()
+        (out / 'summary.json').write_text(json.dumps(summary, indent=1))
     if args.json:
         print(json.dumps(summary))
     else:

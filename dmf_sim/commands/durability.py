@@ -8,7 +8,7 @@ import json
 import sys
 from pathlib import Path
 
-from dmf_sim.core.errors import BagExistsError
+from dmf_sim.commands import _options as opt
 from dmf_sim.core.optional import require_extra
 
 __all__ = ['NAME', 'HELP', 'add_arguments', 'run']
@@ -31,6 +31,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help='S-N cycles to failure N_ref at S_ref')
     p.add_argument('--out', type=Path, help='output directory (durability.json, '
                    'durability.png); default <BAG name>_durability unless --json')
+    opt.add_overwrite(p)
     p.add_argument('--json', action='store_true', help='print the JSON report to stdout')
     p.add_argument('--no-plots', action='store_true', help='skip the PNG report')
     p.add_argument('--namespace', help="driveline namespace of the node's topics (default: "
@@ -40,6 +41,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     require_extra('durability')             # fatpack: one line if missing
+    from dmf_sim.bags.layout import resolve_bag
     from dmf_sim.durability.read import bag_durability
     from dmf_sim.durability.report import plot_report, report_dict, write_json
     from dmf_sim.durability.settings import load_settings
@@ -48,20 +50,20 @@ def run(args: argparse.Namespace) -> int:
     settings = load_settings(args.settings, exponent=args.exponent,
                              reference_range_nm=args.reference_range,
                              reference_cycles=args.reference_cycles)
+    bag = resolve_bag(args.bag)
     out = args.out
     if out is None and not args.json:
-        out = Path(f'{Path(args.bag).resolve().name}_durability')
-    if out is not None and out.exists() and any(out.iterdir()):
-        raise BagExistsError(f'output directory {out} exists and is not empty; not overwriting')
+        out = Path(f'{bag.path.resolve().name}_durability')
+    dest = opt.output(args, NAME, out) if out is not None else None
     load_kernels(NAME, 'bag reading')
-    result = bag_durability(args.bag, settings, namespace=args.namespace,
+    result = bag_durability(bag, settings, namespace=args.namespace,
                             progress=args.progress and sys.stderr.isatty())
     written = []
-    if out is not None:
-        out.mkdir(parents=True, exist_ok=True)
-        written.append(write_json(result, out / 'durability.json'))
-        if not args.no_plots:
-            written.append(plot_report(result, out / 'durability.png'))
+    if dest is not None:
+        with dest.writing() as out:
+            written.append(write_json(result, out / 'durability.json'))
+            if not args.no_plots:
+                written.append(plot_report(result, out / 'durability.png'))
     if args.json:
         print(json.dumps(report_dict(result)))
     else:

@@ -4,6 +4,7 @@ conventional driveline over the engine cycle (Fig. 8 right)."""
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -37,25 +38,34 @@ def add_arguments(p) -> None:
     opt.add_speeds(p, default=(600.0, 2000.0, 50.0), what='speed range')
     p.add_argument('--speed', type=float, default=1000.0,
                    help='speed [rpm] for the order table (default 1000)')
-    p.add_argument('--torque-speeds', type=float, nargs='+', default=list(FIG8_SPEEDS_RPM),
-                   help=f'speeds [rpm] of the torque before the flywheel (conventional driveline, '
-                        f'first load set; default {" ".join(f"{s:g}" for s in FIG8_SPEEDS_RPM)}; '
-                        f'at most {MAX_TORQUE_SPEEDS})')
+    p.add_argument('--torque-speeds', type=float, nargs='+',
+                   help=f'speeds [rpm] of the torque before the flywheel in fig8.png and '
+                        f'loads.json (conventional driveline, first load set; with --out; '
+                        f'default {" ".join(f"{s:g}" for s in FIG8_SPEEDS_RPM)}; at most '
+                        f'{MAX_TORQUE_SPEEDS})')
     p.add_argument('--json', action='store_true', help='print one JSON object')
     p.add_argument('--out', type=Path,
                    help='directory for loads.csv, loads.json, loads.png (mean torque, orders) and '
                         'fig8.png (mean torque, torque before the flywheel)')
+    opt.add_overwrite(p)
 
 
 def run(args) -> int:
     opt.check_common(args)
+    torque_speeds = list(FIG8_SPEEDS_RPM) if args.torque_speeds is None else args.torque_speeds
+    if len(torque_speeds) > MAX_TORQUE_SPEEDS:
+        raise ConfigError(f'--torque-speeds: {len(torque_speeds)} speeds, allowed at most '
+                          f'{MAX_TORQUE_SPEEDS}')
+    if args.torque_speeds is not None and args.out is None:
+        raise ConfigError('--torque-speeds: the torque before the flywheel goes to fig8.png and '
+                          'loads.json in --out DIR; give --out too')
+    dest = opt.output(args, NAME) if args.out is not None else None
     lo, hi, step = args.speeds
     engines = {s: load_engine(args.engine, load_set=s) for s in dict.fromkeys(args.load_set)}
     first = engines[args.load_set[0]]
     opt.check_grid(lo, hi, step, first)
-    if len(args.torque_speeds) > MAX_TORQUE_SPEEDS:
-        raise ConfigError(f'--torque-speeds: {len(args.torque_speeds)} speeds, allowed at most '
-                          f'{MAX_TORQUE_SPEEDS}')
+    _check_speeds(first, [('--speed', args.speed)]
+                  + [('--torque-speeds', s) for s in torque_speeds])
     speeds = np.arange(lo, hi + 0.5 * step, step)
     mean = mean_torques(engines, speeds, args.load)
     whole = engine_torque_orders(first, args.speed, args.load)
@@ -66,13 +76,14 @@ def run(args) -> int:
             'mean_torque_nm': mean,
             'orders_at_speed': {'speed_rpm': args.speed, 'load_set': args.load_set[0],
                                 'orders': orders}}
-    if args.out:
-        psi, tq = torque_before_flywheel(first, args.torque_speeds, args.load)
+    if dest is not None:
+        psi, tq = torque_before_flywheel(first, torque_speeds, args.load)
         data['torque_before_flywheel'] = {
             'driveline': FIG8_DRIVELINE, 'element': FIG8_ELEMENT, 'load_set': args.load_set[0],
             'crank_angle_deg': psi.tolist(),
             'torque_nm': {f'{s:g}': v.tolist() for s, v in tq.items()}}
-        _write(args.out, data, speeds, mean, orders, args, psi, tq)
+        with dest.writing() as out:
+            _write(out, data, speeds, mean, orders, args, psi, tq)
     if args.json:
         print(json.dumps(data))
     else:
@@ -87,9 +98,16 @@ def run(args) -> int:
     return 0
 
 
+def _check_speeds(engine, speeds) -> None:
+    """Each (option, speed [rpm]) finite and within the engine's data."""
+    lo, hi = getattr(engine, 'speed_range_rpm', None) or (0.0, math.inf)
+    for option, s in speeds:
+        if not (math.isfinite(s) and s > 0 and lo <= s <= hi):
+            raise ConfigError(f'{option} {s:g}: allowed {lo:g}..{hi:g} rpm (the engine data)')
+
+
 def _write(out: Path, data: dict, speeds, mean, orders, args, psi, tq) -> None:
     from dmf_sim.figures import fig8, mean_torque_panel, order_bars_panel, save, two_panel_figure
-    out.mkdir(parents=True, exist_ok=True)
     (out / 'loads.json').write_text(json.dumps(data, indent=2))
     write_csv(out / 'loads.csv', ['speed_rpm', *[f'mean_torque_{s}_nm' for s in mean]],
               ([v, *[mean[s][i] for s in mean]] for i, v in enumerate(speeds)))

@@ -34,11 +34,13 @@ def add_arguments(p) -> None:
     p.add_argument('--json', action='store_true',
                    help='print one JSON object (frequencies_hz ascending)')
     p.add_argument('--out', type=Path, help='directory for modes.json, modes.csv and modes.png')
+    opt.add_overwrite(p)
 
 
 def run(args) -> int:
     opt.check_common(args)
-    source = args.config or VARIANTS[args.variant]
+    dest = opt.output(args, NAME) if args.out is not None else None
+    source = args.config if args.config is not None else VARIANTS[args.variant]
     model = load_model(source, alpha=args.alpha, theta=args.theta)
     if not 1 <= args.modes <= model.n_dof:
         raise ConfigError(f'--modes={args.modes}: allowed range 1..{model.n_dof} (the DOFs of '
@@ -68,14 +70,14 @@ def run(args) -> int:
         print(f'{"mode":>4}  {"frequency [Hz]":>14}')
         for i, f in enumerate(res.frequencies_hz[:n]):
             print(f'{i:>4}  {f:14.2f}')
-    if args.out:
-        _write(args.out, data, source, args)
+    if dest is not None:
+        with dest.writing() as out:
+            _write(out, data, args)
     return 0
 
 
-def _write(out: Path, data: dict, source: str, args) -> None:
+def _write(out: Path, data: dict, args) -> None:
     from dmf_sim.figures import save
-    out.mkdir(parents=True, exist_ok=True)
     (out / 'modes.json').write_text(json.dumps(data, indent=2))
     rows = zip(data['frequencies_hz'], data['mode_shapes_scaled'], strict=True)
     write_csv(out / 'modes.csv', ['mode', 'frequency_hz', *data['elements']],

@@ -16,6 +16,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from dmf_sim.commands._options import check_wait
 from dmf_sim.commands._ros import NodeSelector, select_node
 from dmf_sim.core.errors import ConfigError, NoResponseError
 from dmf_sim.live.health import LEVEL_NAMES as LEVELS
@@ -236,8 +237,7 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f'--duration must be a finite number > 0 s, got {args.duration!r}')
     if args.frames is not None and args.frames < 1:
         raise ConfigError(f'--frames must be >= 1, got {args.frames!r}')
-    if not (math.isfinite(args.timeout) and args.timeout > 0):
-        raise ConfigError(f'--timeout must be a finite number > 0 s, got {args.timeout!r}')
+    check_wait(args.timeout)
     view = MonitorView(node=select_node(args.namespace, args.node))
     if args.foxglove_layout is not None:
         return _write_layout(args.foxglove_layout, view.node)

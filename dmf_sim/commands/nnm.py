@@ -9,7 +9,6 @@ import numpy as np
 from dmf_sim.commands import _options as opt
 from dmf_sim.core.csv_out import write_csv
 from dmf_sim.core.errors import ConfigError
-from dmf_sim.core.paths import check_output_dir
 from dmf_sim.physics.model import load_model
 from dmf_sim.solvers.nnm import REGIONS, NNMOptions, nnm_branches, scaling_check
 
@@ -56,6 +55,7 @@ def add_arguments(p) -> None:
     p.add_argument('--json', action='store_true',
                    help='print one JSON object instead of the table')
     p.add_argument('--out', type=Path, help='directory for nnm.csv, nnm.json and nnm.png')
+    opt.add_overwrite(p)
 
 
 def check_options(args, model) -> None:
@@ -83,11 +83,11 @@ def check_options(args, model) -> None:
 
 
 def run(args) -> int:
+    opt.check_names(args)
     opt.check_dmf_options([args.alpha], args.theta)
+    dest = opt.output(args, NAME) if args.out is not None else None
     model = load_model(args.config, alpha=args.alpha, theta=args.theta)
     check_options(args, model)
-    if args.out is not None:
-        check_output_dir(args.out)
     opts = NNMOptions(n_harmonics=args.harmonics, step_max=args.step_max,
                       step=min(NNMOptions.step, args.step_max))
     res = nnm_branches(model, mode=args.mode, distance=args.distance, xi_max=args.xi_max,
@@ -100,8 +100,9 @@ def run(args) -> int:
         print(json.dumps(data))
     else:
         _print(res, data, args)
-    if args.out:
-        _write(args.out, res, data, args)
+    if dest is not None:
+        with dest.writing() as out:
+            _write(out, res, data, args)
     return 0
 
 
@@ -149,7 +150,6 @@ def _print(res, data, args) -> None:
 
 
 def _write(out: Path, res, data: dict, args) -> None:
-    out.mkdir(parents=True, exist_ok=True)
     (out / 'nnm.json').write_text(json.dumps(data, indent=1))
     H = res.n_harmonics
     rows = [[r, int(br.segment[i]), br.xi[i], br.frequency_hz[i], br.energy[i],

@@ -6,7 +6,7 @@ import sys
 import time
 from pathlib import Path
 
-from dmf_sim.commands._options import add_cluster, check_cluster
+from dmf_sim.commands import _options as opt
 from dmf_sim.core.errors import ConfigError
 from dmf_sim.core.optional import require_extra
 
@@ -30,8 +30,9 @@ def add_arguments(p) -> None:
                    help='continue the optimization stored in --out (finished designs are not '
                         'recomputed; a larger --budget extends it, a budget below the designs '
                         'stored is refused)')
+    opt.add_overwrite(p)
     p.add_argument('--budget', type=int, help='designs in all (default: the study file\'s)')
-    add_cluster(p)
+    opt.add_cluster(p)
     p.add_argument('--no-baseline', action='store_true',
                    help='skip the Latin-hypercube run of the same budget (in --out/baseline)')
     p.add_argument('--verify', type=int, default=DEFAULT_VERIFY, metavar='N',
@@ -50,15 +51,16 @@ def run(args) -> int:
     from dmf_sim.optimize.problem import load_problem
     from dmf_sim.optimize.runner import BASELINE_DIR, EXTRA, check_budget
 
-    check_cluster(args)
+    opt.check_cluster(args)
     if args.verify < 0:
         raise ConfigError(f'--verify {args.verify}: must be >= 0')
+    dest = opt.resumable_output(args, NAME)
     problem = load_problem(args.study, budget=args.budget)
-    # --out / --resume / the budget against what is stored there, before any work
-    check_budget(problem, ResultStore(args.out, problem.study, args.resume, extra=EXTRA))
-    if not args.no_baseline:
-        check_budget(problem, ResultStore(args.out / BASELINE_DIR, problem.study, args.resume,
-                                          extra=EXTRA))
+    if args.resume:     # the budget against what is stored there, before any work
+        check_budget(problem, ResultStore(args.out, problem.study, args.resume, extra=EXTRA))
+        if not args.no_baseline:
+            check_budget(problem, ResultStore(args.out / BASELINE_DIR, problem.study,
+                                              args.resume, extra=EXTRA))
     load_kernels(NAME, 'sweep', *(['time integration'] if args.verify else []))
     t0 = time.perf_counter()
     say = _say(args.no_progress, t0)
@@ -67,18 +69,19 @@ def run(args) -> int:
     else:
         cluster, client = start_local(args.workers)
     done = {'run': 'optimizer', 'n': 0}
-    try:
-        result, baseline = _optimize(problem, client, args, done, say)
-    except KeyboardInterrupt:
-        print(f'dmf-sim optimize: interrupted in the {done["run"]} run; {done["n"]} designs '
-              f'are stored in {args.out}; continue with --resume', file=sys.stderr)
-        return 130
-    finally:
-        close_local(cluster, client)
-    summary = _finish(problem, result, baseline, args, say, time.perf_counter() - t0)
-    if baseline is not None:
-        summary['baseline_dir'] = str(args.out / BASELINE_DIR)
-    (args.out / 'summary.json').write_text(json.dumps(summary, indent=1, default=_json))
+    with dest.writing():
+        try:
+            result, baseline = _optimize(problem, client, args, done, say)
+        except KeyboardInterrupt:
+            print(f'dmf-sim optimize: interrupted in the {done["run"]} run; {done["n"]} designs '
+                  f'are stored in {args.out}; continue with --resume', file=sys.stderr)
+            return 130
+        finally:
+            close_local(cluster, client)
+        summary = _finish(problem, result, baseline, args, say, time.perf_counter() - t0)
+        if baseline is not None:
+            summary['baseline_dir'] = str(args.out / BASELINE_DIR)
+        (args.out / 'summary.json').write_text(json.dumps(summary, indent=1, default=_json))
     if args.json:
         print(json.dumps(summary, default=_json))
     else:

@@ -16,7 +16,6 @@ from pathlib import Path
 
 from dmf_sim import __version__
 from dmf_sim.commands import _options as opt
-from dmf_sim.core.paths import check_output_dir
 from dmf_sim.paper.claims import NO, PARTLY, YES, claims
 from dmf_sim.paper.report import STATUS_MARK, report_html, report_markdown, write_figures
 from dmf_sim.paper.study import PaperStudy, StudySettings
@@ -31,6 +30,7 @@ HELP = ('Reproduce the reference paper: Figs. 8, 12, 13, 14, 15 and a report (re
 def add_arguments(p) -> None:
     p.add_argument('--out', type=Path, required=True,
                    help='directory for the figures, report.md, report.html and claims.json')
+    opt.add_overwrite(p)
     opt.add_engine(p)
     p.add_argument('--quick', action='store_true',
                    help='reduced study (coarser sweeps, smaller load scan, NNMs to xi = 10; '
@@ -42,8 +42,9 @@ def add_arguments(p) -> None:
 def run(args) -> int:
     from dmf_sim.live.warm import load as load_kernels
     from dmf_sim.physics.engine import load_engine
+    opt.check_names(args)
+    dest = opt.output(args, NAME)
     load_engine(args.engine)                       # a bad engine file: one line before any work
-    check_output_dir(args.out)
     settings = (StudySettings.quick if args.quick else StudySettings)(engine=args.engine)
     t0 = time.perf_counter()
 
@@ -55,22 +56,22 @@ def run(args) -> int:
     load_kernels(NAME, 'sweep', 'time integration')
     results = PaperStudy(settings, progress=say).run()
     rows = claims(results)
-    args.out.mkdir(parents=True, exist_ok=True)
     say('figures')
-    files = write_figures(results, args.out)
-    seconds = time.perf_counter() - t0
-    summary = {
-        'out': str(args.out), 'seconds': round(seconds, 1), 'quick': bool(args.quick),
-        'engine': args.engine, 'version': __version__,
-        'counts': {k: sum(c.status == k for c in rows) for k in (YES, PARTLY, NO)},
-        'claims': [{'key': c.key, 'status': c.status, 'package': c.package} for c in rows],
-        'figures': files, 'solver_notes': results.notes, 'step_seconds': results.seconds,
-    }
-    (args.out / 'claims.json').write_text(json.dumps(
-        {**summary, 'claims': [c.as_dict() for c in rows]}, indent=1, default=float))
-    (args.out / 'report.md').write_text(report_markdown(results, rows, summary))
-    (args.out / 'report.html').write_text(report_html(results, rows, summary, args.out))
-    summary['files'] = [str(args.out / n) for n in ('report.md', 'report.html', 'claims.json')]
+    with dest.writing() as out:
+        files = write_figures(results, out)
+        seconds = time.perf_counter() - t0
+        summary = {
+            'out': str(out), 'seconds': round(seconds, 1), 'quick': bool(args.quick),
+            'engine': args.engine, 'version': __version__,
+            'counts': {k: sum(c.status == k for c in rows) for k in (YES, PARTLY, NO)},
+            'claims': [{'key': c.key, 'status': c.status, 'package': c.package} for c in rows],
+            'figures': files, 'solver_notes': results.notes, 'step_seconds': results.seconds,
+        }
+        (out / 'claims.json').write_text(json.dumps(
+            {**summary, 'claims': [c.as_dict() for c in rows]}, indent=1, default=float))
+        (out / 'report.md').write_text(report_markdown(results, rows, summary))
+        (out / 'report.html').write_text(report_html(results, rows, summary, out))
+    summary['files'] = [str(out / n) for n in ('report.md', 'report.html', 'claims.json')]
     say(f'done: {summary["counts"][YES]} yes, {summary["counts"][PARTLY]} partly, '
         f'{summary["counts"][NO]} no; {args.out / "report.html"}')
     if args.json:

@@ -16,8 +16,10 @@ from dmf_sim.commands._options import (
     add_config,
     add_engine,
     add_load_set,
+    add_overwrite,
     add_theta,
     check_common,
+    output,
 )
 from dmf_sim.core.errors import ConfigError
 from dmf_sim.core.names import check_namespace
@@ -35,8 +37,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help='CSV/YAML profile (time_s, speed_rpm, load), a packaged one '
                         '(truck_road_cycle) or ramp:FROM:TO:RATE[:LOAD[:SETTLE]], e.g. '
                         'ramp:800:2000:10 (run-up at 10 rpm/s, load 1)')
-    p.add_argument('--out', metavar='BAG', help='bag directory to create (never overwritten); '
+    p.add_argument('--out', metavar='BAG', help='bag directory to create (new or empty); '
                    'required unless --no-write')
+    add_overwrite(p)
     p.add_argument('--rate', type=float, default=1000.0, metavar='HZ',
                    help='samples per simulated second in the bag (default 1000; a whole number '
                         'of Newmark steps per sample)')
@@ -72,6 +75,7 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError('give --out BAG (the bag directory to create) or --no-write')
     if not (math.isfinite(args.dt) and 1e-6 <= args.dt <= 1e-2):
         raise ConfigError(f'--dt must be within [1e-06, 0.01] s, got {args.dt!r}')
+    dest = None if args.no_write else output(args, NAME, kind='bag')
     profile = load_profile(args.profile)
     opt = RunOptions(driveline=args.config, engine=args.engine, load_set=args.load_set,
                      alpha=args.alpha, theta=args.theta, dt=args.dt, rate_hz=args.rate,
@@ -79,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
                      threads=default_threads() if args.threads is None else args.threads)
     load_kernels(NAME, 'time integration')      # before the bar: its rate without a compile
     summary = run_profile(profile, None if args.no_write else args.out, opt,
-                          progress=not (args.no_progress or args.json))
+                          progress=not (args.no_progress or args.json), destination=dest)
     if args.json:
         print(json.dumps(summary.as_dict()))
     else:

@@ -8,18 +8,21 @@ import json
 from pathlib import Path
 
 from dmf_sim.analysis.outputs import to_jsonable
-from dmf_sim.core.errors import BagExistsError, ConfigError
+from dmf_sim.commands import _options as opt
+from dmf_sim.core.errors import ConfigError
 from dmf_sim.transient.defaults import DEFAULT_BIN_RPM, JUMP_WINDOW_CYCLES
 
-__all__ = ['NAME', 'HELP', 'add_arguments', 'run']
+__all__ = ['NAME', 'HELP', 'MAX_BAGS', 'add_arguments', 'run']
 
 NAME = 'runup'
 HELP = ('Run-up analysis: order tracks of run-up/run-down bags (e.g. from dmf-sim run '
         'ramp:...) over the HBM branches, jump speeds vs the sweep\'s fold/stability events')
+MAX_BAGS = 2                    # a run-up and a run-down
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument('bags', nargs='+', metavar='BAG', help='run-up and/or run-down bags')
+    p.add_argument('bags', nargs='+', metavar='BAG',
+                   help='a run-up bag, a run-down bag, or one of each')
     p.add_argument('--bin-rpm', type=float, default=DEFAULT_BIN_RPM,
                    help=f'speed bin for the quasi-static comparison [rpm] (default '
                         f'{DEFAULT_BIN_RPM:g})')
@@ -28,10 +31,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument('--no-hbm', action='store_true', help='no HBM sweep (jumps unmatched)')
     p.add_argument('--out', type=Path, help='output directory (runup.json, runup.png); '
                    'default <first BAG name>_runup unless --json')
+    opt.add_overwrite(p)
     p.add_argument('--json', action='store_true', help='print the JSON to stdout')
 
 
 def run(args: argparse.Namespace) -> int:
+    from dmf_sim.bags.layout import resolve_bag
     from dmf_sim.live.warm import load as load_kernels
     from dmf_sim.transient.plots import plot_runup
     from dmf_sim.transient.runup import runup_analysis
@@ -40,19 +45,22 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f'--bin-rpm must be within (0, 500] rpm, got {args.bin_rpm!r}')
     if not 2 <= args.window <= 200:
         raise ConfigError(f'--window must be within [2, 200] cycles, got {args.window!r}')
+    if len(args.bags) > MAX_BAGS:
+        raise ConfigError(f'BAG: {len(args.bags)} bags given; give a run-up bag, a run-down bag '
+                          'or one of each')
+    bags = [resolve_bag(b) for b in args.bags]
     out = args.out
     if out is None and not args.json:
-        out = Path(f'{Path(args.bags[0]).resolve().name}_runup')
-    if out is not None and out.exists() and any(out.iterdir()):
-        raise BagExistsError(f'output directory {out} exists and is not empty; not overwriting')
+        out = Path(f'{bags[0].path.resolve().name}_runup')
+    dest = opt.output(args, NAME, out) if out is not None else None
     load_kernels(NAME, 'bag reading', *([] if args.no_hbm else ['sweep']))
     res = runup_analysis(args.bags, bin_rpm=args.bin_rpm, hbm=not args.no_hbm,
                          window=args.window)
     data = to_jsonable(res.as_dict())
-    if out is not None:
-        out.mkdir(parents=True, exist_ok=True)
-        (out / 'runup.json').write_text(json.dumps(data, indent=1))
-        plot_runup(res, out / 'runup.png')
+    if dest is not None:
+        with dest.writing() as out:
+            (out / 'runup.json').write_text(json.dumps(data, indent=1))
+            plot_runup(res, out / 'runup.png')
     if args.json:
         print(json.dumps(data))
     else:

@@ -28,7 +28,9 @@ import math
 import sys
 import time
 
+from dmf_sim.commands._options import check_wait
 from dmf_sim.core.errors import ConfigError, NoResponseError, OperatingRangeError
+from dmf_sim.core.limits import MAX_WAIT_S
 
 __all__ = ['NAME', 'HELP', 'REPEAT_EVERY_S', 'ACK_TIMEOUT_S', 'add_arguments', 'check', 'run']
 
@@ -48,7 +50,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--namespace', default='', metavar='NS',
                         help="the node's namespace, e.g. /truck1 or truck1 (default: none)")
     parser.add_argument('--timeout', type=float, default=10.0, metavar='S',
-                        help='seconds to wait for the node (default 10)')
+                        help=f'seconds to wait for the node (default 10, at most {MAX_WAIT_S:g})')
 
 
 def check(args: argparse.Namespace) -> list[tuple[str, float, str]]:
@@ -59,9 +61,8 @@ def check(args: argparse.Namespace) -> list[tuple[str, float, str]]:
         from dmf_sim.transient.profiles import load_profile
         prof = load_profile(args.profile)
         speed, load = (float(v) for v in prof.at(0.0))
-        if not (math.isfinite(args.timeout) and args.timeout > 0):
-            raise ConfigError(f'--timeout must be > 0 s, got {args.timeout!r}')
         args.profile_data = prof
+        check_wait(args.timeout)
         return [('engine/speed_setpoint', speed, f'{speed:g} rpm'),
                 ('engine/load_setpoint', load, f'load {load:g}')]
     if args.speed is None and args.load is None:
@@ -75,8 +76,7 @@ def check(args: argparse.Namespace) -> list[tuple[str, float, str]]:
         if not (math.isfinite(args.load) and 0.0 <= args.load <= 1.0):
             raise ConfigError(f'--load must be in [0, 1], got {args.load!r}')
         out.append(('engine/load_setpoint', float(args.load), f'load {args.load:g}'))
-    if not (math.isfinite(args.timeout) and args.timeout > 0):
-        raise ConfigError(f'--timeout must be > 0 s, got {args.timeout!r}')
+    check_wait(args.timeout)
     return out
 
 

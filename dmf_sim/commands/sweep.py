@@ -61,6 +61,7 @@ def add_arguments(p) -> None:
                         'fig15.png (every load set at alpha 2.5 or the first --alpha), '
                         'fig15_alpha_<a>.png (each further alpha); the printed summary lists '
                         'which cases each figure holds')
+    opt.add_overwrite(p)
 
 
 def run(args) -> int:
@@ -77,6 +78,7 @@ def run(args) -> int:
     if len(args.alpha or [None]) * len(args.load_set) > MAX_SWEEPS:
         raise ConfigError(f'--alpha x --load-set: {len(args.alpha) * len(args.load_set)} sweeps, '
                           f'allowed at most {MAX_SWEEPS}')
+    dest = opt.output(args, NAME) if args.out is not None else None
     line = load_driveline(args.config, theta=args.theta)
     if line.dmf is None:
         raise ConfigError(f'driveline {line.name!r} has no dmf section: nothing to sweep')
@@ -120,8 +122,9 @@ def run(args) -> int:
         'sweeps': [sweep_dict(a, ls, r) for a, ls, r in results],
         'failed': failures,
     }
-    if args.out:
-        data['files'] = _write(args.out, data, results)
+    if dest is not None:
+        with dest.writing() as out:
+            data['files'] = _write(out, data, results)
     if args.json:
         print(json.dumps(data))
     else:
@@ -223,7 +226,6 @@ def figures(data: dict, results) -> dict[str, tuple]:
 
 def _write(out: Path, data: dict, results) -> dict:
     from dmf_sim.figures import save
-    out.mkdir(parents=True, exist_ok=True)
     files = {'csv': str(out / 'sweep.csv'), 'json': str(out / 'sweep.json')}
     data['figures'] = {}
     for name, (fig, cases) in figures(data, results).items():

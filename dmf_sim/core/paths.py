@@ -21,7 +21,7 @@ import yaml
 from dmf_sim.core.errors import ConfigError, ConfigFileError
 
 __all__ = ['PACKAGE', 'CONFIG_SUFFIXES', 'config_dir', 'config_file', 'read_text', 'parse_yaml',
-           'read_yaml_mapping', 'check_output_dir']
+           'read_yaml_mapping']
 
 PACKAGE = 'dmf_sim'
 CONFIG_SUFFIXES = ('.yaml', '.yml', '.csv')
@@ -51,10 +51,20 @@ def config_file(name_or_path: str | os.PathLike) -> Path:
     """Resolve a config name (``truck_dmf`` or ``truck_dmf.yaml``, in :func:`config_dir`) or a
     path.
 
-    Raises ConfigFileError (one line) if it is missing, a directory or unreadable."""
+    Raises ConfigFileError (one line) if it is missing, a directory, unreadable or a name the
+    file system refuses."""
     raw = os.fspath(name_or_path)
     if not str(raw).strip():
         raise ConfigFileError('config file name is empty')
+    try:
+        return _existing_config(raw)
+    except ConfigFileError:
+        raise
+    except OSError as exc:          # e.g. a name longer than the file system allows
+        raise ConfigFileError(f'{raw}: cannot be read ({exc.strerror or exc})') from None
+
+
+def _existing_config(raw: str) -> Path:
     path = Path(raw)
     if path.parent == Path('.') and not str(raw).startswith('.'):
         name = path.name if path.suffix in CONFIG_SUFFIXES else path.name + '.yaml'
@@ -131,19 +141,3 @@ def read_yaml_mapping(source: str | os.PathLike, what: str = 'configuration') ->
         raise ConfigError(f'{path}: not {article} {what} YAML mapping (the file holds {got})')
     return path, data
 
-
-def check_output_dir(path: str | os.PathLike, option: str = '--out') -> Path:
-    """Refuse, before anything is computed, an output directory that cannot be made: a path that
-    exists and is not a directory, or whose nearest existing ancestor is not a writable directory
-    (one-line :class:`ConfigError` naming ``option``). Creates nothing."""
-    p = Path(path)
-    if p.exists() and not p.is_dir():
-        raise ConfigError(f'{option} {p}: exists and is not a directory')
-    probe = p.absolute()
-    while not probe.exists() and probe != probe.parent:
-        probe = probe.parent
-    if not probe.is_dir():
-        raise ConfigError(f'{option} {p}: cannot be created, {probe} is not a directory')
-    if not os.access(probe, os.W_OK | os.X_OK):
-        raise ConfigError(f'{option} {p}: cannot be written, {probe} is not writable')
-    return p

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import logging
 import math
-import os
 import re
 import threading
 import time
@@ -24,6 +23,7 @@ import uuid
 from collections.abc import Callable
 
 from dmf_sim.core.errors import ConfigError, one_line
+from dmf_sim.core.limits import usable_cpus
 from dmf_sim.core.optional import require
 from dmf_sim.design.evaluate import (
     BatchResult,
@@ -42,7 +42,7 @@ WorkerPlugin = require('distributed.diagnostics.plugin', 'design').WorkerPlugin
 __all__ = ['LOOPBACK', 'CONNECT_TIMEOUT_S', 'WORKER_WATCH_INTERVAL_S', 'DEFAULT_BATCH_SIZE',
            'BATCHES_PER_WORKER', 'WORKER_PROFILER', 'WORKER_THREADS', 'QUIET_CLUSTER',
            'StudyPlugin', 'limit_threads', 'WorkerWatch',
-           'available_cores', 'local_cluster', 'start_local', 'close_local', 'close_run',
+           'local_cluster', 'start_local', 'close_local', 'close_run',
            'connect', 'wait_for_workers', 'batch_size_for', 'batch_sizes', 'run_study']
 
 LOOPBACK = '127.0.0.1'
@@ -159,16 +159,9 @@ class WorkerWatch:
         self._thread.join()
 
 
-def available_cores() -> int:
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:                     # not on Linux
-        return os.cpu_count() or 1
-
-
 def local_cluster(workers: int | None = None):
     """A LocalCluster of ``workers`` processes (default: one per core) on 127.0.0.1."""
-    n = workers or available_cores()
+    n = workers or usable_cpus()
     if not (isinstance(n, int) and n >= 1):
         raise ConfigError(f'--workers {n!r}: must be an integer >= 1')
     # every listener on 127.0.0.1 (the scheduler's HTTP routes on a free port, not 8787);

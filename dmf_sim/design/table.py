@@ -21,9 +21,9 @@ import os
 from pathlib import Path
 
 from dmf_sim.core.csv_out import write_csv
+from dmf_sim.core.destinations import check_output_dir
 from dmf_sim.core.errors import ConfigError
 from dmf_sim.core.optional import require
-from dmf_sim.core.paths import check_output_dir
 from dmf_sim.design.metrics import WORST
 
 pa = require('pyarrow', 'design')

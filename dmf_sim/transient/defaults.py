@@ -2,7 +2,7 @@
 commands' options, not the solvers)."""
 from __future__ import annotations
 
-import os
+from dmf_sim.core.limits import usable_cpus
 
 __all__ = ['DEFAULT_CHUNK_S', 'CHUNK_RANGE_S', 'default_threads', 'DEFAULT_BIN_RPM',
            'JUMP_WINDOW_CYCLES']
@@ -21,8 +21,4 @@ def default_threads() -> int:
     run on two or more CPUs, else 1 (integrate and write in turn). Both write the same bag;
     measured on the 2-core machine, two threads are faster when a core is free and no slower
     when the machine is busy (doc/performance.md)."""
-    try:
-        cpus = len(os.sched_getaffinity(0))
-    except (AttributeError, OSError):          # not on Linux
-        cpus = os.cpu_count() or 1
-    return 2 if cpus >= 2 else 1
+    return 2 if usable_cpus() >= 2 else 1

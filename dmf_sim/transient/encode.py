@@ -70,6 +70,11 @@ class SampleEncoder:
         if len(self.float_template) != _FLOAT64_BYTES:
             raise ValueError('unexpected Float64 layout')
 
+    @property
+    def sample_bytes(self) -> int:
+        """Payload bytes of one sample: its JointState and its Float64 messages."""
+        return len(self.template) + (len(SAMPLE_STREAMS) - 1) * _FLOAT64_BYTES
+
     def joint_states(self, stamps_ns: np.ndarray, position: np.ndarray, velocity: np.ndarray,
                      effort: np.ndarray) -> np.ndarray:
         """(rows, size) uint8: one JointState per row."""

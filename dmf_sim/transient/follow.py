@@ -44,9 +44,11 @@ class ProfileFollower:
         """Simulated time [s] of the next profile row after ``t`` (inf past the end)."""
         return self.t0 + self.profile.next_row_s(t - self.t0 + TIME_EPS_S)
 
-    def apply(self, t: float | None = None) -> bool:
+    def apply(self, t: float | None = None, to_row: int | None = None) -> bool:
         """Setpoints for simulated time ``t`` (default: now); False once the profile is over
-        (the last row's setpoints hold, the previous ramp rates are restored)."""
+        (the last row's setpoints hold, the previous ramp rates are restored). ``to_row``: the
+        row to reach (default: the end of the segment holding ``t``); the rows before it are
+        passed over linearly (``dmf-sim run`` merges rows closer than its shortest chunk)."""
         if self.done:
             return False
         sim = self.sim
@@ -57,9 +59,10 @@ class ProfileFollower:
             self.finish()
             return False
         i = prof.segment(tp)
-        t_end = prof.t_s[i + 1]
+        j = i + 1 if to_row is None else max(int(to_row), i + 1)
+        t_end = prof.t_s[j]
         left = max(t_end - tp, 1e-12)
-        speed, load = float(prof.speed_rpm[i + 1]), float(prof.load[i + 1])
+        speed, load = float(prof.speed_rpm[j]), float(prof.load[j])
         rate = max(abs(speed - sim.speed) / left, MIN_RAMP_RPM_PER_S)
         load_rate = max(abs(load - sim.load) / left, MIN_LOAD_RAMP_PER_S)
         sim.set_ramps(rate, load_rate)

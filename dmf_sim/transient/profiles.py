@@ -12,9 +12,12 @@ what ``dmf-sim setpoint --profile`` publishes. Sources (:func:`load_profile`):
   :data:`DEFAULT_SETTLE_S`) so the start from static equilibrium has settled.
 
 Rules (each broken one is a one-line :class:`ConfigError` naming the file, row and field): at
-least two rows, times finite, starting at 0 and strictly increasing, speeds finite and > 0 (and
-within the engine's data when a range is given: :meth:`Profile.check_speed_range`), loads in
-[0, 1].
+least two rows and at most :data:`~dmf_sim.core.limits.MAX_PROFILE_ROWS`, times finite, starting
+at 0, strictly increasing and ending within :data:`~dmf_sim.core.limits.MAX_PROFILE_DURATION_S`,
+speeds finite and > 0 (and within the engine's data when a range is given:
+:meth:`Profile.check_speed_range`), changing by at most :data:`MAX_SPEED_RATE_RPM_PER_S` between
+rows (the fastest ``ramp:``), loads in [0, 1]. A CSV table is read by numpy (a million rows in
+about a second); a file larger than the limits is refused before it is read.
 """
 from __future__ import annotations
 
@@ -22,22 +25,35 @@ import csv
 import io
 import math
 import os
+import warnings
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
 from dmf_sim.core.errors import ConfigError, ConfigFileError, OperatingRangeError, one_line
+from dmf_sim.core.limits import (
+    MAX_PROFILE_CSV_BYTES,
+    MAX_PROFILE_DURATION_S,
+    MAX_PROFILE_ROWS,
+    MAX_PROFILE_YAML_BYTES,
+)
 from dmf_sim.core.paths import config_dir, config_file, parse_yaml, read_text
 from dmf_sim.core.validation import check_keys, field_error, number
 
-__all__ = ['COLUMNS', 'DEFAULT_SETTLE_S', 'RAMP_RATE_RANGE', 'SETTLE_RANGE_S', 'LOAD_RANGE',
-           'PROFILE_DIR', 'RAMP_PREFIX', 'Profile', 'make_profile', 'ramp_profile',
-           'packaged_profiles', 'load_profile']
+__all__ = ['COLUMNS', 'DEFAULT_SETTLE_S', 'DEFAULT_LOAD', 'MAX_SPEED_RATE_RPM_PER_S',
+           'RAMP_RATE_RANGE', 'SETTLE_RANGE_S', 'LOAD_RANGE', 'PROFILE_DIR', 'RAMP_PREFIX',
+           'Profile', 'make_profile', 'ramp_profile', 'ramp_spec', 'packaged_profiles',
+           'load_profile']
 
 COLUMNS = ('time_s', 'speed_rpm', 'load')
 DEFAULT_SETTLE_S = 2.0            # dwell at a ramp's start speed [s] before it ramps
-RAMP_RATE_RANGE = (1e-3, 1e4)     # accepted ramp rates [rpm/s]
+DEFAULT_LOAD = 1.0                # a ramp's load when none is given
+MAX_SPEED_RATE_RPM_PER_S = 1e4    # fastest speed change of a profile, between rows or as a ramp
+                                  # [rpm/s]: a clutch engagement; a faster step is a typo or a
+                                  # table with a missing row
+RAMP_RATE_RANGE = (1e-3, MAX_SPEED_RATE_RPM_PER_S)     # accepted ramp rates [rpm/s]
 SETTLE_RANGE_S = (0.0, 3600.0)
 LOAD_RANGE = (0.0, 1.0)
 PROFILE_DIR = 'profiles'          # packaged profiles: config/profiles/NAME.yaml
@@ -110,40 +126,92 @@ class Profile:
 # ------------------------------------------------------------------------------- building
 
 def make_profile(rows, *, name: str = 'profile', source: str = '', where: str = 'profile',
-                 lines: list[int] | None = None) -> Profile:
-    """A validated :class:`Profile` from rows (time_s, speed_rpm, load). ``where`` and
-    ``lines`` (the file line of each row) go into the error messages."""
-    rows = list(rows)
+                 lines: list[int] | Callable[[int], int] | None = None) -> Profile:
+    """A validated :class:`Profile` from rows (time_s, speed_rpm, load): a sequence of rows or
+    an (n, 3) float array. ``where`` and ``lines`` (the file line of each row, a list or a
+    function of the row index) go into the error messages."""
 
     def at(i: int) -> str:
-        return f'{where}:{lines[i]}' if lines else f'{where} row {i + 1}'
+        if lines is None:
+            return f'{where} row {i + 1}'
+        return f'{where}:{lines(i) if callable(lines) else lines[i]}'
 
-    if len(rows) < 2:
-        raise ConfigError(f'{where}: a profile needs at least 2 rows (time_s, speed_rpm, load), '
-                          f'got {len(rows)}')
-    out = np.empty((len(rows), 3))
-    for i, row in enumerate(rows):
-        if not isinstance(row, (list, tuple)) or len(row) != 3:
-            raise field_error(at(i), 'row', 'must be [time_s, speed_rpm, load] (3 numbers)', row)
-        for j, (col, value) in enumerate(zip(COLUMNS, row)):
-            out[i, j] = number(value, at(i), col)
+    if not isinstance(rows, np.ndarray):
+        rows = list(rows)
+    _check_rows(len(rows), where)
+    if isinstance(rows, np.ndarray) and rows.ndim == 2 and rows.shape[1] == 3:
+        out = np.asarray(rows, dtype=float)
+    else:
+        out = np.empty((len(rows), 3))
+        for i, row in enumerate(rows):
+            if not isinstance(row, (list, tuple)) or len(row) != 3:
+                raise field_error(at(i), 'row', 'must be [time_s, speed_rpm, load] (3 numbers)',
+                                  row)
+            for j, (col, value) in enumerate(zip(COLUMNS, row)):
+                out[i, j] = number(value, at(i), col)
+    _check_table(out, at, where)
     t, speed, load = out.T
-    if t[0] != 0.0:
-        raise field_error(at(0), 'time_s', 'must start at 0 s', float(t[0]))
-    for i in range(1, len(t)):
-        if not t[i] > t[i - 1]:
-            raise field_error(at(i), 'time_s', f'must increase strictly (after {t[i - 1]:g})',
-                              float(t[i]))
-    for i in range(len(t)):
-        number(float(speed[i]), at(i), 'speed_rpm', 0.0, lo_open=True, unit='rpm')
-        number(float(load[i]), at(i), 'load', *LOAD_RANGE)
     return Profile(t.copy(), speed.copy(), load.copy(), name=name, source=source)
 
 
-def ramp_profile(from_rpm: float, to_rpm: float, rate_rpm_per_s: float, load: float = 1.0,
-                 settle_s: float = DEFAULT_SETTLE_S, *, where: str = 'ramp') -> Profile:
+def _check_rows(n: int, where: str) -> None:
+    if n < 2:
+        raise ConfigError(f'{where}: a profile needs at least 2 rows (time_s, speed_rpm, load), '
+                          f'got {n}')
+    if n > MAX_PROFILE_ROWS:
+        raise ConfigError(f'{where}: {n} rows, a profile has at most {MAX_PROFILE_ROWS}')
+
+
+def _first(bad: np.ndarray) -> int | None:
+    idx = np.flatnonzero(bad)
+    return int(idx[0]) if len(idx) else None
+
+
+def _check_table(out: np.ndarray, at: Callable[[int], str], where: str) -> None:
+    """The rules of the module docstring over the whole table at once; the first broken one is
+    reported for its row (the same message as a row checked alone)."""
+    t, speed, load = out.T
+    if (i := _first(~np.isfinite(out).all(axis=1))) is not None:
+        for col, value in zip(COLUMNS, out[i]):
+            number(float(value), at(i), col)
+    if t[0] != 0.0:
+        raise field_error(at(0), 'time_s', 'must start at 0 s', float(t[0]))
+    dt = np.diff(t)
+    if (i := _first(~(dt > 0))) is not None:
+        raise field_error(at(i + 1), 'time_s', f'must increase strictly (after {t[i]:g})',
+                          float(t[i + 1]))
+    if (i := _first(~(speed > 0))) is not None:
+        number(float(speed[i]), at(i), 'speed_rpm', 0.0, lo_open=True, unit='rpm')
+    if (i := _first(~((load >= LOAD_RANGE[0]) & (load <= LOAD_RANGE[1])))) is not None:
+        number(float(load[i]), at(i), 'load', *LOAD_RANGE)
+    rate = np.abs(np.diff(speed)) / dt
+    if (i := _first(rate > MAX_SPEED_RATE_RPM_PER_S * (1 + 1e-9))) is not None:
+        raise field_error(at(i + 1), 'speed_rpm', f'changes by {rate[i]:.6g} rpm/s after the row '
+                          f'before ({speed[i]:g} rpm at {t[i]:g} s); at most '
+                          f'{MAX_SPEED_RATE_RPM_PER_S:g} rpm/s (as a ramp:)', float(speed[i + 1]))
+    if t[-1] > MAX_PROFILE_DURATION_S:
+        raise field_error(at(len(t) - 1), 'time_s', f'must end within {MAX_PROFILE_DURATION_S:g} '
+                          's (a day; split a longer cycle)', float(t[-1]))
+
+
+def ramp_spec(from_rpm: float, to_rpm: float, rate_rpm_per_s: float, load: float = DEFAULT_LOAD,
+              settle_s: float = DEFAULT_SETTLE_S) -> str:
+    """The shortest ``ramp:`` spec of a ramp: trailing fields at their defaults left out, so
+    that ``ramp:800:1000:100:1:2`` is written ``ramp:800:1000:100`` and ``ramp:800:1000:100:0:0``
+    stays whole."""
+    fields = [f'{float(v):g}' for v in (from_rpm, to_rpm, rate_rpm_per_s, load, settle_s)]
+    if float(settle_s) == DEFAULT_SETTLE_S:
+        fields.pop()
+        if float(load) == DEFAULT_LOAD:
+            fields.pop()
+    return RAMP_PREFIX + ':'.join(fields)
+
+
+def ramp_profile(from_rpm: float, to_rpm: float, rate_rpm_per_s: float,
+                 load: float = DEFAULT_LOAD, settle_s: float = DEFAULT_SETTLE_S, *,
+                 where: str = 'ramp') -> Profile:
     """Built-in run-up (to > from) or run-down: ``settle_s`` at ``from_rpm``, then a constant
-    rate to ``to_rpm``."""
+    rate to ``to_rpm``; named by its :func:`ramp_spec`."""
     from_rpm = number(from_rpm, where, 'from_rpm', 0.0, lo_open=True, unit='rpm')
     to_rpm = number(to_rpm, where, 'to_rpm', 0.0, lo_open=True, unit='rpm')
     rate_rpm_per_s = number(rate_rpm_per_s, where, 'rate_rpm_per_s', *RAMP_RATE_RANGE,
@@ -157,11 +225,11 @@ def ramp_profile(from_rpm: float, to_rpm: float, rate_rpm_per_s: float, load: fl
     times = [0.0, float(settle_s), float(settle_s) + ramp_s] if settle_s > 0 else [0.0, ramp_s]
     speeds = ([from_rpm, from_rpm, to_rpm] if settle_s > 0 else [from_rpm, to_rpm])
     kind = 'run-up' if to_rpm > from_rpm else 'run-down'
-    name = f'ramp:{float(from_rpm):g}:{float(to_rpm):g}:{float(rate_rpm_per_s):g}'
+    name = ramp_spec(from_rpm, to_rpm, rate_rpm_per_s, load, settle_s)
     p = make_profile([(t, s, load) for t, s in zip(times, speeds)], name=name,
-                     source=f'built-in {kind} {float(from_rpm):g} -> {float(to_rpm):g} rpm at '
-                     f'{float(rate_rpm_per_s):g} rpm/s, load {float(load):g}, after '
-                     f'{float(settle_s):g} s at the start speed', where=where)
+                        source=f'built-in {kind} {float(from_rpm):g} -> {float(to_rpm):g} rpm at '
+                        f'{float(rate_rpm_per_s):g} rpm/s, load {float(load):g}, after '
+                        f'{float(settle_s):g} s at the start speed', where=where)
     return replace(p, settle_s=float(settle_s))
 
 
@@ -174,8 +242,52 @@ def _parse_ramp_spec(spec: str) -> Profile:
     return ramp_profile(**dict(zip(names, parts)), where=f'profile {spec!r}')
 
 
+def _file_size(path: Path, limit: int, kind: str) -> None:
+    """Refuse a profile file larger than ``limit`` bytes before reading it."""
+    try:
+        size = path.stat().st_size
+    except OSError as exc:
+        raise ConfigFileError(f'{path}: cannot be read ({exc.strerror or exc})') from None
+    if size > limit:
+        raise ConfigError(f'{path}: {size / 2**20:.1f} MiB, a {kind} profile is at most '
+                          f'{limit / 2**20:g} MiB (at most {MAX_PROFILE_ROWS} rows'
+                          + ('; write a longer table as CSV)' if kind == 'YAML' else ')'))
+
+
 def _read_csv(path: Path) -> Profile:
+    """A CSV table: the header checked here, the rows read by numpy; a row numpy cannot read is
+    found and reported by the row-by-row reader (:func:`_read_csv_rows`)."""
+    _file_size(path, MAX_PROFILE_CSV_BYTES, 'CSV')
     text = read_text(path)
+    where = f'profile {path}'
+    offset = header_line = 0
+    header: list[str] = []
+    for header_line, raw in enumerate(io.StringIO(text), start=1):
+        offset += len(raw)
+        stripped = raw.strip()
+        if stripped and not stripped.startswith('#'):
+            header = [c.strip() for c in next(csv.reader([stripped]))]
+            break
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter('ignore')         # 'input contained no data': refused below
+            data = np.loadtxt(io.StringIO(text[offset:]), delimiter=',', comments='#',
+                              ndmin=2, quotechar='"', max_rows=MAX_PROFILE_ROWS + 1)
+    except ValueError:
+        data = None
+    if data is None or data.shape[1] != len(COLUMNS) or header != list(COLUMNS):
+        return _read_csv_rows(path, text)
+
+    def line_of(i: int) -> int:         # only for an error message: the file line of row i
+        body = enumerate(io.StringIO(text[offset:]), start=header_line + 1)
+        rows = (n for n, raw in body if raw.strip() and not raw.strip().startswith('#'))
+        return next(n for k, n in enumerate(rows) if k == i)
+
+    return make_profile(data, name=path.stem, source=str(path), where=where, lines=line_of)
+
+
+def _read_csv_rows(path: Path, text: str) -> Profile:
+    """The table row by row (Python), for the message naming the line numpy could not read."""
     where = f'profile {path}'
     rows, lines = [], []
     header = None
@@ -195,6 +307,8 @@ def _read_csv(path: Path) -> Profile:
                               f'({",".join(COLUMNS)})', stripped)
         rows.append(cells)
         lines.append(lineno)
+        if len(rows) > MAX_PROFILE_ROWS:
+            break
     if header is None:
         raise ConfigError(f'{where}: empty (expected the header {",".join(COLUMNS)})')
     return make_profile(rows, name=path.stem, source=str(path), where=where, lines=lines)
@@ -202,6 +316,7 @@ def _read_csv(path: Path) -> Profile:
 
 def _read_yaml(path: Path) -> Profile:
     where = f'profile {path}'
+    _file_size(path, MAX_PROFILE_YAML_BYTES, 'YAML')
     data = parse_yaml(read_text(path), where)
     check_keys(data, where, '', (), ('name', 'source', 'points', 'ramp', 'columns'))
     name = str(data.get('name') or path.stem)
@@ -238,7 +353,11 @@ def load_profile(spec: str | os.PathLike) -> Profile:
     if text.startswith(RAMP_PREFIX):
         return _parse_ramp_spec(text)
     path = Path(text)
-    if path.parent == Path('.') and path.suffix == '' and not path.exists():
+    try:
+        bare_name = path.parent == Path('.') and path.suffix == '' and not path.exists()
+    except OSError as exc:              # e.g. a name longer than the file system allows
+        raise ConfigFileError(f'profile {text}: cannot be read ({exc.strerror or exc})') from None
+    if bare_name:
         packaged = config_dir() / PROFILE_DIR / f'{text}.yaml'
         if packaged.is_file():
             return _read_yaml(packaged)

@@ -28,6 +28,7 @@ changing hands), so the gain is less than the overlap; doc/performance.md has th
 """
 from __future__ import annotations
 
+import contextlib
 import math
 import queue
 import resource
@@ -40,6 +41,7 @@ from pathlib import Path
 import numpy as np
 from threadpoolctl import threadpool_limits
 
+from dmf_sim.core.destinations import Destination, check_free_space
 from dmf_sim.core.errors import ConfigError, OperatingRangeError, one_line
 from dmf_sim.core.names import check_namespace
 from dmf_sim.live.health import SimulationHealth
@@ -47,7 +49,7 @@ from dmf_sim.live.pacing import TimeBase, publish_stride
 from dmf_sim.live.parameters import PARAMETERS
 from dmf_sim.live.recording import run_metadata
 from dmf_sim.live.simulation import Integrated, LiveSimulation
-from dmf_sim.live.streams import STREAMS, resolved_topics
+from dmf_sim.live.streams import SAMPLE_STREAMS, STREAMS, resolved_topics
 from dmf_sim.monitor.messages import StatusData
 from dmf_sim.solvers.newmark import StepRecord
 from dmf_sim.transient.defaults import CHUNK_RANGE_S, DEFAULT_CHUNK_S, default_threads
@@ -55,10 +57,10 @@ from dmf_sim.transient.follow import TIME_EPS_S, ProfileFollower
 from dmf_sim.transient.profiles import Profile
 
 __all__ = ['WRITER_NAME', 'CHUNK_SPEED_STEP_RPM', 'CHUNK_LOAD_STEP', 'DEFAULT_SPLIT_S',
-           'DEFAULT_DIAGNOSTICS_HZ',
-           'MEMORY_MARKS', 'BLAS_THREADS', 'BLOCK_ROWS', 'PIPELINE_DEPTH',
-           'RunOptions', 'RunSummary',
-           'build_simulation', 'open_bag', 'run_profile']
+           'DEFAULT_DIAGNOSTICS_HZ', 'MEMORY_MARKS', 'BLAS_THREADS', 'BLOCK_ROWS',
+           'PIPELINE_DEPTH', 'MERGE_ROWS_S', 'MIN_SAMPLES', 'MESSAGE_OVERHEAD_BYTES',
+           'RunOptions', 'RunSummary', 'build_simulation', 'open_bag', 'bag_bytes',
+           'run_profile']
 
 WRITER_NAME = 'dmf-sim run'
 CHUNK_SPEED_STEP_RPM = 5.0  # ... and a chunk is short enough that the speed moves at most this
@@ -70,6 +72,12 @@ MEMORY_MARKS = (0.1, 0.5, 1.0)   # fractions of the run where the peak RSS is sa
 BLAS_THREADS = 1            # the torque read-out's small matrix products in one thread: OpenBLAS
                             # threads them past ~64 rows, ~10x slower on a busy 2-core machine
 PIPELINE_DEPTH = 3          # integrated chunks in flight between the two threads
+MERGE_ROWS_S = 0.01         # profile rows closer than this are merged into one chunk (a chunk
+                            # costs ~0.2 ms of its own: one per 1 ms row ran 12x slower than
+                            # the kernel); longer while speed and load stay within the steps above
+MIN_SAMPLES = 2             # a run records at least this many samples
+MESSAGE_OVERHEAD_BYTES = 47  # MCAP bytes per message beside its payload: the message record's
+                             # header (31) and its message index entry (16)
 BLOCK_ROWS = 1024           # samples gathered per bag chunk (~1.1 MB for the truck model): the
                             # per-chunk cost of encoding and writing is paid once per simulated
                             # s (measured: writing costs ~0.4x the kernel's time, ~0.75x with
@@ -226,19 +234,43 @@ class _Health:
         return sim.t, self.health.report(WRITER_NAME).status(WRITER_NAME)
 
 
+def _merged_row(profile: Profile, t: float, chunk_s: float) -> int:
+    """The row a chunk starting at profile time ``t`` [s] ends at: the end of the segment
+    holding ``t``; where rows are closer than MERGE_ROWS_S, the last row within MERGE_ROWS_S,
+    or further while speed and load stay within CHUNK_SPEED_STEP_RPM / CHUNK_LOAD_STEP of their
+    values at ``t`` (at most ``chunk_s`` on)."""
+    ts = profile.t_s
+    j = profile.segment(t + TIME_EPS_S) + 1
+    if ts[j] - t >= MERGE_ROWS_S or j == len(ts) - 1:
+        return j
+    near = int(np.searchsorted(ts, t + MERGE_ROWS_S + TIME_EPS_S, side='right')) - 1
+    far = int(np.searchsorted(ts, t + chunk_s + TIME_EPS_S, side='right')) - 1
+    speed, load = profile.at(t)
+    ok = ((np.abs(profile.speed_rpm[j:far + 1] - speed) <= CHUNK_SPEED_STEP_RPM)
+          & (np.abs(profile.load[j:far + 1] - load) <= CHUNK_LOAD_STEP))
+    steady = int(np.argmin(ok)) if not ok.all() else len(ok)
+    return max(j, near, j + steady - 1)
+
+
 def _chunk_plan(profile: Profile, sim: LiveSimulation, follower: ProfileFollower, total: int,
                 chunk: int, stop: threading.Event, health: _Health | None) -> Iterator[int]:
     """Steps of each chunk, the follower's setpoints applied before it (the caller integrates
-    the chunk before asking for the next one): chunks end at every profile row and health report
-    time and are at most ``chunk`` steps and :func:`_chunk_limit` long."""
+    the chunk before asking for the next one): chunks end at every profile row (rows closer
+    than MERGE_ROWS_S merged, :func:`_merged_row`) and health report time and are at most
+    ``chunk`` steps and :func:`_chunk_limit` long."""
     done = 0
     next_row = -math.inf
     limit = chunk
     while done < total and not stop.is_set():
         if sim.t >= next_row - TIME_EPS_S:        # a new profile segment
-            follower.apply(sim.t)
-            next_row = follower.next_row_s(sim.t)
-            limit = _chunk_limit(profile, follower.segment, chunk, sim.stride, sim.dt)
+            t = sim.t - follower.t0
+            row = _merged_row(profile, t, chunk * sim.dt)
+            if follower.apply(sim.t, to_row=row):
+                next_row = follower.t0 + float(profile.t_s[row])
+            else:
+                next_row = math.inf
+            limit = (_chunk_limit(profile, follower.segment, chunk, sim.stride, sim.dt)
+                     if row == follower.segment + 1 else chunk)
         to_row = (int(round((next_row - sim.t) / sim.dt)) if math.isfinite(next_row)
                   else total)
         to_report = health.steps_to_next() if health is not None else total
@@ -305,17 +337,49 @@ class _Integrating:
         self.thread.join()
 
 
+def bag_bytes(sim: LiveSimulation, samples: int) -> float:
+    """About how many bytes a run's bag of ``samples`` samples takes (the sample messages'
+    payloads and MCAP records; the latched messages and the summary are small beside them)."""
+    from dmf_sim.transient.encode import SampleEncoder
+    per_sample = SampleEncoder(sim.names).sample_bytes
+    return samples * (per_sample + len(SAMPLE_STREAMS) * MESSAGE_OVERHEAD_BYTES)
+
+
 def run_profile(profile: Profile, out: str | Path | None, options: RunOptions | None = None, *,
-                progress: bool = False) -> RunSummary:
+                progress: bool = False, destination: Destination | None = None) -> RunSummary:
     """Integrate ``profile`` and stream the samples to bag ``out`` (see the module docstring).
 
-    ``out`` None or ``options.write`` False: integrate and encode nothing (timing)."""
-    from dmf_sim.transient.encode import EncodedBlock, SampleEncoder, StatusEncoder
-
+    ``out`` None or ``options.write`` False: integrate and encode nothing (timing). Refused
+    before integrating (one line): a rate giving fewer than MIN_SAMPLES samples, a bag larger
+    than the free space on its disk. ``destination``: the command's checked output path ``out``
+    (:func:`dmf_sim.core.destinations.claim`): the earlier output it replaces counts as free
+    space, and is removed only after these checks."""
     opt = options or RunOptions()
     sim = build_simulation(profile, opt)
     rate_hz = 1.0 / (sim.stride * sim.dt)
     write = opt.write and out is not None
+    samples_due = int(round(profile.duration_s / sim.dt)) // sim.stride
+    if samples_due < MIN_SAMPLES:
+        raise ConfigError(f'rate (--rate) {rate_hz:g} Hz gives {samples_due} samples over the '
+                          f"profile's {profile.duration_s:g} s; a run records at least "
+                          f'{MIN_SAMPLES}: raise the rate')
+    if not write:
+        return _stream(profile, None, opt, sim, progress)
+    check_free_space(out, bag_bytes(sim, samples_due),
+                     f'the bag ({samples_due} samples at {rate_hz:g} Hz)',
+                     'shorten the profile or lower --rate',
+                     freed_bytes=destination.replaced_bytes() if destination else 0)
+    with destination.writing() if destination is not None else contextlib.nullcontext():
+        return _stream(profile, out, opt, sim, progress)
+
+
+def _stream(profile: Profile, out, opt: RunOptions, sim: LiveSimulation,
+            progress: bool) -> RunSummary:
+    """The run itself (:func:`run_profile`): ``out`` None writes nothing."""
+    from dmf_sim.transient.encode import EncodedBlock, SampleEncoder, StatusEncoder
+
+    rate_hz = 1.0 / (sim.stride * sim.dt)
+    write = out is not None
     recorder, topics = open_bag(out, sim, profile, opt, rate_hz) if write else (None, {})
     follower = ProfileFollower(profile, sim)
     timebase = TimeBase()

@@ -240,6 +240,10 @@ def runup_analysis(bags: list[str | os.PathLike], *, bin_rpm: float = DEFAULT_BI
         if len(cyc) < 2:
             raise BagError(f'{bag}: the speed does not ramp (a run-up or run-down bag is needed)')
         direction = 1 if cyc.speed_rpm[-1] >= cyc.speed_rpm[0] else -1
+        if direction in dirs:
+            way = 'up' if direction > 0 else 'down'
+            raise BagError(f'{bag}: a second run-{way} bag; give a run-up bag, a run-down bag or '
+                           'one of each')
         sig.cycles = cyc
         if sig.cycle_load is not None:
             sig.cycle_load = sig.cycle_load[ramp]
