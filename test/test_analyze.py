@@ -108,7 +108,8 @@ def test_missing_crank_angle_integrates_speed(bags):
 
 def test_neither_crank_angle_nor_speed_is_a_clear_error(bags, capsys):
     assert cli_main(['analyze', str(bags['neither']), '--json']) == 2
-    err = capsys.readouterr().err.strip().splitlines()
+    err = [line for line in capsys.readouterr().err.strip().splitlines()
+           if 'compiling the numerical kernels once' not in line]    # a cold cache says so first
     assert len(err) == 1
     assert 'neither a crank angle topic' in err[0] and '/engine/speed' in err[0]
     assert '/driveline/dmf_windup' in err[0]        # lists what the bag holds

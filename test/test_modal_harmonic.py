@@ -54,16 +54,17 @@ def test_harmonic_response_equals_dense_solve(truck_dmf):
 
 def test_single_dof_analytic():
     d = {'name': 'sdof', 'elements': [
-        {'name': 'GROUND', 'ratio': 1, 'stiffness': 0, 'damping': 0, 'inertia': 1e9},
+        {'name': 'GROUND', 'ratio': 1, 'stiffness': 0, 'damping': 0, 'inertia': 1e6},
         {'name': 'MASS', 'ratio': 2.0, 'stiffness': 1000.0, 'damping': 3.0, 'inertia': 0.5}]}
     m = driveline_from_dict(d).reduce()
     speeds = np.linspace(100, 3000, 7)
     p = np.array([0.0, 10.0 + 0j])
     r = harmonic_response(m, speeds, 2, p)
     Om = speeds * np.pi / 30
-    # huge ground inertia: x = p / (k - Om^2 j + i Om c)
+    # huge ground inertia (the largest an element may have): x = p / (k - Om^2 j + i Om c), to
+    # the ground's own motion, ~ j r^2 / J_ground = 2e-6 relative
     expected = 10.0 / (1000.0 - Om**2 * 0.5 + 1j * Om * 3.0)
-    np.testing.assert_allclose(r.angles[:, 1], expected, rtol=1e-6)
+    np.testing.assert_allclose(r.angles[:, 1], expected, rtol=5e-6)
     # transmitted torque through the spring: -(k + i Om c) dphi
     np.testing.assert_allclose(r.spring_torques[:, 1],
                                -(1000 + 1j * Om * 3) * (r.angles[:, 1] - r.angles[:, 0] / 2),
