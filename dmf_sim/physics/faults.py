@@ -760,6 +760,7 @@ class FaultTimeline:
         self.beta = np.radians(np.asarray(line.firing_phases_deg, dtype=float))
         self.entries: list[_Entry] = []
         self.factors = np.ones(self.n_cylinders)
+        self._all_fire = True
         self.dmf = FaultSet()
         self.dmf_version = 0
         self.events: list[FaultEvent] = []
@@ -860,7 +861,7 @@ class FaultTimeline:
     @property
     def idle(self) -> bool:
         """Nothing will ever change: no fault pending or active, every cylinder healthy."""
-        return not self._live() and bool(np.all(self.factors == 1.0))
+        return self._all_fire and all(e.state == 'ended' for e in self.entries)
 
     def take_events(self) -> list[FaultEvent]:
         out, self.events = self.events, []
@@ -881,7 +882,7 @@ class FaultTimeline:
         return t
 
     def _combustion_relevant(self) -> bool:
-        if not np.all(self.factors == 1.0):
+        if not self._all_fire:
             return True
         return any(e.fault.kind in COMBUSTION_KINDS and e.state in ('active', 'armed')
                    for e in self.entries)
@@ -1006,6 +1007,7 @@ class FaultTimeline:
         if by is not None:
             self._misfired[k] = by
             self.factors[k] = 0.0
+            self._all_fire = False
             tdc = psi_open - WINDOW_OPEN_RAD
             self.events.append(FaultEvent('misfire', by.id, by.fault, t, psi, by.started_s,
                                           cylinder=cyl, combustion=m, tdc_rad=tdc))
@@ -1016,4 +1018,5 @@ class FaultTimeline:
                     and e.fault.cylinders[0] == cyl:
                 factor *= float(e.fault.factor)
         self.factors[k] = factor
+        self._all_fire = bool(np.all(self.factors == 1.0))
 
