@@ -192,6 +192,7 @@ class LiveSimulation:
         self._exc_key = None
         self.faults: FaultTimeline | None = None
         self._dmf_version = 0
+        self.fault_events: list[FaultEvent] = []    # of the chunks of advance(), not taken yet
         self.integ, self._torques = self._make_integrator(self.line, self.engine)
         # load the compiled kernel now (numba cache), not on the first real-time tick
         self.integ.reset(self.speed_setpoint, self.load)
@@ -412,8 +413,16 @@ class LiveSimulation:
     def advance(self, nsteps: int) -> Samples:
         """Integrate ``nsteps`` steps: load ramp and excitation update once (at the chunk's middle,
         held over the chunk), then the kernel; returns the samples due in the chunk (every
-        ``stride``-th step)."""
-        return self.read_out(self.integrate(nsteps))
+        ``stride``-th step). The chunk's fault events are kept in :attr:`fault_events`."""
+        chunk = self.integrate(nsteps)
+        if chunk.fault_events:
+            self.fault_events.extend(chunk.fault_events)
+        return self.read_out(chunk)
+
+    def take_fault_events(self) -> list[FaultEvent]:
+        """The fault events of the chunks :meth:`advance` integrated since the last call."""
+        out, self.fault_events = self.fault_events, []
+        return out
 
     def integrate(self, nsteps: int, record: StepRecord | None = None) -> Integrated:
         """The first half of :meth:`advance`: setpoint ramps, excitation and the kernel, the
