@@ -42,7 +42,7 @@ from dmf_sim.physics.faults import (
 )
 
 __all__ = ['FAULT_PARAMETERS', 'GROUND_TRUTH_STREAM', 'ACTIVE_STREAM', 'OK', 'WARN',
-           'ground_truth_statuses', 'active_statuses', 'LiveFaults']
+           'ground_truth_statuses', 'active_statuses', 'ActiveFaults', 'LiveFaults']
 
 OK, WARN = 0, 1                    # diagnostic_msgs/DiagnosticStatus levels
 GROUND_TRUTH_STREAM = 'fault_ground_truth'      # keys of dmf_sim.live.streams.STREAMS
@@ -77,20 +77,40 @@ def ground_truth_statuses(events: Sequence[FaultEvent], stamp_ns: Callable[[floa
                         _values(e.values(stamp_ns)), node)) for e in events]
 
 
-def active_statuses(timeline: FaultTimeline | None, stamp_ns: Callable[[float], int],
-                    node: str) -> list[StatusData]:
-    """One status per active fault (``faults/active``): name ``fault <id>``, message
-    ``active: <the fault>``, values id, kind, targets, fault, start_s, start_ns."""
-    if timeline is None:
-        return []
+def active_statuses(active, stamp_ns: Callable[[float], int], node: str) -> list[StatusData]:
+    """One status per active fault (``faults/active``) of ``active``, (id, fault, start [s])
+    each (:meth:`FaultTimeline.active_statuses`, :class:`ActiveFaults`): name ``fault <id>``,
+    message ``active: <the fault>``, values id, kind, targets, fault, start_s, start_ns."""
     out = []
-    for fault_id, fault, start_s in timeline.active_statuses():
+    for fault_id, fault, start_s in active:
         values = {'id': str(fault_id), 'kind': fault.kind, 'targets': fault.target_text(),
                   'fault': fault.text(), 'start_s': f'{start_s:.12g}',
                   'start_ns': str(int(stamp_ns(start_s)))}
         out.append(StatusData(WARN, f'fault {fault_id}', f'active: {fault.text()}',
                               _values(values), node))
     return out
+
+
+class ActiveFaults:
+    """The active set followed from the events alone (``dmf-sim run`` writes chunks the
+    integrating thread has left behind): :meth:`update` with a chunk's events returns whether
+    the set changed; iterate for (id, fault, start [s])."""
+
+    def __init__(self) -> None:
+        self._active: dict[int, tuple] = {}
+
+    def update(self, events: Sequence[FaultEvent]) -> bool:
+        changed = False
+        for e in events:
+            if e.what == 'start':
+                self._active[e.fault_id] = (e.fault_id, e.fault, e.t_s)
+                changed = True
+            elif e.what == 'end':
+                changed |= self._active.pop(e.fault_id, None) is not None
+        return changed
+
+    def __iter__(self):
+        return iter(list(self._active.values()))
 
 
 class LiveFaults:
@@ -153,12 +173,13 @@ class LiveFaults:
     def _add(self, faults, where: str) -> tuple[list[int], str | None]:
         """Add all of ``faults`` or none (the reason)."""
         tl, ids = self.timeline, []
-        for f in faults:
+        for i, f in enumerate(faults):
             if reason := self.sim.check_fault(f):
-                for i in ids:
-                    tl.end(i, self.sim.t, self.sim.psi)
-                    tl.entries = [e for e in tl.entries if e.id != i]
-                return [], f'{where}: {reason}'
+                for fault_id in ids:
+                    tl.end(fault_id, self.sim.t, self.sim.psi)
+                    tl.entries = [e for e in tl.entries if e.id != fault_id]
+                name = f'{where}[{i}] ({f.kind})' if len(faults) > 1 else f'{where} ({f.kind})'
+                return [], f'{name}: {reason}'
             ids.append(tl.add(f, self.sim.t))
         return ids, None
 
@@ -192,14 +213,14 @@ class LiveFaults:
         for e, _ in saved:
             e.state = 'ended'
         try:
-            for f in faults:
+            for i, f in enumerate(faults):
                 if reason := self.sim.check_fault(f):
-                    return f'{name}: {reason}'
+                    return f'{name} ({f.kind}): {reason}'
             if len(faults) > 1:
                 probe = FaultTimeline(self.sim.line)
-                for f in faults:
+                for i, f in enumerate(faults):
                     if reason := probe.check(f, self.sim.t):
-                        return f'{name}: {reason}'
+                        return f'{name}[{i}] ({f.kind}): {reason}'
                     probe.add(f, self.sim.t)
         finally:
             for e, state in saved:
@@ -247,9 +268,8 @@ class LiveFaults:
             sink.publish_statuses(GROUND_TRUTH_STREAM, [status], stamp)
         if self._active_dirty or any(e.what != 'misfire' for e in events):
             self._active_dirty = False
-            sink.publish_statuses(ACTIVE_STREAM, active_statuses(self.timeline, stamp_ns,
-                                                                 self.node),
-                                  int(stamp_ns(self.sim.t)))
+            sink.publish_statuses(ACTIVE_STREAM, active_statuses(
+                self.timeline.active_statuses(), stamp_ns, self.node), int(stamp_ns(self.sim.t)))
 
     def health(self, report) -> None:
         """A health contributor: the request counters (WARN for requests refused in the

@@ -255,14 +255,14 @@ class LiveSimulation:
         self._swap(self.line.with_dmf(alpha=alpha, theta=theta), self.engine)
 
     # ---- faults -----------------------------------------------------------------------------
-    def attach_faults(self, faults=()) -> FaultTimeline:
+    def attach_faults(self, faults=(), where: str = 'faults') -> FaultTimeline:
         """Follow a :class:`FaultTimeline` from now on (``faults``: the schedule's, ids from 1);
         returns it (:attr:`faults`). Combustion faults need an engine with a motored model:
-        one-line ConfigError otherwise."""
+        one-line ConfigError otherwise, naming ``<where>[i] (kind)``."""
         timeline = FaultTimeline(self.line)
-        for f in faults:
+        for i, f in enumerate(faults):
             if reason := self.check_fault(f, timeline):
-                raise ConfigError(reason)
+                raise ConfigError(f'{where}[{i}] ({f.kind}): {reason}')
             timeline.add(f, self.t)
         self.faults = timeline
         self._dmf_version = timeline.dmf_version
@@ -271,12 +271,12 @@ class LiveSimulation:
     def check_fault(self, fault, timeline: FaultTimeline | None = None) -> str | None:
         """Why ``fault`` (a :class:`~dmf_sim.physics.faults.Fault`) cannot start now, or None:
         the timeline's checks (overlaps, windows, a valid spring) and a motored model for the
-        combustion faults."""
+        combustion faults (the reason without the fault's name)."""
         if fault.kind in COMBUSTION_KINDS and not self.integ.loads.has_motored:
             try:
                 self.integ.loads.motored_coefficients(self.speed, self.load)
             except ConfigError as exc:
-                return f'{fault.label()}: {exc}'
+                return str(exc)
         timeline = self.faults if timeline is None else timeline
         return timeline.check(fault, self.t) if timeline is not None else None
 

@@ -776,33 +776,34 @@ class FaultTimeline:
 
     def check(self, fault: Fault, now_s: float) -> str | None:
         """Why ``fault`` cannot be added now, or None: a window in the past or inverted, an
-        overlap with a fault not ended, a DMF set that is no valid spring."""
+        overlap with a fault not ended, a DMF set that is no valid spring (the reason without
+        the fault's name: the caller knows how to name it)."""
         start, end = fault.window(now_s)
         if fault.start_s is not None and start < now_s and not fault.single:
             start = now_s      # a window that started before now runs from now
         if end <= start and not fault.single:
-            return (f'{fault.label()}: its window ends at {end:g} s, not after its start '
+            return (f'its window ends at {end:g} s, not after its start '
                     f'{start:g} s (simulated time now {now_s:.3f} s)')
         for e in self._live():
             w = (e.start_s, e.end_s)
             reason = overlap_reason(fault, (start, end), e.fault, w, f'fault {e.id} '
                                     f'({e.fault.kind})')
             if reason:
-                return f'{fault.label()}: window {reason}'
+                return f'window {reason}'
         if fault.kind in DMF_KINDS:
             together = FaultSet(tuple(e.fault for e in self._live()
                                       if e.fault.kind in DMF_KINDS) + (fault,))
             try:
                 together.apply_to_driveline(self.line)
             except ConfigError as exc:
-                return f'{fault.label()}: with the DMF faults already set: {one_line(exc)}'
+                return f'with the DMF faults already set: {one_line(exc)}'
         return None
 
     def add(self, fault: Fault, now_s: float = 0.0) -> int:
         """Put ``fault`` on the timeline (``now_s``: the current simulated time, the start of
         a fault without ``start_s``); returns its id. ConfigError with :meth:`check`'s reason."""
         if reason := self.check(fault, now_s):
-            raise ConfigError(reason)
+            raise ConfigError(f'{fault.label()}: {reason}')
         start, end = fault.window(now_s)
         start = max(start, now_s) if not fault.single else start
         entry = _Entry(self._next_id, fault, start, end if not fault.single else math.inf)

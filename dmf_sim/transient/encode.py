@@ -19,19 +19,20 @@ from dmf_sim.bags.columns import FLOAT64, JOINT_STATE, joint_state_layout
 from dmf_sim.live.simulation import Samples
 from dmf_sim.live.streams import SAMPLE_STREAMS
 
-__all__ = ['SampleEncoder', 'EncodedBlock']
+__all__ = ['SampleEncoder', 'EncodedBlock', 'status_array_cdr']
 
 # the Float64 sample streams (SAMPLE_STREAMS after the joint states): the Samples field each
 # carries
 _FLOAT_FIELDS = {'dmf_windup': 'windup', 'speed': 'speed_rpm', 'crank_angle': 'psi'}
 
 _NS_PER_S = 1_000_000_000
+_DIAGNOSTIC_ARRAY = 'diagnostic_msgs/msg/DiagnosticArray'
 _FLOAT64_BYTES = 12            # CDR header 4 + float64 8
 
 
 def _typestore():
     from rosbags.typesys import Stores, get_typestore
-    return get_typestore(Stores.ROS2_JAZZY)
+    return get_typestore(Stores.ROS2_JAZZY)          # cached by rosbags
 
 
 def _float_field(rows: np.ndarray, offset: int, n: int) -> np.ndarray:
@@ -39,6 +40,24 @@ def _float_field(rows: np.ndarray, offset: int, n: int) -> np.ndarray:
     size) uint8 array, as a view (unaligned: CDR puts it where the message layout does), so
     values are written into the messages in one copy."""
     return rows[:, offset:offset + 8 * n].view('<f8')
+
+
+def status_array_cdr(statuses, stamp_ns: int) -> bytes:
+    """A ``diagnostic_msgs/DiagnosticArray`` of ``statuses``
+    (:class:`dmf_sim.monitor.messages.StatusData`) stamped ``stamp_ns`` as CDR bytes (what the
+    node publishes with :meth:`StatusData.to_msg`; rosbags' serializer)."""
+    store = _typestore()
+    T = store.types
+    sec, nsec = divmod(int(stamp_ns), _NS_PER_S)
+    header = T['std_msgs/msg/Header'](stamp=T['builtin_interfaces/msg/Time'](sec=sec,
+                                                                            nanosec=nsec),
+                                      frame_id='')
+    kv = T['diagnostic_msgs/msg/KeyValue']
+    status = [T['diagnostic_msgs/msg/DiagnosticStatus'](
+        level=int(st.level), name=st.name, message=st.message, hardware_id=st.hardware_id,
+        values=[kv(key=k, value=v) for k, v in st.values]) for st in statuses]
+    msg = T[_DIAGNOSTIC_ARRAY](header=header, status=status)
+    return bytes(store.serialize_cdr(msg, _DIAGNOSTIC_ARRAY))
 
 
 class SampleEncoder:
