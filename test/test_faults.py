@@ -412,3 +412,12 @@ def test_table_engine_refuses_misfires(truck_dmf):
         L.excitation(1200, 1.0, [1, 0, 1, 1, 1, 1])
     B, rear = L.excitation(1200, 1.0, np.ones(6))       # healthy: fine
     assert math.isfinite(rear)
+
+
+def test_packaged_example_schedule_has_every_kind(line):
+    from dmf_sim.physics.faults import FAULT_KINDS
+    sched = load_schedule('faults_example', line=line, wheels={'crank': 58},
+                          signals={'engine_speed'})
+    assert {f.kind for f in sched.faults} == set(FAULT_KINDS)
+    assert {f.mode for f in sched.faults if f.kind == 'misfire'} == {'single', 'every_cycle',
+                                                                      'random'}

@@ -199,3 +199,19 @@ def test_table_engine_refuses_combustion_faults_live():
     assert rt.faults.offer('{kind: dmf_damping, factor: 2}') is None
     run_for(rt, 0.02)
     assert len(rt.faults.timeline.active()) == 1
+
+
+def test_request_id_applies_a_request_once():
+    """A sender repeats a request until it is acknowledged (dmf-sim fault): the node applies
+    each request id once."""
+    rt, sink, log = make()
+    run_for(rt, 0.01)
+    for _ in range(3):
+        assert rt.faults.offer('{kind: misfire, cylinders: [4], request_id: abc-1}') is None
+    assert rt.faults.offer('[{kind: misfire, cylinders: [5], request_id: abc-2}]') is None
+    run_for(rt, 0.3)
+    mis = [e for e in sink.events() if e['what'] == 'misfire']
+    assert sorted(e['cylinder'] for e in mis) == [4, 5]
+    assert rt.faults.received == 2 and rt.faults.repeated == 2
+    # the id is not part of the fault
+    assert 'request_id' not in [e for e in sink.events()][0]['fault'].text()

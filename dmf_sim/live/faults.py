@@ -7,7 +7,9 @@ Requests come three ways, all in the fault grammar of :mod:`dmf_sim.physics.faul
   tick thread adds it to the timeline at the start of the next tick (:meth:`LiveFaults.apply`),
   where the checks that need the timeline run (overlaps, a valid spring, a motored engine
   model). A refusal is counted, logged with its reason and shown in ``/diagnostics``; the node
-  never stops for it;
+  never stops for it. A request may carry ``request_id: <text>`` (beside ``kind``): the node
+  applies a request id once, so a sender may repeat a request until it is acknowledged
+  (``dmf-sim fault`` does) without injecting it twice;
 * one string parameter per fault kind (:data:`FAULT_PARAMETERS`): its value is the fault(s) of
   that kind the parameter holds, '' none. The on-set callback validates
   (:meth:`LiveFaults.check_parameter`, the parameter keeps its value when refused), the
@@ -32,6 +34,7 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from dmf_sim.core.errors import ConfigError, one_line
+from dmf_sim.core.paths import parse_yaml
 from dmf_sim.monitor.messages import StatusData
 from dmf_sim.physics.faults import (
     DMF_KINDS,
@@ -41,10 +44,13 @@ from dmf_sim.physics.faults import (
     parse_request,
 )
 
-__all__ = ['FAULT_PARAMETERS', 'GROUND_TRUTH_STREAM', 'ACTIVE_STREAM', 'OK', 'WARN',
-           'ground_truth_statuses', 'active_statuses', 'ActiveFaults', 'LiveFaults']
+__all__ = ['REQUEST_ID', 'REQUEST_IDS_KEPT', 'FAULT_PARAMETERS', 'GROUND_TRUTH_STREAM',
+           'ACTIVE_STREAM', 'OK', 'WARN', 'ground_truth_statuses', 'active_statuses',
+           'ActiveFaults', 'LiveFaults']
 
 OK, WARN = 0, 1                    # diagnostic_msgs/DiagnosticStatus levels
+REQUEST_ID = 'request_id'          # the key of a request's id on faults/inject
+REQUEST_IDS_KEPT = 10_000          # request ids remembered (a repeat of an older one is new)
 GROUND_TRUTH_STREAM = 'fault_ground_truth'      # keys of dmf_sim.live.streams.STREAMS
 ACTIVE_STREAM = 'fault_active'
 
@@ -89,6 +95,17 @@ def active_statuses(active, stamp_ns: Callable[[float], int], node: str) -> list
         out.append(StatusData(WARN, f'fault {fault_id}', f'active: {fault.text()}',
                               _values(values), node))
     return out
+
+
+def _split_request_id(text, where: str) -> tuple[Any, str | None]:
+    """(the request without its ``request_id`` keys, the id or None)."""
+    spec = parse_yaml(text, where) if isinstance(text, str) else text
+    request_id = None
+    for item in (spec if isinstance(spec, list) else [spec]):
+        if isinstance(item, dict) and REQUEST_ID in item:
+            value = item.pop(REQUEST_ID)
+            request_id = str(value) if request_id is None else request_id
+    return ('' if spec is None else spec), request_id
 
 
 class ActiveFaults:
@@ -137,6 +154,8 @@ class LiveFaults:
         self.params: dict[str, list[int]] = {name: [] for name in FAULT_PARAMETERS}
         self._active_dirty = True       # faults/active to publish (at the first tick: empty)
         self._refused_reported = 0
+        self._seen: dict[str, None] = {}    # request ids applied (insertion order)
+        self.repeated = 0
 
     # ---- parsing ----------------------------------------------------------------------------
     def parse(self, text: str, where: str, kinds: Sequence[str] | None = None):
@@ -155,11 +174,24 @@ class LiveFaults:
     # ---- the topic (any thread) -------------------------------------------------------------
     def offer(self, text) -> str | None:
         """A request from ``faults/inject``: parsed now, queued for the next tick; returns the
-        reason it was refused, or None."""
+        reason it was refused, or None (also for a repeat of a request id already seen)."""
+        try:
+            spec, request_id = _split_request_id(text, 'faults/inject')
+        except ConfigError as exc:
+            with self._lock:
+                self.received += 1
+            return self._refuse(one_line(exc))
         with self._lock:
+            if request_id is not None:
+                if request_id in self._seen:
+                    self.repeated += 1
+                    return None
+                self._seen[request_id] = None
+                if len(self._seen) > REQUEST_IDS_KEPT:
+                    self._seen.pop(next(iter(self._seen)))
             self.received += 1
         try:
-            faults = self.parse(text, 'faults/inject')
+            faults = self.parse(spec, 'faults/inject')
         except ConfigError as exc:
             return self._refuse(one_line(exc))
         if not faults:
@@ -280,6 +312,7 @@ class LiveFaults:
         if new:
             report.problem(f'{new} fault request(s) refused: {self.last_refused}')
         report.values.update({'fault_requests': str(self.received),
+                              'fault_requests_repeated': str(self.repeated),
                               'fault_requests_refused': str(self.refused),
                               'faults_active': str(len(active)),
                               'fault_last_refused': self.last_refused})

@@ -433,10 +433,11 @@ def parse_faults(spec: Any, where: str = 'faults', **kw) -> tuple[Fault, ...]:
     return faults
 
 
-def parse_request(text: str, where: str = 'fault request', **kw) -> tuple[Fault, ...]:
+def parse_request(text: Any, where: str = 'fault request', **kw) -> tuple[Fault, ...]:
     """A live request (``faults/inject``, a fault parameter): one fault or a list in YAML flow
-    style; ``kw`` as :func:`parse_fault`. '' = none."""
-    if not isinstance(text, str):
+    style (or that text already read: a mapping or a list); ``kw`` as :func:`parse_fault`.
+    '' = none."""
+    if not isinstance(text, (str, Mapping, list)):
         raise ConfigError(f'{where}: must be text (a fault mapping in YAML flow style), got '
                           f'{type(text).__name__}')
     items = _as_list(text, where)
