@@ -421,3 +421,25 @@ def test_packaged_example_schedule_has_every_kind(line):
     assert {f.kind for f in sched.faults} == set(FAULT_KINDS)
     assert {f.mode for f in sched.faults if f.kind == 'misfire'} == {'single', 'every_cycle',
                                                                       'random'}
+
+
+def test_sensor_names_come_from_the_driveline():
+    """A driveline that describes its sensors (Driveline.sensors: tooth_wheels, bus_signals)
+    checks the names and the tooth index; one that does not leaves them unchecked."""
+    from types import SimpleNamespace
+
+    from dmf_sim.physics.faults import known_sensors
+    line = load_driveline('truck_dmf')
+    sensors = SimpleNamespace(
+        tooth_wheels=(SimpleNamespace(name='crank', teeth=60, present_teeth=58),),
+        bus_signals=(SimpleNamespace(name='engine_speed'),))
+    fake = SimpleNamespace(**{k: getattr(line, k) for k in ('cylinders', 'dmf', 'name')},
+                           sensors=sensors)
+    assert known_sensors(fake) == ({'crank': 58}, {'engine_speed'})
+    with pytest.raises(ConfigError, match="'tooth'.*0..57"):
+        parse_fault('{kind: sensor_edges, sensor: crank, mode: missing, tooth: 58}', line=fake)
+    with pytest.raises(ConfigError, match="'signal'"):
+        parse_fault('{kind: bus_signal, signal: oil, mode: stuck}', line=fake)
+    parse_fault('{kind: bus_signal, signal: engine_speed, mode: stuck}', line=fake)
+    if getattr(line, 'sensors', None) is None:
+        assert known_sensors(line) == (None, None)

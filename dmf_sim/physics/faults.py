@@ -70,7 +70,8 @@ from dmf_sim.physics.model import Driveline
 __all__ = ['FAULT_KINDS', 'COMBUSTION_KINDS', 'DMF_KINDS', 'SENSOR_KINDS', 'MISFIRE_MODES',
            'EDGE_MODES', 'BUS_MODES', 'DMF_DAMPING_FACTOR_MAX', 'SEED_MAX', 'WINDOW_OPEN_RAD',
            'CYCLE_RAD', 'Fault', 'FaultSet', 'FaultSchedule', 'FaultEvent', 'FaultTimeline',
-           'parse_fault', 'parse_faults', 'parse_request', 'load_schedule', 'check_overlaps',
+           'known_sensors', 'parse_fault', 'parse_faults', 'parse_request', 'load_schedule',
+           'check_overlaps',
            'event_from_values', 'combustion_windows']
 
 FAULT_KINDS = ('misfire', 'weak_cylinder', 'dmf_stiffness', 'dmf_broken', 'dmf_damping',
@@ -282,6 +283,17 @@ def _name(value: Any, where: str, name: str, known: Collection[str] | None, what
     return value
 
 
+def known_sensors(line: Driveline | None) -> tuple[dict[str, int] | None, set[str] | None]:
+    """(tooth wheel name -> teeth present, bus signal names) of ``line``'s sensors
+    (``Driveline.sensors``: its ``tooth_wheels`` and ``bus_signals``), or (None, None) when the
+    driveline does not describe sensors (then sensor names are not checked)."""
+    sensors = getattr(line, 'sensors', None) if line is not None else None
+    if sensors is None or not hasattr(sensors, 'tooth_wheels'):
+        return None, None
+    return ({w.name: int(getattr(w, 'present_teeth', w.teeth)) for w in sensors.tooth_wheels},
+            {b.name for b in sensors.bus_signals})
+
+
 def parse_fault(spec: Any, where: str = 'fault', *, line: Driveline | None = None,
                 wheels: Collection[str] | Mapping[str, int] | None = None,
                 signals: Collection[str] | None = None,
@@ -290,10 +302,13 @@ def parse_fault(spec: Any, where: str = 'fault', *, line: Driveline | None = Non
     naming ``where`` and the field otherwise.
 
     ``line``: the driveline (cylinders 1..n_cyl, DMF stages); ``wheels``: the tooth wheels'
-    names (a mapping name -> number of teeth also checks ``tooth``), ``signals``: the bus
-    signals' names; None = not checked. ``kinds``: the kinds allowed here (a parameter of one
-    kind); when only one, ``kind`` may be left out.
+    names (a mapping name -> number of teeth present also checks ``tooth``, numbered from 0 =
+    the first tooth after the gap), ``signals``: the bus signals' names; None = those of
+    ``line``'s sensors (:func:`known_sensors`), not checked when it describes none. ``kinds``:
+    the kinds allowed here (a parameter of one kind); when only one, ``kind`` may be left out.
     """
+    if wheels is None and signals is None:
+        wheels, signals = known_sensors(line)
     if isinstance(spec, str):
         spec = parse_yaml(spec, where)
     if isinstance(spec, Mapping) and 'kind' not in spec and len(kinds) == 1:
