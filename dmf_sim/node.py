@@ -22,6 +22,10 @@ except dmf_predicted (transient-local: latched). Table: :mod:`dmf_sim.live.strea
     pub  /diagnostics            diagnostic_msgs/DiagnosticArray  health (1 Hz)       depth 10
     pub  driveline/dmf_orders    diagnostic_msgs/DiagnosticArray  per engine cycle    depth 10
     pub  driveline/dmf_predicted diagnostic_msgs/DiagnosticArray  prediction, latched depth 1
+    sub  faults/inject           std_msgs/String       a fault request (YAML flow)   keep all
+    pub  faults/ground_truth     diagnostic_msgs/DiagnosticArray  one per fault start/end or
+                                 misfired combustion, latched                        depth 100
+    pub  faults/active           diagnostic_msgs/DiagnosticArray  active faults, latched depth 1
     pub  /clock                  rosgraph_msgs/Clock   simulated time; advertised only while
                                  pacing is fast, real_time_factor != 1, or publish_clock depth 1
 
@@ -29,7 +33,10 @@ Setpoints are commands: the subscriptions keep all (reliable flow control slows 
 that outruns the node instead of dropping its commands), their callbacks only validate, count
 and hand the value to the tick thread (no lock), and the last valid setpoint received is the one
 applied. Services: ``~/reset`` (std_srvs/Trigger): static equilibrium at the current setpoints;
-``~/record`` (std_srvs/SetBool): start/stop recording (same as setting parameter ``record``).
+``~/record`` (std_srvs/SetBool): start/stop recording (same as setting parameter ``record``);
+``~/clear_faults`` (std_srvs/Trigger): every fault ends now. Fault requests
+(:mod:`dmf_sim.live.faults`) on ``faults/inject`` are validated on arrival and applied between
+ticks; a bad one is refused with its reason (logged, counted in /diagnostics).
 
 Stamps: see :class:`dmf_sim.live.pacing.TimeBase` (wall clock at real-time factor 1, re-anchored
 when pacing returns to it). Parameters: :mod:`dmf_sim.live.parameters`,
@@ -71,7 +78,7 @@ try:
     from rclpy.serialization import serialize_message
     from rosgraph_msgs.msg import Clock
     from sensor_msgs.msg import JointState
-    from std_msgs.msg import Float64
+    from std_msgs.msg import Float64, String
     from std_srvs.srv import SetBool, Trigger
     ROS_IMPORT_ERROR: ImportError | None = None
 except ImportError as _exc:      # no ROS: PARAMETERS, STREAMS and main()'s message still work
@@ -177,6 +184,9 @@ class DrivelineNode(Node):
             self.create_subscription(Float64, f'engine/{kind}_setpoint',
                                      lambda msg, k=kind: self._on_setpoint(k, msg.data),
                                      _qos(), event_callbacks=lost)
+        self.create_subscription(String, 'faults/inject',
+                                 lambda msg: self.runtime.faults.offer(msg.data), _qos())
+        self.create_service(Trigger, '~/clear_faults', self._on_clear_faults)
         self.create_service(Trigger, '~/reset', self._on_reset)
         self.create_service(SetBool, '~/record', self._on_record)
         self.add_pre_set_parameters_callback(self._coerce_parameters)
@@ -269,6 +279,15 @@ class DrivelineNode(Node):
         response.message = self.runtime.reset()
         return response
 
+    def _on_clear_faults(self, _request, response):
+        from dmf_sim.live.faults import FAULT_PARAMETERS
+        response.message = self.runtime.clear_faults()
+        held = [n for n in FAULT_PARAMETERS if self.get_parameter(n).value]
+        if held:        # the parameters show what is active: none now
+            self.set_parameters([Parameter(n, Parameter.Type.STRING, '') for n in held])
+        response.success = True
+        return response
+
     def _on_record(self, request, response):
         self._answers = []
         result = self.set_parameters([Parameter('record', Parameter.Type.BOOL,
@@ -331,9 +350,10 @@ def usage() -> str:
     head, _, rest = __doc__.partition('What runs is')
     topics = rest[rest.index('Topics'):rest.index('Setpoints are commands')].rstrip()
     return (f'{head.strip()}\n\n{topics}\n\nServices: ~/reset (std_srvs/Trigger), ~/record '
-            '(std_srvs/SetBool). Parameters: ros2 param list/describe /driveline_node, or '
-            'config/driveline_node.yaml.\nStop: Ctrl-C or SIGTERM (closes the bag; later '
-            'SIGINT/SIGTERM are ignored until it is closed, SIGKILL stops at once); it also '
+            '(std_srvs/SetBool), ~/clear_faults (std_srvs/Trigger). Parameters: ros2 param '
+            'list/describe /driveline_node, or config/driveline_node.yaml.\nStop: Ctrl-C or '
+            'SIGTERM (closes the bag; later SIGINT/SIGTERM are ignored until it is closed, '
+            'SIGKILL stops at once); it also '
             'stops when the process that started it (ros2 launch) ends.')
 
 

@@ -1,4 +1,5 @@
-"""rclpy session for the ``dmf-sim`` commands that talk to a running node (setpoint, monitor).
+"""rclpy session for the ``dmf-sim`` commands that talk to a running node (setpoint, fault,
+monitor), and the delivery of a command message to it.
 
 rclpy is imported only when a session starts, so ``dmf-sim --help`` and the offline commands
 work without ROS. The session uses its own rclpy context and the environment's ROS_DOMAIN_ID /
@@ -14,6 +15,8 @@ from dmf_sim.core.errors import ConfigError
 from dmf_sim.core.names import check_namespace
 
 RELIABLE_DEPTH = 10     # the node's stream QoS: reliable, volatile, keep-last 10
+REPEAT_EVERY_S = 0.2    # publish a command again at this interval until acknowledged
+ACK_TIMEOUT_S = 5.0     # for the last acknowledgement
 
 
 @dataclass(frozen=True)
@@ -142,3 +145,44 @@ def reliable_qos(depth: int = RELIABLE_DEPTH, latched: bool = False):
                       reliability=ReliabilityPolicy.RELIABLE,
                       durability=(DurabilityPolicy.TRANSIENT_LOCAL if latched
                                   else DurabilityPolicy.VOLATILE))
+
+
+def wait_for_subscribers(pubs, executor, timeout_s: float) -> None:
+    """Spin until every publisher of ``pubs`` has a subscriber (the node's), or raise
+    NoResponseError naming the topics nobody subscribes to within ``timeout_s``."""
+    import time
+
+    from dmf_sim.core.errors import NoResponseError
+    end = time.monotonic() + timeout_s
+    while not all(p.get_subscription_count() > 0 for p in pubs):
+        if time.monotonic() > end:
+            missing = [p.topic_name for p in pubs if p.get_subscription_count() == 0]
+            raise NoResponseError(
+                f'no node subscribes to {", ".join(missing)} within {timeout_s:g} s (is '
+                'driveline_node running with this ROS_DOMAIN_ID and namespace?)')
+        executor.spin_once(timeout_sec=0.02)
+
+
+def publish_until_acked(items, timeout_s: float, what: str = 'message') -> None:
+    """Publish each (publisher, message) of ``items`` until every subscriber has acknowledged
+    it, then once more (the node's reader may discover this publisher seconds after this
+    publisher matched it, and acknowledges samples only from then on; the last one certainly
+    reaches a matched reader). The messages must be idempotent (setpoints; fault requests
+    carry a request id). NoResponseError after ``timeout_s``."""
+    import time
+
+    from rclpy.duration import Duration
+
+    from dmf_sim.core.errors import NoResponseError
+    end = time.monotonic() + timeout_s
+    acked = False
+    while not acked and time.monotonic() < end:
+        for pub, msg in items:
+            pub.publish(msg)
+        acked = all(p.wait_for_all_acked(Duration(seconds=REPEAT_EVERY_S)) for p, _ in items)
+    if not acked:
+        raise NoResponseError(f'the node did not acknowledge the {what} within {timeout_s:g} s')
+    for pub, msg in items:
+        pub.publish(msg)
+    if not all(p.wait_for_all_acked(Duration(seconds=ACK_TIMEOUT_S)) for p, _ in items):
+        raise NoResponseError(f'the node did not acknowledge the {what}')

@@ -3,6 +3,9 @@ a bag with the node's topics (``dmf_sim.transient.run``).
 
 PROFILE: a CSV (``time_s,speed_rpm,load``) or YAML file, a packaged profile
 (``truck_road_cycle``) or ``ramp:FROM:TO:RATE[:LOAD[:SETTLE]]`` (rpm, rpm, rpm/s, 0..1, s).
+``--faults FILE``: a fault schedule (YAML ``faults: [...]``, times of the profile) injected
+along the run, its ground truth written into the bag (``faults/ground_truth``,
+``faults/active``).
 """
 from __future__ import annotations
 
@@ -53,6 +56,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help='simulated time per chunk: excitation coefficients and load are held '
                         f'over a chunk, the speed ramp is exact (default {DEFAULT_CHUNK_S:g}, '
                         f'within [{CHUNK_RANGE_S[0]:g}, {CHUNK_RANGE_S[1]:g}])')
+    p.add_argument('--faults', metavar='FILE',
+                   help='fault schedule (YAML faults: [...]; misfires, weak cylinders, DMF and '
+                        'sensor faults with start_s/end_s or at_s in the profile\'s time) '
+                        'injected along the run; its ground truth goes into the bag')
     p.add_argument('--namespace', default='', help='write the topics under this ROS 2 namespace '
                    '(e.g. /truck1; checked by ROS 2\'s rules)')
     p.add_argument('--no-write', action='store_true', help='integrate only (timing)')
@@ -80,7 +87,8 @@ def run(args: argparse.Namespace) -> int:
     opt = RunOptions(driveline=args.config, engine=args.engine, load_set=args.load_set,
                      alpha=args.alpha, theta=args.theta, dt=args.dt, rate_hz=args.rate,
                      chunk_s=args.chunk, write=not args.no_write, namespace=namespace,
-                     threads=default_threads() if args.threads is None else args.threads)
+                     threads=default_threads() if args.threads is None else args.threads,
+                     faults=args.faults)
     load_kernels(NAME, 'time integration')      # before the bar: its rate without a compile
     summary = run_profile(profile, None if args.no_write else args.out, opt,
                           progress=not (args.no_progress or args.json), destination=dest)
@@ -88,9 +96,11 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(summary.as_dict()))
     else:
         what = f'bag {summary.bag}: {summary.messages} messages' if summary.bag else 'not written'
+        faults = (f'; faults {args.faults}: ground-truth events: {summary.fault_events}, '
+                  f'misfires: {summary.misfires}' if args.faults else '')
         print(f'{profile.name}: {summary.simulated_s:.3f} s simulated in {summary.wall_s:.2f} s '
               f'(x{summary.realtime_factor:.0f} real time), {summary.samples} samples at '
-              f'{summary.rate_hz:g} Hz; {what}')
+              f'{summary.rate_hz:g} Hz; {what}{faults}')
     if summary.interrupted:
         print(f'dmf-sim run: interrupted at {summary.simulated_s:.3f} s; the bag holds what was '
               'simulated', file=sys.stderr)

@@ -29,16 +29,14 @@ import sys
 import time
 
 from dmf_sim.commands._options import check_wait
-from dmf_sim.core.errors import ConfigError, NoResponseError, OperatingRangeError
+from dmf_sim.core.errors import ConfigError, OperatingRangeError
 from dmf_sim.core.limits import MAX_WAIT_S
 
-__all__ = ['NAME', 'HELP', 'REPEAT_EVERY_S', 'ACK_TIMEOUT_S', 'add_arguments', 'check', 'run']
+__all__ = ['NAME', 'HELP', 'add_arguments', 'check', 'run']
 
 NAME = 'setpoint'
 HELP = ('Send an engine speed [rpm] and/or load [0..1] setpoint to a running driveline_node '
         '(waits until its subscription matched; needs rclpy)')
-REPEAT_EVERY_S = 0.2    # publish again at this interval until acknowledged
-ACK_TIMEOUT_S = 5.0     # for the last acknowledgement
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -121,48 +119,34 @@ def _check_nodes(args, node, executor, speed_topic: str, timeout_s: float) -> No
 
 
 def run(args: argparse.Namespace) -> int:
-    from dmf_sim.commands._ros import reliable_qos, ros_session
+    from dmf_sim.commands._ros import (
+        ACK_TIMEOUT_S,
+        publish_until_acked,
+        reliable_qos,
+        ros_session,
+        wait_for_subscribers,
+    )
 
     setpoints = check(args)
     with ros_session('dmf_sim_setpoint', args.namespace) as (rclpy, node, executor):
-        from rclpy.duration import Duration
         from std_msgs.msg import Float64
 
         pubs = [(node.create_publisher(Float64, name, reliable_qos()), value, text)
                 for name, value, text in setpoints]
         end = time.monotonic() + args.timeout
-        while not all(p.get_subscription_count() > 0 for p, _, _ in pubs):
-            if time.monotonic() > end:
-                missing = [p.topic_name for p, _, _ in pubs if p.get_subscription_count() == 0]
-                raise NoResponseError(
-                    f'no node subscribes to {", ".join(missing)} within {args.timeout:g} s (is '
-                    'driveline_node running with this ROS_DOMAIN_ID and namespace?)')
-            executor.spin_once(timeout_sec=0.02)
+        wait_for_subscribers([p for p, _, _ in pubs], executor, args.timeout)
         speed_pubs = [p for p, _, _ in pubs if p.topic_name.endswith('/engine/speed_setpoint')]
         if speed_pubs:
             _check_nodes(args, node, executor, speed_pubs[0].topic_name,
                          max(end - time.monotonic(), ACK_TIMEOUT_S))
+        left = max(end - time.monotonic(), ACK_TIMEOUT_S)
         if getattr(args, 'profile_data', None) is not None:
             _play(args.profile_data, pubs, executor, Float64)
             pubs = [(p, v, f'{v:g} rpm' if 'speed' in p.topic_name else f'load {v:g}')
                     for (p, _, _), v in zip(pubs, args.profile_data.at(
                         args.profile_data.duration_s))]
-            end = time.monotonic() + args.timeout
-        # The node's reader may discover this publisher seconds after this publisher matched
-        # it; it acknowledges samples only from then on. Publish until every subscriber has
-        # acknowledged, then once more (that one certainly reaches a matched reader).
-        acked = False
-        while not acked and time.monotonic() < end:
-            for pub, value, _ in pubs:
-                pub.publish(Float64(data=value))
-            acked = all(p.wait_for_all_acked(Duration(seconds=REPEAT_EVERY_S)) for p, _, _ in pubs)
-        if not acked:
-            raise NoResponseError(f'the node did not acknowledge the setpoint within '
-                                  f'{args.timeout:g} s')
-        for pub, value, _ in pubs:
-            pub.publish(Float64(data=value))
-        if not all(p.wait_for_all_acked(Duration(seconds=ACK_TIMEOUT_S)) for p, _, _ in pubs):
-            raise NoResponseError('the node did not acknowledge the setpoint')
+            left = args.timeout
+        publish_until_acked([(p, Float64(data=v)) for p, v, _ in pubs], left, 'setpoint')
         for pub, _, text in pubs:
             n = pub.get_subscription_count()
             print(f'{pub.topic_name}: {text} delivered to {n} subscriber{"s" if n != 1 else ""}')

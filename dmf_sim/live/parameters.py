@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from typing import Any, NamedTuple
 
+from dmf_sim.live.faults import FAULT_PARAMETERS
 from dmf_sim.live.foxglove_bridge import FOXGLOVE_PARAMETERS
 from dmf_sim.live.pacing import OVERRUN_POLICIES
 from dmf_sim.live.run_loop import PACING_MODES
@@ -87,6 +88,8 @@ PARAMETERS.update({name: ParameterSpec(default, text, rng, name in _FIXED)
                    for name, (default, text, rng) in {**MONITOR_PARAMETERS,
                                                       **FOXGLOVE_PARAMETERS}.items()})
 MONITOR_SETTINGS = tuple(n for n in MONITOR_PARAMETERS if n != 'monitor')
+# one string parameter per fault kind (dmf_sim.live.faults): the faults it holds, '' = none
+PARAMETERS.update({name: ParameterSpec('', text) for name, (_, text) in FAULT_PARAMETERS.items()})
 
 DMF_PARAMETERS: dict[str, ParameterSpec] = {   # default: from the driveline YAML
     'alpha': ParameterSpec(None, 'DMF secondary stiffness factor: secondary stiffness '

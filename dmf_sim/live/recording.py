@@ -14,9 +14,10 @@
 * Splits: ``max_duration_s`` is handed to the recorder when it supports it (the bag layer's
   ``max_duration_s``); :attr:`splits_supported` tells whether it does.
 * QoS: each topic's offered QoS (``qos``, rosbag2 profile mappings) goes into the bag. The last
-  message of each transient-local (latched) topic is kept while not recording too, and every
-  recording starts with it (the bag layer repeats it at the start of every split), as a late
-  subscriber receives it: a recording started after the prediction still holds it.
+  messages of each transient-local (latched) topic, as many as its depth, are kept while not
+  recording too, and every recording starts with them (the bag layer repeats them at the start
+  of every split), as a late subscriber receives them: a recording started after the prediction
+  still holds it, one started after a fault's start holds the fault's ground truth.
 
 :func:`run_metadata` is what the node stores in the bag's ``custom_data``.
 """
@@ -25,6 +26,7 @@ from __future__ import annotations
 import inspect
 import shutil
 import time
+from collections import deque
 from pathlib import Path
 from typing import Mapping
 
@@ -70,9 +72,11 @@ class RecordingControl:
             from dmf_sim.bags.writer import BagRecorder as recorder_class
         self.topics = dict(topics)
         self.qos = dict(qos or {})
-        #: latched topic -> its last message (log time, bytes), recorded or not
-        self.latched: dict[str, tuple[int, bytes] | None] = {
-            t: None for t, profile in self.qos.items() if latched_depth([profile])}
+        #: latched topic -> its last messages (log time, bytes), as many as its depth, recorded
+        #: or not
+        self.latched: dict[str, deque] = {
+            t: deque(maxlen=n) for t, profile in self.qos.items()
+            if (n := latched_depth([profile]))}
         self.log = log
         self.max_duration_s = max_duration_s
         self.recorder_class = recorder_class
@@ -143,9 +147,10 @@ class RecordingControl:
 
     def start(self, recorder) -> None:
         """Record to a prepared bag from now on; it starts with the latched messages."""
-        for topic, last in self.latched.items():
-            if last is not None and hasattr(recorder, 'hold_latched'):
-                recorder.hold_latched(topic, *last)
+        for topic, held in self.latched.items():
+            for last in held:
+                if hasattr(recorder, 'hold_latched'):
+                    recorder.hold_latched(topic, *last)
         self.recorder, self.path, self.error = recorder, recorder.path, ''
         self.log.info(f'recording to {recorder.path}')
 
@@ -189,8 +194,8 @@ class RecordingControl:
             pass
 
     def write(self, topic: str, log_ns: int, data: bytes) -> None:
-        if topic in self.latched:
-            self.latched[topic] = (log_ns, bytes(data))
+        if (held := self.latched.get(topic)) is not None:
+            held.append((log_ns, bytes(data)))
         if self.recorder is None:
             return
         try:

@@ -21,8 +21,11 @@ Hook points (for per-cycle order analysis, predictions, alarms): ``observers`` a
 tick thread with every chunk of published :class:`dmf_sim.live.simulation.Samples` and their stamps
 [ns] (views: copy what you keep, return within ~0.1 ms, hand heavy work to a worker: the node's DMF
 monitor, :class:`dmf_sim.monitor.worker.LiveMonitor`, is one); ``setpoint_listeners`` are called
-with ``(speed_setpoint_rpm, load_setpoint)`` whenever an applied setpoint changes. Health
-contributors live in :class:`dmf_sim.live.health.HealthMonitor`.
+with ``(speed_setpoint_rpm, load_setpoint)`` whenever an applied setpoint changes;
+``before_tick`` callables run in the tick thread after the setpoints are applied (requests
+queued by other threads, e.g. faults, applied between ticks) and ``after_tick`` ones after the
+tick's chunks (their ground truth published). Health contributors live in
+:class:`dmf_sim.live.health.HealthMonitor`.
 """
 from __future__ import annotations
 
@@ -167,6 +170,8 @@ class RunLoop:
         self.diagnostics_period_s = float(diagnostics_period_s)
         self.observers: list[Callable[[Samples, np.ndarray], None]] = []
         self.setpoint_listeners: list[Callable[[float, float], None]] = []
+        self.before_tick: list[Callable[[], None]] = []
+        self.after_tick: list[Callable[[], None]] = []
         self.last_lag = 0.0
         self.next_tick = self.next_diag = 0.0
         self.wake_late_max = self.tick_busy_max = 0.0     # [s], per diagnostics window
@@ -234,6 +239,13 @@ class RunLoop:
     def tick(self, now: float) -> None:
         """One tick at wall time ``now`` (call with the lock held)."""
         self.apply_setpoints()
+        for hook in self.before_tick:
+            hook()
+        self._tick(now)
+        for hook in self.after_tick:
+            hook()
+
+    def _tick(self, now: float) -> None:
         sim, pacer = self.sim, self.pacer
         if pacer.fast:
             chunk = sim.stride * max(1, math.ceil(FAST_CHUNK_S / (sim.dt * sim.stride)))

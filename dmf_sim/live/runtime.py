@@ -19,6 +19,7 @@ from typing import Mapping
 
 from dmf_sim.core.errors import ConfigError, one_line
 from dmf_sim.core.numbers import fmt_num
+from dmf_sim.live.faults import FAULT_PARAMETERS, LiveFaults
 from dmf_sim.live.health import HealthMonitor
 from dmf_sim.live.pacing import Pacer, publish_stride
 from dmf_sim.live.parameters import MONITOR_SETTINGS, choice_reason
@@ -98,6 +99,7 @@ class LiveRuntime:
         self.recording = RecordingControl(topics, log, max_duration_s=p['bag_max_duration_s'],
                                           qos=qos)
         self.health = HealthMonitor(self.loop, self.recording)
+        self.faults = self._start_faults(sink, p)
         self.monitor = self._start_monitor(sink) if p['monitor'] and self.has_dmf else None
         self.foxglove = None
         if p['foxglove_port']:
@@ -118,6 +120,31 @@ class LiveRuntime:
             # load the message type store now: the first recording then starts in ~10 ms
             from rosbags.typesys import Stores, get_typestore
             get_typestore(Stores.ROS2_JAZZY)
+
+    # ---- faults: requests in, ground truth out (dmf_sim.live.faults) ----------------------------
+    def _start_faults(self, sink, values: Mapping) -> LiveFaults:
+        """The node's faults: the parameters' start-up values applied (a bad one: ConfigError
+        naming it), topic requests applied between ticks, the ground truth published after
+        each tick."""
+        faults = LiveFaults(self.sim, self.log, self.node_name)
+        for name in FAULT_PARAMETERS:
+            if values.get(name):
+                if reason := faults.check_parameter(name, values[name]):
+                    raise ConfigError(f'parameter {reason}')
+                faults.apply_parameter(name, values[name])
+        loop = self.loop
+        loop.before_tick.append(faults.apply)
+        loop.after_tick.append(lambda: faults.publish(sink, loop.time.stamp_ns,
+                                                      self.sim.take_fault_events()))
+        self.health.contributors.append(faults.health)
+        return faults
+
+    def clear_faults(self) -> str:
+        """End every fault now (``~/clear_faults``); the fault parameters become ''."""
+        with self.lock:
+            msg = self.faults.clear()
+            self.values.update(dict.fromkeys(FAULT_PARAMETERS, ''))
+        return msg
 
     # ---- the DMF monitor: live orders, prediction, alarms (dmf_sim.monitor.worker) -------------
     def _monitor_settings(self, values: Mapping):
@@ -178,6 +205,8 @@ class LiveRuntime:
         if self.monitor is not None:
             lines.append(f'DMF monitor: {", ".join(by["cycle"])} per engine cycle, '
                          f'{", ".join(by["setpoint"])} when the setpoint changes')
+        lines.append(f'faults: {", ".join(by["fault"])}; inject: dmf-sim fault{where} '
+                     "'{kind: misfire, cylinders: [3]}' or the fault_* parameters")
         lines.append(f'look: dmf-sim monitor{where} | ros2 topic hz {topics["speed"]} | set: '
                      f'dmf-sim setpoint{where} --speed 1200 --load 0.8')
         bag = f' (closes the bag {self.recording.path})' if self.recording.active else ''
@@ -272,7 +301,7 @@ class LiveRuntime:
             if not cur['theta'] > 0:
                 return f'theta must be > 0 rad, got {fmt_num(cur["theta"])}'
             try:
-                sim.line.with_dmf(alpha=cur['alpha'], theta=cur['theta'])
+                sim.faulted_line(sim.line.with_dmf(alpha=cur['alpha'], theta=cur['theta']))
             except ValueError as exc:
                 return f'alpha/theta: {one_line(exc)}'
         if 'load_set' in new:
@@ -284,6 +313,9 @@ class LiveRuntime:
                 self._monitor_settings(cur)
             except ConfigError as exc:
                 return one_line(exc)
+        for name in FAULT_PARAMETERS:
+            if name in new and (reason := self.faults.check_parameter(name, new[name])):
+                return reason
         if new.get('record') and not self.recording.active:
             return self.recording.check(cur['bag_path'])
         return None
@@ -311,6 +343,9 @@ class LiveRuntime:
             self.log.info(msgs[-1])
         if 'load_set' in new:
             sim.set_load_set(new['load_set'])
+        for name in FAULT_PARAMETERS:
+            if name in new:
+                msgs.append(self.faults.apply_parameter(name, new[name]))
         if self.monitor is not None and ({'alpha', 'theta', 'load_set'} & set(new)):
             self.monitor.set_model(sim.line, sim.engine)
         if self.monitor is not None and any(k in new for k in MONITOR_SETTINGS):

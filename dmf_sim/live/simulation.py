@@ -10,6 +10,13 @@ loop in :mod:`dmf_sim.live.run_loop`.
   increment per chunk), excitation update per chunk, rebuild on alpha/theta/load-set changes
   keeping the operating point and the vibratory state, reset to static equilibrium, solver health,
   and the per-element samples the node publishes (vibratory angle, velocity, transmitted torque).
+
+Faults (:attr:`LiveSimulation.faults`, a :class:`~dmf_sim.physics.faults.FaultTimeline`): a
+chunk is split at the step where a combustion window opens with another combustion factor or a
+DMF fault starts or ends (exact to one step); the cylinder coefficients of the next part are
+``DrivelineLoads.excitation`` with the timeline's factors, and a DMF change rebuilds the
+integrator keeping the state (:meth:`LiveSimulation._swap`). Without faults (or an idle
+timeline) a chunk is what it always was.
 """
 from __future__ import annotations
 
@@ -22,6 +29,7 @@ from dmf_sim.core.errors import ConfigError, OperatingRangeError
 from dmf_sim.core.numbers import fmt_num
 from dmf_sim.core.units import RAD_S_TO_RPM
 from dmf_sim.live.torques import TorqueOperator
+from dmf_sim.physics.faults import COMBUSTION_KINDS, FaultEvent, FaultTimeline
 from dmf_sim.physics.loads import DrivelineLoads
 from dmf_sim.physics.model import Driveline, load_driveline
 from dmf_sim.solvers.newmark import NewmarkIntegrator, StepRecord
@@ -124,6 +132,7 @@ class Integrated:
     first: int
     omega_dot: float
     loads: np.ndarray | None = None
+    fault_events: list[FaultEvent] = field(default_factory=list)
 
 
 @dataclass
@@ -132,7 +141,8 @@ class LiveSimulation:
 
     Build with :meth:`from_config`. Setpoint setters return None on success or the reason for
     refusing (the previous setpoint stays); structural changes raise ConfigError and leave the
-    simulation unchanged.
+    simulation unchanged. :attr:`line` is the driveline as configured (alpha/theta apply to
+    it); the integrated one (:attr:`model`) has the active DMF faults applied.
     """
 
     line: Driveline
@@ -180,6 +190,9 @@ class LiveSimulation:
         self.phase = 0
         self._knees = self._secondary = 0
         self._exc_key = None
+        self.faults: FaultTimeline | None = None
+        self._dmf_version = 0
+        self.fault_events: list[FaultEvent] = []    # of the chunks of advance(), not taken yet
         self.integ, self._torques = self._make_integrator(self.line, self.engine)
         # load the compiled kernel now (numba cache), not on the first real-time tick
         self.integ.reset(self.speed_setpoint, self.load)
@@ -206,26 +219,76 @@ class LiveSimulation:
     def names(self) -> list[str]:
         return list(self.model.names)
 
+    def faulted_line(self, line: Driveline | None = None) -> Driveline:
+        """``line`` (default :attr:`line`) with the active DMF faults applied (ConfigError when
+        they leave no valid spring)."""
+        line = self.line if line is None else line
+        return self.faults.dmf.apply_to_driveline(line) if self.faults is not None else line
+
     def _swap(self, line: Driveline, engine) -> None:
         """Rebuild the integrator for another DMF / engine keeping the operating point (speed,
-        target, load, crank angle, time) and the vibratory state (same DOF layout)."""
-        new, torques = self._make_integrator(line, engine)
+        target, load, crank angle, time, combustion factors) and the vibratory state (same DOF
+        layout). ``line``: the configured driveline; the active DMF faults are applied to it."""
+        new, torques = self._make_integrator(self.faulted_line(line), engine)
         old = self.integ
         if new.model.n_dof != old.model.n_dof:
             raise ConfigError('the new driveline has another DOF layout; restart the node instead')
         new.reset(old.speed_rpm, self.load, psi=old.psi, t=old.t)
         new.q[:] = old.q
         new.v[:] = old.v
+        if old.factors is not None:      # the faulted excitation of the chunk in hand
+            new.update_excitation(*(self._exc_key or (old.speed_rpm, self.load)),
+                                  factors=old.factors)
         new.a[:] = new.acceleration(new.q, new.v)
         new.set_target(self.speed_setpoint, self.speed_ramp_rpm_per_s)
         self._knees += old.knee_crossings
         self._secondary += old.steps_secondary
         self.integ, self._torques, self.line, self.engine = new, torques, line, engine
-        self._exc_key = None
+        if self.faults is not None:
+            self.faults.line = line
+            self._dmf_version = self.faults.dmf_version
+        if old.factors is None:
+            self._exc_key = None
 
     def set_dmf(self, alpha: float | None = None, theta: float | None = None) -> None:
         """New DMF knee parameters (alpha, theta [rad]); ConfigError if invalid."""
         self._swap(self.line.with_dmf(alpha=alpha, theta=theta), self.engine)
+
+    # ---- faults -----------------------------------------------------------------------------
+    def attach_faults(self, faults=(), where: str = 'faults') -> FaultTimeline:
+        """Follow a :class:`FaultTimeline` from now on (``faults``: the schedule's, ids from 1);
+        returns it (:attr:`faults`). Combustion faults need an engine with a motored model:
+        one-line ConfigError otherwise, naming ``<where>[i] (kind)``."""
+        timeline = FaultTimeline(self.line)
+        for i, f in enumerate(faults):
+            if reason := self.check_fault(f, timeline):
+                raise ConfigError(f'{where}[{i}] ({f.kind}): {reason}')
+            timeline.add(f, self.t)
+        self.faults = timeline
+        self._dmf_version = timeline.dmf_version
+        return timeline
+
+    def check_fault(self, fault, timeline: FaultTimeline | None = None) -> str | None:
+        """Why ``fault`` (a :class:`~dmf_sim.physics.faults.Fault`) cannot start now, or None:
+        the timeline's checks (overlaps, windows, a valid spring) and a motored model for the
+        combustion faults (the reason without the fault's name)."""
+        if fault.kind in COMBUSTION_KINDS and not self.integ.loads.has_motored:
+            try:
+                self.integ.loads.motored_coefficients(self.speed, self.load)
+            except ConfigError as exc:
+                return str(exc)
+        timeline = self.faults if timeline is None else timeline
+        return timeline.check(fault, self.t) if timeline is not None else None
+
+    def _apply_faults(self) -> None:
+        """The timeline changed the combustion factors or the DMF: new excitation (the chunk's
+        speed and load) or a rebuild keeping the state."""
+        tl = self.faults
+        key = self._exc_key or (self.integ.speed_rpm, self.load)
+        if tl.dmf_version != self._dmf_version:
+            self._swap(self.line, self.engine)
+        self.integ.update_excitation(*key, factors=tl.factors)
+        self._exc_key = key
 
     def set_load_set(self, load_set: str) -> None:
         """Switch the engine's load set (A, B, C); ConfigError if unknown."""
@@ -350,8 +413,16 @@ class LiveSimulation:
     def advance(self, nsteps: int) -> Samples:
         """Integrate ``nsteps`` steps: load ramp and excitation update once (at the chunk's middle,
         held over the chunk), then the kernel; returns the samples due in the chunk (every
-        ``stride``-th step)."""
-        return self.read_out(self.integrate(nsteps))
+        ``stride``-th step). The chunk's fault events are kept in :attr:`fault_events`."""
+        chunk = self.integrate(nsteps)
+        if chunk.fault_events:
+            self.fault_events.extend(chunk.fault_events)
+        return self.read_out(chunk)
+
+    def take_fault_events(self) -> list[FaultEvent]:
+        """The fault events of the chunks :meth:`advance` integrated since the last call."""
+        out, self.fault_events = self.fault_events, []
+        return out
 
     def integrate(self, nsteps: int, record: StepRecord | None = None) -> Integrated:
         """The first half of :meth:`advance`: setpoint ramps, excitation and the kernel, the
@@ -381,8 +452,15 @@ class LiveSimulation:
             raise ValueError(f'record holds {record.t.shape[0]} rows, the chunk needs {rows}')
         first = self.steps + (self.stride - self.phase)
         row = 0
-        for k, s, _ in calls:
-            row += it.advance(k, record if row == 0 else record.rows_from(row), s)
+        events: list[FaultEvent] = []
+        parts: list[np.ndarray] = []
+        if self.faults is None or self.faults.idle:
+            for k, s, _ in calls:
+                row += it.advance(k, record if row == 0 else record.rows_from(row), s)
+        else:
+            row, parts = self._integrate_faulted(int(nsteps), record)
+            events = self.faults.take_events()
+            it = self.integ
         self.steps += int(nsteps)
         self.phase = phase
         if not self.finite:
@@ -391,11 +469,38 @@ class LiveSimulation:
             self.solver_resets += 1
             self.reset()
             row = 0
+            parts = []
         omega_dot = it.omega_dot
         # element loads with this chunk's excitation, now (the next chunk changes it)
-        loads = (it.element_loads(record.psi[:row], omega_dot) if self._torques.needs_loads
-                 else None)
-        return Integrated(record, row, first, omega_dot, loads)
+        loads = None
+        if self._torques.needs_loads:
+            done = sum(len(p) for p in parts)
+            loads = np.concatenate(parts + [it.element_loads(record.psi[done:row], omega_dot)])
+        return Integrated(record, row, first, omega_dot, loads, events)
+
+    def _integrate_faulted(self, nsteps: int, record: StepRecord) -> tuple[int, list]:
+        """The kernel over ``nsteps`` steps in parts that end where the fault timeline changes
+        the excitation or the DMF (:meth:`FaultTimeline.scan`), recording every ``stride``-th
+        step as one call would. Returns the rows written and, where the read-out needs them,
+        the element loads of the rows of each part but the last (before its excitation
+        changes)."""
+        done = row = 0
+        phase = self.phase
+        parts: list[np.ndarray] = []
+        while done < nsteps:
+            it = self.integ
+            t_ends, psi_ends = it.step_ends(nsteps - done)
+            k, changed = self.faults.scan(t_ends, psi_ends)
+            start = row
+            calls, phase = split_steps(k, phase, self.stride)
+            for n, s, _ in calls:
+                row += it.advance(n, record if row == 0 else record.rows_from(row), s)
+            done += k
+            if changed:             # (a scan that changes nothing took the remaining steps)
+                if self._torques.needs_loads:
+                    parts.append(it.element_loads(record.psi[start:row], it.omega_dot))
+                self._apply_faults()
+        return row, parts
 
     def read_out(self, chunk: Integrated, work: np.ndarray | None = None) -> Samples:
         """The samples of an integrated chunk: element angles, velocities and transmitted

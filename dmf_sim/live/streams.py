@@ -10,7 +10,10 @@ declared), so one reader serves both.
 
 All streams are reliable. Samples keep the last :data:`STREAM_DEPTH` messages for a subscriber
 that falls behind, status arrays :data:`DIAGNOSTICS_DEPTH`; the prediction is latched
-(transient-local, depth 1): a subscriber that joins later gets the latest one at once.
+(transient-local, depth 1): a subscriber that joins later gets the latest one at once. The
+faults' ground truth (:mod:`dmf_sim.live.faults`) is latched too: ``faults/ground_truth`` one
+message per event, the last :data:`GROUND_TRUTH_DEPTH` for a late joiner (the bag has all);
+``faults/active`` the set of active faults, depth 1.
 """
 from __future__ import annotations
 
@@ -19,19 +22,21 @@ from typing import Any, NamedTuple
 from dmf_sim.core.names import check_namespace
 from dmf_sim.monitor.messages import TOPIC_CYCLE, TOPIC_PREDICTED
 
-__all__ = ['DIAGNOSTICS_DEPTH', 'LATCHED_DEPTH', 'SAMPLE_STREAMS', 'STATUS_STREAMS', 'STREAMS',
-           'STREAM_DEPTH', 'Stream', 'resolved_topics']
+__all__ = ['DIAGNOSTICS_DEPTH', 'GROUND_TRUTH_DEPTH', 'LATCHED_DEPTH', 'SAMPLE_STREAMS',
+           'STATUS_STREAMS', 'STREAMS', 'STREAM_DEPTH', 'Stream', 'resolved_topics']
 
 STREAM_DEPTH = 100          # 0.1 s of samples at 1 kHz for a subscriber that falls behind
 DIAGNOSTICS_DEPTH = 10      # status arrays (1 Hz health, one per engine cycle)
-LATCHED_DEPTH = 1           # the latest prediction
+LATCHED_DEPTH = 1           # the latest prediction, the active faults
+GROUND_TRUTH_DEPTH = 100    # fault events a late joiner gets (starts, ends, misfires)
 
 
 class Stream(NamedTuple):
     """One published stream: default topic (relative to the node's namespace unless it starts
     with '/'), ROS type, history depth, latched (transient-local durability), and when it is
     published: per ``'sample'`` (publish_rate), ``'diagnostics'`` (diagnostics_rate),
-    ``'cycle'`` (per engine cycle) or ``'setpoint'`` (when the setpoint changes)."""
+    ``'cycle'`` (per engine cycle), ``'setpoint'`` (when the setpoint changes) or ``'fault'``
+    (when a fault starts or ends, a combustion misfires)."""
 
     topic: str
     msgtype: str
@@ -56,10 +61,14 @@ STREAMS: dict[str, Stream] = {
     'dmf_orders': Stream(TOPIC_CYCLE, _DIAG, DIAGNOSTICS_DEPTH, per='cycle'),
     'dmf_predicted': Stream(TOPIC_PREDICTED, _DIAG, LATCHED_DEPTH, latched=True,
                             per='setpoint'),
+    'fault_ground_truth': Stream('faults/ground_truth', _DIAG, GROUND_TRUTH_DEPTH, latched=True,
+                                 per='fault'),
+    'fault_active': Stream('faults/active', _DIAG, LATCHED_DEPTH, latched=True, per='fault'),
 }
 SAMPLE_STREAMS = ('joint_states', 'dmf_windup', 'speed', 'crank_angle')   # one message each per
                                                                            # sample, this order
-STATUS_STREAMS = ('diagnostics', 'dmf_orders', 'dmf_predicted')
+STATUS_STREAMS = ('diagnostics', 'dmf_orders', 'dmf_predicted', 'fault_ground_truth',
+                  'fault_active')
 
 
 def resolved_topics(namespace: str = '') -> dict[str, str]:

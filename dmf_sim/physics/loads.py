@@ -9,6 +9,17 @@ so the complex element-load amplitude of half-order n is ``A_n exp(-i n beta_k /
 element carries minus the engine mean torque times its cumulative gear ratio (paper, "Rear
 driveline"), which balances the mean load so the mean speed stays fixed.
 
+With faults (dmf_sim.physics.faults) the cylinders no longer fire alike: cylinder k fires with a
+combustion factor s_k (1 healthy, 0 misfire, the factor of a weak cylinder) and carries
+
+    A_kn = A^m_n + s_k (A^f_n - A^m_n),    phased exp(-i n beta_k / 2) as eq. (17)
+
+with A^f the engine's coefficients at (speed, load) and A^m those of a cylinder that does not
+fire at that operating point (compression without combustion,
+:meth:`~dmf_sim.physics.engine.Engine.motored_coefficients`); the rear load balances the faulted
+mean ``-sum_k Re(A_k0) R_rear / R_k``. :meth:`DrivelineLoads.faulted_cylinder_coefficients` is
+that one formula; Newmark, the harmonic balance and the prediction call it.
+
 When the speed changes, the reference rotation psi(t)/R_i accelerates: the vibratory equations get
 the d'Alembert load ``-j_i domega/dt / R_i`` on each element, balanced at the rear element by
 ``+R_rear J_eq domega/dt`` (the vehicle resistance that the speed setpoint implies).
@@ -90,6 +101,54 @@ class DrivelineLoads:
         (n_cyl, N+1); for K sets of coefficients (K, N+1): (K, n_cyl, N+1)."""
         return np.asarray(A, dtype=complex)[..., None, :] * self.phase
 
+    # ---- faults: per-cylinder combustion factors --------------------------------------------
+    @property
+    def has_motored(self) -> bool:
+        """Whether the engine has a model of a cylinder that does not fire (misfire and weak
+        cylinder faults need it)."""
+        return bool(getattr(self.engine, 'has_motored', False))
+
+    def motored_coefficients(self, speed_rpm: float, load: float) -> np.ndarray:
+        """A^m_n [Nm]: a cylinder that does not fire at (speed, load); one-line ConfigError for
+        an engine without that model."""
+        if not self.has_motored:
+            raise ConfigError(f'engine {getattr(self.engine, "name", "")!r} has no model of a '
+                              'cylinder that does not fire: misfire and weak_cylinder faults '
+                              'need a pressure-model engine YAML such as engine_d13')
+        return self.engine.motored_coefficients(speed_rpm, load)
+
+    def faulted_cylinder_coefficients(self, A_fired: np.ndarray, A_motored: np.ndarray,
+                                      factors) -> np.ndarray:
+        """Eq. (17) with per-cylinder combustion factors: ``(A^m + s_k (A^f - A^m))
+        exp(-i n beta_k / 2)`` [Nm], (n_cyl, N+1); for K sets of coefficients (K, N+1): (K, n_cyl,
+        N+1). ``factors``: s_k per cylinder (n_cyl,), 1 = healthy, 0 = misfire. A pure function:
+        every solver's faulted excitation is this."""
+        Af = np.asarray(A_fired, dtype=complex)
+        Am = np.asarray(A_motored, dtype=complex)
+        s = np.asarray(factors, dtype=float)
+        return (Am[..., None, :] + s[:, None] * (Af - Am)[..., None, :]) * self.phase
+
+    def faulted_rear_load(self, A_fired: np.ndarray, A_motored: np.ndarray, factors):
+        """Rear element torque [Nm] balancing the faulted engine's mean: ``-sum_k (Re A^m_0 +
+        s_k Re(A^f_0 - A^m_0)) R_rear / R_k``; a float, or (K,) for K sets of coefficients."""
+        Af = np.asarray(A_fired, dtype=complex)
+        Am = np.asarray(A_motored, dtype=complex)
+        s = np.asarray(factors, dtype=float)
+        a0 = np.real(Am[..., :1]) + s * np.real(Af[..., :1] - Am[..., :1])     # (..., n_cyl)
+        out = -(a0 @ self._rear_factor)
+        return float(out) if np.ndim(out) == 0 else out
+
+    def excitation(self, speed_rpm: float, load: float, factors=None
+                   ) -> tuple[np.ndarray, float]:
+        """(per-cylinder coefficients (n_cyl, N+1), rear load [Nm]) at (speed, load) with
+        combustion ``factors`` (None or all ones: the healthy engine, one engine query)."""
+        A = self.engine.coefficients(speed_rpm, load)
+        if factors is None or np.all(np.asarray(factors) == 1.0):
+            return self.cylinder_coefficients_for(A), self.rear_load_for(A)
+        Am = self.motored_coefficients(speed_rpm, load)
+        return (self.faulted_cylinder_coefficients(A, Am, factors),
+                self.faulted_rear_load(A, Am, factors))
+
     def mean_engine_torque(self, speed_rpm: float, load: float) -> float:
         """Sum of the cylinders' mean torques [Nm] (reflected to element 1)."""
         A0 = float(np.real(self.engine.coefficients(speed_rpm, load)[0]))
@@ -114,41 +173,44 @@ class DrivelineLoads:
         operations, so the same values)."""
         return -np.real(A[:, 0]) * self._rear_factor_sum
 
-    def element_harmonics(self, speed_rpm: float, load: float) -> np.ndarray:
-        """(N+1, m) complex element-load amplitudes per half-order n [Nm]; row 0 is the mean."""
+    def element_harmonics(self, speed_rpm: float, load: float, factors=None) -> np.ndarray:
+        """(N+1, m) complex element-load amplitudes per half-order n [Nm]; row 0 is the mean.
+        ``factors``: per-cylinder combustion factors (:meth:`excitation`)."""
         P = np.zeros((self.n_max + 1, self._m), dtype=complex)
-        A = self.engine.coefficients(speed_rpm, load)          # one engine query
-        P[:, self.cylinder_elements] = self.cylinder_coefficients_for(A).T
-        P[0, self.rear_element] += self.rear_load_for(A)
+        B, rear = self.excitation(speed_rpm, load, factors)
+        P[:, self.cylinder_elements] = B.T
+        P[0, self.rear_element] += rear
         return P
 
-    def dof_harmonics(self, speed_rpm: float, load: float) -> np.ndarray:
+    def dof_harmonics(self, speed_rpm: float, load: float, factors=None) -> np.ndarray:
         """(N+1, n_dof) complex generalized load amplitudes per half-order n [Nm]: the element
         loads of :meth:`element_harmonics` through ``T^T`` (only the cylinders' and the rear
         element's rows of T carry load)."""
-        A = self.engine.coefficients(speed_rpm, load)          # one engine query
-        P = self.cylinder_coefficients_for(A).T @ self.cylinder_dof_vectors
-        P[0] += self.rear_load_for(A) * self.rear_dof_vector
+        B, rear = self.excitation(speed_rpm, load, factors)
+        P = B.T @ self.cylinder_dof_vectors
+        P[0] += rear * self.rear_dof_vector
         return P
 
     # ---- time domain -----------------------------------------------------------------------
-    def element_loads(self, psi, speed_rpm: float, load: float) -> np.ndarray:
-        """Element torques [Nm] at crank angles psi (array (s,) -> (s, m)), constant speed/load."""
+    def element_loads(self, psi, speed_rpm: float, load: float, factors=None) -> np.ndarray:
+        """Element torques [Nm] at crank angles psi (array (s,) -> (s, m)), constant speed/load
+        (and combustion factors)."""
         psi = np.atleast_1d(np.asarray(psi, dtype=float))
-        P = self.element_harmonics(speed_rpm, load)
+        P = self.element_harmonics(speed_rpm, load, factors)
         n = np.arange(self.n_max + 1)
         return np.real(np.exp(1j * np.outer(psi, n) / 2.0) @ P)
 
     # ---- statics ---------------------------------------------------------------------------
-    def static_state(self, speed_rpm: float, load: float) -> 'StaticState':
-        """Static equilibrium under the mean loads, with the non-linear DMF spring.
+    def static_state(self, speed_rpm: float, load: float, factors=None) -> 'StaticState':
+        """Static equilibrium under the mean loads (of the engine with combustion ``factors``),
+        with the non-linear DMF spring.
 
         Solves K q + e g(e q) = P_0 (rigid-body part zero). Condensed on the wind-up: with
         q_lin = K^+ P_0 and u = K^+ e, w + (e.u) g(w) = e.q_lin, solved exactly on the
         piecewise-linear g; then q = q_lin - u g(w).
         """
         m = self.model
-        P0 = np.real(self.dof_harmonics(speed_rpm, load)[0])
+        P0 = np.real(self.dof_harmonics(speed_rpm, load, factors)[0])
         q_lin = solve_static(m, P0)
         if m.spring is None:
             return StaticState(q=q_lin, windup=0.0, dmf_torque=0.0, region='linear')

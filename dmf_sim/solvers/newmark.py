@@ -10,6 +10,7 @@ call, one :class:`SimulationResult`).
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -121,6 +122,8 @@ class NewmarkIntegrator:
         self._counters = np.zeros(4, dtype=np.int64)  # crossings, drive stage, coast stage, splits
         self.load = 0.0
         self._rear_torque = 0.0
+        #: per-cylinder combustion factors of the excitation (None: every cylinder fires)
+        self.factors: np.ndarray | None = None
 
     # ---- state accessors ---------------------------------------------------------------
     @property
@@ -150,19 +153,34 @@ class NewmarkIntegrator:
         return float(self.model.e @ self.q)
 
     # ---- set-up --------------------------------------------------------------------------
-    def update_excitation(self, speed_rpm: float | None = None, load: float | None = None) -> None:
+    def update_excitation(self, speed_rpm: float | None = None, load: float | None = None,
+                          factors=None) -> None:
         """Recompute the cylinder coefficients and rear load for the current (or given) speed
-        [rpm] and load fraction. Called by the stepper between chunks; coefficients are held
-        constant inside a chunk."""
+        [rpm] and load fraction, and (given) per-cylinder combustion ``factors`` (kept for the
+        next updates; all ones = every cylinder fires): :meth:`DrivelineLoads.excitation`.
+        Called by the stepper between chunks; coefficients are held constant inside a chunk."""
         if speed_rpm is None:
             speed_rpm = self.speed_rpm
         if load is not None:
             self.load = float(load)
-        L = self.loads
-        A = L.engine.coefficients(speed_rpm, self.load)        # one engine query per update
-        self._B[:] = L.cylinder_coefficients_for(A)
-        self._rear_torque = L.rear_load_for(A)
+        if factors is not None:
+            f = np.array(factors, dtype=float)
+            self.factors = None if np.all(f == 1.0) else f
+        B, self._rear_torque = self.loads.excitation(speed_rpm, self.load, self.factors)
+        self._B[:] = B
         self._fixed[:] = self._rear_vec * self._rear_torque
+
+    def step_ends(self, nsteps: int) -> tuple[np.ndarray, np.ndarray]:
+        """(t [s], psi [rad]) at the end of each of the next ``nsteps`` steps: the kernel's
+        speed ramp (toward the target at the ramp rate, clipped there) and psi = integral of
+        omega dt (trapezoid), evaluated ahead (equal to the kernel's values to rounding)."""
+        t0, psi0, omega0, target, ramp = (float(x) for x in self._scal[:5])
+        h = self.dt
+        j = np.arange(1, nsteps + 1, dtype=float)
+        d = target - omega0
+        omega = omega0 + math.copysign(1.0, d) * np.minimum(j * ramp * h, abs(d))
+        prev = np.concatenate(([omega0], omega[:-1]))
+        return t0 + j * h, psi0 + np.cumsum(0.5 * (prev + omega) * h)
 
     def speed_after_rpm(self, seconds: float) -> float:
         """Reference speed [rpm] ``seconds`` [s] ahead on the current ramp (the kernel's ramp
@@ -185,12 +203,12 @@ class NewmarkIntegrator:
         """
         self._scal[:] = [t, psi, speed_rpm * RPM_TO_RAD_S, speed_rpm * RPM_TO_RAD_S, 0.0, 0.0]
         self.update_excitation(speed_rpm, load)
-        st = self.loads.static_state(speed_rpm, load)
+        st = self.loads.static_state(speed_rpm, load, self.factors)
         self.q[:] = st.q
         self.v[:] = 0.0
         r = self.model.rigid_mode
         if r is not None and speed_rpm > 0:
-            P = self.loads.dof_harmonics(speed_rpm, load)
+            P = self.loads.dof_harmonics(speed_rpm, load, self.factors)
             Jr = float(r @ self.model.J @ r)
             n = np.arange(1, P.shape[0])
             Om = n / 2 * speed_rpm * RPM_TO_RAD_S

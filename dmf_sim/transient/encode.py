@@ -31,12 +31,13 @@ __all__ = ['SampleEncoder', 'EncodedBlock', 'StatusEncoder']
 _FLOAT_FIELDS = {'dmf_windup': 'windup', 'speed': 'speed_rpm', 'crank_angle': 'psi'}
 
 _NS_PER_S = 1_000_000_000
+_DIAGNOSTIC_ARRAY = 'diagnostic_msgs/msg/DiagnosticArray'
 _FLOAT64_BYTES = 12            # CDR header 4 + float64 8
 
 
 def _typestore():
     from rosbags.typesys import Stores, get_typestore
-    return get_typestore(Stores.ROS2_JAZZY)
+    return get_typestore(Stores.ROS2_JAZZY)          # cached by rosbags
 
 
 def _float_field(rows: np.ndarray, offset: int, n: int) -> np.ndarray:

@@ -18,6 +18,12 @@ speed, load and their setpoints, DMF, solver), at the node's default ``diagnosti
 simulated time: chunks also end at each report, which is taken of the chunk's own end state. An
 interruption (Ctrl-C) closes the bag: what was simulated is readable.
 
+Faults (``RunOptions.faults``, a schedule file, :func:`dmf_sim.physics.faults.load_schedule`):
+the live core follows their :class:`~dmf_sim.physics.faults.FaultTimeline` (times are the
+profile's); their ground truth goes into the bag as the node publishes it
+(:mod:`dmf_sim.live.faults`: one ``faults/ground_truth`` message per event, ``faults/active``
+at the start and whenever the set changes), each written after the chunk it fell in.
+
 Two threads (``RunOptions.threads`` 2, the default when the process may use two CPUs, see
 :func:`dmf_sim.transient.defaults.default_threads`): the chunks are integrated
 (:meth:`LiveSimulation.integrate`, the kernel without the GIL) in a thread of their own, up to
@@ -44,6 +50,13 @@ from threadpoolctl import threadpool_limits
 from dmf_sim.core.destinations import Destination, check_free_space
 from dmf_sim.core.errors import ConfigError, OperatingRangeError, one_line
 from dmf_sim.core.names import check_namespace
+from dmf_sim.live.faults import (
+    ACTIVE_STREAM,
+    GROUND_TRUTH_STREAM,
+    ActiveFaults,
+    active_statuses,
+    ground_truth_statuses,
+)
 from dmf_sim.live.health import SimulationHealth
 from dmf_sim.live.pacing import TimeBase, publish_stride
 from dmf_sim.live.parameters import PARAMETERS
@@ -95,7 +108,8 @@ class RunOptions:
     write: False integrates without writing (for timing); namespace: topics under it;
     threads: 1 integrates and writes in turn, 2 integrates the next chunks in a thread of its own
     while this one reads out and writes the last ones (the same bag, byte for byte); default
-    :func:`~dmf_sim.transient.defaults.default_threads`.
+    :func:`~dmf_sim.transient.defaults.default_threads`. faults: a fault schedule file (YAML
+    ``faults: [...]``) or None.
     """
 
     driveline: str = 'truck_dmf'
@@ -111,6 +125,7 @@ class RunOptions:
     write: bool = True
     namespace: str = ''
     threads: int = field(default_factory=default_threads)
+    faults: str | None = None
 
     def __post_init__(self) -> None:
         self.namespace = check_namespace(self.namespace, 'namespace')
@@ -135,6 +150,9 @@ class RunSummary:
     solver_resets: int
     threads: int = 1              # 1: integrate and write in turn; 2: integrating thread
     peak_rss_mib: dict = field(default_factory=dict)   # fraction of the run -> peak RSS
+    faults: str | None = None     # the fault schedule
+    fault_events: int = 0         # ground-truth events (starts, ends, misfires)
+    misfires: int = 0             # combustions that misfired
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -186,14 +204,34 @@ def build_simulation(profile: Profile, opt: RunOptions) -> LiveSimulation:
     hi_lim = hi if math.isfinite(hi) else float(profile.speed_rpm.max()) * 2
     lo_lim = lo if lo > 0 else float(profile.speed_rpm.min()) / 2
     stride = publish_stride(opt.rate_hz, opt.dt)
+    schedule = _schedule(opt.faults, line, profile) if opt.faults else None
     try:
-        return LiveSimulation(line, engine, dt=opt.dt, speed_rpm=float(profile.speed_rpm[0]),
-                              load=float(profile.load[0]), speed_limits_rpm=(lo_lim, hi_lim),
-                              stride=stride)
+        sim = LiveSimulation(line, engine, dt=opt.dt, speed_rpm=float(profile.speed_rpm[0]),
+                             load=float(profile.load[0]), speed_limits_rpm=(lo_lim, hi_lim),
+                             stride=stride)
     except OperatingRangeError:
         raise
     except ValueError as exc:
         raise ConfigError(one_line(exc)) from None
+    if schedule is not None:
+        sim.attach_faults(schedule.faults, where=f'{schedule.source}: faults')
+    return sim
+
+
+def _schedule(path: str, line, profile: Profile):
+    """The fault schedule of ``path`` for ``line``; a fault that would start after the
+    profile's end is refused (one line naming it)."""
+    from dmf_sim.physics.faults import load_schedule
+
+    schedule = load_schedule(path, line=line)
+    for i, f in enumerate(schedule.faults):
+        start = f.window(0.0)[0]
+        if start >= profile.duration_s:
+            field_name = 'at_s' if f.single else 'start_s'
+            raise ConfigError(f"{schedule.source}: faults[{i}] ({f.kind}): field '{field_name}' "
+                              f'{start:g} s is not before the end of profile {profile.name} '
+                              f'({profile.duration_s:g} s)')
+    return schedule
 
 
 def open_bag(out, sim: LiveSimulation, profile: Profile, opt: RunOptions, rate_hz: float):
@@ -396,6 +434,28 @@ def _stream(profile: Profile, out, opt: RunOptions, sim: LiveSimulation,
     def write_out() -> None:
         if block is not None and block.n:
             recorder.write_block(*block.take())
+
+    active = ActiveFaults()
+    counts = {'events': 0, 'misfires': 0}
+
+    def write_faults(events) -> None:
+        """A chunk's ground truth, after its samples (as the node publishes it)."""
+        counts['events'] += len(events)
+        counts['misfires'] += sum(e.what == 'misfire' for e in events)
+        changed = active.update(events)
+        if recorder is None or not events:
+            return
+        write_out()
+        for stamp, status in ground_truth_statuses(events, timebase.stamp_ns, WRITER_NAME):
+            recorder.write(topics[GROUND_TRUTH_STREAM], stamp, statuses.array(stamp, [status]))
+        if changed:
+            stamp = int(timebase.stamp_ns([e for e in events if e.what != 'misfire'][-1].t_s))
+            recorder.write(topics[ACTIVE_STREAM], stamp, statuses.array(
+                stamp, active_statuses(active, timebase.stamp_ns, WRITER_NAME)))
+
+    if recorder is not None and sim.faults is not None:      # the latched "none yet"
+        stamp0 = int(timebase.stamp_ns(sim.t))
+        recorder.write(topics[ACTIVE_STREAM], stamp0, statuses.array(stamp0, []))
     total = int(round(profile.duration_s / sim.dt))
     bar = None
     if progress:
@@ -436,6 +496,8 @@ def _stream(profile: Profile, out, opt: RunOptions, sim: LiveSimulation,
                     t_report, status = report
                     stamp = timebase.stamp_ns(t_report)
                     recorder.write(topics['diagnostics'], stamp, statuses.array(stamp, [status]))
+                if raw.fault_events:
+                    write_faults(raw.fault_events)
                 if chunks is not None:
                     chunks.release(raw.record)
                 if bar is not None:
@@ -463,4 +525,5 @@ def _stream(profile: Profile, out, opt: RunOptions, sim: LiveSimulation,
         realtime_factor=simulated / wall if wall > 0 else math.inf, cpu_s=cpu, samples=samples,
         messages=recorder.message_count if recorder is not None else 0, rate_hz=rate_hz,
         dt_s=sim.dt, interrupted=interrupted, knee_crossings=sim.knee_crossings,
-        solver_resets=sim.solver_resets, threads=opt.threads, peak_rss_mib=peaks)
+        solver_resets=sim.solver_resets, threads=opt.threads, peak_rss_mib=peaks,
+        faults=opt.faults, fault_events=counts['events'], misfires=counts['misfires'])

@@ -19,7 +19,10 @@ Every ``A_n`` is the sum of two parts:
   ``T_i = -m omega^2 (d2x/dpsi2)(dx/dpsi)``, computed exactly from the slider-crank geometry at the
   *actual* speed; it does not depend on load and its mean is zero;
 * **gas part** ``T_g = (p - p_crankcase) A_p dx/dpsi`` from the cylinder pressure p. The load
-  fraction acts on this part only (``load = 0`` keeps the motored compression/expansion torque).
+  fraction acts on this part only (``load = 0`` keeps the compression/expansion torque and burns
+  just enough fuel to overcome the pumping loss, so its mean is 0). A cylinder that does not fire
+  at all (a misfire) is :meth:`Engine.motored_coefficients`: no heat release, the manifold
+  pressures of the operating point.
 
 Modules: ``fields`` (YAML field validation), ``config`` (the engine YAML, ``base:`` files),
 ``pressure`` (the default pressure model), ``excitation`` (the :class:`Engine` object: gas grid +
@@ -127,5 +130,8 @@ def engine_from_mapping(doc: Mapping[str, Any], path: str | Path, load_set: str 
     model = PressureModel(cfg)
     grid = GasGrid(cfg.grid.speeds_rpm, cfg.grid.loads, cfg.n_max + 1,
                    filler=model.gas_coefficients)
+    motored = GasGrid(cfg.grid.speeds_rpm, cfg.grid.loads, cfg.n_max + 1,
+                      filler=model.motored_gas_coefficients)
     return Engine(cfg, grid, model.inertia_unit, load_set=load_set,
-                  full_load_curve=cfg.full_load_curve, model=model, source=Path(path))
+                  full_load_curve=cfg.full_load_curve, model=model, source=Path(path),
+                  motored_gas=motored)

@@ -155,7 +155,7 @@ class Engine:
     def __init__(self, cfg: EngineConfig, gas: GasGrid, inertia_unit: np.ndarray, *,
                  load_set: str = 'A', n_max: int | None = None,
                  full_load_curve: Table1D | None = None, model=None,
-                 source: Path | None = None) -> None:
+                 source: Path | None = None, motored_gas: GasGrid | None = None) -> None:
         if load_set not in cfg.load_set_shifts_rpm:
             raise ConfigError(f'{cfg.path.name}: load_set: unknown {load_set!r} '
                               f'(allowed: {", ".join(cfg.load_set_shifts_rpm)})')
@@ -169,6 +169,7 @@ class Engine:
         self.shift_rpm = cfg.load_set_shifts_rpm[load_set]
         self.limit_rpm = cfg.load_set_limit_rpm
         self._gas = gas
+        self._motored_gas = motored_gas
         self._inertia_unit = np.asarray(inertia_unit, dtype=complex)[: self.n_max + 1]
         self._curve = full_load_curve
         self.speed_range_rpm: tuple[float, float] = gas.speed_range
@@ -182,7 +183,7 @@ class Engine:
         """The same engine (sharing the cached gas data) for another load set."""
         return Engine(self.config, self._gas, self._inertia_unit, load_set=load_set,
                       n_max=self.n_max, full_load_curve=self._curve, model=self.model,
-                      source=self.source)
+                      source=self.source, motored_gas=self._motored_gas)
 
     def warm(self) -> None:
         """Compute every grid node now (about 0.1 s for the default grid)."""
@@ -209,6 +210,30 @@ class Engine:
         s_eff = self.effective_speed(speed_rpm)
         self._check(s_eff)
         return self._gas(s_eff, load)
+
+    @property
+    def has_motored(self) -> bool:
+        """Whether the engine knows the torque of a cylinder that does not fire
+        (:meth:`motored_coefficients`): the pressure model does, a user table does not."""
+        return self._motored_gas is not None
+
+    def motored_coefficients(self, speed_rpm: float, load: float) -> np.ndarray:
+        """Complex A_0..A_{n_max} [Nm] of one cylinder that does not fire at ``speed_rpm`` [rpm]
+        and ``load`` [0..1]: compression and gas exchange at that operating point's manifold
+        pressures without heat release
+        (:meth:`~dmf_sim.physics.engine.pressure.PressureModel.motored_gas_coefficients`, cached
+        on the gas grid's speeds and loads and interpolated as the fired gas part is) plus the
+        inertia part. ConfigError when the engine has no such model (a user table)."""
+        if self._motored_gas is None:
+            raise ConfigError(f'engine {self.name!r} (a coefficient table) has no model of a '
+                              'cylinder that does not fire (compression without combustion): '
+                              'misfire and weak_cylinder faults need a pressure-model engine '
+                              'YAML such as engine_d13')
+        speed_rpm, load = float(speed_rpm), float(load)
+        self._check(speed_rpm, load)
+        s_eff = self.effective_speed(speed_rpm)
+        self._check(s_eff)
+        return self._motored_gas(s_eff, load) + self.inertia_coefficients(speed_rpm)
 
     def inertia_coefficients(self, speed_rpm: float) -> np.ndarray:
         """Oscillating-mass part of A_n [Nm] at the actual speed (load independent)."""

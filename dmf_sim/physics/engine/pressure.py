@@ -130,13 +130,20 @@ class PressureModel:
         """Mean torque of one cylinder [Nm]: load x full-load curve / n_cylinders (no friction)."""
         return load * self.cfg.full_load_curve(speed_rpm) / self.cfg.n_cylinders
 
-    def cycle(self, speed_rpm: float, load: float) -> CycleResult:
-        """Pressure and torques of one cycle with Q_tot solved for the target mean torque."""
+    def cycle(self, speed_rpm: float, load: float, *, fired: bool = True) -> CycleResult:
+        """Pressure and torques of one cycle with Q_tot solved for the target mean torque.
+
+        ``fired=False``: the cylinder that does not fire (a misfire), at the same operating point:
+        the intake and exhaust pressures of ``load`` (the other cylinders keep the turbocharger
+        running) and no heat release, Q_tot = 0: compression and expansion of the charge and the
+        gas exchange only. (Load 0 is not that: its Q_tot is what overcomes the pumping loss so
+        that the mean torque is 0, a few tens of joules per cycle.)"""
         area = self.cfg.geometry.piston_area_m2
         p_base, p_unit, p_int, p_exh = self._pressure_parts(speed_rpm, load)
         t_base = (p_base - self.cfg.gas_exchange.crankcase_pa) * area * self._dx  # Q_tot = 0
         t_unit = p_unit * area * self._dx                                          # per joule
-        q = (self.target_cylinder_mean(speed_rpm, load) - t_base.mean()) / t_unit.mean()
+        q = ((self.target_cylinder_mean(speed_rpm, load) - t_base.mean()) / t_unit.mean()
+             if fired else 0.0)
         omega = speed_rpm * RPM_TO_RAD_S
         roll = self._roll
         return CycleResult(
@@ -149,6 +156,12 @@ class PressureModel:
     def gas_coefficients(self, speed_rpm: float, load: float) -> np.ndarray:
         """Gas-torque A_n of one cylinder [Nm] from one cycle (exact, no cache)."""
         return half_orders(self.cycle(speed_rpm, load).gas_torque_nm, self.cfg.n_max)
+
+    def motored_gas_coefficients(self, speed_rpm: float, load: float) -> np.ndarray:
+        """Gas-torque A_n of one cylinder that does not fire at (speed, load) [Nm]: the cycle of
+        :meth:`cycle` with ``fired=False`` (exact, no cache)."""
+        return half_orders(self.cycle(speed_rpm, load, fired=False).gas_torque_nm,
+                           self.cfg.n_max)
 
     def inertia_coefficients(self, speed_rpm: float) -> np.ndarray:
         """Inertia-torque A_n of one cylinder [Nm]: omega^2 times the unit-speed shape."""
