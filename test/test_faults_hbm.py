@@ -6,6 +6,7 @@ the strain energy says. Symmetry: every place that merges a state with its 120 d
 does so only while the cylinders fire alike. The CLI's --faults."""
 from __future__ import annotations
 
+import time
 from types import SimpleNamespace
 
 import numpy as np
@@ -13,12 +14,13 @@ import pytest
 
 from dmf_sim.core.errors import ConfigError
 from dmf_sim.core.units import RPM_TO_RAD_S
+from dmf_sim.monitor.prediction import OperatingPoint, predict_states, solve_prediction
 from dmf_sim.physics.engine.excitation import engine_torque_orders
 from dmf_sim.physics.faults import FaultSet, parse_faults
 from dmf_sim.physics.loads import DrivelineLoads
 from dmf_sim.physics.modal import modes
 from dmf_sim.physics.model import load_driveline
-from dmf_sim.physics.orders import CYCLE_RAD, half_orders, resample_on_angle
+from dmf_sim.physics.orders import CYCLE_RAD, OrderSummary, half_orders, resample_on_angle
 from dmf_sim.solvers.hbm import CondensedHBM, HBMOptions, SweepOptions, sweep
 from dmf_sim.solvers.hbm.branches import BranchSwitching
 from dmf_sim.solvers.hbm.faulted import apply_faults, is_symmetric, steady_faults
@@ -376,6 +378,38 @@ def test_basin_runs_match_a_state_by_its_phases_when_cylinders_differ(symmetric)
     assert m.match(c) is st
 
 
+def _summary(order_1_5):
+    return OrderSummary(order_3=0.01, order_1_5=order_1_5, max_deviation=0.02,
+                        min_deviation=-0.02, mean=0.2, mean_minus_theta=-0.04,
+                        static_windup=0.19, theta=0.24)
+
+
+def test_prediction_keeps_equal_looking_states_apart_under_a_misfire(loads, line):
+    """monitor.prediction: two stable states with equal Fig. 13 quantities are one (a state and
+    its shifted copy) for the healthy engine, two under a misfire; the solver is asked with
+    the faults, and the faults are part of the cache key."""
+    seen = []
+
+    def solver(loads_, speed, load, **kw):
+        seen.append(kw)
+        p = SimpleNamespace(summary=_summary(0.012), stable=True, kind='main', branch=0,
+                            max_multiplier=0.9)
+        return [p, SimpleNamespace(**vars(p))]
+
+    sp = loads.model.spring
+    healthy = OperatingPoint.rounded(1200.0, 1.0, 'A', sp, 5.0, 0.01)
+    faulted = OperatingPoint.rounded(1200.0, 1.0, 'A', sp, 5.0, 0.01,
+                                     faults_of(MISFIRE_1, line))
+    assert healthy != faulted and healthy.faults is None
+    assert len(solve_prediction(solver, loads, healthy).states) == 1
+    assert len(solve_prediction(solver, loads, faulted).states) == 2
+    assert seen == [{}, {'faults': faulted.faults}]
+    # a DMF fault alone leaves the cylinders alike: twins are merged as before
+    dmf = OperatingPoint.rounded(1200.0, 1.0, 'A', sp, 5.0, 0.01,
+                                 faults_of('{kind: dmf_damping, factor: 2}', line))
+    assert len(solve_prediction(solver, loads, dmf).states) == 1
+
+
 def test_fast_forward_of_a_linear_stretch_holds_with_a_misfire(loads, line):
     """The sweep skips Newton where the wind-up stays below the knee (g = 0: the linear
     response is the solution, whatever the excitation): at half load with a misfire the
@@ -410,3 +444,51 @@ def test_steady_states_with_a_misfire(loads, line):
     assert d['faults'] == faults.text() and float(d['states'][0]['orders_rad']['0.5']) > 0.1
     ref = CondensedHBM(loads, 1.0, factors=faults.combustion_factors(6)).solve(1200.0)
     assert np.abs(st.point.x - ref.x).max() <= 1e-8
+
+
+def test_predict_states_with_a_misfire_is_the_faulted_state(loads, line):
+    faults = faults_of(MISFIRE_1, line)
+    pts = predict_states(loads, 1200.0, 1.0, faults=faults)
+    ref = CondensedHBM(loads, 1.0, factors=faults.combustion_factors(6)).solve(1200.0)
+    assert len(pts) == 1 and np.abs(pts[0].x - ref.x).max() <= 1e-8
+    healthy = predict_states(loads, 1200.0, 1.0)
+    assert abs(pts[0].summary.mean - healthy[0].summary.mean) > 0.02     # one cylinder less
+
+
+def test_live_monitor_predicts_with_the_faults_acting(loads, line):
+    """LiveMonitor.set_faults: the next prediction is made with the persistent part of the
+    faults acting (windows dropped, single misfires and sensor faults left out), cached per
+    fault set; back to healthy is a cache hit."""
+    from dmf_sim.monitor.worker import LiveMonitor, MonitorSettings
+    calls = []
+
+    def solver(loads_, speed, load, **kw):
+        calls.append(kw.get('faults'))
+        return [SimpleNamespace(summary=_summary(0.001), stable=True)]
+
+    mon = LiveMonitor(line, loads.engine, MonitorSettings(worker='thread'), solver=solver)
+    try:
+        mon.wait_ready(60.0)
+
+        def published():
+            for _ in range(6000):
+                up = mon.poll()
+                if up.prediction is not None:
+                    return up.prediction
+                time.sleep(0.01)
+            raise AssertionError('no prediction')
+
+        mon.set_setpoint(1200.0, 1.0)
+        assert published().point.faults is None
+        acting = FaultSet(parse_faults(
+            '[{kind: misfire, cylinders: [3], mode: every_cycle, start_s: 2.0}, '
+            '{kind: misfire, cylinders: [5], mode: single, at_s: 3.0}]', line=line))
+        mon.set_faults(acting)
+        pred = published()
+        held = pred.point.faults
+        assert [f.cylinders for f in held] == [(3,)] and held.faults[0].start_s is None
+        assert calls == [None, held]
+        mon.set_faults(None)
+        assert published().point.faults is None and len(calls) == 2      # from the cache
+    finally:
+        mon.close()
