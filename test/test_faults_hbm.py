@@ -6,12 +6,14 @@ the strain energy says. Symmetry: every place that merges a state with its 120 d
 does so only while the cylinders fire alike. The CLI's --faults."""
 from __future__ import annotations
 
+import json
 import time
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
+from dmf_sim.cli import main as cli_main
 from dmf_sim.core.errors import ConfigError
 from dmf_sim.core.units import RPM_TO_RAD_S
 from dmf_sim.monitor.prediction import OperatingPoint, predict_states, solve_prediction
@@ -492,3 +494,25 @@ def test_live_monitor_predicts_with_the_faults_acting(loads, line):
         assert published().point.faults is None and len(calls) == 2      # from the cache
     finally:
         mon.close()
+
+
+def test_cli_sweep_and_steady_take_faults(tmp_path, capsys, line):
+    assert cli_main(['sweep', '--speeds', '1150', '1250', '10', '--fast', '--no-progress',
+                     '--faults', MISFIRE_1, '--json']) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert data['faults'] == faults_of(MISFIRE_1, line).text()
+    rows = data['sweeps'][0]['points']
+    assert all(r['order_0_5'] > 0.05 for r in rows)
+    schedule = tmp_path / 'weak.yaml'
+    schedule.write_text('faults:\n  - {kind: weak_cylinder, cylinder: 2, factor: 0.5}\n')
+    assert cli_main(['steady', '--speed', '1200', '--samples', '0', '--no-progress',
+                     '--faults', str(schedule)]) == 0
+    out = capsys.readouterr().out
+    assert 'weak_cylinder' in out and '0.5th' in out
+    for bad, says in (('{kind: misfire, cylinders: [1], mode: single}', 'is an event'),
+                      ('{kind: misfire, cylinders: [7], mode: every_cycle}', 'cylinders'),
+                      (str(tmp_path / 'none.yaml'), 'not found')):
+        for cmd in (['sweep', '--speeds', '1150', '1250', '10'], ['steady', '--speed', '1200']):
+            assert cli_main(cmd + ['--faults', bad, '--no-progress']) == 2
+            err = capsys.readouterr().err.strip()
+            assert says in err and len(err.splitlines()) == 1, err
