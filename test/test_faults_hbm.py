@@ -516,3 +516,44 @@ def test_cli_sweep_and_steady_take_faults(tmp_path, capsys, line):
             assert cli_main(cmd + ['--faults', bad, '--no-progress']) == 2
             err = capsys.readouterr().err.strip()
             assert says in err and len(err.splitlines()) == 1, err
+
+
+def test_the_node_core_predicts_with_the_faults_it_applies():
+    """The live runtime hands the monitor the faults acting after each tick: an every-cycle
+    misfire set by its parameter becomes the prediction's fault set (its held part), clearing
+    it brings the healthy point back."""
+    from dmf_sim.live.parameters import PARAMETERS
+    from dmf_sim.live.runtime import LiveRuntime, load_line
+    from dmf_sim.live.streams import STREAMS, resolved_topics
+
+    class Quiet:
+        def __getattr__(self, name):
+            return lambda *a, **k: None
+
+    values = {name: spec.default for name, spec in PARAMETERS.items()}
+    values.update(alpha=2.5, theta=0.24, monitor=True, monitor_worker='thread', pacing='fast',
+                  initial_speed_rpm=1200.0, initial_load=1.0)
+    topics = resolved_topics('')
+    rt = LiveRuntime(values, load_line(values['driveline']), Quiet(), Quiet(),
+                     topics={topics[k]: s.msgtype for k, s in STREAMS.items()},
+                     node_name='/driveline_node')
+    try:
+        rt.loop.start()
+
+        def run_for(seconds):
+            end = rt.sim.t + seconds
+            while rt.sim.t < end:
+                with rt.lock:
+                    rt.loop.tick(rt.loop.clock())
+
+        run_for(0.02)
+        assert rt.monitor.faults is None and rt.monitor._want.faults is None
+        rt.apply({'fault_misfire': '{cylinders: [2], mode: every_cycle}'})
+        run_for(0.05)
+        held = rt.monitor._want.faults
+        assert [(f.kind, f.cylinders, f.mode) for f in held] == [('misfire', (2,), 'every_cycle')]
+        rt.apply({'fault_misfire': ''})
+        run_for(0.05)
+        assert rt.monitor.faults is None and rt.monitor._want.faults is None
+    finally:
+        rt.close()
