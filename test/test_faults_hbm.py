@@ -100,13 +100,13 @@ def test_faulted_speed_derivative_matches_finite_differences(loads, line):
 # (a) an every-cycle misfire: harmonic balance against Newmark
 # ------------------------------------------------------------------------------------------------
 
-@pytest.mark.parametrize('speed', [900.0, 1200.0, 1600.0])
+@pytest.mark.parametrize('speed', [900.0, 1000.0, 1200.0, 1600.0])
 def test_misfire_every_cycle_hbm_matches_newmark(loads, line, speed):
     """Cylinder 1 misfires every cycle at full load: the 0.5, 1, 1.5 and 3rd orders and the mean
     of the wind-up, and the 0.5, 1, 1.5 and 3rd orders of the crank speed (primary flywheel), of
     the harmonic balance (a sweep around the speed, its state there, the driveline recovered
     from it) and of Newmark run to a steady state from the static equilibrium with the same
-    factors agree within 1 % (doc/theory.md §6; measured below 0.1 %), and the state Newmark
+    factors agree within 1 % (doc/theory.md §6; measured below 0.2 %), and the state Newmark
     settles on is a stable one."""
     faults = faults_of(MISFIRE_1, line)
     res = sweep(loads, 1.0, (speed - 30.0, speed + 30.0), faults=faults)
