@@ -25,7 +25,8 @@ __all__ = ['ALPHA_RANGE', 'THETA_RANGE_RAD', 'LOAD_RANGE', 'LOAD_SETS', 'HARMONI
            'add_engine', 'add_alpha', 'add_theta', 'add_load_set', 'add_load', 'add_speeds',
            'add_harmonics', 'check_common', 'check_grid', 'check_harmonics', 'check_dmf_options',
            'add_cluster', 'check_cluster', 'DEFAULT_CONNECT_TIMEOUT_S', 'OVERWRITE_HELP',
-           'add_overwrite', 'output', 'resumable_output', 'check_names', 'check_wait']
+           'add_overwrite', 'output', 'resumable_output', 'check_names', 'check_wait',
+           'add_steady_faults', 'steady_faults']
 
 ALPHA_RANGE = (0.0, STIFFNESS_FACTOR_MAX)    # secondary stiffness factor (the spring's bound)
 THETA_RANGE_RAD = (0.0, STAGE_ANGLE_MAX_RAD)  # knee angle [rad], lower bound excluded
@@ -93,6 +94,32 @@ def add_harmonics(p, default: int = 24) -> None:
                    help=f'highest half-order index H kept, {HARMONICS_RANGE[0]}..'
                         f'{HARMONICS_RANGE[1]} (default {default} = the {default / 2:g}th engine '
                         'order)')
+
+
+def add_steady_faults(p) -> None:
+    """``--faults FILE|SPEC``: the persistent faults of a steady state (sweep, steady)."""
+    p.add_argument('--faults', metavar='FILE|SPEC',
+                   help='persistent faults of the steady state: a fault schedule file (YAML '
+                        'faults: [...]) or faults in YAML flow style, e.g. "{kind: misfire, '
+                        'cylinders: [1], mode: every_cycle}" or a [list]; every_cycle misfires, '
+                        'weak_cylinder and dmf_stiffness/dmf_broken/dmf_damping, without time '
+                        'windows (a single or random misfire, a window or a sensor fault is '
+                        'refused: dmf-sim run --faults takes those)')
+
+
+def steady_faults(value: str | None, line):
+    """The FaultSet of ``--faults FILE|SPEC`` (text starting with '{' or '[' is a SPEC, anything
+    else a schedule file), validated against the driveline ``line`` and refused in one line
+    unless every fault has a steady state (:func:`dmf_sim.solvers.hbm.faulted.steady_faults`);
+    None without faults."""
+    if value is None:
+        return None
+    from dmf_sim.physics.faults import FaultSet, load_schedule, parse_faults
+    from dmf_sim.solvers.hbm.faulted import steady_faults as checked
+    if value.lstrip().startswith(('{', '[')):
+        return checked(FaultSet(parse_faults(value, '--faults', line=line)), '--faults')
+    schedule = load_schedule(value, line=line)
+    return checked(FaultSet(schedule.faults), f'--faults {schedule.source}')
 
 
 def check_grid(lo: float, hi: float, step: float, engine=None, option: str = '--speeds') -> None:

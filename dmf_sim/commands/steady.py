@@ -40,6 +40,7 @@ def add_arguments(p) -> None:
                    help='half-width [rpm] of the speed window the search continues over '
                         '(default 30)')
     opt.add_harmonics(p)
+    opt.add_steady_faults(p)
     p.add_argument('--no-progress', action='store_true', help='no progress bar on stderr')
     p.add_argument('--json', action='store_true', help='print one JSON object to stdout')
 
@@ -65,6 +66,7 @@ def run(args) -> int:
     line = load_driveline(args.config, alpha=args.alpha, theta=args.theta)
     if line.dmf is None:
         raise ConfigError(f'driveline {line.name!r} has no dmf section: nothing to search')
+    faults = opt.steady_faults(args.faults, line)
     loads = DrivelineLoads(line.reduce(), load_engine(args.engine, load_set=args.load_set))
     load_kernels(NAME, 'sweep', 'time integration')
     res = find_steady_states(
@@ -72,7 +74,7 @@ def run(args) -> int:
         hbm_options=HBMOptions(n_harmonics=args.harmonics),
         basin=BasinOptions(samples=args.samples, amplitude_rad=args.amplitude, seed=args.seed,
                            max_cycles=args.max_cycles),
-        progress=not args.no_progress)
+        progress=not args.no_progress, faults=faults)
     data = res.as_dict()
     data.update(driveline=line.name, engine=str(args.engine), load_set=args.load_set,
                 alpha=line.spring.alpha, theta_rad=line.spring.theta)
@@ -83,8 +85,11 @@ def run(args) -> int:
           f'load {args.load:g}, '
           f'alpha {line.spring.alpha:g}, theta {line.spring.theta:g} rad ({res.seconds:.1f} s); '
           'wind-up in mrad')
-    print(f'{"state":>11} {"stable":>6} {"twins":>5} {"3rd":>7} {"1.5th":>7} {"max dev":>8} '
-          f'{"min dev":>8} {"mean-th":>8}  basin share [95 % CI]')
+    if faults:
+        print(f'faults (every cycle): {faults.text()}')
+    half = (f'{"0.5th":>7} {"1st":>7} ' if faults else '')    # cylinders that differ excite them
+    print(f'{"state":>11} {"stable":>6} {"twins":>5} {half}{"3rd":>7} {"1.5th":>7} '
+          f'{"max dev":>8} {"min dev":>8} {"mean-th":>8}  basin share [95 % CI]')
     for st in res.states:
         s, p = st.point.summary, st.point
         basin = ''
@@ -92,7 +97,9 @@ def run(args) -> int:
             d = st.as_dict(res.samples)['basin']
             basin = ('-  (unstable: attracts no run)' if d is None else
                      f'{d["share"]:5.1%} [{d["ci95"][0]:.1%}, {d["ci95"][1]:.1%}]')
-        print(f'{st.kind:>11} {str(p.stable):>6} {st.multiplicity:5d} {s.order_3 * 1e3:7.2f} '
+        c = p.windup_orders
+        low = f'{abs(c[1]) * 1e3:7.2f} {abs(c[2]) * 1e3:7.2f} ' if faults else ''
+        print(f'{st.kind:>11} {str(p.stable):>6} {st.multiplicity:5d} {low}{s.order_3 * 1e3:7.2f} '
               f'{s.order_1_5 * 1e3:7.2f} {s.max_deviation * 1e3:8.2f} '
               f'{s.min_deviation * 1e3:8.2f} {s.mean_minus_theta * 1e3:8.2f}  {basin}')
     if res.samples:

@@ -12,8 +12,8 @@ from dmf_sim.commands import _options as opt
 from dmf_sim.core.csv_out import write_csv
 from dmf_sim.core.errors import ConfigError, ConvergenceError, DmfSimError, one_line
 
-__all__ = ['NAME', 'HELP', 'CSV_FIELDS', 'FIG15_ALPHA', 'MAX_SWEEPS', 'add_arguments', 'run',
-           'sweep_dict', 'figures']
+__all__ = ['NAME', 'HELP', 'CSV_FIELDS', 'FAULT_CSV_FIELDS', 'FIG15_ALPHA', 'MAX_SWEEPS',
+           'add_arguments', 'run', 'sweep_dict', 'figures']
 
 NAME = 'sweep'
 HELP = ('Speed sweep of the DMF wind-up (3rd / 1.5th order amplitude, max/min deviation, theta - '
@@ -24,6 +24,7 @@ CSV_FIELDS = ['alpha', 'load_set', 'load', 'speed_rpm', 'branch', 'kind', 'stabl
               'order_1_5', 'max_deviation', 'min_deviation', 'theta_minus_static', 'static_windup',
               'mean_minus_theta', 'mean', 'max_multiplier', 'forced_order_1_5', 'multiplicity',
               'label', 'instability']
+FAULT_CSV_FIELDS = ['order_0_5', 'order_1']   # with --faults: what unlike cylinders excite
 FIG15_ALPHA = 2.5
 
 MAX_SWEEPS = 24                  # alpha values x load sets
@@ -38,6 +39,7 @@ def add_arguments(p) -> None:
     opt.add_load(p)
     opt.add_speeds(p)
     opt.add_harmonics(p)
+    opt.add_steady_faults(p)
     p.add_argument('--no-stability', action='store_true',
                    help='skip Floquet stability (and branch switching)')
     p.add_argument('--no-branch-switching', action='store_true',
@@ -83,6 +85,7 @@ def run(args) -> int:
     if line.dmf is None:
         raise ConfigError(f'driveline {line.name!r} has no dmf section: nothing to sweep')
     alphas = args.alpha if args.alpha else [line.dmf.alpha]
+    faults = opt.steady_faults(args.faults, line)
     engines = {}
     for ls in dict.fromkeys(args.load_set):
         engines[ls] = load_engine(args.engine, load_set=ls)
@@ -102,7 +105,7 @@ def run(args) -> int:
             try:
                 res = sweep(DrivelineLoads(model, eng), args.load, (lo, hi), hbm_options=hopt,
                             options=sopt, progress=not args.no_progress,
-                            label=f'alpha={a:g}, Load {ls}')
+                            label=f'alpha={a:g}, Load {ls}', faults=faults)
             except (DmfSimError, np.linalg.LinAlgError) as exc:     # one case lost, not the run
                 failures.append({'alpha': a, 'load_set': ls, 'error': one_line(exc)})
                 print(f'dmf-sim sweep: alpha={a:g}, Load {ls} failed: {one_line(exc)}',
@@ -116,6 +119,7 @@ def run(args) -> int:
     data = {
         'driveline': line.name, 'engine': str(args.engine), 'load': args.load,
         'theta_rad': line.dmf.theta, 'speeds_rpm': [lo, hi, step], 'n_harmonics': args.harmonics,
+        'faults': faults.text() if faults else None,
         'units': 'wind-up quantities in rad (positive when the engine drives); speed in rpm; '
                  'theta_minus_static = theta - static wind-up of the mean torque (the paper\'s '
                  'green line), mean = dynamic mean wind-up',
@@ -147,6 +151,8 @@ def _print_summary(data: dict, results) -> None:
     print(f'{data["driveline"]}: harmonic balance sweep {lo:g}-{hi:g} rpm (grid {step:g} rpm), '
           f'engine {data["engine"]}, load {data["load"]:g}, theta {data["theta_rad"]:g} rad, '
           f'H = {data["n_harmonics"]}; wind-up in rad')
+    if data.get('faults'):
+        print(f'faults (every cycle, held over the sweep): {data["faults"]}')
     print(f'{"alpha":>6} {"load":>4} {"points":>6} {"branches":>8} {"time [s]":>8} '
           f'{"max 3rd order @ rpm":>22}   1.5th-order resonance (branch: rpm range, peak @ rpm)')
     for a, ls, r in results:
@@ -160,6 +166,11 @@ def _print_summary(data: dict, results) -> None:
         peak = f'{o3[k]:.4f} @ {main.points[k].speed_rpm:.0f}'
         print(f'{a:6g} {ls:>4} {r.n_points:6d} {len(r.branches):8d} {r.seconds:8.2f} {peak:>22}'
               f'   {txt}')
+        if data.get('faults'):
+            half = [abs(p.windup_orders[1]) for p in main.points]
+            j = int(np.argmax(half))
+            print(f'{"":>6} {"":>4} max 0.5th order {half[j]:.4f} @ '
+                  f'{main.points[j].speed_rpm:.0f} rpm (branch 0)')
     for a, ls, r in results:
         for e in r.events:
             print(f'  alpha={a:g} Load {ls}: {e.kind} on branch {e.branch} at {e.speed_rpm:.1f} '
@@ -231,7 +242,8 @@ def _write(out: Path, data: dict, results) -> dict:
     for name, (fig, cases) in figures(data, results).items():
         files[name] = str(save(fig, out / f'{name}.png'))
         data['figures'][f'{name}.png'] = cases
-    write_csv(out / 'sweep.csv', CSV_FIELDS, ({**row, 'load': data['load']}
-                                              for sw in data['sweeps'] for row in sw['points']))
+    fields = CSV_FIELDS + (FAULT_CSV_FIELDS if data.get('faults') else [])
+    write_csv(out / 'sweep.csv', fields, ({**row, 'load': data['load']}
+                                          for sw in data['sweeps'] for row in sw['points']))
     (out / 'sweep.json').write_text(json.dumps({**data, 'files': files}, indent=1))
     return files

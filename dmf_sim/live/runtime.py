@@ -159,8 +159,13 @@ class LiveRuntime:
                               node_name=self.node_name)
         monitor.set_setpoint(sim.speed_setpoint, sim.load_setpoint)
         self.loop.setpoint_listeners.append(monitor.set_setpoint)
+        acting = [None]          # the faults acting at the last tick
 
         def observe(samples, stamps_ns) -> None:      # tick thread: a few microseconds
+            now = sim.faults.active_set() if sim.faults is not None else None
+            if now != acting[0]:         # the prediction follows the faults (their held part)
+                acting[0] = now
+                monitor.set_faults(now)
             monitor.add_samples(samples, sim.load, stamps_ns)
             up = monitor.poll()
             for report in up.cycles:

@@ -1,15 +1,18 @@
 """Harmonic-balance prediction of the DMF wind-up at the live operating point (no ROS).
 
 * :func:`predict_states` — THE pluggable solver: every stable periodic steady state at one speed
-  and load, ``predict_states(loads, speed_rpm, load) -> list of HBMPoint-like results`` (each
+  and load, ``predict_states(loads, speed_rpm, load, faults=None) -> list of HBMPoint-like
+  results`` (``faults``: the persistent faults acting, passed only when there are some; each
   with ``.summary`` (:class:`dmf_sim.physics.orders.OrderSummary`) and ``.stable``; ``.kind``,
   ``.branch``, ``.max_multiplier`` are used when present). The default sweeps a short speed range
   around the point with :func:`dmf_sim.solvers.hbm.sweep` (pseudo-arc-length continuation, Floquet
   stability, 1.5th-order branch switching) and takes :meth:`SweepResult.solutions_at` the point,
   keeping the stable ones. Another finder (issue 13) replaces it by being passed as ``solver``.
 * :class:`Prediction` — the result for one :class:`OperatingPoint` (speed and load rounded, load
-  set, spring): the stable states (a state and its 120-deg shifted copy count once), or none
-  ("no stable periodic state predicted here"), or the error text when the solver failed.
+  set, spring, the persistent faults acting): the stable states (with alike cylinders a state and
+  its 120-deg shifted copy count once; with faults that make the cylinders differ they are two
+  states), or none ("no stable periodic state predicted here"), or the error text when the
+  solver failed.
 * :func:`solve_prediction` — runs a solver for an operating point and wraps the result.
 * :func:`compare` — live minus predicted per quantity for a completed cycle, against the
   predicted stable state nearest to the live one (the one a run settles on depends on its
@@ -23,14 +26,16 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from dmf_sim.core.errors import ConvergenceError
+from dmf_sim.physics.faults import COMBUSTION_KINDS, FaultSet
 
 __all__ = ['SWEEP_HALF_WIDTHS_RPM', 'QUANTITIES', 'OperatingPoint', 'PredictedState',
-           'Prediction', 'Comparison', 'predict_states', 'solve_prediction', 'compare']
+           'Prediction', 'Comparison', 'predict_states', 'solve_prediction', 'compare',
+           'steady_part']
 
 SWEEP_HALF_WIDTHS_RPM = (50.0, 30.0, 20.0)  # sweep s +- these [rpm], in turn until one converges
 SWEEP_STEP_RPM = 10.0                        # continuation output grid [rpm]
@@ -40,8 +45,9 @@ _SAME_STATE_ABS = 1e-6                       # [rad] states closer than this (+ 
 _SAME_STATE_REL = 1e-4
 
 
-def predict_states(loads, speed_rpm: float, load: float) -> list:
-    """Every stable periodic steady state of the wind-up at ``speed_rpm`` and ``load``.
+def predict_states(loads, speed_rpm: float, load: float, faults=None) -> list:
+    """Every stable periodic steady state of the wind-up at ``speed_rpm`` and ``load`` (with
+    the persistent ``faults``, a :class:`~dmf_sim.physics.faults.FaultSet`; None: healthy).
 
     Sweeps ``speed_rpm +- 50 rpm`` (clipped to the engine data; then +-30, +-20 rpm if the
     continuation fails to start) with :func:`dmf_sim.solvers.hbm.sweep` and returns the stable
@@ -61,7 +67,8 @@ def predict_states(loads, speed_rpm: float, load: float) -> list:
         try:
             res = sweep(loads, float(load), (lo, hi),   # stable states only: no envelopes
                         options=SweepOptions(step_rpm=SWEEP_STEP_RPM,
-                                             search=SearchOptions(nonperiodic_speeds=())))
+                                             search=SearchOptions(nonperiodic_speeds=())),
+                        faults=faults)
         except (ConvergenceError, np.linalg.LinAlgError, FloatingPointError) as exc:
             errors.append(f'+-{half:g} rpm: {exc}')
             continue
@@ -71,19 +78,42 @@ def predict_states(loads, speed_rpm: float, load: float) -> list:
 
 @dataclass(frozen=True)
 class OperatingPoint:
-    """Where a prediction applies: speed [rpm] and load fraction (rounded), load set, spring."""
+    """Where a prediction applies: speed [rpm] and load fraction (rounded), load set, spring,
+    and the persistent faults acting (a :class:`~dmf_sim.physics.faults.FaultSet` of every-cycle
+    misfires, weak cylinders and DMF faults; None: healthy)."""
 
     speed_rpm: float
     load: float
     load_set: str
     spring: object
+    faults: object = None
 
     @classmethod
     def rounded(cls, speed_rpm: float, load: float, load_set: str, spring, speed_step_rpm: float,
-                load_step: float) -> 'OperatingPoint':
-        """The point with speed and load rounded to the given steps (the cache key)."""
+                load_step: float, faults=None) -> 'OperatingPoint':
+        """The point with speed and load rounded to the given steps (the cache key; the faults
+        are part of it: :func:`steady_part` of the set given)."""
         return cls(round(round(speed_rpm / speed_step_rpm) * speed_step_rpm, 9),
-                   round(round(load / load_step) * load_step, 9), str(load_set), spring)
+                   round(round(load / load_step) * load_step, 9), str(load_set), spring,
+                   steady_part(faults))
+
+    @property
+    def combustion_faults(self) -> bool:
+        """Do misfires or weak cylinders act here? Then states with equal Fig. 13 quantities
+        are not merged (the solver, which knows the factors, has merged what is one state:
+        twins only when all cylinders still fire alike)."""
+        return bool(self.faults) and any(f.kind in COMBUSTION_KINDS for f in self.faults)
+
+
+def steady_part(faults):
+    """The faults of a set that have a periodic steady state (its persistent part, without
+    time windows: the same faults, held), or None when there are none: what a prediction
+    takes from the faults acting now."""
+    if not faults:
+        return None
+    held = FaultSet(tuple(replace(f, start_s=None, end_s=None, duration_s=None)
+                          for f in faults.persistent))
+    return held or None
 
 
 @dataclass(frozen=True)
@@ -142,9 +172,14 @@ class Prediction:
         return not self.error and not self.states
 
 
-def _distinct(states: Sequence[PredictedState]) -> tuple[PredictedState, ...]:
+def _distinct(states: Sequence[PredictedState], merge_twins: bool = True
+              ) -> tuple[PredictedState, ...]:
     """States with different Fig. 13 quantities (a state and its 120-deg shifted copy, which the
-    solver returns as two solutions, have equal amplitudes and extremes: one physical state)."""
+    solver returns as two solutions, have equal amplitudes and extremes: one physical state).
+    ``merge_twins`` False (cylinders that do not fire alike): every state is kept, equal
+    quantities or not (a shifted copy is another state)."""
+    if not merge_twins:
+        return tuple(states)
     out: list[PredictedState] = []
     for s in states:
         v = s.vector()
@@ -155,16 +190,18 @@ def _distinct(states: Sequence[PredictedState]) -> tuple[PredictedState, ...]:
 
 
 def solve_prediction(solver: Callable, loads, point: OperatingPoint) -> Prediction:
-    """Run ``solver(loads, speed, load)`` at ``point``: the stable states found (distinct), or
-    the solver's failure as ``error``."""
+    """Run ``solver(loads, speed, load)`` at ``point`` (with ``faults=point.faults`` when faults
+    act there): the stable states found (distinct), or the solver's failure as ``error``."""
     t0 = time.perf_counter()
+    kw = {'faults': point.faults} if point.faults else {}
     try:
-        pts = solver(loads, point.speed_rpm, point.load)
+        pts = solver(loads, point.speed_rpm, point.load, **kw)
     except (ConvergenceError, np.linalg.LinAlgError, FloatingPointError, ValueError) as exc:
         text = ' '.join(str(exc).split()) or type(exc).__name__
         return Prediction(point, (), time.perf_counter() - t0, error=text)
     states = _distinct([PredictedState.from_point(p) for p in pts
-                        if getattr(p, 'stable', True) is not False])
+                        if getattr(p, 'stable', True) is not False],
+                       merge_twins=not point.combustion_faults)
     return Prediction(point, states, time.perf_counter() - t0)
 
 

@@ -8,7 +8,8 @@ setpoint (:func:`dmf_sim.monitor.prediction.predict_states`, 5 ms .. 0.3 s) run 
 their scheduling priority) or threads (``worker='thread'``). :meth:`LiveMonitor.poll`, called
 from the node's loop, returns what finished: per-cycle reports (the cycle, live minus predicted,
 alarms, the message content) and a new prediction when the setpoint's changed. Predictions are
-cached per operating point (speed and load rounded, load set, spring). ``benchmarks/
+cached per operating point (speed and load rounded, load set, spring, the persistent faults
+acting: :meth:`LiveMonitor.set_faults`). ``benchmarks/
 bench_monitor.py`` measures the tick thread's lateness with process and thread workers.
 """
 from __future__ import annotations
@@ -35,6 +36,7 @@ from dmf_sim.monitor.prediction import (
     compare,
     predict_states,
     solve_prediction,
+    steady_part,
 )
 
 __all__ = ['WORKER_MODES', 'MONITOR_PARAMETERS', 'MonitorSettings', 'CycleReport',
@@ -236,10 +238,11 @@ class LiveMonitor:
         node_name: used in the status names.
         solver: the prediction solver (:func:`dmf_sim.monitor.prediction.predict_states` by
         default).
+        faults: the faults acting (:meth:`set_faults`), None: healthy.
     """
 
     def __init__(self, line, engine, settings: MonitorSettings | None = None, *,
-                 node_name: str = 'driveline_node', solver=predict_states) -> None:
+                 node_name: str = 'driveline_node', solver=predict_states, faults=None) -> None:
         self.settings = settings or MonitorSettings()
         self.node_name = node_name
         self.solver = solver
@@ -263,6 +266,7 @@ class LiveMonitor:
         self.counters = {'cycles_analysed': 0, 'predictions_computed': 0,
                          'prediction_latency_s': math.nan, 'worker_failures': 0,
                          'monitor_worker': s.worker}
+        self.faults = steady_part(faults)
         self.set_model(line, engine)
 
     # ---- configuration ---------------------------------------------------------------------
@@ -278,6 +282,16 @@ class LiveMonitor:
         if self._setpoint is not None:
             self.set_setpoint(*self._setpoint)
 
+    def set_faults(self, faults) -> None:
+        """The faults acting now (a :class:`~dmf_sim.physics.faults.FaultSet`, e.g. a fault
+        timeline's active set; None or empty: healthy): later predictions take their persistent
+        part (every-cycle misfires, weak cylinders, DMF faults, held; single and random misfires
+        and sensor faults have no steady state of their own), and it is part of the cache key.
+        ``line`` stays the configured driveline: the DMF faults are applied by the prediction."""
+        self.faults = steady_part(faults)
+        if self._setpoint is not None:
+            self.set_setpoint(*self._setpoint)
+
     def set_settings(self, settings: MonitorSettings) -> None:
         """New thresholds / rounding (the worker mode stays as started)."""
         self.settings = replace(settings, worker=self.settings.worker)
@@ -289,7 +303,8 @@ class LiveMonitor:
         self._setpoint = (float(speed_rpm), float(load))
         s = self.settings
         point = OperatingPoint.rounded(speed_rpm, load, self.load_set, self.spring,
-                                       s.prediction_speed_step_rpm, s.prediction_load_step)
+                                       s.prediction_speed_step_rpm, s.prediction_load_step,
+                                       self.faults)
         if point == self._want:
             return
         self._want, self._want_since = point, time.perf_counter()

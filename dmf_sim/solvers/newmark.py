@@ -319,7 +319,7 @@ def simulate(loads: DrivelineLoads, speed_rpm: float, load: float, *, t_end: flo
              steady_tol: float = 1e-4, min_cycles: int = 5, max_cycles: int = 400,
              eval_cycles: int = 4, record_stride: int = 1, chunk_s: float = 0.01,
              initial: tuple[np.ndarray, np.ndarray] | None = None, use_numba: bool = True,
-             progress: bool = False) -> SimulationResult:
+             progress: bool = False, factors=None) -> SimulationResult:
     """Integrate the driveline at speed ``speed_rpm`` and load fraction ``load``.
 
     Without ``t_end``: run whole engine cycles at constant speed until the wind-up's
@@ -329,9 +329,13 @@ def simulate(loads: DrivelineLoads, speed_rpm: float, load: float, *, t_end: flo
     ``target_speed_rpm`` at ``ramp_rpm_per_s``, recording every ``record_stride`` steps; the
     excitation coefficients follow the speed every ``chunk_s`` seconds, each chunk's those of
     its middle, as in the live core (at constant speed, no target, the run is one kernel call).
-    ``initial`` = (q, v) replaces the static equilibrium start.
+    ``initial`` = (q, v) replaces the static equilibrium start. ``factors``: per-cylinder
+    combustion factors held over the whole run (an every-cycle misfire 0, a weak cylinder its
+    factor; :meth:`NewmarkIntegrator.update_excitation`), None: every cylinder fires.
     """
     integ = NewmarkIntegrator(loads, dt=dt, beta=beta, gamma=gamma, use_numba=use_numba)
+    if factors is not None:
+        integ.update_excitation(speed_rpm, load, factors)
     integ.reset(speed_rpm, load)
     if initial is not None:
         integ.q[:] = initial[0]
@@ -411,7 +415,8 @@ def simulate(loads: DrivelineLoads, speed_rpm: float, load: float, *, t_end: flo
     start = (cyc - n_eval) * CYCLE_RAD
     samples = resample_on_angle(psi, w, start, n_eval, grid_pts)
     coeffs = half_orders(samples, n_max, n_eval)
-    static = (loads.static_state(speed_rpm, load).windup if loads.model.spring is not None
+    static = (loads.static_state(speed_rpm, load, integ.factors).windup
+              if loads.model.spring is not None
               else np.nan)
     summ = summarize_orders(coeffs, samples, theta, static)
     cat = lambda attr: stitched(first, cyc, attr)  # noqa: E731

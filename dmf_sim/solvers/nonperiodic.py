@@ -141,16 +141,17 @@ def classify_section(points: np.ndarray, scale: np.ndarray,
 
 def analyze(loads: DrivelineLoads, speed_rpm: float, load: float,
             initial: tuple[np.ndarray, np.ndarray] | None = None,
-            options: NonPeriodicOptions | None = None) -> NonPeriodicResult:
+            options: NonPeriodicOptions | None = None, factors=None) -> NonPeriodicResult:
     """Long Newmark run at constant speed from ``initial`` = (q, v) at psi = 0 (default: the
-    static equilibrium), summarized as in the module docstring."""
+    static equilibrium), summarized as in the module docstring; ``factors``: per-cylinder
+    combustion factors (:func:`dmf_sim.solvers.newmark.simulate`)."""
     o = options or NonPeriodicOptions()
     if not 0 <= o.transient < o.cycles:
         raise ValueError(f'transient={o.transient} must be in [0, cycles={o.cycles})')
     T = float(cycle_period_s(speed_rpm))
     n_steps = int(np.ceil(o.cycles * T / o.dt)) + 2 * o.stride
     res = simulate(loads, speed_rpm, load, t_end=n_steps * o.dt, dt=o.dt, record_stride=o.stride,
-                   initial=initial, chunk_s=1e9)
+                   initial=initial, chunk_s=1e9, factors=factors)
     e = loads.model.e
     psi, w, wd = res.psi, res.windup, res.v @ e
     first, last = o.transient, o.cycles

@@ -4,14 +4,17 @@
 1. The states: a full harmonic balance sweep over a small speed window around the operating
    point (dmf_sim.solvers.hbm: continuation, Floquet stability, branch switching, deflated Newton
    seeds, Newmark shots), evaluated exactly at the speed; 120 deg twins are one state with its
-   multiplicity. Where no periodic state is stable, a long Newmark run says what happens
-   instead (dmf_sim.solvers.nonperiodic).
+   multiplicity (when the cylinders fire alike: with faults that make them differ, states are
+   told apart by their harmonics, phases included; dmf_sim.solvers.hbm.faulted). Where no
+   periodic state is stable, a long Newmark run says what happens instead
+   (dmf_sim.solvers.nonperiodic).
 2. Basins of attraction: N initial states around the static equilibrium — wind-up offsets and
    rates drawn uniformly in [-A, A] / 2 and [-Omega A, Omega A] / 2 along each of the two modes
    with the most strain energy in the DMF (:func:`dmf_modes`, Omega their angular frequency) —
    are integrated by Newmark until the cycle-to-cycle change settles. Each run is matched to a
-   state by its order amplitudes; a settled run that matches none is polished by harmonic balance
-   Newton and added (found by time integration). The share of runs per state is reported with a
+   state by its order amplitudes (with unlike cylinders by its complex orders); a settled run
+   that matches none is polished by harmonic balance Newton and added (found by time
+   integration). The share of runs per state is reported with a
    95 % Wilson score interval.
 """
 from __future__ import annotations
@@ -25,7 +28,8 @@ import numpy as np
 from dmf_sim.core.errors import ConfigError, ConvergenceError
 from dmf_sim.physics.loads import DrivelineLoads
 from dmf_sim.solvers.hbm import CondensedHBM, HBMOptions, HBMPoint, SweepOptions, sweep
-from dmf_sim.solvers.hbm.layout import amplitudes, to_real
+from dmf_sim.solvers.hbm.faulted import fingerprints
+from dmf_sim.solvers.hbm.layout import to_real
 from dmf_sim.solvers.newmark import simulate
 from dmf_sim.solvers.nonperiodic import NonPeriodicResult
 from dmf_sim.solvers.stability import FlexibleModes, FloquetAnalyzer
@@ -75,12 +79,24 @@ class SteadyState:
     multiplicity: int = 1
     found_by: str = ''
     hits: int = 0
+    forced_ratio: float | None = None
 
     @property
     def kind(self) -> str:
-        return '1.5th order' if self.point.order_1_5 > 0.2 * self.point.order_3 else '3rd order'
+        """'1.5th order' or '3rd order' (the larger share); with cylinders that do not fire alike
+        (``forced_ratio`` set: they force the 1.5th order directly) '1.5th order' where it
+        exceeds ``forced_ratio`` x its directly forced level (a resonance, as the sweep's
+        humps), else 'forced'."""
+        p = self.point
+        if self.forced_ratio is not None:
+            return ('1.5th order' if p.order_1_5 > self.forced_ratio * p.forced_order_1_5
+                    else 'forced')
+        return '1.5th order' if p.order_1_5 > 0.2 * p.order_3 else '3rd order'
 
-    def as_dict(self, samples: int) -> dict:
+    def as_dict(self, samples: int, all_orders: bool = False) -> dict:
+        """The state's numbers; ``orders_rad``: the wind-up's orders that are multiples of the
+        1.5th (every half order to the 12th with ``all_orders``, as a faulted engine excites
+        them)."""
         p = self.point
         lo, hi = wilson_interval(self.hits, samples)
         d = {'kind': self.kind, 'stable': None if p.stable is None else bool(p.stable),
@@ -88,7 +104,7 @@ class SteadyState:
              'max_multiplier': float(p.max_multiplier)}
         d.update(p.summary.as_dict())
         d['orders_rad'] = {f'{n / 2:g}': float(abs(c)) for n, c in enumerate(p.windup_orders)
-                           if n > 0 and n % 3 == 0 and n <= 24}
+                           if n > 0 and (all_orders or n % 3 == 0) and n <= 24}
         if samples:      # an unstable state attracts nothing: no basin (not a share of 0)
             d['basin'] = ({'hits': int(self.hits), 'share': self.hits / samples,
                            'ci95': [lo, hi]} if p.stable is not False else None)
@@ -108,6 +124,7 @@ class SteadyStateSet:
     rate_rad_s: float = 0.0
     unsettled: int = 0
     seconds: float = 0.0
+    faults: object = None          # the FaultSet of the search (None: healthy)
 
     @property
     def stable(self) -> list[SteadyState]:
@@ -115,9 +132,11 @@ class SteadyStateSet:
 
     def as_dict(self) -> dict:
         lo, hi = wilson_interval(self.unsettled, self.samples)
-        return {'speed_rpm': self.speed_rpm, 'load': self.load, 'seconds': self.seconds,
+        faulted = {'faults': self.faults.text()} if self.faults else {}
+        return {'speed_rpm': self.speed_rpm, 'load': self.load, **faulted,
+                'seconds': self.seconds,
                 'n_stable': len(self.stable),
-                'states': [s.as_dict(self.samples) for s in self.states],
+                'states': [s.as_dict(self.samples, bool(self.faults)) for s in self.states],
                 'non_periodic': [r.as_dict() for r in self.non_periodic],
                 'basin_sampling': {'samples': self.samples,
                                    'windup_offset_range_rad': [-self.amplitude_rad,
@@ -130,28 +149,33 @@ class SteadyStateSet:
                 'units': 'wind-up quantities in rad, positive when the engine drives'}
 
 
-def _fingerprint(c: np.ndarray) -> np.ndarray:
+def _fingerprint(c: np.ndarray, symmetric: bool = True) -> np.ndarray:
+    """The first MATCH_HARMONICS + 1 wind-up orders a run is matched on: their amplitudes when
+    the cylinders fire alike (a run on a 120 deg shifted twin matches the state), else the
+    complex orders (a state another phase away is another state)."""
     k = min(len(c), MATCH_HARMONICS + 1)
-    return np.abs(np.asarray(c)[:k])
+    c = np.asarray(c)[:k]
+    return np.abs(c) if symmetric else c
 
 
 class _Matcher:
     """Assigns a Newmark result (its wind-up orders) to the nearest known state that is not
     unstable (a run cannot settle on an unstable state: near one it is still drifting)."""
 
-    def __init__(self, states: list[SteadyState], tol: float):
+    def __init__(self, states: list[SteadyState], tol: float, symmetric: bool = True):
         self.states = states
         self.tol = tol
+        self.symmetric = symmetric
 
     def match(self, c: np.ndarray) -> SteadyState | None:
-        f = _fingerprint(c)
+        f = _fingerprint(c, self.symmetric)
         best, dist = None, np.inf
         for s in self.states:
             if s.point.stable is False:
                 continue
-            g = _fingerprint(s.point.windup_orders)
+            g = _fingerprint(s.point.windup_orders, self.symmetric)
             n = min(len(f), len(g))
-            d = float(np.abs(f[:n] - g[:n]).max()) / max(float(g[1:n].max()), 1e-6)
+            d = float(np.abs(f[:n] - g[:n]).max()) / max(float(np.abs(g[1:n]).max()), 1e-6)
             if d < dist:
                 best, dist = s, d
         return best if dist <= self.tol else None
@@ -160,10 +184,12 @@ class _Matcher:
 def find_steady_states(loads: DrivelineLoads, speed_rpm: float, load: float, *,
                        window_rpm: float = 30.0, hbm_options: HBMOptions | None = None,
                        sweep_options: SweepOptions | None = None,
-                       basin: BasinOptions | None = None, progress: bool = False
-                       ) -> SteadyStateSet:
+                       basin: BasinOptions | None = None, progress: bool = False,
+                       faults=None) -> SteadyStateSet:
     """Every steady state at ``speed_rpm`` and load fraction ``load`` with basin estimates (see
-    the module docstring)."""
+    the module docstring). ``faults``: a :class:`~dmf_sim.physics.faults.FaultSet` of
+    persistent faults (every-cycle misfires, weak cylinders, DMF faults), None: healthy; the
+    search and every basin run take them (:func:`dmf_sim.solvers.hbm.sweep`)."""
     t0 = time.perf_counter()
     b = basin or BasinOptions()
     s = float(speed_rpm)
@@ -182,20 +208,23 @@ def find_steady_states(loads: DrivelineLoads, speed_rpm: float, load: float, *,
             **{**opts.search.__dict__, 'seed_step_rpm': step,
                'nonperiodic_speeds': (s,)})})          # the envelope where it is asked
     res = sweep(loads, load, (lo, hi), hbm_options=hbm_options, options=opts, progress=progress,
-                label=f'{s:g} rpm')
+                label=f'{s:g} rpm', faults=faults)
     hb: CondensedHBM = res.hbm
     states: list[SteadyState] = []
     for q in res.solutions_at(s):
         mult = next((br.multiplicity for br in res.branches if br.id == q.branch), 1)
-        known = next((st for st in states if np.abs(amplitudes(st.point.x, hb.H)
-                                                    - amplitudes(q.x, hb.H)).max()
+        f = fingerprints(q.x, hb.H, hb.symmetric)
+        known = next((st for st in states
+                      if np.abs(fingerprints(st.point.x, hb.H, hb.symmetric) - f).max()
                       <= 1e-6 + 1e-4 * np.abs(q.x).max()), None)
         if known is None:
-            states.append(SteadyState(q, mult, f'harmonic balance (branch {q.branch}: {q.kind})'))
+            states.append(SteadyState(q, mult, f'harmonic balance (branch {q.branch}: {q.kind})',
+                                      forced_ratio=None if hb.symmetric else opts.ratio_1_5))
     nonper = [r for band in res.non_periodic for r in band.results if abs(r.speed_rpm - s) < 1e-6]
-    out = SteadyStateSet(s, float(load), states, nonper)
+    out = SteadyStateSet(s, float(load), states, nonper, faults=res.faults)
     if b.samples > 0:
-        _basins(out, hb, loads, b, progress)
+        _basins(out, hb, hb.loads, b, progress,       # the loads of the faulted model, if any
+                None if hb.symmetric else opts.ratio_1_5)
     out.states.sort(key=lambda st: (not st.point.stable, -st.hits, st.point.order_1_5))
     out.seconds = time.perf_counter() - t0
     return out
@@ -215,7 +244,7 @@ def dmf_modes(model, count: int = 2) -> list[tuple[np.ndarray, float]]:
 
 
 def _basins(out: SteadyStateSet, hb: CondensedHBM, loads: DrivelineLoads, b: BasinOptions,
-            progress: bool) -> None:
+            progress: bool, forced_ratio: float | None = None) -> None:
     s, load = out.speed_rpm, out.load
     model = loads.model
     A = b.amplitude_rad
@@ -226,9 +255,9 @@ def _basins(out: SteadyStateSet, hb: CondensedHBM, loads: DrivelineLoads, b: Bas
     modes = dmf_modes(model, 2)
     omega = max(om for _, om in modes)
     out.samples, out.amplitude_rad, out.rate_rad_s = b.samples, float(A), float(omega * A)
-    q_s = loads.static_state(s, load).q
+    q_s = loads.static_state(s, load, hb.factors).q
     rng = np.random.default_rng(b.seed)
-    matcher = _Matcher(out.states, b.match_tol)
+    matcher = _Matcher(out.states, b.match_tol, hb.symmetric)
     floquet = FloquetAnalyzer(model, modes=hb.modes, compiled=hb.compiled)
     bar = None
     if progress:
@@ -240,7 +269,7 @@ def _basins(out: SteadyStateSet, hb: CondensedHBM, loads: DrivelineLoads, b: Bas
             dq += rng.uniform(-A, A) / len(modes) * shape
             dv += rng.uniform(-om * A, om * A) / len(modes) * shape
         r = simulate(loads, s, load, dt=b.dt, max_cycles=b.max_cycles, steady_tol=b.steady_tol,
-                     initial=(q_s + dq, dv))
+                     initial=(q_s + dq, dv), factors=hb.factors)
         if bar is not None:
             bar.update(1)
         if not r.steady:
@@ -248,7 +277,7 @@ def _basins(out: SteadyStateSet, hb: CondensedHBM, loads: DrivelineLoads, b: Bas
             continue
         st = matcher.match(r.windup_orders)
         if st is None:
-            st = _add_from_newmark(out, hb, floquet, r.windup_orders, s)
+            st = _add_from_newmark(out, hb, floquet, r.windup_orders, s, forced_ratio)
         if st is None:
             out.unsettled += 1
         else:
@@ -258,7 +287,8 @@ def _basins(out: SteadyStateSet, hb: CondensedHBM, loads: DrivelineLoads, b: Bas
 
 
 def _add_from_newmark(out: SteadyStateSet, hb: CondensedHBM, floquet: FloquetAnalyzer,
-                      c: np.ndarray, s: float) -> SteadyState | None:
+                      c: np.ndarray, s: float, forced_ratio: float | None = None
+                      ) -> SteadyState | None:
     """A settled Newmark run that matches no state: Newton from its orders, stability, add."""
     x = np.zeros(hb.H + 1, dtype=complex)
     k = min(len(c), hb.H + 1)
@@ -271,6 +301,8 @@ def _add_from_newmark(out: SteadyStateSet, hb: CondensedHBM, floquet: FloquetAna
     q.stable, q.multipliers, q.max_multiplier = fr.stable, fr.multipliers, fr.max_abs
     if not q.stable:
         return None          # the run passed near an unstable state: it had not settled
-    st = SteadyState(q, 1, 'time integration from a random start, polished by Newton')
+    q.forced_order_1_5 = float(abs(hb.linear_parts(s).wlin[3])) if hb.H >= 3 else 0.0
+    st = SteadyState(q, 1, 'time integration from a random start, polished by Newton',
+                     forced_ratio=forced_ratio)
     out.states.append(st)
     return st

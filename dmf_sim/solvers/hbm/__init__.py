@@ -11,6 +11,8 @@
   branches;
 * :mod:`~dmf_sim.solvers.hbm.results` — :class:`SweepResult`, :class:`Branch`, :class:`SweepEvent`;
 * :mod:`~dmf_sim.solvers.hbm.layout` — the real unknown layout and shift-invariant fingerprints.
+* :mod:`~dmf_sim.solvers.hbm.faulted` — steady states with faults (misfiring or weak cylinders,
+  DMF faults) and when the shift symmetries hold.
 """
 from dmf_sim.solvers.hbm.condensed import CondensedHBM
 from dmf_sim.solvers.hbm.layout import SUB_HARMONICS, to_complex, to_real

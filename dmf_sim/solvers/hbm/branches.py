@@ -24,7 +24,8 @@ from __future__ import annotations
 import numpy as np
 
 from dmf_sim.core.errors import ConvergenceError
-from dmf_sim.solvers.hbm.layout import SUB_HARMONICS, amplitudes, sub_part, to_complex, to_real
+from dmf_sim.solvers.hbm.faulted import fingerprints
+from dmf_sim.solvers.hbm.layout import SUB_HARMONICS, sub_part, to_complex, to_real
 from dmf_sim.solvers.hbm.point import HBMPoint
 from dmf_sim.solvers.hbm.results import Branch, SweepEvent, on_grid, runs
 
@@ -38,23 +39,26 @@ class BranchSwitching:
     and ``_events``)."""
 
     # ---- is a solution already on a branch? -----------------------------------------------------
-    def _amplitudes(self, x: np.ndarray) -> np.ndarray:
-        return amplitudes(x, self.hbm.H)
+    def _fingerprints(self, x: np.ndarray) -> np.ndarray:
+        """:func:`dmf_sim.solvers.hbm.faulted.fingerprints` of the problem: the harmonic
+        amplitudes with alike cylinders (a 120 deg shifted twin is the same state), else x."""
+        return fingerprints(x, self.hbm.H, self.hbm.symmetric)
 
     def _distance_to_branch(self, x: np.ndarray, s: float, b: Branch) -> float:
-        """Smallest max | |w_n| - |w_n|_b(s) | [rad] over the stretches of branch b that bracket
-        speed s (linear interpolation of the harmonic amplitudes between its points)."""
+        """Smallest max |f - f_b(s)| [rad] of the fingerprints f (:meth:`_fingerprints`: the
+        harmonic amplitudes |w_n|, or with unlike cylinders the harmonics themselves) over the
+        stretches of branch b that bracket speed s (linear interpolation between its points)."""
         S = b.column('speed_rpm')
-        a0 = self._amplitudes(x)
+        a0 = self._fingerprints(x)
         if len(S) == 1:
-            return (float(np.abs(a0 - self._amplitudes(b.points[0].x)).max())
+            return (float(np.abs(a0 - self._fingerprints(b.points[0].x)).max())
                     if abs(S[0] - s) < 1e-9 else np.inf)
         a, c = S[:-1], S[1:]
         idx = np.flatnonzero((np.minimum(a, c) - 1e-9 <= s) & (s <= np.maximum(a, c) + 1e-9))
         if len(idx) == 0:
             return np.inf
-        X = self._amplitudes(np.array([b.points[i].x for i in idx]))
-        Y = self._amplitudes(np.array([b.points[i + 1].x for i in idx]))
+        X = self._fingerprints(np.array([b.points[i].x for i in idx]))
+        Y = self._fingerprints(np.array([b.points[i + 1].x for i in idx]))
         den = c[idx] - a[idx]
         safe = np.where(np.abs(den) < 1e-12, 1.0, den)
         f = np.where(np.abs(den) < 1e-12, 0.0, (s - a[idx]) / safe)

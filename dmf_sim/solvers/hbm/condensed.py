@@ -53,6 +53,7 @@ from dmf_sim.physics.orders import summarize_orders, summarize_rows, synthesize
 from dmf_sim.solvers.continuation import solve_small
 from dmf_sim.solvers.hbm import kernels, linear_kernels
 from dmf_sim.solvers.hbm.continuation_steps import ContinuationSteps
+from dmf_sim.solvers.hbm.faulted import FaultedParts, combustion_factors, is_symmetric
 from dmf_sim.solvers.hbm.layout import fit_harmonics, times_h, to_complex, to_real
 from dmf_sim.solvers.hbm.point import HBMOptions, HBMPoint, LinearParts
 from dmf_sim.solvers.hbm.recovery import DrivelineRecovery
@@ -105,16 +106,22 @@ def aft_tables(H: int, M: int) -> tuple[np.ndarray, ...]:
     return out
 
 
-class CondensedHBM(ContinuationSteps, DrivelineRecovery):
+class CondensedHBM(ContinuationSteps, DrivelineRecovery, FaultedParts):
     """Harmonic balance of one driveline at one load fraction, condensed on the DMF wind-up.
 
     Args:
         loads: DrivelineLoads (merged model with a DMF + engine).
         load: engine load fraction 0..1.
         options: HBMOptions.
+        factors: per-cylinder combustion factors s_k (1 fires, 0 misfires every cycle; see
+            :mod:`dmf_sim.solvers.hbm.faulted`), None (or all 1) for the healthy engine.
+
+    Attributes:
+        symmetric: every cylinder fires alike (the 120 deg shift symmetries hold).
     """
 
-    def __init__(self, loads: DrivelineLoads, load: float, options: HBMOptions | None = None):
+    def __init__(self, loads: DrivelineLoads, load: float, options: HBMOptions | None = None,
+                 factors=None):
         self.loads = loads
         self.load = float(load)
         self.options = options or HBMOptions()
@@ -169,12 +176,17 @@ class CondensedHBM(ContinuationSteps, DrivelineRecovery):
         self._spring_arrays = (*self.spring.arrays(), int(self.spring.primary_index))
         self._newton_opts = (float(self.options.tol), int(self.options.max_iter),
                              int(self.options.stall_iter), float(self.options.stall_ratio))
+        self.factors = combustion_factors(factors, L.phase.shape[0])
+        self.symmetric = is_symmetric(self.factors)
+        if self.factors is not None:
+            self._set_up_faults()
 
     # ---- loads and linear parts -------------------------------------------------------------
     def dof_loads(self, speed_rpm: float) -> np.ndarray:
         """(H+1, n_dof) complex generalized load harmonics P_n [Nm] (DrivelineLoads.dof_harmonics
         truncated or zero-padded to H)."""
-        return fit_harmonics(np.asarray(self.loads.dof_harmonics(speed_rpm, self.load),
+        return fit_harmonics(np.asarray(self.loads.dof_harmonics(speed_rpm, self.load,
+                                                                 self.factors),
                                         dtype=complex), self.H)
 
     def engine_harmonics(self, speed_rpm: float) -> np.ndarray:
@@ -255,6 +267,8 @@ class CondensedHBM(ContinuationSteps, DrivelineRecovery):
                              axis=1)
 
     def _linear_parts_many(self, speeds: list[float]) -> list[LinearParts]:
+        if self.factors is not None:
+            return self._linear_parts_faulted(speeds)
         if self.compiled:
             parts = self._linear_parts_compiled(speeds)
             if parts is not None:
@@ -288,24 +302,32 @@ class CondensedHBM(ContinuationSteps, DrivelineRecovery):
             linear_kernels.linear_parts(omega, self._dOm, self._d, ml, self._a, A, dA, wlin0,
                                         dwlin0, self._h0, h, dh, wlin, dw, wr, dwr)
         else:
-            n = np.arange(1, H + 1)
-            Om = omega[:, None] * (n / 2.0)                      # Om_n = n omega / 2
-            pole = 1.0 / (1j * Om[..., None] - self._d)          # (K, H, 2nf): 1/(i Om_n - d_k)
-            unit = (pole * ml).sum(axis=-1)                      # wlin_n per unit A_n
-            pole2 = -1j * pole ** 2                              # d/dOm of the pole
-            dunit = (pole2 * ml).sum(axis=-1) * self._dOm        # its speed derivative
-            h[:, 1:] = pole @ self._a
-            dh[:, 1:] = (pole2 @ self._a) * self._dOm
-            h[:, 0] = self._h0                                   # static: e.K^+ e
-            dh[:, 0] = 0.0
-            wlin[:, 0] = wlin0
-            dw[:, 0] = dwlin0
-            wlin[:, 1:] = A[:, 1:] * unit
-            dw[:, 1:] = A[:, 1:] * dunit + dA[:, 1:] * unit
+            self._linear_numpy(omega, A, dA, ml, wlin0, dwlin0, h, dh, wlin, dw)
             wr, dwr = to_real(wlin, H), to_real(dw, H)          # (K, 2H+1) real layouts
         return [LinearParts(speeds[k], float(omega[k]), h[k], wlin[k], dh[k], dw[k],
                             (wr[k], h[k]), (dwr[k], dh[k]))
                 for k in range(K)]
+
+    def _linear_numpy(self, omega, A, dA, ml, wlin0, dwlin0, h, dh, wlin, dw) -> None:
+        """h, dh, wlin, dw (K, H+1) <- the linear parts of K speeds ``omega`` [rad/s] in numpy
+        (the compiled kernel's reference, :func:`linear_kernels.linear_parts`): engine
+        coefficients A, dA (K, H+1), modal load ``ml`` (H, 2nf) of n >= 1, the static
+        ``wlin0``, ``dwlin0`` (K,)."""
+        H = self.H
+        n = np.arange(1, H + 1)
+        Om = omega[:, None] * (n / 2.0)                      # Om_n = n omega / 2
+        pole = 1.0 / (1j * Om[..., None] - self._d)          # (K, H, 2nf): 1/(i Om_n - d_k)
+        unit = (pole * ml).sum(axis=-1)                      # wlin_n per unit A_n
+        pole2 = -1j * pole ** 2                              # d/dOm of the pole
+        dunit = (pole2 * ml).sum(axis=-1) * self._dOm        # its speed derivative
+        h[:, 1:] = pole @ self._a
+        dh[:, 1:] = (pole2 @ self._a) * self._dOm
+        h[:, 0] = self._h0                                   # static: e.K^+ e
+        dh[:, 0] = 0.0
+        wlin[:, 0] = wlin0
+        dw[:, 0] = dwlin0
+        wlin[:, 1:] = A[:, 1:] * unit
+        dw[:, 1:] = A[:, 1:] * dunit + dA[:, 1:] * unit
 
     def _linear_parts_compiled(self, speeds: list[float]) -> list[LinearParts] | None:
         """:meth:`_linear_parts_many` in one kernel call with the engine query compiled
@@ -336,6 +358,8 @@ class CondensedHBM(ContinuationSteps, DrivelineRecovery):
     def _linear_parts_one(self, s: float) -> LinearParts:
         """:meth:`_linear_parts_many` of one speed (each arc-length corrector iteration asks for
         a new one): the same operations on scalars, without the batch's array bookkeeping."""
+        if self.factors is not None:
+            return self._linear_parts_faulted([s])[0]
         H = self.H
         fd = self.options.speed_fd_rpm
         ds = -fd if s + fd > self._speed_range()[1] else fd
@@ -366,6 +390,8 @@ class CondensedHBM(ContinuationSteps, DrivelineRecovery):
         cached = [self._cache.get(s) for s in speeds.tolist()]
         if all(lp is not None for lp in cached):        # prepared (a sweep's grid)
             return np.stack([lp.wlin for lp in cached])
+        if self.factors is not None:
+            return np.stack([lp.wlin for lp in self._linear_parts_faulted(speeds.tolist())])
         A = np.stack([self.engine_harmonics(s) for s in speeds])                 # (K, H+1)
         Om = np.outer(speeds * (RPM_TO_RAD_S / 2.0), np.arange(1, self.H + 1))  # (K, H)
         pole = 1.0 / (1j * Om[..., None] - self._d)                              # (K, H, 2nf)
@@ -415,11 +441,16 @@ class CondensedHBM(ContinuationSteps, DrivelineRecovery):
             return out
         speeds = [s for _, _, s, _ in todo]
         self.prepare(speeds)                       # their linear parts in one batch
-        # P_n . B_k ell_k = A_n (modal load of the phased cylinder vectors)_nk (n >= 1)
-        A = self.engine_harmonics_many(np.asarray(speeds))
-        for (k, n, s, zeta), A_s in zip(todo, A):
+        # P_n . B_k ell_k = A_n (modal load of the phased cylinder vectors)_nk (n >= 1); with
+        # faults the sum of the two components (FaultedParts.faulted_modal_loads)
+        if self.factors is None:
+            A = self.engine_harmonics_many(np.asarray(speeds))
+            ML = A[..., None] * self._modal_load
+        else:
+            ML = self.faulted_modal_loads(np.asarray(speeds))
+        for (k, n, s, zeta), ml in zip(todo, ML):
             d = self._d[k]
-            peak = abs(A_s[n] * self._modal_load[n, k] / -d.real)
+            peak = abs(ml[n, k] / -d.real)
             dyn = float(np.abs(self.linear_parts(s).wlin[1:]).sum())
             if dyn > 0 and peak >= share * dyn:
                 out.append({'speed_rpm': float(s), 'half_order': n, 'order': n / 2,
@@ -440,7 +471,7 @@ class CondensedHBM(ContinuationSteps, DrivelineRecovery):
         args = self.__dict__.get('_kernel_engine')
         if args is None:
             table = getattr(self.loads.engine, 'speed_table', None)
-            if table is None:
+            if table is None or self.factors is not None:     # faulted: the Python path
                 self._kernel_engine = args = ()
             else:
                 self._kernel_engine = args = (

@@ -2,8 +2,8 @@
 every DOF's and element's harmonics, the torque transmitted into every element, the DOF state at
 a crank angle, and the Newmark cross-check started on it. A mixin of
 :class:`dmf_sim.solvers.hbm.condensed.CondensedHBM` (it reads the problem's ``model``, ``loads``,
-``load``, ``H``, ``_u0``, ``dof_loads`` and ``nonlinear_harmonics``): the condensed solver itself
-needs none of it, only the wind-up.
+``load``, ``factors``, ``H``, ``_u0``, ``dof_loads`` and ``nonlinear_harmonics``): the condensed
+solver itself needs none of it, only the wind-up.
 """
 from __future__ import annotations
 
@@ -57,7 +57,7 @@ class DrivelineRecovery:
         qn = self.dof_harmonics(point)
         Om = (np.arange(self.H + 1) * (point.speed_rpm * RPM_TO_RAD_S / 2.0))[:, None]
         p = np.zeros((self.H + 1, m.n_elements), dtype=complex)
-        pe = self.loads.element_harmonics(point.speed_rpm, self.load)
+        pe = self.loads.element_harmonics(point.speed_rpm, self.load, self.factors)
         k = min(len(pe), self.H + 1)
         p[:k] = pe[:k]
         g = to_complex(self.nonlinear_harmonics(point.x), self.H)
@@ -84,4 +84,5 @@ class DrivelineRecovery:
         if perturb is not None:
             q = q + perturb
         kwargs.setdefault('dt', 1e-4)
-        return simulate(self.loads, point.speed_rpm, self.load, initial=(q, v), **kwargs)
+        return simulate(self.loads, point.speed_rpm, self.load, initial=(q, v),
+                        factors=self.factors, **kwargs)

@@ -8,7 +8,7 @@ import numpy as np
 
 from dmf_sim.core.errors import ConvergenceError
 from dmf_sim.solvers.hbm.condensed import CondensedHBM
-from dmf_sim.solvers.hbm.layout import amplitudes
+from dmf_sim.solvers.hbm.faulted import fingerprints
 from dmf_sim.solvers.hbm.point import HBMPoint
 
 __all__ = ['Branch', 'SweepEvent', 'NonPeriodicBand', 'SweepResult', 'runs', 'on_grid']
@@ -27,7 +27,8 @@ class Branch:
         points: HBMPoints in continuation order (speed may go back and forth at turning points).
         origin: how the branch was found.
         multiplicity: how many 120 deg shifted copies of each state exist (2 for a 1.5th-order
-            state: one physical state, reported once).
+            state: one physical state, reported once); 1 when the cylinders do not fire alike
+            (faults: a shifted copy is no solution).
     """
 
     id: int
@@ -117,17 +118,22 @@ class SweepResult:
     search: bool = False
     not_computed: list[dict] = field(default_factory=list)
     sharp_resonances: list[dict] = field(default_factory=list)
+    faults: object = None          # the FaultSet of the sweep (None: healthy)
 
     def rows(self) -> list[dict]:
         """One dict per computed point: speed_rpm, branch, kind, stable, order_3, order_1_5,
         max_deviation, min_deviation, mean_minus_theta (wind-up, rad), mean, max_multiplier,
-        multiplicity; then one per non-periodic speed (kind 'non_periodic', branch -1: the
-        envelope and averaged orders of a long time integration, and its label)."""
+        multiplicity (a faulted sweep also order_0_5 and order_1: the half orders the cylinders
+        that differ excite); then one per non-periodic speed (kind 'non_periodic', branch -1:
+        the envelope and averaged orders of a long time integration, and its label)."""
         out = []
         for b in self.branches:
             for p in b.points:
                 d = p.as_dict()
                 d['branch'], d['kind'], d['multiplicity'] = b.id, b.kind, b.multiplicity
+                if self.faults:
+                    c = p.windup_orders
+                    d['order_0_5'], d['order_1'] = float(abs(c[1])), float(abs(c[2]))
                 out.append(d)
         for band in self.non_periodic:
             out.extend(band.rows(self.theta))
@@ -164,10 +170,13 @@ class SweepResult:
     def solutions_at(self, speed_rpm: float) -> list[HBMPoint]:
         """Every state on the branches at exactly ``speed_rpm`` (several where states coexist):
         for each stretch of a branch that brackets the speed, Newton at that speed from the
-        interpolated branch; duplicates and 120 deg shifted twins (same order amplitudes) are
-        reported once; with stability when the sweep had it."""
+        interpolated branch; duplicates and, when the cylinders fire alike, 120 deg shifted
+        twins (same order amplitudes) are reported once (with unlike cylinders states of equal
+        amplitudes but other phases are other states: :func:`faulted.fingerprints`); with
+        stability when the sweep had it."""
         s = float(speed_rpm)
         out: list[HBMPoint] = []
+        symmetric = getattr(self.hbm, 'symmetric', True)
         for b in self.branches:
             for p, q in zip(b.points[:-1], b.points[1:]):
                 a, c = p.speed_rpm, q.speed_rpm
@@ -189,7 +198,8 @@ class SweepResult:
                             fr.stable, fr.multipliers, fr.max_abs)
                 H = (len(sol.x) - 1) // 2
                 tol = 1e-6 + 1e-4 * np.abs(sol.x).max()
-                if all(np.abs(amplitudes(sol.x, H) - amplitudes(o.x, H)).max() > tol for o in out):
+                f = fingerprints(sol.x, H, symmetric)
+                if all(np.abs(f - fingerprints(o.x, H, symmetric)).max() > tol for o in out):
                     out.append(sol)
         return out
 
@@ -217,7 +227,8 @@ class SweepResult:
         return out
 
     def as_dict(self) -> dict:
-        return {'label': self.label, 'alpha': self.alpha, 'theta_rad': self.theta,
+        faulted = {'faults': self.faults.text()} if self.faults else {}
+        return {'label': self.label, **faulted, 'alpha': self.alpha, 'theta_rad': self.theta,
                 'load': self.load,
                 'speed_range_rpm': list(self.speed_range), 'n_harmonics': self.n_harmonics,
                 'seconds': self.seconds, 'n_points': self.n_points,

@@ -6,8 +6,9 @@ After continuation and branch switching (dmf_sim.solvers.hbm.sweep, .branches):
 1. at the speeds of a coarse grid (``SearchOptions.seed_step_rpm``) where the wind-up comes
    within reach of a knee or no stable state is known: deflated Newton
    (dmf_sim.solvers.hbm.deflation) from seeds in the 1.5th-order harmonic (n = 3, a few
-   amplitudes and phases) and the 3rd order (n = 6 scaled), every known state at that speed and
-   its 120 deg shifts deflated; every new solution is followed by continuation in both
+   amplitudes and phases) and the 3rd order (n = 6 scaled), every known state at that speed (and,
+   when the cylinders fire alike, its 120 deg shifts) deflated; every new solution is followed
+   by continuation in both
    directions (isolated branches and folds included);
 2. grid speeds no branch reached are re-seeded from the linear solution and, failing that,
    listed as uncovered;
@@ -20,8 +21,11 @@ After continuation and branch switching (dmf_sim.solvers.hbm.sweep, .branches):
    (quasi-periodic, chaotic, long transient or a k x 720 deg periodic state). A speed where
    that cannot be done gets an explicit reason instead (``not_computed``).
 
-Twins: the 120 deg shifts of a state (dmf_sim.solvers.hbm.layout.shift) are one physical state; its
-multiplicity is the number of distinct shifted solutions Newton confirms.
+Twins: when the cylinders fire alike, the 120 deg shifts of a state
+(dmf_sim.solvers.hbm.layout.shift) are one physical state; its multiplicity is the number of
+distinct shifted solutions Newton confirms. With faults that make the cylinders differ
+(dmf_sim.solvers.hbm.faulted) a shifted state is no solution: only the known states themselves
+are deflated, and every state counts once.
 """
 from __future__ import annotations
 
@@ -162,7 +166,11 @@ class StateSearch:
         return hit[2]
 
     def _deflation_set(self, known: list[np.ndarray]) -> np.ndarray:
-        return all_shifts(np.array(known), N_SHIFTS, self.hbm.H)
+        """The states deflated for the known ones: with alike cylinders each with its 120 deg
+        shifts (solutions too), otherwise each alone (a shifted copy is no solution, and the
+        state another phase away may be a new one)."""
+        shifts = N_SHIFTS if self.hbm.symmetric else 1
+        return all_shifts(np.array(known), shifts, self.hbm.H)
 
     def _windup_range(self, x: np.ndarray) -> tuple[float, float]:
         """(lowest, highest) wind-up [rad] of x over one cycle (256 samples): what the knee tests
@@ -260,7 +268,7 @@ class StateSearch:
         q = q + 0.05 * max(p.order_3, 1e-3) * u
         try:
             res = simulate(hb.loads, s, hb.load, initial=(q, v),
-                           max_cycles=self.search.shot_cycles)
+                           max_cycles=self.search.shot_cycles, factors=hb.factors)
         except OperatingRangeError:
             return False
         if not res.steady or res.windup_orders is None:
@@ -283,13 +291,14 @@ class StateSearch:
         equilibrium); (result, how the periodic solution lost stability)."""
         hb = self.hbm
         if x is None:
-            res = analyze(hb.loads, s, hb.load, options=self.search.nonperiodic_options)
+            res = analyze(hb.loads, s, hb.load, options=self.search.nonperiodic_options,
+                          factors=hb.factors)
             return res, 'none: no periodic solution reached this speed'
         p = hb.make_point(s, x)
         q, v = hb.dof_state(p, 0.0)
         u = hb.model.e / float(hb.model.e @ hb.model.e)
         res = analyze(hb.loads, s, hb.load, initial=(q + 1e-4 * u, v),
-                      options=self.search.nonperiodic_options)
+                      options=self.search.nonperiodic_options, factors=hb.factors)
         mc = self.floquet.classify(p.windup_orders, s)
         return res, mc.kind
 
@@ -396,8 +405,12 @@ class StateSearch:
     # ---- twins ----------------------------------------------------------------------------------
     def multiplicity(self, p: HBMPoint) -> int:
         """Number of distinct 120 deg shifts of the state p that are solutions (Newton from each
-        shift; 1 for a 120 deg periodic 3rd-order state, 2 for a 1.5th-order state)."""
+        shift; 1 for a 120 deg periodic 3rd-order state, 2 for a 1.5th-order state). 1 when the
+        cylinders do not fire alike: then a solution Newton reaches from a shift is another
+        state, found and reported on its own."""
         hb = self.hbm
+        if not hb.symmetric:
+            return 1
         found = [p.x]
         tol = 1e-6 + 1e-4 * np.abs(p.x).max()
         for k in range(1, N_SHIFTS):

@@ -14,6 +14,7 @@ from dmf_sim.physics.loads import DrivelineLoads
 from dmf_sim.physics.orders import synthesize
 from dmf_sim.solvers.hbm.branches import BranchSwitching
 from dmf_sim.solvers.hbm.condensed import CondensedHBM
+from dmf_sim.solvers.hbm.faulted import apply_faults, steady_faults
 from dmf_sim.solvers.hbm.layout import to_complex
 from dmf_sim.solvers.hbm.point import HBMOptions, HBMPoint
 from dmf_sim.solvers.hbm.results import Branch, SweepEvent, SweepResult
@@ -436,7 +437,7 @@ class SpeedSweep(BranchSwitching, StateSearch):
 def sweep(loads: DrivelineLoads, load: float,
           speed_range: tuple[float, float] = (600.0, 2000.0), *,
           hbm_options: HBMOptions | None = None, options: SweepOptions | None = None,
-          continuation=None, progress=False, label: str = '') -> SweepResult:
+          continuation=None, progress=False, label: str = '', faults=None) -> SweepResult:
     """Steady-state wind-up over engine speed by condensed HBM + pseudo-arc-length continuation.
 
     Follows the branch from the lowest speed (turning points included), computes the Floquet
@@ -449,9 +450,16 @@ def sweep(loads: DrivelineLoads, load: float,
         hbm_options, options, continuation: HBMOptions, SweepOptions, ContinuationOptions.
         progress: show a tqdm bar.
         label: free text stored in the result (e.g. 'alpha=3 Load A').
+        faults: a :class:`~dmf_sim.physics.faults.FaultSet` of persistent faults (every-cycle
+            misfires, weak cylinders, DMF faults; :mod:`dmf_sim.solvers.hbm.faulted`), None:
+            healthy. A fault without a steady state (a single or random misfire, a time
+            window, a sensor fault) is refused with one line.
     """
-    hb = CondensedHBM(loads, load, hbm_options)
+    faults = steady_faults(faults)
+    loads, factors = apply_faults(loads, faults)
+    hb = CondensedHBM(loads, load, hbm_options, factors)
     res = SpeedSweep(hb, options, continuation).run(speed_range, progress=progress,
                                                     desc=label or 'HBM sweep')
     res.label = label
+    res.faults = faults
     return res
