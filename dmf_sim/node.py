@@ -54,7 +54,7 @@ from dmf_sim.core.numbers import fmt_num
 from dmf_sim.live.parameters import DMF_PARAMETERS, PARAMETERS, coerce
 from dmf_sim.live.stop_signals import StopSignals
 from dmf_sim.live.streams import STREAMS
-from dmf_sim.transient.live_profile import NodeProfile
+from dmf_sim.transient.live_profile import NodeProfile, check_profile
 
 __all__ = ['EXIT_CONFIG_ERROR', 'DrivelineNode', 'usage', 'main']
 
@@ -157,6 +157,10 @@ class DrivelineNode(Node):
                                      'DMF: not used')
             values[name] = self._declare(name, float(default), spec)
 
+        # the profile before anything starts (the monitor's worker processes among them)
+        if reason := check_profile(values['profile'], (values['speed_min_rpm'],
+                                                       values['speed_max_rpm']))[1]:
+            raise ConfigError(reason)
         types = {'sensor_msgs/msg/JointState': JointState, 'std_msgs/msg/Float64': Float64,
                  'diagnostic_msgs/msg/DiagnosticArray': DiagnosticArray}
         self._pubs = {k: self.create_publisher(types[s.msgtype], s.topic, _stream_qos(k))
