@@ -159,7 +159,8 @@ class DrivelineNode(Node):
 
         # the profile before anything starts (the monitor's worker processes among them)
         if reason := check_profile(values['profile'], (values['speed_min_rpm'],
-                                                       values['speed_max_rpm']))[1]:
+                                                       values['speed_max_rpm']),
+                                   dt=values['dt'])[1]:
             raise ConfigError(reason)
         types = {'sensor_msgs/msg/JointState': JointState, 'std_msgs/msg/Float64': Float64,
                  'diagnostic_msgs/msg/DiagnosticArray': DiagnosticArray}

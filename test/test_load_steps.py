@@ -174,10 +174,14 @@ def test_node_health_peaks_and_profile_checks():
     sim.reset()                                 # ~/reset: the peaks start afresh
     values = SimulationHealth(sim).report('x').values
     assert values['peak_windup_max_rad'] == 'nan' and float(values['peaks_since_s']) > 0.99
-    prof, reason = check_profile('step:1200:0:1:0.00005', sim)
+    limits = sim.speed_limits_rpm
+    prof, reason = check_profile('step:1200:0:1:0.00005', limits, engine=sim.engine, dt=sim.dt)
     assert prof is None and "faster than one Newmark step (the node's dt = 0.0001 s)" in reason
-    prof, reason = check_profile('step:1200:0:-1:0.1', sim)
+    prof, reason = check_profile('step:1200:0:-1:0.1', limits, engine=sim.engine, dt=sim.dt)
     assert reason is None and prof.load.min() == -1.0
+    table = dmf.load_engine('engine_table_example.csv')
+    assert 'no brake curve' in check_profile('step:1200:0:-1:0.1', (600.0, 2000.0),
+                                             engine=table)[1]
 
 
 # ---- a design study's load steps ---------------------------------------------------------------

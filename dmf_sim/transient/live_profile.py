@@ -28,17 +28,20 @@ __all__ = ['PLAYER_RATE_HZ', 'check_profile', 'NodeProfile', 'ProfilePlayer']
 PLAYER_RATE_HZ = 20.0        # setpoints per wall second from ``dmf-sim setpoint --profile``
 
 
-def check_profile(value: str, sim) -> tuple[Profile | None, str | None]:
-    """(profile, None) or (None, why ``value`` is refused) for the node's live simulation ``sim``:
-    its speeds within the node's speed limits, its loads torque demands the engine accepts, no
-    load change faster than one Newmark step ``dt``; '' = no profile."""
+def check_profile(value: str, speed_limits_rpm: tuple[float, float], *, engine=None,
+                  dt: float | None = None) -> tuple[Profile | None, str | None]:
+    """(profile, None) or (None, why ``value`` is refused); '' = no profile. Its speeds within
+    the node's ``speed_limits_rpm``, and where given its loads torque demands ``engine`` accepts
+    and no load change faster than one Newmark step ``dt`` [s]."""
     if not value:
         return None, None
     try:
         prof = load_profile(value)
-        prof.check_speed_range(*sim.speed_limits_rpm, 'the node\'s speed_min_rpm/speed_max_rpm')
-        prof.check_load_range(sim.engine)
-        prof.check_load_steps(sim.dt, 'the node\'s dt')
+        prof.check_speed_range(*speed_limits_rpm, 'the node\'s speed_min_rpm/speed_max_rpm')
+        if engine is not None:
+            prof.check_load_range(engine)
+        if dt is not None:
+            prof.check_load_steps(dt, 'the node\'s dt')
     except (DmfSimError, OSError) as exc:   # the message names the profile (load_profile)
         return None, one_line(exc)
     return prof, None
@@ -53,8 +56,12 @@ class NodeProfile:
         self._segment = -1
         runtime.loop.observers.append(self._observe)
 
+    def _checked(self, value: str) -> tuple[Profile | None, str | None]:
+        sim = self.rt.sim
+        return check_profile(value, sim.speed_limits_rpm, engine=sim.engine, dt=sim.dt)
+
     def check(self, value: str) -> str | None:
-        return check_profile(value, self.rt.sim)[1]
+        return self._checked(value)[1]
 
     def start(self, value: str) -> str | None:
         """At start-up: follow ``value`` ('' = none); returns why it is refused, or None."""
@@ -66,7 +73,7 @@ class NodeProfile:
 
     def apply(self, value: str) -> str:
         """Start following ``value`` now ('' stops); returns what happened (for the log)."""
-        prof, reason = check_profile(value, self.rt.sim)
+        prof, reason = self._checked(value)
         if reason:
             return reason
         with self.rt.lock:
