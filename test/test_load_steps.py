@@ -122,6 +122,7 @@ def test_braking_step_and_the_summary_json(capsys):
     assert lo < -0.11 < hi                                      # below the static -0.113
     assert d['peak_dmf_torque_nm'][0] < -1230.0                 # beyond the brake curve
     assert 'stop_contacts' not in d and 'travel_margin_rad' not in d   # no stop: not reported
+    assert set(d['peak_rss_mib']) == {'0.1', '0.5', '1'}     # the memory marks stay apart
     assert cli_main(['run', 'step:1600:0:-1:0.1:0.5:0.5', '--no-write']) == 0
     out = capsys.readouterr().out
     assert 'step:1600:0:-1:0.1:0.5:0.5: peak wind-up -0.1' in out and 'DMF torque -1' in out

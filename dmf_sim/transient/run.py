@@ -552,7 +552,7 @@ def _stream(profile: Profile, out, opt: RunOptions, sim: LiveSimulation,
     wall, cpu = time.perf_counter() - t_wall, time.process_time() - t_cpu
     follower.finish()
     simulated = done * sim.dt
-    peaks = sim.peaks.as_dict()
+    extremes = sim.peaks.as_dict()
     return RunSummary(
         profile=profile.as_dict(), bag=str(recorder.path) if recorder is not None else None,
         simulated_s=simulated, wall_s=wall,
@@ -561,5 +561,7 @@ def _stream(profile: Profile, out, opt: RunOptions, sim: LiveSimulation,
         dt_s=sim.dt, interrupted=interrupted, knee_crossings=sim.knee_crossings,
         solver_resets=sim.solver_resets, threads=opt.threads, peak_rss_mib=peaks,
         faults=opt.faults, fault_events=counts['events'], misfires=counts['misfires'],
-        peak_windup_rad=peaks['peak_windup_rad'], peak_dmf_torque_nm=peaks['peak_dmf_torque_nm'],
-        travel_margin_rad=peaks.get('travel_margin_rad'), stop_contacts=peaks.get('stop_contacts'))
+        peak_windup_rad=extremes['peak_windup_rad'],
+        peak_dmf_torque_nm=extremes['peak_dmf_torque_nm'],
+        travel_margin_rad=extremes.get('travel_margin_rad'),
+        stop_contacts=extremes.get('stop_contacts'))
