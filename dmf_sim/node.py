@@ -12,7 +12,7 @@ Topics (relative names; without a namespace they resolve as listed), all reliabl
 except dmf_predicted (transient-local: latched). Table: :mod:`dmf_sim.live.streams`.
 
     sub  engine/speed_setpoint   std_msgs/Float64      engine speed setpoint [rpm]    keep all
-    sub  engine/load_setpoint    std_msgs/Float64      load setpoint [0..1]           keep all
+    sub  engine/load_setpoint    std_msgs/Float64      load setpoint [-1..1]          keep all
     pub  driveline/joint_states  sensor_msgs/JointState every element: position = vibratory
                                  angle [rad], velocity [rad/s], effort = transmitted torque [Nm]
                                  (publish_rate, default 1000 Hz)                      depth 100
@@ -159,7 +159,8 @@ class DrivelineNode(Node):
 
         # the profile before anything starts (the monitor's worker processes among them)
         if reason := check_profile(values['profile'], (values['speed_min_rpm'],
-                                                       values['speed_max_rpm']))[1]:
+                                                       values['speed_max_rpm']),
+                                   dt=values['dt'])[1]:
             raise ConfigError(reason)
         types = {'sensor_msgs/msg/JointState': JointState, 'std_msgs/msg/Float64': Float64,
                  'diagnostic_msgs/msg/DiagnosticArray': DiagnosticArray}

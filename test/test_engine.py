@@ -193,7 +193,7 @@ def test_bad_queries(engine):
     _one_line_error(exc, 'speed_rpm', '400', '2200')
     with pytest.raises(ValueError) as exc:
         engine.coefficients(1000, 1.5)
-    _one_line_error(exc, 'load', '[0, 1]')
+    _one_line_error(exc, 'load', '[-1, 1]')        # the default engine brakes: -1..1
     with pytest.raises(ValueError):
         engine.coefficients(float('nan'), 0.5)
     with pytest.raises(ValueError) as exc:
@@ -209,12 +209,12 @@ def test_vectorized_query_equals_one_by_one(engines, load_set):
     eng = engines[load_set]
     lo, hi = eng.speed_range_rpm
     speeds = np.concatenate([np.linspace(lo, hi, 301), [lo, hi, 1000.0, 1000.05, 1234.5678]])
-    for load in (1.0, 0.37, 0.0):
+    for load in (1.0, 0.37, 0.0, -0.37, -1.0):
         one = np.stack([eng.coefficients(s, load) for s in speeds.tolist()])
         assert np.array_equal(eng.coefficients_many(speeds, load), one)
     for bad_speed, load, needles in ((hi + 1.0, 0.5, ('speed_rpm', '2200')),
                                      (float('nan'), 0.5, ('speed_rpm',)),
-                                     (1000.0, 1.5, ('load', '[0, 1]'))):
+                                     (1000.0, 1.5, ('load', '[-1, 1]'))):
         with pytest.raises(ValueError) as exc:
             eng.coefficients_many([1000.0, bad_speed], load)
         _one_line_error(exc, *needles)

@@ -86,4 +86,4 @@ def test_cli_loads_json_and_png(tmp_path):
     assert (tmp_path / 'loads.png').stat().st_size > 1000
     bad = subprocess.run([sys.executable, '-m', 'dmf_sim.cli', 'loads', '--load', '2'],
                          capture_output=True, text=True)
-    assert bad.returncode == 2 and '--load 2.0: allowed range 0..1' in bad.stderr
+    assert bad.returncode == 2 and '--load 2.0: allowed range -1..1' in bad.stderr

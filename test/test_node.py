@@ -344,7 +344,7 @@ def test_setpoint_flood_applies_the_last_valid_one_and_counts_every_one(tmp_path
     peer = Peer(domain)
     n_per_topic, every, tail = 6250, 25, 100          # ~250 good per topic, 100 bad at the end
     bad = {'speed': [math.nan, math.inf, -math.inf, 2200.001, 499.9, 1e9, -5.0],
-           'load': [math.nan, math.inf, 1.0000001, -0.1, 5.0]}
+           'load': [math.nan, math.inf, 1.0000001, -1.0000001, 5.0]}   # -1..1: braking
     last_good = {'speed': 1234.5, 'load': 0.625}
     seqs = {}
     for kind in ('speed', 'load'):

@@ -208,6 +208,20 @@ CASES = [
      f"field '{C}.diffusion_duration_zero_load_factor'", True),
     ('wiebe_shape', False, 'engine_d13', _engine, _set(f'{C}.diffusion_shape'),
      f"field '{C}.diffusion_shape'", True),
+    ('brake_torque', False, 'engine_d13', _engine, _table('brake_curve', 'torque_nm'),
+     "field 'brake_curve.torque_nm[0]'", True),
+    ('brake_charge_duration', False, 'engine_d13', _engine,
+     _set('compression_release_brake.charge_duration_deg'),
+     "field 'compression_release_brake.charge_duration_deg'", True),
+    ('brake_release_angle', False, 'engine_d13', _engine,
+     _set('compression_release_brake.release_deg'),
+     "field 'compression_release_brake.release_deg'", True),
+    ('blowdown_duration', False, 'engine_d13', _engine,
+     _set('compression_release_brake.release_duration_deg'),
+     "field 'compression_release_brake.release_duration_deg'", True),
+    ('brake_close_angle', False, 'engine_d13', _engine,
+     _set('compression_release_brake.close_deg'),
+     "field 'compression_release_brake.close_deg'", True),
     # the design study file
     ('stiffness', True, 'study_example', _study, _set('fixed.k'),
      "study.yaml: field 'fixed.k'", True),
@@ -281,7 +295,10 @@ def test_just_outside_the_bound_is_one_line_naming_the_field(case, tmp_path):
 
 INDIRECT = {'cylinder_pressure': 'no file field holds it: it bounds the A_n of a coefficient '
                                  'table (test_user_mistakes.py, the table beyond any cylinder '
-                                 'pressure)'}
+                                 'pressure)',
+            'brake_manifold_pressure': 'no file field holds it: it bounds the manifold pressure '
+                                       'calibrated to the brake curve (test_engine_braking.py, '
+                                       'a brake curve this brake cannot give)'}
 
 
 def test_every_bound_of_the_table_is_tested():

@@ -63,7 +63,7 @@ def test_profiles_from_csv_yaml_ramp_and_packaged(tmp_path):
 @pytest.mark.parametrize('text, words', [
     ('time_s,speed,load\n0,800,1\n1,900,1\n', ["'header' must be time_s,speed_rpm,load"]),
     ('time_s,speed_rpm,load\n0,800,1\n0,900,1\n', [':3:', "'time_s' must increase strictly"]),
-    ('time_s,speed_rpm,load\n0,800,1\n1,900,1.5\n', [':3:', "'load' must be in [0, 1], got 1.5"]),
+    ('time_s,speed_rpm,load\n0,800,1\n1,900,1.5\n', [':3:', "'load' must be in [-1, 1], got 1.5"]),
     ('time_s,speed_rpm,load\n0,800,1\n1,nan,1\n', [':3:', "'speed_rpm' must be finite"]),
     ('time_s,speed_rpm,load\n0,800,1\n1,abc,1\n', [':3:', "'speed_rpm' must be a finite number"]),
     ('time_s,speed_rpm,load\n1,800,1\n2,900,1\n', ["'time_s' must start at 0"]),
@@ -84,7 +84,7 @@ def test_bad_profiles_refused_with_one_line(tmp_path, capsys, text, words):
     ('ramp:800:2000', ['ramp:FROM:TO:RATE']),
     ('ramp:800:2000:0', ["'rate_rpm_per_s' must be in [0.001, 10000] rpm/s"]),
     ('ramp:800:800:10', ['nothing to ramp']),
-    ('ramp:800:2000:10:2', ["'load' must be in [0, 1]"]),
+    ('ramp:800:2000:10:2', ["'load' must be in [-1, 1]"]),
     ('no_such_profile', ['no such file, packaged profile (truck_road_cycle']),
     ('ramp:300:2000:100', ['row 1', '300 rpm outside the engine data', '[400, 2200]']),
 ])
@@ -475,4 +475,4 @@ def test_profile_player_and_setpoint_profile_errors(tmp_path, capsys):
         assert cli_main(argv) == 2
         err = capsys.readouterr().err.strip()
         assert '\n' not in err and 'Traceback' not in err
-        assert "'load' must be in [0, 1]" in err or 'not both' in err
+        assert "'load' must be in [-1, 1]" in err or 'not both' in err

@@ -80,7 +80,7 @@ def test_a_large_csv_table_is_read_whole_and_its_errors_name_the_line(tmp_path):
     text = path.read_text().splitlines()
     text[50_002] = text[50_002].replace(',0.5', ',1.5')   # data row 50 001, file line 50 003
     path.write_text('\n'.join(text) + '\n')
-    with pytest.raises(ConfigError, match=r'big.csv:50003: field .load. must be in \[0, 1\]'):
+    with pytest.raises(ConfigError, match=r'big.csv:50003: field .load. must be in \[-1, 1\]'):
         load_profile(path)
 
 

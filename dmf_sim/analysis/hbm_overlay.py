@@ -361,10 +361,14 @@ def overlay_all(res, settings: Mapping[str, Any], *, hbm: bool = True) -> dict[s
         return natural
     if not windups:
         return natural
-    from dmf_sim.physics.engine import load_engine
+    from dmf_sim.physics.engine import load_engine, load_error
     from dmf_sim.physics.loads import DrivelineLoads
 
     loads = DrivelineLoads(model, load_engine(settings['engine'], load_set=settings['load_set']))
+    what = '--load' if sources.get('load') == 'option' else 'the load the bag records'
+    for level in res.model['load'] if per_row else [settings['load']]:
+        if reason := load_error(loads.engine, level, what):     # braking, but no brake curve
+            raise ConfigError(f'engine {settings["engine"]}: {reason}')
     keep = {k: settings[k] for k in ('driveline', 'engine', 'alpha', 'theta_rad', 'load_set')}
     for sig in windups:
         if sig.table.load is None:

@@ -17,20 +17,20 @@ import math
 from dmf_sim.core.destinations import Destination, claim
 from dmf_sim.core.errors import ConfigError
 from dmf_sim.core.limits import MAX_WAIT_S, MAX_WORKERS_PER_CPU, max_local_workers
-from dmf_sim.physics.engine import DEFAULT_ENGINE, LOAD_SETS
+from dmf_sim.physics.engine import DEFAULT_ENGINE, LOAD_LIMITS, LOAD_SETS, load_error
 from dmf_sim.physics.spring import STAGE_ANGLE_MAX_RAD, STIFFNESS_FACTOR_MAX
 
-__all__ = ['ALPHA_RANGE', 'THETA_RANGE_RAD', 'LOAD_RANGE', 'LOAD_SETS', 'HARMONICS_RANGE',
+__all__ = ['ALPHA_RANGE', 'THETA_RANGE_RAD', 'LOAD_LIMITS', 'LOAD_SETS', 'HARMONICS_RANGE',
            'MAX_GRID_POINTS', 'MIN_STEP_RPM', 'DEFAULT_CONFIG', 'DEFAULT_ENGINE', 'add_config',
            'add_engine', 'add_alpha', 'add_theta', 'add_load_set', 'add_load', 'add_speeds',
-           'add_harmonics', 'check_common', 'check_grid', 'check_harmonics', 'check_dmf_options',
+           'add_harmonics', 'check_common', 'check_load', 'check_grid', 'check_harmonics',
+           'check_dmf_options',
            'add_cluster', 'check_cluster', 'DEFAULT_CONNECT_TIMEOUT_S', 'OVERWRITE_HELP',
            'add_overwrite', 'output', 'resumable_output', 'check_names', 'check_wait',
            'add_steady_faults', 'steady_faults']
 
 ALPHA_RANGE = (0.0, STIFFNESS_FACTOR_MAX)    # secondary stiffness factor (the spring's bound)
 THETA_RANGE_RAD = (0.0, STAGE_ANGLE_MAX_RAD)  # knee angle [rad], lower bound excluded
-LOAD_RANGE = (0.0, 1.0)          # engine load fraction
 HARMONICS_RANGE = (6, 64)        # highest half-order index H kept (6 = the 3rd order)
 MAX_GRID_POINTS = 2000           # output speed grid points per sweep
 MIN_STEP_RPM = 0.5               # finest output speed grid [rpm]
@@ -77,8 +77,9 @@ def add_load_set(p, many: bool = False, default=('A',), help_default: str | None
 
 def add_load(p, default: float | None = 1.0, help_default: str | None = None) -> None:
     p.add_argument('--load', type=float, default=default,
-                   help=f'engine load fraction {LOAD_RANGE[0]:g}..{LOAD_RANGE[1]:g} (default '
-                        f'{help_default or f"{default:g}"})')
+                   help=f'torque demand {LOAD_LIMITS[0]:g}..{LOAD_LIMITS[1]:g}: 1 full load, 0 '
+                        'none, below 0 engine braking (-1 the full brake of an engine with a '
+                        f'brake curve) (default {help_default or f"{default:g}"})')
 
 
 def add_speeds(p, default=(600.0, 2000.0, 10.0), what: str = 'speed range and output grid step'
@@ -136,6 +137,14 @@ def check_grid(lo: float, hi: float, step: float, engine=None, option: str = '--
         raise ConfigError(f'{option} {lo:g} {hi:g}: engine data covers {rng[0]:g}..{rng[1]:g} rpm')
 
 
+def check_load(engine, load: float | None, option: str = '--load') -> None:
+    """Refuse ``load`` (of ``option``) where ``engine`` does not accept it: a negative load for
+    an engine without a brake curve (one line, :func:`dmf_sim.physics.engine.load_error`).
+    :func:`check_common` has checked the widest range before the engine is loaded."""
+    if load is not None and (reason := load_error(engine, load, option)):
+        raise ConfigError(reason)
+
+
 def check_harmonics(h: int, option: str = '--harmonics', lo_hi=HARMONICS_RANGE) -> None:
     lo, hi = lo_hi
     if not lo <= h <= hi:
@@ -177,8 +186,8 @@ def check_common(args) -> None:
     alphas = _as_list(getattr(args, 'alpha', None))
     check_dmf_options(alphas, getattr(args, 'theta', None))
     load = getattr(args, 'load', None)
-    if load is not None and not (math.isfinite(load) and LOAD_RANGE[0] <= load <= LOAD_RANGE[1]):
-        raise ConfigError(f'--load {load!r}: allowed range {LOAD_RANGE[0]:g}..{LOAD_RANGE[1]:g}')
+    if load is not None and not (math.isfinite(load) and LOAD_LIMITS[0] <= load <= LOAD_LIMITS[1]):
+        raise ConfigError(f'--load {load!r}: allowed range {LOAD_LIMITS[0]:g}..{LOAD_LIMITS[1]:g}')
     for s in _as_list(getattr(args, 'load_set', None)):
         if s not in LOAD_SETS:
             raise ConfigError(f'--load-set {s!r}: allowed {", ".join(LOAD_SETS)}')

@@ -63,6 +63,7 @@ def run(args) -> int:
     lo, hi, step = args.speeds
     engines = {s: load_engine(args.engine, load_set=s) for s in dict.fromkeys(args.load_set)}
     first = engines[args.load_set[0]]
+    opt.check_load(first, args.load)
     opt.check_grid(lo, hi, step, first)
     _check_speeds(first, [('--speed', args.speed)]
                   + [('--torque-speeds', s) for s in torque_speeds])

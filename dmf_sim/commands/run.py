@@ -2,7 +2,10 @@
 a bag with the node's topics (``dmf_sim.transient.run``).
 
 PROFILE: a CSV (``time_s,speed_rpm,load``) or YAML file, a packaged profile
-(``truck_road_cycle``) or ``ramp:FROM:TO:RATE[:LOAD[:SETTLE]]`` (rpm, rpm, rpm/s, 0..1, s).
+(``truck_road_cycle``), ``ramp:FROM:TO:RATE[:LOAD[:SETTLE]]`` (rpm, rpm, rpm/s, -1..1, s) or
+a load step ``step:SPEED:FROM:TO:RISE[:HOLD[:SETTLE]]`` (rpm, -1..1, -1..1, s, s, s). The summary
+gives the peak wind-up (both signs), the DMF spring torque there and, for a spring with end stops,
+the travel margin and the stop contacts (``dmf_sim.live.peaks``).
 ``--faults FILE``: a fault schedule (YAML ``faults: [...]``, times of the profile) injected
 along the run, its ground truth written into the bag (``faults/ground_truth``,
 ``faults/active``).
@@ -26,6 +29,7 @@ from dmf_sim.commands._options import (
 )
 from dmf_sim.core.errors import ConfigError
 from dmf_sim.core.names import check_namespace
+from dmf_sim.live.peaks import peaks_text
 from dmf_sim.transient.defaults import CHUNK_RANGE_S, DEFAULT_CHUNK_S, default_threads
 
 __all__ = ['NAME', 'HELP', 'add_arguments', 'run']
@@ -37,9 +41,11 @@ HELP = ('Offline transient run of a speed/load profile (run-up, run-down, drive 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument('profile', metavar='PROFILE',
-                   help='CSV/YAML profile (time_s, speed_rpm, load), a packaged one '
-                        '(truck_road_cycle) or ramp:FROM:TO:RATE[:LOAD[:SETTLE]], e.g. '
-                        'ramp:800:2000:10 (run-up at 10 rpm/s, load 1)')
+                   help='CSV/YAML profile (time_s, speed_rpm, load -1..1), a packaged one '
+                        '(truck_road_cycle), ramp:FROM:TO:RATE[:LOAD[:SETTLE]], e.g. '
+                        'ramp:800:2000:10 (run-up at 10 rpm/s, load 1), or a load step '
+                        'step:SPEED:FROM:TO:RISE[:HOLD[:SETTLE]], e.g. step:1200:0:1:0.1 '
+                        '(tip-in 0 -> 1 in 0.1 s and back)')
     p.add_argument('--out', metavar='BAG', help='bag directory to create (new or empty); '
                    'required unless --no-write')
     add_overwrite(p)
@@ -101,6 +107,7 @@ def run(args: argparse.Namespace) -> int:
         print(f'{profile.name}: {summary.simulated_s:.3f} s simulated in {summary.wall_s:.2f} s '
               f'(x{summary.realtime_factor:.0f} real time), {summary.samples} samples at '
               f'{summary.rate_hz:g} Hz; {what}{faults}')
+        print(f'{profile.name}: {peaks_text(summary.as_dict())}')
     if summary.interrupted:
         print(f'dmf-sim run: interrupted at {summary.simulated_s:.3f} s; the bag holds what was '
               'simulated', file=sys.stderr)

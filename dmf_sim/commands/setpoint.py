@@ -2,7 +2,7 @@
 ``dmf-sim setpoint --profile FILE``: a speed/load profile played in real time.
 
 Publishes std_msgs/Float64 on ``<namespace>/engine/speed_setpoint`` [rpm] and
-``<namespace>/engine/load_setpoint`` [0..1] (the node's subscriptions), the way
+``<namespace>/engine/load_setpoint`` [-1..1] (the node's subscriptions), the way
 ``ros2 topic pub`` would, but first waits until the node's subscription has matched this
 publisher so the message is not lost, and repeats it until every subscriber has acknowledged it
 (setpoints are idempotent; the node's reader can discover this publisher seconds after this
@@ -28,23 +28,29 @@ import math
 import sys
 import time
 
-from dmf_sim.commands._options import check_wait
+from dmf_sim.commands._options import LOAD_LIMITS, check_wait
 from dmf_sim.core.errors import ConfigError, OperatingRangeError
 from dmf_sim.core.limits import MAX_WAIT_S
 
 __all__ = ['NAME', 'HELP', 'add_arguments', 'check', 'run']
 
 NAME = 'setpoint'
-HELP = ('Send an engine speed [rpm] and/or load [0..1] setpoint to a running driveline_node '
+HELP = ('Send an engine speed [rpm] and/or load [-1..1] setpoint to a running driveline_node '
         '(waits until its subscription matched; needs rclpy)')
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--speed', type=float, metavar='RPM', help='engine speed setpoint [rpm]')
-    parser.add_argument('--load', type=float, metavar='L', help='load setpoint, fraction 0..1')
+    parser.add_argument('--load', type=float, metavar='L',
+                        help='load setpoint, the torque demand -1..1: 1 full load, 0 none, '
+                             'below 0 engine braking (the node refuses it for an engine '
+                             'without a brake curve); ramped at the node\'s load_ramp_per_s')
     parser.add_argument('--profile', metavar='FILE',
                         help='play a speed/load profile in real time: CSV/YAML file, packaged '
-                             'name (truck_road_cycle) or ramp:FROM:TO:RATE[:LOAD[:SETTLE]]')
+                             'name (truck_road_cycle), ramp:FROM:TO:RATE[:LOAD[:SETTLE]] or '
+                             'step:SPEED:FROM:TO:RISE[:HOLD[:SETTLE]] (a fast step reaches the '
+                             'node at its load_ramp_per_s; its profile parameter follows it as '
+                             'given)')
     parser.add_argument('--namespace', default='', metavar='NS',
                         help="the node's namespace, e.g. /truck1 or truck1 (default: none)")
     parser.add_argument('--timeout', type=float, default=10.0, metavar='S',
@@ -71,8 +77,9 @@ def check(args: argparse.Namespace) -> list[tuple[str, float, str]]:
             raise ConfigError(f'--speed must be a finite speed > 0 rpm, got {args.speed!r}')
         out.append(('engine/speed_setpoint', float(args.speed), f'{args.speed:g} rpm'))
     if args.load is not None:
-        if not (math.isfinite(args.load) and 0.0 <= args.load <= 1.0):
-            raise ConfigError(f'--load must be in [0, 1], got {args.load!r}')
+        lo, hi = LOAD_LIMITS
+        if not (math.isfinite(args.load) and lo <= args.load <= hi):
+            raise ConfigError(f'--load must be in [{lo:g}, {hi:g}], got {args.load!r}')
         out.append(('engine/load_setpoint', float(args.load), f'load {args.load:g}'))
     check_wait(args.timeout)
     return out

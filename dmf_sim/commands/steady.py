@@ -68,6 +68,7 @@ def run(args) -> int:
         raise ConfigError(f'driveline {line.name!r} has no dmf section: nothing to search')
     faults = opt.steady_faults(args.faults, line)
     loads = DrivelineLoads(line.reduce(), load_engine(args.engine, load_set=args.load_set))
+    opt.check_load(loads.engine, args.load)
     load_kernels(NAME, 'sweep', 'time integration')
     res = find_steady_states(
         loads, args.speed, args.load, window_rpm=args.window,

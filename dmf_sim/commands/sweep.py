@@ -89,6 +89,7 @@ def run(args) -> int:
     engines = {}
     for ls in dict.fromkeys(args.load_set):
         engines[ls] = load_engine(args.engine, load_set=ls)
+        opt.check_load(engines[ls], args.load)
         opt.check_grid(lo, hi, step, engines[ls])
 
     hopt = HBMOptions(n_harmonics=args.harmonics)

@@ -99,11 +99,17 @@ BOUNDS: dict[str, Bound] = {
     'engine_speed': Bound(0.0, 1.0e4, 'rpm', reason=(
         'truck diesels run below 2500 rpm (the shipped engine to 2200 rpm), the fastest '
         'road-vehicle diesels below 5000 rpm; 10000 rpm is twice that')),
-    'load': Bound(0.0, 1.0, '', reason='the load fraction: 0 no load, 1 the full-load curve'),
+    'load': Bound(-1.0, 1.0, '', reason=(
+        'the torque demand: 1 the full-load curve, 0 no load, -1 the full engine brake (the '
+        "engine file's brake curve); below 0 only for an engine with a brake curve")),
     'torque': Bound(0.0, 1.0e6, 'Nm', reason=(
         'an engine or DMF torque: the largest truck engines give ~3.7 kNm (the shipped one '
         '2.8 kNm); 1e6 Nm is 270x that (ship engines beyond are not drivelines this model '
         'describes)')),
+    'brake_torque': Bound(-1.0e6, 0.0, 'Nm', reason=(
+        'the engine brake curve (a torque that brakes is negative): compression-release brakes '
+        'of 13-litre truck engines absorb ~300-350 kW, about -1.5 kNm at 2200 rpm; -1e6 Nm is '
+        'the torque bound on the braking side. > 0 would drive: that is the full-load curve')),
     'torque_range': Bound(0.0, 2.0e6, 'Nm', reason=(
         'a rainflow range (peak to valley) of a torque: at most twice the torque bound')),
     'sn_exponent': Bound(0.5, 50.0, '', reason=(
@@ -147,6 +153,19 @@ BOUNDS: dict[str, Bound] = {
     'valve_overlap': Bound(1.0, 120.0, 'deg', reason=(
         'intake and exhaust valves open together around gas-exchange TDC: ~20-80 deg in '
         'diesels')),
+    'brake_release_angle': Bound(-90.0, 0.0, 'deg', reason=(
+        'a compression-release brake opens the exhaust valve on the compression stroke near '
+        'TDC (Jacobs, Volvo VEB): 90 deg before TDC at the earliest, at TDC at the latest')),
+    'brake_close_angle': Bound(0.0, 180.0, 'deg', reason=(
+        "the brake's exhaust valve lift ends after compression TDC and before BDC")),
+    'brake_charge_duration': Bound(0.0, 120.0, 'deg', lo_open=True, reason=(
+        "the brake's charging lift (the exhaust valve opened near intake BDC so the exhaust "
+        'manifold fills the cylinder, Volvo VEB) before the intake valve closes: at most a '
+        'third of the intake and compression strokes')),
+    'brake_manifold_pressure': Bound(0.0, 1.0e6, 'Pa', lo_open=True, reason=(
+        'the exhaust manifold pressure a compression-release brake runs at (absolute), '
+        "calibrated per speed so the mean torque is the brake curve's: exhaust pressure "
+        'governors and closed variable turbines hold a few bar; 10 bar is twice the most')),
     'polytropic_exponent': Bound(1.0, 1.67, '', lo_open=True, reason=(
         "compression and expansion exponent: above 1 (isothermal), at most a monatomic gas's "
         'heat-capacity ratio 5/3 (air 1.4; apparent values with wall heat loss 1.30-1.37)')),

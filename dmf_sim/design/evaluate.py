@@ -21,6 +21,7 @@ from dataclasses import dataclass, field, replace
 from dmf_sim.core.errors import one_line
 from dmf_sim.design.metrics import condition_metrics, design_summary
 from dmf_sim.design.parameters import Parameter, design_driveline
+from dmf_sim.design.transient import step_metrics, transient_summary
 
 __all__ = ['install_context', 'drop_context', 'context_loads', 'SolverSettings', 'StudyContext',
            'solve_condition', 'sweep_condition', 'evaluate_design', 'BatchResult',
@@ -71,6 +72,7 @@ class StudyContext:
     fixed: dict[Parameter, float]
     settings: SolverSettings
     variable_names: list[str] = field(default_factory=list)
+    load_steps: list = field(default_factory=list)     # dmf_sim.design.transient.LoadStep
 
     @classmethod
     def from_study(cls, study) -> 'StudyContext':
@@ -78,7 +80,7 @@ class StudyContext:
                                   study.base.index(study.torque_element), study.search,
                                   study.time_limit_s)
         return cls(study.base, study.engines, study.conditions, study.params, study.fixed,
-                   settings, study.variable_names)
+                   settings, study.variable_names, list(study.load_steps))
 
     def design_values(self, row) -> dict[Parameter, float]:
         """Parameter -> value of one design: its variables plus the fixed parameters."""
@@ -147,8 +149,22 @@ def evaluate_design(ctx: StudyContext, design_id: int, row) -> list[dict]:
         summary.update(status='failed', error=f'{failed[0]["condition"]}: {failed[0]["error"]}')
     else:
         summary.update(design_summary(rows), status='ok', error='')
+        _load_steps(ctx, line, summary)
     summary['seconds'] = time.perf_counter() - t0
     return rows + [summary]
+
+
+def _load_steps(ctx: StudyContext, line, summary: dict) -> None:
+    """The design's load steps (:mod:`dmf_sim.design.transient`) into its summary row; a
+    step that fails fails the design, naming the step."""
+    results = []
+    for step in ctx.load_steps:
+        try:
+            results.append(step_metrics(line, ctx.engines[step.load_set], step))
+        except Exception as exc:      # noqa: BLE001 - the design failed, the study goes on
+            summary.update(status='failed', error=f'{step.label}: {_failure(exc)}')
+            return
+    summary.update(transient_summary(ctx.load_steps, results))
 
 
 @dataclass

@@ -16,6 +16,11 @@ over many cycles: what the driveline does there):
   speeds with no stable periodic state (there the response is not periodic: quasi-periodic or
   chaotic); ``max_stable_states``: most stable states coexisting at one speed.
 
+The load steps of a study (``conditions.load_steps``, :mod:`dmf_sim.design.transient`) add
+``transient_windup`` [rad], ``transient_dmf_torque`` [Nm], ``transient_stop_contacts`` and
+``transient_travel_margin`` [rad] to a design's summary row: the peaks of its tip-ins and
+tip-outs in the time domain.
+
 Every worst value comes with the speed where it occurs (``<name>_rpm``) and, in a design's summary
 row, the condition (``<name>_condition``). Objectives are any of :data:`OBJECTIVES`, all minimized.
 """
@@ -36,6 +41,9 @@ OBJECTIVES = {
     'rpm_1_5': 'width of the speeds with a stable 1.5th-order state [rpm]',
     'rpm_nonperiodic': 'width of the speeds without a stable periodic state [rpm]',
     'max_stable_states': 'most stable states coexisting at one speed',
+    'transient_windup': 'largest wind-up magnitude in the load steps [rad]',
+    'transient_dmf_torque': 'largest DMF spring torque magnitude in the load steps [Nm]',
+    'transient_stop_contacts': 'end-stop contacts in the load steps',
 }
 WORST = ('worst_order_1_5', 'worst_order_3', 'worst_torque_3', 'max_dmf_torque')
 """Metrics that are a maximum over states, reported with the speed and condition where."""

@@ -12,8 +12,10 @@ A study (YAML mapping; ``config/study_example.yaml`` shows every key)::
     fixed: {stages[1].angle_rad: 0.35}           # optional: parameters held at one value
     conditions:
       load_sets: [A, B]
-      loads: [1.0]
+      loads: [1.0]                    # torque demands -1..1 (below 0: engine braking)
       speeds_rpm: {from: 600, to: 2000, step: 10}
+      load_steps:                     # optional: tip-ins/tip-outs per design, time domain
+        - {speed_rpm: 1200, from: 0, to: 1, rise_s: 0.1}  # (dmf_sim.design.transient)
     objectives: [worst_order_1_5, worst_torque_3]   # minimized; the first two: Pareto front
     torque_element: INPUT SHAFT       # optional: where the 3rd-order torque is taken
     solver: {harmonics: 24, branch_switching: true, search: true}  # optional; search: the
@@ -39,6 +41,7 @@ from dmf_sim.core.validation import Where
 from dmf_sim.design import sampling
 from dmf_sim.design.metrics import OBJECTIVES
 from dmf_sim.design.parameters import Parameter, check_parameter_set, parse_parameter
+from dmf_sim.design.transient import TRANSIENT, LoadStep, parse_load_steps
 from dmf_sim.physics.model import Driveline
 from dmf_sim.solvers.hbm.sweep import TIME_LIMIT_RANGE_S
 
@@ -59,7 +62,7 @@ PAPER_REFERENCE = {'alpha': 3.0, 'theta': 0.24}
 
 @dataclass(frozen=True)
 class Condition:
-    """One operating condition: load set (A/B/C) and load fraction 0..1."""
+    """One operating condition: load set (A/B/C) and load fraction -1..1 (below 0: braking)."""
 
     load_set: str
     load: float
@@ -98,6 +101,7 @@ class Study:
     base: Driveline = field(default=None, repr=False)
     engines: dict = field(default_factory=dict, repr=False)
     file_digest: str = ''
+    load_steps: list[LoadStep] = field(default_factory=list)
 
     @property
     def variable_names(self) -> list[str]:
@@ -129,7 +133,8 @@ class Study:
             'fixed': {p.name: v for p, v in self.fixed.items()},
             'conditions': {'load_sets': sorted({c.load_set for c in self.conditions}),
                            'loads': sorted({c.load for c in self.conditions}),
-                           'speeds_rpm': {'from': lo, 'to': hi, 'step': step}},
+                           'speeds_rpm': {'from': lo, 'to': hi, 'step': step},
+                           'load_steps': [st.as_dict() for st in self.load_steps]},
             'objectives': list(self.objectives), 'torque_element': self.torque_element,
             'solver': {'harmonics': self.harmonics, 'branch_switching': self.branch_switching,
                        'search': self.search, 'time_limit_s': self.time_limit_s},
@@ -201,8 +206,9 @@ def study_from_dict(data: dict, source: str = 'study', *, base_dir: Path | None 
     if n_designs > MAX_DESIGNS:
         raise w.error('variables', f'the grid has {n_designs} designs; at most {MAX_DESIGNS}')
 
-    engines, conditions, speeds = _conditions(w, data['conditions'], data['engine'], base_dir)
-    objectives = _objectives(w, data['objectives'])
+    engines, conditions, speeds, load_steps = _conditions(w, data['conditions'], data['engine'],
+                                                          base_dir)
+    objectives = _objectives(w, data['objectives'], bool(load_steps))
     torque_element = str(data.get('torque_element', DEFAULT_TORQUE_ELEMENT))
     if torque_element not in base.names:
         raise w.error('torque_element', f'no element {torque_element!r} in driveline '
@@ -245,7 +251,8 @@ def study_from_dict(data: dict, source: str = 'study', *, base_dir: Path | None 
                  map_variables=map_vars,
                  reference=reference,
                  description=str(data.get('description') or ''), base=base, engines=engines,
-                 file_digest=_digest(base_dir, data['driveline'], data['engine']))
+                 file_digest=_digest(base_dir, data['driveline'], data['engine']),
+                 load_steps=load_steps)
 
 
 def _resolve(value, base_dir: Path) -> str:
@@ -309,8 +316,8 @@ def _variables(w: Where, raw, method: str):
 
 
 def _conditions(w: Where, raw, engine_source, base_dir: Path):
-    from dmf_sim.physics.engine import load_engine
-    w.mapping(raw, 'conditions', ('load_sets', 'loads', 'speeds_rpm'), ())
+    from dmf_sim.physics.engine import load_engine, load_error
+    w.mapping(raw, 'conditions', ('load_sets', 'loads', 'speeds_rpm'), ('load_steps',))
     load_sets = w.nonempty_list(raw['load_sets'], 'conditions.load_sets')
     loads = w.nonempty_list(raw['loads'], 'conditions.loads')
     loads = [w.bounded(x, f'conditions.loads[{i}]', 'load') for i, x in enumerate(loads)]
@@ -347,10 +354,14 @@ def _conditions(w: Where, raw, engine_source, base_dir: Path):
         if rng is not None and not (rng[0] <= lo and hi <= rng[1]):
             raise w.error('conditions.speeds_rpm', f'{lo:g}..{hi:g} rpm is outside the engine '
                           f'data ({rng[0]:g}..{rng[1]:g} rpm)')
+    for i, ld in enumerate(loads):           # below 0 only for an engine with a brake curve
+        if reason := load_error(engines[load_sets[0]], ld, f'conditions.loads[{i}]'):
+            raise ConfigError(f'{w.source}: {reason}')
     conditions = [Condition(ls, ld) for ls in engines for ld in loads]
     if len(set(conditions)) != len(conditions):
         raise w.error('conditions.loads', 'repeated load fractions')
-    return engines, conditions, (lo, hi, step)
+    return engines, conditions, (lo, hi, step), parse_load_steps(w, raw.get('load_steps'),
+                                                                 engines)
 
 
 def _engine_error(src) -> bool:
@@ -363,12 +374,15 @@ def _engine_error(src) -> bool:
     return False
 
 
-def _objectives(w: Where, raw) -> list[str]:
+def _objectives(w: Where, raw, load_steps: bool) -> list[str]:
     objs = w.nonempty_list(raw, 'objectives')
     for i, o in enumerate(objs):
         if o not in OBJECTIVES:
             raise w.error(f'objectives[{i}]', f'unknown objective {o!r} (allowed: '
                           f'{", ".join(OBJECTIVES)})')
+        if o in TRANSIENT and not load_steps:
+            raise w.error(f'objectives[{i}]', f'{o!r} is measured in load steps: give '
+                          'conditions.load_steps')
     if len(objs) < 2 or len(set(objs)) != len(objs):
         raise w.error('objectives', f'need at least 2 different objectives (the first two span '
                       f'the Pareto front), got {objs!r}')

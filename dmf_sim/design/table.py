@@ -4,7 +4,8 @@ Rows: one per design x condition (``kind`` 'condition') and one summary per desi
 'design', every metric at its worst condition). Columns: ``design_id``, ``kind``, ``status``
 ('ok', 'failed': the design itself failed, with ``error``; 'lost': its task was lost, e.g. a
 worker died, and it is recomputed on ``--resume``), the design variables, ``load_set``,
-``load``, ``condition``, the metrics (dmf_sim.design.metrics), ``seconds`` (compute time) and,
+``load``, ``condition``, the metrics (dmf_sim.design.metrics; the load steps' ``transient_*``
+columns on the summary rows, dmf_sim.design.transient), ``seconds`` (compute time) and,
 in the final table, ``pareto`` (summary rows on the front of the first two objectives).
 
 :class:`ResultStore` writes every finished batch at once as its own small Parquet file
@@ -51,7 +52,10 @@ def schema(variable_names: list[str], final: bool = False, extra=()) -> pa.Schem
              ('rpm_nonperiodic', f64), ('speeds_nonperiodic', text),
              ('max_stable_states', pa.int64()), ('max_stable_states_rpm', f64),
              ('max_stable_states_condition', text), ('n_branches', pa.int64()),
-             ('seconds', f64)]
+             ('transient_windup', f64), ('transient_windup_condition', text),
+             ('transient_dmf_torque', f64), ('transient_dmf_torque_condition', text),
+             ('transient_stop_contacts', pa.int64()), ('transient_travel_margin', f64),
+             ('transient_seconds', f64), ('seconds', f64)]
     cols += list(extra)
     if final:
         cols.append(('pareto', pa.bool_()))

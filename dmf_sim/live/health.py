@@ -25,7 +25,7 @@ from dmf_sim.core.numbers import fmt_num
 from dmf_sim.monitor.messages import StatusData
 
 __all__ = ['LEVEL_NAMES', 'STATUS_SUFFIX', 'status_name', 'HealthReport', 'SimulationHealth',
-           'HealthMonitor']
+           'peak_values', 'HealthMonitor']
 
 OK, WARN, ERROR, STALE = 0, 1, 2, 3
 LEVEL_NAMES = {OK: 'OK', WARN: 'WARN', ERROR: 'ERROR', STALE: 'STALE'}
@@ -114,7 +114,23 @@ class SimulationHealth:
             'theta_rad': fmt_num(spring.theta) if spring is not None else 'none',
             'load_set': str(getattr(sim.engine, 'load_set', '')),
         }
+        r.values.update(peak_values(sim.peaks))
         return r
+
+
+def peak_values(peaks) -> dict[str, str]:
+    """The health values of a :class:`dmf_sim.live.peaks.WindupPeaks`: the peak wind-up and
+    the DMF spring torque there, both signs, since ``peaks_since_s`` (the start or the last
+    reset), and the end stops' travel margin and contacts for a spring with stops."""
+    d = peaks.as_dict()
+    (w_lo, w_hi), (t_lo, t_hi) = d['peak_windup_rad'], d['peak_dmf_torque_nm']
+    out = {'peak_windup_min_rad': f'{w_lo:.6f}', 'peak_windup_max_rad': f'{w_hi:.6f}',
+           'peak_dmf_torque_min_nm': f'{t_lo:.1f}', 'peak_dmf_torque_max_nm': f'{t_hi:.1f}',
+           'peaks_since_s': f'{d["since_s"]:.4f}'}
+    if 'stop_contacts' in d:
+        out.update(travel_margin_rad=f'{d["travel_margin_rad"]:.6f}',
+                   stop_contacts=str(d['stop_contacts']))
+    return out
 
 
 class HealthMonitor:

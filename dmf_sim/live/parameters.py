@@ -18,6 +18,7 @@ from dmf_sim.live.foxglove_bridge import FOXGLOVE_PARAMETERS
 from dmf_sim.live.pacing import OVERRUN_POLICIES
 from dmf_sim.live.run_loop import PACING_MODES
 from dmf_sim.monitor.worker import MONITOR_PARAMETERS
+from dmf_sim.physics.engine import LOAD_LIMITS
 from dmf_sim.physics.spring import STAGE_ANGLE_MAX_RAD, STIFFNESS_FACTOR_MAX
 
 __all__ = ['ParameterSpec', 'PARAMETERS', 'MONITOR_SETTINGS', 'DMF_PARAMETERS', 'FLOAT_PARAMETERS',
@@ -44,14 +45,16 @@ PARAMETERS: dict[str, ParameterSpec] = {
     'dt': ParameterSpec(1e-4, 'Newmark time step [s]', (1e-6, 1e-2), True),
     'initial_speed_rpm': ParameterSpec(1000.0, 'Engine speed at start [rpm]', (100.0, 5000.0),
                                        True),
-    'initial_load': ParameterSpec(0.5, 'Load fraction at start [0..1]', (0.0, 1.0), True),
+    'initial_load': ParameterSpec(0.5, 'Torque demand at start: 1 full load, 0 none, -1 the '
+                                  "engine's full brake (an engine with a brake curve; else "
+                                  '0..1)', LOAD_LIMITS, True),
     'speed_min_rpm': ParameterSpec(500.0, 'Lowest accepted speed setpoint [rpm] (within the '
                                    'engine data)', (100.0, 5000.0)),
     'speed_max_rpm': ParameterSpec(2200.0, 'Highest accepted speed setpoint [rpm] (within the '
                                    'engine data)', (100.0, 5000.0)),
     'speed_ramp_rpm_per_s': ParameterSpec(500.0, 'Speed setpoint ramp rate [rpm/s]', (1.0, 1e5)),
     'load_ramp_per_s': ParameterSpec(1.0, 'Load setpoint ramp rate [1/s] (1.0 = 0 to full load '
-                                     'in 1 s)', (1e-3, 1e3)),
+                                     'in 1 s; 10 = a tip-in 0 -> 1 in 0.1 s)', (1e-3, 1e3)),
     'real_time_factor': ParameterSpec(1.0, 'Simulated seconds per wall second; 0 = as fast as '
                                       'possible', (0.0, 100.0)),
     'pacing': ParameterSpec('realtime', "'realtime' (locked to the wall clock x "

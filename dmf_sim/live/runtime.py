@@ -265,7 +265,8 @@ class LiveRuntime:
             self.sim.reset()
             sim = self.sim
             msg = (f'reset to static equilibrium at {fmt_num(sim.speed_setpoint)} rpm, load '
-                   f'{fmt_num(sim.load_setpoint)} (t = {sim.t:.4f} s)')
+                   f'{fmt_num(sim.load_setpoint)} (t = {sim.t:.4f} s); the peak wind-up and DMF '
+                   'torque start afresh')
         self.log.info(msg)
         return msg
 

@@ -28,16 +28,16 @@ import numpy as np
 from dmf_sim.core.errors import ConfigError, OperatingRangeError
 from dmf_sim.core.numbers import fmt_num
 from dmf_sim.core.units import RAD_S_TO_RPM
+from dmf_sim.live.peaks import WindupPeaks
 from dmf_sim.live.torques import TorqueOperator
+from dmf_sim.physics.engine import load_error
 from dmf_sim.physics.faults import COMBUSTION_KINDS, FaultEvent, FaultTimeline
 from dmf_sim.physics.loads import DrivelineLoads
 from dmf_sim.physics.model import Driveline, load_driveline
 from dmf_sim.solvers.newmark import NewmarkIntegrator, StepRecord
 
-__all__ = ['LOAD_RANGE', 'check_setpoint', 'ramp_toward', 'split_steps', 'Samples', 'Integrated',
+__all__ = ['check_setpoint', 'ramp_toward', 'split_steps', 'Samples', 'Integrated',
            'LiveSimulation']
-
-LOAD_RANGE = (0.0, 1.0)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -174,11 +174,9 @@ class LiveSimulation:
         if reason := self.check_speed_limits(lo, hi):
             raise OperatingRangeError(reason)
         self.speed_limits_rpm = (float(lo), float(hi))
-        for name, value, (a, b), unit in (
-                ('initial_speed_rpm', self.speed_rpm, self.speed_limits_rpm, 'rpm'),
-                ('initial_load', self.load, LOAD_RANGE, '')):
-            if reason := check_setpoint(value, a, b, name, unit):
-                raise ConfigError(reason)
+        if reason := (check_setpoint(self.speed_rpm, *self.speed_limits_rpm, 'initial_speed_rpm',
+                                     'rpm') or load_error(self.engine, self.load, 'initial_load')):
+            raise ConfigError(reason)
         for name, value in (('speed_ramp_rpm_per_s', self.speed_ramp_rpm_per_s),
                             ('load_ramp_per_s', self.load_ramp_per_s), ('dt', self.dt)):
             if not (math.isfinite(value) and value > 0):
@@ -199,6 +197,9 @@ class LiveSimulation:
         self.integ.advance(1)
         self.integ.reset(self.speed_setpoint, self.load)
         self.integ.set_target(self.speed_setpoint, self.speed_ramp_rpm_per_s)
+        self.peaks = WindupPeaks(self.model.spring, self.t)
+        """Peak wind-up and DMF torque (and end stops) of the recorded steps since the start
+        or the last :meth:`reset`."""
         self._rec = StepRecord.allocate(64, self.integ.model.n_dof)
         self._work = np.zeros((64, 3 * self.integ.model.n_elements))
         # ... and the compiled read-out
@@ -244,6 +245,7 @@ class LiveSimulation:
         self._knees += old.knee_crossings
         self._secondary += old.steps_secondary
         self.integ, self._torques, self.line, self.engine = new, torques, line, engine
+        self.peaks.set_spring(new.model.spring)
         if self.faults is not None:
             self.faults.line = line
             self._dmf_version = self.faults.dmf_version
@@ -323,8 +325,9 @@ class LiveSimulation:
         return check_setpoint(value, *self.speed_limits_rpm, 'speed setpoint', 'rpm')
 
     def check_load_setpoint(self, value) -> str | None:
-        """Why ``value`` is not an acceptable load setpoint, or None."""
-        return check_setpoint(value, *LOAD_RANGE, 'load setpoint')
+        """Why ``value`` is not an acceptable load setpoint (a torque demand the engine accepts:
+        [-1, 1] with a brake curve, else [0, 1]), or None."""
+        return load_error(self.engine, value, 'load setpoint')
 
     def set_speed_setpoint(self, value) -> str | None:
         """Engine speed setpoint [rpm]; ramped at ``speed_ramp_rpm_per_s``."""
@@ -335,7 +338,8 @@ class LiveSimulation:
         return None
 
     def set_load_setpoint(self, value) -> str | None:
-        """Load setpoint (fraction of full load, 0..1); ramped at ``load_ramp_per_s``."""
+        """Load setpoint (torque demand: 1 full load, 0 none, -1 full engine brake);
+        ramped at ``load_ramp_per_s``."""
         if reason := self.check_load_setpoint(value):
             return reason
         self.load_setpoint = float(value)
@@ -354,9 +358,11 @@ class LiveSimulation:
         self.stride = int(stride)
         self.phase = 0
 
-    def reset(self) -> None:
+    def reset(self, peaks: bool = True) -> None:
         """Static equilibrium at the current setpoints (speed and load jump to them); time,
-        crank angle and step count stay continuous."""
+        crank angle and step count stay continuous. ``peaks``: start :attr:`peaks` afresh."""
+        if peaks:
+            self.peaks.reset(self.t)
         it = self.integ
         self._knees += it.knee_crossings
         self._secondary += it.steps_secondary
@@ -467,9 +473,10 @@ class LiveSimulation:
             # Newmark (average acceleration) is unconditionally stable; a non-finite state means
             # bad input data. Never publish it: restart from static equilibrium.
             self.solver_resets += 1
-            self.reset()
+            self.reset(peaks=False)
             row = 0
             parts = []
+        self.peaks.observe(record.windup[:row], record.t[:row])
         omega_dot = it.omega_dot
         # element loads with this chunk's excitation, now (the next chunk changes it)
         loads = None

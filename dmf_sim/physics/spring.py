@@ -120,6 +120,11 @@ class PiecewiseLinearSpring:
         #: True when no stage changes the stiffness (g = 0 everywhere); the spring is immutable
         self.is_linear = not np.any(self.slopes)
 
+    #: The end stops as (coast < 0, drive > 0) wind-ups [rad], or None: no end stop (this
+    #: spring law holds at any wind-up). Read by the transient peaks (dmf_sim.live.peaks: travel
+    #: margin and stop contacts); the end-stop model sets it.
+    stop_angles_rad: tuple[float, float] | None = None
+
     # ---- construction shorthands -------------------------------------------------------------
     @classmethod
     def two_step(cls, k: float, theta: float, alpha: float, theta_coast: float | None = None,

@@ -2,13 +2,17 @@
 (:class:`NodeProfile`) and ``dmf-sim setpoint --profile`` (:class:`ProfilePlayer`).
 
 * :class:`NodeProfile` follows a profile inside the node: set parameter ``profile`` to a profile
-  (file, packaged name or ``ramp:`` spec, :func:`dmf_sim.transient.profiles.load_profile`) and
+  (file, packaged name, ``ramp:`` or ``step:`` spec,
+  :func:`dmf_sim.transient.profiles.load_profile`) and
   the node's speed and load setpoints follow it from that moment of simulated time
   (:class:`ProfileFollower`, called after every published chunk in the tick thread); ``''``
   stops it (the setpoints stay where they are). A profile whose speeds lie outside the node's
-  ``speed_min_rpm``/``speed_max_rpm`` is refused with the reason. While it runs, setpoints
-  arriving on the topics are overridden at the next chunk. The DMF monitor hears every new
-  segment's setpoints like topic setpoints.
+  ``speed_min_rpm``/``speed_max_rpm``, a braking load for an engine without a brake curve or a
+  load change faster than one Newmark step is refused with the reason. A ``step:`` profile is
+  how a fast tip-in reaches the node (the rise as given, down to one step ``dt``); the parameter
+  ``load_ramp_per_s`` limits only the setpoint topics (at most 1000/s: 0 -> 1 in 1 ms). While it
+  runs, setpoints arriving on the topics are overridden at the next chunk. The DMF monitor hears
+  every new segment's setpoints like topic setpoints.
 * :class:`ProfilePlayer` says which setpoints to publish at a wall-clock time: the profile
   interpolated at ``publish_hz``; the node ramps toward each at its ``speed_ramp_rpm_per_s``
   (so slopes steeper than that are limited by it).
@@ -24,14 +28,20 @@ __all__ = ['PLAYER_RATE_HZ', 'check_profile', 'NodeProfile', 'ProfilePlayer']
 PLAYER_RATE_HZ = 20.0        # setpoints per wall second from ``dmf-sim setpoint --profile``
 
 
-def check_profile(value: str, speed_limits_rpm: tuple[float, float]) -> tuple[Profile | None,
-                                                                             str | None]:
-    """(profile, None) or (None, why ``value`` is refused); '' = no profile."""
+def check_profile(value: str, speed_limits_rpm: tuple[float, float], *, engine=None,
+                  dt: float | None = None) -> tuple[Profile | None, str | None]:
+    """(profile, None) or (None, why ``value`` is refused); '' = no profile. Its speeds within
+    the node's ``speed_limits_rpm``, and where given its loads torque demands ``engine`` accepts
+    and no load change faster than one Newmark step ``dt`` [s]."""
     if not value:
         return None, None
     try:
         prof = load_profile(value)
         prof.check_speed_range(*speed_limits_rpm, 'the node\'s speed_min_rpm/speed_max_rpm')
+        if engine is not None:
+            prof.check_load_range(engine)
+        if dt is not None:
+            prof.check_load_steps(dt, 'the node\'s dt')
     except (DmfSimError, OSError) as exc:   # the message names the profile (load_profile)
         return None, one_line(exc)
     return prof, None
@@ -46,8 +56,12 @@ class NodeProfile:
         self._segment = -1
         runtime.loop.observers.append(self._observe)
 
+    def _checked(self, value: str) -> tuple[Profile | None, str | None]:
+        sim = self.rt.sim
+        return check_profile(value, sim.speed_limits_rpm, engine=sim.engine, dt=sim.dt)
+
     def check(self, value: str) -> str | None:
-        return check_profile(value, self.rt.sim.speed_limits_rpm)[1]
+        return self._checked(value)[1]
 
     def start(self, value: str) -> str | None:
         """At start-up: follow ``value`` ('' = none); returns why it is refused, or None."""
@@ -59,7 +73,7 @@ class NodeProfile:
 
     def apply(self, value: str) -> str:
         """Start following ``value`` now ('' stops); returns what happened (for the log)."""
-        prof, reason = check_profile(value, self.rt.sim.speed_limits_rpm)
+        prof, reason = self._checked(value)
         if reason:
             return reason
         with self.rt.lock:

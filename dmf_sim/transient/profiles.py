@@ -1,22 +1,33 @@
-"""Speed/load profiles: tables of time [s], engine speed [rpm], load [0..1], linear between rows.
+"""Speed/load profiles: tables of time [s], engine speed [rpm], load [-1..1], linear between rows.
 
 A profile is what ``dmf-sim run`` integrates, what the node follows (parameter ``profile``) and
 what ``dmf-sim setpoint --profile`` publishes. Sources (:func:`load_profile`):
 
 * a CSV file with the header ``time_s,speed_rpm,load`` (``#`` starts a comment line);
-* a YAML mapping with ``points`` (rows ``[time_s, speed_rpm, load]``), or ``ramp`` (a built-in
-  run-up / run-down, below), and optional ``name`` and ``source`` (where the table comes from);
+* a YAML mapping with ``points`` (rows ``[time_s, speed_rpm, load]``), ``ramp`` (a built-in
+  run-up / run-down, below) or ``step`` (a built-in load step, below), and optional ``name`` and
+  ``source`` (where the table comes from);
 * a packaged profile by name (``config/profiles/NAME.yaml``), e.g. ``truck_road_cycle``;
 * ``ramp:FROM:TO:RATE[:LOAD[:SETTLE]]``: from FROM to TO rpm at RATE rpm/s (a run-up when
   TO > FROM, a run-down otherwise) at load LOAD (default 1), after SETTLE s at FROM (default
-  :data:`DEFAULT_SETTLE_S`) so the start from static equilibrium has settled.
+  :data:`DEFAULT_SETTLE_S`) so the start from static equilibrium has settled;
+* ``step:SPEED:FROM:TO:RISE[:HOLD[:SETTLE]]``: a load step at SPEED rpm: SETTLE s at load FROM
+  (default :data:`DEFAULT_SETTLE_S`), FROM -> TO in RISE s (a tip-in when TO > FROM, a tip-out
+  otherwise), HOLD s at TO (default :data:`DEFAULT_HOLD_S`), back to FROM in RISE s and HOLD s
+  there; ``step:1200:0:1:0.1`` is 0 -> 1 -> 0 in 0.1 s at 1200 rpm.
+
+The load is the torque demand: 1 full load, 0 no load, -1 the engine's full brake
+(:data:`~dmf_sim.physics.engine.LOAD_LIMITS`); a profile below 0 needs an engine with a brake
+curve, checked where the engine is known (:meth:`Profile.check_load_range`), and a load change
+faster than one Newmark step is refused where the step is known (:meth:`Profile.check_load_steps`:
+``dmf-sim run``, the node).
 
 Rules (each broken one is a one-line :class:`ConfigError` naming the file, row and field): at
 least two rows and at most :data:`~dmf_sim.core.limits.MAX_PROFILE_ROWS`, times finite, starting
 at 0, strictly increasing and ending within :data:`~dmf_sim.core.limits.MAX_PROFILE_DURATION_S`,
 speeds finite and > 0 (and within the engine's data when a range is given:
 :meth:`Profile.check_speed_range`), changing by at most :data:`MAX_SPEED_RATE_RPM_PER_S` between
-rows (the fastest ``ramp:``), loads in [0, 1]. A CSV table is read by numpy (a million rows in
+rows (the fastest ``ramp:``), loads in [-1, 1]. A CSV table is read by numpy (a million rows in
 about a second); a file larger than the limits is refused before it is read.
 """
 from __future__ import annotations
@@ -41,11 +52,12 @@ from dmf_sim.core.limits import (
 )
 from dmf_sim.core.paths import config_dir, config_file, parse_yaml, read_text
 from dmf_sim.core.validation import check_keys, field_error, number
+from dmf_sim.physics.engine import LOAD_LIMITS, load_error
 
-__all__ = ['COLUMNS', 'DEFAULT_SETTLE_S', 'DEFAULT_LOAD', 'MAX_SPEED_RATE_RPM_PER_S',
-           'RAMP_RATE_RANGE', 'SETTLE_RANGE_S', 'LOAD_RANGE', 'PROFILE_DIR', 'RAMP_PREFIX',
-           'Profile', 'make_profile', 'ramp_profile', 'ramp_spec', 'packaged_profiles',
-           'load_profile']
+__all__ = ['COLUMNS', 'DEFAULT_SETTLE_S', 'DEFAULT_LOAD', 'DEFAULT_HOLD_S',
+           'MAX_SPEED_RATE_RPM_PER_S', 'RAMP_RATE_RANGE', 'SETTLE_RANGE_S', 'STEP_TIME_RANGE_S',
+           'PROFILE_DIR', 'RAMP_PREFIX', 'STEP_PREFIX', 'Profile', 'make_profile', 'ramp_profile',
+           'ramp_spec', 'step_profile', 'step_spec', 'packaged_profiles', 'load_profile']
 
 COLUMNS = ('time_s', 'speed_rpm', 'load')
 DEFAULT_SETTLE_S = 2.0            # dwell at a ramp's start speed [s] before it ramps
@@ -55,9 +67,12 @@ MAX_SPEED_RATE_RPM_PER_S = 1e4    # fastest speed change of a profile, between r
                                   # table with a missing row
 RAMP_RATE_RANGE = (1e-3, MAX_SPEED_RATE_RPM_PER_S)     # accepted ramp rates [rpm/s]
 SETTLE_RANGE_S = (0.0, 3600.0)
-LOAD_RANGE = (0.0, 1.0)
+DEFAULT_HOLD_S = 1.0              # a load step's hold at its target and after its return [s]:
+                                  # several periods of the truck's lowest driveline mode
+STEP_TIME_RANGE_S = (0.0, 3600.0)  # a load step's rise and hold [s], 0 excluded
 PROFILE_DIR = 'profiles'          # packaged profiles: config/profiles/NAME.yaml
 RAMP_PREFIX = 'ramp:'
+STEP_PREFIX = 'step:'
 
 
 @dataclass(frozen=True)
@@ -65,10 +80,11 @@ class Profile:
     """A speed/load table, linear between rows.
 
     Attributes:
-        t_s: times [s], from 0, strictly increasing; speed_rpm: engine speed [rpm]; load: 0..1.
+        t_s: times [s], from 0, strictly increasing; speed_rpm: engine speed [rpm]; load: the
+            torque demand, -1..1 (below 0: engine braking).
         name: short name (file stem or the ramp spec); source: where the table comes from.
-        settle_s: a ramp's dwell at its start speed [s] (None: a table; see
-            :attr:`start_settle_s`).
+        settle_s: a ramp's dwell at its start speed, a step's at its start load [s] (None: a
+            table; see :attr:`start_settle_s`).
     """
 
     t_s: np.ndarray
@@ -115,6 +131,30 @@ class Profile:
             raise OperatingRangeError(
                 f'profile {self.name}: row {i + 1} (t = {self.t_s[i]:g} s) speed '
                 f'{self.speed_rpm[i]:g} rpm outside {what} [{lo:g}, {hi:g}] rpm')
+
+    def check_load_range(self, engine, what: str = '') -> None:
+        """OperatingRangeError (one line naming the row) if a row's load is not a torque demand
+        ``engine`` accepts (:func:`dmf_sim.physics.engine.load_error`: below 0 only with a brake
+        curve)."""
+        for i in dict.fromkeys((int(np.argmin(self.load)), int(np.argmax(self.load)))):
+            if reason := load_error(engine, float(self.load[i]), 'load'):
+                raise OperatingRangeError(
+                    f'profile {self.name}: row {i + 1} (t = {self.t_s[i]:g} s) {reason}'
+                    + (f' ({what})' if what else ''))
+
+    def check_load_steps(self, dt: float, what: str = 'dt') -> None:
+        """ConfigError (one line naming the row) if the load changes between two rows closer
+        than one Newmark step ``dt`` [s]: the integrator could not follow it (``what`` names
+        where the step comes from: an option or a parameter)."""
+        dt_rows = np.diff(self.t_s)
+        changes = np.diff(self.load) != 0.0
+        bad = np.flatnonzero(changes & (dt_rows < dt * (1.0 - 1e-9)))
+        if len(bad):
+            i = int(bad[0])
+            raise ConfigError(
+                f'profile {self.name}: row {i + 2} (t = {self.t_s[i + 1]:g} s) the load changes '
+                f'from {self.load[i]:g} to {self.load[i + 1]:g} in {dt_rows[i]:g} s, faster '
+                f'than one Newmark step ({what} = {dt:g} s); give the change at least {dt:g} s')
 
     def as_dict(self) -> dict:
         return {'name': self.name, 'source': self.source, 'rows': len(self),
@@ -182,8 +222,8 @@ def _check_table(out: np.ndarray, at: Callable[[int], str], where: str) -> None:
                           float(t[i + 1]))
     if (i := _first(~(speed > 0))) is not None:
         number(float(speed[i]), at(i), 'speed_rpm', 0.0, lo_open=True, unit='rpm')
-    if (i := _first(~((load >= LOAD_RANGE[0]) & (load <= LOAD_RANGE[1])))) is not None:
-        number(float(load[i]), at(i), 'load', *LOAD_RANGE)
+    if (i := _first(~((load >= LOAD_LIMITS[0]) & (load <= LOAD_LIMITS[1])))) is not None:
+        number(float(load[i]), at(i), 'load', *LOAD_LIMITS)
     rate = np.abs(np.diff(speed)) / dt
     if (i := _first(rate > MAX_SPEED_RATE_RPM_PER_S * (1 + 1e-9))) is not None:
         raise field_error(at(i + 1), 'speed_rpm', f'changes by {rate[i]:.6g} rpm/s after the row '
@@ -216,7 +256,7 @@ def ramp_profile(from_rpm: float, to_rpm: float, rate_rpm_per_s: float,
     to_rpm = number(to_rpm, where, 'to_rpm', 0.0, lo_open=True, unit='rpm')
     rate_rpm_per_s = number(rate_rpm_per_s, where, 'rate_rpm_per_s', *RAMP_RATE_RANGE,
                             unit='rpm/s')
-    load = number(load, where, 'load', *LOAD_RANGE)
+    load = number(load, where, 'load', *LOAD_LIMITS)
     settle_s = number(settle_s, where, 'settle_s', *SETTLE_RANGE_S, unit='s')
     if from_rpm == to_rpm:
         raise field_error(where, 'to_rpm', f'must differ from from_rpm ({from_rpm:g} rpm): '
@@ -233,11 +273,62 @@ def ramp_profile(from_rpm: float, to_rpm: float, rate_rpm_per_s: float,
     return replace(p, settle_s=float(settle_s))
 
 
+def step_spec(speed_rpm: float, from_load: float, to_load: float, rise_s: float,
+              hold_s: float = DEFAULT_HOLD_S, settle_s: float = DEFAULT_SETTLE_S) -> str:
+    """The shortest ``step:`` spec of a load step (trailing fields at their defaults left
+    out, as :func:`ramp_spec`)."""
+    fields = [f'{float(v):g}' for v in (speed_rpm, from_load, to_load, rise_s, hold_s,
+                                        settle_s)]
+    if float(settle_s) == DEFAULT_SETTLE_S:
+        fields.pop()
+        if float(hold_s) == DEFAULT_HOLD_S:
+            fields.pop()
+    return STEP_PREFIX + ':'.join(fields)
+
+
+def step_profile(speed_rpm: float, from_load: float, to_load: float, rise_s: float,
+                 hold_s: float = DEFAULT_HOLD_S, settle_s: float = DEFAULT_SETTLE_S, *,
+                 where: str = 'step') -> Profile:
+    """Built-in load step at ``speed_rpm``: ``settle_s`` at ``from_load``, to ``to_load`` in
+    ``rise_s``, ``hold_s`` there, back in ``rise_s`` and ``hold_s`` at ``from_load`` (a tip-in
+    and the tip-out after it, or the other way round); named by its :func:`step_spec`."""
+    speed_rpm = number(speed_rpm, where, 'speed_rpm', 0.0, lo_open=True, unit='rpm')
+    from_load = number(from_load, where, 'from', *LOAD_LIMITS)
+    to_load = number(to_load, where, 'to', *LOAD_LIMITS)
+    rise_s = number(rise_s, where, 'rise_s', *STEP_TIME_RANGE_S, lo_open=True, unit='s')
+    hold_s = number(hold_s, where, 'hold_s', *STEP_TIME_RANGE_S, lo_open=True, unit='s')
+    settle_s = number(settle_s, where, 'settle_s', *SETTLE_RANGE_S, unit='s')
+    if from_load == to_load:
+        raise field_error(where, 'to', f'must differ from from ({from_load:g}): no step',
+                          to_load)
+    t1 = settle_s + rise_s
+    rows = [(settle_s, from_load), (t1, to_load), (t1 + hold_s, to_load),
+            (t1 + hold_s + rise_s, from_load), (t1 + 2 * hold_s + rise_s, from_load)]
+    if settle_s > 0:
+        rows.insert(0, (0.0, from_load))
+    kind = 'tip-in' if to_load > from_load else 'tip-out'
+    p = make_profile([(t, speed_rpm, ld) for t, ld in rows],
+                     name=step_spec(speed_rpm, from_load, to_load, rise_s, hold_s, settle_s),
+                     source=f'built-in {kind} at {speed_rpm:g} rpm: load {from_load:g} -> '
+                     f'{to_load:g} in {rise_s:g} s, {hold_s:g} s there, back in {rise_s:g} s, '
+                     f'after {settle_s:g} s at load {from_load:g}', where=where)
+    return replace(p, settle_s=settle_s)
+
+
+def _parse_step_spec(spec: str) -> Profile:
+    parts = spec[len(STEP_PREFIX):].split(':')
+    if not 4 <= len(parts) <= 6 or not all(p.strip() for p in parts):
+        raise ConfigError(f'profile {spec!r}: write step:SPEED:FROM:TO:RISE[:HOLD[:SETTLE]] (rpm, '
+                          'load -1..1, load -1..1, s, s, s), e.g. step:1200:0:1:0.1')
+    names = ('speed_rpm', 'from_load', 'to_load', 'rise_s', 'hold_s', 'settle_s')
+    return step_profile(**dict(zip(names, parts)), where=f'profile {spec!r}')
+
+
 def _parse_ramp_spec(spec: str) -> Profile:
     parts = spec[len(RAMP_PREFIX):].split(':')
     if not 3 <= len(parts) <= 5 or not all(p.strip() for p in parts):
         raise ConfigError(f'profile {spec!r}: write ramp:FROM:TO:RATE[:LOAD[:SETTLE]] (rpm, rpm, '
-                          'rpm/s, 0..1, s), e.g. ramp:800:2000:10:1.0')
+                          'rpm/s, -1..1, s), e.g. ramp:800:2000:10:1.0')
     names = ('from_rpm', 'to_rpm', 'rate_rpm_per_s', 'load', 'settle_s')
     return ramp_profile(**dict(zip(names, parts)), where=f'profile {spec!r}')
 
@@ -318,12 +409,13 @@ def _read_yaml(path: Path) -> Profile:
     where = f'profile {path}'
     _file_size(path, MAX_PROFILE_YAML_BYTES, 'YAML')
     data = parse_yaml(read_text(path), where)
-    check_keys(data, where, '', (), ('name', 'source', 'points', 'ramp', 'columns'))
+    check_keys(data, where, '', (), ('name', 'source', 'points', 'ramp', 'step', 'columns'))
     name = str(data.get('name') or path.stem)
     source = str(data.get('source') or path)
-    if ('points' in data) == ('ramp' in data):
-        raise ConfigError(f'{where}: give exactly one of points: (rows [time_s, speed_rpm, load]) '
-                          'or ramp: (from_rpm, to_rpm, rate_rpm_per_s, load, settle_s)')
+    if sum(k in data for k in ('points', 'ramp', 'step')) != 1:
+        raise ConfigError(f'{where}: give exactly one of points: (rows [time_s, speed_rpm, '
+                          'load]), ramp: (from_rpm, to_rpm, rate_rpm_per_s, load, settle_s) or '
+                          'step: (speed_rpm, from, to, rise_s, hold_s, settle_s)')
     if 'columns' in data and list(data['columns']) != list(COLUMNS):
         raise field_error(where, 'columns', f'must be {list(COLUMNS)}', data['columns'])
     if 'ramp' in data:
@@ -331,6 +423,13 @@ def _read_yaml(path: Path) -> Profile:
                                                              'rate_rpm_per_s'),
                           ('load', 'settle_s'))
         p = ramp_profile(**ramp, where=f'{where}: ramp')
+        return replace(p, name=name, source=data.get('source') or p.source)
+    if 'step' in data:
+        step = check_keys(data['step'], where, 'step', ('speed_rpm', 'from', 'to', 'rise_s'),
+                          ('hold_s', 'settle_s'))
+        p = step_profile(step['speed_rpm'], step['from'], step['to'], step['rise_s'],
+                         step.get('hold_s', DEFAULT_HOLD_S),
+                         step.get('settle_s', DEFAULT_SETTLE_S), where=f'{where}: step')
         return replace(p, name=name, source=data.get('source') or p.source)
     points = data['points']
     if not isinstance(points, list):
@@ -352,6 +451,8 @@ def load_profile(spec: str | os.PathLike) -> Profile:
     text = os.fspath(spec)
     if text.startswith(RAMP_PREFIX):
         return _parse_ramp_spec(text)
+    if text.startswith(STEP_PREFIX):
+        return _parse_step_spec(text)
     path = Path(text)
     try:
         bare_name = path.parent == Path('.') and path.suffix == '' and not path.exists()
@@ -362,8 +463,8 @@ def load_profile(spec: str | os.PathLike) -> Profile:
         if packaged.is_file():
             return _read_yaml(packaged)
         names = ', '.join(packaged_profiles()) or 'none'
-        raise ConfigError(f'profile {text!r}: no such file, packaged profile ({names}) or '
-                          'ramp:FROM:TO:RATE spec')
+        raise ConfigError(f'profile {text!r}: no such file, packaged profile ({names}), '
+                          'ramp:FROM:TO:RATE or step:SPEED:FROM:TO:RISE spec')
     try:
         path = config_file(path)
     except ConfigFileError as exc:

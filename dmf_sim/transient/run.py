@@ -73,7 +73,7 @@ __all__ = ['WRITER_NAME', 'CHUNK_SPEED_STEP_RPM', 'CHUNK_LOAD_STEP', 'DEFAULT_SP
            'DEFAULT_DIAGNOSTICS_HZ', 'MEMORY_MARKS', 'BLAS_THREADS', 'BLOCK_ROWS',
            'PIPELINE_DEPTH', 'MERGE_ROWS_S', 'MIN_SAMPLES', 'MESSAGE_OVERHEAD_BYTES',
            'RunOptions', 'RunSummary', 'build_simulation', 'open_bag', 'bag_bytes',
-           'run_profile']
+           'run_profile', 'follow_profile']
 
 WRITER_NAME = 'dmf-sim run'
 CHUNK_SPEED_STEP_RPM = 5.0  # ... and a chunk is short enough that the speed moves at most this
@@ -153,9 +153,18 @@ class RunSummary:
     faults: str | None = None     # the fault schedule
     fault_events: int = 0         # ground-truth events (starts, ends, misfires)
     misfires: int = 0             # combustions that misfired
+    peak_windup_rad: list = field(default_factory=list)     # [min, max] over the samples
+    peak_dmf_torque_nm: list = field(default_factory=list)  # spring torque at those wind-ups
+    travel_margin_rad: float | None = None  # smallest distance to an end stop (spring with stops)
+    stop_contacts: int | None = None        # entries beyond an end stop (spring with stops)
 
     def as_dict(self) -> dict:
-        return asdict(self)
+        """Every field; the end-stop fields only for a spring that has stops."""
+        out = asdict(self)
+        for key in ('travel_margin_rad', 'stop_contacts'):
+            if out[key] is None:
+                del out[key]
+        return out
 
 
 def _peak_rss_mib() -> float:
@@ -199,6 +208,8 @@ def build_simulation(profile: Profile, opt: RunOptions) -> LiveSimulation:
     rng = getattr(engine, 'speed_range_rpm', None)
     lo, hi = (float(rng[0]), float(rng[1])) if rng is not None else (0.0, math.inf)
     profile.check_speed_range(lo, hi, f'the engine data of {opt.engine}')
+    profile.check_load_range(engine)
+    profile.check_load_steps(opt.dt, '--dt')
     if hasattr(engine, 'warm'):
         engine.warm()           # the gas grid now (~0.1 s), not lazily inside the timed loop
     hi_lim = hi if math.isfinite(hi) else float(profile.speed_rpm.max()) * 2
@@ -317,6 +328,28 @@ def _chunk_plan(profile: Profile, sim: LiveSimulation, follower: ProfileFollower
         done += n
 
 
+def _chunk_steps(sim: LiveSimulation, chunk_s: float) -> int:
+    """Steps of a full chunk of ``chunk_s`` [s]: a whole number of samples, at least one."""
+    return max(int(round(chunk_s / sim.dt)) // sim.stride, 1) * sim.stride
+
+
+def follow_profile(sim: LiveSimulation, profile: Profile, chunk_s: float = DEFAULT_CHUNK_S):
+    """Integrate ``profile`` with the live core ``sim`` from its state now, in the chunks
+    :func:`run_profile` integrates (the same setpoints, excitation updates and values), without
+    reading out or writing anything: what a design study's load step is
+    (``dmf_sim.design.transient``). Returns the run's :class:`~dmf_sim.live.peaks.WindupPeaks`
+    (``sim.peaks``, started afresh)."""
+    follower = ProfileFollower(profile, sim)
+    chunk = _chunk_steps(sim, chunk_s)
+    total = int(round(profile.duration_s / sim.dt))
+    record = StepRecord.allocate(chunk // sim.stride + 1, sim.model.n_dof)
+    sim.peaks.reset(sim.t)
+    for n in _chunk_plan(profile, sim, follower, total, chunk, threading.Event(), None):
+        sim.integrate(n, record)
+    follower.finish()
+    return sim.peaks
+
+
 def _integrated(sim: LiveSimulation, plan: Iterator[int], health: _Health | None,
                 record: Callable[[], StepRecord]
                 ) -> Iterator[tuple[int, Integrated, tuple[float, StatusData] | None]]:
@@ -423,7 +456,7 @@ def _stream(profile: Profile, out, opt: RunOptions, sim: LiveSimulation,
     timebase = TimeBase()
     timebase.start(time.time_ns(), sim.t)
     stride = sim.stride
-    chunk = max(int(round(opt.chunk_s / sim.dt)) // stride, 1) * stride
+    chunk = _chunk_steps(sim, opt.chunk_s)
     block = (EncodedBlock(SampleEncoder(sim.names), BLOCK_ROWS, topics, recorder) if write
              else None)
     statuses = StatusEncoder() if write else None
@@ -519,6 +552,7 @@ def _stream(profile: Profile, out, opt: RunOptions, sim: LiveSimulation,
     wall, cpu = time.perf_counter() - t_wall, time.process_time() - t_cpu
     follower.finish()
     simulated = done * sim.dt
+    extremes = sim.peaks.as_dict()
     return RunSummary(
         profile=profile.as_dict(), bag=str(recorder.path) if recorder is not None else None,
         simulated_s=simulated, wall_s=wall,
@@ -526,4 +560,8 @@ def _stream(profile: Profile, out, opt: RunOptions, sim: LiveSimulation,
         messages=recorder.message_count if recorder is not None else 0, rate_hz=rate_hz,
         dt_s=sim.dt, interrupted=interrupted, knee_crossings=sim.knee_crossings,
         solver_resets=sim.solver_resets, threads=opt.threads, peak_rss_mib=peaks,
-        faults=opt.faults, fault_events=counts['events'], misfires=counts['misfires'])
+        faults=opt.faults, fault_events=counts['events'], misfires=counts['misfires'],
+        peak_windup_rad=extremes['peak_windup_rad'],
+        peak_dmf_torque_nm=extremes['peak_dmf_torque_nm'],
+        travel_margin_rad=extremes.get('travel_margin_rad'),
+        stop_contacts=extremes.get('stop_contacts'))

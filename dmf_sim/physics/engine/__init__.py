@@ -11,7 +11,8 @@ firing phase of cylinder k (0, 480, 240, 600, 120, 360 deg for firing order 1-5-
 ``n`` the half-order index (n = 6 is the 3rd engine order). All cylinders share the same complex
 ``A_n`` (Nm); ``A_0`` is real and is the mean torque of one cylinder, so the whole engine delivers
 ``n_cylinders * A_0``. :meth:`Engine.coefficients` returns ``A_0..A_{n_max}`` for an engine speed
-[rpm] and a load fraction in [0, 1].
+[rpm] and a load fraction in [0, 1], or [-1, 1] for an engine with a brake curve (engine
+braking below 0, :func:`load_range`).
 
 Every ``A_n`` is the sum of two parts:
 
@@ -82,14 +83,19 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, Mapping
 
+import numpy as np
+
 from dmf_sim.core.paths import config_file, read_yaml_mapping
 from dmf_sim.physics.engine.config import EngineConfig, Geometry, engine_config, read_engine_config
 from dmf_sim.physics.engine.excitation import (
+    LOAD_LIMITS,
     Engine,
     EngineExcitation,
     GasGrid,
     cylinder_torque_signal,
     engine_torque_orders,
+    load_error,
+    load_range,
 )
 from dmf_sim.physics.engine.pressure import CycleResult, PressureModel
 from dmf_sim.physics.engine.tables import (
@@ -101,7 +107,8 @@ from dmf_sim.physics.engine.tables import (
 )
 
 __all__ = [
-    'LOAD_SETS', 'DEFAULT_ENGINE', 'EngineExcitation', 'Engine', 'EngineConfig', 'Geometry',
+    'LOAD_SETS', 'LOAD_LIMITS', 'load_range', 'load_error', 'DEFAULT_ENGINE', 'EngineExcitation',
+    'Engine', 'EngineConfig', 'Geometry',
     'PressureModel', 'CycleResult', 'load_engine', 'engine_from_mapping', 'read_engine_config',
     'cylinder_torque_signal', 'engine_torque_orders', 'write_coefficient_table',
 ]
@@ -128,10 +135,12 @@ def engine_from_mapping(doc: Mapping[str, Any], path: str | Path, load_set: str 
     engine with another full-load curve."""
     cfg = engine_config(doc, path)
     model = PressureModel(cfg)
-    grid = GasGrid(cfg.grid.speeds_rpm, cfg.grid.loads, cfg.n_max + 1,
-                   filler=model.gas_coefficients)
-    motored = GasGrid(cfg.grid.speeds_rpm, cfg.grid.loads, cfg.n_max + 1,
+    # with a brake, the full brake (-1) is one more load of the grid: part braking is linear
+    # between it and load 0 (PressureModel.cycle), so the interpolation is exact there
+    loads = np.concatenate(([LOAD_LIMITS[0]], cfg.grid.loads)) if cfg.has_brake else cfg.grid.loads
+    grid = GasGrid(cfg.grid.speeds_rpm, loads, cfg.n_max + 1, filler=model.gas_coefficients)
+    motored = GasGrid(cfg.grid.speeds_rpm, loads, cfg.n_max + 1,
                       filler=model.motored_gas_coefficients)
     return Engine(cfg, grid, model.inertia_unit, load_set=load_set,
                   full_load_curve=cfg.full_load_curve, model=model, source=Path(path),
-                  motored_gas=motored)
+                  motored_gas=motored, brake_curve=cfg.brake_curve if cfg.has_brake else None)

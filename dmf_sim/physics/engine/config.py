@@ -1,6 +1,11 @@
 """The engine YAML (``config/engine_d13.yaml``): geometry, firing phases, load sets and the
 pressure-model sections, validated field by field (dmf_sim.core.validation).
 
+Engine braking (optional, with the pressure model): ``brake_curve`` (the whole engine's torque
+[Nm] over speed at full brake, every value <= 0) and ``compression_release_brake`` (the valve
+events of the brake, :class:`CompressionReleaseBrake`); the load fraction -1 is that curve.
+``brake_curve: null`` in a file with a ``base:`` removes the base's brake.
+
 An engine YAML may start from another one: ``base: engine_d13`` (a config name or a path,
 relative paths relative to the file) takes every top-level section of the base file and lets this
 file replace whole sections (e.g. only ``name``, ``description`` and ``full_load_curve`` for
@@ -30,15 +35,18 @@ from dmf_sim.core.validation import (
 )
 from dmf_sim.physics.orders import half_orders
 
-__all__ = ['N_MAX_RANGE', 'MODEL_KEYS', 'BASE_DEPTH_MAX', 'Geometry', 'GasExchange', 'Combustion',
-           'Grid', 'EngineConfig', 'resolve_ref', 'with_base', 'read_engine_config',
-           'engine_config', 'require_model']
+__all__ = ['N_MAX_RANGE', 'MODEL_KEYS', 'BRAKE_KEYS', 'BASE_DEPTH_MAX', 'Geometry', 'GasExchange',
+           'Combustion', 'CompressionReleaseBrake', 'Grid', 'EngineConfig', 'resolve_ref',
+           'with_base', 'read_engine_config', 'engine_config', 'require_model']
 
 N_MAX_RANGE = (1, 48)
 """Allowed highest half-order index n_max of an engine or a table."""
 
 MODEL_KEYS = ('full_load_curve', 'gas_exchange', 'combustion', 'samples_per_cycle', 'grid')
 """Top-level sections of the pressure model (absent in a YAML that only backs a table)."""
+
+BRAKE_KEYS = ('brake_curve', 'compression_release_brake')
+"""Optional top-level sections of the pressure model: the engine brake (both or neither)."""
 
 BASE_DEPTH_MAX = 8
 """Longest chain of ``base:`` references followed."""
@@ -134,6 +142,25 @@ class Combustion:
 
 
 @dataclass(frozen=True)
+class CompressionReleaseBrake:
+    """Valve events of a compression-release engine brake (crank angles [deg] from the
+    cylinder's compression TDC), :meth:`dmf_sim.physics.engine.pressure.PressureModel.brake_cycle`:
+
+    ``charge_duration_deg``: the exhaust valve's charging lift opens this long before the intake
+    valve closes (near intake BDC; not before the intake stroke begins): by intake valve closing
+    the cylinder holds the exhaust manifold's pressure; ``release_deg``: the release lift opens
+    the exhaust valve before compression TDC and the cylinder falls to the manifold's pressure
+    within ``release_duration_deg``; ``close_deg``: the release lift ends (at the latest at the
+    normal exhaust valve opening, where the valve stays open), the gas left re-expands until the
+    normal exhaust valve opening."""
+
+    charge_duration_deg: float
+    release_deg: float
+    release_duration_deg: float
+    close_deg: float
+
+
+@dataclass(frozen=True)
 class Grid:
     """Speed x load grid on which the gas part is cached."""
 
@@ -158,10 +185,17 @@ class EngineConfig:
     combustion: Combustion | None = None
     samples_per_cycle: int | None = None
     grid: Grid | None = None
+    brake_curve: Table1D | None = None              # Nm (<= 0) over rpm
+    brake: CompressionReleaseBrake | None = None
 
     @property
     def has_model(self) -> bool:
         return self.full_load_curve is not None
+
+    @property
+    def has_brake(self) -> bool:
+        """Whether the engine brakes: a pressure model with a brake curve."""
+        return self.has_model and self.brake_curve is not None
 
 
 # ----------------------------------------------------------------------------------------------
@@ -226,7 +260,7 @@ def engine_config(doc: Mapping[str, Any], path: str | Path, *,
     d, where = with_base(doc, path)
     required = ['name', 'n_cylinders', 'firing_phases_deg', 'n_max', 'geometry', 'load_sets']
     check_keys(d, where, '', required + (list(MODEL_KEYS) if need_model else []),
-               ['description'] + ([] if need_model else list(MODEL_KEYS)))
+               ['description', *BRAKE_KEYS] + ([] if need_model else list(MODEL_KEYS)))
     if not isinstance(d['name'], str) or not d['name']:
         raise field_error(where, 'name', 'must be a non-empty string')
     n_cyl = integer(d['n_cylinders'], where, 'n_cylinders', 1, 24)
@@ -241,6 +275,7 @@ def engine_config(doc: Mapping[str, Any], path: str | Path, *,
         geometry=_geometry(d['geometry'], where), **_load_sets(d['load_sets'], where))
     if all(k in d for k in MODEL_KEYS):
         cfg.update(_model_sections(d, where, n_max))
+        cfg.update(_brake_sections(d, where))
     elif any(k in d for k in MODEL_KEYS):
         missing = next(k for k in MODEL_KEYS if k not in d)
         raise field_error(where, missing,
@@ -295,6 +330,28 @@ def _model_sections(d: Mapping[str, Any], where: str, n_max: int) -> dict[str, A
     return dict(full_load_curve=curve, gas_exchange=_gas_exchange(d['gas_exchange'], where),
                 combustion=_combustion(d['combustion'], where), samples_per_cycle=samples,
                 grid=_grid(d['grid'], where))
+
+
+def _brake_sections(d: Mapping[str, Any], where: str) -> dict[str, Any]:
+    """``brake_curve`` (torques <= 0, BOUNDS 'brake_torque') and ``compression_release_brake``;
+    both absent (or ``brake_curve: null``): an engine that does not brake."""
+    if d.get('brake_curve') is None:
+        return {}
+    curve = table_1d(d['brake_curve'], where, 'brake_curve', 'speeds_rpm', 'torque_nm',
+                     'engine_speed', 'brake_torque')
+    if d.get('compression_release_brake') is None:
+        raise field_error(where, 'compression_release_brake',
+                          'missing (required with brake_curve: the valve events of the brake)')
+    b = check_keys(d['compression_release_brake'], where, 'compression_release_brake',
+                   ['charge_duration_deg', 'release_deg', 'release_duration_deg', 'close_deg'])
+    f = 'compression_release_brake.'
+    return dict(brake_curve=curve, brake=CompressionReleaseBrake(
+        charge_duration_deg=bounded(b['charge_duration_deg'], where, f + 'charge_duration_deg',
+                                    'brake_charge_duration'),
+        release_deg=bounded(b['release_deg'], where, f + 'release_deg', 'brake_release_angle'),
+        release_duration_deg=bounded(b['release_duration_deg'], where,
+                                     f + 'release_duration_deg', 'blowdown_duration'),
+        close_deg=bounded(b['close_deg'], where, f + 'close_deg', 'brake_close_angle')))
 
 
 def _gas_exchange(ge: Any, where: str) -> GasExchange:

@@ -14,8 +14,42 @@ from dmf_sim.core.units import RPM_TO_RAD_S
 from dmf_sim.core.validation import Table1D
 from dmf_sim.physics.engine.config import EngineConfig
 
-__all__ = ['EngineExcitation', 'cylinder_torque_signal', 'engine_torque_orders', 'GasGrid',
-           'Engine']
+__all__ = ['LOAD_LIMITS', 'EngineExcitation', 'cylinder_torque_signal', 'engine_torque_orders',
+           'GasGrid', 'Engine', 'load_range', 'load_error']
+
+LOAD_LIMITS = (-1.0, 1.0)
+"""The widest torque demand any engine accepts: -1 full brake (the engine's brake curve), 0 no
+load, 1 full load. An engine accepts less (:func:`load_range`): one without a brake curve
+[0, 1]. Where the engine is not known yet (a profile file, a command-line option, the setpoint
+client) a value outside these is refused at once, the rest when the engine is."""
+
+
+def load_range(engine) -> tuple[float, float]:
+    """The torque demands [lo, hi] ``engine`` accepts: its ``load_range`` where it has one
+    (:attr:`Engine.load_range`), else [0, 1] (an excitation without engine braking)."""
+    rng = getattr(engine, 'load_range', None)
+    return (float(rng[0]), float(rng[1])) if rng is not None else (0.0, 1.0)
+
+
+def load_error(engine, load, what: str = 'load') -> str | None:
+    """Why ``load`` is not a torque demand ``engine`` accepts, or None: one line naming
+    ``what`` (a field, option or parameter) and the range; a negative load for an engine
+    without a brake curve says so. The one rule every caller asks (engine, live setpoints,
+    profiles, options, study conditions)."""
+    lo, hi = load_range(engine)
+    if isinstance(load, bool) or not isinstance(load, (int, float, np.floating, np.integer)):
+        return f'{what} must be a number in [{lo:g}, {hi:g}], got {load!r}'
+    x = float(load)
+    if math.isfinite(x) and lo <= x <= hi:
+        return None
+    text = f'{what} {x:g} outside [{lo:g}, {hi:g}]'
+    if math.isfinite(x) and LOAD_LIMITS[0] <= x < lo:
+        name = getattr(engine, 'name', '') or type(engine).__name__
+        text += (f' (engine {name!r} has no brake curve: a negative load, engine braking, '
+                 'needs an engine YAML with brake_curve such as engine_d13)')
+    else:
+        text += ' (-1 full engine brake, 0 no load, 1 full load)'
+    return text
 
 
 @runtime_checkable
@@ -155,7 +189,8 @@ class Engine:
     def __init__(self, cfg: EngineConfig, gas: GasGrid, inertia_unit: np.ndarray, *,
                  load_set: str = 'A', n_max: int | None = None,
                  full_load_curve: Table1D | None = None, model=None,
-                 source: Path | None = None, motored_gas: GasGrid | None = None) -> None:
+                 source: Path | None = None, motored_gas: GasGrid | None = None,
+                 brake_curve: Table1D | None = None) -> None:
         if load_set not in cfg.load_set_shifts_rpm:
             raise ConfigError(f'{cfg.path.name}: load_set: unknown {load_set!r} '
                               f'(allowed: {", ".join(cfg.load_set_shifts_rpm)})')
@@ -172,7 +207,11 @@ class Engine:
         self._motored_gas = motored_gas
         self._inertia_unit = np.asarray(inertia_unit, dtype=complex)[: self.n_max + 1]
         self._curve = full_load_curve
+        self._brake_curve = brake_curve
         self.speed_range_rpm: tuple[float, float] = gas.speed_range
+        self.load_range: tuple[float, float] = (float(gas.loads[0]), float(gas.loads[-1]))
+        """The torque demands this engine's data cover: [-1, 1] with a brake curve (the gas
+        grid's loads from -1), else [0, 1]."""
 
     @property
     def name(self) -> str:
@@ -183,7 +222,8 @@ class Engine:
         """The same engine (sharing the cached gas data) for another load set."""
         return Engine(self.config, self._gas, self._inertia_unit, load_set=load_set,
                       n_max=self.n_max, full_load_curve=self._curve, model=self.model,
-                      source=self.source, motored_gas=self._motored_gas)
+                      source=self.source, motored_gas=self._motored_gas,
+                      brake_curve=self._brake_curve)
 
     def warm(self) -> None:
         """Compute every grid node now (about 0.1 s for the default grid)."""
@@ -195,8 +235,8 @@ class Engine:
         if not (math.isfinite(speed_rpm) and lo <= speed_rpm <= hi):
             raise OperatingRangeError(f'speed_rpm: must be in [{lo:g}, {hi:g}] rpm '
                                       f'(got {speed_rpm!r})')
-        if load is not None and not (math.isfinite(load) and 0.0 <= load <= 1.0):
-            raise OperatingRangeError(f'load: must be in [0, 1] (got {load!r})')
+        if load is not None and (reason := load_error(self, load)):
+            raise OperatingRangeError(reason)
 
     def effective_speed(self, speed_rpm: float) -> float:
         """Speed [rpm] at which Load A's gas data is used: min(s + shift, max(s, limit))."""
@@ -219,7 +259,7 @@ class Engine:
 
     def motored_coefficients(self, speed_rpm: float, load: float) -> np.ndarray:
         """Complex A_0..A_{n_max} [Nm] of one cylinder that does not fire at ``speed_rpm`` [rpm]
-        and ``load`` [0..1]: compression and gas exchange at that operating point's manifold
+        and ``load`` [-1..1]: compression and gas exchange at that operating point's manifold
         pressures without heat release
         (:meth:`~dmf_sim.physics.engine.pressure.PressureModel.motored_gas_coefficients`, cached
         on the gas grid's speeds and loads and interpolated as the fired gas part is) plus the
@@ -244,7 +284,8 @@ class Engine:
 
     # -- EngineExcitation ----------------------------------------------------------------------
     def coefficients(self, speed_rpm: float, load: float) -> np.ndarray:
-        """Complex per-cylinder A_0..A_{n_max} [Nm] at ``speed_rpm`` [rpm] and ``load`` [0..1]."""
+        """Complex per-cylinder A_0..A_{n_max} [Nm] at ``speed_rpm`` [rpm] and ``load``
+        (:attr:`load_range`)."""
         return self.gas_coefficients(speed_rpm, load) + self.inertia_coefficients(speed_rpm)
 
     def coefficients_many(self, speeds_rpm, load: float) -> np.ndarray:
@@ -290,6 +331,20 @@ class Engine:
             return self._curve(s_eff)
         self._check(s_eff)
         return self.n_cylinders * float(self._gas(s_eff, 1.0)[0].real)
+
+    @property
+    def has_brake(self) -> bool:
+        """Whether this engine brakes (negative loads): a brake curve in its YAML."""
+        return self._brake_curve is not None
+
+    def brake_torque(self, speed_rpm: float) -> float:
+        """Whole-engine torque [Nm] at full brake (load -1; <= 0) as this load set sees it
+        (the brake curve at the effective speed); 0 for an engine without a brake."""
+        speed_rpm = float(speed_rpm)
+        self._check(speed_rpm)
+        if self._brake_curve is None:
+            return 0.0
+        return self._brake_curve(self.effective_speed(speed_rpm))
 
     def __repr__(self) -> str:
         return (f'Engine({self.config.name!r}, source={self.source.name!r}, '

@@ -111,7 +111,7 @@ class CondensedHBM(ContinuationSteps, DrivelineRecovery, FaultedParts):
 
     Args:
         loads: DrivelineLoads (merged model with a DMF + engine).
-        load: engine load fraction 0..1.
+        load: engine load fraction (torque demand) -1..1, below 0 engine braking.
         options: HBMOptions.
         factors: per-cylinder combustion factors s_k (1 fires, 0 misfires every cycle; see
             :mod:`dmf_sim.solvers.hbm.faulted`), None (or all 1) for the healthy engine.

@@ -445,7 +445,7 @@ def sweep(loads: DrivelineLoads, load: float,
     loses stability to a sub-harmonic (or, failing that, seeds n = 3 perturbations near the knee).
 
     Args:
-        loads: DrivelineLoads (driveline with DMF + engine); load: load fraction 0..1.
+        loads: DrivelineLoads (driveline with DMF + engine); load: load fraction -1..1.
         speed_range: (from, to) [rpm].
         hbm_options, options, continuation: HBMOptions, SweepOptions, ContinuationOptions.
         progress: show a tqdm bar.

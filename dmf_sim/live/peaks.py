@@ -1,0 +1,109 @@
+"""The extremes of a transient: peak wind-up (both signs), the DMF torque there and the end stops.
+
+What ``dmf-sim run`` reports in its summary, what the node's health gives since its start or its
+last ``~/reset`` and what a design study's load steps measure (``dmf_sim.design.transient``), in
+one place. :class:`WindupPeaks` observes the wind-up of every recorded step (the samples, every
+``stride``-th Newmark step: at 1 kHz a 60 Hz 3rd order's crest is missed by at most 2 % of its
+amplitude, the slow overshoot of a load step not at all):
+
+* ``peak_windup_rad``: the smallest and the largest wind-up [rad] (negative: coast side);
+* ``peak_dmf_torque_nm``: the spring's torque T(w) [Nm] at those two wind-ups (the spring is
+  monotone, so these are the extremes of the spring torque; the same quantity as the design
+  metric ``max_dmf_torque``);
+* with end stops (the spring's ``stop_angles_rad``: (coast < 0, drive > 0) wind-ups, None when
+  the spring has none): ``travel_margin_rad``, the smallest distance of the wind-up to a stop
+  (negative: beyond it), and ``stop_contacts``, how often the wind-up went from inside to beyond
+  a stop. Without stops the two are not reported (no stop, no contact, no margin).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+__all__ = ['WindupPeaks', 'stop_angles', 'peaks_text']
+
+
+def stop_angles(spring) -> tuple[float, float] | None:
+    """The end stops of ``spring`` as (coast < 0, drive > 0) wind-ups [rad], or None (no spring,
+    or a spring without stops)."""
+    stops = getattr(spring, 'stop_angles_rad', None) if spring is not None else None
+    return None if stops is None else (float(stops[0]), float(stops[1]))
+
+
+class WindupPeaks:
+    """Running extremes of the wind-up (module docstring), since construction or :meth:`reset`.
+
+    Args:
+        spring: the DMF spring (``PiecewiseLinearSpring``) or None (a driveline without DMF).
+        t_s: the simulated time [s] the peaks start at.
+    """
+
+    def __init__(self, spring, t_s: float = 0.0) -> None:
+        self.spring = spring
+        self.reset(t_s)
+
+    def reset(self, t_s: float = 0.0) -> None:
+        """Forget the peaks; the next ones start at simulated time ``t_s`` [s]."""
+        self.since_s = float(t_s)
+        self.lo = self.hi = math.nan
+        self.t_lo = self.t_hi = math.nan
+        self.torque_lo = self.torque_hi = math.nan
+        self.contacts = 0
+        self.margin = math.inf
+        self._beyond = False
+
+    def set_spring(self, spring) -> None:
+        """The spring from now on (a new DMF: the torques at later peaks use it)."""
+        self.spring = spring
+
+    @property
+    def observed(self) -> bool:
+        return not math.isnan(self.lo)
+
+    def _torque(self, w: float) -> float:
+        return float(self.spring.torque(w)) if self.spring is not None else math.nan
+
+    def observe(self, windup: np.ndarray, t: np.ndarray) -> None:
+        """Take the wind-ups [rad] recorded at times ``t`` [s] (one chunk, in time order)."""
+        if len(windup) == 0:
+            return
+        i_lo, i_hi = int(np.argmin(windup)), int(np.argmax(windup))
+        lo, hi = float(windup[i_lo]), float(windup[i_hi])
+        if not self.lo <= lo:                       # NaN (first chunk) or a new minimum
+            self.lo, self.t_lo, self.torque_lo = lo, float(t[i_lo]), self._torque(lo)
+        if not self.hi >= hi:
+            self.hi, self.t_hi, self.torque_hi = hi, float(t[i_hi]), self._torque(hi)
+        stops = stop_angles(self.spring)
+        if stops is not None:
+            coast, drive = stops
+            self.margin = min(self.margin, drive - hi, lo - coast)
+            beyond = (windup >= drive) | (windup <= coast)
+            entries = int(np.count_nonzero(beyond[1:] & ~beyond[:-1]))
+            self.contacts += entries + int(bool(beyond[0]) and not self._beyond)
+            self._beyond = bool(beyond[-1])
+
+    def as_dict(self) -> dict:
+        """The JSON/summary form: ``peak_windup_rad`` [min, max], ``peak_dmf_torque_nm`` [at
+        min, at max], their times ``peak_windup_t_s``, ``since_s``; with end stops also
+        ``travel_margin_rad`` and ``stop_contacts`` (module docstring)."""
+        out = {'peak_windup_rad': [self.lo, self.hi],
+               'peak_dmf_torque_nm': [self.torque_lo, self.torque_hi],
+               'peak_windup_t_s': [self.t_lo, self.t_hi], 'since_s': self.since_s}
+        if stop_angles(self.spring) is not None:
+            out['travel_margin_rad'] = self.margin if self.observed else math.nan
+            out['stop_contacts'] = self.contacts
+        return out
+
+
+def peaks_text(d: dict) -> str:
+    """One line for people from :meth:`WindupPeaks.as_dict` (or a run summary holding its keys):
+    ``peak wind-up -0.0512 .. 0.3021 rad, DMF torque -558 .. 3601 Nm`` and the end stops'
+    margin and contacts where the spring has stops."""
+    (w_lo, w_hi), (t_lo, t_hi) = d['peak_windup_rad'], d['peak_dmf_torque_nm']
+    text = (f'peak wind-up {w_lo:.4f} .. {w_hi:.4f} rad, DMF torque {t_lo:.0f} .. {t_hi:.0f} '
+            'Nm')
+    if 'stop_contacts' in d:
+        text += (f'; end stops: travel margin {d["travel_margin_rad"]:.4f} rad, '
+                 f'{d["stop_contacts"]} contacts')
+    return text
