@@ -43,7 +43,7 @@ from tqdm import tqdm
 
 from dmf_sim.bags.writer import BagRecorder
 from dmf_sim.core.units import RPM_TO_RAD_S
-from dmf_sim.physics.model import load_driveline
+from dmf_sim.physics.model import read_driveline
 
 TOPICS = {'/driveline/joint_states': 'sensor_msgs/msg/JointState',
           '/driveline/dmf_windup': 'std_msgs/msg/Float64',
@@ -87,7 +87,7 @@ def joint_template(names: list[str]) -> tuple[bytes, int, int, int]:
 
 def write_bag(path: Path, minutes: float, rate_hz: float = 1000.0) -> dict:
     """Write the synthetic bag (BagRecorder with its defaults); returns what was written."""
-    names = load_driveline('truck_dmf').names
+    names = read_driveline('truck_dmf').names
     i_cyl, i_in = names.index('CYL1'), names.index('INPUT SHAFT')
     tmpl, off_p, off_v, off_e = joint_template(names)
     m = len(names)
@@ -187,7 +187,7 @@ def measure(bag: Path, plots_dir: Path | None) -> dict:
     # what reading + orders take on top of a warm process (imports and JIT caches loaded)
     base = _rss_mib('VmRSS')
     _reset_peak()
-    again = analyze_bag(bag, ['windup'], bin_rpm=20.0, theta=settings['theta_rad'])
+    again = analyze_bag(bag, ['windup'], options=windup)
     growth = _rss_mib('VmHWM') - base
     del again
 

@@ -64,18 +64,18 @@ def main(argv=None) -> int:
 
 
 def _measure(args) -> int:
-    from dmf_sim.physics.engine import load_engine
-    from dmf_sim.physics.loads import DrivelineLoads
-    from dmf_sim.physics.model import load_model
+    from dmf_sim.physics.engine import read_engine
+    from dmf_sim.physics.loads import DrivelineExcitation
+    from dmf_sim.physics.model import read_model
     from dmf_sim.solvers.hbm import CondensedHBM, SweepOptions, sweep
     from dmf_sim.solvers.hbm.warm import warm_up
     from dmf_sim.solvers.newmark import simulate
 
     lo, hi, step = args.speeds
-    model = load_model('truck_dmf', alpha=args.alpha, theta=args.theta)
-    engine = load_engine(args.engine, load_set=args.load_set)
-    engine.warm()  # engine gas-pressure grid: computed once, not timed
-    loads = DrivelineLoads(model, engine)
+    model = read_model('truck_dmf', alpha=args.alpha, theta=args.theta)
+    engine = read_engine(args.engine, load_set=args.load_set)
+    engine.warm_up()  # engine gas-pressure grid: computed once, not timed
+    loads = DrivelineExcitation(model, engine)
     grid = np.arange(lo, hi + 0.5 * step, step)
 
     # warm-up, not timed: every compiled kernel of a sweep point loaded (or compiled) as a

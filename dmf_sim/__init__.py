@@ -4,9 +4,9 @@ The public API for scripts and notebooks::
 
     import dmf_sim as dmf
 
-    loads = dmf.DrivelineLoads(dmf.load_model('truck_dmf', alpha=3.0),
-                               dmf.load_engine('engine_d13', load_set='A'))
-    res = dmf.sweep(loads, load=1.0, speed_range=(900.0, 1100.0))   # HBM over speed [rpm]
+    excitation = dmf.DrivelineExcitation(dmf.read_model('truck_dmf', alpha=3.0),
+                                         dmf.read_engine('engine_d13', load_set='A'))
+    res = dmf.sweep(excitation, load=1.0, speed_range=(900.0, 1100.0))   # HBM over speed [rpm]
     for row in res.rows()[:3]:                       # one dict per point, SI units (rad, Nm)
         print(row['speed_rpm'], row['order_3'], row['stable'])
 
@@ -24,16 +24,16 @@ __version__ = '0.1.0'
 
 # public name -> module that defines it (the one place it lives)
 _API = {
-    # model and loads
-    'load_model': 'dmf_sim.physics.model',
-    'load_driveline': 'dmf_sim.physics.model',
+    # model and excitation
+    'read_model': 'dmf_sim.physics.model',
+    'read_driveline': 'dmf_sim.physics.model',
     'driveline_from_dict': 'dmf_sim.physics.model',
     'Driveline': 'dmf_sim.physics.model',
     'ReducedModel': 'dmf_sim.physics.model',
     'PiecewiseLinearSpring': 'dmf_sim.physics.spring',
     'Stage': 'dmf_sim.physics.spring',
-    'load_engine': 'dmf_sim.physics.engine',
-    'DrivelineLoads': 'dmf_sim.physics.loads',
+    'read_engine': 'dmf_sim.physics.engine',
+    'DrivelineExcitation': 'dmf_sim.physics.loads',
     'modes': 'dmf_sim.physics.modal',
     # solvers
     'simulate': 'dmf_sim.solvers.newmark',
@@ -50,7 +50,7 @@ _API = {
     'analyze_bag': 'dmf_sim.analysis.pipeline',
     'read_messages': 'dmf_sim.bags.read',
     # design studies
-    'load_study': 'dmf_sim.design.study',
+    'read_study': 'dmf_sim.design.study',
     'run_study': 'dmf_sim.design.runner',
     # errors
     'DmfSimError': 'dmf_sim.core.errors',
@@ -66,11 +66,24 @@ _API = {
     'MissingExtraError': 'dmf_sim.core.errors',
 }
 
+_RENAMED = {
+    'load_model': 'read_model',
+    'load_driveline': 'read_driveline',
+    'load_engine': 'read_engine',
+    'load_study': 'read_study',
+    'DrivelineLoads': 'DrivelineExcitation',
+}
+"""Old public name -> new one: still served, with a deprecation warning."""
+
 __all__ = ['__version__', *_API]
 
 
 def __getattr__(name: str):
-    """Import the module behind a public name on first use and cache the name here."""
+    """Import the module behind a public name on first use and cache the name here; an old
+    name warns and gives the new one (not cached, so it warns at every place that uses it)."""
+    if name in _RENAMED:
+        warn_renamed(f'dmf_sim.{name}', f'dmf_sim.{_RENAMED[name]}')
+        return __getattr__(_RENAMED[name])
     try:
         module = _API[name]
     except KeyError:

@@ -145,11 +145,11 @@ class DrivelineNode(Node):
             self.runtime.abandon()
 
     def _start(self, node_name: str) -> None:
-        from dmf_sim.live.runtime import LiveRuntime, load_line
+        from dmf_sim.live.runtime import LiveRuntime, read_line
 
         values = {name: self._declare(name, spec.default, spec)
                   for name, spec in PARAMETERS.items()}
-        line = load_line(values['driveline'])
+        line = read_line(values['driveline'])
         defaults = (line.dmf.alpha, line.dmf.theta) if line.dmf is not None else (0.0, 0.0)
         for (name, spec), default in zip(DMF_PARAMETERS.items(), defaults):
             if line.dmf is None:

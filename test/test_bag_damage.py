@@ -27,7 +27,7 @@ from dmf_sim.bags.recovery import recover_bag
 from dmf_sim.bags.writer import BagRecorder
 from dmf_sim.cli import main as cli_main
 from dmf_sim.core.errors import BagError
-from dmf_sim.transient.profiles import load_profile
+from dmf_sim.transient.profiles import read_profile
 from dmf_sim.transient.run import RunOptions, run_profile
 
 RAMP = {'duration': 6.0, 'v0': 900.0, 'v1': 1300.0}        # ~55 cycles, 3 files of 2 s
@@ -240,7 +240,7 @@ def run_damaged(tmp_path_factory):
     second, and a copy whose third file has its chunk of samples flipped."""
     root = tmp_path_factory.mktemp('run_damage')
     intact = root / 'ramp'
-    run_profile(load_profile('ramp:900:1000:20:1.0:0.5'), intact, RunOptions(split_s=1.0))
+    run_profile(read_profile('ramp:900:1000:20:1.0:0.5'), intact, RunOptions(split_s=1.0))
     bag = copy(intact, root / 'flipped')
     file = bag / 'ramp_2.mcap'
     spans = chunk_spans(file)

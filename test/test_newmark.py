@@ -6,8 +6,8 @@ from fake_engine import FakeEngine
 
 from dmf_sim.core.units import RPM_TO_RAD_S
 from dmf_sim.physics.harmonic import solve_harmonic
-from dmf_sim.physics.loads import DrivelineLoads
-from dmf_sim.physics.model import load_model
+from dmf_sim.physics.loads import DrivelineExcitation
+from dmf_sim.physics.model import read_model
 from dmf_sim.solvers.newmark import NewmarkIntegrator, StepRecord, simulate
 
 # mean 400 Nm per cylinder (2400 Nm engine: wind-up just below the 0.24 rad knee), 1.5th/3rd/6th
@@ -16,7 +16,7 @@ ENGINE = FakeEngine({0: 400.0, 3: 150 + 50j, 6: 700 - 300j, 12: 250 + 100j})
 
 
 def loads(alpha=2.5, engine=ENGINE):
-    return DrivelineLoads(load_model('truck_dmf', alpha=alpha), engine)
+    return DrivelineExcitation(read_model('truck_dmf', alpha=alpha), engine)
 
 
 def test_linear_case_equals_harmonic_response():
@@ -159,7 +159,7 @@ def test_step_refinement_real_engine_at_knee_grazing_point(engine_2500):
     dt = 1e-4 s the Newmark period error there shifts the 1.5th order by ~3 %; at dt = 5e-5 s
     halving the step changes both orders by < 0.5 % (doc/theory.md §5: dt <= 5e-5 s offline near
     such points)."""
-    L = DrivelineLoads(load_model('truck_dmf', alpha=3.0), engine_2500)
+    L = DrivelineExcitation(read_model('truck_dmf', alpha=3.0), engine_2500)
     runs = [simulate(L, 1000, 1.0, dt=dt, steady_tol=1e-9, max_cycles=120)
             for dt in (5e-5, 2.5e-5)]
     assert runs[0].knee_crossings > 0

@@ -31,11 +31,11 @@ COMPUTE = ['dmf_sim.commands.modes.modes', 'dmf_sim.commands.loads.mean_torques'
 @pytest.fixture(scope='module')
 def bags(tmp_path_factory):
     """A short run-up and run-down bag (dmf-sim run)."""
-    from dmf_sim.transient.profiles import load_profile
+    from dmf_sim.transient.profiles import read_profile
     from dmf_sim.transient.run import RunOptions, run_profile
     root = tmp_path_factory.mktemp('bags')
     for name, spec in (('up', 'ramp:1000:1100:500:1:0.1'), ('down', 'ramp:1100:1000:500:1:0.1')):
-        run_profile(load_profile(spec), root / name, RunOptions(threads=1))
+        run_profile(read_profile(spec), root / name, RunOptions(threads=1))
     return root
 
 

@@ -142,9 +142,7 @@ def analyze_bag(path: str | os.PathLike | BagFiles,
                 load: float | None = None) -> BagAnalysis:
     """Order analysis of a bag (see the module docstring).
 
-    Args:
-        path: the bag (or its resolved files, :func:`dmf_sim.bags.layout.resolve_bag`).
-        signals: 'windup', 'angle:NAME', 'velocity:NAME', 'torque:NAME', 'topic:/name'.
+    Attributes:
         bin_rpm: speed bin width [rpm]; 0 gives one row per engine cycle.
         min_cycles: bins with fewer cycles are ramp bins (marked, not compared with the HBM).
         points_per_cycle: crank-angle grid per 720 deg cycle; n_max: highest half-order index.

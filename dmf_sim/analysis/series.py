@@ -26,6 +26,7 @@ from dmf_sim.bags.columns import Column, JointStateColumns, McapColumns, ScalarC
 from dmf_sim.bags.layout import BagFiles, resolve_bag
 from dmf_sim.bags.read import TypeDecoder, bag_topics, message_counts, read_messages, topics_text
 from dmf_sim.bags.records import Scan, no_message_text
+from dmf_sim.core.deprecation import warn_renamed
 from dmf_sim.core.errors import BagError
 from dmf_sim.core.names import check_namespace
 from dmf_sim.core.units import RPM_TO_RAD_S

@@ -115,11 +115,11 @@ def steady_faults(value: str | None, line):
     None without faults."""
     if value is None:
         return None
-    from dmf_sim.physics.faults import FaultSet, load_schedule, parse_faults
+    from dmf_sim.physics.faults import FaultSet, parse_faults, read_schedule
     from dmf_sim.solvers.hbm.faulted import steady_faults as checked
     if value.lstrip().startswith(('{', '[')):
         return checked(FaultSet(parse_faults(value, '--faults', line=line)), '--faults')
-    schedule = load_schedule(value, line=line)
+    schedule = read_schedule(value, line=line)
     return checked(FaultSet(schedule.faults), f'--faults {schedule.source}')
 
 

@@ -147,7 +147,7 @@ def run(args) -> int:
     from dmf_sim.analysis.outputs import write_outputs
     from dmf_sim.analysis.pipeline import analysis_dict, analyze_bag, model_settings, overlay_all
     from dmf_sim.bags.layout import resolve_bag
-    from dmf_sim.live.warm import load as load_kernels
+    from dmf_sim.live.warm import warm_up
 
     check_arguments(args)
     dest = None if args.out is None and args.json else opt.output(

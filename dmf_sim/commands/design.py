@@ -35,7 +35,7 @@ def add_arguments(p) -> None:
 def run(args) -> int:
     require_extra('design')                 # dask, distributed, pyarrow: one line if missing
     from dmf_sim.design.runner import connect, run_study
-    from dmf_sim.design.study import load_study
+    from dmf_sim.design.study import read_study
     from dmf_sim.design.table import ResultStore
     from dmf_sim.live.warm import load as load_kernels
 
@@ -43,7 +43,7 @@ def run(args) -> int:
     if args.batch_size is not None and args.batch_size < 1:
         raise ConfigError(f'--batch-size {args.batch_size}: must be >= 1')
     dest = opt.resumable_output(args, NAME)
-    study = load_study(args.study)
+    study = read_study(args.study)
     if args.resume:
         ResultStore(args.out, study, args.resume)      # --resume problems, before work
     load_kernels(NAME, 'sweep')     # compiled once here, then every worker loads them

@@ -33,7 +33,7 @@ from dmf_sim.design.evaluate import (
     install_context,
 )
 from dmf_sim.design.result import StudyResult
-from dmf_sim.design.study import load_study
+from dmf_sim.design.study import read_study
 from dmf_sim.design.table import ResultStore
 
 distributed = require('distributed', 'design')
@@ -272,7 +272,7 @@ def run_study(study, client=None, *, out=None, resume: bool = False, workers: in
         on_worker_event: called with one line per worker lost, joined or restarted while the
             designs run (:class:`WorkerWatch`); None: not watched.
     """
-    study = load_study(study)
+    study = read_study(study)
     store = ResultStore(out, study, resume) if out is not None else None
     own = client is None
     t0 = time.perf_counter()

@@ -39,7 +39,7 @@ from dmf_sim.design.runner import (
 from dmf_sim.design.table import ResultStore, sort_rows, to_table
 from dmf_sim.optimize.constraints import rank, violation
 from dmf_sim.optimize.hypervolume import hypervolume_history
-from dmf_sim.optimize.problem import Problem, load_problem, unit_to_values
+from dmf_sim.optimize.problem import Problem, read_problem, unit_to_values
 
 __all__ = ['JOURNAL', 'PROBLEM_FILE', 'OPTUNA_STUDY', 'MAX_CONSTRAINT', 'EXTRA',
            'OptimizationResult', 'check_budget', 'run_optimization', 'finish', 'reference_point',
@@ -166,7 +166,7 @@ def run_optimization(problem, client=None, *, out=None, resume: bool = False,
         budget: overrides the problem's budget (e.g. to extend a finished run with resume;
             never below the designs stored in ``out``: :func:`check_budget`).
     """
-    problem = load_problem(problem, budget=budget)
+    problem = read_problem(problem, budget=budget)
     study = problem.study
     out = Path(out) if out is not None else None
     store = ResultStore(out, study, resume, extra=EXTRA) if out is not None else None

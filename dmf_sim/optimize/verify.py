@@ -112,11 +112,11 @@ def verify_worst(line, engine, load: float, speed_rpm: float, objective: str, hb
     """The time-domain check of one worst value (see the module docstring); ``speeds_rpm``:
     the study's speed grid (from, to, step): the run-ups stay inside it."""
     lo_s, hi_s, step_rpm = speeds_rpm or (0.0, math.inf, 10.0)
-    from dmf_sim.physics.loads import DrivelineLoads
+    from dmf_sim.physics.loads import DrivelineExcitation
     from dmf_sim.solvers.newmark import simulate
     from dmf_sim.solvers.steady import dmf_modes
     signal, n = VERIFIABLE[objective]
-    loads = DrivelineLoads(line.reduce(), engine)
+    loads = DrivelineExcitation(line.reduce(), engine)
     model = loads.model
     q_s = loads.static_state(speed_rpm, load).q
     modes = dmf_modes(model, 2)

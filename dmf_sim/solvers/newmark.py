@@ -17,7 +17,7 @@ import numpy as np
 
 from dmf_sim.core.errors import ConfigError
 from dmf_sim.core.units import RPM_TO_RAD_S
-from dmf_sim.physics.loads import DrivelineLoads
+from dmf_sim.physics.loads import DrivelineExcitation
 from dmf_sim.physics.orders import CYCLE_RAD, half_orders, resample_on_angle, summarize_orders
 from dmf_sim.solvers import newmark_kernel as kernel
 
@@ -63,13 +63,13 @@ class NewmarkIntegrator:
     """Fixed-step Newmark integrator on a merged model with the DMF's piecewise-linear spring.
 
     Args:
-        loads: DrivelineLoads (model + engine).
+        loads: DrivelineExcitation (model + engine).
         dt: time step [s].
         beta, gamma: Newmark parameters (average acceleration: 1/4, 1/2).
         use_numba: compiled kernel (True) or the readable numpy reference path (False).
     """
 
-    loads: DrivelineLoads
+    loads: DrivelineExcitation
     dt: float = 1e-4
     beta: float = 0.25
     gamma: float = 0.5
@@ -157,7 +157,7 @@ class NewmarkIntegrator:
                           factors=None) -> None:
         """Recompute the cylinder coefficients and rear load for the current (or given) speed
         [rpm] and load fraction, and (given) per-cylinder combustion ``factors`` (kept for the
-        next updates; all ones = every cylinder fires): :meth:`DrivelineLoads.excitation`.
+        next updates; all ones = every cylinder fires): :meth:`DrivelineExcitation.excitation`.
         Called by the stepper between chunks; coefficients are held constant inside a chunk."""
         if speed_rpm is None:
             speed_rpm = self.speed_rpm
@@ -313,7 +313,7 @@ class SimulationResult:
         return self.steady
 
 
-def simulate(loads: DrivelineLoads, speed_rpm: float, load: float, *, t_end: float | None = None,
+def simulate(loads: DrivelineExcitation, speed_rpm: float, load: float, *, t_end: float | None = None,
              target_speed_rpm: float | None = None, ramp_rpm_per_s: float = 0.0,
              dt: float = 1e-4, beta: float = 0.25, gamma: float = 0.5,
              steady_tol: float = 1e-4, min_cycles: int = 5, max_cycles: int = 400,
@@ -348,7 +348,7 @@ def simulate(loads: DrivelineLoads, speed_rpm: float, load: float, *, t_end: flo
         if target_speed_rpm is not None:
             integ.set_target(target_speed_rpm, ramp_rpm_per_s)
         n_total = int(round(t_end / dt))
-        chunk = max(int(round(chunk_s / dt)) // record_stride, 1) * record_stride
+        chunk = max(int(round(o.chunk_s / dt)) // record_stride, 1) * record_stride
         if target_speed_rpm is None and not progress:
             # constant speed: the excitation coefficients never change, so the whole run is one
             # kernel call (no per-chunk Python work; the solution finder's and the non-periodic

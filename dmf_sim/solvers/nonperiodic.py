@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dmf_sim.core.units import cycle_period_s
-from dmf_sim.physics.loads import DrivelineLoads
+from dmf_sim.physics.loads import DrivelineExcitation
 from dmf_sim.physics.orders import CYCLE_RAD, ORDER_1_5, ORDER_3, half_orders
 from dmf_sim.solvers.newmark import simulate
 
@@ -139,7 +139,7 @@ def classify_section(points: np.ndarray, scale: np.ndarray,
     return 'chaotic', 0
 
 
-def analyze(loads: DrivelineLoads, speed_rpm: float, load: float,
+def analyze(loads: DrivelineExcitation, speed_rpm: float, load: float,
             initial: tuple[np.ndarray, np.ndarray] | None = None,
             options: NonPeriodicOptions | None = None, factors=None) -> NonPeriodicResult:
     """Long Newmark run at constant speed from ``initial`` = (q, v) at psi = 0 (default: the

@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from dmf_sim.core.errors import ConfigError, ConvergenceError
-from dmf_sim.physics.loads import DrivelineLoads
+from dmf_sim.physics.loads import DrivelineExcitation
 from dmf_sim.solvers.hbm import CondensedHBM, HBMOptions, HBMPoint, SweepOptions, sweep
 from dmf_sim.solvers.hbm.faulted import fingerprints
 from dmf_sim.solvers.hbm.layout import to_real
@@ -181,7 +181,7 @@ class _Matcher:
         return best if dist <= self.tol else None
 
 
-def find_steady_states(loads: DrivelineLoads, speed_rpm: float, load: float, *,
+def find_steady_states(loads: DrivelineExcitation, speed_rpm: float, load: float, *,
                        window_rpm: float = 30.0, hbm_options: HBMOptions | None = None,
                        sweep_options: SweepOptions | None = None,
                        basin: BasinOptions | None = None, progress: bool = False,
@@ -243,7 +243,7 @@ def dmf_modes(model, count: int = 2) -> list[tuple[np.ndarray, float]]:
     return out
 
 
-def _basins(out: SteadyStateSet, hb: CondensedHBM, loads: DrivelineLoads, b: BasinOptions,
+def _basins(out: SteadyStateSet, hb: CondensedHBM, loads: DrivelineExcitation, b: BasinOptions,
             progress: bool, forced_ratio: float | None = None) -> None:
     s, load = out.speed_rpm, out.load
     model = loads.model

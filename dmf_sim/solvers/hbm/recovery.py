@@ -83,6 +83,5 @@ class DrivelineRecovery:
         q, v = self.dof_state(point, 0.0)
         if perturb is not None:
             q = q + perturb
-        kwargs.setdefault('dt', 1e-4)
         return simulate(self.loads, point.speed_rpm, self.load, initial=(q, v),
                         factors=self.factors, **kwargs)
