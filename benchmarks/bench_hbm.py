@@ -69,7 +69,7 @@ def _measure(args) -> int:
     from dmf_sim.physics.model import read_model
     from dmf_sim.solvers.hbm import CondensedHBM, SweepOptions, sweep
     from dmf_sim.solvers.hbm.warm import warm_up
-    from dmf_sim.solvers.newmark import simulate
+    from dmf_sim.solvers.newmark import SimulationOptions, simulate
 
     lo, hi, step = args.speeds
     model = read_model('truck_dmf', alpha=args.alpha, theta=args.theta)
@@ -82,7 +82,7 @@ def _measure(args) -> int:
     # design-study worker does when it starts, the Newmark kernel, first-call overheads
     warm_up()
     CondensedHBM(loads, args.load).solve(lo)
-    simulate(loads, lo, args.load, dt=args.dt, max_cycles=2)
+    simulate(loads, lo, args.load, options=SimulationOptions(dt=args.dt, max_cycles=2))
 
     # the sweeps and the Newmark runs interleaved: after each repetition's two sweeps, the next
     # share of the Newmark speeds, so both sample the same spells of a shared machine
@@ -102,7 +102,8 @@ def _measure(args) -> int:
                 res_fast = res
         for i in shares[r].tolist():
             t1 = time.perf_counter()
-            nm_results[i] = simulate(loads, float(subset[i]), args.load, dt=args.dt)
+            nm_results[i] = simulate(loads, float(subset[i]), args.load,
+                                     options=SimulationOptions(dt=args.dt))
             nm_times[i] = time.perf_counter() - t1
     sweep_s = float(np.median(times['full']))
     fast_s = float(np.median(times['fast']))

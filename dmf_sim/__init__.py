@@ -37,6 +37,7 @@ _API = {
     'modes': 'dmf_sim.physics.modal',
     # solvers
     'simulate': 'dmf_sim.solvers.newmark',
+    'SimulationOptions': 'dmf_sim.solvers.newmark',
     'SimulationResult': 'dmf_sim.solvers.newmark',
     'sweep': 'dmf_sim.solvers.hbm',
     'SweepOptions': 'dmf_sim.solvers.hbm',
@@ -48,6 +49,7 @@ _API = {
     'NNMOptions': 'dmf_sim.solvers.nnm',
     # bags and their analysis
     'analyze_bag': 'dmf_sim.analysis.pipeline',
+    'AnalysisOptions': 'dmf_sim.analysis.pipeline',
     'read_messages': 'dmf_sim.bags.read',
     # design studies
     'read_study': 'dmf_sim.design.study',

@@ -13,7 +13,13 @@ import pytest
 from synthetic_bags import WINDUP, record_node_run_up, write_synthetic
 
 from dmf_sim.analysis.hbm_overlay import build_model
-from dmf_sim.analysis.pipeline import analysis_dict, analyze_bag, model_settings, overlay_all
+from dmf_sim.analysis.pipeline import (
+    AnalysisOptions,
+    analysis_dict,
+    analyze_bag,
+    model_settings,
+    overlay_all,
+)
 from dmf_sim.analysis.plots import fig13_figure
 from dmf_sim.bags.metadata import RunMetadata
 from dmf_sim.cli import main as cli_main
@@ -69,7 +75,7 @@ def test_green_line_is_theta_minus_static_windup(tmp_path):
     bag = write_synthetic(tmp_path / 'bag', ('windup', 'crank'), custom_data=run.to_custom_data(),
                           duration=4.0, v0=800.0, v1=1300.0)
     settings = model_settings({'custom_data': run.to_custom_data()})
-    res = analyze_bag(bag, theta=settings['theta_rad'])
+    res = analyze_bag(bag, options=AnalysisOptions(theta=settings['theta_rad']))
     overlay_all(res, settings, hbm=False)
     t = res.signal('windup').table
     loads = DrivelineExcitation(read_driveline('truck_dmf').reduce(),
@@ -120,7 +126,7 @@ def test_ramp_bins_marked_and_not_compared(tmp_path, capsys):
     assert every['order_3']['n_rows'] == 3
     assert every['order_1_5']['rel_to_peak'] > 1.0 > diff['order_1_5']['rel_to_peak']
     assert sum(line.startswith('~') for line in text.splitlines()) == len(ramp)
-    res = analyze_bag(bag, start_s=0.5)
+    res = analyze_bag(bag, options=AnalysisOptions(start_s=0.5))
     res.signal('windup').table.theta = data['theta_rad']
     fig = fig13_figure(res, res.signal('windup'))
     lines = {ln.get_label(): ln for ln in fig.axes[0].lines}

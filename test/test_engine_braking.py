@@ -232,7 +232,7 @@ def test_newmark_and_harmonic_balance_agree_under_braking(coast_loads):
     st = coast_loads.static_state(speed, -1.0)
     assert st.windup < -0.10 and st.region == 'coast'
     res = dmf.sweep(coast_loads, load=-1.0, speed_range=(speed - 50.0, speed + 50.0))
-    nm = dmf.simulate(coast_loads, speed, -1.0, dt=1e-4)
+    nm = dmf.simulate(coast_loads, speed, -1.0, options=dmf.SimulationOptions(dt=1e-4))
     assert nm.steady, nm.message
     c = nm.windup_orders
     hb = min(res.solutions_at(speed), key=lambda q: abs(q.order_3 - abs(c[6])))

@@ -29,7 +29,7 @@ from dmf_sim.solvers.hbm.faulted import apply_faults, is_symmetric, steady_fault
 from dmf_sim.solvers.hbm.layout import shift
 from dmf_sim.solvers.hbm.results import Branch, SweepResult
 from dmf_sim.solvers.hbm.search import N_SHIFTS, StateSearch
-from dmf_sim.solvers.newmark import simulate
+from dmf_sim.solvers.newmark import SimulationOptions, simulate
 from dmf_sim.solvers.steady import BasinOptions, SteadyState, _Matcher, find_steady_states
 
 MISFIRE_1 = '{kind: misfire, cylinders: [1], mode: every_cycle}'
@@ -111,8 +111,8 @@ def test_misfire_every_cycle_hbm_matches_newmark(loads, line, speed):
     faults = faults_of(MISFIRE_1, line)
     res = sweep(loads, 1.0, (speed - 30.0, speed + 30.0), faults=faults)
     assert res.faults == faults and not res.hbm.symmetric
-    nm = simulate(loads, speed, 1.0, factors=faults.combustion_factors(6), steady_tol=1e-5,
-                  max_cycles=1000)
+    nm = simulate(loads, speed, 1.0, factors=faults.combustion_factors(6),
+                  options=SimulationOptions(steady_tol=1e-5, max_cycles=1000))
     assert nm.steady, nm.message
     c = nm.windup_orders
     sols = res.solutions_at(speed)

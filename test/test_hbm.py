@@ -20,7 +20,7 @@ from dmf_sim.physics.harmonic import harmonic_response
 from dmf_sim.physics.loads import DrivelineExcitation
 from dmf_sim.physics.model import driveline_from_dict, read_model
 from dmf_sim.solvers.hbm import CondensedHBM, sweep
-from dmf_sim.solvers.newmark import simulate
+from dmf_sim.solvers.newmark import SimulationOptions, simulate
 from dmf_sim.solvers.stability import FloquetAnalyzer
 
 REPO = Path(__file__).resolve().parents[1]
@@ -116,7 +116,7 @@ def test_jacobians_match_finite_differences(engine_a):
 def test_hbm_matches_newmark_steady_state(engine_a, theta, speed, what):
     loads = paper_loads(engine_a, alpha=3.0, theta=theta)
     res = sweep(loads, 1.0, (speed - 50.0, speed + 50.0))
-    nm = simulate(loads, speed, 1.0, dt=1e-4)
+    nm = simulate(loads, speed, 1.0, options=SimulationOptions(dt=1e-4))
     assert nm.steady, nm.message
     c = nm.windup_orders
     # Newmark from the static equilibrium lands on one of the coexisting solutions

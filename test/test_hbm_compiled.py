@@ -562,11 +562,12 @@ def test_constant_speed_shot_is_one_kernel_call(paper, monkeypatch):
         return advance(self, *args, **kwargs)
 
     monkeypatch.setattr(newmark.NewmarkIntegrator, 'advance', counting)
-    one = newmark.simulate(loads, speed, 1.0, t_end=0.2, record_stride=2)
+    every_2nd = newmark.SimulationOptions(record_stride=2)
+    one = newmark.simulate(loads, speed, 1.0, t_end=0.2, options=every_2nd)
     n_one = len(calls)
     calls.clear()
-    chunked = newmark.simulate(loads, speed, 1.0, t_end=0.2, record_stride=2,
-                               target_speed_rpm=speed)
+    chunked = newmark.simulate(loads, speed, 1.0, t_end=0.2, target_speed_rpm=speed,
+                               options=every_2nd)
     assert n_one == 1 and len(calls) >= 20
     assert len(one.windup) == len(chunked.windup) == 1000
     assert np.abs(one.windup - chunked.windup).max() <= 1e-9 * np.ptp(chunked.windup)

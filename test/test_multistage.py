@@ -17,7 +17,7 @@ from dmf_sim.core.units import CYCLE_RAD, RPM_TO_RAD_S
 from dmf_sim.physics.loads import DrivelineExcitation
 from dmf_sim.physics.model import read_driveline
 from dmf_sim.solvers.hbm import CondensedHBM
-from dmf_sim.solvers.newmark import NewmarkIntegrator, StepRecord, simulate
+from dmf_sim.solvers.newmark import NewmarkIntegrator, SimulationOptions, StepRecord, simulate
 from dmf_sim.solvers.stability import FlexibleModes, FloquetAnalyzer
 
 STAGES = [{'angle_rad': 0.10, 'stiffness_factor': 1.0},
@@ -71,7 +71,7 @@ def test_newmark_kernel_equals_reference_across_all_stages(loads):
 
 
 def test_newmark_energy_balance_multistage(loads):
-    r = simulate(loads, SPEED, 1.0, dt=5e-5, eval_cycles=2)
+    r = simulate(loads, SPEED, 1.0, options=SimulationOptions(dt=5e-5, eval_cycles=2))
     m, sp = loads.model, loads.model.spring
     P = r.integrator.generalized_load(r.psi)
     dt = np.diff(r.t)
@@ -91,7 +91,7 @@ def test_newmark_energy_balance_multistage(loads):
 @pytest.fixture(scope='module')
 def steady(loads):
     hb = CondensedHBM(loads, 1.0)
-    return hb, hb.solve(SPEED), simulate(loads, SPEED, 1.0, dt=5e-5)
+    return hb, hb.solve(SPEED), simulate(loads, SPEED, 1.0, options=SimulationOptions(dt=5e-5))
 
 
 def test_hbm_and_newmark_agree_within_one_percent(steady):

@@ -75,10 +75,10 @@ def test_load_sets_b_and_c_peak_at_lower_speeds(engine, load_a):
 def test_newmark_confirms_the_alpha_3_peak(load_a):
     """Time integration started at the static equilibrium (not on the HBM solution) reaches the
     same steady state at the peak: 1.5th order within 1 % (dt 5e-5 s, see doc/theory.md §5)."""
-    from dmf_sim.solvers.newmark import simulate
+    from dmf_sim.solvers.newmark import SimulationOptions, simulate
     res = load_a[3.0]
     (hb,) = res.solutions_at(1000.0)
-    nm = simulate(res.hbm.loads, 1000.0, 1.0, dt=5e-5)
+    nm = simulate(res.hbm.loads, 1000.0, 1.0, options=SimulationOptions(dt=5e-5))
     assert nm.steady
     assert nm.summary.order_1_5 == pytest.approx(hb.order_1_5, rel=0.01)
     assert nm.summary.order_3 == pytest.approx(hb.order_3, rel=0.01)

@@ -17,7 +17,7 @@ from dmf_sim.physics.model import read_driveline
 from dmf_sim.solvers.hbm import CondensedHBM, SweepOptions, sweep
 from dmf_sim.solvers.hbm.deflation import DeflatedNewton
 from dmf_sim.solvers.hbm.layout import amplitudes, shift, to_real
-from dmf_sim.solvers.newmark import simulate
+from dmf_sim.solvers.newmark import SimulationOptions, simulate
 from dmf_sim.solvers.nonperiodic import NonPeriodicOptions, classify_section
 from dmf_sim.solvers.steady import BasinOptions, find_steady_states, wilson_interval
 
@@ -57,7 +57,8 @@ def test_stable_subharmonic_at_950_rpm_agrees_with_newmark(pure3):
     assert branch.multiplicity == 2
     st = L.static_state(950.0, 1.0)
     nm = simulate(L, 950.0, 1.0, initial=(st.q + 2e-3 * L.model.e / (L.model.e @ L.model.e),
-                                          np.zeros_like(st.q)), max_cycles=300)
+                                          np.zeros_like(st.q)),
+                  options=SimulationOptions(max_cycles=300))
     assert nm.steady
     assert abs(nm.windup_orders[3]) == pytest.approx(hb_amp, rel=0.02)
 
@@ -108,7 +109,7 @@ def test_torus_speed_is_non_periodic_with_newmark_envelope(pure3):
     assert not any(q.stable for q in res.solutions_at(620.0))
     # independent check: from the static equilibrium, 250 cycles, the last 150 kept
     T = 4 * np.pi / (620.0 * np.pi / 30)
-    nm = simulate(L, 620.0, 1.0, t_end=250 * T, record_stride=2)
+    nm = simulate(L, 620.0, 1.0, t_end=250 * T, options=SimulationOptions(record_stride=2))
     keep = nm.psi >= 100 * 4 * np.pi
     w = nm.windup[keep]
     assert w.max() - w.mean() == pytest.approx(row['max_deviation'], rel=0.1)

@@ -16,7 +16,7 @@ import yaml
 from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 
-from dmf_sim.analysis.pipeline import analyze_bag
+from dmf_sim.analysis.pipeline import AnalysisOptions, analyze_bag
 from dmf_sim.bags.columns import joint_state_layout
 from dmf_sim.bags.layout import resolve_bag
 from dmf_sim.bags.metadata import RunMetadata
@@ -149,7 +149,7 @@ def test_run_bag_has_the_nodes_topics_and_follows_the_profile(run_bag):
 
 def test_run_bag_read_by_analyze(run_bag):
     prof, out, _ = run_bag
-    res = analyze_bag(out, bin_rpm=50)
+    res = analyze_bag(out, options=AnalysisOptions(bin_rpm=50))
     sig = res.signal('windup')
     assert res.sample_rate_hz == pytest.approx(1000.0) and not res.truncated
     assert res.crank_source == 'crank angle topic'
@@ -390,7 +390,7 @@ def test_interrupted_run_leaves_a_readable_bag(tmp_path):
     meta = yaml.safe_load((out / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
     assert meta['message_count'] >= 4 * 500 and meta['files']
     # from the start (how far it got varies: the settle, 2 s, may be all there is)
-    res = analyze_bag(out, bin_rpm=20, start_s=0.0)
+    res = analyze_bag(out, options=AnalysisOptions(bin_rpm=20, start_s=0.0))
     assert not res.truncated and res.duration_s > 0.5
 
 
@@ -400,7 +400,7 @@ def test_slow_runup_follows_the_hbm_branch(tmp_path):
     out = tmp_path / 'slow'
     run_profile(read_profile('ramp:1500:1600:10:1.0:3'), out)
     from dmf_sim.analysis.hbm_overlay import model_settings, overlay_all
-    res = analyze_bag(out, bin_rpm=20, start_s=3.0)
+    res = analyze_bag(out, options=AnalysisOptions(bin_rpm=20, start_s=3.0))
     overlay_all(res, model_settings(res.metadata))
     sig = res.signal('windup')
     meas, hbm = sig.table.order_3, sig.hbm.values['order_3']

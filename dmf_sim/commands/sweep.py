@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -97,8 +98,8 @@ def run(args) -> int:
                         branch_switching=not args.no_branch_switching,
                         newmark_seed=args.newmark_seed, time_limit_s=time_limit)
     if args.fast:
-        sopt = SweepOptions(**{**sopt.__dict__, 'search': None})
-    load_kernels(NAME, 'sweep')       # before the bars: their rate without a first compile
+        sopt = replace(sopt, search=None)
+    warm_up(NAME, 'sweep')       # before the bars: their rate without a first compile
     results, failures = [], []
     for ls, eng in engines.items():
         for a in alphas:
