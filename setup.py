@@ -46,7 +46,9 @@ setup(
         'numba>=0.59',                 # the first with Python 3.12 (Ubuntu 24.04 has no apt numba)
         'tqdm>=4.66',
         'rosbags>=0.10',
-        'mcap>=1.1',
+        # < 2: the bag writer's block path uses the mcap writer's private state (present 1.1
+        # to 1.6; dmf_sim/bags/mcap_internals.py, checked by test/test_mcap_internals.py)
+        'mcap>=1.1,<2',
         'rich>=13',
         'threadpoolctl>=3',            # dmf-sim run: BLAS in one thread for the small products
         'zlib-ng>=0.4',                # bags: the chunks' CRC-32, ~4.7x faster than zlib's
