@@ -225,7 +225,7 @@ def main(argv=None) -> int:
     os.environ.setdefault('OMP_NUM_THREADS', '1')       # the driver's own numpy, as the workers
     from distributed import Client
 
-    from dmf_sim.design.runner import local_cluster
+    from dmf_sim.cluster import local_cluster
     from dmf_sim.design.study import read_study
 
     load0 = os.getloadavg()

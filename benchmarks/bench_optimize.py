@@ -68,7 +68,7 @@ def main(argv=None) -> int:
     ap.add_argument('--rate-budget', type=int, default=16)
     ap.add_argument('--quick', action='store_true')
     args = ap.parse_args(argv)
-    from dmf_sim.design.runner import close_local, start_local
+    from dmf_sim.cluster import close_local, start_local
     from dmf_sim.optimize import read_problem, run_optimization
     from dmf_sim.optimize.report import (
         common_hypervolumes,

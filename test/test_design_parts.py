@@ -167,9 +167,10 @@ def test_study_plugin_limits_the_worker_thread_pools():
     pools to WORKER_THREADS (here from 2, as a worker started without Dask's nanny may have)."""
     from threadpoolctl import threadpool_info, threadpool_limits
 
+    from dmf_sim.cluster import WORKER_THREADS
     from dmf_sim.design import read_study
     from dmf_sim.design.evaluate import StudyContext, drop_context
-    from dmf_sim.design.runner import WORKER_THREADS, StudyPlugin
+    from dmf_sim.design.runner import StudyPlugin
     study = read_study({'name': 'threads', 'driveline': 'truck_dmf', 'engine': 'engine_d13',
                         'sampling': {'method': 'grid'},
                         'variables': {'alpha': {'values': [3.0]}},

@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 
 from dmf_sim.cli import main as cli_main
+from dmf_sim.cluster import local_cluster
 from dmf_sim.core.errors import ConfigError
 from dmf_sim.design.parameters import design_driveline
-from dmf_sim.design.runner import local_cluster
 from dmf_sim.design.table import LOCK_FILE
 from dmf_sim.optimize import read_problem, run_optimization
 from dmf_sim.optimize.constraints import rank

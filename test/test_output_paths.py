@@ -23,7 +23,8 @@ COMPUTE = ['dmf_sim.commands.modes.modes', 'dmf_sim.commands.loads.mean_torques'
            'dmf_sim.solvers.hbm.sweep', 'dmf_sim.commands.nnm.nnm_branches',
            'dmf_sim.commands.paper.PaperStudy', 'dmf_sim.analysis.pipeline.analyze_bag',
            'dmf_sim.design.runner.run_study', 'dmf_sim.design.runner.start_local',
-           'dmf_sim.design.runner.connect', 'dmf_sim.optimize.runner.run_optimization',
+           'dmf_sim.cluster.connect', 'dmf_sim.cluster.start_local',
+           'dmf_sim.optimize.runner.run_optimization',
            'dmf_sim.transient.run.run_profile', 'dmf_sim.transient.runup.runup_analysis',
            'dmf_sim.durability.read.bag_durability', 'dmf_sim.bags.recovery.recover_bag']
 

@@ -181,7 +181,7 @@ def test_pareto_plot_shows_designs_hidden_under_one_marker():
 
 
 def test_worker_watch_says_lost_joined_and_restarted():
-    from dmf_sim.design.runner import WorkerWatch
+    from dmf_sim.cluster import WorkerWatch
 
     class FakeClient:
         workers = {'tcp://a:1': {'name': 'w0'}, 'tcp://b:1': {'name': 'w1'}}
@@ -210,7 +210,7 @@ def test_worker_watch_on_a_real_cluster():
 
     from distributed import Client, LocalCluster
 
-    from dmf_sim.design.runner import WorkerWatch
+    from dmf_sim.cluster import WorkerWatch
     events, seen = [], threading.Event()
 
     def say(line):

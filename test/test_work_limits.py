@@ -194,7 +194,8 @@ def test_the_bag_size_estimate_is_close(tmp_path):
 ])
 def test_waits_and_workers_are_bounded(argv, needles, tmp_path, capsys, forbid):
     forbid('dmf_sim.commands._ros.ros_session', 'dmf_sim.design.runner.start_local',
-           'dmf_sim.design.runner.run_study', 'dmf_sim.design.runner.connect')
+           'dmf_sim.design.runner.run_study', 'dmf_sim.cluster.connect',
+           'dmf_sim.cluster.start_local')
     from dmf_sim.core.paths import config_dir
     argv = [a.replace('{tmp}', str(tmp_path / 'out')).replace('{config}', str(config_dir()))
             for a in argv]

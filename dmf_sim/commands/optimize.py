@@ -45,7 +45,7 @@ def add_arguments(p) -> None:
 
 def run(args) -> int:
     require_extra('optimize')               # optuna, dask, pyarrow: one line if missing
-    from dmf_sim.design.runner import close_local, connect, start_local
+    from dmf_sim.cluster import close_local, connect, start_local
     from dmf_sim.design.table import ResultStore
     from dmf_sim.live.warm import warm_up
     from dmf_sim.optimize.problem import read_problem

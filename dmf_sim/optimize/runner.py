@@ -1,4 +1,4 @@
-"""Running an optimization on Dask with optuna's ask-and-tell interface (issue 23).
+"""Running an optimization on Dask with optuna's ask-and-tell interface.
 
 Each generation the sampler is asked for ``batch_size`` designs (optuna trials; the trial number
 is the design id); every design is one Dask task on the design study's machinery (the context
@@ -25,17 +25,12 @@ from pathlib import Path
 
 import numpy as np
 
+from dmf_sim.cluster import start_local, wait_for_workers
 from dmf_sim.core.errors import ConfigError, one_line
 from dmf_sim.core.optional import require
 from dmf_sim.design.evaluate import StudyContext, evaluate_batch
 from dmf_sim.design.result import StudyResult
-from dmf_sim.design.runner import (
-    StudyPlugin,
-    _bar,
-    close_run,
-    start_local,
-    wait_for_workers,
-)
+from dmf_sim.design.runner import StudyPlugin, _bar, close_run
 from dmf_sim.design.table import ResultStore, sort_rows, to_table
 from dmf_sim.optimize.constraints import rank, violation
 from dmf_sim.optimize.hypervolume import hypervolume_history
