@@ -25,6 +25,7 @@ setup(
     name=PACKAGE,
     version='0.1.0',
     packages=find_packages(exclude=['test', 'benchmarks']),
+    package_data={PACKAGE: ['py.typed']},     # PEP 561: type checkers read the inline types
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE]),
         ('share/' + PACKAGE, ['package.xml']),

@@ -12,17 +12,23 @@ The public API for scripts and notebooks::
 
 Every name in ``__all__`` is loaded on first use (PEP 562), so ``import dmf_sim`` and
 ``dmf-sim --help`` stay light: numba is compiled only when a solver is first used, Dask only
-when a study runs. The layers underneath (``dmf_sim.core``, ``physics``, ``solvers``, ``bags``,
-``analysis``, ``live``, ``monitor``, ``design``, ``paper``) are documented in the docs site's
-architecture page; ``dmf_sim.node`` is a thin rclpy shell over the ROS-free core.
+when a study runs. Type checkers and editors read the same names from the ``TYPE_CHECKING``
+imports below. The layers underneath (``dmf_sim.core``, ``physics``, ``solvers``, ``bags``,
+``analysis``, the applications) are documented in the docs site's architecture page;
+``dmf_sim.node`` is a thin rclpy shell over the ROS-free core. Names renamed since (e.g.
+``load_model`` -> ``read_model``) still work, with a deprecation warning.
 """
 from __future__ import annotations
 
 import importlib
+from typing import TYPE_CHECKING
+
+from dmf_sim.core.deprecation import warn_renamed
 
 __version__ = '0.1.0'
 
-# public name -> module that defines it (the one place it lives)
+# public name -> module that defines it (the one place it lives); the TYPE_CHECKING imports
+# below name the same (test/test_public_api.py checks it)
 _API = {
     # model and excitation
     'read_model': 'dmf_sim.physics.model',
@@ -78,6 +84,58 @@ _RENAMED = {
 """Old public name -> new one: still served, with a deprecation warning."""
 
 __all__ = ['__version__', *_API]
+
+if TYPE_CHECKING:          # explicit re-exports (`name as name`) for type checkers
+    from dmf_sim.analysis.pipeline import (
+        AnalysisOptions as AnalysisOptions,
+        analyze_bag as analyze_bag,
+    )
+    from dmf_sim.bags.read import read_messages as read_messages
+    from dmf_sim.core.errors import (
+        BagError as BagError,
+        BagExistsError as BagExistsError,
+        BagFileError as BagFileError,
+        ConfigError as ConfigError,
+        ConfigFileError as ConfigFileError,
+        ConvergenceError as ConvergenceError,
+        DmfSimError as DmfSimError,
+        MissingExtraError as MissingExtraError,
+        NoResponseError as NoResponseError,
+        OperatingRangeError as OperatingRangeError,
+        TimeLimitError as TimeLimitError,
+    )
+    from dmf_sim.design.runner import run_study as run_study
+    from dmf_sim.design.study import read_study as read_study
+    from dmf_sim.physics.engine import read_engine as read_engine
+    from dmf_sim.physics.loads import DrivelineExcitation as DrivelineExcitation
+    from dmf_sim.physics.modal import modes as modes
+    from dmf_sim.physics.model import (
+        Driveline as Driveline,
+        ReducedModel as ReducedModel,
+        driveline_from_dict as driveline_from_dict,
+        read_driveline as read_driveline,
+        read_model as read_model,
+    )
+    from dmf_sim.physics.spring import (
+        PiecewiseLinearSpring as PiecewiseLinearSpring,
+        Stage as Stage,
+    )
+    from dmf_sim.solvers.hbm import (
+        HBMOptions as HBMOptions,
+        SweepOptions as SweepOptions,
+        SweepResult as SweepResult,
+        sweep as sweep,
+    )
+    from dmf_sim.solvers.newmark import (
+        SimulationOptions as SimulationOptions,
+        SimulationResult as SimulationResult,
+        simulate as simulate,
+    )
+    from dmf_sim.solvers.nnm import NNMOptions as NNMOptions, nnm_branches as nnm_branches
+    from dmf_sim.solvers.steady import (
+        BasinOptions as BasinOptions,
+        find_steady_states as find_steady_states,
+    )
 
 
 def __getattr__(name: str):

@@ -20,10 +20,10 @@ from cdr import (
     Header,
     KeyValue,
     String,
+    joint_state as _joint_state,
     serialize_message,
     stamp,
 )
-from cdr import joint_state as _joint_state
 
 from dmf_sim.bags.metadata import RunMetadata
 from dmf_sim.bags.writer import BagRecorder

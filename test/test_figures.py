@@ -23,8 +23,7 @@ from dmf_sim.figures import (
 from dmf_sim.physics.loads import DrivelineExcitation
 from dmf_sim.physics.modal import modes
 from dmf_sim.physics.model import read_model
-from dmf_sim.solvers.hbm import CondensedHBM
-from dmf_sim.solvers.hbm import sweep as run_sweep
+from dmf_sim.solvers.hbm import CondensedHBM, sweep as run_sweep
 
 REPO = Path(__file__).resolve().parents[1]
 

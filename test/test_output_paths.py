@@ -153,8 +153,7 @@ def test_overwrite_leaves_no_stale_file_of_the_earlier_run(bags, tmp_path, capsy
 
 
 def test_a_failed_run_keeps_the_earlier_output_and_leaves_no_new_directory(tmp_path):
-    from dmf_sim.core.destinations import MANIFEST as manifest
-    from dmf_sim.core.destinations import claim
+    from dmf_sim.core.destinations import MANIFEST as manifest, claim
     assert manifest == MANIFEST
     earlier = claim(tmp_path / 'a', 'x')
     with earlier.writing() as d:

@@ -12,8 +12,7 @@ import pytest
 from dmf_sim.paper.study import stable_peak_1_5
 from dmf_sim.physics.loads import DrivelineExcitation
 from dmf_sim.physics.model import read_model
-from dmf_sim.solvers.hbm import SweepOptions
-from dmf_sim.solvers.hbm import sweep as run_sweep
+from dmf_sim.solvers.hbm import SweepOptions, sweep as run_sweep
 
 pytestmark = pytest.mark.slow     # full sweeps for three alphas and three load sets
 
