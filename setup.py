@@ -25,6 +25,7 @@ setup(
     name=PACKAGE,
     version='0.1.0',
     packages=find_packages(exclude=['test', 'benchmarks']),
+    package_data={PACKAGE: ['py.typed']},     # PEP 561: type checkers read the inline types
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE]),
         ('share/' + PACKAGE, ['package.xml']),
@@ -46,7 +47,9 @@ setup(
         'numba>=0.59',                 # the first with Python 3.12 (Ubuntu 24.04 has no apt numba)
         'tqdm>=4.66',
         'rosbags>=0.10',
-        'mcap>=1.1',
+        # < 2: the bag writer's block path uses the mcap writer's private state (present 1.1
+        # to 1.6; dmf_sim/bags/mcap_internals.py, checked by test/test_mcap_internals.py)
+        'mcap>=1.1,<2',
         'rich>=13',
         'threadpoolctl>=3',            # dmf-sim run: BLAS in one thread for the small products
         'zlib-ng>=0.4',                # bags: the chunks' CRC-32, ~4.7x faster than zlib's

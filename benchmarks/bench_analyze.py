@@ -43,7 +43,7 @@ from tqdm import tqdm
 
 from dmf_sim.bags.writer import BagRecorder
 from dmf_sim.core.units import RPM_TO_RAD_S
-from dmf_sim.physics.model import load_driveline
+from dmf_sim.physics.model import read_driveline
 
 TOPICS = {'/driveline/joint_states': 'sensor_msgs/msg/JointState',
           '/driveline/dmf_windup': 'std_msgs/msg/Float64',
@@ -87,7 +87,7 @@ def joint_template(names: list[str]) -> tuple[bytes, int, int, int]:
 
 def write_bag(path: Path, minutes: float, rate_hz: float = 1000.0) -> dict:
     """Write the synthetic bag (BagRecorder with its defaults); returns what was written."""
-    names = load_driveline('truck_dmf').names
+    names = read_driveline('truck_dmf').names
     i_cyl, i_in = names.index('CYL1'), names.index('INPUT SHAFT')
     tmpl, off_p, off_v, off_e = joint_template(names)
     m = len(names)
@@ -161,6 +161,7 @@ def _reset_peak() -> None:
 def measure(bag: Path, plots_dir: Path | None) -> dict:
     """Everything timed and measured on an existing bag (runs in a fresh process)."""
     from dmf_sim.analysis.pipeline import (
+        AnalysisOptions,
         SignalSpec,
         analysis_dict,
         analyze_bag,
@@ -174,7 +175,8 @@ def measure(bag: Path, plots_dir: Path | None) -> dict:
     settings = model_settings(None)
     _record_offsets(np.zeros(64, np.uint8))           # the jitted walker loaded (cache)
     t0, c0 = time.perf_counter(), time.process_time()
-    res = analyze_bag(bag, ['windup'], bin_rpm=20.0, theta=settings['theta_rad'])
+    windup = AnalysisOptions(bin_rpm=20.0, theta=settings['theta_rad'])
+    res = analyze_bag(bag, ['windup'], options=windup)
     t_orders = time.perf_counter()
     natural = overlay_all(res, settings, hbm=True)
     t_hbm = time.perf_counter()
@@ -187,14 +189,15 @@ def measure(bag: Path, plots_dir: Path | None) -> dict:
     # what reading + orders take on top of a warm process (imports and JIT caches loaded)
     base = _rss_mib('VmRSS')
     _reset_peak()
-    again = analyze_bag(bag, ['windup'], bin_rpm=20.0, theta=settings['theta_rad'])
+    again = analyze_bag(bag, ['windup'], options=windup)
     growth = _rss_mib('VmHWM') - base
     del again
 
     base_j = _rss_mib('VmRSS')
     _reset_peak()
     t1 = time.perf_counter()
-    res_j = analyze_bag(bag, ['angle:CYL1', 'torque:INPUT SHAFT'], bin_rpm=20.0)
+    res_j = analyze_bag(bag, ['angle:CYL1', 'torque:INPUT SHAFT'],
+                        options=AnalysisOptions(bin_rpm=20.0))
     joint_seconds = time.perf_counter() - t1
     joint_growth = _rss_mib('VmHWM') - base_j
 
@@ -203,7 +206,7 @@ def measure(bag: Path, plots_dir: Path | None) -> dict:
     fast = read_bag_series(bag, signals=specs)
     fast_seconds, fast_cpu = time.perf_counter() - t2, time.process_time() - c2
     t3, c3 = time.perf_counter(), time.process_time()
-    lib = read_bag_series(bag, signals=specs, reader='reference')
+    lib = read_bag_series(bag, signals=specs, reader='messages')
     library_seconds, library_cpu = time.perf_counter() - t3, time.process_time() - c3
     agree = all(np.array_equal(fast.series[k].values, lib.series[k].values)
                 and np.array_equal(fast.series[k].t_ns, lib.series[k].t_ns)

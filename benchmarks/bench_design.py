@@ -117,11 +117,11 @@ def study_fixed_cost(client, speeds, design_s: float) -> float:
     """Seconds a study costs on an already running cluster beyond computing its designs: one
     design per worker (they run in parallel), minus one design's time."""
     from dmf_sim.design import run_study
-    from dmf_sim.design.study import load_study
+    from dmf_sim.design.study import read_study
     n = len(client.scheduler_info()['workers'])
     times = []
     for seed in range(3):
-        study = load_study(paper_study(n, speeds, seed=20 + seed))
+        study = read_study(paper_study(n, speeds, seed=20 + seed))
         t0 = time.perf_counter()
         run_study(study, client)
         times.append(time.perf_counter() - t0 - design_s)
@@ -134,8 +134,8 @@ def task_overhead(client, n_tasks: int) -> float:
 
     from dmf_sim.design.evaluate import StudyContext, evaluate_batch
     from dmf_sim.design.runner import StudyPlugin
-    from dmf_sim.design.study import load_study
-    study = load_study(paper_study(2))
+    from dmf_sim.design.study import read_study
+    study = read_study(paper_study(2))
     client.register_plugin(StudyPlugin('bench-empty', StudyContext.from_study(study)),
                            name='bench-empty')
     n_workers = len(client.scheduler_info()['workers'])
@@ -225,18 +225,18 @@ def main(argv=None) -> int:
     os.environ.setdefault('OMP_NUM_THREADS', '1')       # the driver's own numpy, as the workers
     from distributed import Client
 
-    from dmf_sim.design.runner import local_cluster
-    from dmf_sim.design.study import load_study
+    from dmf_sim.cluster import local_cluster
+    from dmf_sim.design.study import read_study
 
     load0 = os.getloadavg()
     out: dict = {'quick': args.quick, 'speeds_rpm': list(speeds), 'designs': args.designs,
                  'repeats': args.repeats, 'cores': os.cpu_count(), 'load_avg_before': load0,
                  'engine': args.engine, 'search': args.search}
-    study = load_study(paper_study(args.designs, speeds))
+    study = read_study(paper_study(args.designs, speeds))
     out.update(serial(study, min(args.designs, 20)))
     if not args.search:               # what the solution finder costs on top, per design
         CASE['search'] = True
-        full = serial(load_study(paper_study(args.designs, speeds)), min(args.designs, 5))
+        full = serial(read_study(paper_study(args.designs, speeds)), min(args.designs, 5))
         CASE['search'] = False
         out['serial_s_per_design_full_search_median'] = full['serial_s_per_design_median']
         print(f'serial with the full steady-state search: '
@@ -251,7 +251,7 @@ def main(argv=None) -> int:
         with local_cluster(n_workers) as cluster, Client(cluster) as client:
             client.wait_for_workers(n_workers)
             out[f'local_cluster_start_s_{n_workers}'] = time.perf_counter() - t_start
-            throughput(client, load_study(paper_study(4, speeds, seed=9)), 1)    # warm-up
+            throughput(client, read_study(paper_study(4, speeds, seed=9)), 1)    # warm-up
             r = throughput(client, study, args.repeats)
             rates[n_workers] = r
             out[f'designs_per_s_{n_workers}'] = statistics.median(r)
@@ -275,7 +275,7 @@ def main(argv=None) -> int:
                       + ', '.join(f'{b}: {v:.1f}/s' for b, v in by_batch.items())
                       + f'; batch size for < {OVERHEAD_BUDGET:.0%} overhead: '
                       f'{out["chosen_batch_size"]}')
-                out.update(memory(client, load_study(paper_study(args.rss_designs, speeds,
+                out.update(memory(client, read_study(paper_study(args.rss_designs, speeds,
                                                                  seed=5))))
                 print(f'memory over {out["rss_designs"]} designs: peak RSS per worker '
                       f'{out["peak_rss_mb_per_worker"]} MB, growth first -> last 10 % '
@@ -285,7 +285,7 @@ def main(argv=None) -> int:
                 print(f'local cluster start: {out["local_cluster_start_s_2"]:.1f} s; a study '
                       f'on a running cluster costs {out["study_fixed_s"]:.2f} s beyond its '
                       'designs')
-                mixed = load_study(mixed_study(args.designs, speeds))
+                mixed = read_study(mixed_study(args.designs, speeds))
                 out['mixed_designs_per_s_2'] = statistics.median(
                     throughput(client, mixed, 1, failures_ok=True))
                 out['mixed_failed'] = throughput.failed

@@ -49,18 +49,18 @@ def monodromies(alpha: float, speeds: tuple[float, float, float]) -> np.ndarray:
     """(K, n, n) monodromies (up to similarity, as the Floquet kernel forms them) of the points of
     a --fast sweep that cross a knee."""
     from dmf_sim.core.units import RPM_TO_RAD_S
-    from dmf_sim.physics.engine import load_engine
-    from dmf_sim.physics.loads import DrivelineLoads
-    from dmf_sim.physics.model import load_model
+    from dmf_sim.physics.engine import read_engine
+    from dmf_sim.physics.loads import DrivelineExcitation
+    from dmf_sim.physics.model import read_model
     from dmf_sim.physics.orders import synthesize
     from dmf_sim.solvers.hbm import SweepOptions, sweep
     from dmf_sim.solvers.stability import FloquetAnalyzer
     from dmf_sim.solvers.stability_kernel import floquet
 
     lo, hi, step = speeds
-    model = load_model('truck_dmf', alpha=alpha)
-    engine = load_engine('engine_d13', load_set='A')
-    loads = DrivelineLoads(model, engine)
+    model = read_model('truck_dmf', alpha=alpha)
+    engine = read_engine('engine_d13', load_set='A')
+    loads = DrivelineExcitation(model, engine)
     res = sweep(loads, 1.0, (lo, hi), options=SweepOptions(step_rpm=step, search=None))
     fa = FloquetAnalyzer(loads.model)
     out = []

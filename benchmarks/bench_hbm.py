@@ -64,25 +64,25 @@ def main(argv=None) -> int:
 
 
 def _measure(args) -> int:
-    from dmf_sim.physics.engine import load_engine
-    from dmf_sim.physics.loads import DrivelineLoads
-    from dmf_sim.physics.model import load_model
+    from dmf_sim.physics.engine import read_engine
+    from dmf_sim.physics.loads import DrivelineExcitation
+    from dmf_sim.physics.model import read_model
     from dmf_sim.solvers.hbm import CondensedHBM, SweepOptions, sweep
     from dmf_sim.solvers.hbm.warm import warm_up
-    from dmf_sim.solvers.newmark import simulate
+    from dmf_sim.solvers.newmark import SimulationOptions, simulate
 
     lo, hi, step = args.speeds
-    model = load_model('truck_dmf', alpha=args.alpha, theta=args.theta)
-    engine = load_engine(args.engine, load_set=args.load_set)
-    engine.warm()  # engine gas-pressure grid: computed once, not timed
-    loads = DrivelineLoads(model, engine)
+    model = read_model('truck_dmf', alpha=args.alpha, theta=args.theta)
+    engine = read_engine(args.engine, load_set=args.load_set)
+    engine.warm_up()  # engine gas-pressure grid: computed once, not timed
+    loads = DrivelineExcitation(model, engine)
     grid = np.arange(lo, hi + 0.5 * step, step)
 
     # warm-up, not timed: every compiled kernel of a sweep point loaded (or compiled) as a
     # design-study worker does when it starts, the Newmark kernel, first-call overheads
     warm_up()
     CondensedHBM(loads, args.load).solve(lo)
-    simulate(loads, lo, args.load, dt=args.dt, max_cycles=2)
+    simulate(loads, lo, args.load, options=SimulationOptions(dt=args.dt, max_cycles=2))
 
     # the sweeps and the Newmark runs interleaved: after each repetition's two sweeps, the next
     # share of the Newmark speeds, so both sample the same spells of a shared machine
@@ -102,7 +102,8 @@ def _measure(args) -> int:
                 res_fast = res
         for i in shares[r].tolist():
             t1 = time.perf_counter()
-            nm_results[i] = simulate(loads, float(subset[i]), args.load, dt=args.dt)
+            nm_results[i] = simulate(loads, float(subset[i]), args.load,
+                                     options=SimulationOptions(dt=args.dt))
             nm_times[i] = time.perf_counter() - t1
     sweep_s = float(np.median(times['full']))
     fast_s = float(np.median(times['fast']))

@@ -18,9 +18,9 @@ import time
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from dmf_sim.physics.engine import load_engine
-from dmf_sim.physics.loads import DrivelineLoads
-from dmf_sim.physics.model import load_model
+from dmf_sim.physics.engine import read_engine
+from dmf_sim.physics.loads import DrivelineExcitation
+from dmf_sim.physics.model import read_model
 from dmf_sim.solvers.newmark import NewmarkIntegrator, StepRecord
 
 SPEED_RPM = 900.0      # 1.5th-order region of the paper (knee crossings happen)
@@ -29,8 +29,8 @@ ALPHA = 3.0
 DT = 1e-4
 
 
-def make_loads() -> DrivelineLoads:
-    return DrivelineLoads(load_model('truck_dmf', alpha=ALPHA), load_engine('engine_d13'))
+def make_loads() -> DrivelineExcitation:
+    return DrivelineExcitation(read_model('truck_dmf', alpha=ALPHA), read_engine('engine_d13'))
 
 
 def newmark_windup(L, dt: float, t_end: float) -> tuple[np.ndarray, np.ndarray]:

@@ -68,8 +68,8 @@ def main(argv=None) -> int:
     ap.add_argument('--rate-budget', type=int, default=16)
     ap.add_argument('--quick', action='store_true')
     args = ap.parse_args(argv)
-    from dmf_sim.design.runner import close_local, start_local
-    from dmf_sim.optimize import load_problem, run_optimization
+    from dmf_sim.cluster import close_local, start_local
+    from dmf_sim.optimize import read_problem, run_optimization
     from dmf_sim.optimize.report import (
         common_hypervolumes,
         compare_with_reference,
@@ -89,7 +89,7 @@ def main(argv=None) -> int:
     else:
         source, budget, seeds = args.study, args.budget, args.seeds
         n_verify, rate_budget = args.verify, args.rate_budget
-    base = load_problem(copy.deepcopy(source) if isinstance(source, dict) else source,
+    base = read_problem(copy.deepcopy(source) if isinstance(source, dict) else source,
                         budget=budget)
     load_before = os.getloadavg()
     t_start = time.strftime('%Y-%m-%d %H:%M:%S %Z')

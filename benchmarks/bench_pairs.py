@@ -1,4 +1,4 @@
-"""Benchmark: this tree's sweeps against another tree's, in alternating pairs (issue 22).
+"""Benchmark: this tree's sweeps against another tree's, in alternating pairs.
 
     python benchmarks/bench_pairs.py [--base HEAD] [--mode fast|full] [--pairs 30] [--quick]
 
@@ -40,13 +40,16 @@ WARM_SWEEPS = 2                  # untimed sweeps per mode before a worker says 
 def worker(lo: float, hi: float) -> int:
     """Run in a subprocess: sweep the paper case once per line read ('fast' or 'full') and
     print 'CPU milliseconds points' for each."""
-    from dmf_sim.physics.engine import load_engine
-    from dmf_sim.physics.loads import DrivelineLoads
-    from dmf_sim.physics.model import load_model
+    from dmf_sim.physics import engine as engines, loads as excitations, model as models
     from dmf_sim.solvers.hbm import SweepOptions, sweep
-    engine = load_engine('engine_d13', load_set='A')
-    engine.warm()
-    loads = DrivelineLoads(load_model('truck_dmf', alpha=3.0), engine)
+
+    def api(module, new: str, old: str):
+        """A name of either tree (the base may predate a rename)."""
+        return getattr(module, new, None) or getattr(module, old)
+    engine = api(engines, 'read_engine', 'load_engine')('engine_d13', load_set='A')
+    (getattr(engine, 'warm_up', None) or engine.warm)()   # the gas grid now, not in a sweep
+    loads = api(excitations, 'DrivelineExcitation', 'DrivelineLoads')(
+        api(models, 'read_model', 'load_model')('truck_dmf', alpha=3.0), engine)
     modes = {'fast': SweepOptions(step_rpm=10.0, search=None),
              'full': SweepOptions(step_rpm=10.0)}
     for options in modes.values():

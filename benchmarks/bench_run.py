@@ -124,7 +124,7 @@ def breakdown(profile: str, out: Path) -> dict:
     from dmf_sim.solvers.newmark import NewmarkIntegrator
     from dmf_sim.transient import run as run_mod
     from dmf_sim.transient.encode import EncodedBlock
-    from dmf_sim.transient.profiles import load_profile
+    from dmf_sim.transient.profiles import read_profile
 
     spent: dict[str, float] = defaultdict(float)
     stages = [(NewmarkIntegrator, 'advance', 'kernel'),
@@ -153,8 +153,8 @@ def breakdown(profile: str, out: Path) -> dict:
         for cls, name, key in stages:
             setattr(cls, name, timed(getattr(cls, name), key))
         run_mod.TimeBase.start = loop_starts
-        prof = load_profile(profile)
-        run_mod.run_profile(load_profile('ramp:800:900:100:1.0:0.1'), None)   # warm
+        prof = read_profile(profile)
+        run_mod.run_profile(read_profile('ramp:800:900:100:1.0:0.1'), None)   # warm
         s = run_mod.run_profile(prof, out, run_mod.RunOptions(threads=1))
     finally:
         for cls, name, fn in saved:
@@ -172,8 +172,8 @@ def breakdown(profile: str, out: Path) -> dict:
 
 def hour_profile(path: Path, seconds: float) -> Path:
     """The road cycle repeated to ``seconds`` (CSV)."""
-    from dmf_sim.transient.profiles import load_profile
-    road = load_profile('truck_road_cycle')
+    from dmf_sim.transient.profiles import read_profile
+    road = read_profile('truck_road_cycle')
     rows, t0 = [], 0.0
     while t0 < seconds:
         for t, s, x in zip(road.t_s, road.speed_rpm, road.load):

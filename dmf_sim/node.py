@@ -1,42 +1,19 @@
 """``driveline_node``: the live driveline as a ROS 2 node — rclpy plumbing over the ROS-free core.
 
-    ros2 run dmf_sim driveline_node [--ros-args --params-file config/driveline_node.yaml -p k:=v]
-    ros2 launch dmf_sim driveline.launch.py namespace:=truck1 record:=true
-    python -m dmf_sim.node [--ros-args ...]
+How to start it: :data:`INVOCATIONS` (``ros2 run``, ``ros2 launch``, ``python -m``). What runs
+is :class:`dmf_sim.live.runtime.LiveRuntime` (simulation, tick loop, recording, health); this
+module declares the parameters, creates the topics and services, serializes the samples and
+spins. Importing it needs no ROS installation (the rclpy imports are guarded).
 
-What runs is :class:`dmf_sim.live.runtime.LiveRuntime` (simulation, tick loop, recording,
-health); this module declares the parameters, creates the topics and services, serializes the
-samples and spins. Importing it needs no ROS installation (the rclpy imports are guarded).
-
-Topics (relative names; without a namespace they resolve as listed), all reliable; volatile
-except dmf_predicted (transient-local: latched). Table: :mod:`dmf_sim.live.streams`.
-
-    sub  engine/speed_setpoint   std_msgs/Float64      engine speed setpoint [rpm]    keep all
-    sub  engine/load_setpoint    std_msgs/Float64      load setpoint [-1..1]          keep all
-    pub  driveline/joint_states  sensor_msgs/JointState every element: position = vibratory
-                                 angle [rad], velocity [rad/s], effort = transmitted torque [Nm]
-                                 (publish_rate, default 1000 Hz)                      depth 100
-    pub  driveline/dmf_windup    std_msgs/Float64      DMF wind-up [rad]              depth 100
-    pub  engine/speed            std_msgs/Float64      engine speed (ramped) [rpm]    depth 100
-    pub  engine/crank_angle      std_msgs/Float64      crank angle [rad], continuous  depth 100
-    pub  /diagnostics            diagnostic_msgs/DiagnosticArray  health (1 Hz)       depth 10
-    pub  driveline/dmf_orders    diagnostic_msgs/DiagnosticArray  per engine cycle    depth 10
-    pub  driveline/dmf_predicted diagnostic_msgs/DiagnosticArray  prediction, latched depth 1
-    sub  faults/inject           std_msgs/String       a fault request (YAML flow)   keep all
-    pub  faults/ground_truth     diagnostic_msgs/DiagnosticArray  one per fault start/end or
-                                 misfired combustion, latched                        depth 100
-    pub  faults/active           diagnostic_msgs/DiagnosticArray  active faults, latched depth 1
-    pub  /clock                  rosgraph_msgs/Clock   simulated time; advertised only while
-                                 pacing is fast, real_time_factor != 1, or publish_clock depth 1
+Topics and services (relative names; without a namespace they resolve as listed) are the
+tables of :mod:`dmf_sim.live.streams`; ``driveline_node --help`` prints them (:func:`usage`).
 
 Setpoints are commands: the subscriptions keep all (reliable flow control slows a publisher
 that outruns the node instead of dropping its commands), their callbacks only validate, count
 and hand the value to the tick thread (no lock), and the last valid setpoint received is the one
-applied. Services: ``~/reset`` (std_srvs/Trigger): static equilibrium at the current setpoints;
-``~/record`` (std_srvs/SetBool): start/stop recording (same as setting parameter ``record``);
-``~/clear_faults`` (std_srvs/Trigger): every fault ends now. Fault requests
-(:mod:`dmf_sim.live.faults`) on ``faults/inject`` are validated on arrival and applied between
-ticks; a bad one is refused with its reason (logged, counted in /diagnostics).
+applied. Fault requests (:mod:`dmf_sim.live.faults`) on ``faults/inject`` are validated on
+arrival and applied between ticks; a bad one is refused with its reason (logged, counted in
+/diagnostics).
 
 Stamps: see :class:`dmf_sim.live.pacing.TimeBase` (wall clock at real-time factor 1, re-anchored
 when pacing returns to it). Parameters: :mod:`dmf_sim.live.parameters`,
@@ -46,6 +23,7 @@ from __future__ import annotations
 
 import array
 import sys
+import textwrap
 import threading
 import time
 
@@ -53,12 +31,23 @@ from dmf_sim.core.errors import ConfigError, DmfSimError, one_line
 from dmf_sim.core.numbers import fmt_num
 from dmf_sim.live.parameters import DMF_PARAMETERS, PARAMETERS, coerce
 from dmf_sim.live.stop_signals import StopSignals
-from dmf_sim.live.streams import STREAMS
+from dmf_sim.live.streams import CLOCK, PUBLISHED, SERVICES, STREAMS, SUBSCRIPTIONS
 from dmf_sim.transient.live_profile import NodeProfile, check_profile
 
 __all__ = ['EXIT_CONFIG_ERROR', 'DrivelineNode', 'usage', 'main']
 
 EXIT_CONFIG_ERROR = 2
+
+INVOCATIONS = (
+    'ros2 run dmf_sim driveline_node [--ros-args --params-file config/driveline_node.yaml '
+    '-p k:=v]',
+    'ros2 launch dmf_sim driveline.launch.py namespace:=truck1 record:=true',
+    'python -m dmf_sim.node [--ros-args ...]',
+)
+"""How the node is started (``--help``)."""
+STOPPING = ('Stop: Ctrl-C or SIGTERM (closes the bag; later SIGINT/SIGTERM are ignored until it '
+            'is closed, SIGKILL stops at once); it also stops when the process that started it '
+            '(ros2 launch) ends.')
 
 try:
     from builtin_interfaces.msg import Time
@@ -94,8 +83,7 @@ def _qos(depth: int = 0, latched: bool = False):
                       durability=durability)
 
 
-def _stream_qos(key: str):
-    stream = STREAMS[key]
+def _stream_qos(stream):
     return _qos(stream.depth, latched=stream.latched)
 
 
@@ -145,11 +133,11 @@ class DrivelineNode(Node):
             self.runtime.abandon()
 
     def _start(self, node_name: str) -> None:
-        from dmf_sim.live.runtime import LiveRuntime, load_line
+        from dmf_sim.live.runtime import LiveRuntime, read_line
 
         values = {name: self._declare(name, spec.default, spec)
                   for name, spec in PARAMETERS.items()}
-        line = load_line(values['driveline'])
+        line = read_line(values['driveline'])
         defaults = (line.dmf.alpha, line.dmf.theta) if line.dmf is not None else (0.0, 0.0)
         for (name, spec), default in zip(DMF_PARAMETERS.items(), defaults):
             if line.dmf is None:
@@ -164,7 +152,7 @@ class DrivelineNode(Node):
             raise ConfigError(reason)
         types = {'sensor_msgs/msg/JointState': JointState, 'std_msgs/msg/Float64': Float64,
                  'diagnostic_msgs/msg/DiagnosticArray': DiagnosticArray}
-        self._pubs = {k: self.create_publisher(types[s.msgtype], s.topic, _stream_qos(k))
+        self._pubs = {k: self.create_publisher(types[s.msgtype], s.topic, _stream_qos(s))
                       for k, s in STREAMS.items()}
         self._topics = {k: pub.topic_name for k, pub in self._pubs.items()}
         self._js = JointState()
@@ -186,14 +174,16 @@ class DrivelineNode(Node):
         for kind in ('speed', 'load'):
             lost = SubscriptionEventCallbacks(
                 message_lost=lambda info, k=kind: inbox.count_lost(k, info.total_count_change))
-            self.create_subscription(Float64, f'engine/{kind}_setpoint',
+            sub = SUBSCRIPTIONS[f'{kind}_setpoint']
+            self.create_subscription(Float64, sub.topic,
                                      lambda msg, k=kind: self._on_setpoint(k, msg.data),
-                                     _qos(), event_callbacks=lost)
-        self.create_subscription(String, 'faults/inject',
-                                 lambda msg: self.runtime.faults.offer(msg.data), _qos())
-        self.create_service(Trigger, '~/clear_faults', self._on_clear_faults)
-        self.create_service(Trigger, '~/reset', self._on_reset)
-        self.create_service(SetBool, '~/record', self._on_record)
+                                     _qos(sub.depth), event_callbacks=lost)
+        sub = SUBSCRIPTIONS['fault_inject']
+        self.create_subscription(String, sub.topic,
+                                 lambda msg: self.runtime.faults.offer(msg.data), _qos(sub.depth))
+        self.create_service(Trigger, SERVICES['clear_faults'].name, self._on_clear_faults)
+        self.create_service(Trigger, SERVICES['reset'].name, self._on_reset)
+        self.create_service(SetBool, SERVICES['record'].name, self._on_record)
         self.add_pre_set_parameters_callback(self._coerce_parameters)
         self.add_on_set_parameters_callback(self._check_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
@@ -251,7 +241,7 @@ class DrivelineNode(Node):
         """Advertise /clock only while it is published."""
         wanted = self.runtime.loop.clock_on
         if wanted and self._clock_pub is None:
-            self._clock_pub = self.create_publisher(Clock, '/clock', _qos(1))
+            self._clock_pub = self.create_publisher(Clock, CLOCK.topic, _stream_qos(CLOCK))
         elif not wanted and self._clock_pub is not None:
             self.destroy_publisher(self._clock_pub)
             self._clock_pub = None
@@ -351,15 +341,31 @@ class DrivelineNode(Node):
 
 
 def usage() -> str:
-    """``driveline_node --help``: how to start it, its topics and services, how to stop it."""
-    head, _, rest = __doc__.partition('What runs is')
-    topics = rest[rest.index('Topics'):rest.index('Setpoints are commands')].rstrip()
-    return (f'{head.strip()}\n\n{topics}\n\nServices: ~/reset (std_srvs/Trigger), ~/record '
-            '(std_srvs/SetBool), ~/clear_faults (std_srvs/Trigger). Parameters: ros2 param '
-            'list/describe /driveline_node, or config/driveline_node.yaml.\nStop: Ctrl-C or '
-            'SIGTERM (closes the bag; later SIGINT/SIGTERM are ignored until it is closed, '
-            'SIGKILL stops at once); it also '
-            'stops when the process that started it (ros2 launch) ends.')
+    """``driveline_node --help``: how to start it, its topics, services and parameters (from
+    their tables: :mod:`dmf_sim.live.streams`, :mod:`dmf_sim.live.parameters`), how to stop it."""
+    def qos(depth: int, latched: bool = False) -> str:
+        return ('latched, ' if latched else '') + (f'depth {depth}' if depth else 'keep all')
+
+    rows = [('pub', st.topic, st.msgtype, qos(st.depth, st.latched),
+             f'{st.what}; {PUBLISHED.get(st.per, st.per)}')
+            for st in (*STREAMS.values(), CLOCK)]
+    rows += [('sub', su.topic, su.msgtype, qos(su.depth), su.what)
+             for su in SUBSCRIPTIONS.values()]
+    width = max(len(r[1]) for r in rows)
+    type_width = max(len(r[2]) for r in rows)
+    topics = [f'  {kind}  {topic:{width}s}  {msgtype:{type_width}s}  {q}' + '\n' + textwrap.fill(
+        what, 99, initial_indent=' ' * 9, subsequent_indent=' ' * 9)
+        for kind, topic, msgtype, q, what in rows]
+    services = [f'  {sv.name:15s} {sv.srvtype:22s} {sv.what}' for sv in SERVICES.values()]
+    parameters = textwrap.fill(', '.join([*PARAMETERS, *DMF_PARAMETERS]), 99,
+                               initial_indent='  ', subsequent_indent='  ')
+    return '\n'.join([
+        'driveline_node: the live driveline as a ROS 2 node.', '',
+        *(f'    {line}' for line in INVOCATIONS), '',
+        'Topics (relative names resolve under the node\'s namespace; all reliable):', *topics,
+        '', 'Services:', *services, '',
+        'Parameters (ros2 param describe /driveline_node NAME; config/driveline_node.yaml):',
+        parameters, '', textwrap.fill(STOPPING, 99)])
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -10,7 +10,7 @@ Markers (registered in setup.cfg, ``[tool:pytest]``):
 
 Session fixtures: the default engine and the 2500 Nm engine (Load A, excitation grid computed
 once) and the DMF driveline model, loaded once for the whole run. They are shared: do not modify
-them (``Engine.with_load_set`` and ``load_model(..., alpha=...)`` give variants).
+them (``Engine.with_load_set`` and ``read_model(..., alpha=...)`` give variants).
 """
 from __future__ import annotations
 
@@ -43,26 +43,26 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
 @pytest.fixture(scope='session')
 def engine_d13():
     """The default engine (config/engine_d13.yaml), Load A, every grid node computed."""
-    from dmf_sim.physics.engine import load_engine
-    engine = load_engine('engine_d13', load_set='A')
-    engine.warm()
+    from dmf_sim.physics.engine import read_engine
+    engine = read_engine('engine_d13', load_set='A')
+    engine.warm_up()
     return engine
 
 
 @pytest.fixture(scope='session')
 def engine_2500():
     """The 2500 Nm rating (config/engine_d13_2500nm.yaml), Load A, every grid node computed."""
-    from dmf_sim.physics.engine import load_engine
-    engine = load_engine('engine_d13_2500nm', load_set='A')
-    engine.warm()
+    from dmf_sim.physics.engine import read_engine
+    engine = read_engine('engine_d13_2500nm', load_set='A')
+    engine.warm_up()
     return engine
 
 
 @pytest.fixture(scope='session')
 def truck_dmf():
     """The paper's DMF driveline (config/truck_dmf.yaml) as a reduced model."""
-    from dmf_sim.physics.model import load_model
-    return load_model('truck_dmf')
+    from dmf_sim.physics.model import read_model
+    return read_model('truck_dmf')
 
 
 @pytest.fixture

@@ -20,16 +20,16 @@ from cdr import (
     Header,
     KeyValue,
     String,
+    joint_state as _joint_state,
     serialize_message,
     stamp,
 )
-from cdr import joint_state as _joint_state
 
 from dmf_sim.bags.metadata import RunMetadata
 from dmf_sim.bags.writer import BagRecorder
-from dmf_sim.physics.model import load_driveline
+from dmf_sim.physics.model import read_driveline
 
-NAMES = load_driveline('truck_dmf').names
+NAMES = read_driveline('truck_dmf').names
 T0 = 1_700_000_000_000_000_000
 RATE = 1000.0
 TOL = 0.005                       # synthetic content must come back within 0.5 %

@@ -31,7 +31,7 @@ from synthetic_bags import (
     write_synthetic,
 )
 
-from dmf_sim.analysis.pipeline import SignalSpec, analyze_bag, read_bag_series
+from dmf_sim.analysis.pipeline import AnalysisOptions, SignalSpec, analyze_bag, read_bag_series
 from dmf_sim.cli import main as cli_main
 
 REPO = Path(__file__).resolve().parents[1]
@@ -51,7 +51,7 @@ def bags(tmp_path_factory):
 
 def test_synthetic_orders_recovered_on_speed_ramp(bags):
     res = analyze_bag(bags['full'], ['windup', 'angle:CYL1', 'torque:INPUT SHAFT'],
-                      bin_rpm=20, theta=0.24)
+                      options=AnalysisOptions(bin_rpm=20, theta=0.24))
     assert res.crank_source == 'crank angle topic'
     assert res.sample_rate_hz == pytest.approx(RATE, rel=1e-6)
     w = res.signal('windup')
@@ -79,8 +79,8 @@ def test_synthetic_orders_recovered_on_speed_ramp(bags):
 def test_fast_reader_matches_reference_reader(bags):
     specs = [SignalSpec.parse(s) for s in ('windup', 'angle:cyl1', 'torque:INPUT_SHAFT')]
     fast = read_bag_series(bags['full'], signals=specs)
-    ref = read_bag_series(bags['full'], signals=specs, reader='reference')
-    assert fast.reader == 'fast' and ref.reader == 'reference'
+    ref = read_bag_series(bags['full'], signals=specs, reader='messages')
+    assert fast.reader == 'fast' and ref.reader == 'messages'
     assert set(fast.series) == set(ref.series) == {'crank', 'speed', 'windup', 'angle:cyl1',
                                                    'torque:INPUT_SHAFT'}
     for k in fast.series:
@@ -90,7 +90,7 @@ def test_fast_reader_matches_reference_reader(bags):
 
 
 def test_per_cycle_mode_and_time_window(bags):
-    res = analyze_bag(bags['full'], bin_rpm=0, start_s=4.0, end_s=8.0)
+    res = analyze_bag(bags['full'], options=AnalysisOptions(bin_rpm=0, start_s=4.0, end_s=8.0))
     cyc = res.signal('windup').cycles
     assert len(res.signal('windup').table) == len(cyc) > 20
     assert cyc.t_start.min() >= 4.0 and cyc.t_end.max() <= 8.0
@@ -101,7 +101,7 @@ def test_per_cycle_mode_and_time_window(bags):
 # --------------------------------------------------------------------- bags it did not write
 
 def test_missing_crank_angle_integrates_speed(bags):
-    res = analyze_bag(bags['no_crank'], theta=0.24)
+    res = analyze_bag(bags['no_crank'], options=AnalysisOptions(theta=0.24))
     assert 'integrated engine speed' in res.crank_source
     check_table(res.signal('windup').table, WINDUP)
 
@@ -133,7 +133,7 @@ def test_truncated_bag(bags):
     check_table(res.signal('torque:INPUT SHAFT').table, TORQUE)
     specs = [SignalSpec.parse('windup'), SignalSpec.parse('torque:INPUT SHAFT')]
     fast = read_bag_series(bag, signals=specs)
-    ref = read_bag_series(bag, signals=specs, reader='reference')
+    ref = read_bag_series(bag, signals=specs, reader='messages')
     for k in fast.series:
         np.testing.assert_array_equal(fast.series[k].values, ref.series[k].values)
 
@@ -217,7 +217,8 @@ def write_ros2_record_style(path: Path, jitter_ns: int = 100_000, wrap: bool = T
 def test_bag_recorded_by_ros2_bag_record(tmp_path):
     bag = write_ros2_record_style(tmp_path / 'rec')
     for stamp in ('publish', 'log'):
-        res = analyze_bag(bag, ['windup', 'torque:INPUT SHAFT'], stamp=stamp)
+        res = analyze_bag(bag, ['windup', 'torque:INPUT SHAFT'],
+                          options=AnalysisOptions(stamp=stamp))
         assert res.crank_source == 'crank angle topic (unwrapped)'
         assert '/tf_like' in res.topics
         # publish times are exact; log (receive) times carry up to 0.1 ms jitter per topic, which
@@ -227,12 +228,12 @@ def test_bag_recorded_by_ros2_bag_record(tmp_path):
     # the odd JointState messages (names in another order) were decoded, not skipped
     specs = [SignalSpec.parse('torque:INPUT SHAFT')]
     fast = read_bag_series(bag, signals=specs, stamp='publish')
-    ref = read_bag_series(bag, signals=specs, reader='reference')
+    ref = read_bag_series(bag, signals=specs, reader='messages')
     assert len(fast.series['torque:INPUT SHAFT']) == 12000
     np.testing.assert_array_equal(fast.series['torque:INPUT SHAFT'].values,
                                   ref.series['torque:INPUT SHAFT'].values)
     # a bare .mcap works as well
-    res = analyze_bag(next(bag.glob('*.mcap')), stamp='publish')
+    res = analyze_bag(next(bag.glob('*.mcap')), options=AnalysisOptions(stamp='publish'))
     check_table(res.signal('windup').table, WINDUP)
 
 

@@ -131,7 +131,7 @@ def test_split_bag_with_truncated_last_file(root):
     (bag / 'metadata.yaml').write_text(yaml.safe_dump(info))
     specs = [SignalSpec.parse('windup'), SignalSpec.parse('torque:INPUT_SHAFT')]
     fast = read_bag_series(bag, signals=specs)
-    ref = read_bag_series(bag, signals=specs, reader='reference')
+    ref = read_bag_series(bag, signals=specs, reader='messages')
     assert fast.truncated == ref.truncated == [last]
     assert fast.bag.unlisted == (last,)
     for key in ('crank', 'windup', 'torque:INPUT_SHAFT'):

@@ -16,7 +16,7 @@ import pytest
 from synthetic_bags import record_load_change, write_synthetic
 
 from dmf_sim.analysis.load_timeline import HEALTH_KEYS, load_timeline
-from dmf_sim.analysis.pipeline import analyze_bag, model_settings, overlay_all
+from dmf_sim.analysis.pipeline import AnalysisOptions, analyze_bag, model_settings, overlay_all
 from dmf_sim.bags.metadata import RunMetadata
 from dmf_sim.cli import main as cli_main
 
@@ -63,13 +63,13 @@ def test_rows_per_load_each_compared_at_its_own_load(step, capsys):
 
 def test_load_option_is_one_load_for_the_whole_recording(step):
     """--load L (a caller who knows better) is taken for every cycle: one row per speed."""
-    res = analyze_bag(step, load=0.5)
+    res = analyze_bag(step, options=AnalysisOptions(load=0.5))
     assert res.load_timeline is None and res.signal('windup').table.load is None
     assert len(res.signal('windup').table) == 1
 
 
 def test_per_cycle_rows_are_steady_only_at_a_known_load(step):
-    res = analyze_bag(step, bin_rpm=0)
+    res = analyze_bag(step, options=AnalysisOptions(bin_rpm=0))
     t = res.signal('windup').table
     assert len(t) == len(res.signal('windup').cycles)
     assert (t.steady == np.isfinite(t.load)).all() and (~t.steady).sum() >= 1

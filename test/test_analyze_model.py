@@ -13,14 +13,20 @@ import pytest
 from synthetic_bags import WINDUP, record_node_run_up, write_synthetic
 
 from dmf_sim.analysis.hbm_overlay import build_model
-from dmf_sim.analysis.pipeline import analysis_dict, analyze_bag, model_settings, overlay_all
+from dmf_sim.analysis.pipeline import (
+    AnalysisOptions,
+    analysis_dict,
+    analyze_bag,
+    model_settings,
+    overlay_all,
+)
 from dmf_sim.analysis.plots import fig13_figure
 from dmf_sim.bags.metadata import RunMetadata
 from dmf_sim.cli import main as cli_main
 from dmf_sim.core.errors import BagError
-from dmf_sim.physics.engine import load_engine
-from dmf_sim.physics.loads import DrivelineLoads
-from dmf_sim.physics.model import load_driveline
+from dmf_sim.physics.engine import read_engine
+from dmf_sim.physics.loads import DrivelineExcitation
+from dmf_sim.physics.model import read_driveline
 from dmf_sim.physics.spring import Stage
 
 matplotlib.use('Agg')
@@ -44,13 +50,13 @@ def test_stored_spring_is_rebuilt_exactly():
     assert s['spring'] == THREE_STAGES and s['sources']['spring'] == 'bag'
     assert (s['alpha'], s['theta_rad'], s['load'], s['load_set']) == (1.5, 0.20, 0.7, 'C')
     spring = build_model(s).spring
-    expected = load_driveline('truck_dmf').with_dmf(
+    expected = read_driveline('truck_dmf').with_dmf(
         k=11500.0, stages=[(0.20, 1.5), (0.26, 3.0), (0.31, 6.0)],
         coast_stages=[(0.12, 2.0)]).spring
     assert spring == expected
     assert spring.drive == (Stage(0.20, 1.5), Stage(0.26, 3.0), Stage(0.31, 6.0))
     assert spring.coast == (Stage(0.12, 2.0),)
-    assert build_model(s).K.max() == pytest.approx(load_driveline('truck_dmf').with_dmf(
+    assert build_model(s).K.max() == pytest.approx(read_driveline('truck_dmf').with_dmf(
         k=11500.0).reduce().K.max())                                # k reaches the element
     over = model_settings(meta, alpha=3.0)
     sp = build_model(over).spring
@@ -63,19 +69,19 @@ def test_stored_spring_is_rebuilt_exactly():
 
 def test_green_line_is_theta_minus_static_windup(tmp_path):
     """Issue 11: the Fig. 13 green line is theta minus the static wind-up of the mean torque
-    (DrivelineLoads.static_state), drawn as such; the dynamic mean stays in CSV/JSON."""
+    (DrivelineExcitation.static_state), drawn as such; the dynamic mean stays in CSV/JSON."""
     load = 0.8
     run = RunMetadata(driveline='truck_dmf', engine='engine_d13', load_set='A', load=load)
     bag = write_synthetic(tmp_path / 'bag', ('windup', 'crank'), custom_data=run.to_custom_data(),
                           duration=4.0, v0=800.0, v1=1300.0)
     settings = model_settings({'custom_data': run.to_custom_data()})
-    res = analyze_bag(bag, theta=settings['theta_rad'])
+    res = analyze_bag(bag, options=AnalysisOptions(theta=settings['theta_rad']))
     overlay_all(res, settings, hbm=False)
     t = res.signal('windup').table
-    loads = DrivelineLoads(load_driveline('truck_dmf').reduce(),
-                           load_engine('engine_d13', load_set='A'))
+    loads = DrivelineExcitation(read_driveline('truck_dmf').reduce(),
+                           read_engine('engine_d13', load_set='A'))
     static = np.array([loads.static_state(s, load).windup for s in t.speed_mean_rpm])
-    theta = load_driveline('truck_dmf').spring.theta
+    theta = read_driveline('truck_dmf').spring.theta
     np.testing.assert_allclose(t.theta_minus_static, theta - static, rtol=1e-12)
     assert np.ptp(static) > 0.01                       # the mean torque varies over the ramp
     rows = analysis_dict(res)['signals']['windup']['rows']
@@ -120,7 +126,7 @@ def test_ramp_bins_marked_and_not_compared(tmp_path, capsys):
     assert every['order_3']['n_rows'] == 3
     assert every['order_1_5']['rel_to_peak'] > 1.0 > diff['order_1_5']['rel_to_peak']
     assert sum(line.startswith('~') for line in text.splitlines()) == len(ramp)
-    res = analyze_bag(bag, start_s=0.5)
+    res = analyze_bag(bag, options=AnalysisOptions(start_s=0.5))
     res.signal('windup').table.theta = data['theta_rad']
     fig = fig13_figure(res, res.signal('windup'))
     lines = {ln.get_label(): ln for ln in fig.axes[0].lines}

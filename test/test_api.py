@@ -53,3 +53,19 @@ def test_example_script_runs():
                           '--quick'], capture_output=True, text=True, env=env, timeout=300)
     assert out.returncode == 0, out.stderr
     assert 'worst stable 1.5th order' in out.stdout and 'refused: ' in out.stdout
+
+
+def test_type_checkers_see_every_public_name_from_its_module():
+    """The TYPE_CHECKING imports of dmf_sim/__init__.py (what mypy, pyright and editors read)
+    name exactly the public names, each from the module ``_API`` loads it from."""
+    import ast
+    tree = ast.parse((ROOT / 'dmf_sim' / '__init__.py').read_text())
+    block = next(node for node in tree.body if isinstance(node, ast.If)
+                 and getattr(node.test, 'id', None) == 'TYPE_CHECKING')
+    seen = {}
+    for imp in block.body:
+        assert isinstance(imp, ast.ImportFrom)
+        for alias in imp.names:
+            assert alias.asname in (None, alias.name)
+            seen[alias.name] = imp.module
+    assert seen == dmf._API

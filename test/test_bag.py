@@ -11,8 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from cdr import Float64, String, serialize_message
-from cdr import joint_state as _joint_state
+from cdr import Float64, String, joint_state as _joint_state, serialize_message
 from crash import sigkill_when_ready
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory

@@ -20,14 +20,14 @@ from cdr import Float64, String, serialize_message
 from synthetic_bags import T0, WINDUP, check_table, chunk_spans, flip_chunks, write_synthetic
 from test_analyze_inputs import one_line_error
 
-from dmf_sim.analysis.pipeline import analyze_bag, read_bag_series
+from dmf_sim.analysis.pipeline import AnalysisOptions, analyze_bag, read_bag_series
 from dmf_sim.bags.read import read_messages
 from dmf_sim.bags.records import Scan
 from dmf_sim.bags.recovery import recover_bag
 from dmf_sim.bags.writer import BagRecorder
 from dmf_sim.cli import main as cli_main
 from dmf_sim.core.errors import BagError
-from dmf_sim.transient.profiles import load_profile
+from dmf_sim.transient.profiles import read_profile
 from dmf_sim.transient.run import RunOptions, run_profile
 
 RAMP = {'duration': 6.0, 'v0': 900.0, 'v1': 1300.0}        # ~55 cycles, 3 files of 2 s
@@ -84,7 +84,7 @@ def test_corrupt_chunks_are_skipped_and_reported(recorded, corrupt, capsys):
     scans: list[Scan] = []
     assert sum(1 for _ in read_messages(bag, scans=scans)) == _count(recorded) - lost
     assert [c.topics for s in scans for c in s.corrupt] == [c['topics'] for c in chunks]
-    ref = read_bag_series(bag, reader='reference')
+    ref = read_bag_series(bag, reader='messages')
     fast = read_bag_series(bag)
     assert [c.offset for c in ref.corrupt] == [c.offset for c in fast.corrupt]
     for key in ('crank', 'speed'):
@@ -162,7 +162,7 @@ def test_damaged_index_fails_the_data_section_crc(recorded, tmp_path):
     assert sum(1 for _ in read_messages(bag, scans=scans)) == _count(recorded)
     assert not scans[1].corrupt and 'data section CRC mismatch' in scans[1].data_crc_error
     assert not scans[0].data_crc_error and not scans[2].data_crc_error
-    res = analyze_bag(bag, reader='reference')
+    res = analyze_bag(bag, options=AnalysisOptions(reader='messages'))
     assert any('data section CRC mismatch' in w for w in res.warnings)
     fast, intact = analyze_bag(bag), analyze_bag(recorded)
     assert not fast.warnings and (fast.signal('windup').table.amplitudes
@@ -240,7 +240,7 @@ def run_damaged(tmp_path_factory):
     second, and a copy whose third file has its chunk of samples flipped."""
     root = tmp_path_factory.mktemp('run_damage')
     intact = root / 'ramp'
-    run_profile(load_profile('ramp:900:1000:20:1.0:0.5'), intact, RunOptions(split_s=1.0))
+    run_profile(read_profile('ramp:900:1000:20:1.0:0.5'), intact, RunOptions(split_s=1.0))
     bag = copy(intact, root / 'flipped')
     file = bag / 'ramp_2.mcap'
     spans = chunk_spans(file)

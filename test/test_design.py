@@ -16,14 +16,15 @@ import yaml
 from nested_edit import DELETE, edited
 
 from dmf_sim.cli import main as cli_main
+from dmf_sim.cluster import connect, local_cluster
 from dmf_sim.core.errors import ConfigError
-from dmf_sim.design import load_study, run_study
+from dmf_sim.design import read_study, run_study
 from dmf_sim.design.evaluate import StudyContext, evaluate_design
 from dmf_sim.design.metrics import first_max
-from dmf_sim.design.runner import DEFAULT_BATCH_SIZE, batch_sizes, connect, local_cluster
+from dmf_sim.design.runner import DEFAULT_BATCH_SIZE, batch_sizes
 from dmf_sim.design.states import speed_grid
 from dmf_sim.design.table import LOCK_FILE
-from dmf_sim.physics.loads import DrivelineLoads
+from dmf_sim.physics.loads import DrivelineExcitation
 from dmf_sim.physics.orders import ORDER_3
 from dmf_sim.solvers.hbm import SweepOptions, sweep
 
@@ -57,7 +58,7 @@ def client():
 
 @pytest.fixture(scope='module')
 def study():
-    return load_study(STUDY)
+    return read_study(STUDY)
 
 
 @pytest.fixture(scope='module')
@@ -112,8 +113,8 @@ def _direct(study, alpha, theta, cond) -> dict:
     speed without a stable periodic state (what the driveline does there; no torque)."""
     lo, hi, step = study.speeds_rpm
     line = study.base.with_dmf(alpha=alpha, theta=theta)
-    res = sweep(DrivelineLoads(line.reduce(), study.engines[cond.load_set]), cond.load, (lo, hi),
-                options=SweepOptions(step_rpm=step))
+    res = sweep(DrivelineExcitation(line.reduce(), study.engines[cond.load_set]), cond.load,
+                (lo, hi), options=SweepOptions(step_rpm=step))
     el = line.index('INPUT SHAFT')
     out = {'worst_order_1_5': 0.0, 'worst_order_3': 0.0, 'worst_torque_3': 0.0,
            'max_dmf_torque': 0.0, 'n_stable': [], 'n_1_5': 0}
@@ -213,10 +214,10 @@ def test_local_cluster_listens_on_loopback_only(client):
 
 def test_local_cluster_housekeeping_is_slowed_down(client):
     """The local cluster's workers run with the slower event-loop and monitor timers of
-    runner.QUIET_CLUSTER (Dask passes the config on to the worker processes)."""
+    cluster.QUIET_CLUSTER (Dask passes the config on to the worker processes)."""
     import dask
 
-    from dmf_sim.design.runner import QUIET_CLUSTER
+    from dmf_sim.cluster import QUIET_CLUSTER
 
     def config():
         return {k: dask.config.get(k) for k in QUIET_CLUSTER}
@@ -311,7 +312,7 @@ def test_a_design_past_its_time_limit_is_recorded_as_failed_and_the_study_comple
                and 'rpm' in r['error'] for r in rows)
     assert all(r['seconds'] < 5.0 for r in rows)
     assert sorted(f['design_id'] for f in res.summary()['failed']) == [0, 1]
-    assert load_study(data).as_dict()['solver']['time_limit_s'] == 0.001
+    assert read_study(data).as_dict()['solver']['time_limit_s'] == 0.001
 
 
 # ------------------------------------------------------------------------------------------------
@@ -344,7 +345,7 @@ def _mutate(path: str, value):
 ])
 def test_bad_study_is_one_line_naming_the_field(path, value, field):
     with pytest.raises(ConfigError) as err:
-        load_study(_mutate(path, value))
+        read_study(_mutate(path, value))
     msg = str(err.value)
     assert field in msg and '\n' not in msg
 

@@ -11,16 +11,16 @@ from dmf_sim.design.parameters import check_parameter_set, design_driveline, par
 from dmf_sim.design.pareto import compromise, pareto_mask
 from dmf_sim.design.sampling import VariableRange, grid, latin_hypercube, uniform_random
 from dmf_sim.design.states import _distinct, order_torques
-from dmf_sim.physics.engine import load_engine
-from dmf_sim.physics.loads import DrivelineLoads
-from dmf_sim.physics.model import load_driveline
+from dmf_sim.physics.engine import read_engine
+from dmf_sim.physics.loads import DrivelineExcitation
+from dmf_sim.physics.model import read_driveline
 from dmf_sim.physics.orders import ORDER_3
 from dmf_sim.physics.spring import Stage
 from dmf_sim.solvers.hbm import SweepOptions, sweep
 
 
 def test_parameters_build_the_design_spring():
-    base = load_driveline('truck_dmf')
+    base = read_driveline('truck_dmf')
     params = {parse_parameter(n, 'test'): v for n, v in {
         'theta': 0.2, 'alpha': 2.0, 'stages[1].angle_rad': 0.3, 'stages[1].stiffness_factor': 5.0,
         'coast_stages[0].angle_rad': 0.1, 'coast_stages[0].stiffness_factor': 1.5,
@@ -40,7 +40,7 @@ def test_parameters_build_the_design_spring():
 
 
 def test_parameter_names_checked():
-    base = load_driveline('truck_dmf')
+    base = read_driveline('truck_dmf')
     with pytest.raises(ConfigError, match='same quantity'):
         check_parameter_set([parse_parameter('theta', 't'),
                              parse_parameter('stages[0].angle_rad', 't')], base, 't')
@@ -72,9 +72,9 @@ def test_sampling():
 
 @pytest.fixture(scope='module')
 def knee_sweep():
-    eng = load_engine('engine_d13', load_set='A')
-    line = load_driveline('truck_dmf').with_dmf(alpha=3.0, theta=0.2)
-    return line, sweep(DrivelineLoads(line.reduce(), eng), 1.0, (900.0, 1100.0),
+    eng = read_engine('engine_d13', load_set='A')
+    line = read_driveline('truck_dmf').with_dmf(alpha=3.0, theta=0.2)
+    return line, sweep(DrivelineExcitation(line.reduce(), eng), 1.0, (900.0, 1100.0),
                        options=SweepOptions(step_rpm=10.0))
 
 
@@ -126,12 +126,12 @@ def test_non_periodic_speeds_count_in_the_worst_values(tmp_path):
             rows.append(f'{s},{n},{re!r},0.0')
     table = tmp_path / 'pure3.csv'
     table.write_text('\n'.join(rows) + '\n')
-    line = load_driveline('truck_dmf', alpha=2.5)
-    engine = load_engine(table)
+    line = read_driveline('truck_dmf', alpha=2.5)
+    engine = read_engine(table)
     settings = SolverSettings((600.0, 640.0, 20.0), 24, True, line.index('INPUT SHAFT'))
     states = solve_condition(line, engine, 1.0, settings)
     m = condition_metrics(states, line.spring, 20.0)
-    res = sweep(DrivelineLoads(line.reduce(), engine), 1.0, (600.0, 640.0),
+    res = sweep(DrivelineExcitation(line.reduce(), engine), 1.0, (600.0, 640.0),
                 options=SweepOptions(step_rpm=20.0))
     envelope = [r for band in res.non_periodic for r in band.results if r.speed_rpm == 620.0]
     assert envelope and m['rpm_nonperiodic'] >= 20.0 and m['speeds_nonperiodic']
@@ -167,10 +167,11 @@ def test_study_plugin_limits_the_worker_thread_pools():
     pools to WORKER_THREADS (here from 2, as a worker started without Dask's nanny may have)."""
     from threadpoolctl import threadpool_info, threadpool_limits
 
-    from dmf_sim.design import load_study
+    from dmf_sim.cluster import WORKER_THREADS
+    from dmf_sim.design import read_study
     from dmf_sim.design.evaluate import StudyContext, drop_context
-    from dmf_sim.design.runner import WORKER_THREADS, StudyPlugin
-    study = load_study({'name': 'threads', 'driveline': 'truck_dmf', 'engine': 'engine_d13',
+    from dmf_sim.design.runner import StudyPlugin
+    study = read_study({'name': 'threads', 'driveline': 'truck_dmf', 'engine': 'engine_d13',
                         'sampling': {'method': 'grid'},
                         'variables': {'alpha': {'values': [3.0]}},
                         'conditions': {'load_sets': ['A'], 'loads': [1.0],
@@ -187,9 +188,9 @@ def test_study_plugin_limits_the_worker_thread_pools():
 
 def test_the_lock_file_lives_only_while_a_run_holds_it(tmp_path, monkeypatch):
     """design / optimize left an empty .lock in --out, after success and after an error."""
-    from dmf_sim.design import load_study, run_study
+    from dmf_sim.design import read_study, run_study
     from dmf_sim.design.table import LOCK_FILE, ResultStore
-    study = load_study({'name': 'lock', 'driveline': 'truck_dmf', 'engine': 'engine_d13',
+    study = read_study({'name': 'lock', 'driveline': 'truck_dmf', 'engine': 'engine_d13',
                         'sampling': {'method': 'grid'},
                         'variables': {'alpha': {'values': [2.0, 3.0]}},
                         'conditions': {'load_sets': ['A'], 'loads': [1.0],

@@ -132,10 +132,10 @@ def test_the_runup_page_runs_as_printed(tmp_path, monkeypatch, capsys):
 def test_the_bag_recover_page_runs_as_printed(tmp_path, monkeypatch, capsys):
     """The page's `-o fixed.mcap` was refused for a split bag: its commands now run in order on
     a crashed split bag, and the refusal it describes is one line naming -o."""
-    from dmf_sim.transient.profiles import load_profile
+    from dmf_sim.transient.profiles import read_profile
     from dmf_sim.transient.run import RunOptions, run_profile
     monkeypatch.chdir(tmp_path)
-    run_profile(load_profile('ramp:1000:1200:100:1.0:0.5'), tmp_path / 'run1',
+    run_profile(read_profile('ramp:1000:1200:100:1.0:0.5'), tmp_path / 'run1',
                 RunOptions(split_s=1.0))
     files = sorted((tmp_path / 'run1').glob('*.mcap'))
     assert len(files) >= 3                                      # a split bag ...

@@ -12,10 +12,10 @@ import pytest
 from dmf_sim.cli import main as cli_main
 from dmf_sim.durability.accumulate import DurabilityAccumulator
 from dmf_sim.durability.rainflow import count_cycles
-from dmf_sim.durability.settings import SNCurve, load_settings
+from dmf_sim.durability.settings import SNCurve, read_settings
 from dmf_sim.physics.orders import CYCLE_RAD
 from dmf_sim.physics.spring import PiecewiseLinearSpring
-from dmf_sim.transient.profiles import load_profile
+from dmf_sim.transient.profiles import read_profile
 from dmf_sim.transient.run import run_profile
 
 SN = SNCurve(exponent=5.0, reference_range_nm=1000.0, reference_cycles=1e6, placeholder=False)
@@ -107,7 +107,7 @@ def test_stage_time_and_dissipated_power_closed_form():
     """w = w0 + A sin(W t) across the knee theta: the time above it is acos((theta-w0)/A)/pi
     of the record; the viscous power c (dw/dt)^2 averages c A^2 W^2 / 2 per engine cycle."""
     spring = PiecewiseLinearSpring.two_step(10890.0, 0.24, 3.0)
-    settings = load_settings()
+    settings = read_settings()
     c, amp, w0 = 49.5, 0.05, 0.22
     speed = 1200.0
     om = speed * np.pi / 30
@@ -149,7 +149,7 @@ def test_damping_power_has_a_point_per_engine_cycle():
     t = np.arange(int(14.0 * fs)) / fs
     psi = 0.3 * CYCLE_RAD + om * t                   # starts inside a cycle
     w, wdot = 0.1 + amp * np.sin(3 * om * t), amp * 3 * om * np.cos(3 * om * t)
-    acc = DurabilityAccumulator(spring, c, load_settings())
+    acc = DurabilityAccumulator(spring, c, read_settings())
     for a in range(0, len(t), 7000):
         sl = slice(a, a + 7000)
         acc.add((t[sl] * 1e9).astype(np.int64), w[sl], wdot[sl], np.full(len(t[sl]), speed),
@@ -173,7 +173,7 @@ def test_damping_power_has_a_point_per_engine_cycle():
 def road_bag(tmp_path_factory):
     """The first 8 s of the road cycle (launch, shifts) as a run bag."""
     from dmf_sim.transient.profiles import make_profile
-    full = load_profile('truck_road_cycle')
+    full = read_profile('truck_road_cycle')
     keep = full.t_s <= 8.0
     rows = [(t, s, x) for t, s, x in zip(full.t_s[keep], full.speed_rpm[keep], full.load[keep])]
     rows.append((8.0, *[float(v) for v in full.at(8.0)]))

@@ -19,10 +19,10 @@ from dmf_sim.physics.engine import (
     cylinder_torque_signal,
     engine_from_mapping,
     engine_torque_orders,
-    load_engine,
+    read_engine,
     write_coefficient_table,
 )
-from dmf_sim.physics.model import load_model
+from dmf_sim.physics.model import read_model
 
 N_MAX = 24
 THIRD, SIXTH = 6, 12      # half-order indices of the 3rd and 6th engine orders
@@ -30,8 +30,8 @@ THIRD, SIXTH = 6, 12      # half-order indices of the 3rd and 6th engine orders
 
 @pytest.fixture(scope='module')
 def engines():
-    a = load_engine('engine_d13', 'A')
-    a.warm()
+    a = read_engine('engine_d13', 'A')
+    a.warm_up()
     return {'A': a, 'B': a.with_load_set('B'), 'C': a.with_load_set('C')}
 
 
@@ -197,7 +197,7 @@ def test_bad_queries(engine):
     with pytest.raises(ValueError):
         engine.coefficients(float('nan'), 0.5)
     with pytest.raises(ValueError) as exc:
-        load_engine('engine_d13', 'D')
+        read_engine('engine_d13', 'D')
     _one_line_error(exc, 'load_set', 'A')
 
 
@@ -227,7 +227,7 @@ def test_vectorized_query_equals_one_by_one(engines, load_set):
 # User tables
 # ------------------------------------------------------------------------------------------------
 def test_example_table_matches_model(engine):
-    table = load_engine('engine_table_example.csv')
+    table = read_engine('engine_table_example.csv')
     assert config_file('engine_table_example.csv').stat().st_size < 100_000
     assert table.n_max == N_MAX and table.speed_range_rpm == (600.0, 2000.0)
     for s in (600, 1000, 1700):
@@ -237,13 +237,13 @@ def test_example_table_matches_model(engine):
     assert table.full_load_torque(1000) == pytest.approx(2800.0, rel=1e-5)
     assert table.mean_torque(1250, 0.75) == pytest.approx(engine.mean_torque(1250, 0.75), rel=1e-3)
     # load sets work on tables too
-    tb = load_engine('engine_table_example.csv', 'B')
+    tb = read_engine('engine_table_example.csv', 'B')
     np.testing.assert_allclose(tb.gas_coefficients(900, 1.0), table.gas_coefficients(950, 1.0))
 
 
 def test_full_load_table_scales_gas_part(engine, tmp_path):
     path = write_coefficient_table(engine, tmp_path / 'full.csv', [600, 1000, 1500, 2000])
-    tab = load_engine(path)
+    tab = read_engine(path)
     for s in (600, 1000, 1500):
         close = lambda a, b: np.testing.assert_allclose(a, b, atol=1e-3)  # noqa: E731
         close(tab.coefficients(s, 1.0), engine.coefficients(s, 1.0))
@@ -262,19 +262,19 @@ def test_yaml_table(engine, tmp_path):
            'orders': list(range(N_MAX + 1)), 'coefficients': coeffs}
     path = tmp_path / 'tab.yaml'
     path.write_text(yaml.safe_dump(doc))
-    tab = load_engine(path, 'C')
+    tab = read_engine(path, 'C')
     np.testing.assert_allclose(tab.coefficients(1200, 1.0), engine.coefficients(1200, 1.0),
                                atol=1e-9)
     # without a load axis: full-load data
     doc2 = dict(doc, loads=None, coefficients=[c[1] for c in coeffs])
     del doc2['loads']
     path.write_text(yaml.safe_dump(doc2))
-    np.testing.assert_allclose(load_engine(path).coefficients(1600, 1.0),
+    np.testing.assert_allclose(read_engine(path).coefficients(1600, 1.0),
                                engine.coefficients(1600, 1.0), atol=1e-9)
     doc2['orders'] = list(range(N_MAX))
     path.write_text(yaml.safe_dump(doc2))
     with pytest.raises(ValueError) as exc:
-        load_engine(path)
+        read_engine(path)
     _one_line_error(exc, 'coefficients', 'shape')
 
 
@@ -303,12 +303,12 @@ def _rows(speeds, orders=range(N_MAX + 1), value='1.0,0.5'):
 def test_bad_tables_refused(tmp_path, rows, header, needles):
     path = _csv(tmp_path, rows, header or 'speed_rpm,n,re,im')
     with pytest.raises(ValueError) as exc:
-        load_engine(path)
+        read_engine(path)
     _one_line_error(exc, 'bad.csv', *needles)
 
 
 def test_minimal_good_csv(tmp_path):
-    eng = load_engine(_csv(tmp_path, _rows([800, 1000])))
+    eng = read_engine(_csv(tmp_path, _rows([800, 1000])))
     assert eng.mean_torque(900, 1.0) == pytest.approx(600.0)
 
 
@@ -345,7 +345,7 @@ def test_bad_engine_yaml_refused(tmp_path, base_yaml, field, value, needles):
     path = tmp_path / 'engine_bad.yaml'
     path.write_text(yaml.safe_dump(edited(base_yaml, field.split('.'), value)))
     with pytest.raises(ValueError) as exc:
-        load_engine(path)
+        read_engine(path)
     _one_line_error(exc, 'engine_bad.yaml', *needles)
 
 
@@ -354,20 +354,20 @@ def test_bad_table_references_and_yaml_fields(tmp_path):
     path.write_text('# engine: no_such_engine\n'
                     + '\n'.join(['speed_rpm,n,re,im'] + _rows([800, 1000])))
     with pytest.raises(ValueError) as exc:
-        load_engine(path)
+        read_engine(path)
     _one_line_error(exc, 'ref.csv', 'engine', 'no_such_engine')
     doc = {'speeds_rpm': [1000, 800], 'orders': [0, 1, 2],
            'coefficients': [[[100, 0], [1, 1], [2, 2]]] * 2}
     ypath = tmp_path / 'tab.yaml'
     ypath.write_text(yaml.safe_dump(doc))
     with pytest.raises(ValueError) as exc:
-        load_engine(ypath)
+        read_engine(ypath)
     _one_line_error(exc, 'tab.yaml', 'speeds_rpm', 'increasing')
     doc['speeds_rpm'] = [800, 1000]
     doc['coefficients'][1] = [[100, 0], [float('nan'), 1], [2, 2]]
     ypath.write_text(yaml.safe_dump(doc))
     with pytest.raises(ValueError) as exc:
-        load_engine(ypath)
+        read_engine(ypath)
     _one_line_error(exc, 'tab.yaml', 'coefficients', 'finite')
 
 
@@ -377,7 +377,7 @@ def test_bad_table_references_and_yaml_fields(tmp_path):
 def test_default_rating_reaches_the_dmf_knee(engine):
     """Issue 11: the default 13-litre curve has a ~2800 Nm plateau reached by 1000 rpm, above the
     paper DMF's knee torque k theta, so full Load A puts the mean wind-up at the knee."""
-    spring = load_model('truck_dmf').spring
+    spring = read_model('truck_dmf').spring
     knee_torque = spring.k * spring.theta
     assert knee_torque == pytest.approx(2613.6)
     plateau = [engine.full_load_torque(s) for s in np.arange(1000, 1301, 50.0)]
@@ -389,7 +389,7 @@ def test_default_rating_reaches_the_dmf_knee(engine):
 
 
 def test_2500nm_rating_shares_everything_but_the_curve(engine):
-    low = load_engine('engine_d13_2500nm', 'B')
+    low = read_engine('engine_d13_2500nm', 'B')
     assert low.config.name == 'engine_d13_2500nm'
     assert low.config.path.name == 'engine_d13_2500nm.yaml'
     assert low.full_load_torque(1200) == 2500.0 and low.full_load_torque(950) == 2500.0
@@ -419,7 +419,7 @@ def test_base_file_relative_and_override(tmp_path):
     (tmp_path / 'mine.yaml').write_text(
         'base: engine_d13\nname: mine\nload_sets: {limit_rpm: 1200, shift_rpm: {A: 0, D: 150}}\n')
     (tmp_path / 'child.yaml').write_text('base: mine.yaml\nname: child\n')
-    eng = load_engine(tmp_path / 'child.yaml', 'D')
+    eng = read_engine(tmp_path / 'child.yaml', 'D')
     assert eng.config.name == 'child' and eng.limit_rpm == 1200.0 and eng.shift_rpm == 150.0
     assert eng.full_load_torque(1000) == 2800.0    # 1000 + 150 rpm, on the plateau
     assert eng.full_load_torque(700) == pytest.approx(0.5 * (2016.0 + 2408.0))   # at 850 rpm
@@ -440,7 +440,7 @@ def test_bad_base_refused(tmp_path, text, needles):
     path = tmp_path / 'x.yaml'
     path.write_text(text)
     with pytest.raises(ValueError) as exc:
-        load_engine(path)
+        read_engine(path)
     _one_line_error(exc, *needles)
 
 
@@ -458,7 +458,7 @@ def test_files_that_are_not_engine_yamls(tmp_path, capsys):
         if source == '/etc/passwd' and not Path(source).is_file():
             continue
         with pytest.raises(ValueError) as exc:
-            load_engine(source)
+            read_engine(source)
         _one_line_error(exc, needle)
         assert cli_main(['loads', '--engine', source]) == 2
         err = capsys.readouterr().err

@@ -24,7 +24,7 @@ BRAKE_TORQUES = [-400, -440, -560, -720, -900, -1080, -1230, -1340, -1410, -1440
 
 @pytest.fixture(scope='module')
 def engine():
-    return dmf.load_engine('engine_d13')
+    return dmf.read_engine('engine_d13')
 
 
 def _doc() -> dict:
@@ -48,10 +48,10 @@ def test_shipped_engine_brakes_on_its_curve(engine):
     for s, t in zip(BRAKE_SPEEDS, BRAKE_TORQUES):
         assert engine.brake_torque(s) == t
     # the 2500 Nm rating is the same engine (base: engine_d13): the same brake
-    rating = dmf.load_engine('engine_d13_2500nm')
+    rating = dmf.read_engine('engine_d13_2500nm')
     assert rating.load_range == (-1.0, 1.0) and rating.brake_torque(2000) == -1410.0
     # a coefficient table knows no brake: 0..1, and a negative load says why, naming the field
-    table = dmf.load_engine('engine_table_example.csv')
+    table = dmf.read_engine('engine_table_example.csv')
     assert table.load_range == (0.0, 1.0) and not table.has_brake
     with pytest.raises(OperatingRangeError) as exc:
         table.coefficients(1000.0, -0.5)
@@ -63,7 +63,7 @@ def test_shipped_engine_brakes_on_its_curve(engine):
 def test_a_base_file_can_drop_the_brake(tmp_path):
     path = tmp_path / 'no_brake.yaml'
     path.write_text('base: engine_d13\nname: no_brake\nbrake_curve: null\n')
-    eng = dmf.load_engine(str(path))
+    eng = dmf.read_engine(str(path))
     assert eng.load_range == (0.0, 1.0) and eng.brake_torque(1500) == 0.0
     with pytest.raises(OperatingRangeError, match='no_brake'):
         eng.coefficients(1500.0, -1.0)
@@ -221,7 +221,7 @@ def test_brake_orders_against_full_load(engine):
 # ---- negative loads through the solvers --------------------------------------------------------
 @pytest.fixture(scope='module')
 def coast_loads(engine):
-    return dmf.DrivelineLoads(dmf.load_model('truck_dmf_coast'), engine)
+    return dmf.DrivelineExcitation(dmf.read_model('truck_dmf_coast'), engine)
 
 
 def test_newmark_and_harmonic_balance_agree_under_braking(coast_loads):
@@ -232,7 +232,7 @@ def test_newmark_and_harmonic_balance_agree_under_braking(coast_loads):
     st = coast_loads.static_state(speed, -1.0)
     assert st.windup < -0.10 and st.region == 'coast'
     res = dmf.sweep(coast_loads, load=-1.0, speed_range=(speed - 50.0, speed + 50.0))
-    nm = dmf.simulate(coast_loads, speed, -1.0, dt=1e-4)
+    nm = dmf.simulate(coast_loads, speed, -1.0, options=dmf.SimulationOptions(dt=1e-4))
     assert nm.steady, nm.message
     c = nm.windup_orders
     hb = min(res.solutions_at(speed), key=lambda q: abs(q.order_3 - abs(c[6])))
@@ -259,20 +259,20 @@ def test_the_coast_stage_acts_under_full_braking(coast_loads):
             assert (q.summary.mean < -spring.coast[0].angle_rad) == beyond, s
         crossed.append(beyond)
     assert not crossed[0] and crossed[-1]                   # the knee is crossed in the sweep
-    paper = dmf.DrivelineLoads(dmf.load_model('truck_dmf'), coast_loads.engine)
+    paper = dmf.DrivelineExcitation(dmf.read_model('truck_dmf'), coast_loads.engine)
     assert paper.static_state(2200.0, -1.0).region == 'primary'
 
 
 def test_live_core_takes_braking_setpoints(engine):
     from dmf_sim.live.simulation import LiveSimulation
-    line = dmf.load_driveline('truck_dmf')
+    line = dmf.read_driveline('truck_dmf')
     sim = LiveSimulation(line, engine, speed_rpm=1500.0, load=-0.5, load_ramp_per_s=100.0)
     assert sim.set_load_setpoint(-1.0) is None
     sim.advance(2000)
     assert sim.load == -1.0 and sim.windup < 0
     reason = sim.set_load_setpoint(-1.5)
     assert reason.startswith('load setpoint -1.5 outside [-1, 1]')
-    tab = dmf.load_engine('engine_table_example.csv')
+    tab = dmf.read_engine('engine_table_example.csv')
     limits = tab.speed_range_rpm
     table = LiveSimulation(line, tab, speed_rpm=1500.0, load=0.5, speed_limits_rpm=limits)
     assert 'no brake curve' in table.set_load_setpoint(-0.2)

@@ -17,14 +17,14 @@ import yaml
 from dmf_sim.cli import main as cli_main
 from dmf_sim.core.errors import ConfigError
 from dmf_sim.core.paths import config_file
-from dmf_sim.physics.engine import load_engine
-from dmf_sim.physics.loads import DrivelineLoads
-from dmf_sim.physics.model import load_driveline
+from dmf_sim.physics.engine import read_engine
+from dmf_sim.physics.loads import DrivelineExcitation
+from dmf_sim.physics.model import read_driveline
 from dmf_sim.solvers.hbm.sweep import sweep
 
 
 def _with(element: str, **fields):
-    line = load_driveline('truck_dmf')
+    line = read_driveline('truck_dmf')
     els = list(line.elements)
     i = line.index(element)
     els[i] = replace(els[i], **fields)
@@ -39,7 +39,7 @@ def _with(element: str, **fields):
 ])
 def test_sweep_names_the_extreme_field(element, field, value):
     line, number = _with(element, **{field: value})
-    loads = DrivelineLoads(line.reduce(), load_engine('engine_d13'))
+    loads = DrivelineExcitation(line.reduce(), read_engine('engine_d13'))
     with pytest.raises(ConfigError) as exc:
         sweep(loads, 1.0, (900.0, 1000.0))
     msg = str(exc.value)

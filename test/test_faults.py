@@ -17,18 +17,18 @@ from dmf_sim.physics.faults import (
     FaultSet,
     FaultTimeline,
     event_from_values,
-    load_schedule,
     parse_fault,
     parse_faults,
     parse_request,
+    read_schedule,
 )
-from dmf_sim.physics.loads import DrivelineLoads
-from dmf_sim.physics.model import load_driveline
+from dmf_sim.physics.loads import DrivelineExcitation
+from dmf_sim.physics.model import read_driveline
 
 
 @pytest.fixture(scope='module')
 def line():
-    return load_driveline('truck_dmf')
+    return read_driveline('truck_dmf')
 
 
 def _one_line(exc: pytest.ExceptionInfo) -> str:
@@ -121,7 +121,7 @@ def test_unknown_sensors_not_checked_without_names(line):
 
 
 def test_no_dmf_refused_for_dmf_faults():
-    conv = load_driveline('truck_conventional')
+    conv = read_driveline('truck_conventional')
     for text in ('{kind: dmf_damping, factor: 2}', '{kind: dmf_stiffness, stage: 1, factor: 1}'):
         with pytest.raises(ConfigError, match='has none'):
             parse_fault(text, line=conv)
@@ -173,20 +173,20 @@ def test_schedule_file(tmp_path, line):
     path.write_text('description: a test\nfaults:\n'
                     '  - {kind: misfire, cylinders: [3], at_s: 1.0}\n'
                     '  - {kind: weak_cylinder, cylinder: 2, factor: 0.5, start_s: 2}\n')
-    sched = load_schedule(path, line=line)
+    sched = read_schedule(path, line=line)
     assert [f.kind for f in sched.faults] == ['misfire', 'weak_cylinder']
     path.write_text('faults:\n  - {kind: misfire, cylinders: [3], at_s: 1.0}\n'
                     '  - {kind: misfire, cylinders: [7], mode: every_cycle}\n')
     with pytest.raises(ConfigError) as exc:
-        load_schedule(path, line=line)
+        read_schedule(path, line=line)
     assert str(path) in _one_line(exc) and 'faults[1] (misfire)' in str(exc.value)
     path.write_text('faults:\n  - {kind: misfire, cylinders: [1], mode: every_cycle, '
                     'start_s: 5, end_s: 4}\n')
     with pytest.raises(ConfigError, match=r"faults\[0\] \(misfire\): field 'end_s'"):
-        load_schedule(path, line=line)
+        read_schedule(path, line=line)
     path.write_text('fault: []\n')
     with pytest.raises(ConfigError, match="missing key 'faults'"):
-        load_schedule(path, line=line)
+        read_schedule(path, line=line)
 
 
 # ---- what a fault set does -------------------------------------------------------------------
@@ -225,7 +225,7 @@ def test_dmf_faults_through_the_spring(line):
 
 def test_multistage_coast_stage(tmp_path):
     from dmf_sim.physics.spring import Stage
-    line = load_driveline('truck_dmf').with_dmf(stages=[Stage(0.2, 1.0), Stage(0.4, 3.0)],
+    line = read_driveline('truck_dmf').with_dmf(stages=[Stage(0.2, 1.0), Stage(0.4, 3.0)],
                                                  coast_stages=[Stage(0.1, 2.0)])
     f = parse_fault('{kind: dmf_broken, stage: 2}', line=line)   # drive stage 1: +1 k
     out = FaultSet((f,)).apply_to_driveline(line).spring
@@ -356,7 +356,7 @@ def test_event_values_read_back(line):
 
 @pytest.fixture(scope='module')
 def loads(truck_dmf, engine_d13):
-    return DrivelineLoads(truck_dmf, engine_d13)
+    return DrivelineExcitation(truck_dmf, engine_d13)
 
 
 def test_motored_cylinder_burns_nothing(engine_d13):
@@ -404,9 +404,9 @@ def test_faulted_coefficients_formula(loads, engine_d13):
 
 
 def test_table_engine_refuses_misfires(truck_dmf):
-    from dmf_sim.physics.engine import load_engine
-    table = load_engine('engine_table_example.csv')
-    L = DrivelineLoads(truck_dmf, table)
+    from dmf_sim.physics.engine import read_engine
+    table = read_engine('engine_table_example.csv')
+    L = DrivelineExcitation(truck_dmf, table)
     assert not L.has_motored
     with pytest.raises(ConfigError, match='misfire and weak_cylinder faults need'):
         L.excitation(1200, 1.0, [1, 0, 1, 1, 1, 1])
@@ -416,7 +416,7 @@ def test_table_engine_refuses_misfires(truck_dmf):
 
 def test_packaged_example_schedule_has_every_kind(line):
     from dmf_sim.physics.faults import FAULT_KINDS
-    sched = load_schedule('faults_example', line=line, wheels={'crank': 58},
+    sched = read_schedule('faults_example', line=line, wheels={'crank': 58},
                           signals={'engine_speed'})
     assert {f.kind for f in sched.faults} == set(FAULT_KINDS)
     assert {f.mode for f in sched.faults if f.kind == 'misfire'} == {'single', 'every_cycle',
@@ -429,7 +429,7 @@ def test_sensor_names_come_from_the_driveline():
     from types import SimpleNamespace
 
     from dmf_sim.physics.faults import known_sensors
-    line = load_driveline('truck_dmf')
+    line = read_driveline('truck_dmf')
     sensors = SimpleNamespace(
         tooth_wheels=(SimpleNamespace(name='crank', teeth=60, present_teeth=58),),
         bus_signals=(SimpleNamespace(name='engine_speed'),))

@@ -19,9 +19,9 @@ from dmf_sim.core.units import RPM_TO_RAD_S
 from dmf_sim.monitor.prediction import OperatingPoint, predict_states, solve_prediction
 from dmf_sim.physics.engine.excitation import engine_torque_orders
 from dmf_sim.physics.faults import FaultSet, parse_faults
-from dmf_sim.physics.loads import DrivelineLoads
+from dmf_sim.physics.loads import DrivelineExcitation
 from dmf_sim.physics.modal import modes
-from dmf_sim.physics.model import load_driveline
+from dmf_sim.physics.model import read_driveline
 from dmf_sim.physics.orders import CYCLE_RAD, OrderSummary, half_orders, resample_on_angle
 from dmf_sim.solvers.hbm import CondensedHBM, HBMOptions, SweepOptions, sweep
 from dmf_sim.solvers.hbm.branches import BranchSwitching
@@ -29,7 +29,7 @@ from dmf_sim.solvers.hbm.faulted import apply_faults, is_symmetric, steady_fault
 from dmf_sim.solvers.hbm.layout import shift
 from dmf_sim.solvers.hbm.results import Branch, SweepResult
 from dmf_sim.solvers.hbm.search import N_SHIFTS, StateSearch
-from dmf_sim.solvers.newmark import simulate
+from dmf_sim.solvers.newmark import SimulationOptions, simulate
 from dmf_sim.solvers.steady import BasinOptions, SteadyState, _Matcher, find_steady_states
 
 MISFIRE_1 = '{kind: misfire, cylinders: [1], mode: every_cycle}'
@@ -39,12 +39,12 @@ FAST = SweepOptions(step_rpm=10.0, search=None)
 
 @pytest.fixture(scope='module')
 def line():
-    return load_driveline('truck_dmf')
+    return read_driveline('truck_dmf')
 
 
 @pytest.fixture(scope='module')
 def loads(line, engine_d13):
-    return DrivelineLoads(line.reduce(), engine_d13)
+    return DrivelineExcitation(line.reduce(), engine_d13)
 
 
 def faults_of(spec, line):
@@ -63,7 +63,7 @@ def factors_of(spec, line):
                                   '[{kind: misfire, cylinders: [2, 6], mode: every_cycle}]'])
 def test_faulted_linear_parts_equal_direct_solves(loads, line, spec):
     """The two-component modal sums (A^m on every cylinder, A^f - A^m weighted by s_k) give the
-    wind-up response of the faulted generalized loads (DrivelineLoads.dof_harmonics with the
+    wind-up response of the faulted generalized loads (DrivelineExcitation.dof_harmonics with the
     factors, solved directly on the whole chain), compiled and in numpy alike."""
     s = factors_of(spec, line)
     hb = CondensedHBM(loads, 1.0, factors=s)
@@ -111,8 +111,8 @@ def test_misfire_every_cycle_hbm_matches_newmark(loads, line, speed):
     faults = faults_of(MISFIRE_1, line)
     res = sweep(loads, 1.0, (speed - 30.0, speed + 30.0), faults=faults)
     assert res.faults == faults and not res.hbm.symmetric
-    nm = simulate(loads, speed, 1.0, factors=faults.combustion_factors(6), steady_tol=1e-5,
-                  max_cycles=1000)
+    nm = simulate(loads, speed, 1.0, factors=faults.combustion_factors(6),
+                  options=SimulationOptions(steady_tol=1e-5, max_cycles=1000))
     assert nm.steady, nm.message
     c = nm.windup_orders
     sols = res.solutions_at(speed)
@@ -212,7 +212,7 @@ def test_cylinders_alike_keep_the_symmetry(loads, line, engine_d13):
     scaled = _Scaled(engine_d13, 0.5)
     B = engine_torque_orders(scaled, 1200.0, 1.0)
     assert abs(B[1]) < 1e-12 * abs(B[6]) and abs(B[2]) < 1e-12 * abs(B[6])
-    twin = CondensedHBM(DrivelineLoads(loads.model, scaled), 1.0)
+    twin = CondensedHBM(DrivelineExcitation(loads.model, scaled), 1.0)
     misfire = CondensedHBM(loads, 1.0, factors=factors_of(MISFIRE_1, line))
     for speed in (900.0, 1200.0):
         p, q = hb.solve(speed), twin.solve(speed)
@@ -252,7 +252,7 @@ def test_dmf_fault_enters_through_the_model(loads, line, engine_d13):
                        '{kind: dmf_damping, factor: 2.0}]', line)
     faulted_loads, factors = apply_faults(loads, faults)
     assert factors is None and faulted_loads.model.spring.k == pytest.approx(0.7 * 10890)
-    by_hand = DrivelineLoads(faults.apply_to_driveline(line).reduce(), engine_d13)
+    by_hand = DrivelineExcitation(faults.apply_to_driveline(line).reduce(), engine_d13)
     a = sweep(loads, 1.0, (1000.0, 1200.0), options=FAST, faults=faults)
     b = sweep(by_hand, 1.0, (1000.0, 1200.0), options=FAST)
     assert _same_sweep(a, b) and a.hbm.symmetric
@@ -279,9 +279,9 @@ def test_faults_without_a_steady_state_are_refused(loads, line, spec, says):
 
 
 def test_a_table_engine_refuses_combustion_faults_in_one_line(line, tmp_path):
-    from dmf_sim.physics.engine import load_engine
-    table = load_engine('engine_table_example.csv')
-    loads = DrivelineLoads(line.reduce(), table)
+    from dmf_sim.physics.engine import read_engine
+    table = read_engine('engine_table_example.csv')
+    loads = DrivelineExcitation(line.reduce(), table)
     with pytest.raises(ConfigError, match='does not fire'):
         sweep(loads, 1.0, (1000.0, 1100.0), options=FAST, faults=faults_of(MISFIRE_1, line))
     dmf = faults_of('{kind: dmf_damping, factor: 0.5}', line)
@@ -523,7 +523,7 @@ def test_the_node_core_predicts_with_the_faults_it_applies():
     misfire set by its parameter becomes the prediction's fault set (its held part), clearing
     it brings the healthy point back."""
     from dmf_sim.live.parameters import PARAMETERS
-    from dmf_sim.live.runtime import LiveRuntime, load_line
+    from dmf_sim.live.runtime import LiveRuntime, read_line
     from dmf_sim.live.streams import STREAMS, resolved_topics
 
     class Quiet:
@@ -534,7 +534,7 @@ def test_the_node_core_predicts_with_the_faults_it_applies():
     values.update(alpha=2.5, theta=0.24, monitor=True, monitor_worker='thread', pacing='fast',
                   initial_speed_rpm=1200.0, initial_load=1.0)
     topics = resolved_topics('')
-    rt = LiveRuntime(values, load_line(values['driveline']), Quiet(), Quiet(),
+    rt = LiveRuntime(values, read_line(values['driveline']), Quiet(), Quiet(),
                      topics={topics[k]: s.msgtype for k, s in STREAMS.items()},
                      node_name='/driveline_node')
     try:

@@ -8,7 +8,7 @@ import pytest
 from dmf_sim.core.errors import ConfigError
 from dmf_sim.live.faults import FAULT_PARAMETERS
 from dmf_sim.live.parameters import DMF_PARAMETERS, PARAMETERS
-from dmf_sim.live.runtime import LiveRuntime, load_line
+from dmf_sim.live.runtime import LiveRuntime, read_line
 from dmf_sim.live.streams import STREAMS, resolved_topics
 from dmf_sim.monitor.messages import values_of
 from dmf_sim.physics.faults import event_from_values
@@ -62,7 +62,7 @@ def make(**over):
     values.update(over)
     topics = resolved_topics('')
     log, sink = Log(), Sink()
-    rt = LiveRuntime(values, load_line(values['driveline']), sink, log,
+    rt = LiveRuntime(values, read_line(values['driveline']), sink, log,
                      topics={topics[k]: s.msgtype for k, s in STREAMS.items()}, node_name=NODE)
     rt.loop.start()
     return rt, sink, log

@@ -12,8 +12,8 @@ from dmf_sim.core.units import RAD_S_TO_RPM, RPM_TO_RAD_S
 from dmf_sim.live.simulation import LiveSimulation
 from dmf_sim.physics.faults import CYCLE_RAD, WINDOW_OPEN_RAD, parse_faults
 from dmf_sim.physics.harmonic import harmonic_response, solve_harmonic
-from dmf_sim.physics.loads import DrivelineLoads
-from dmf_sim.physics.model import load_driveline
+from dmf_sim.physics.loads import DrivelineExcitation
+from dmf_sim.physics.model import read_driveline
 from dmf_sim.physics.orders import half_orders, resample_on_angle
 
 SPEED = 1200.0
@@ -23,7 +23,7 @@ T_S = 1.6             # the response has decayed by then
 
 @pytest.fixture(scope='module')
 def line():
-    return load_driveline('truck_dmf')
+    return read_driveline('truck_dmf')
 
 
 def _run(line, engine, faults: str, *, load: float, t_s: float = T_S, dt: float = 1e-4,
@@ -62,7 +62,7 @@ def _linear_misfire_response(model, engine, load: float, event, dt: float = 1e-4
     the misfiring cylinder's motored minus fired torque over its 720 deg window and the rear
     load's change, as a periodic load of period ``t_ext`` solved harmonic by harmonic with
     physics/harmonic.py (independent of Newmark). Returns (t, wind-up, crank velocity)."""
-    L = DrivelineLoads(model, engine)
+    L = DrivelineExcitation(model, engine)
     k = event.cylinder - 1
     Af, Am = engine.coefficients(SPEED, load), engine.motored_coefficients(SPEED, load)
     om = SPEED * RPM_TO_RAD_S
@@ -154,7 +154,7 @@ def test_missing_work_is_one_combustion_and_energy_balances(line, engine_d13):
     load = 1.0
     healthy, faulted = _misfire_pair(line, engine_d13, load)
     model = faulted['sim'].model
-    L = DrivelineLoads(model, engine_d13)
+    L = DrivelineExcitation(model, engine_d13)
     [event] = [e for e in faulted['events'] if e.what == 'misfire']
     k = event.cylinder - 1
     Af, Am = engine_d13.coefficients(SPEED, load), engine_d13.motored_coefficients(SPEED, load)
@@ -248,7 +248,7 @@ def test_every_cycle_misfire_half_order_equals_the_harmonic_response(line, engin
     assert run['w'][run['t'] > 1.0].max() < model.spring.theta          # one region
     c = _cycle_orders(run, 8)
     c_healthy = _cycle_orders(healthy, 8)
-    L = DrivelineLoads(model, engine_d13)
+    L = DrivelineExcitation(model, engine_d13)
     factors = np.array([0.0, 1, 1, 1, 1, 1])
     P = L.element_harmonics(SPEED, load, factors)
     for n in (1, 2, 3):                  # 0.5, 1 and 1.5 orders

@@ -11,7 +11,7 @@ from dmf_sim.bags.read import read_messages
 from dmf_sim.cli import main as cli_main
 from dmf_sim.live.streams import STREAMS, resolved_topics
 from dmf_sim.physics.faults import event_from_values
-from dmf_sim.transient.profiles import load_profile
+from dmf_sim.transient.profiles import read_profile
 from dmf_sim.transient.run import RunOptions, run_profile
 
 SCHEDULE = '''description: a misfire, a cylinder that stops firing for a while, worn DMF damping
@@ -40,7 +40,7 @@ def _ground_truth(bag):
 def test_run_with_a_schedule_writes_the_ground_truth(tmp_path):
     path = tmp_path / 'faults.yaml'
     path.write_text(SCHEDULE)
-    prof = load_profile('ramp:1000:1400:200:1.0:0.5')
+    prof = read_profile('ramp:1000:1400:200:1.0:0.5')
     bags = {}
     for threads in (1, 2):
         bags[threads] = tmp_path / f'bag{threads}'
@@ -77,7 +77,7 @@ def test_run_with_a_schedule_writes_the_ground_truth(tmp_path):
 
 
 def test_run_without_faults_declares_the_topics_writes_nothing(tmp_path):
-    prof = load_profile('ramp:1000:1050:500:0.5:0.1')
+    prof = read_profile('ramp:1000:1050:500:0.5:0.1')
     summary = run_profile(prof, tmp_path / 'bag', RunOptions())
     gt, active = _ground_truth(tmp_path / 'bag')
     assert gt == [] and active == [] and summary.fault_events == 0

@@ -20,11 +20,10 @@ from dmf_sim.figures import (
     sweep_curves,
     windup_figure,
 )
-from dmf_sim.physics.loads import DrivelineLoads
+from dmf_sim.physics.loads import DrivelineExcitation
 from dmf_sim.physics.modal import modes
-from dmf_sim.physics.model import load_model
-from dmf_sim.solvers.hbm import CondensedHBM
-from dmf_sim.solvers.hbm import sweep as run_sweep
+from dmf_sim.physics.model import read_model
+from dmf_sim.solvers.hbm import CondensedHBM, sweep as run_sweep
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -103,7 +102,7 @@ def test_unstable_stretches_dashed_and_3rd_order_distinct_from_max_deviation():
 
 
 def test_mode_plot_names_the_dmf_elements(truck_dmf):
-    conv, dmf = modes(load_model('truck_conventional')), modes(truck_dmf)
+    conv, dmf = modes(read_model('truck_conventional')), modes(truck_dmf)
     fig = mode_shapes_figure(conv, dmf)
     ticks = [t.get_text() for t in fig.axes[-1].get_xticklabels()]
     assert 'PRIMARY FLYWHEEL\n(conv. FLYWHEEL)' in ticks
@@ -122,7 +121,7 @@ def test_sweep_tables_hold_green_line_and_dynamic_mean(tmp_path, capsys, engine_
     with open(tmp_path / 'sweep.csv') as fh:
         rows = list(csv.DictReader(fh))
     assert {'theta_minus_static', 'static_windup', 'mean', 'mean_minus_theta'} <= set(rows[0])
-    hbm = CondensedHBM(DrivelineLoads(load_model('truck_dmf', alpha=3.0), engine_d13), 1.0)
+    hbm = CondensedHBM(DrivelineExcitation(read_model('truck_dmf', alpha=3.0), engine_d13), 1.0)
     for r in rows:
         s, theta = float(r['speed_rpm']), data['theta_rad']
         assert float(r['static_windup']) == pytest.approx(hbm.static_windup(s), abs=1e-12)
@@ -138,7 +137,7 @@ def test_sweep_starts_inside_the_resonance(engine_d13):
     """Newton from the linear response does not converge at 960-1000 rpm (alpha 3, full Load A);
     the sweep then continues its start solution from the engine's lowest speed and lands on the
     same solution as a sweep from 600 rpm."""
-    loads = DrivelineLoads(load_model('truck_dmf', alpha=3.0), engine_d13)
+    loads = DrivelineExcitation(read_model('truck_dmf', alpha=3.0), engine_d13)
     inside = run_sweep(loads, 1.0, (980.0, 1020.0))
     assert 'continued from 400 rpm' in inside.main().origin
     full = run_sweep(loads, 1.0, (600.0, 1100.0))
@@ -257,9 +256,9 @@ def test_springs_figure_shows_every_coast_knee():
     from figure_checks import points_under_legends, texts_off_canvas
 
     from dmf_sim.design.parameters import design_driveline
-    from dmf_sim.optimize import load_problem
+    from dmf_sim.optimize import read_problem
     from dmf_sim.optimize.report import springs_figure
-    problem = load_problem('config/optimize_example.yaml')
+    problem = read_problem('config/optimize_example.yaml')
     names = problem.study.variable_names
     design = dict(zip(names, (0.254, 1.16, 0.276, 4.3, 0.279, 9.7, 0.224, 2.0)))
     rows = [{**design, 'design_id': 155}, {**design, 'design_id': 157,

@@ -17,10 +17,10 @@ from fake_engine import FakeEngine
 from dmf_sim.cli import main as cli_main
 from dmf_sim.core.paths import config_file
 from dmf_sim.physics.harmonic import harmonic_response
-from dmf_sim.physics.loads import DrivelineLoads
-from dmf_sim.physics.model import driveline_from_dict, load_model
+from dmf_sim.physics.loads import DrivelineExcitation
+from dmf_sim.physics.model import driveline_from_dict, read_model
 from dmf_sim.solvers.hbm import CondensedHBM, sweep
-from dmf_sim.solvers.newmark import simulate
+from dmf_sim.solvers.newmark import SimulationOptions, simulate
 from dmf_sim.solvers.stability import FloquetAnalyzer
 
 REPO = Path(__file__).resolve().parents[1]
@@ -33,11 +33,11 @@ def engine_a(engine_2500):
     return engine_2500
 
 
-def paper_loads(engine, alpha=3.0, theta=None) -> DrivelineLoads:
-    return DrivelineLoads(load_model('truck_dmf', alpha=alpha, theta=theta), engine)
+def paper_loads(engine, alpha=3.0, theta=None) -> DrivelineExcitation:
+    return DrivelineExcitation(read_model('truck_dmf', alpha=alpha, theta=theta), engine)
 
 
-def fold_loads() -> DrivelineLoads:
+def fold_loads() -> DrivelineExcitation:
     """A case with a folded (hardening) DMF resonance: DMF damping / 10, knee at 0.05 rad, alpha 1,
     pure 3rd-order excitation of 40 Nm per cylinder (FakeEngine), no mean torque."""
     d = yaml.safe_load(Path(config_file('truck_dmf')).read_text())
@@ -45,7 +45,7 @@ def fold_loads() -> DrivelineLoads:
         if el['name'] == d['dmf']['element']:
             el['damping'] *= 0.1
     d['dmf'].update(alpha=1.0, theta_rad=0.05)
-    return DrivelineLoads(driveline_from_dict(d).reduce(), FakeEngine({0: 0.0, 6: 40.0}))
+    return DrivelineExcitation(driveline_from_dict(d).reduce(), FakeEngine({0: 0.0, 6: 40.0}))
 
 
 def rel(a, b):
@@ -116,7 +116,7 @@ def test_jacobians_match_finite_differences(engine_a):
 def test_hbm_matches_newmark_steady_state(engine_a, theta, speed, what):
     loads = paper_loads(engine_a, alpha=3.0, theta=theta)
     res = sweep(loads, 1.0, (speed - 50.0, speed + 50.0))
-    nm = simulate(loads, speed, 1.0, dt=1e-4)
+    nm = simulate(loads, speed, 1.0, options=SimulationOptions(dt=1e-4))
     assert nm.steady, nm.message
     c = nm.windup_orders
     # Newmark from the static equilibrium lands on one of the coexisting solutions
@@ -215,7 +215,7 @@ def test_period_doubling_and_branch_switching_symmetric_excitation():
     """Exactly 120-deg-periodic excitation (pure 3rd order): the 3rd-order branch loses stability
     by period doubling (multiplier through +1 over 720 deg, n = 3 eigen-solution), and the
     1.5th-order branch is found by branch switching and followed."""
-    loads = DrivelineLoads(load_model('truck_dmf', alpha=3.0, theta=0.02),
+    loads = DrivelineExcitation(read_model('truck_dmf', alpha=3.0, theta=0.02),
                            FakeEngine({0: 0.0, 6: 500.0}))
     res = sweep(loads, 1.0, (250.0, 500.0))
     losses = [e for e in res.events if e.kind == 'stability_loss' and e.branch == 0]

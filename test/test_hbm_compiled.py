@@ -10,9 +10,9 @@ import yaml
 from fake_engine import FakeEngine
 
 from dmf_sim.core.paths import config_file
-from dmf_sim.physics.engine import load_engine
-from dmf_sim.physics.loads import DrivelineLoads
-from dmf_sim.physics.model import driveline_from_dict, load_model
+from dmf_sim.physics.engine import read_engine
+from dmf_sim.physics.loads import DrivelineExcitation
+from dmf_sim.physics.model import driveline_from_dict, read_model
 from dmf_sim.solvers import continuation
 from dmf_sim.solvers.hbm import CondensedHBM, HBMOptions, SweepOptions, sweep
 from dmf_sim.solvers.hbm.deflation import DeflatedNewton
@@ -25,9 +25,9 @@ STAGED_SPEED = 850.0     # rpm: the staged spring's wind-up visits every stage (
 
 @pytest.fixture(scope='module')
 def paper():
-    eng = load_engine('engine_d13', load_set='A')
-    eng.warm()
-    return DrivelineLoads(load_model('truck_dmf', alpha=3.0), eng), PAPER_SPEED
+    eng = read_engine('engine_d13', load_set='A')
+    eng.warm_up()
+    return DrivelineExcitation(read_model('truck_dmf', alpha=3.0), eng), PAPER_SPEED
 
 
 @pytest.fixture(scope='module')
@@ -39,7 +39,7 @@ def staged():
                            {'angle_rad': 0.18, 'stiffness_factor': 5.0}],
                 'coast_stages': [{'angle_rad': 0.02, 'stiffness_factor': 1.5}]}
     engine = FakeEngine({0: 180.0, 3: 60 + 20j, 6: 3500 - 300j, 12: 200.0})
-    return DrivelineLoads(driveline_from_dict(d).reduce(), engine), STAGED_SPEED
+    return DrivelineExcitation(driveline_from_dict(d).reduce(), engine), STAGED_SPEED
 
 
 CASES = ['paper', 'staged']
@@ -50,9 +50,9 @@ def staged_d13(staged):
     """The staged spring driven by the default engine (a compiled engine table, as the grid
     runs need)."""
     loads, _ = staged
-    eng = load_engine('engine_d13', load_set='A')
-    eng.warm()
-    return DrivelineLoads(loads.model, eng), 1000.0
+    eng = read_engine('engine_d13', load_set='A')
+    eng.warm_up()
+    return DrivelineExcitation(loads.model, eng), 1000.0
 
 
 def both(loads):
@@ -468,7 +468,7 @@ def test_arc_length_corrector_on_a_lazy_engine(paper):
     it needs (through the engine) and gives the same result as on the warmed engine; a
     predictor beyond the engine data ends the branch (LeftRange), as in Python."""
     loads, speed = paper
-    lazy = DrivelineLoads(loads.model, load_engine('engine_d13', load_set='A'))
+    lazy = DrivelineExcitation(loads.model, read_engine('engine_d13', load_set='A'))
     assert not lazy.engine._gas.done.all()
     warm, cold = CondensedHBM(loads, 1.0), CondensedHBM(lazy, 1.0)
     y_pred, t, xs, ss = _arc_step(warm, speed)
@@ -562,11 +562,12 @@ def test_constant_speed_shot_is_one_kernel_call(paper, monkeypatch):
         return advance(self, *args, **kwargs)
 
     monkeypatch.setattr(newmark.NewmarkIntegrator, 'advance', counting)
-    one = newmark.simulate(loads, speed, 1.0, t_end=0.2, record_stride=2)
+    every_2nd = newmark.SimulationOptions(record_stride=2)
+    one = newmark.simulate(loads, speed, 1.0, t_end=0.2, options=every_2nd)
     n_one = len(calls)
     calls.clear()
-    chunked = newmark.simulate(loads, speed, 1.0, t_end=0.2, record_stride=2,
-                               target_speed_rpm=speed)
+    chunked = newmark.simulate(loads, speed, 1.0, t_end=0.2, target_speed_rpm=speed,
+                               options=every_2nd)
     assert n_one == 1 and len(calls) >= 20
     assert len(one.windup) == len(chunked.windup) == 1000
     assert np.abs(one.windup - chunked.windup).max() <= 1e-9 * np.ptp(chunked.windup)
@@ -576,9 +577,9 @@ def test_constant_speed_shot_is_one_kernel_call(paper, monkeypatch):
 WARM_THEN_SWEEP = '''
 import json
 import numpy as np
-from dmf_sim.physics.engine import load_engine
-from dmf_sim.physics.loads import DrivelineLoads
-from dmf_sim.physics.model import load_model
+from dmf_sim.physics.engine import read_engine
+from dmf_sim.physics.loads import DrivelineExcitation
+from dmf_sim.physics.model import read_model
 from dmf_sim.solvers import lapack_kernel, stability, stability_kernel
 from dmf_sim.solvers.hbm import CondensedHBM, SweepOptions, kernels, linear_kernels, sweep
 from dmf_sim.solvers.hbm import continuation_kernels
@@ -590,7 +591,8 @@ fs = [kernels.residual_jacobian_py, kernels.harmonics_py, kernels.newton, kernel
       continuation_kernels.step_fixed_speed, linear_kernels.linear_parts_many_at,
       stability_kernel.floquet, stability_kernel.floquet_many, lapack_kernel.eigenvalues_into]
 before = [len(f.signatures) for f in fs]
-loads = DrivelineLoads(load_model('truck_dmf', alpha=3.0), load_engine('engine_d13', load_set='A'))
+loads = DrivelineExcitation(read_model('truck_dmf', alpha=3.0),
+                            read_engine('engine_d13', load_set='A'))
 sweep(loads, 1.0, (1150.0, 1250.0), options=SweepOptions(step_rpm=10.0, search=None))
 CondensedHBM(loads, 1.0).linear_parts(1001.5)
 stability.eigenvalues(np.eye(3) + 0.5)        # the multipliers of one point analyzed alone

@@ -40,3 +40,22 @@ def test_every_public_module_declares_its_public_names():
         if '__all__' not in names and (path.name != '__init__.py' or defined):
             missing.append(str(path.relative_to(ROOT)))
     assert not missing, missing
+
+
+def test_every_package_is_in_the_layers_and_in_the_architecture_diagram():
+    """Each package and loose module of dmf_sim has its place in the layers contract of
+    .importlinter and in the layer diagram of doc/architecture.md (a new package that is in
+    neither would be unconstrained and undocumented)."""
+    import configparser
+    import re
+    cfg = configparser.ConfigParser()
+    cfg.read(ROOT / '.importlinter')
+    layers = re.findall(r'dmf_sim\.(\w+)', cfg['importlinter:contract:layers']['layers'])
+    parts = {p.name for p in (ROOT / 'dmf_sim').iterdir()
+             if p.is_dir() and (p / '__init__.py').exists()}
+    parts |= {p.stem for p in (ROOT / 'dmf_sim').glob('*.py') if p.name != '__init__.py'}
+    assert sorted(parts) == sorted(layers)
+    text = (ROOT / 'doc' / 'architecture.md').read_text()
+    diagram = text[text.index('## Layers'):].split('```')[1]
+    drawn = set(re.findall(r'\b(\w+)(?:/|\.py)', diagram))
+    assert parts <= drawn, sorted(parts - drawn)

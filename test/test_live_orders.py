@@ -9,7 +9,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from dmf_sim.analysis.pipeline import analyze_bag
+from dmf_sim.analysis.pipeline import AnalysisOptions, analyze_bag
 from dmf_sim.bags.writer import BagRecorder
 from dmf_sim.core.units import CYCLE_RAD, RPM_TO_RAD_S
 from dmf_sim.monitor.orders import CycleOrderTracker, region_key
@@ -134,7 +134,7 @@ def test_live_cycles_equal_dmf_sim_analyze_of_a_bag_of_the_same_run(tmp_path):
                 rec.write('/driveline/dmf_windup', int(stamps[i]), _cdr_float64(s.windup[i]))
                 rec.write('/engine/crank_angle', int(stamps[i]), _cdr_float64(s.psi[i]))
             live += tracker.add(s, sim.load, stamps)
-    res = analyze_bag(bag, bin_rpm=0, theta=spring.theta).signal('windup')
+    res = analyze_bag(bag, options=AnalysisOptions(bin_rpm=0, theta=spring.theta)).signal('windup')
     table, cyc = res.table, res.cycles
     k_bag = np.round(cyc.psi_start / CYCLE_RAD).astype(int)
     by_k = {int(k): i for i, k in enumerate(k_bag)}

@@ -17,34 +17,34 @@ from dmf_sim.core.errors import ConfigError
 from dmf_sim.core.paths import config_dir
 from dmf_sim.live.peaks import WindupPeaks
 from dmf_sim.physics.spring import PiecewiseLinearSpring
-from dmf_sim.transient.profiles import DEFAULT_HOLD_S, DEFAULT_SETTLE_S, load_profile, step_spec
+from dmf_sim.transient.profiles import DEFAULT_HOLD_S, DEFAULT_SETTLE_S, read_profile, step_spec
 from dmf_sim.transient.run import RunOptions, run_profile
 
 
 def _run(spec: str, **kw):
-    return run_profile(load_profile(spec), None, RunOptions(write=False, **kw))
+    return run_profile(read_profile(spec), None, RunOptions(write=False, **kw))
 
 
 @pytest.fixture(scope='module')
 def loads():
-    return dmf.DrivelineLoads(dmf.load_model('truck_dmf'), dmf.load_engine('engine_d13'))
+    return dmf.DrivelineExcitation(dmf.read_model('truck_dmf'), dmf.read_engine('engine_d13'))
 
 
 # ---- the grammar -------------------------------------------------------------------------------
 def test_step_grammar_rows_and_defaults(tmp_path):
-    p = load_profile('step:1200:0:1:0.1')
+    p = read_profile('step:1200:0:1:0.1')
     s, h = DEFAULT_SETTLE_S, DEFAULT_HOLD_S
     assert p.t_s.tolist() == pytest.approx([0, s, s + 0.1, s + 0.1 + h, s + 0.2 + h,
                                             s + 0.2 + 2 * h])
     assert p.load.tolist() == [0, 0, 1, 1, 0, 0] and set(p.speed_rpm) == {1200.0}
     assert p.settle_s == s and p.name == 'step:1200:0:1:0.1'
-    q = load_profile('step:1600:0.5:-1:0.2:0.5:0')                  # a tip-out into the brake
+    q = read_profile('step:1600:0.5:-1:0.2:0.5:0')                  # a tip-out into the brake
     assert q.t_s.tolist() == pytest.approx([0, 0.2, 0.7, 0.9, 1.4])
     assert q.load.tolist() == [0.5, -1, -1, 0.5, 0.5] and 'tip-out' in q.source
     assert step_spec(1200, 0, 1, 0.1, 0.5) == 'step:1200:0:1:0.1:0.5'
     yml = tmp_path / 'tip.yaml'
     yml.write_text('step: {speed_rpm: 1200, from: 0, to: 1, rise_s: 0.1}\n')
-    r = load_profile(str(yml))
+    r = read_profile(str(yml))
     assert r.t_s.tolist() == p.t_s.tolist() and r.load.tolist() == p.load.tolist()
 
 
@@ -162,8 +162,8 @@ def test_node_health_peaks_and_profile_checks():
     from dmf_sim.live.health import SimulationHealth
     from dmf_sim.live.simulation import LiveSimulation
     from dmf_sim.transient.live_profile import check_profile
-    line = dmf.load_driveline('truck_dmf')
-    sim = LiveSimulation(line, dmf.load_engine('engine_d13'), speed_rpm=1200.0, load=0.0,
+    line = dmf.read_driveline('truck_dmf')
+    sim = LiveSimulation(line, dmf.read_engine('engine_d13'), speed_rpm=1200.0, load=0.0,
                          load_ramp_per_s=10.0)
     sim.set_load_setpoint(1.0)                  # a tip-in in 0.1 s with the ramp parameter
     for _ in range(100):
@@ -180,7 +180,7 @@ def test_node_health_peaks_and_profile_checks():
     assert prof is None and "faster than one Newmark step (the node's dt = 0.0001 s)" in reason
     prof, reason = check_profile('step:1200:0:-1:0.1', limits, engine=sim.engine, dt=sim.dt)
     assert reason is None and prof.load.min() == -1.0
-    table = dmf.load_engine('engine_table_example.csv')
+    table = dmf.read_engine('engine_table_example.csv')
     assert 'no brake curve' in check_profile('step:1200:0:-1:0.1', (600.0, 2000.0),
                                              engine=table)[1]
 

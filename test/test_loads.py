@@ -8,13 +8,13 @@ import numpy as np
 import pytest
 from fake_engine import FakeEngine
 
-from dmf_sim.physics.loads import DrivelineLoads
-from dmf_sim.physics.model import load_model
+from dmf_sim.physics.loads import DrivelineExcitation
+from dmf_sim.physics.model import read_model
 
 
 @pytest.fixture(scope='module')
 def real(truck_dmf, engine_d13):
-    return DrivelineLoads(truck_dmf, engine_d13)
+    return DrivelineExcitation(truck_dmf, engine_d13)
 
 
 def test_rear_load_balances_mean_torque(real, engine_d13):
@@ -58,7 +58,7 @@ def test_static_equilibrium_transmits_mean_torque(real):
 
 
 def test_static_equilibrium_in_secondary_region():
-    L = DrivelineLoads(load_model('truck_dmf', alpha=2.0), FakeEngine({0: 600.0}))
+    L = DrivelineExcitation(read_model('truck_dmf', alpha=2.0), FakeEngine({0: 600.0}))
     st = L.static_state(1000, 1.0)
     assert st.region == 'secondary'
     k, th = 10890.0, 0.24
@@ -69,7 +69,7 @@ def test_cylinder_count_mismatch_refused():
     class Four(FakeEngine):
         n_cylinders = 4
     with pytest.raises(ValueError, match='cylinders'):
-        DrivelineLoads(load_model('truck_dmf'), Four({0: 1.0}))
+        DrivelineExcitation(read_model('truck_dmf'), Four({0: 1.0}))
 
 
 def test_cli_loads_json_and_png(tmp_path):

@@ -8,19 +8,19 @@ import pytest
 
 from dmf_sim.physics.harmonic import harmonic_response, receptance, solve_harmonic
 from dmf_sim.physics.modal import modes
-from dmf_sim.physics.model import driveline_from_dict, load_model
+from dmf_sim.physics.model import driveline_from_dict, read_model
 
 
 def test_dmf_second_mode_matches_paper(truck_dmf):
     # paper: 18 Hz at primary stiffness, 27 Hz at k(1 + alpha), alpha = 3
     f_primary = modes(truck_dmf).frequencies_hz
-    f_alpha3 = modes(load_model('truck_dmf', alpha=3.0), 'secondary').frequencies_hz
+    f_alpha3 = modes(read_model('truck_dmf', alpha=3.0), 'secondary').frequencies_hz
     assert round(f_primary[2]) == 18
     assert round(f_alpha3[2]) == 27
 
 
 def test_rigid_body_mode_at_zero_and_dmf_lowers_second_mode(truck_dmf):
-    conv = modes(load_model('truck_conventional')).frequencies_hz
+    conv = modes(read_model('truck_conventional')).frequencies_hz
     dmf = modes(truck_dmf).frequencies_hz
     assert conv[0] == 0.0 and dmf[0] == 0.0
     assert conv[1] > 0 and dmf[1] > 0
@@ -28,7 +28,7 @@ def test_rigid_body_mode_at_zero_and_dmf_lowers_second_mode(truck_dmf):
 
 
 def test_mode_shapes_scaled_by_cumulative_ratio():
-    res = modes(load_model('truck_conventional'))
+    res = modes(read_model('truck_conventional'))
     rigid = res.element_shapes[:, 0]
     np.testing.assert_allclose(rigid, 1.0, atol=1e-9)   # rigid mode is flat after scaling
     assert np.all(np.abs(res.element_shapes).max(axis=0) == pytest.approx(1.0))

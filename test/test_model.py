@@ -6,7 +6,7 @@ import pytest
 import yaml
 
 from dmf_sim.core.paths import config_file
-from dmf_sim.physics.model import driveline_from_dict, load_driveline, load_model
+from dmf_sim.physics.model import driveline_from_dict, read_driveline, read_model
 
 
 def raw(name='truck_dmf'):
@@ -14,8 +14,8 @@ def raw(name='truck_dmf'):
 
 
 def test_table1_loaded_and_merged():
-    conv = load_model('truck_conventional')
-    dmf = load_model('truck_dmf')
+    conv = read_model('truck_conventional')
+    dmf = read_model('truck_dmf')
     assert conv.n_elements == dmf.n_elements == 22
     # rigid links: conventional 10,11,13,18,20; DMF 10,12,13,18,20 -> 22 - 5 = 17 DOFs
     assert conv.n_dof == dmf.n_dof == 17
@@ -26,7 +26,7 @@ def test_table1_loaded_and_merged():
 
 
 def test_every_element_angle_recovered_through_constraints():
-    m = load_model('truck_dmf')
+    m = read_model('truck_dmf')
     r = m.rigid_mode
     assert r is not None
     np.testing.assert_allclose(m.element_angles(r), 1.0 / m.R, rtol=1e-12)
@@ -43,7 +43,7 @@ def test_every_element_angle_recovered_through_constraints():
 
 @pytest.mark.parametrize('name', ['truck_conventional', 'truck_dmf'])
 def test_K_C_symmetric_psd_and_energy_consistent(name):
-    m = load_model(name)
+    m = read_model(name)
     for M in (m.K, m.C):
         np.testing.assert_allclose(M, M.T, atol=1e-9 * np.abs(M).max())
         ev = np.linalg.eigvalsh(M)
@@ -122,8 +122,8 @@ def test_missing_inertia_error_names_element_and_field():
 
 
 def test_alpha_override_and_bad_alpha():
-    assert load_driveline('truck_dmf', alpha=3.0).dmf.alpha == 3.0
+    assert read_driveline('truck_dmf', alpha=3.0).dmf.alpha == 3.0
     with pytest.raises(ValueError, match='alpha'):
-        load_driveline('truck_dmf', alpha=-1.0)
+        read_driveline('truck_dmf', alpha=-1.0)
     with pytest.raises(ValueError, match='no dmf section'):
-        load_driveline('truck_conventional', alpha=1.0)
+        read_driveline('truck_conventional', alpha=1.0)

@@ -14,10 +14,10 @@ from fake_engine import FakeEngine
 from dmf_sim.cli import main as cli_main
 from dmf_sim.core.paths import config_file
 from dmf_sim.core.units import CYCLE_RAD, RPM_TO_RAD_S
-from dmf_sim.physics.loads import DrivelineLoads
-from dmf_sim.physics.model import load_driveline
+from dmf_sim.physics.loads import DrivelineExcitation
+from dmf_sim.physics.model import read_driveline
 from dmf_sim.solvers.hbm import CondensedHBM
-from dmf_sim.solvers.newmark import NewmarkIntegrator, StepRecord, simulate
+from dmf_sim.solvers.newmark import NewmarkIntegrator, SimulationOptions, StepRecord, simulate
 from dmf_sim.solvers.stability import FlexibleModes, FloquetAnalyzer
 
 STAGES = [{'angle_rad': 0.10, 'stiffness_factor': 1.0},
@@ -42,7 +42,7 @@ def yaml_path(tmp_path_factory):
 
 @pytest.fixture(scope='module')
 def loads(yaml_path):
-    return DrivelineLoads(load_driveline(yaml_path).reduce(), ENGINE)
+    return DrivelineExcitation(read_driveline(yaml_path).reduce(), ENGINE)
 
 
 def test_yaml_spring_has_every_stage(loads):
@@ -71,7 +71,7 @@ def test_newmark_kernel_equals_reference_across_all_stages(loads):
 
 
 def test_newmark_energy_balance_multistage(loads):
-    r = simulate(loads, SPEED, 1.0, dt=5e-5, eval_cycles=2)
+    r = simulate(loads, SPEED, 1.0, options=SimulationOptions(dt=5e-5, eval_cycles=2))
     m, sp = loads.model, loads.model.spring
     P = r.integrator.generalized_load(r.psi)
     dt = np.diff(r.t)
@@ -91,7 +91,7 @@ def test_newmark_energy_balance_multistage(loads):
 @pytest.fixture(scope='module')
 def steady(loads):
     hb = CondensedHBM(loads, 1.0)
-    return hb, hb.solve(SPEED), simulate(loads, SPEED, 1.0, dt=5e-5)
+    return hb, hb.solve(SPEED), simulate(loads, SPEED, 1.0, options=SimulationOptions(dt=5e-5))
 
 
 def test_hbm_and_newmark_agree_within_one_percent(steady):
@@ -173,7 +173,7 @@ def test_sweep_cli_runs_on_multistage(yaml_path, tmp_path, capsys):
 
 def test_nnm_branches_multistage(yaml_path):
     from dmf_sim.solvers.nnm import NNMOptions, nnm_branches
-    m = load_driveline(yaml_path).reduce()
+    m = read_driveline(yaml_path).reduce()
     res = nnm_branches(m, xi_max=4.0, options=NNMOptions(n_harmonics=8, step_max=0.3))
     prim = res.branches['primary']
     f = prim.frequency_at(np.array([1.0, 3.0]))
@@ -183,7 +183,7 @@ def test_nnm_branches_multistage(yaml_path):
 
 def test_live_simulation_multistage(yaml_path):
     from dmf_sim.live.simulation import LiveSimulation
-    line = load_driveline(yaml_path)
+    line = read_driveline(yaml_path)
     sim = LiveSimulation(line, ENGINE, speed_rpm=SPEED, load=1.0)
     s = sim.advance(3000)
     assert len(s) == 300 and np.all(np.isfinite(s.effort))
@@ -226,7 +226,7 @@ def test_steady_cli_multistage(yaml_path, capsys):
     data = json.loads(capsys.readouterr().out)
     states = data['states']
     assert states and any(s['stable'] for s in states)
-    spring = load_driveline(yaml_path).spring
+    spring = read_driveline(yaml_path).spring
     assert all(spring.stage(s['mean']) == 2 for s in states)
     assert data['basin_sampling']['unsettled'] == 0
     assert sum(s['basin']['hits'] for s in states) == 4
@@ -241,11 +241,11 @@ def test_live_node_runs_the_multistage_yaml(yaml_path, tmp_path):
     from std_msgs.msg import Float64
 
     from dmf_sim.live.parameters import PARAMETERS
-    from dmf_sim.physics.engine import load_engine
+    from dmf_sim.physics.engine import read_engine
 
     speed, load = (PARAMETERS[n].default for n in ('initial_speed_rpm', 'initial_load'))
-    loads = DrivelineLoads(load_driveline(yaml_path).reduce(),
-                           load_engine(PARAMETERS['engine'].default))
+    loads = DrivelineExcitation(read_driveline(yaml_path).reduce(),
+                           read_engine(PARAMETERS['engine'].default))
     static = loads.static_state(speed, load).windup
     assert loads.model.spring.stage(static) >= 1           # beyond the first drive knee
     domain = new_domain()

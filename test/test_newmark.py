@@ -6,9 +6,9 @@ from fake_engine import FakeEngine
 
 from dmf_sim.core.units import RPM_TO_RAD_S
 from dmf_sim.physics.harmonic import solve_harmonic
-from dmf_sim.physics.loads import DrivelineLoads
-from dmf_sim.physics.model import load_model
-from dmf_sim.solvers.newmark import NewmarkIntegrator, StepRecord, simulate
+from dmf_sim.physics.loads import DrivelineExcitation
+from dmf_sim.physics.model import read_model
+from dmf_sim.solvers.newmark import NewmarkIntegrator, SimulationOptions, StepRecord, simulate
 
 # mean 400 Nm per cylinder (2400 Nm engine: wind-up just below the 0.24 rad knee), 1.5th/3rd/6th
 # orders
@@ -16,12 +16,12 @@ ENGINE = FakeEngine({0: 400.0, 3: 150 + 50j, 6: 700 - 300j, 12: 250 + 100j})
 
 
 def loads(alpha=2.5, engine=ENGINE):
-    return DrivelineLoads(load_model('truck_dmf', alpha=alpha), engine)
+    return DrivelineExcitation(read_model('truck_dmf', alpha=alpha), engine)
 
 
 def test_linear_case_equals_harmonic_response():
     L = loads(alpha=0.0)
-    r = simulate(L, 1100, 1.0, dt=1e-4)
+    r = simulate(L, 1100, 1.0, options=SimulationOptions(dt=1e-4))
     assert r.steady
     P = L.dof_harmonics(1100, 1.0)
     for n in (3, 6, 12):
@@ -35,7 +35,7 @@ def test_linear_case_equals_harmonic_response():
 
 def test_energy_balance_over_steady_cycles():
     L = loads(alpha=2.5)
-    r = simulate(L, 900, 1.0, dt=1e-4, eval_cycles=3)
+    r = simulate(L, 900, 1.0, options=SimulationOptions(dt=1e-4, eval_cycles=3))
     integ = r.integrator
     m = L.model
     P = integ.generalized_load(r.psi)
@@ -57,8 +57,8 @@ def test_energy_balance_over_steady_cycles():
 
 def test_step_refinement_orders_within_half_percent():
     L = loads(alpha=3.0)
-    coarse = simulate(L, 850, 1.0, dt=1e-4)
-    fine = simulate(L, 850, 1.0, dt=0.5e-4)
+    coarse = simulate(L, 850, 1.0, options=SimulationOptions(dt=1e-4))
+    fine = simulate(L, 850, 1.0, options=SimulationOptions(dt=0.5e-4))
     assert coarse.steady and fine.steady
     assert coarse.knee_crossings > 0
     for n in (3, 6):
@@ -69,12 +69,12 @@ def test_step_refinement_orders_within_half_percent():
 def test_mean_windup_equals_static_value():
     L = loads(alpha=2.5)
     # primary-only operating point: mean wind-up equals the static wind-up
-    r = simulate(L, 1400, 0.5, dt=1e-4)
+    r = simulate(L, 1400, 0.5, options=SimulationOptions(dt=1e-4))
     st = L.static_state(1400, 0.5)
     assert r.knee_crossings == 0
     assert r.summary.mean == pytest.approx(st.windup, rel=1e-4)
     # across the knee the mean DMF torque (not the mean angle) equals the static torque
-    r2 = simulate(L, 900, 1.0, dt=1e-4)
+    r2 = simulate(L, 900, 1.0, options=SimulationOptions(dt=1e-4))
     st2 = L.static_state(900, 1.0)
     assert r2.knee_crossings > 0
     torque = L.model.spring.torque(r2.windup)
@@ -129,7 +129,7 @@ def test_kernel_steps_ahead_equal_step_by_step():
 def test_run_up_600_to_2000_stays_bounded():
     L = loads(alpha=2.5)
     r = simulate(L, 600, 1.0, t_end=8.0, target_speed_rpm=2000, ramp_rpm_per_s=200.0,
-                 record_stride=10)
+                 options=SimulationOptions(record_stride=10))
     assert r.speed_rpm[-1] == pytest.approx(2000.0)
     # crank angle is the integral of the speed (trapezoid of the linear ramp)
     t_ramp = 1400 / 200.0
@@ -159,8 +159,9 @@ def test_step_refinement_real_engine_at_knee_grazing_point(engine_2500):
     dt = 1e-4 s the Newmark period error there shifts the 1.5th order by ~3 %; at dt = 5e-5 s
     halving the step changes both orders by < 0.5 % (doc/theory.md §5: dt <= 5e-5 s offline near
     such points)."""
-    L = DrivelineLoads(load_model('truck_dmf', alpha=3.0), engine_2500)
-    runs = [simulate(L, 1000, 1.0, dt=dt, steady_tol=1e-9, max_cycles=120)
+    L = DrivelineExcitation(read_model('truck_dmf', alpha=3.0), engine_2500)
+    runs = [simulate(L, 1000, 1.0,
+                     options=SimulationOptions(dt=dt, steady_tol=1e-9, max_cycles=120))
             for dt in (5e-5, 2.5e-5)]
     assert runs[0].knee_crossings > 0
     for n in (3, 6):

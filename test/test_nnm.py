@@ -6,7 +6,7 @@ import pytest
 
 from dmf_sim.cli import main
 from dmf_sim.physics.modal import modes
-from dmf_sim.physics.model import load_driveline, load_model
+from dmf_sim.physics.model import read_driveline, read_model
 from dmf_sim.solvers.nnm import (
     ConservativeNNM,
     NNMOptions,
@@ -21,7 +21,7 @@ from dmf_sim.solvers.nnm import (
 
 @pytest.fixture(scope='module')
 def model():
-    return load_model('truck_dmf', alpha=2.0)
+    return read_model('truck_dmf', alpha=2.0)
 
 
 @pytest.fixture(scope='module')
@@ -158,7 +158,7 @@ def test_flat_branches_sit_at_subsystem_resonances(model, result):
 
 
 def test_coast_knee_and_errors():
-    line = load_driveline('truck_dmf', alpha=2.0)
+    line = read_driveline('truck_dmf', alpha=2.0)
     coast = line.with_dmf(coast_stages=[(0.1, 1.0)]).reduce()
     s = ConservativeNNM(coast, 0.12, options=NNMOptions(step_max=0.1))
     assert len(s.force.beta) == 2
@@ -166,11 +166,11 @@ def test_coast_knee_and_errors():
     i = int(np.argmin(np.abs(br.xi - 2.5)))
     assert s.periodicity_error(br.coefficients[i], 2 * np.pi * br.frequency_hz[i]) < 1e-3
     with pytest.raises(ValueError, match='alpha = 0'):
-        ConservativeNNM(load_model('truck_dmf', alpha=0.0), 0.1)
+        ConservativeNNM(read_model('truck_dmf', alpha=0.0), 0.1)
     with pytest.raises(ValueError, match='no dmf'):
-        nnm_branches(load_model('truck_conventional'))
+        nnm_branches(read_model('truck_conventional'))
     with pytest.raises(ValueError, match='on a knee'):
-        ConservativeNNM(load_model('truck_dmf'), 0.24)
+        ConservativeNNM(read_model('truck_dmf'), 0.24)
 
 
 def test_cli_writes_csv_json_png(tmp_path, capsys):

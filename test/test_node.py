@@ -80,7 +80,7 @@ def test_setpoints_outputs_fast_spell_and_a_bag_that_analyses(tmp_path, capsys):
     from std_msgs.msg import Float64
 
     from dmf_sim.cli import main as cli_main
-    from dmf_sim.physics.model import load_model
+    from dmf_sim.physics.model import read_model
 
     domain = new_domain()
     bag = tmp_path / 'run_bag'
@@ -117,7 +117,7 @@ def test_setpoints_outputs_fast_spell_and_a_bag_that_analyses(tmp_path, capsys):
         assert np.all(np.diff(speeds) >= -1e-9)   # ramped, monotone
 
         js = peer.last['/driveline/joint_states']
-        assert list(js.name) == load_model('truck_dmf').names
+        assert list(js.name) == read_model('truck_dmf').names
         assert len(js.position) == len(js.velocity) == len(js.effort) == 22
         assert np.all(np.isfinite(js.effort)) and np.abs(js.effort).max() > 100
         assert peer.spin_until(lambda: peer.diagnostics().get('speed_rpm', '') == '1500.000', 5)

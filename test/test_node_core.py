@@ -19,7 +19,7 @@ from dmf_sim.live.pacing import LagStats, Pacer, TimeBase, publish_stride
 from dmf_sim.live.parameters import DMF_PARAMETERS, PARAMETERS, coerce
 from dmf_sim.live.recording import RecordingControl, run_metadata
 from dmf_sim.live.run_loop import RunLoop, SetpointInbox
-from dmf_sim.live.runtime import LiveRuntime, load_line
+from dmf_sim.live.runtime import LiveRuntime, read_line
 from dmf_sim.live.simulation import LiveSimulation, check_setpoint, ramp_toward, split_steps
 
 REPO = Path(__file__).resolve().parents[1]
@@ -475,7 +475,7 @@ def runtime_values(**over):
 def make_runtime(**over):
     log, sink = ListLog(), ListSink()
     values = runtime_values(**over)
-    rt = LiveRuntime(values, load_line(values['driveline']), sink, log, topics=TOPICS,
+    rt = LiveRuntime(values, read_line(values['driveline']), sink, log, topics=TOPICS,
                      node_name='/truck1/driveline_node')
     return rt, log
 
@@ -493,7 +493,7 @@ def make_runtime(**over):
 def test_bad_start_up_configuration_is_one_config_error(over, words):
     with pytest.raises(ConfigError) as exc:
         if 'driveline' in over:
-            load_line(over['driveline'])
+            read_line(over['driveline'])
         make_runtime(**over)
     assert words in str(exc.value) and '\n' not in str(exc.value)
     assert isinstance(exc.value, DmfSimError)

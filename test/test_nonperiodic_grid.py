@@ -13,11 +13,11 @@ import pytest
 import yaml
 
 from dmf_sim.core.paths import config_file
-from dmf_sim.physics.engine import load_engine
-from dmf_sim.physics.loads import DrivelineLoads
-from dmf_sim.physics.model import load_driveline
+from dmf_sim.physics.engine import read_engine
+from dmf_sim.physics.loads import DrivelineExcitation
+from dmf_sim.physics.model import read_driveline
 from dmf_sim.solvers.hbm import SweepOptions, sweep
-from dmf_sim.solvers.newmark import simulate
+from dmf_sim.solvers.newmark import SimulationOptions, simulate
 
 GRID = (650.0, 700.0, 50.0)
 
@@ -38,8 +38,8 @@ def loads(tmp_path_factory):
             re = 60 / 6 if n == 0 else (2500 / 6 if n == 6 else 0.0)
             rows.append(f'{s},{n},{re!r},0.0')
     (tmp / 'pure3.csv').write_text('\n'.join(rows) + '\n')
-    return DrivelineLoads(load_driveline(tmp / 'coast2.yaml').reduce(),
-                          load_engine(tmp / 'pure3.csv'))
+    return DrivelineExcitation(read_driveline(tmp / 'coast2.yaml').reduce(),
+                          read_engine(tmp / 'pure3.csv'))
 
 
 def test_every_grid_speed_without_a_stable_state_has_its_envelope_on_the_grid(loads):
@@ -55,7 +55,7 @@ def test_every_grid_speed_without_a_stable_state_has_its_envelope_on_the_grid(lo
     assert band.instability == 'torus' and r.label in ('quasi-periodic', 'chaotic')
     # the envelope is what a long run shows: independent Newmark from the static equilibrium
     T = 4 * np.pi / (lo * np.pi / 30)
-    nm = simulate(loads, lo, 1.0, t_end=150 * T, record_stride=2)
+    nm = simulate(loads, lo, 1.0, t_end=150 * T, options=SimulationOptions(record_stride=2))
     w = nm.windup[nm.psi >= 60 * 4 * np.pi]
     assert w.max() - w.mean() == pytest.approx(r.max_deviation, rel=0.15)
     assert w.min() - w.mean() == pytest.approx(r.min_deviation, rel=0.15)

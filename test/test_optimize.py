@@ -14,11 +14,11 @@ import numpy as np
 import pytest
 
 from dmf_sim.cli import main as cli_main
+from dmf_sim.cluster import local_cluster
 from dmf_sim.core.errors import ConfigError
 from dmf_sim.design.parameters import design_driveline
-from dmf_sim.design.runner import local_cluster
 from dmf_sim.design.table import LOCK_FILE
-from dmf_sim.optimize import load_problem, run_optimization
+from dmf_sim.optimize import read_problem, run_optimization
 from dmf_sim.optimize.constraints import rank
 from dmf_sim.optimize.hypervolume import hypervolume, hypervolume_history
 from dmf_sim.optimize.runner import finish
@@ -56,7 +56,7 @@ def client():
 
 @pytest.fixture(scope='module')
 def problem():
-    return load_problem(PROBLEM)
+    return read_problem(PROBLEM)
 
 
 @pytest.fixture(scope='module')
@@ -154,7 +154,7 @@ def test_resume_after_an_interruption_skips_finished_designs(client, problem, ru
     more = run_optimization(problem, client, out=tmp_path, resume=True, budget=10)
     assert more.n_computed == 2 and more.n_designs == 10
     with pytest.raises(ConfigError, match='different study|another optimization'):
-        run_optimization(load_problem(_problem(seed=4)), client, out=tmp_path, resume=True)
+        run_optimization(read_problem(_problem(seed=4)), client, out=tmp_path, resume=True)
 
 
 def test_a_fresh_run_with_resume_enqueues_its_designs(problem, tmp_path):
@@ -171,7 +171,7 @@ def test_a_fresh_run_with_resume_enqueues_its_designs(problem, tmp_path):
     assert len(waiting) == problem.budget
     d = _problem(initial=[{'theta': 0.2, 'alpha': 3.0, 'stages[1].angle_step_rad': 0.03,
                            'stages[1].stiffness_factor': 3.0}])
-    opt = _open_study(load_problem(d), tmp_path / 'opt', resume=True)
+    opt = _open_study(read_problem(d), tmp_path / 'opt', resume=True)
     from optuna.distributions import FloatDistribution
     first = opt.ask({v.name: FloatDistribution(v.low, v.high) for v in problem.variables})
     assert first.params == d['optimizer']['initial'][0]
@@ -180,15 +180,15 @@ def test_a_fresh_run_with_resume_enqueues_its_designs(problem, tmp_path):
 def test_a_failing_design_is_a_row_and_ranked_last(client, tmp_path):
     d = _problem(budget=4, batch_size=2)
     d['solver']['time_limit_s'] = 0.001
-    res = run_optimization(load_problem(d), client, out=tmp_path)
+    res = run_optimization(read_problem(d), client, out=tmp_path)
     rows = res.rows('design')
     assert len(rows) == 4
     assert all(r['status'] == 'failed' and 'TimeLimitError' in r['error'] for r in rows)
     assert all(not r['feasible'] and r['constraints'] == 'failed' for r in rows)
     assert res.pareto_ids == [] and res.best_id is None
     # one failed design among good ones ranks after every other
-    good = run_optimization(load_problem(_problem(budget=2, batch_size=2)), client).rows()
-    mixed = finish(load_problem(_problem()), good + [dict(r, design_id=99) for r in
+    good = run_optimization(read_problem(_problem(budget=2, batch_size=2)), client).rows()
+    mixed = finish(read_problem(_problem()), good + [dict(r, design_id=99) for r in
                                                      res.rows() if r['design_id'] == 0])
     by_id = {r['design_id']: r['rank'] for r in mixed.rows('design')}
     assert by_id[99] == max(by_id.values()) and by_id[99] > by_id[0]
@@ -239,7 +239,7 @@ def test_the_summary_says_what_the_time_domain_is_compared_with():
 ])
 def test_bad_optimizer_section_is_one_line(change, field):
     with pytest.raises(ConfigError) as e:
-        load_problem(_problem(**change))
+        read_problem(_problem(**change))
     assert field in str(e.value) and '\n' not in str(e.value)
 
 
@@ -249,7 +249,7 @@ def test_an_increment_over_the_base_springs_knee(tmp_path):
     traceback instead of the problem)."""
     d = _problem()
     del d['variables']['theta']
-    p = load_problem(d)
+    p = read_problem(d)
     step = next(v for v in p.variables if v.name == 'stages[1].angle_step_rad')
     assert step.step_of.name == 'stages[0].angle_rad'
     reach = p.study.ranges[p.study.variable_names.index('stages[1].angle_rad')]
@@ -260,13 +260,13 @@ def test_absolute_later_stage_angle_asks_for_an_increment():
     d = _problem()
     d['variables']['stages[1].angle_rad'] = d['variables'].pop('stages[1].angle_step_rad')
     with pytest.raises(ConfigError, match=r'stages\[1\].angle_step_rad'):
-        load_problem(d)
+        read_problem(d)
 
 
 def test_cli_report_yaml_designs_and_json(client, tmp_path, capsys):
     import yaml
 
-    from dmf_sim.physics.model import load_driveline
+    from dmf_sim.physics.model import read_driveline
     study = tmp_path / 'study.yaml'
     study.write_text(yaml.safe_dump(_problem(budget=4, batch_size=4)))
     out = tmp_path / 'out'
@@ -288,7 +288,7 @@ def test_cli_report_yaml_designs_and_json(client, tmp_path, capsys):
         assert (out / name).stat().st_size > 0
     assert not (out / LOCK_FILE).exists() and not (out / 'baseline' / LOCK_FILE).exists()
     for design_id, path in s['files']['designs'].items():
-        line = load_driveline(path)
+        line = read_driveline(path)
         row = next(r for r in s['pareto'] if str(r['design_id']) == design_id)
         assert line.spring.theta == pytest.approx(row['theta'])
         assert line.spring.drive[1].angle_rad == pytest.approx(row['stages[1].angle_rad'])
@@ -316,7 +316,7 @@ def test_a_smaller_budget_on_resume_never_drops_stored_designs(client, tmp_path,
     assert 'pass --budget 8 or more' in err
     assert {f: (out / f).read_bytes() for f in stored} == stored
     with pytest.raises(ConfigError, match='holds 8 designs'):      # the library route too
-        run_optimization(load_problem(_problem(budget=8, batch_size=4)), client, out=out,
+        run_optimization(read_problem(_problem(budget=8, batch_size=4)), client, out=out,
                          resume=True, budget=5)
     assert cli_main(args + ['--resume']) == 0                       # the same budget: all kept
     again = json.loads(capsys.readouterr().out)

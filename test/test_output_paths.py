@@ -23,7 +23,8 @@ COMPUTE = ['dmf_sim.commands.modes.modes', 'dmf_sim.commands.loads.mean_torques'
            'dmf_sim.solvers.hbm.sweep', 'dmf_sim.commands.nnm.nnm_branches',
            'dmf_sim.commands.paper.PaperStudy', 'dmf_sim.analysis.pipeline.analyze_bag',
            'dmf_sim.design.runner.run_study', 'dmf_sim.design.runner.start_local',
-           'dmf_sim.design.runner.connect', 'dmf_sim.optimize.runner.run_optimization',
+           'dmf_sim.cluster.connect', 'dmf_sim.cluster.start_local',
+           'dmf_sim.optimize.runner.run_optimization',
            'dmf_sim.transient.run.run_profile', 'dmf_sim.transient.runup.runup_analysis',
            'dmf_sim.durability.read.bag_durability', 'dmf_sim.bags.recovery.recover_bag']
 
@@ -31,11 +32,11 @@ COMPUTE = ['dmf_sim.commands.modes.modes', 'dmf_sim.commands.loads.mean_torques'
 @pytest.fixture(scope='module')
 def bags(tmp_path_factory):
     """A short run-up and run-down bag (dmf-sim run)."""
-    from dmf_sim.transient.profiles import load_profile
+    from dmf_sim.transient.profiles import read_profile
     from dmf_sim.transient.run import RunOptions, run_profile
     root = tmp_path_factory.mktemp('bags')
     for name, spec in (('up', 'ramp:1000:1100:500:1:0.1'), ('down', 'ramp:1100:1000:500:1:0.1')):
-        run_profile(load_profile(spec), root / name, RunOptions(threads=1))
+        run_profile(read_profile(spec), root / name, RunOptions(threads=1))
     return root
 
 
@@ -152,8 +153,7 @@ def test_overwrite_leaves_no_stale_file_of_the_earlier_run(bags, tmp_path, capsy
 
 
 def test_a_failed_run_keeps_the_earlier_output_and_leaves_no_new_directory(tmp_path):
-    from dmf_sim.core.destinations import MANIFEST as manifest
-    from dmf_sim.core.destinations import claim
+    from dmf_sim.core.destinations import MANIFEST as manifest, claim
     assert manifest == MANIFEST
     earlier = claim(tmp_path / 'a', 'x')
     with earlier.writing() as d:

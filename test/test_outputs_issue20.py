@@ -72,12 +72,12 @@ def test_modes_of_a_driveline_without_dmf_names_no_dmf_region(capsys, tmp_path):
 
 
 def _states_at_1000_rpm():
-    from dmf_sim.physics.engine import load_engine
-    from dmf_sim.physics.loads import DrivelineLoads
-    from dmf_sim.physics.model import load_driveline
+    from dmf_sim.physics.engine import read_engine
+    from dmf_sim.physics.loads import DrivelineExcitation
+    from dmf_sim.physics.model import read_driveline
     from dmf_sim.solvers.hbm import CondensedHBM
     from dmf_sim.solvers.steady import SteadyState, SteadyStateSet
-    L = DrivelineLoads(load_driveline('truck_dmf').reduce(), load_engine('engine_d13'))
+    L = DrivelineExcitation(read_driveline('truck_dmf').reduce(), read_engine('engine_d13'))
     hb = CondensedHBM(L, 1.0)
     good, bad = hb.solve(1000.0), hb.solve(1000.0)
     good.stable, bad.stable = True, False
@@ -110,11 +110,11 @@ def test_the_1251_rpm_spike_is_the_6th_order_meeting_the_125_hz_crank_mode():
     order at 228.7 Hz: the 6th engine order (n = 12) meets the 125.1 Hz mode (damping ratio
     0.05 %); the LINEAR 6th-order wind-up already dips there (harmonic balance with H = 24 and
     36 agree, so it is no aliasing), while the 11th order is 0.002 mrad and flat."""
-    from dmf_sim.physics.engine import load_engine
-    from dmf_sim.physics.loads import DrivelineLoads
-    from dmf_sim.physics.model import load_driveline
+    from dmf_sim.physics.engine import read_engine
+    from dmf_sim.physics.loads import DrivelineExcitation
+    from dmf_sim.physics.model import read_driveline
     from dmf_sim.solvers.hbm import CondensedHBM, HBMOptions
-    L = DrivelineLoads(load_driveline('truck_dmf').reduce(), load_engine('engine_d13'))
+    L = DrivelineExcitation(read_driveline('truck_dmf').reduce(), read_engine('engine_d13'))
     hb = CondensedHBM(L, 1.0)
     marks = hb.sharp_resonances((600.0, 2000.0))
     m = next(r for r in marks if r['half_order'] == 12)
@@ -181,7 +181,7 @@ def test_pareto_plot_shows_designs_hidden_under_one_marker():
 
 
 def test_worker_watch_says_lost_joined_and_restarted():
-    from dmf_sim.design.runner import WorkerWatch
+    from dmf_sim.cluster import WorkerWatch
 
     class FakeClient:
         workers = {'tcp://a:1': {'name': 'w0'}, 'tcp://b:1': {'name': 'w1'}}
@@ -210,7 +210,7 @@ def test_worker_watch_on_a_real_cluster():
 
     from distributed import Client, LocalCluster
 
-    from dmf_sim.design.runner import WorkerWatch
+    from dmf_sim.cluster import WorkerWatch
     events, seen = [], threading.Event()
 
     def say(line):

@@ -10,10 +10,9 @@ import numpy as np
 import pytest
 
 from dmf_sim.paper.study import stable_peak_1_5
-from dmf_sim.physics.loads import DrivelineLoads
-from dmf_sim.physics.model import load_model
-from dmf_sim.solvers.hbm import SweepOptions
-from dmf_sim.solvers.hbm import sweep as run_sweep
+from dmf_sim.physics.loads import DrivelineExcitation
+from dmf_sim.physics.model import read_model
+from dmf_sim.solvers.hbm import SweepOptions, sweep as run_sweep
 
 pytestmark = pytest.mark.slow     # full sweeps for three alphas and three load sets
 
@@ -29,7 +28,7 @@ def engine(engine_d13):
 @pytest.fixture(scope='module')
 def load_a(engine):
     """Full Load A for alpha 2, 2.5, 3 (600-1300 rpm)."""
-    return {a: run_sweep(DrivelineLoads(load_model('truck_dmf', alpha=a), engine), 1.0,
+    return {a: run_sweep(DrivelineExcitation(read_model('truck_dmf', alpha=a), engine), 1.0,
                          (600.0, 1300.0), options=GRID) for a in (2.0, 2.5, 3.0)}
 
 
@@ -63,10 +62,10 @@ def test_green_line_reads_as_the_paper(load_a):
 
 
 def test_load_sets_b_and_c_peak_at_lower_speeds(engine, load_a):
-    model = load_model('truck_dmf', alpha=2.5)
+    model = read_model('truck_dmf', alpha=2.5)
     speed = {'A': stable_peak_1_5(load_a[2.5])['speed_rpm']}
     for ls in ('B', 'C'):
-        res = run_sweep(DrivelineLoads(model, engine.with_load_set(ls)), 1.0, (600.0, 1300.0),
+        res = run_sweep(DrivelineExcitation(model, engine.with_load_set(ls)), 1.0, (600.0, 1300.0),
                         options=GRID)
         speed[ls] = stable_peak_1_5(res, *BAND)['speed_rpm']
     assert speed['C'] < speed['A'] and speed['B'] < speed['A'], speed   # 880, 940 < 980 rpm
@@ -75,10 +74,10 @@ def test_load_sets_b_and_c_peak_at_lower_speeds(engine, load_a):
 def test_newmark_confirms_the_alpha_3_peak(load_a):
     """Time integration started at the static equilibrium (not on the HBM solution) reaches the
     same steady state at the peak: 1.5th order within 1 % (dt 5e-5 s, see doc/theory.md §5)."""
-    from dmf_sim.solvers.newmark import simulate
+    from dmf_sim.solvers.newmark import SimulationOptions, simulate
     res = load_a[3.0]
     (hb,) = res.solutions_at(1000.0)
-    nm = simulate(res.hbm.loads, 1000.0, 1.0, dt=5e-5)
+    nm = simulate(res.hbm.loads, 1000.0, 1.0, options=SimulationOptions(dt=5e-5))
     assert nm.steady
     assert nm.summary.order_1_5 == pytest.approx(hb.order_1_5, rel=0.01)
     assert nm.summary.order_3 == pytest.approx(hb.order_3, rel=0.01)

@@ -66,10 +66,10 @@ def _problem(d):
 
 
 def _durability(d, tmp_path: Path):
-    from dmf_sim.durability.settings import load_settings
+    from dmf_sim.durability.settings import read_settings
     path = tmp_path / 'dur.yaml'
     path.write_text(yaml.safe_dump(d))
-    return load_settings(path)
+    return read_settings(path)
 
 
 def _set(path: str):
@@ -309,8 +309,8 @@ def test_every_bound_of_the_table_is_tested():
 
 def test_the_library_route_uses_the_same_bounds():
     from dmf_sim.design.parameters import design_driveline, parse_parameter
-    from dmf_sim.physics.model import load_driveline
-    line = load_driveline('truck_dmf')
+    from dmf_sim.physics.model import read_driveline
+    line = read_driveline('truck_dmf')
     with pytest.raises(ConfigError, match=r"dmf: field 'damping' must be in \[0, 1e\+06\]"):
         line.with_dmf(damping=1e300)
     with pytest.raises(ConfigError, match=r"dmf: field 'k' must be in \(0, 1e\+10\] Nm/rad"):
@@ -371,8 +371,8 @@ def test_cli_huge_stiffness_is_refused_and_the_bound_itself_gives_modes(tmp_path
 
 def modes_of(name: str) -> np.ndarray:
     from dmf_sim.physics.modal import modes
-    from dmf_sim.physics.model import load_model
-    return modes(load_model(name)).frequencies_hz
+    from dmf_sim.physics.model import read_model
+    return modes(read_model(name)).frequencies_hz
 
 
 def test_cli_study_with_huge_damping_is_refused_before_any_design(tmp_path, capsys):

@@ -20,8 +20,8 @@ from dmf_sim.monitor.prediction import (
     predict_states,
     solve_prediction,
 )
-from dmf_sim.physics.loads import DrivelineLoads
-from dmf_sim.physics.model import load_model
+from dmf_sim.physics.loads import DrivelineExcitation
+from dmf_sim.physics.model import read_model
 from dmf_sim.physics.orders import OrderSummary
 from dmf_sim.solvers.newmark import simulate
 
@@ -30,7 +30,7 @@ from dmf_sim.solvers.newmark import simulate
 def knee_loads(engine_2500):
     """alpha 3, theta 0.2 rad, Load A of the 2500 Nm engine: the 1.5th-order resonance near
     900-1070 rpm at full load, with two stable states at 960 rpm."""
-    return DrivelineLoads(load_model('truck_dmf', alpha=3.0, theta=0.2), engine_2500)
+    return DrivelineExcitation(read_model('truck_dmf', alpha=3.0, theta=0.2), engine_2500)
 
 
 def _point(loads, speed, load=1.0):
@@ -96,7 +96,7 @@ def test_operating_point_rounding_is_the_cache_key(knee_loads):
     b = OperatingPoint.rounded(950.4, 0.796, 'A', sp, 5.0, 0.01)
     assert a == b and (a.speed_rpm, a.load) == (950.0, 0.8) and hash(a) == hash(b)
     assert a != OperatingPoint.rounded(950.0, 0.8, 'B', sp, 5.0, 0.01)
-    other = load_model('truck_dmf', alpha=2.0, theta=0.2).spring
+    other = read_model('truck_dmf', alpha=2.0, theta=0.2).spring
     assert a != OperatingPoint.rounded(950.0, 0.8, 'A', other, 5.0, 0.01)
 
 

@@ -24,12 +24,12 @@ from test_analyze import RUNUP_TOL
 from test_analyze_load import TOL_MEAN, TOL_ORDER_1_5, TOL_ORDER_3
 from test_node_core import new_loop, new_sim
 
-from dmf_sim.analysis.pipeline import analyze_bag
+from dmf_sim.analysis.pipeline import AnalysisOptions, analyze_bag
 from dmf_sim.bags.metadata import RunMetadata
 from dmf_sim.bags.read import read_messages
 from dmf_sim.cli import main as cli_main
 from dmf_sim.live.health import HealthMonitor, SimulationHealth, status_name
-from dmf_sim.transient.profiles import DEFAULT_SETTLE_S, load_profile, make_profile
+from dmf_sim.transient.profiles import DEFAULT_SETTLE_S, make_profile, read_profile
 from dmf_sim.transient.run import WRITER_NAME, run_profile
 
 STEP_S, STEP_END_S, DURATION_S = 6.0, 6.5, 14.0       # load 0.5 -> 1.0 between these times
@@ -44,7 +44,7 @@ def step(tmp_path_factory):
                      f'0,1000,0.5\n{STEP_S:g},1000,0.5\n{STEP_END_S:g},1000,1.0\n'
                      f'{DURATION_S:g},1000,1.0\n')
     out = root / 'step'
-    run_profile(load_profile(table), out)
+    run_profile(read_profile(table), out)
     return out
 
 
@@ -114,7 +114,7 @@ def test_road_cycle_compared_at_its_loads(tmp_path, capsys):
     """The packaged road cycle, its first 45 s (idle at load 0.05, launch, upshifts with the
     load changing all the time): the steady rows are the idle at 600 rpm, at load 0.05, within
     the tolerances of the HBM; none of the launch and shift rows is steady."""
-    road = load_profile('truck_road_cycle')
+    road = read_profile('truck_road_cycle')
     keep = road.t_s <= ROAD_CUT_S
     cut = make_profile(zip(road.t_s[keep], road.speed_rpm[keep], road.load[keep]),
                        name='truck_road_cycle_start')
@@ -136,7 +136,7 @@ def test_settle_left_out_of_a_ramp(tmp_path, capsys):
     cycles out and says so; every steady row then agrees with the HBM within the run-up
     tolerances, the 800 rpm row included. With the settle (--start 0) that row does not."""
     out = tmp_path / 'ramp'
-    run_profile(load_profile('ramp:800:900:10'), out)
+    run_profile(read_profile('ramp:800:900:10'), out)
     res = analyze_bag(out)
     assert res.series.bag.run_metadata.settle_s == DEFAULT_SETTLE_S
     assert res.signal('windup').cycles.t_start.min() >= DEFAULT_SETTLE_S
@@ -170,5 +170,6 @@ def test_settle_marked_in_any_bag_is_left_out(tmp_path):
     res = analyze_bag(bag)
     cyc = res.signal('windup').cycles
     assert cyc.t_start.min() >= 3.0 and len(cyc) > 10
-    assert cyc.t_start.min() > analyze_bag(bag, start_s=0.0).signal('windup').cycles.t_start.min()
+    everything = analyze_bag(bag, options=AnalysisOptions(start_s=0.0))
+    assert cyc.t_start.min() > everything.signal('windup').cycles.t_start.min()
     check_table(res.signal('windup').table, WINDUP)

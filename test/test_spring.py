@@ -8,7 +8,7 @@ import yaml
 
 from dmf_sim.core.errors import ConfigError
 from dmf_sim.core.paths import config_file
-from dmf_sim.physics.model import driveline_from_dict, load_driveline
+from dmf_sim.physics.model import driveline_from_dict, read_driveline
 from dmf_sim.physics.spring import PiecewiseLinearSpring, Stage
 
 K = 10890.0
@@ -131,19 +131,19 @@ def test_bad_dmf_yaml_one_line(mutate, message):
 
 def test_config_file_errors_say_what_is_wrong(tmp_path):
     with pytest.raises(ConfigError, match='not a driveline YAML mapping'):
-        load_driveline('/dev/null')
+        read_driveline('/dev/null')
     with pytest.raises(ConfigError, match='is a directory'):
-        load_driveline(str(tmp_path))
+        read_driveline(str(tmp_path))
     bad = tmp_path / 'bad.yaml'
     bad.write_text('name: x\nelements: [\n  {name: a, ratio: 1,\n')
     with pytest.raises(ConfigError, match=r'bad.yaml:\d+:\d+: invalid YAML'):
-        load_driveline(str(bad))
+        read_driveline(str(bad))
     binary = tmp_path / 'blob.yaml'
     binary.write_bytes(bytes(range(256)))
     with pytest.raises(ConfigError, match='not a text file'):
-        load_driveline(str(binary))
+        read_driveline(str(binary))
     with pytest.raises(ConfigError, match='config file not found'):
-        load_driveline('no_such_driveline')
+        read_driveline('no_such_driveline')
 
 
 def test_describe_names_every_stage():

@@ -11,13 +11,13 @@ import pytest
 
 from dmf_sim.cli import main as cli_main
 from dmf_sim.core.errors import ConfigError
-from dmf_sim.physics.engine import load_engine
-from dmf_sim.physics.loads import DrivelineLoads
-from dmf_sim.physics.model import load_driveline
+from dmf_sim.physics.engine import read_engine
+from dmf_sim.physics.loads import DrivelineExcitation
+from dmf_sim.physics.model import read_driveline
 from dmf_sim.solvers.hbm import CondensedHBM, SweepOptions, sweep
 from dmf_sim.solvers.hbm.deflation import DeflatedNewton
 from dmf_sim.solvers.hbm.layout import amplitudes, shift, to_real
-from dmf_sim.solvers.newmark import simulate
+from dmf_sim.solvers.newmark import SimulationOptions, simulate
 from dmf_sim.solvers.nonperiodic import NonPeriodicOptions, classify_section
 from dmf_sim.solvers.steady import BasinOptions, find_steady_states, wilson_interval
 
@@ -37,15 +37,15 @@ def pure3(tmp_path_factory):
 
 
 def loads_for(engine, alpha, **dmf):
-    line = load_driveline('truck_dmf', alpha=alpha).with_dmf(**dmf)
-    return DrivelineLoads(line.reduce(), engine)
+    line = read_driveline('truck_dmf', alpha=alpha).with_dmf(**dmf)
+    return DrivelineExcitation(line.reduce(), engine)
 
 
 def test_stable_subharmonic_at_950_rpm_agrees_with_newmark(pure3):
     """Continuation and branch switching alone stop the 1.5th-order branch at its fold (910 rpm);
     the full search finds the stable 1.5th-order state at 950 rpm (7.1 mrad), reported once with
     multiplicity 2, and Newmark from a perturbed static start lands on it."""
-    L = loads_for(load_engine(pure3), 3.0)
+    L = loads_for(read_engine(pure3), 3.0)
     fast = sweep(L, 1.0, (600.0, 1200.0), options=SweepOptions(search=None))
     assert not any(q.stable and q.order_1_5 > 1e-3 for q in fast.solutions_at(950.0))
     res = sweep(L, 1.0, (600.0, 1200.0))
@@ -57,13 +57,14 @@ def test_stable_subharmonic_at_950_rpm_agrees_with_newmark(pure3):
     assert branch.multiplicity == 2
     st = L.static_state(950.0, 1.0)
     nm = simulate(L, 950.0, 1.0, initial=(st.q + 2e-3 * L.model.e / (L.model.e @ L.model.e),
-                                          np.zeros_like(st.q)), max_cycles=300)
+                                          np.zeros_like(st.q)),
+                  options=SimulationOptions(max_cycles=300))
     assert nm.steady
     assert abs(nm.windup_orders[3]) == pytest.approx(hb_amp, rel=0.02)
 
 
 def test_deflation_avoids_known_roots_and_shift_is_a_symmetry(pure3):
-    L = loads_for(load_engine(pure3), 3.0)
+    L = loads_for(read_engine(pure3), 3.0)
     hb = CondensedHBM(L, 1.0)
     lp = hb.linear_parts(950.0)
     main = hb.solve(950.0)
@@ -99,7 +100,7 @@ def test_torus_speed_is_non_periodic_with_newmark_envelope(pure3):
     """At 620 rpm (alpha 2.5) the periodic solution has lost stability through a complex
     multiplier pair; the sweep reports the speed non-periodic with the envelope of a long time
     integration, which an independent long Newmark run confirms (+63/-56 mrad)."""
-    L = loads_for(load_engine(pure3), 2.5)
+    L = loads_for(read_engine(pure3), 2.5)
     res = sweep(L, 1.0, (600.0, 640.0))
     rows = [r for r in res.rows() if r['kind'] == 'non_periodic' and r['speed_rpm'] == 620.0]
     assert len(rows) == 1
@@ -108,7 +109,7 @@ def test_torus_speed_is_non_periodic_with_newmark_envelope(pure3):
     assert not any(q.stable for q in res.solutions_at(620.0))
     # independent check: from the static equilibrium, 250 cycles, the last 150 kept
     T = 4 * np.pi / (620.0 * np.pi / 30)
-    nm = simulate(L, 620.0, 1.0, t_end=250 * T, record_stride=2)
+    nm = simulate(L, 620.0, 1.0, t_end=250 * T, options=SimulationOptions(record_stride=2))
     keep = nm.psi >= 100 * 4 * np.pi
     w = nm.windup[keep]
     assert w.max() - w.mean() == pytest.approx(row['max_deviation'], rel=0.1)
@@ -135,8 +136,8 @@ def test_poincare_labels():
 def test_low_damping_sweep_completes_and_covers_the_range():
     """DMF damping 49.5 -> 5 Nms/rad (the issue's case): the sweep completes without error and
     covers 600-1200 rpm; a stable periodic state exists at 1050 rpm."""
-    L = DrivelineLoads(load_driveline('truck_dmf', alpha=3.0).with_dmf(damping=5.0).reduce(),
-                       load_engine('engine_d13'))
+    L = DrivelineExcitation(read_driveline('truck_dmf', alpha=3.0).with_dmf(damping=5.0).reduce(),
+                       read_engine('engine_d13'))
     res = sweep(L, 1.0, (600.0, 1200.0), options=SweepOptions(step_rpm=10.0))
     assert res.uncovered == []
     grid = np.arange(600.0, 1201.0, 10.0)
@@ -186,7 +187,7 @@ def test_corrector_leaving_the_engine_data_ends_the_branch_with_an_event():
 
 
 def test_steady_lists_states_with_basins_and_confidence(pure3, capsys):
-    L = loads_for(load_engine(pure3), 3.0)
+    L = loads_for(read_engine(pure3), 3.0)
     res = find_steady_states(L, 950.0, 1.0, basin=BasinOptions(samples=12, seed=3))
     stable = res.stable
     assert len(stable) == 1 and stable[0].kind == '1.5th order' and stable[0].multiplicity == 2
@@ -207,7 +208,7 @@ def test_finder_states_are_what_newmark_reaches_from_random_starts(pure3):
     """Every state Newmark reaches from random starts is one of the finder's states, and every
     stable state the finder lists stays put when Newmark starts on it (dt = 5e-5 s: this small
     1.5th order couples to the lightly damped 125 Hz crank mode, where dt = 1e-4 s is 4 % off)."""
-    L = loads_for(load_engine(pure3), 3.0)
+    L = loads_for(read_engine(pure3), 3.0)
     res = find_steady_states(L, 920.0, 1.0, basin=BasinOptions(samples=10, seed=5))
     assert res.unsettled == 0
     found_by_newmark = [s for s in res.states if s.found_by.startswith('time integration')]
@@ -232,14 +233,14 @@ def test_a_branch_that_closes_on_itself_ends_instead_of_circling():
     closed loop between two folds (919 and 1064 rpm). It used to go round it until max_steps
     (about 3,900 points, 9 s); now the branch ends with a closed_loop event, the rest of the range
     is re-seeded, and every grid speed is covered."""
-    L = loads_for(load_engine('engine_d13'), 3.626, theta=0.2343)
+    L = loads_for(read_engine('engine_d13'), 3.626, theta=0.2343)
     res = sweep(L, 1.0, (600.0, 2000.0), options=SweepOptions(search=None))
     assert any(e.kind == 'closed_loop' for e in res.events)
     assert res.n_points < 600 and not res.uncovered
 
 
 def _paper_loads():
-    return loads_for(load_engine('engine_d13'), 3.0, theta=0.24)
+    return loads_for(read_engine('engine_d13'), 3.0, theta=0.24)
 
 
 def test_a_sweep_stops_at_its_time_limit_naming_phase_and_speed():

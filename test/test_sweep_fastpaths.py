@@ -8,9 +8,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from dmf_sim.physics.engine import load_engine
-from dmf_sim.physics.loads import DrivelineLoads
-from dmf_sim.physics.model import load_model
+from dmf_sim.physics.engine import read_engine
+from dmf_sim.physics.loads import DrivelineExcitation
+from dmf_sim.physics.model import read_model
 from dmf_sim.physics.orders import fig13_rows, summarize_orders, synthesize
 from dmf_sim.physics.spring import PiecewiseLinearSpring
 from dmf_sim.solvers.hbm import CondensedHBM, SweepOptions
@@ -22,9 +22,9 @@ from dmf_sim.solvers.hbm.sweep import SpeedSweep
 
 @pytest.fixture(scope='module')
 def loads():
-    eng = load_engine('engine_d13', load_set='A')
-    eng.warm()
-    return DrivelineLoads(load_model('truck_dmf', alpha=3.0), eng)
+    eng = read_engine('engine_d13', load_set='A')
+    eng.warm_up()
+    return DrivelineExcitation(read_model('truck_dmf', alpha=3.0), eng)
 
 
 def _point(s, stable):

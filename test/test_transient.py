@@ -16,7 +16,7 @@ import yaml
 from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 
-from dmf_sim.analysis.pipeline import analyze_bag
+from dmf_sim.analysis.pipeline import AnalysisOptions, analyze_bag
 from dmf_sim.bags.columns import joint_state_layout
 from dmf_sim.bags.layout import resolve_bag
 from dmf_sim.bags.metadata import RunMetadata
@@ -25,7 +25,7 @@ from dmf_sim.cli import main as cli_main
 from dmf_sim.core.errors import ConfigError, OperatingRangeError
 from dmf_sim.live.streams import STREAMS, resolved_topics
 from dmf_sim.transient.encode import SampleEncoder
-from dmf_sim.transient.profiles import load_profile, ramp_profile
+from dmf_sim.transient.profiles import ramp_profile, read_profile
 from dmf_sim.transient.run import RunOptions, run_profile
 
 REPO = Path(__file__).resolve().parents[1]
@@ -36,7 +36,7 @@ STORE = get_typestore(Stores.ROS2_JAZZY)
 def run_bag(tmp_path_factory):
     """A short run-up through a knee crossing: 1000 -> 1300 rpm at 150 rpm/s after 0.3 s."""
     out = tmp_path_factory.mktemp('run') / 'runup'
-    prof = load_profile('ramp:1000:1300:150:1.0:0.3')
+    prof = read_profile('ramp:1000:1300:150:1.0:0.3')
     summary = run_profile(prof, out, RunOptions(split_s=1.0))
     return prof, out, summary
 
@@ -46,17 +46,17 @@ def run_bag(tmp_path_factory):
 def test_profiles_from_csv_yaml_ramp_and_packaged(tmp_path):
     csv = tmp_path / 'p.csv'
     csv.write_text('# a comment\ntime_s,speed_rpm,load\n0,800,0.2\n5,1200,1\n10,1200,0.5\n')
-    p = load_profile(csv)
+    p = read_profile(csv)
     assert p.duration_s == 10 and p.at(2.5)[0] == pytest.approx(1000.0)
     assert p.at(7.5)[1] == pytest.approx(0.75)
     y = tmp_path / 'p.yaml'
     y.write_text(yaml.safe_dump({'name': 'x', 'points': [[0, 800, 0.2], [5, 1200, 1.0]]}))
-    assert load_profile(y).name == 'x'
+    assert read_profile(y).name == 'x'
     y.write_text(yaml.safe_dump({'ramp': {'from_rpm': 2000, 'to_rpm': 800,
                                           'rate_rpm_per_s': 100, 'settle_s': 1}}))
-    down = load_profile(y)
+    down = read_profile(y)
     assert down.duration_s == pytest.approx(13.0) and down.speed_rpm[-1] == 800
-    road = load_profile('truck_road_cycle')
+    road = read_profile('truck_road_cycle')
     assert road.duration_s > 600 and 'WHTC' in road.source and road.load.max() <= 1
 
 
@@ -149,7 +149,7 @@ def test_run_bag_has_the_nodes_topics_and_follows_the_profile(run_bag):
 
 def test_run_bag_read_by_analyze(run_bag):
     prof, out, _ = run_bag
-    res = analyze_bag(out, bin_rpm=50)
+    res = analyze_bag(out, options=AnalysisOptions(bin_rpm=50))
     sig = res.signal('windup')
     assert res.sample_rate_hz == pytest.approx(1000.0) and not res.truncated
     assert res.crank_source == 'crank angle topic'
@@ -324,7 +324,7 @@ def test_threaded_run_writes_the_sequential_bag(tmp_path):
     (threads=2, the default with two CPUs) gives the bag one thread gives (threads=1), byte for
     byte but for the wall-clock stamps: the same payloads in the same order, the same log times
     relative to the first, the same solver counters."""
-    prof = load_profile('ramp:1000:1300:300:1.0:0.2')
+    prof = read_profile('ramp:1000:1300:300:1.0:0.2')
     bags, summaries = {}, {}
     for threads in (1, 2):
         bags[threads] = tmp_path / f'threads{threads}'
@@ -390,7 +390,7 @@ def test_interrupted_run_leaves_a_readable_bag(tmp_path):
     meta = yaml.safe_load((out / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
     assert meta['message_count'] >= 4 * 500 and meta['files']
     # from the start (how far it got varies: the settle, 2 s, may be all there is)
-    res = analyze_bag(out, bin_rpm=20, start_s=0.0)
+    res = analyze_bag(out, options=AnalysisOptions(bin_rpm=20, start_s=0.0))
     assert not res.truncated and res.duration_s > 0.5
 
 
@@ -398,9 +398,9 @@ def test_slow_runup_follows_the_hbm_branch(tmp_path):
     """Quasi-static: at 10 rpm/s between 1500 and 1600 rpm (one stable state, no jump) the
     run-up's 3rd-order wind-up amplitude is the harmonic balance branch's within 3 %."""
     out = tmp_path / 'slow'
-    run_profile(load_profile('ramp:1500:1600:10:1.0:3'), out)
+    run_profile(read_profile('ramp:1500:1600:10:1.0:3'), out)
     from dmf_sim.analysis.hbm_overlay import model_settings, overlay_all
-    res = analyze_bag(out, bin_rpm=20, start_s=3.0)
+    res = analyze_bag(out, options=AnalysisOptions(bin_rpm=20, start_s=3.0))
     overlay_all(res, model_settings(res.metadata))
     sig = res.signal('windup')
     meas, hbm = sig.table.order_3, sig.hbm.values['order_3']
@@ -418,7 +418,7 @@ def test_node_profile_parameter_follows_and_refuses(tmp_path):
     import time as _time
 
     from dmf_sim.live.parameters import PARAMETERS
-    from dmf_sim.live.runtime import LiveRuntime, load_line
+    from dmf_sim.live.runtime import LiveRuntime, read_line
     from dmf_sim.transient.live_profile import NodeProfile
 
     class Log:
@@ -434,7 +434,7 @@ def test_node_profile_parameter_follows_and_refuses(tmp_path):
     values = {n: s.default for n, s in PARAMETERS.items()}
     values.update(alpha=2.5, theta=0.24, pacing='fast', monitor=False)
     log = Log()
-    rt = LiveRuntime(values, load_line('truck_dmf'), Sink(), log, topics={})
+    rt = LiveRuntime(values, read_line('truck_dmf'), Sink(), log, topics={})
     heard = []
     rt.loop.setpoint_listeners.append(lambda speed, load: heard.append((speed, load)))
     prof = NodeProfile(rt, log)
@@ -462,7 +462,7 @@ def test_profile_player_and_setpoint_profile_errors(tmp_path, capsys):
     """``dmf-sim setpoint --profile``: the setpoints due over wall-clock time, the last row
     exactly; bad profiles and mixed options refused in one line before any ROS is touched."""
     from dmf_sim.transient.live_profile import ProfilePlayer
-    player = ProfilePlayer(load_profile('ramp:1000:1200:100:0.5:1'), t0=10.0, rate_hz=20.0)
+    player = ProfilePlayer(read_profile('ramp:1000:1200:100:0.5:1'), t0=10.0, rate_hz=20.0)
     assert player.setpoints(10.5) == (1000.0, 0.5)
     assert player.setpoints(12.0) == pytest.approx((1100.0, 0.5))
     assert player.next_time(11.0) == pytest.approx(11.05)

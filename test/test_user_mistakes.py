@@ -63,7 +63,7 @@ def test_engine_table_beyond_any_cylinder_pressure_is_refused(tmp_path, capsys, 
     import warnings
 
     from dmf_sim.core.errors import ConfigError
-    from dmf_sim.physics.engine import load_engine
+    from dmf_sim.physics.engine import read_engine
     from dmf_sim.physics.engine.tables import PEAK_PRESSURE_MAX_PA
     monkeypatch.setattr('dmf_sim.solvers.hbm.sweep', _no_compute)
     table = _pure3_table(tmp_path / 'huge.csv', 1e308)
@@ -71,7 +71,7 @@ def test_engine_table_beyond_any_cylinder_pressure_is_refused(tmp_path, capsys, 
         warnings.simplefilter('error')                 # no overflow warning on the way
         with pytest.raises(ConfigError, match=r'A_6 at 600 rpm: .* must be <= 9\.7\d+e\+04 Nm'
                                               r' .*350 bar, got 1e\+308'):
-            load_engine(table)
+            read_engine(table)
     assert cli_main(['sweep', '--no-progress', '--engine', str(table)]) == 2
     err = capsys.readouterr().err
     assert err.count('\n') == 1 and "huge.csv: field 'coefficients' A_6" in err
@@ -80,7 +80,7 @@ def test_engine_table_beyond_any_cylinder_pressure_is_refused(tmp_path, capsys, 
     r = 0.079
     bound = 2 * PEAK_PRESSURE_MAX_PA * 0.25 * np.pi * 0.131 ** 2 * r * (1 + r / 0.255)
     assert bound == pytest.approx(9.76e4, rel=2e-3)
-    load_engine(_pure3_table(tmp_path / 'ok.csv', 0.99 * bound))           # just inside: read
+    read_engine(_pure3_table(tmp_path / 'ok.csv', 0.99 * bound))           # just inside: read
 
 
 def test_yaml_numbers_with_an_exponent_but_no_dot(tmp_path):
@@ -91,34 +91,34 @@ def test_yaml_numbers_with_an_exponent_but_no_dot(tmp_path):
 
     from dmf_sim.core.errors import ConfigError
     from dmf_sim.core.paths import config_file
-    from dmf_sim.physics.model import load_driveline
+    from dmf_sim.physics.model import read_driveline
     d = yaml.safe_load(config_file('truck_dmf').read_text())
     text = yaml.safe_dump(d, sort_keys=False)
     good = text.replace('alpha: 2.5', 'alpha: 25e-1').replace('theta_rad: 0.24',
                                                                'theta_rad: 24e-2')
     assert 'alpha: 25e-1' in good
     (tmp_path / 'good.yaml').write_text(good)
-    line = load_driveline(tmp_path / 'good.yaml')
+    line = read_driveline(tmp_path / 'good.yaml')
     assert (line.spring.alpha, line.spring.theta) == (2.5, 0.24)
     (tmp_path / 'big.yaml').write_text(text.replace('alpha: 2.5', 'alpha: 1e300'))
     with pytest.raises(ConfigError, match=r"field 'alpha' must be in \[0, 50\], got 1e\+300"):
-        load_driveline(tmp_path / 'big.yaml')
+        read_driveline(tmp_path / 'big.yaml')
 
 
 def test_engine_and_study_yaml_read_exponent_numbers(tmp_path):
     from dmf_sim.core.paths import config_file
-    from dmf_sim.design.study import load_study
-    from dmf_sim.physics.engine import load_engine
+    from dmf_sim.design.study import read_study
+    from dmf_sim.physics.engine import read_engine
     eng = config_file('engine_d13').read_text().replace('bore_m: 0.131', 'bore_m: 131e-3')
     assert 'bore_m: 131e-3' in eng
     (tmp_path / 'engine_e.yaml').write_text(eng)
-    e = load_engine(tmp_path / 'engine_e.yaml')
+    e = read_engine(tmp_path / 'engine_e.yaml')
     assert e.coefficients(1000.0, 1.0)[6] == pytest.approx(
-        load_engine('engine_d13').coefficients(1000.0, 1.0)[6], rel=1e-12)
+        read_engine('engine_d13').coefficients(1000.0, 1.0)[6], rel=1e-12)
     study = config_file('study_example').read_text().replace('step: 10}', 'step: 1e1}')
     assert 'step: 1e1}' in study
     (tmp_path / 'study.yaml').write_text(study)
-    assert load_study(tmp_path / 'study.yaml').speeds_rpm[2] == 10.0
+    assert read_study(tmp_path / 'study.yaml').speeds_rpm[2] == 10.0
 
 
 def test_study_variable_beyond_the_spring_bound_is_refused_when_read(tmp_path):
@@ -126,13 +126,13 @@ def test_study_variable_beyond_the_spring_bound_is_refused_when_read(tmp_path):
     the study is read, not design by design)."""
     from dmf_sim.core.errors import ConfigError
     from dmf_sim.core.paths import config_file
-    from dmf_sim.design.study import load_study
+    from dmf_sim.design.study import read_study
     text = config_file('study_example').read_text()
     assert 'alpha: {min: 1.0, max: 5.0, n: 9}' in text
     (tmp_path / 'big.yaml').write_text(text.replace('alpha: {min: 1.0, max: 5.0, n: 9}',
                                                     'alpha: {min: 1.0, max: 6e1, n: 9}'))
     with pytest.raises(ConfigError, match=r"'variables.alpha.max' must be in \[0, 50\], got"):
-        load_study(tmp_path / 'big.yaml')
+        read_study(tmp_path / 'big.yaml')
 
 
 # ---- one form for every mistake: argparse's and the package's own ------------------------------

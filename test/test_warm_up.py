@@ -62,9 +62,9 @@ print(json.dumps(found))
 _LOAD_BAG_READING = '''
 import json
 from dmf_sim.core.kernel_cache import cold
-from dmf_sim.live.warm import GROUPS, load
+from dmf_sim.live.warm import GROUPS, warm_up
 print(json.dumps(sorted(g.name for g in cold(GROUPS))))
-load('test', 'bag reading')
+warm_up('test', 'bag reading')
 '''
 
 

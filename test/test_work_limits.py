@@ -8,7 +8,7 @@ import pytest
 
 from dmf_sim.cli import main as cli_main
 from dmf_sim.core.errors import ConfigError
-from dmf_sim.transient.profiles import load_profile
+from dmf_sim.transient.profiles import read_profile
 
 
 def _csv(path, rows, header='time_s,speed_rpm,load'):
@@ -29,29 +29,29 @@ def test_a_profile_beyond_the_limits_is_refused(spec, needles, tmp_path):
              'csv_jump': _csv(tmp_path / 'jump.csv', [(0, 800, 1), (1, 800, 1),
                                                       (1.00001, 2000, 1), (2, 2000, 1)])}
     with pytest.raises(ConfigError) as err:
-        load_profile(spec.format(**{k: str(v) for k, v in files.items()}))
+        read_profile(spec.format(**{k: str(v) for k, v in files.items()}))
     for needle in needles:
         assert needle in str(err.value), err.value
 
 
 def test_the_rate_cap_is_the_ramps_for_every_table(tmp_path):
     fastest = _csv(tmp_path / 'fast.csv', [(0, 800, 1), (0.12, 2000, 1)])    # 10 000 rpm/s
-    assert load_profile(fastest).speed_rpm[-1] == 2000
-    assert load_profile('ramp:800:2000:10000').duration_s == pytest.approx(2.12)
+    assert read_profile(fastest).speed_rpm[-1] == 2000
+    assert read_profile('ramp:800:2000:10000').duration_s == pytest.approx(2.12)
     with pytest.raises(ConfigError, match='rate_rpm_per_s'):
-        load_profile('ramp:800:2000:10001')
+        read_profile('ramp:800:2000:10001')
     y = tmp_path / 'y.yaml'
     y.write_text('points: [[0, 800, 1], [0.001, 2000, 1]]\n')
     with pytest.raises(ConfigError, match='points row 2: field .speed_rpm. changes by'):
-        load_profile(y)
+        read_profile(y)
 
 
 def test_rows_beyond_the_limit_are_refused(tmp_path, monkeypatch):
     monkeypatch.setattr('dmf_sim.transient.profiles.MAX_PROFILE_ROWS', 100)
     rows = [(i * 0.1, 1000.0, 0.5) for i in range(101)]
     with pytest.raises(ConfigError, match='101 rows, a profile has at most 100'):
-        load_profile(_csv(tmp_path / 'p.csv', rows))
-    assert len(load_profile(_csv(tmp_path / 'q.csv', rows[:100]))) == 100
+        read_profile(_csv(tmp_path / 'p.csv', rows))
+    assert len(read_profile(_csv(tmp_path / 'q.csv', rows[:100]))) == 100
 
 
 def test_a_file_larger_than_the_limit_is_refused_before_it_is_read(tmp_path, monkeypatch):
@@ -65,7 +65,7 @@ def test_a_file_larger_than_the_limit_is_refused_before_it_is_read(tmp_path, mon
         with path.open('wb') as f:
             f.truncate(limit + 1)                   # sparse: no disk used
         with pytest.raises(ConfigError, match='MiB, a .* profile is at most'):
-            load_profile(path)
+            read_profile(path)
 
 
 def test_a_large_csv_table_is_read_whole_and_its_errors_name_the_line(tmp_path):
@@ -75,22 +75,22 @@ def test_a_large_csv_table_is_read_whole_and_its_errors_name_the_line(tmp_path):
     path = tmp_path / 'big.csv'
     path.write_text('# measured\ntime_s,speed_rpm,load\n'
                     + '\n'.join(f'{a:.3f},{b:.6f},{c}' for a, b, c in rows) + '\n')
-    prof = load_profile(path)
+    prof = read_profile(path)
     assert len(prof) == n and prof.speed_rpm[-1] == pytest.approx(rows[-1, 1], abs=1e-6)
     text = path.read_text().splitlines()
     text[50_002] = text[50_002].replace(',0.5', ',1.5')   # data row 50 001, file line 50 003
     path.write_text('\n'.join(text) + '\n')
     with pytest.raises(ConfigError, match=r'big.csv:50003: field .load. must be in \[-1, 1\]'):
-        load_profile(path)
+        read_profile(path)
 
 
 def test_a_ramp_is_named_by_its_whole_spec():
-    assert load_profile('ramp:800:1000:100:0:0').name == 'ramp:800:1000:100:0:0'
-    assert load_profile('ramp:800:1000:100:1:2').name == 'ramp:800:1000:100'    # defaults
-    assert load_profile('ramp:800:1000:100:1:5').name == 'ramp:800:1000:100:1:5'
+    assert read_profile('ramp:800:1000:100:0:0').name == 'ramp:800:1000:100:0:0'
+    assert read_profile('ramp:800:1000:100:1:2').name == 'ramp:800:1000:100'    # defaults
+    assert read_profile('ramp:800:1000:100:1:5').name == 'ramp:800:1000:100:1:5'
     for spec in ('ramp:800:1000:100:0:0', 'ramp:800:1000:100:0.5'):
-        a = load_profile(spec)
-        b = load_profile(a.name)
+        a = read_profile(spec)
+        b = read_profile(a.name)
         assert a.name == b.name and np.array_equal(a.t_s, b.t_s) \
             and np.array_equal(a.load, b.load)
 
@@ -126,7 +126,7 @@ def test_dense_rows_are_merged_into_chunks_and_followed_exactly(monkeypatch):
     t = np.arange(2001) * 1e-3
     table = make_profile(np.c_[t, 1000 + 50 * t, np.ones_like(t)], name='table')
     n_table, v_table = _run_counting(table, monkeypatch)
-    n_ramp, v_ramp = _run_counting(load_profile('ramp:1000:1100:50:1:0'), monkeypatch)
+    n_ramp, v_ramp = _run_counting(read_profile('ramp:1000:1100:50:1:0'), monkeypatch)
     assert n_table <= 2 * n_ramp and n_table < 100, (n_table, n_ramp)
     assert np.allclose(v_table, v_ramp, rtol=0, atol=1e-6)
 
@@ -172,7 +172,7 @@ def test_a_rate_giving_no_sample_is_refused(capsys):
 
 def test_the_bag_size_estimate_is_close(tmp_path):
     from dmf_sim.transient.run import RunOptions, bag_bytes, build_simulation, run_profile
-    prof = load_profile('ramp:1000:1100:500:1:0.5')
+    prof = read_profile('ramp:1000:1100:500:1:0.5')
     summary = run_profile(prof, tmp_path / 'bag', RunOptions(threads=1))
     size = sum(f.stat().st_size for f in (tmp_path / 'bag').iterdir())
     estimate = bag_bytes(build_simulation(prof, RunOptions()), summary.samples)
@@ -194,7 +194,8 @@ def test_the_bag_size_estimate_is_close(tmp_path):
 ])
 def test_waits_and_workers_are_bounded(argv, needles, tmp_path, capsys, forbid):
     forbid('dmf_sim.commands._ros.ros_session', 'dmf_sim.design.runner.start_local',
-           'dmf_sim.design.runner.run_study', 'dmf_sim.design.runner.connect')
+           'dmf_sim.design.runner.run_study', 'dmf_sim.cluster.connect',
+           'dmf_sim.cluster.start_local')
     from dmf_sim.core.paths import config_dir
     argv = [a.replace('{tmp}', str(tmp_path / 'out')).replace('{config}', str(config_dir()))
             for a in argv]

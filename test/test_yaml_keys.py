@@ -41,14 +41,14 @@ def test_merge_keys_may_still_be_overridden():
     ('profiles/truck_road_cycle', 'name:', 'name', 'other', 'profile'),
 ])
 def test_every_file_format_refuses_a_duplicate_key(name, start, key, value, load, tmp_path):
-    from dmf_sim.design.study import load_study
-    from dmf_sim.durability.settings import load_settings
-    from dmf_sim.optimize.problem import load_problem
+    from dmf_sim.design.study import read_study
+    from dmf_sim.durability.settings import read_settings
+    from dmf_sim.optimize.problem import read_problem
     from dmf_sim.physics.engine.config import read_engine_config
-    from dmf_sim.physics.model import load_driveline
-    from dmf_sim.transient.profiles import load_profile
-    loaders = {'driveline': load_driveline, 'engine': read_engine_config, 'study': load_study,
-               'problem': load_problem, 'durability': load_settings, 'profile': load_profile}
+    from dmf_sim.physics.model import read_driveline
+    from dmf_sim.transient.profiles import read_profile
+    loaders = {'driveline': read_driveline, 'engine': read_engine_config, 'study': read_study,
+               'problem': read_problem, 'durability': read_settings, 'profile': read_profile}
     text, line = _with_duplicate((config_dir() / (name + '.yaml')).read_text(), start, key,
                                  value)
     path = tmp_path / (name.split('/')[-1] + '.yaml')

@@ -4,9 +4,10 @@ harmonic-balance prediction compared with the measured orders (bag analysis, las
 Settings come from the options, else from what the recording node stored in the bag
 (:class:`dmf_sim.bags.metadata.RunMetadata`: driveline, engine, load set, the whole DMF spring,
 the load at the start of the recording), else from the defaults. The static wind-up of the mean
-torque at each speed (``DrivelineLoads.static_state``) gives the paper's green line, theta minus
-static wind-up. The HBM is swept over the measured speed range; each *steady* speed bin (enough
-cycles, :mod:`dmf_sim.analysis.order_bins`) is compared with the stable solution nearest to it.
+torque at each speed (``DrivelineExcitation.static_state``) gives the paper's green line,
+theta minus static wind-up. The HBM is swept over the measured speed range; each *steady* speed
+bin (enough cycles, :mod:`dmf_sim.analysis.order_bins`) is compared with the stable solution
+nearest to it.
 """
 from __future__ import annotations
 
@@ -50,7 +51,7 @@ def model_settings(metadata: Mapping[str, Any] | None = None, *, config: str | N
     set A, load 1.0, the YAML's spring). ``alpha``/``theta`` options change the first drive
     stage of that spring. ``sources`` says where each value came from; ``spring`` is the
     resulting spring (``PiecewiseLinearSpring.as_dict()``, None without a DMF)."""
-    from dmf_sim.physics.model import load_driveline
+    from dmf_sim.physics.model import read_driveline
 
     stored = RunMetadata.from_bag_metadata(metadata)
     out: dict[str, Any] = {}
@@ -69,7 +70,7 @@ def model_settings(metadata: Mapping[str, Any] | None = None, *, config: str | N
     pick('load_set', load_set, 'A')
     pick('load', load, 1.0)
     try:
-        line = load_driveline(out['driveline'])
+        line = read_driveline(out['driveline'])
     except (OSError, ValueError) as exc:
         where = 'stored in the bag' if src['driveline'] == 'bag' else 'given'
         raise BagError(f'driveline {out["driveline"]!r} ({where}) cannot be loaded: '
@@ -102,9 +103,9 @@ def model_settings(metadata: Mapping[str, Any] | None = None, *, config: str | N
 
 def build_model(settings: Mapping[str, Any]):
     """The ReducedModel of ``settings`` (its exact spring)."""
-    from dmf_sim.physics.model import load_driveline
+    from dmf_sim.physics.model import read_driveline
 
-    line = load_driveline(settings['driveline'])
+    line = read_driveline(settings['driveline'])
     sp = settings.get('spring')
     if sp is not None and line.dmf is not None:
         line = line.with_dmf(k=sp['k'], stages=_stages(sp['stages']),
@@ -361,10 +362,11 @@ def overlay_all(res, settings: Mapping[str, Any], *, hbm: bool = True) -> dict[s
         return natural
     if not windups:
         return natural
-    from dmf_sim.physics.engine import load_engine, load_error
-    from dmf_sim.physics.loads import DrivelineLoads
+    from dmf_sim.physics.engine import load_error, read_engine
+    from dmf_sim.physics.loads import DrivelineExcitation
 
-    loads = DrivelineLoads(model, load_engine(settings['engine'], load_set=settings['load_set']))
+    loads = DrivelineExcitation(model, read_engine(settings['engine'],
+                                                   load_set=settings['load_set']))
     what = '--load' if sources.get('load') == 'option' else 'the load the bag records'
     for level in res.model['load'] if per_row else [settings['load']]:
         if reason := load_error(loads.engine, level, what):     # braking, but no brake curve

@@ -58,18 +58,21 @@ from dmf_sim.analysis.series import (
     BagSeries,
     Series,
     SignalSpec,
+    check_reader,
     crank_angle,
     read_bag_series,
 )
 from dmf_sim.bags.layout import BagFiles
 from dmf_sim.bags.records import damage_lines, skipped_chunks
+from dmf_sim.core.deprecation import options_from_keywords
 from dmf_sim.core.errors import BagError
 
 __all__ = [
     'TOPIC_WINDUP', 'TOPIC_JOINTS', 'TOPIC_SPEED', 'TOPIC_CRANK', 'DEFAULT_TOPICS',
     'DEFAULT_BIN_RPM', 'DEFAULT_MIN_CYCLES', 'SignalSpec', 'Series', 'BagSeries', 'CycleOrders',
-    'OrderTable', 'SignalAnalysis', 'BagAnalysis', 'HBMOverlay', 'read_bag_series',
-    'crank_angle', 'angle_cycle_orders', 'cycle_orders', 'bin_cycles', 'analyze_bag',
+    'OrderTable', 'SignalAnalysis', 'BagAnalysis', 'AnalysisOptions', 'HBMOverlay',
+    'read_bag_series', 'crank_angle', 'angle_cycle_orders', 'cycle_orders', 'bin_cycles',
+    'analyze_bag',
     'model_settings', 'hbm_overlay', 'overlay_all', 'natural_frequencies', 'analysis_dict',
     'table_rows', 'write_outputs', 'write_csv', 'write_cycles_csv', 'to_jsonable',
 ]
@@ -132,25 +135,18 @@ def _signal_topic(spec: SignalSpec, names: Mapping[str, str]) -> str:
     return {'windup': names['windup'], 'topic': spec.element}.get(spec.kind, names['joints'])
 
 
-def analyze_bag(path: str | os.PathLike | BagFiles,
-                signals: Iterable[str | SignalSpec] = ('windup',), *,
-                bin_rpm: float = DEFAULT_BIN_RPM, min_cycles: int = DEFAULT_MIN_CYCLES,
-                points_per_cycle: int = 256, n_max: int = 24, theta: float | None = None,
-                topics: Mapping[str, str] | None = None, namespace: str | None = None,
-                stamp: str = 'log', reader: str = 'fast', progress: bool = False,
-                start_s: float | None = None, end_s: float | None = None,
-                load: float | None = None) -> BagAnalysis:
-    """Order analysis of a bag (see the module docstring).
+@dataclass(frozen=True)
+class AnalysisOptions:
+    """How :func:`analyze_bag` reads and cuts a bag (which bag and signals are its arguments).
 
-    Args:
-        path: the bag (or its resolved files, :func:`dmf_sim.bags.layout.resolve_bag`).
-        signals: 'windup', 'angle:NAME', 'velocity:NAME', 'torque:NAME', 'topic:/name'.
+    Attributes:
         bin_rpm: speed bin width [rpm]; 0 gives one row per engine cycle.
         min_cycles: bins with fewer cycles are ramp bins (marked, not compared with the HBM).
         points_per_cycle: crank-angle grid per 720 deg cycle; n_max: highest half-order index.
         theta: DMF stiffness change angle [rad] for 'mean minus theta' and the green line of
             the wind-up (None: not reported).
-        topics, namespace, stamp, reader, progress: see :func:`read_bag_series`.
+        topics, namespace, stamp, reader: see :func:`read_bag_series` (reader 'fast' or
+            'messages').
         start_s, end_s: keep only cycles within this time window [s from the first crank-angle
             sample] (e.g. to skip a start-up transient). ``start_s`` None: the cycles after the
             settle from static equilibrium the bag marks (``custom_data`` ``settle_s``, as
@@ -159,6 +155,39 @@ def analyze_bag(path: str | os.PathLike | BagFiles,
             ``--load`` option). None: the load each cycle ran at, from what the bag holds
             (:mod:`dmf_sim.analysis.load_timeline`); rows are then per speed bin *and* load.
     """
+
+    bin_rpm: float = DEFAULT_BIN_RPM
+    min_cycles: int = DEFAULT_MIN_CYCLES
+    points_per_cycle: int = 256
+    n_max: int = 24
+    theta: float | None = None
+    topics: Mapping[str, str] | None = None
+    namespace: str | None = None
+    stamp: str = 'log'
+    reader: str = 'fast'
+    start_s: float | None = None
+    end_s: float | None = None
+    load: float | None = None
+
+
+def analyze_bag(path: str | os.PathLike | BagFiles,
+                signals: Iterable[str | SignalSpec] = ('windup',), *,
+                options: AnalysisOptions | None = None, progress: bool = False,
+                **keywords) -> BagAnalysis:
+    """Order analysis of a bag (see the module docstring).
+
+    Args:
+        path: the bag (or its resolved files, :func:`dmf_sim.bags.layout.resolve_bag`).
+        signals: 'windup', 'angle:NAME', 'velocity:NAME', 'torque:NAME', 'topic:/name'.
+        options: :class:`AnalysisOptions` (bins, grid, time window, load, how to read).
+        progress: a progress bar while reading (:func:`read_bag_series`).
+
+    The fields of :class:`AnalysisOptions` given as keywords (``analyze_bag(bag,
+    bin_rpm=20)``, the old signature) still work, with a deprecation warning.
+    """
+    o = options_from_keywords(AnalysisOptions, options, keywords, 'analyze_bag')
+    bin_rpm, min_cycles, n_max, theta = o.bin_rpm, o.min_cycles, o.n_max, o.theta
+    points_per_cycle, start_s, end_s, load = o.points_per_cycle, o.start_s, o.end_s, o.load
     t_start = time.perf_counter()
     specs = [s if isinstance(s, SignalSpec) else SignalSpec.parse(s) for s in signals]
     if not specs:
@@ -166,8 +195,8 @@ def analyze_bag(path: str | os.PathLike | BagFiles,
     labels = [s.label for s in specs]
     if len(set(labels)) != len(labels):
         raise BagError(f'signal requested twice: {labels}')
-    bag = read_bag_series(path, signals=specs, topics=topics, namespace=namespace, stamp=stamp,
-                          reader=reader, progress=progress)
+    bag = read_bag_series(path, signals=specs, topics=o.topics, namespace=o.namespace,
+                          stamp=o.stamp, reader=check_reader(o.reader), progress=progress)
     crank, source = crank_angle(bag)
     warnings = list(bag.notes)
     damage = damage_lines(bag.scans, bag.truncated, int(crank.t_ns[0]))

@@ -26,13 +26,15 @@ from dmf_sim.bags.columns import Column, JointStateColumns, McapColumns, ScalarC
 from dmf_sim.bags.layout import BagFiles, resolve_bag
 from dmf_sim.bags.read import TypeDecoder, bag_topics, message_counts, read_messages, topics_text
 from dmf_sim.bags.records import Scan, no_message_text
+from dmf_sim.core.deprecation import warn_renamed
 from dmf_sim.core.errors import BagError
 from dmf_sim.core.names import check_namespace
 from dmf_sim.core.units import RPM_TO_RAD_S
 
 __all__ = ['TOPIC_WINDUP', 'TOPIC_JOINTS', 'TOPIC_SPEED', 'TOPIC_CRANK', 'DEFAULT_TOPICS',
            'SIGNAL_KINDS', 'SignalSpec', 'Series', 'BagSeries', 'read_bag_series',
-           'driveline_namespaces', 'bag_topic_names', 'monotonic_times', 'crank_angle']
+           'check_reader', 'driveline_namespaces', 'bag_topic_names', 'monotonic_times',
+           'crank_angle']
 
 TOPIC_WINDUP = '/driveline/dmf_windup'
 TOPIC_JOINTS = '/driveline/joint_states'
@@ -131,7 +133,7 @@ class BagSeries:
         topics: topic -> ROS type of every topic of the bag.
         bag: the resolved bag (files, metadata.yaml, the recording's custom_data).
         truncated: files that ended without footer (crash).
-        reader: 'fast' or 'reference'; read_seconds: wall time of the reading.
+        reader: 'fast' or 'messages'; read_seconds: wall time of the reading.
         joint_names: element names of the joint states (when read).
         namespace: the driveline namespace the default topics were taken under ('' for none).
         notes: what the reader adapted to (skipped files, re-anchored clocks).
@@ -288,7 +290,7 @@ def _read_fast(bag: BagFiles, factories, stamp: str, bar, scans: list[Scan]
     return parts, truncated, columns
 
 
-def _read_reference(bag: BagFiles, factories, stamp: str, scans: list[Scan]
+def _read_messages(bag: BagFiles, factories, stamp: str, scans: list[Scan]
                     ) -> tuple[dict, list, list]:
     """The library path: mcap records, every wanted message decoded by rosbags."""
     columns: dict[str, Column] = {}
@@ -307,6 +309,17 @@ def _read_reference(bag: BagFiles, factories, stamp: str, scans: list[Scan]
     return parts, truncated, list(columns.values())
 
 
+def check_reader(reader: str) -> str:
+    """The reader asked for: 'fast' or 'messages' ('reference', its old name, with a deprecation
+    warning at the line that called the function calling this one); else a BagError."""
+    if reader == 'reference':
+        warn_renamed("reader='reference'", "reader='messages'", stacklevel=4)
+        reader = 'messages'
+    if reader not in ('fast', 'messages'):
+        raise BagError(f"reader={reader!r}: allowed 'fast', 'messages'")
+    return reader
+
+
 def read_bag_series(path: str | os.PathLike | BagFiles, *, signals: Sequence[SignalSpec] = (),
                     topics: Mapping[str, str] | None = None, namespace: str | None = None,
                     stamp: str = 'log', reader: str = 'fast', progress: bool = False
@@ -319,14 +332,14 @@ def read_bag_series(path: str | os.PathLike | BagFiles, *, signals: Sequence[Sig
         topics: overrides of DEFAULT_TOPICS (keys 'windup', 'joints', 'speed', 'crank').
         namespace: driveline namespace of the default topics (None: detect it).
         stamp: 'log' (receive time, default) or 'publish' time of each message.
-        reader: 'fast' (:mod:`dmf_sim.bags.columns`) or 'reference' (:mod:`dmf_sim.bags.read`,
-            the libraries alone: every wanted message decoded by rosbags).
+        reader: 'fast' (:mod:`dmf_sim.bags.columns`) or 'messages' (:mod:`dmf_sim.bags.read`,
+            the libraries alone: every wanted message decoded by rosbags; 'reference', its old
+            name, still works with a deprecation warning).
         progress: tqdm progress bar over the bytes read.
     """
     if stamp not in ('log', 'publish'):
         raise BagError(f"stamp={stamp!r}: allowed 'log', 'publish'")
-    if reader not in ('fast', 'reference'):
-        raise BagError(f"reader={reader!r}: allowed 'fast', 'reference'")
+    reader = check_reader(reader)
     t0 = time.perf_counter()
     bag = path if isinstance(path, BagFiles) else resolve_bag(path)
     listed = bag_topics(bag)
@@ -349,7 +362,7 @@ def read_bag_series(path: str | os.PathLike | BagFiles, *, signals: Sequence[Sig
         if reader == 'fast':
             parts, truncated, columns = _read_fast(bag, factories, stamp, bar, scans)
         else:
-            parts, truncated, columns = _read_reference(bag, factories, stamp, scans)
+            parts, truncated, columns = _read_messages(bag, factories, stamp, scans)
     finally:
         if bar is not None:
             bar.close()

@@ -1,9 +1,10 @@
 """Fast reading of numeric columns from MCAP files, chunk by chunk (the bag analysis' reader).
 
-The reference reader (:mod:`dmf_sim.bags.read`) builds a Python object per record and decodes
-every wanted message with ``rosbags`` -- fine for a few thousand messages, slow for a bag of
-millions (``benchmarks/bench_analyze.py`` measures both). This reader keeps the library's
-framing and decompression and replaces only the per-message work with array operations:
+The message reader (:mod:`dmf_sim.bags.read`, ``reader='messages'``) builds a Python object per
+record and decodes every wanted message with ``rosbags`` -- fine for a few thousand messages,
+slow for a bag of millions (``benchmarks/bench_analyze.py`` measures both). This reader keeps
+the library's framing and decompression and replaces only the per-message work with array
+operations:
 
 1. **Framing**: the top-level records come from the record scanner
    (:mod:`dmf_sim.bags.records`: chunks whole and checked against their CRCs, message indexes

@@ -1,8 +1,8 @@
 """Reading bags message by message with the libraries: ``mcap`` framing, ``rosbags`` decoding.
 
-This is the reference reader: every record of every file through ``mcap``'s record parsing
-(its chunk decompression included), every wanted
-message decoded by :class:`TypeDecoder` (``rosbags`` types from the schemas embedded in the
+This is the message reader (``reader='messages'`` of the analysis): every record of every file
+through ``mcap``'s record parsing (its chunk decompression included), every wanted message
+decoded by :class:`TypeDecoder` (``rosbags`` types from the schemas embedded in the
 file). It reads complete files, files a crash truncated (up to the last complete record) and
 files written by other tools. The records come from :mod:`dmf_sim.bags.records` (chunks checked
 against their CRCs: a corrupt chunk is skipped and reported in the file's :class:`Scan`).

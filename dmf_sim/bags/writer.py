@@ -65,6 +65,7 @@ from dmf_sim.bags.layout import (
     refuse_existing,
     write_metadata,
 )
+from dmf_sim.bags.mcap_internals import WriterState, set_data_section_crc, writer_state
 from dmf_sim.bags.read import BagMessage, bag_topics, read_messages
 from dmf_sim.bags.recovery import RecoverReport, recover_bag
 from dmf_sim.core.errors import BagError, BagExistsError
@@ -161,46 +162,43 @@ def _crc_combine(crc_a: int, crc_b: int, length_b: int) -> int:
     return crc_a ^ crc_b
 
 
-def _write_chunk(writer: Writer, records: np.ndarray, t0: int, t1: int,
+def _write_chunk(writer: Writer, state: WriterState, records: np.ndarray, t0: int, t1: int,
                  indexes: dict[int, MessageIndex]) -> bool:
     """Write an uncompressed chunk of ``records`` and its message indexes straight to the
     writer's stream, as ``Writer.flush`` would write it, keeping the writer's chunk index,
-    statistics and data-section CRC; one CRC pass and no copy of the records in between
-    (the library's chunk builder copies a chunk four times and checksums it twice). False
-    (nothing written) with another ``mcap`` version, whose private state is not the one
-    expected here."""
-    state = {k: getattr(writer, f'_Writer__{k}', None) for k in (
-        'stream', 'record_builder', 'chunk_indices', 'statistics', 'enable_crcs',
-        'enable_data_crcs', 'data_section_crc', 'index_types')}
-    if any(v is None for v in state.values()) or state['record_builder'].count:
+    statistics and data-section CRC (its private ``state``, :mod:`dmf_sim.bags.mcap_internals`);
+    one CRC pass and no copy of the records in between (the library's chunk builder copies a
+    chunk four times and checksums it twice). False (nothing written) while the writer holds
+    records of its own not yet written."""
+    if state.record_builder.count:
         return False
-    stream = state['stream']
+    stream = state.stream
     data = memoryview(records).cast('B')
     size = len(data)
-    crc = zlib.crc32(data) if state['enable_crcs'] else 0
+    crc = zlib.crc32(data) if state.enable_crcs else 0
     head = _CHUNK_HEAD.pack(_OP_CHUNK, 40 + size, t0, t1, size, crc, 0, size)
     start = stream.tell()
     index_bytes = io.BytesIO()
     offsets = {}
-    if state['index_types'] & IndexType.MESSAGE:
+    if state.index_types & IndexType.MESSAGE:
         for cid, index in indexes.items():
             offsets[cid] = start + len(head) + size + index_bytes.tell()
             index.write(index_bytes)
     tail = index_bytes.getvalue()
-    if state['enable_data_crcs']:
-        dsc = zlib.crc32(head, state['data_section_crc'])
-        dsc = (_crc_combine(dsc, crc, size) if state['enable_crcs']
+    if state.enable_data_crcs:
+        dsc = zlib.crc32(head, state.data_section_crc)
+        dsc = (_crc_combine(dsc, crc, size) if state.enable_crcs
                else zlib.crc32(data, dsc))
-        writer._Writer__data_section_crc = zlib.crc32(tail, dsc)
+        set_data_section_crc(writer, zlib.crc32(tail, dsc))
     stream.write(head)
     stream.write(data)
     stream.write(tail)
-    state['chunk_indices'].append(ChunkIndex(
+    state.chunk_indices.append(ChunkIndex(
         message_start_time=t0, message_end_time=t1, chunk_start_offset=start,
         chunk_length=len(head) + size, message_index_offsets=offsets,
         message_index_length=len(tail), compression='', compressed_size=size,
         uncompressed_size=size))
-    state['statistics'].chunk_count += 1
+    state.statistics.chunk_count += 1
     return True
 
 
@@ -532,14 +530,14 @@ class BagRecorder:
             cid, info = self._channels[topic]
             chans.append((cid, info, data[:rows]))
         writer = self._writer
-        builder = getattr(writer, '_Writer__chunk_builder', None)
-        stats = getattr(writer, '_Writer__statistics', None)
-        if builder is None or stats is None:      # another mcap version: message by message
+        state = writer_state(writer)
+        if state is None:                         # another mcap version: message by message
             for i in range(rows):
                 for cid, info, data in chans:
                     self._write(info.name, int(t[i]), data[i].tobytes())
             return rows
         self._flush_chunk()                       # what write() left open goes first
+        builder, stats = state.chunk_builder, state.statistics
         block = self._block_buffer(tuple((cid, d.shape[1]) for cid, _, d in chans), rows)
         layout = block.dtype
         raw = block.view(np.uint8).reshape(rows, layout.itemsize)
@@ -565,7 +563,7 @@ class BagRecorder:
         stats.message_end_time = max(t1, stats.message_end_time)
         stats.message_count += n
         if not (builder.count == 0 and self._compression == CompressionType.NONE
-                and _write_chunk(writer, raw, t0, t1, indexes)):
+                and _write_chunk(writer, writer_state(writer), raw, t0, t1, indexes)):
             builder.record_writer.write(raw.data)   # after the file's schemas and channels
             builder.num_messages = n
             builder.message_start_time, builder.message_end_time = t0, t1

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 
+from dmf_sim.cluster import CONNECT_TIMEOUT_S
 from dmf_sim.core.destinations import Destination, claim
 from dmf_sim.core.errors import ConfigError
 from dmf_sim.core.limits import MAX_WAIT_S, MAX_WORKERS_PER_CPU, max_local_workers
@@ -35,7 +36,7 @@ HARMONICS_RANGE = (6, 64)        # highest half-order index H kept (6 = the 3rd 
 MAX_GRID_POINTS = 2000           # output speed grid points per sweep
 MIN_STEP_RPM = 0.5               # finest output speed grid [rpm]
 DEFAULT_CONFIG = 'truck_dmf'     # config/truck_dmf.yaml: Table 1 with the DMF
-DEFAULT_CONNECT_TIMEOUT_S = 5.0  # waiting for a Dask scheduler to answer
+DEFAULT_CONNECT_TIMEOUT_S = CONNECT_TIMEOUT_S    # waiting for a Dask scheduler to answer
 
 
 def add_config(p, default: str | None = DEFAULT_CONFIG, help_default: str | None = None) -> None:
@@ -115,11 +116,11 @@ def steady_faults(value: str | None, line):
     None without faults."""
     if value is None:
         return None
-    from dmf_sim.physics.faults import FaultSet, load_schedule, parse_faults
+    from dmf_sim.physics.faults import FaultSet, parse_faults, read_schedule
     from dmf_sim.solvers.hbm.faulted import steady_faults as checked
     if value.lstrip().startswith(('{', '[')):
         return checked(FaultSet(parse_faults(value, '--faults', line=line)), '--faults')
-    schedule = load_schedule(value, line=line)
+    schedule = read_schedule(value, line=line)
     return checked(FaultSet(schedule.faults), f'--faults {schedule.source}')
 
 

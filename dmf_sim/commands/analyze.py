@@ -145,9 +145,15 @@ def default_output(bag: str | Path) -> Path:
 
 def run(args) -> int:
     from dmf_sim.analysis.outputs import write_outputs
-    from dmf_sim.analysis.pipeline import analysis_dict, analyze_bag, model_settings, overlay_all
+    from dmf_sim.analysis.pipeline import (
+        AnalysisOptions,
+        analysis_dict,
+        analyze_bag,
+        model_settings,
+        overlay_all,
+    )
     from dmf_sim.bags.layout import resolve_bag
-    from dmf_sim.live.warm import load as load_kernels
+    from dmf_sim.live.warm import warm_up
 
     check_arguments(args)
     dest = None if args.out is None and args.json else opt.output(
@@ -160,12 +166,13 @@ def run(args) -> int:
     settings = model_settings(bag.metadata, config=args.config, engine=args.engine,
                               alpha=args.alpha, theta=args.theta, load=args.load,
                               load_set=args.load_set)
-    load_kernels(NAME, 'bag reading', *(['sweep'] if args.hbm else []))
-    res = analyze_bag(bag, args.signal or ['windup'], bin_rpm=args.bin_rpm,
-                      min_cycles=args.min_cycles, points_per_cycle=args.points_per_cycle,
-                      n_max=args.n_max, theta=settings['theta_rad'], topics=topics,
-                      namespace=args.namespace, stamp=args.stamp, progress=args.progress,
-                      start_s=args.start, end_s=args.end, load=args.load)
+    warm_up(NAME, 'bag reading', *(['sweep'] if args.hbm else []))
+    options = AnalysisOptions(bin_rpm=args.bin_rpm, min_cycles=args.min_cycles,
+                              points_per_cycle=args.points_per_cycle, n_max=args.n_max,
+                              theta=settings['theta_rad'], topics=topics,
+                              namespace=args.namespace, stamp=args.stamp, start_s=args.start,
+                              end_s=args.end, load=args.load)
+    res = analyze_bag(bag, args.signal or ['windup'], options=options, progress=args.progress)
     natural = overlay_all(res, settings, hbm=args.hbm)
     model = {k: v for k, v in settings.items() if k != 'sources'}
     sources = dict(settings['sources'])

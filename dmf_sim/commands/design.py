@@ -34,19 +34,20 @@ def add_arguments(p) -> None:
 
 def run(args) -> int:
     require_extra('design')                 # dask, distributed, pyarrow: one line if missing
-    from dmf_sim.design.runner import connect, run_study
-    from dmf_sim.design.study import load_study
+    from dmf_sim.cluster import connect
+    from dmf_sim.design.runner import run_study
+    from dmf_sim.design.study import read_study
     from dmf_sim.design.table import ResultStore
-    from dmf_sim.live.warm import load as load_kernels
+    from dmf_sim.live.warm import warm_up
 
     opt.check_cluster(args)
     if args.batch_size is not None and args.batch_size < 1:
         raise ConfigError(f'--batch-size {args.batch_size}: must be >= 1')
     dest = opt.resumable_output(args, NAME)
-    study = load_study(args.study)
+    study = read_study(args.study)
     if args.resume:
         ResultStore(args.out, study, args.resume)      # --resume problems, before work
-    load_kernels(NAME, 'sweep')     # compiled once here, then every worker loads them
+    warm_up(NAME, 'sweep')     # compiled once here, then every worker loads them
     client = connect(args.scheduler, args.connect_timeout) if args.scheduler else None
     done = [0, study.n_designs]
     with dest.writing() as out:

@@ -44,10 +44,10 @@ def run(args: argparse.Namespace) -> int:
     from dmf_sim.bags.layout import resolve_bag
     from dmf_sim.durability.read import bag_durability
     from dmf_sim.durability.report import plot_report, report_dict, write_json
-    from dmf_sim.durability.settings import load_settings
-    from dmf_sim.live.warm import load as load_kernels
+    from dmf_sim.durability.settings import read_settings
+    from dmf_sim.live.warm import warm_up
 
-    settings = load_settings(args.settings, exponent=args.exponent,
+    settings = read_settings(args.settings, exponent=args.exponent,
                              reference_range_nm=args.reference_range,
                              reference_cycles=args.reference_cycles)
     bag = resolve_bag(args.bag)
@@ -55,7 +55,7 @@ def run(args: argparse.Namespace) -> int:
     if out is None and not args.json:
         out = Path(f'{bag.path.resolve().name}_durability')
     dest = opt.output(args, NAME, out) if out is not None else None
-    load_kernels(NAME, 'bag reading')
+    warm_up(NAME, 'bag reading')
     result = bag_durability(bag, settings, namespace=args.namespace,
                             progress=args.progress and sys.stderr.isatty())
     written = []

@@ -19,7 +19,7 @@ from dmf_sim.physics.cycle_torque import (
     mean_torques,
     torque_before_flywheel,
 )
-from dmf_sim.physics.engine import LOAD_SETS, engine_torque_orders, load_engine
+from dmf_sim.physics.engine import LOAD_SETS, engine_torque_orders, read_engine
 
 __all__ = ['NAME', 'HELP', 'MAX_TORQUE_SPEEDS', 'add_arguments', 'run']
 
@@ -61,7 +61,7 @@ def run(args) -> int:
                           'loads.json in --out DIR; give --out too')
     dest = opt.output(args, NAME) if args.out is not None else None
     lo, hi, step = args.speeds
-    engines = {s: load_engine(args.engine, load_set=s) for s in dict.fromkeys(args.load_set)}
+    engines = {s: read_engine(args.engine, load_set=s) for s in dict.fromkeys(args.load_set)}
     first = engines[args.load_set[0]]
     opt.check_load(first, args.load)
     opt.check_grid(lo, hi, step, first)

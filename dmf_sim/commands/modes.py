@@ -8,7 +8,7 @@ from dmf_sim.commands import _options as opt
 from dmf_sim.core.csv_out import write_csv
 from dmf_sim.core.errors import ConfigError
 from dmf_sim.physics.modal import modes, region_names
-from dmf_sim.physics.model import load_model
+from dmf_sim.physics.model import read_model
 
 __all__ = ['NAME', 'HELP', 'VARIANTS', 'add_arguments', 'run', 'fig12']
 
@@ -41,7 +41,7 @@ def run(args) -> int:
     opt.check_common(args)
     dest = opt.output(args, NAME) if args.out is not None else None
     source = args.config if args.config is not None else VARIANTS[args.variant]
-    model = load_model(source, alpha=args.alpha, theta=args.theta)
+    model = read_model(source, alpha=args.alpha, theta=args.theta)
     if not 1 <= args.modes <= model.n_dof:
         raise ConfigError(f'--modes={args.modes}: allowed range 1..{model.n_dof} (the DOFs of '
                           f'{model.line.name!r})')
@@ -90,8 +90,8 @@ def fig12(alpha: float | None = None, theta: float | None = None, region: str = 
     """Paper Fig. 12: the first four modes of the conventional and the DMF driveline (DMF at the
     stiffness of ``region``)."""
     from dmf_sim.figures import mode_shapes_figure
-    dmf_model = load_model(VARIANTS['dmf'], alpha=alpha, theta=theta)
+    dmf_model = read_model(VARIANTS['dmf'], alpha=alpha, theta=theta)
     label = f'DMF ({region} stiffness' + (f', α = {dmf_model.spring.alpha:g})'
                                           if region != 'primary' else ')')
-    return mode_shapes_figure(modes(load_model(VARIANTS['conventional'])),
+    return mode_shapes_figure(modes(read_model(VARIANTS['conventional'])),
                               modes(dmf_model, region), n_modes=4, dmf_label=label)

@@ -19,8 +19,7 @@ from pathlib import Path
 from dmf_sim.commands._options import check_wait
 from dmf_sim.commands._ros import NodeSelector, select_node
 from dmf_sim.core.errors import ConfigError, NoResponseError
-from dmf_sim.live.health import LEVEL_NAMES as LEVELS
-from dmf_sim.live.health import STATUS_SUFFIX as SIM_STATUS
+from dmf_sim.live.health import LEVEL_NAMES as LEVELS, STATUS_SUFFIX as SIM_STATUS
 from dmf_sim.monitor.messages import MONITOR_NAME as MONITOR_STATUS
 
 __all__ = ['NAME', 'HELP', 'STYLES', 'STALE_S', 'add_arguments', 'Status', 'MonitorView',

@@ -9,7 +9,7 @@ import numpy as np
 from dmf_sim.commands import _options as opt
 from dmf_sim.core.csv_out import write_csv
 from dmf_sim.core.errors import ConfigError
-from dmf_sim.physics.model import load_model
+from dmf_sim.physics.model import read_model
 from dmf_sim.solvers.nnm import REGIONS, NNMOptions, nnm_branches, scaling_check
 
 __all__ = ['NAME', 'HELP', 'XI_REPORT', 'XI_MAX_RANGE', 'HARMONICS_RANGE', 'STEP_MAX_RANGE',
@@ -86,7 +86,7 @@ def run(args) -> int:
     opt.check_names(args)
     opt.check_dmf_options([args.alpha], args.theta)
     dest = opt.output(args, NAME) if args.out is not None else None
-    model = load_model(args.config, alpha=args.alpha, theta=args.theta)
+    model = read_model(args.config, alpha=args.alpha, theta=args.theta)
     check_options(args, model)
     opts = NNMOptions(n_harmonics=args.harmonics, step_max=args.step_max,
                       step=min(NNMOptions.step, args.step_max))

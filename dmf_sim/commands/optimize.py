@@ -45,23 +45,23 @@ def add_arguments(p) -> None:
 
 def run(args) -> int:
     require_extra('optimize')               # optuna, dask, pyarrow: one line if missing
-    from dmf_sim.design.runner import close_local, connect, start_local
+    from dmf_sim.cluster import close_local, connect, start_local
     from dmf_sim.design.table import ResultStore
-    from dmf_sim.live.warm import load as load_kernels
-    from dmf_sim.optimize.problem import load_problem
+    from dmf_sim.live.warm import warm_up
+    from dmf_sim.optimize.problem import read_problem
     from dmf_sim.optimize.runner import BASELINE_DIR, EXTRA, check_budget
 
     opt.check_cluster(args)
     if args.verify < 0:
         raise ConfigError(f'--verify {args.verify}: must be >= 0')
     dest = opt.resumable_output(args, NAME)
-    problem = load_problem(args.study, budget=args.budget)
+    problem = read_problem(args.study, budget=args.budget)
     if args.resume:     # the budget against what is stored there, before any work
         check_budget(problem, ResultStore(args.out, problem.study, args.resume, extra=EXTRA))
         if not args.no_baseline:
             check_budget(problem, ResultStore(args.out / BASELINE_DIR, problem.study,
                                               args.resume, extra=EXTRA))
-    load_kernels(NAME, 'sweep', *(['time integration'] if args.verify else []))
+    warm_up(NAME, 'sweep', *(['time integration'] if args.verify else []))
     t0 = time.perf_counter()
     say = _say(args.no_progress, t0)
     if args.scheduler:

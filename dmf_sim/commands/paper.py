@@ -40,11 +40,11 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
-    from dmf_sim.live.warm import load as load_kernels
-    from dmf_sim.physics.engine import load_engine
+    from dmf_sim.live.warm import warm_up
+    from dmf_sim.physics.engine import read_engine
     opt.check_names(args)
     dest = opt.output(args, NAME)
-    load_engine(args.engine)                       # a bad engine file: one line before any work
+    read_engine(args.engine)                       # a bad engine file: one line before any work
     settings = (StudySettings.quick if args.quick else StudySettings)(engine=args.engine)
     t0 = time.perf_counter()
 
@@ -53,7 +53,7 @@ def run(args) -> int:
             print(f'dmf-sim paper [{time.perf_counter() - t0:5.1f} s] {text}', file=sys.stderr,
                   flush=True)
 
-    load_kernels(NAME, 'sweep', 'time integration')
+    warm_up(NAME, 'sweep', 'time integration')
     results = PaperStudy(settings, progress=say).run()
     rows = claims(results)
     say('figures')

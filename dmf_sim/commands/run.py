@@ -78,8 +78,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from dmf_sim.live.warm import load as load_kernels
-    from dmf_sim.transient.profiles import load_profile
+    from dmf_sim.live.warm import warm_up
+    from dmf_sim.transient.profiles import read_profile
     from dmf_sim.transient.run import RunOptions, run_profile
 
     check_common(args)
@@ -89,13 +89,13 @@ def run(args: argparse.Namespace) -> int:
     if not (math.isfinite(args.dt) and 1e-6 <= args.dt <= 1e-2):
         raise ConfigError(f'--dt must be within [1e-06, 0.01] s, got {args.dt!r}')
     dest = None if args.no_write else output(args, NAME, kind='bag')
-    profile = load_profile(args.profile)
+    profile = read_profile(args.profile)
     opt = RunOptions(driveline=args.config, engine=args.engine, load_set=args.load_set,
                      alpha=args.alpha, theta=args.theta, dt=args.dt, rate_hz=args.rate,
                      chunk_s=args.chunk, write=not args.no_write, namespace=namespace,
                      threads=default_threads() if args.threads is None else args.threads,
                      faults=args.faults)
-    load_kernels(NAME, 'time integration')      # before the bar: its rate without a compile
+    warm_up(NAME, 'time integration')      # before the bar: its rate without a compile
     summary = run_profile(profile, None if args.no_write else args.out, opt,
                           progress=not (args.no_progress or args.json), destination=dest)
     if args.json:

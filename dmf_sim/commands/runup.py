@@ -37,7 +37,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from dmf_sim.bags.layout import resolve_bag
-    from dmf_sim.live.warm import load as load_kernels
+    from dmf_sim.live.warm import warm_up
     from dmf_sim.transient.plots import plot_runup
     from dmf_sim.transient.runup import runup_analysis
 
@@ -53,7 +53,7 @@ def run(args: argparse.Namespace) -> int:
     if out is None and not args.json:
         out = Path(f'{bags[0].path.resolve().name}_runup')
     dest = opt.output(args, NAME, out) if out is not None else None
-    load_kernels(NAME, 'bag reading', *([] if args.no_hbm else ['sweep']))
+    warm_up(NAME, 'bag reading', *([] if args.no_hbm else ['sweep']))
     res = runup_analysis(args.bags, bin_rpm=args.bin_rpm, hbm=not args.no_hbm,
                          window=args.window)
     data = to_jsonable(res.as_dict())

@@ -62,8 +62,8 @@ def check(args: argparse.Namespace) -> list[tuple[str, float, str]]:
     if args.profile is not None and (args.speed is not None or args.load is not None):
         raise ConfigError('give either --profile FILE or --speed/--load, not both')
     if args.profile is not None:
-        from dmf_sim.transient.profiles import load_profile
-        prof = load_profile(args.profile)
+        from dmf_sim.transient.profiles import read_profile
+        prof = read_profile(args.profile)
         speed, load = (float(v) for v in prof.at(0.0))
         args.profile_data = prof
         check_wait(args.timeout)

@@ -55,21 +55,21 @@ def _check(args) -> None:
 
 
 def run(args) -> int:
-    from dmf_sim.live.warm import load as load_kernels
-    from dmf_sim.physics.engine import load_engine
-    from dmf_sim.physics.loads import DrivelineLoads
-    from dmf_sim.physics.model import load_driveline
+    from dmf_sim.live.warm import warm_up
+    from dmf_sim.physics.engine import read_engine
+    from dmf_sim.physics.loads import DrivelineExcitation
+    from dmf_sim.physics.model import read_driveline
     from dmf_sim.solvers.hbm import HBMOptions
     from dmf_sim.solvers.steady import BasinOptions, find_steady_states
 
     _check(args)
-    line = load_driveline(args.config, alpha=args.alpha, theta=args.theta)
+    line = read_driveline(args.config, alpha=args.alpha, theta=args.theta)
     if line.dmf is None:
         raise ConfigError(f'driveline {line.name!r} has no dmf section: nothing to search')
     faults = opt.steady_faults(args.faults, line)
-    loads = DrivelineLoads(line.reduce(), load_engine(args.engine, load_set=args.load_set))
+    loads = DrivelineExcitation(line.reduce(), read_engine(args.engine, load_set=args.load_set))
     opt.check_load(loads.engine, args.load)
-    load_kernels(NAME, 'sweep', 'time integration')
+    warm_up(NAME, 'sweep', 'time integration')
     res = find_steady_states(
         loads, args.speed, args.load, window_rpm=args.window,
         hbm_options=HBMOptions(n_harmonics=args.harmonics),

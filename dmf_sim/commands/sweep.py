@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -67,10 +68,10 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
-    from dmf_sim.live.warm import load as load_kernels
-    from dmf_sim.physics.engine import load_engine
-    from dmf_sim.physics.loads import DrivelineLoads
-    from dmf_sim.physics.model import load_driveline
+    from dmf_sim.live.warm import warm_up
+    from dmf_sim.physics.engine import read_engine
+    from dmf_sim.physics.loads import DrivelineExcitation
+    from dmf_sim.physics.model import read_driveline
     from dmf_sim.solvers.hbm import HBMOptions, SweepOptions, sweep
     from dmf_sim.solvers.hbm.sweep import check_time_limit
 
@@ -81,14 +82,14 @@ def run(args) -> int:
         raise ConfigError(f'--alpha x --load-set: {len(args.alpha) * len(args.load_set)} sweeps, '
                           f'allowed at most {MAX_SWEEPS}')
     dest = opt.output(args, NAME) if args.out is not None else None
-    line = load_driveline(args.config, theta=args.theta)
+    line = read_driveline(args.config, theta=args.theta)
     if line.dmf is None:
         raise ConfigError(f'driveline {line.name!r} has no dmf section: nothing to sweep')
     alphas = args.alpha if args.alpha else [line.dmf.alpha]
     faults = opt.steady_faults(args.faults, line)
     engines = {}
     for ls in dict.fromkeys(args.load_set):
-        engines[ls] = load_engine(args.engine, load_set=ls)
+        engines[ls] = read_engine(args.engine, load_set=ls)
         opt.check_load(engines[ls], args.load)
         opt.check_grid(lo, hi, step, engines[ls])
 
@@ -97,14 +98,14 @@ def run(args) -> int:
                         branch_switching=not args.no_branch_switching,
                         newmark_seed=args.newmark_seed, time_limit_s=time_limit)
     if args.fast:
-        sopt = SweepOptions(**{**sopt.__dict__, 'search': None})
-    load_kernels(NAME, 'sweep')       # before the bars: their rate without a first compile
+        sopt = replace(sopt, search=None)
+    warm_up(NAME, 'sweep')       # before the bars: their rate without a first compile
     results, failures = [], []
     for ls, eng in engines.items():
         for a in alphas:
             model = line.with_dmf(alpha=a).reduce()
             try:
-                res = sweep(DrivelineLoads(model, eng), args.load, (lo, hi), hbm_options=hopt,
+                res = sweep(DrivelineExcitation(model, eng), args.load, (lo, hi), hbm_options=hopt,
                             options=sopt, progress=not args.no_progress,
                             label=f'alpha={a:g}, Load {ls}', faults=faults)
             except (DmfSimError, np.linalg.LinAlgError) as exc:     # one case lost, not the run

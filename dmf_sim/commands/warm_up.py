@@ -22,7 +22,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from dmf_sim.core.kernel_cache import cold, warm
+    from dmf_sim.core.kernel_cache import cold, warm_up
     from dmf_sim.live.warm import GROUPS
 
     t0 = time.perf_counter()
@@ -33,7 +33,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         rows = [{'group': g.name, 'what': g.what, 'compiled': compiled,
                  'seconds': round(seconds, 2), 'cache': _cache_dir(g)}
-                for g, seconds, compiled in warm(GROUPS, prefix=f'dmf-sim {NAME}')]
+                for g, seconds, compiled in warm_up(GROUPS, prefix=f'dmf-sim {NAME}')]
     total = time.perf_counter() - t0
     if args.json:
         print(json.dumps({'groups': rows, 'seconds': round(total, 2)}))

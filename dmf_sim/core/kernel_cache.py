@@ -9,12 +9,12 @@ puts every entry under one directory instead. A cache entry belongs to the sourc
 time stamp), the function's bytecode, numba's version and this CPU, so a new release, an edited
 module or another machine compiles again. ``dmf-sim warm-up`` (what ``make venv`` runs) compiles
 every kernel where the user expects to wait; a command that finds a cold kernel anyway says so
-before it compiles (:func:`warm`), and starts its progress bar only afterwards, so the bar's rate
-does not include the compile.
+before it compiles (:func:`warm_up`), and starts its progress bar only afterwards, so the bar's
+rate does not include the compile.
 
-A group of kernels (:class:`KernelGroup`) is defined beside its kernels: its ``load`` calls every
-entry point with the argument types of the real calls; ``kernels`` lists those entry points (the
-helpers they call are compiled and cached with them).
+A group of kernels (:class:`KernelGroup`) is defined beside its kernels: its ``warm_up`` calls
+every entry point with the argument types of the real calls; ``kernels`` lists those entry points
+(the helpers they call are compiled and cached with them).
 """
 from __future__ import annotations
 
@@ -25,7 +25,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-__all__ = ['COMPILING', 'TIMES_FILE', 'KernelGroup', 'cached', 'cold', 'warm']
+__all__ = ['COMPILING', 'TIMES_FILE', 'KernelGroup', 'cached', 'cold', 'warm_up']
 
 COMPILING = ('compiling the numerical kernels once (~{seconds:.0f} s {where}; later runs load '
              'them)')
@@ -39,7 +39,8 @@ TIMES_FILE = 'dmf_sim_compile_seconds.json'
 class KernelGroup:
     """Kernels compiled and loaded together.
 
-    name: short name (``sweep``); what: what uses them, for people; load: calls every entry point
+    name: short name (``sweep``); what: what uses them, for people; warm_up: calls every entry
+    point
     once on a tiny problem with the real argument types; kernels: the entry points (numba
     dispatchers); estimate_s: compile seconds measured on a 2-core machine, the notice's figure
     until a compile was timed on this one.
@@ -47,7 +48,7 @@ class KernelGroup:
 
     name: str
     what: str
-    load: Callable[[], object]
+    warm_up: Callable[[], object]
     kernels: Callable[[], Sequence]
     estimate_s: float
 
@@ -95,7 +96,7 @@ def cold(groups: Sequence[KernelGroup]) -> list[KernelGroup]:
     return [g for g in groups if g.cold()]
 
 
-def warm(groups: Sequence[KernelGroup], say: Callable[[str], None] | None = None,
+def warm_up(groups: Sequence[KernelGroup], say: Callable[[str], None] | None = None,
          prefix: str = 'dmf-sim') -> list[tuple[KernelGroup, float, bool]]:
     """Load every group (compile the cold ones into the cache first); before a compile, one line
     :data:`COMPILING` through ``say`` (default: stderr, after ``prefix``). Returns (group,
@@ -112,7 +113,7 @@ def warm(groups: Sequence[KernelGroup], say: Callable[[str], None] | None = None
     done = []
     for g in groups:
         t0 = time.perf_counter()
-        g.load()
+        g.warm_up()
         seconds = time.perf_counter() - t0
         compiled = g in to_compile
         if compiled:

@@ -13,6 +13,6 @@ STUDY.yaml --out DIR`` from the command line. Modules:
 """
 from dmf_sim.design.result import StudyResult
 from dmf_sim.design.runner import run_study
-from dmf_sim.design.study import Study, load_study
+from dmf_sim.design.study import Study, read_study
 
-__all__ = ['run_study', 'StudyResult', 'Study', 'load_study']
+__all__ = ['run_study', 'StudyResult', 'Study', 'read_study']

@@ -102,14 +102,14 @@ def sweep_condition(line, engine, load: float, settings: SolverSettings):
     """The harmonic-balance sweep (``dmf_sim.solvers.hbm.sweep``) of one design at one condition:
     the
     solution finder (every stable state, non-periodic speeds) unless ``settings.search`` is off."""
-    from dmf_sim.physics.loads import DrivelineLoads
+    from dmf_sim.physics.loads import DrivelineExcitation
     from dmf_sim.solvers.hbm import HBMOptions, SweepOptions, sweep
     lo, hi, step = settings.speeds_rpm
     options = SweepOptions(step_rpm=step, branch_switching=settings.branch_switching,
                            time_limit_s=settings.time_limit_s)
     if not settings.search:
         options = replace(options, search=None)
-    return sweep(DrivelineLoads(line.reduce(), engine), load, (lo, hi),
+    return sweep(DrivelineExcitation(line.reduce(), engine), load, (lo, hi),
                  hbm_options=HBMOptions(n_harmonics=settings.harmonics), options=options)
 
 

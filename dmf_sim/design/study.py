@@ -36,6 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
+from dmf_sim.core.deprecation import renamed
 from dmf_sim.core.errors import ConfigError
 from dmf_sim.core.validation import Where
 from dmf_sim.design import sampling
@@ -46,7 +47,7 @@ from dmf_sim.physics.model import Driveline
 from dmf_sim.solvers.hbm.sweep import TIME_LIMIT_RANGE_S
 
 __all__ = ['REQUIRED', 'OPTIONAL', 'DEFAULT_TORQUE_ELEMENT', 'DEFAULT_HARMONICS', 'MIN_HARMONICS',
-           'MAX_DESIGNS', 'MAX_GRID_SPEEDS', 'PAPER_REFERENCE', 'Condition', 'Study', 'load_study',
+           'MAX_DESIGNS', 'MAX_GRID_SPEEDS', 'PAPER_REFERENCE', 'Condition', 'Study', 'read_study',
            'study_from_dict']
 
 REQUIRED = ('driveline', 'engine', 'sampling', 'variables', 'conditions', 'objectives')
@@ -158,7 +159,7 @@ class Study:
 # Loading and validation
 # ------------------------------------------------------------------------------------------------
 
-def load_study(source) -> Study:
+def read_study(source) -> Study:
     """A :class:`Study` from a study file (name in config/ or path), a mapping, or a Study."""
     if isinstance(source, Study):
         return source
@@ -266,11 +267,11 @@ def _resolve(value, base_dir: Path) -> str:
 
 
 def _load_driveline(w: Where, value, base_dir: Path) -> Driveline:
-    from dmf_sim.physics.model import load_driveline
+    from dmf_sim.physics.model import read_driveline
     if not isinstance(value, str) or not value.strip():
         raise w.error('driveline', f'must be a driveline YAML name or path, got {value!r}')
     try:
-        line = load_driveline(_resolve(value, base_dir))
+        line = read_driveline(_resolve(value, base_dir))
     except ConfigError as exc:
         raise w.error('driveline', str(exc)) from None
     if line.dmf is None:
@@ -316,7 +317,7 @@ def _variables(w: Where, raw, method: str):
 
 
 def _conditions(w: Where, raw, engine_source, base_dir: Path):
-    from dmf_sim.physics.engine import load_engine, load_error
+    from dmf_sim.physics.engine import load_error, read_engine
     w.mapping(raw, 'conditions', ('load_sets', 'loads', 'speeds_rpm'), ('load_steps',))
     load_sets = w.nonempty_list(raw['load_sets'], 'conditions.load_sets')
     loads = w.nonempty_list(raw['loads'], 'conditions.loads')
@@ -343,13 +344,13 @@ def _conditions(w: Where, raw, engine_source, base_dir: Path):
             raise w.error(f'conditions.load_sets[{i}]', f'{ls!r} is listed twice')
         try:
             engines[ls] = (engines[load_sets[0]].with_load_set(ls) if engines
-                           else load_engine(src, load_set=ls))
+                           else read_engine(src, load_set=ls))
         except ConfigError as exc:
             if not engines and _engine_error(src):    # the file itself, not the load set
                 raise w.error('engine', str(exc)) from None
             raise w.error(f'conditions.load_sets[{i}]', str(exc)) from None
         if i == 0 and hasattr(engines[ls], 'warm'):
-            engines[ls].warm()          # the gas-pressure grid, once, shared by every load set
+            engines[ls].warm_up()          # the gas-pressure grid, once, shared by every load set
         rng = getattr(engines[ls], 'speed_range_rpm', None)
         if rng is not None and not (rng[0] <= lo and hi <= rng[1]):
             raise w.error('conditions.speeds_rpm', f'{lo:g}..{hi:g} rpm is outside the engine '
@@ -366,9 +367,9 @@ def _conditions(w: Where, raw, engine_source, base_dir: Path):
 
 def _engine_error(src) -> bool:
     """True when the engine file cannot be loaded with its default load set."""
-    from dmf_sim.physics.engine import load_engine
+    from dmf_sim.physics.engine import read_engine
     try:
-        load_engine(src)
+        read_engine(src)
     except ConfigError:
         return True
     return False
@@ -396,3 +397,6 @@ def _digest(base_dir: Path, *sources) -> str:
     for src in sources:
         h.update(Path(config_file(_resolve(src, base_dir))).read_bytes())
     return h.hexdigest()[:16]
+
+
+__getattr__ = renamed(__name__, {'load_study': 'read_study'}, globals())

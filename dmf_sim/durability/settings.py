@@ -14,7 +14,7 @@ import numpy as np
 from dmf_sim.core.paths import read_yaml_mapping
 from dmf_sim.core.validation import bounded, check_keys, field_error, integer, number
 
-__all__ = ['DEFAULT_SETTINGS', 'SNCurve', 'DurabilitySettings', 'load_settings']
+__all__ = ['DEFAULT_SETTINGS', 'SNCurve', 'DurabilitySettings', 'read_settings']
 
 DEFAULT_SETTINGS = 'durability'      # config/durability.yaml
 
@@ -84,7 +84,7 @@ def _section(data: dict, key: str, path, fields) -> dict:
     return dict(check_keys(sec, str(path), key, (), allowed))
 
 
-def load_settings(source: str | os.PathLike = DEFAULT_SETTINGS, **overrides) -> DurabilitySettings:
+def read_settings(source: str | os.PathLike = DEFAULT_SETTINGS, **overrides) -> DurabilitySettings:
     """Settings from a YAML file (name in ``config/`` or a path; what it leaves out comes from
     the packaged ``config/durability.yaml``); ``overrides`` replace S-N fields (exponent,
     reference_range_nm, reference_cycles, endurance_range_nm) given as options. One-line

@@ -26,14 +26,14 @@ from dmf_sim.live.parameters import MONITOR_SETTINGS, choice_reason
 from dmf_sim.live.recording import RecordingControl, run_metadata
 from dmf_sim.live.simulation import LiveSimulation
 
-__all__ = ['load_line', 'LiveRuntime']
+__all__ = ['read_line', 'LiveRuntime']
 
 
-def load_line(driveline: str):
+def read_line(driveline: str):
     """The driveline of parameter ``driveline`` (ConfigError naming the parameter)."""
-    from dmf_sim.physics.model import load_driveline
+    from dmf_sim.physics.model import read_driveline
     try:
-        return load_driveline(driveline)
+        return read_driveline(driveline)
     except (ValueError, FileNotFoundError) as exc:
         raise ConfigError(f"parameter 'driveline' = {driveline!r}: {one_line(exc)}") from None
 
@@ -47,7 +47,7 @@ class LiveRuntime:
 
     Args:
         values: every parameter value (``PARAMETERS`` plus alpha/theta).
-        line: the driveline of ``values['driveline']`` (:func:`load_line`).
+        line: the driveline of ``values['driveline']`` (:func:`read_line`).
         sink: :class:`dmf_sim.live.run_loop.SampleSink`.
         log: info/warning/error logger.
         topics: absolute topic name -> ROS type of every recorded stream.
@@ -62,7 +62,7 @@ class LiveRuntime:
                  node_name: str = '/driveline_node',
                  qos: Mapping[str, dict] | None = None) -> None:
         from dmf_sim.live.run_loop import RunLoop
-        from dmf_sim.physics.engine import load_engine
+        from dmf_sim.physics.engine import read_engine
 
         p = self.values = dict(values)
         self.log, self.node_name = log, node_name
@@ -76,7 +76,7 @@ class LiveRuntime:
         except ValueError as exc:
             raise ConfigError(f'alpha/theta: {one_line(exc)}') from None
         try:
-            engine = load_engine(p['engine'], load_set=p['load_set'])
+            engine = read_engine(p['engine'], load_set=p['load_set'])
         except (ValueError, FileNotFoundError) as exc:
             raise ConfigError(f"parameter 'engine' = {p['engine']!r} / 'load_set' = "
                               f"{p['load_set']!r}: {one_line(exc)}") from None

@@ -14,7 +14,7 @@ loop in :mod:`dmf_sim.live.run_loop`.
 Faults (:attr:`LiveSimulation.faults`, a :class:`~dmf_sim.physics.faults.FaultTimeline`): a
 chunk is split at the step where a combustion window opens with another combustion factor or a
 DMF fault starts or ends (exact to one step); the cylinder coefficients of the next part are
-``DrivelineLoads.excitation`` with the timeline's factors, and a DMF change rebuilds the
+``DrivelineExcitation.excitation`` with the timeline's factors, and a DMF change rebuilds the
 integrator keeping the state (:meth:`LiveSimulation._swap`). Without faults (or an idle
 timeline) a chunk is what it always was.
 """
@@ -32,8 +32,8 @@ from dmf_sim.live.peaks import WindupPeaks
 from dmf_sim.live.torques import TorqueOperator
 from dmf_sim.physics.engine import load_error
 from dmf_sim.physics.faults import COMBUSTION_KINDS, FaultEvent, FaultTimeline
-from dmf_sim.physics.loads import DrivelineLoads
-from dmf_sim.physics.model import Driveline, load_driveline
+from dmf_sim.physics.loads import DrivelineExcitation
+from dmf_sim.physics.model import Driveline, read_driveline
 from dmf_sim.solvers.newmark import NewmarkIntegrator, StepRecord
 
 __all__ = ['check_setpoint', 'ramp_toward', 'split_steps', 'Samples', 'Integrated',
@@ -161,10 +161,10 @@ class LiveSimulation:
                     load_set: str = 'A', alpha: float | None = None, theta: float | None = None,
                     **kw) -> 'LiveSimulation':
         """Load the driveline YAML and the engine (names in ``config/`` or paths)."""
-        from dmf_sim.physics.engine import load_engine
+        from dmf_sim.physics.engine import read_engine
 
-        line = load_driveline(driveline, alpha=alpha, theta=theta)
-        return cls(line, load_engine(engine, load_set=load_set), **kw)
+        line = read_driveline(driveline, alpha=alpha, theta=theta)
+        return cls(line, read_engine(engine, load_set=load_set), **kw)
 
     def __post_init__(self) -> None:
         rng = getattr(self.engine, 'speed_range_rpm', None)
@@ -209,7 +209,7 @@ class LiveSimulation:
 
     # ---- building ---------------------------------------------------------------------------
     def _make_integrator(self, line: Driveline, engine):
-        integ = NewmarkIntegrator(DrivelineLoads(line.reduce(), engine), dt=self.dt)
+        integ = NewmarkIntegrator(DrivelineExcitation(line.reduce(), engine), dt=self.dt)
         return integ, TorqueOperator(integ)
 
     @property

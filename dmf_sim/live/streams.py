@@ -1,4 +1,5 @@
-"""The node's published streams (one table): topic, message type and offered QoS of each.
+"""The node's interface as tables: published streams (topic, message type, offered QoS), the
+subscriptions and the services, each with what it carries.
 
 Relative topics resolve under the node's namespace. The table serves every place that must
 agree: ``driveline_node`` creates its publishers from it; the recorder writes the same offered
@@ -14,6 +15,10 @@ that falls behind, status arrays :data:`DIAGNOSTICS_DEPTH`; the prediction is la
 faults' ground truth (:mod:`dmf_sim.live.faults`) is latched too: ``faults/ground_truth`` one
 message per event, the last :data:`GROUND_TRUTH_DEPTH` for a late joiner (the bag has all);
 ``faults/active`` the set of active faults, depth 1.
+
+The subscriptions (:data:`SUBSCRIPTIONS`, setpoints and fault requests) are commands: reliable and
+keep-all. ``/clock`` (:data:`CLOCK`) is advertised only while it is published and not recorded.
+``driveline_node --help`` prints these tables (:func:`dmf_sim.node.usage`).
 """
 from __future__ import annotations
 
@@ -23,7 +28,8 @@ from dmf_sim.core.names import check_namespace
 from dmf_sim.monitor.messages import TOPIC_CYCLE, TOPIC_PREDICTED
 
 __all__ = ['DIAGNOSTICS_DEPTH', 'GROUND_TRUTH_DEPTH', 'LATCHED_DEPTH', 'SAMPLE_STREAMS',
-           'STATUS_STREAMS', 'STREAMS', 'STREAM_DEPTH', 'Stream', 'resolved_topics']
+           'STATUS_STREAMS', 'STREAMS', 'STREAM_DEPTH', 'PUBLISHED', 'CLOCK', 'Stream',
+           'Subscription', 'SUBSCRIPTIONS', 'Service', 'SERVICES', 'resolved_topics']
 
 STREAM_DEPTH = 100          # 0.1 s of samples at 1 kHz for a subscriber that falls behind
 DIAGNOSTICS_DEPTH = 10      # status arrays (1 Hz health, one per engine cycle)
@@ -35,14 +41,16 @@ class Stream(NamedTuple):
     """One published stream: default topic (relative to the node's namespace unless it starts
     with '/'), ROS type, history depth, latched (transient-local durability), and when it is
     published: per ``'sample'`` (publish_rate), ``'diagnostics'`` (diagnostics_rate),
-    ``'cycle'`` (per engine cycle), ``'setpoint'`` (when the setpoint changes) or ``'fault'``
-    (when a fault starts or ends, a combustion misfires)."""
+    ``'cycle'`` (per engine cycle), ``'setpoint'`` (when the setpoint changes), ``'fault'``
+    (when a fault starts or ends, a combustion misfires) or ``'clock'`` (with the samples,
+    while /clock is on); what it carries, for people."""
 
     topic: str
     msgtype: str
     depth: int
     latched: bool = False
     per: str = 'sample'
+    what: str = ''
 
     def qos_profile(self) -> dict[str, Any]:
         """The offered QoS in rosbag2's form (reliable, keep-last ``depth``)."""
@@ -53,22 +61,73 @@ class Stream(NamedTuple):
 _DIAG = 'diagnostic_msgs/msg/DiagnosticArray'
 _F64 = 'std_msgs/msg/Float64'
 STREAMS: dict[str, Stream] = {
-    'joint_states': Stream('driveline/joint_states', 'sensor_msgs/msg/JointState', STREAM_DEPTH),
-    'dmf_windup': Stream('driveline/dmf_windup', _F64, STREAM_DEPTH),
-    'speed': Stream('engine/speed', _F64, STREAM_DEPTH),
-    'crank_angle': Stream('engine/crank_angle', _F64, STREAM_DEPTH),
-    'diagnostics': Stream('/diagnostics', _DIAG, DIAGNOSTICS_DEPTH, per='diagnostics'),
-    'dmf_orders': Stream(TOPIC_CYCLE, _DIAG, DIAGNOSTICS_DEPTH, per='cycle'),
+    'joint_states': Stream('driveline/joint_states', 'sensor_msgs/msg/JointState', STREAM_DEPTH,
+                           what='every element: position = vibratory angle [rad], velocity '
+                                '[rad/s], effort = transmitted torque [Nm]'),
+    'dmf_windup': Stream('driveline/dmf_windup', _F64, STREAM_DEPTH, what='DMF wind-up [rad]'),
+    'speed': Stream('engine/speed', _F64, STREAM_DEPTH, what='engine speed (ramped) [rpm]'),
+    'crank_angle': Stream('engine/crank_angle', _F64, STREAM_DEPTH,
+                          what='crank angle [rad], continuous'),
+    'diagnostics': Stream('/diagnostics', _DIAG, DIAGNOSTICS_DEPTH, per='diagnostics',
+                          what='health: one status per node (and the monitor)'),
+    'dmf_orders': Stream(TOPIC_CYCLE, _DIAG, DIAGNOSTICS_DEPTH, per='cycle',
+                         what='live orders of each engine cycle, against the prediction; alarms'),
     'dmf_predicted': Stream(TOPIC_PREDICTED, _DIAG, LATCHED_DEPTH, latched=True,
-                            per='setpoint'),
+                            per='setpoint', what='the HBM prediction at the setpoint'),
     'fault_ground_truth': Stream('faults/ground_truth', _DIAG, GROUND_TRUTH_DEPTH, latched=True,
-                                 per='fault'),
-    'fault_active': Stream('faults/active', _DIAG, LATCHED_DEPTH, latched=True, per='fault'),
+                                 per='fault', what='one status per fault start or end and per '
+                                                   'misfired combustion'),
+    'fault_active': Stream('faults/active', _DIAG, LATCHED_DEPTH, latched=True, per='fault',
+                           what='the faults acting now'),
 }
 SAMPLE_STREAMS = ('joint_states', 'dmf_windup', 'speed', 'crank_angle')   # one message each per
                                                                            # sample, this order
 STATUS_STREAMS = ('diagnostics', 'dmf_orders', 'dmf_predicted', 'fault_ground_truth',
                   'fault_active')
+CLOCK = Stream('/clock', 'rosgraph_msgs/msg/Clock', LATCHED_DEPTH, per='clock',
+               what='simulated time; advertised only while pacing is fast, real_time_factor '
+                    '!= 1 or publish_clock is set')
+"""/clock: not in :data:`STREAMS` (not recorded; advertised only while published)."""
+PUBLISHED = {'sample': 'every sample (publish_rate)', 'diagnostics': 'diagnostics_rate',
+             'cycle': 'per engine cycle', 'setpoint': 'when the setpoint changes',
+             'fault': 'per fault event', 'clock': 'with the samples'}
+"""When a stream is published (:attr:`Stream.per`), for people."""
+
+
+class Subscription(NamedTuple):
+    """A topic the node subscribes to: relative topic, ROS type, what it takes; reliable,
+    keep-all (``depth`` 0), so a command is never dropped."""
+
+    topic: str
+    msgtype: str
+    what: str
+    depth: int = 0
+
+
+SUBSCRIPTIONS: dict[str, Subscription] = {
+    'speed_setpoint': Subscription('engine/speed_setpoint', _F64, 'engine speed setpoint [rpm]'),
+    'load_setpoint': Subscription('engine/load_setpoint', _F64,
+                                  'engine load setpoint [-1..1], below 0 engine braking'),
+    'fault_inject': Subscription('faults/inject', 'std_msgs/msg/String',
+                                 'a fault request (YAML flow, dmf_sim.live.faults)'),
+}
+
+
+class Service(NamedTuple):
+    """A service of the node: private name (``~/`` is the node's own), ROS type, what it does."""
+
+    name: str
+    srvtype: str
+    what: str
+
+
+SERVICES: dict[str, Service] = {
+    'reset': Service('~/reset', 'std_srvs/srv/Trigger',
+                     'static equilibrium at the current setpoints'),
+    'record': Service('~/record', 'std_srvs/srv/SetBool',
+                      'start/stop recording (as parameter record)'),
+    'clear_faults': Service('~/clear_faults', 'std_srvs/srv/Trigger', 'every fault ends now'),
+}
 
 
 def resolved_topics(namespace: str = '') -> dict[str, str]:

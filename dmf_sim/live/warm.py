@@ -10,10 +10,11 @@ its work starts.
 from __future__ import annotations
 
 from dmf_sim.bags.warm import BAG_READING
-from dmf_sim.core.kernel_cache import KernelGroup, warm
+from dmf_sim.core import kernel_cache
+from dmf_sim.core.kernel_cache import KernelGroup
 from dmf_sim.solvers.hbm.warm import SWEEP
 
-__all__ = ['TIME_INTEGRATION', 'TIME_INTEGRATION_COMPILE_S', 'GROUPS', 'group', 'load']
+__all__ = ['TIME_INTEGRATION', 'TIME_INTEGRATION_COMPILE_S', 'GROUPS', 'group', 'warm_up']
 
 TIME_INTEGRATION_COMPILE_S = 15.0
 """Seconds the group took to compile on the 2-core reference machine."""
@@ -21,7 +22,7 @@ TIME_INTEGRATION_COMPILE_S = 15.0
 _CHUNK_STEPS = 25           # a chunk of a few samples: every code path of a real chunk
 
 
-def _load() -> None:
+def _warm_up() -> None:
     """The live core on the shipped truck: the kernels load when it is built; one chunk through
     :meth:`~LiveSimulation.advance` and one through integrate / read_out with a caller's buffers,
     as ``dmf-sim run`` does."""
@@ -44,7 +45,7 @@ def _kernels() -> tuple:
 
 TIME_INTEGRATION = KernelGroup('time integration', 'the Newmark step and the torque read-out '
                                '(the node, run, steady, runup, the optimizer\'s verification)',
-                               _load, _kernels, TIME_INTEGRATION_COMPILE_S)
+                               _warm_up, _kernels, TIME_INTEGRATION_COMPILE_S)
 
 GROUPS = (SWEEP, TIME_INTEGRATION, BAG_READING)
 """Every group: together, every compiled kernel of the package."""
@@ -55,8 +56,8 @@ def group(name: str) -> KernelGroup:
     return next(g for g in GROUPS if g.name == name)
 
 
-def load(command: str, *names: str) -> None:
+def warm_up(command: str, *names: str) -> None:
     """Load the named groups before ``command``'s work (and its progress bar) starts: one line
     ``dmf-sim COMMAND: compiling the numerical kernels once (...)`` on stderr when they must be
-    compiled first (:func:`dmf_sim.core.kernel_cache.warm`)."""
-    warm([group(n) for n in names], prefix=f'dmf-sim {command}')
+    compiled first (:func:`dmf_sim.core.kernel_cache.warm_up`)."""
+    kernel_cache.warm_up([group(n) for n in names], prefix=f'dmf-sim {command}')

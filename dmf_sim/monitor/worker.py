@@ -120,12 +120,12 @@ def _init_worker(niceness: int) -> None:
 
 
 def _loads(key, payload):
-    """The worker's DrivelineLoads for model ``key`` (built from ``payload`` = (line, engine)
+    """The worker's DrivelineExcitation for model ``key`` (built from ``payload`` = (line, engine)
     the first time it is sent)."""
     if payload is not None and key not in _MODELS:
-        from dmf_sim.physics.loads import DrivelineLoads
+        from dmf_sim.physics.loads import DrivelineExcitation
         line, engine = payload
-        _MODELS[key] = DrivelineLoads(line.reduce(), engine)
+        _MODELS[key] = DrivelineExcitation(line.reduce(), engine)
         while len(_MODELS) > WORKER_MODELS:
             _MODELS.popitem(last=False)
     _MODELS.move_to_end(key)

@@ -10,7 +10,7 @@ STUDY.yaml --out DIR`` from the command line. A layer beside ``dmf_sim.design``,
 * ``hypervolume``, ``verify`` (Newmark run-ups and shots of the Pareto designs), ``export``
   (driveline YAML per design), ``report`` (figures, Markdown + HTML).
 """
-from dmf_sim.optimize.problem import Problem, load_problem
+from dmf_sim.optimize.problem import Problem, read_problem
 from dmf_sim.optimize.runner import OptimizationResult, run_optimization
 
-__all__ = ['run_optimization', 'OptimizationResult', 'Problem', 'load_problem']
+__all__ = ['run_optimization', 'OptimizationResult', 'Problem', 'read_problem']

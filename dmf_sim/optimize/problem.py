@@ -46,7 +46,7 @@ from dmf_sim.design.study import Study, study_from_dict
 from dmf_sim.optimize.constraints import Constraints, parse_constraints
 
 __all__ = ['METHODS', 'OPTIMIZER_REQUIRED', 'OPTIMIZER_OPTIONAL', 'DEFAULT_BATCH_SIZE',
-           'MAX_BUDGET', 'Variable', 'Problem', 'load_problem', 'problem_from_dict',
+           'MAX_BUDGET', 'Variable', 'Problem', 'read_problem', 'problem_from_dict',
            'unit_to_values']
 
 METHODS = {
@@ -153,7 +153,7 @@ class Problem:
         return p
 
 
-def load_problem(source, *, budget: int | None = None) -> Problem:
+def read_problem(source, *, budget: int | None = None) -> Problem:
     """A :class:`Problem` from a study file (config name or path), a mapping or a Problem;
     ``budget`` overrides the file's."""
     if isinstance(source, Problem):

@@ -1,4 +1,4 @@
-"""Running an optimization on Dask with optuna's ask-and-tell interface (issue 23).
+"""Running an optimization on Dask with optuna's ask-and-tell interface.
 
 Each generation the sampler is asked for ``batch_size`` designs (optuna trials; the trial number
 is the design id); every design is one Dask task on the design study's machinery (the context
@@ -25,21 +25,16 @@ from pathlib import Path
 
 import numpy as np
 
+from dmf_sim.cluster import start_local, wait_for_workers
 from dmf_sim.core.errors import ConfigError, one_line
 from dmf_sim.core.optional import require
 from dmf_sim.design.evaluate import StudyContext, evaluate_batch
 from dmf_sim.design.result import StudyResult
-from dmf_sim.design.runner import (
-    StudyPlugin,
-    _bar,
-    close_run,
-    start_local,
-    wait_for_workers,
-)
+from dmf_sim.design.runner import StudyPlugin, _bar, close_run
 from dmf_sim.design.table import ResultStore, sort_rows, to_table
 from dmf_sim.optimize.constraints import rank, violation
 from dmf_sim.optimize.hypervolume import hypervolume_history
-from dmf_sim.optimize.problem import Problem, load_problem, unit_to_values
+from dmf_sim.optimize.problem import Problem, read_problem, unit_to_values
 
 __all__ = ['JOURNAL', 'PROBLEM_FILE', 'OPTUNA_STUDY', 'MAX_CONSTRAINT', 'EXTRA',
            'OptimizationResult', 'check_budget', 'run_optimization', 'finish', 'reference_point',
@@ -166,7 +161,7 @@ def run_optimization(problem, client=None, *, out=None, resume: bool = False,
         budget: overrides the problem's budget (e.g. to extend a finished run with resume;
             never below the designs stored in ``out``: :func:`check_budget`).
     """
-    problem = load_problem(problem, budget=budget)
+    problem = read_problem(problem, budget=budget)
     study = problem.study
     out = Path(out) if out is not None else None
     store = ResultStore(out, study, resume, extra=EXTRA) if out is not None else None

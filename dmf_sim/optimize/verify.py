@@ -112,11 +112,11 @@ def verify_worst(line, engine, load: float, speed_rpm: float, objective: str, hb
     """The time-domain check of one worst value (see the module docstring); ``speeds_rpm``:
     the study's speed grid (from, to, step): the run-ups stay inside it."""
     lo_s, hi_s, step_rpm = speeds_rpm or (0.0, math.inf, 10.0)
-    from dmf_sim.physics.loads import DrivelineLoads
-    from dmf_sim.solvers.newmark import simulate
+    from dmf_sim.physics.loads import DrivelineExcitation
+    from dmf_sim.solvers.newmark import SimulationOptions, simulate
     from dmf_sim.solvers.steady import dmf_modes
     signal, n = VERIFIABLE[objective]
-    loads = DrivelineLoads(line.reduce(), engine)
+    loads = DrivelineExcitation(line.reduce(), engine)
     model = loads.model
     q_s = loads.static_state(speed_rpm, load).q
     modes = dmf_modes(model, 2)
@@ -127,8 +127,10 @@ def verify_worst(line, engine, load: float, speed_rpm: float, objective: str, hb
         for shape, om in modes:
             dq += off * amp / len(modes) * shape
             dv -= off * om * amp / len(modes) * shape
-        r = simulate(loads, speed_rpm, load, dt=s.dt, max_cycles=s.max_cycles,
-                     steady_tol=s.steady_tol, eval_cycles=s.eval_cycles, initial=(q_s + dq, dv))
+        r = simulate(loads, speed_rpm, load, initial=(q_s + dq, dv),
+                     options=SimulationOptions(dt=s.dt, max_cycles=s.max_cycles,
+                                               steady_tol=s.steady_tol,
+                                               eval_cycles=s.eval_cycles))
         settled += bool(r.steady)
         shots.append(float(np.max(_cycle_values(r, model, signal, n, torque_element))))
     run_up = math.nan
@@ -138,12 +140,14 @@ def verify_worst(line, engine, load: float, speed_rpm: float, objective: str, hb
         for start, end in ((a, b), (b, a)):
             if start == speed_rpm:          # the worst speed at the grid's end: one way only
                 continue
-            first = simulate(loads, start, load, dt=s.dt, max_cycles=s.max_cycles,
-                             steady_tol=s.steady_tol, eval_cycles=1)
+            first = simulate(loads, start, load,
+                             options=SimulationOptions(dt=s.dt, max_cycles=s.max_cycles,
+                                                       steady_tol=s.steady_tol, eval_cycles=1))
             init = (first.q[-1], first.v[-1])
             t_end = abs(end - start) / s.ramp_rpm_per_s
             r = simulate(loads, start, load, t_end=t_end, target_speed_rpm=end,
-                         ramp_rpm_per_s=s.ramp_rpm_per_s, dt=s.dt, initial=init)
+                         ramp_rpm_per_s=s.ramp_rpm_per_s, initial=init,
+                         options=SimulationOptions(dt=s.dt))
             v, speeds = _cycle_values(r, model, signal, n, torque_element, with_speed=True)
             near = (np.abs(speeds - speed_rpm) <= step_rpm / 2.0) & (speeds >= lo_s) \
                 & (speeds <= hi_s)

@@ -170,10 +170,10 @@ class PaperStudy:
         return out
 
     def _sweep(self, line, engine, alpha: float, load: float, speeds, **dmf):
-        from dmf_sim.physics.loads import DrivelineLoads
+        from dmf_sim.physics.loads import DrivelineExcitation
         from dmf_sim.solvers.continuation import ContinuationOptions
         from dmf_sim.solvers.hbm import HBMOptions, SweepOptions, sweep
-        loads = DrivelineLoads(line.with_dmf(alpha=alpha, **dmf).reduce(), engine)
+        loads = DrivelineExcitation(line.with_dmf(alpha=alpha, **dmf).reduce(), engine)
         res = sweep(loads, load, (speeds[0], speeds[1]),
                     hbm_options=HBMOptions(n_harmonics=self.s.n_harmonics),
                     options=SweepOptions(step_rpm=speeds[2]),
@@ -189,16 +189,16 @@ class PaperStudy:
 
     # ---- the study -----------------------------------------------------------------------------
     def run(self) -> StudyResults:
-        from dmf_sim.physics.engine import load_engine
-        from dmf_sim.physics.model import load_driveline
+        from dmf_sim.physics.engine import read_engine
+        from dmf_sim.physics.model import read_driveline
         s = self.s
         r = StudyResults(settings=s)
-        self.line = load_driveline(s.driveline)
+        self.line = read_driveline(s.driveline)
         r.theta = float(self.line.dmf.theta)
         r.knee_torque_nm = float(self.line.spring.k * r.theta)
-        self.engine = load_engine(s.engine)
+        self.engine = read_engine(s.engine)
         r.full_load_max_nm = max(self.engine.full_load_torque(v) for v in grid(s.speeds))
-        self._timed('engine data', r, self.engine.warm)
+        self._timed('engine data', r, self.engine.warm_up)
         self._timed('modes (Fig. 12)', r, self._modes, r)
         self._timed('engine loads (Fig. 8)', r, self._loads, r)
         self._timed('sweeps (Figs. 13, 15)', r, self._sweeps, r)
@@ -216,8 +216,8 @@ class PaperStudy:
 
     def _modes(self, r: StudyResults) -> None:
         from dmf_sim.physics.modal import modes
-        from dmf_sim.physics.model import load_model
-        r.modes_conventional = modes(load_model(self.s.conventional))
+        from dmf_sim.physics.model import read_model
+        r.modes_conventional = modes(read_model(self.s.conventional))
         r.modes_dmf = modes(self.line.reduce(), 'primary')
         r.modes_dmf_band = modes(self.line.with_dmf(alpha=self.s.band_alpha).reduce(), 'secondary')
 
@@ -268,7 +268,7 @@ class PaperStudy:
         doc = {**doc, 'name': f'{doc["name"]} x {f:.3f}',
                'full_load_curve': {**curve, 'torque_nm': [f * t for t in curve['torque_nm']]}}
         eng = engine_from_mapping(doc, path)
-        eng.warm()
+        eng.warm_up()
         return eng
 
     def _stable_peaks(self, res, speeds, label: tuple, record: bool) -> np.ndarray:

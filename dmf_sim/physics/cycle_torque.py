@@ -45,9 +45,9 @@ def element_torque_over_cycle(loads, speed_rpm: float, load: float, element: str
 def torque_before_flywheel(engine, speeds_rpm, load: float) -> tuple[np.ndarray, dict]:
     """Paper Fig. 8 right: torque into the flywheel of the conventional driveline [Nm] over the
     crank angle [deg], per speed [rpm]."""
-    from dmf_sim.physics.loads import DrivelineLoads
-    from dmf_sim.physics.model import load_model
-    loads = DrivelineLoads(load_model(FIG8_DRIVELINE), engine)
+    from dmf_sim.physics.loads import DrivelineExcitation
+    from dmf_sim.physics.model import read_model
+    loads = DrivelineExcitation(read_model(FIG8_DRIVELINE), engine)
     out = {}
     psi = None
     for s in speeds_rpm:

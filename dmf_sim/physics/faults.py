@@ -70,7 +70,7 @@ from dmf_sim.physics.model import Driveline
 __all__ = ['FAULT_KINDS', 'COMBUSTION_KINDS', 'DMF_KINDS', 'SENSOR_KINDS', 'MISFIRE_MODES',
            'EDGE_MODES', 'BUS_MODES', 'DMF_DAMPING_FACTOR_MAX', 'SEED_MAX', 'WINDOW_OPEN_RAD',
            'CYCLE_RAD', 'Fault', 'FaultSet', 'FaultSchedule', 'FaultEvent', 'FaultTimeline',
-           'known_sensors', 'parse_fault', 'parse_faults', 'parse_request', 'load_schedule',
+           'known_sensors', 'parse_fault', 'parse_faults', 'parse_request', 'read_schedule',
            'check_overlaps',
            'event_from_values', 'combustion_windows']
 
@@ -520,7 +520,7 @@ SCHEDULE_KEYS = ('faults',)
 SCHEDULE_OPTIONAL = ('description',)
 
 
-def load_schedule(source: str | Path, *, line: Driveline | None = None, **kw) -> FaultSchedule:
+def read_schedule(source: str | Path, *, line: Driveline | None = None, **kw) -> FaultSchedule:
     """A schedule file (YAML ``faults: [...]``), validated against ``line`` (and the sensor
     names of ``kw``, as :func:`parse_fault`); one-line errors naming the file, the fault's
     index and the field."""

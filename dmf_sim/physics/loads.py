@@ -1,5 +1,5 @@
-"""Driveline loads from the engine: cylinder torques, rear load, d'Alembert load, static
-equilibrium.
+"""The engine's excitation of the driveline: cylinder torques, rear load, d'Alembert load, static
+equilibrium (:class:`DrivelineExcitation`; its old name ``DrivelineLoads`` still works).
 
 Cylinder k carries (eq. 16-17)
 
@@ -17,7 +17,7 @@ combustion factor s_k (1 healthy, 0 misfire, the factor of a weak cylinder) and 
 with A^f the engine's coefficients at (speed, load) and A^m those of a cylinder that does not
 fire at that operating point (compression without combustion,
 :meth:`~dmf_sim.physics.engine.Engine.motored_coefficients`); the rear load balances the faulted
-mean ``-sum_k Re(A_k0) R_rear / R_k``. :meth:`DrivelineLoads.faulted_cylinder_coefficients` is
+mean ``-sum_k Re(A_k0) R_rear / R_k``. :meth:`DrivelineExcitation.faulted_cylinder_coefficients` is
 that one formula; Newmark, the harmonic balance and the prediction call it.
 
 When the speed changes, the reference rotation psi(t)/R_i accelerates: the vibratory equations get
@@ -30,16 +30,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from dmf_sim.core.deprecation import renamed
 from dmf_sim.core.errors import ConfigError
 from dmf_sim.physics.harmonic import solve_static
 from dmf_sim.physics.model import ReducedModel
 
-__all__ = ['DrivelineLoads', 'ConstantTorque', 'StaticState']
+__all__ = ['DrivelineExcitation', 'ConstantTorque', 'StaticState']
 
 
 @dataclass
-class DrivelineLoads:
-    """Loads of one engine on one driveline model.
+class DrivelineExcitation:
+    """The excitation of one driveline model by one engine: the generalized loads on its DOFs.
 
     Args:
         model: the merged driveline.
@@ -243,3 +244,6 @@ class StaticState:
     windup: float
     dmf_torque: float
     region: str
+
+
+__getattr__ = renamed(__name__, {'DrivelineLoads': 'DrivelineExcitation'}, globals())

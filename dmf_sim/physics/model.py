@@ -27,6 +27,7 @@ from functools import cached_property
 import numpy as np
 
 from dmf_sim.core.bounds import BOUNDS
+from dmf_sim.core.deprecation import renamed
 from dmf_sim.core.errors import ConfigError
 from dmf_sim.core.paths import read_yaml_mapping
 from dmf_sim.core.validation import as_number, bounded, check_keys, field_error
@@ -34,8 +35,8 @@ from dmf_sim.physics.spring import PiecewiseLinearSpring, Stage
 
 __all__ = ['ELEMENT_KEYS', 'TOP_KEYS_REQUIRED', 'TOP_KEYS_OPTIONAL', 'DMF_KEYS_REQUIRED',
            'DMF_KEYS_OPTIONAL', 'COAST_KEYS', 'STAGE_KEYS', 'STAGE_ANGLE_KEYS', 'RIGID_WORDS',
-           'Element', 'DMFSpec', 'Driveline', 'driveline_from_dict', 'load_driveline',
-           'ReducedModel', 'load_model']
+           'Element', 'DMFSpec', 'Driveline', 'driveline_from_dict', 'read_driveline',
+           'ReducedModel', 'read_model']
 
 ELEMENT_KEYS = ('name', 'ratio', 'stiffness', 'damping', 'inertia')
 TOP_KEYS_REQUIRED = ('name', 'elements')
@@ -332,7 +333,7 @@ def driveline_from_dict(data: dict, source: str = 'driveline') -> Driveline:
     return line
 
 
-def load_driveline(source: str | os.PathLike = 'truck_dmf', *, alpha: float | None = None,
+def read_driveline(source: str | os.PathLike = 'truck_dmf', *, alpha: float | None = None,
                    theta: float | None = None) -> Driveline:
     """Load and validate a driveline YAML: a config name (``truck_dmf``, ``truck_conventional``)
     or a path. ``alpha`` and ``theta`` [rad] override the first drive stage of the DMF."""
@@ -493,7 +494,11 @@ class ReducedModel:
         return out
 
 
-def load_model(source: str | os.PathLike = 'truck_dmf', *, alpha: float | None = None,
+def read_model(source: str | os.PathLike = 'truck_dmf', *, alpha: float | None = None,
                theta: float | None = None) -> ReducedModel:
-    """Shortcut: ``load_driveline(...).reduce()``."""
-    return load_driveline(source, alpha=alpha, theta=theta).reduce()
+    """Shortcut: ``read_driveline(...).reduce()``."""
+    return read_driveline(source, alpha=alpha, theta=theta).reduce()
+
+
+__getattr__ = renamed(__name__, {'load_model': 'read_model', 'load_driveline': 'read_driveline'},
+                      globals())

@@ -15,13 +15,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from dmf_sim.core.deprecation import options_from_keywords
 from dmf_sim.core.errors import ConfigError
 from dmf_sim.core.units import RPM_TO_RAD_S
-from dmf_sim.physics.loads import DrivelineLoads
+from dmf_sim.physics.loads import DrivelineExcitation
 from dmf_sim.physics.orders import CYCLE_RAD, half_orders, resample_on_angle, summarize_orders
 from dmf_sim.solvers import newmark_kernel as kernel
 
-__all__ = ['StepRecord', 'NewmarkIntegrator', 'SimulationResult', 'simulate']
+__all__ = ['StepRecord', 'NewmarkIntegrator', 'SimulationOptions', 'SimulationResult', 'simulate']
 
 # ------------------------------------------------------------------------------------------------
 # Integrator object (stepping API for the node; simulate() for offline use)
@@ -63,13 +64,13 @@ class NewmarkIntegrator:
     """Fixed-step Newmark integrator on a merged model with the DMF's piecewise-linear spring.
 
     Args:
-        loads: DrivelineLoads (model + engine).
+        loads: DrivelineExcitation (model + engine).
         dt: time step [s].
         beta, gamma: Newmark parameters (average acceleration: 1/4, 1/2).
         use_numba: compiled kernel (True) or the readable numpy reference path (False).
     """
 
-    loads: DrivelineLoads
+    loads: DrivelineExcitation
     dt: float = 1e-4
     beta: float = 0.25
     gamma: float = 0.5
@@ -157,7 +158,7 @@ class NewmarkIntegrator:
                           factors=None) -> None:
         """Recompute the cylinder coefficients and rear load for the current (or given) speed
         [rpm] and load fraction, and (given) per-cylinder combustion ``factors`` (kept for the
-        next updates; all ones = every cylinder fires): :meth:`DrivelineLoads.excitation`.
+        next updates; all ones = every cylinder fires): :meth:`DrivelineExcitation.excitation`.
         Called by the stepper between chunks; coefficients are held constant inside a chunk."""
         if speed_rpm is None:
             speed_rpm = self.speed_rpm
@@ -313,27 +314,60 @@ class SimulationResult:
         return self.steady
 
 
-def simulate(loads: DrivelineLoads, speed_rpm: float, load: float, *, t_end: float | None = None,
-             target_speed_rpm: float | None = None, ramp_rpm_per_s: float = 0.0,
-             dt: float = 1e-4, beta: float = 0.25, gamma: float = 0.5,
-             steady_tol: float = 1e-4, min_cycles: int = 5, max_cycles: int = 400,
-             eval_cycles: int = 4, record_stride: int = 1, chunk_s: float = 0.01,
-             initial: tuple[np.ndarray, np.ndarray] | None = None, use_numba: bool = True,
-             progress: bool = False, factors=None) -> SimulationResult:
+@dataclass(frozen=True)
+class SimulationOptions:
+    """How :func:`simulate` integrates (what it integrates is its arguments).
+
+    Attributes:
+        dt: time step [s]; beta, gamma: Newmark's parameters (0.25, 0.5: the average
+            acceleration rule, unconditionally stable, no numerical damping).
+        steady_tol: a steady-state run stops once the wind-up's cycle-to-cycle change (max abs
+            difference over one cycle on a crank-angle grid, relative to its peak-to-peak) is
+            below this, after at least ``min_cycles`` and at most ``max_cycles`` engine cycles.
+        eval_cycles: the last cycles whose wind-up orders a steady-state run returns.
+        record_stride: a transient run (``t_end``) records every ``record_stride``-th step.
+        chunk_s: a ramped transient run holds the excitation coefficients over chunks of this
+            length [s], each chunk's those of its middle, as the live core does.
+        use_numba: the compiled step (False: its numpy twin, the readable one).
+    """
+
+    dt: float = 1e-4
+    beta: float = 0.25
+    gamma: float = 0.5
+    steady_tol: float = 1e-4
+    min_cycles: int = 5
+    max_cycles: int = 400
+    eval_cycles: int = 4
+    record_stride: int = 1
+    chunk_s: float = 0.01
+    use_numba: bool = True
+
+
+def simulate(loads: DrivelineExcitation, speed_rpm: float, load: float, *,
+             t_end: float | None = None, target_speed_rpm: float | None = None,
+             ramp_rpm_per_s: float = 0.0, initial: tuple[np.ndarray, np.ndarray] | None = None,
+             factors=None, options: SimulationOptions | None = None, progress: bool = False,
+             **keywords) -> SimulationResult:
     """Integrate the driveline at speed ``speed_rpm`` and load fraction ``load``.
 
-    Without ``t_end``: run whole engine cycles at constant speed until the wind-up's
-    cycle-to-cycle change (max abs difference over one cycle on a crank-angle grid, relative to
-    its peak-to-peak) is below ``steady_tol``, then return the wind-up orders of the last
-    ``eval_cycles`` cycles. With ``t_end`` [s]: a transient run, optionally ramping toward
-    ``target_speed_rpm`` at ``ramp_rpm_per_s``, recording every ``record_stride`` steps; the
-    excitation coefficients follow the speed every ``chunk_s`` seconds, each chunk's those of
-    its middle, as in the live core (at constant speed, no target, the run is one kernel call).
-    ``initial`` = (q, v) replaces the static equilibrium start. ``factors``: per-cylinder
-    combustion factors held over the whole run (an every-cycle misfire 0, a weak cylinder its
-    factor; :meth:`NewmarkIntegrator.update_excitation`), None: every cylinder fires.
+    Without ``t_end``: run whole engine cycles at constant speed until the wind-up is steady
+    (``options.steady_tol``), then return the wind-up orders of the last ``options.eval_cycles``
+    cycles. With ``t_end`` [s]: a transient run, optionally ramping toward ``target_speed_rpm``
+    at ``ramp_rpm_per_s``; the excitation coefficients follow the speed chunk by chunk
+    (``options.chunk_s``), as in the live core (at constant speed, no target, the run is one
+    kernel call). ``initial`` = (q, v) replaces the static equilibrium start. ``factors``:
+    per-cylinder combustion factors held over the whole run (an every-cycle misfire 0, a weak
+    cylinder its factor; :meth:`NewmarkIntegrator.update_excitation`), None: every cylinder
+    fires. ``options``: :class:`SimulationOptions` (time step, Newmark parameters, when a run
+    is steady, recording); ``progress``: a tqdm bar.
+
+    The fields of :class:`SimulationOptions` given as keywords (``simulate(..., dt=5e-5)``, the
+    old signature) still work, with a deprecation warning.
     """
-    integ = NewmarkIntegrator(loads, dt=dt, beta=beta, gamma=gamma, use_numba=use_numba)
+    o = options_from_keywords(SimulationOptions, options, keywords, 'simulate')
+    dt, record_stride, steady_tol = o.dt, o.record_stride, o.steady_tol
+    min_cycles, max_cycles, eval_cycles = o.min_cycles, o.max_cycles, o.eval_cycles
+    integ = NewmarkIntegrator(loads, dt=dt, beta=o.beta, gamma=o.gamma, use_numba=o.use_numba)
     if factors is not None:
         integ.update_excitation(speed_rpm, load, factors)
     integ.reset(speed_rpm, load)
@@ -348,7 +382,7 @@ def simulate(loads: DrivelineLoads, speed_rpm: float, load: float, *, t_end: flo
         if target_speed_rpm is not None:
             integ.set_target(target_speed_rpm, ramp_rpm_per_s)
         n_total = int(round(t_end / dt))
-        chunk = max(int(round(chunk_s / dt)) // record_stride, 1) * record_stride
+        chunk = max(int(round(o.chunk_s / dt)) // record_stride, 1) * record_stride
         if target_speed_rpm is None and not progress:
             # constant speed: the excitation coefficients never change, so the whole run is one
             # kernel call (no per-chunk Python work; the solution finder's and the non-periodic

@@ -28,9 +28,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from dmf_sim.core.units import cycle_period_s
-from dmf_sim.physics.loads import DrivelineLoads
+from dmf_sim.physics.loads import DrivelineExcitation
 from dmf_sim.physics.orders import CYCLE_RAD, ORDER_1_5, ORDER_3, half_orders
-from dmf_sim.solvers.newmark import simulate
+from dmf_sim.solvers.newmark import SimulationOptions, simulate
 
 __all__ = ['LABELS', 'NonPeriodicOptions', 'NonPeriodicResult', 'classify_section', 'analyze']
 
@@ -139,7 +139,7 @@ def classify_section(points: np.ndarray, scale: np.ndarray,
     return 'chaotic', 0
 
 
-def analyze(loads: DrivelineLoads, speed_rpm: float, load: float,
+def analyze(loads: DrivelineExcitation, speed_rpm: float, load: float,
             initial: tuple[np.ndarray, np.ndarray] | None = None,
             options: NonPeriodicOptions | None = None, factors=None) -> NonPeriodicResult:
     """Long Newmark run at constant speed from ``initial`` = (q, v) at psi = 0 (default: the
@@ -150,8 +150,8 @@ def analyze(loads: DrivelineLoads, speed_rpm: float, load: float,
         raise ValueError(f'transient={o.transient} must be in [0, cycles={o.cycles})')
     T = float(cycle_period_s(speed_rpm))
     n_steps = int(np.ceil(o.cycles * T / o.dt)) + 2 * o.stride
-    res = simulate(loads, speed_rpm, load, t_end=n_steps * o.dt, dt=o.dt, record_stride=o.stride,
-                   initial=initial, chunk_s=1e9, factors=factors)
+    res = simulate(loads, speed_rpm, load, t_end=n_steps * o.dt, initial=initial, factors=factors,
+                   options=SimulationOptions(dt=o.dt, record_stride=o.stride, chunk_s=1e9))
     e = loads.model.e
     psi, w, wd = res.psi, res.windup, res.v @ e
     first, last = o.transient, o.cycles

@@ -21,16 +21,16 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from dmf_sim.core.errors import ConfigError, ConvergenceError
-from dmf_sim.physics.loads import DrivelineLoads
+from dmf_sim.physics.loads import DrivelineExcitation
 from dmf_sim.solvers.hbm import CondensedHBM, HBMOptions, HBMPoint, SweepOptions, sweep
 from dmf_sim.solvers.hbm.faulted import fingerprints
 from dmf_sim.solvers.hbm.layout import to_real
-from dmf_sim.solvers.newmark import simulate
+from dmf_sim.solvers.newmark import SimulationOptions, simulate
 from dmf_sim.solvers.nonperiodic import NonPeriodicResult
 from dmf_sim.solvers.stability import FlexibleModes, FloquetAnalyzer
 
@@ -181,7 +181,7 @@ class _Matcher:
         return best if dist <= self.tol else None
 
 
-def find_steady_states(loads: DrivelineLoads, speed_rpm: float, load: float, *,
+def find_steady_states(loads: DrivelineExcitation, speed_rpm: float, load: float, *,
                        window_rpm: float = 30.0, hbm_options: HBMOptions | None = None,
                        sweep_options: SweepOptions | None = None,
                        basin: BasinOptions | None = None, progress: bool = False,
@@ -202,11 +202,10 @@ def find_steady_states(loads: DrivelineLoads, speed_rpm: float, load: float, *,
         lo, hi = max(lo, float(rng[0])), min(hi, float(rng[1]))
     step = max(window_rpm / 6.0, 1.0)
     base = sweep_options or SweepOptions()
-    opts = SweepOptions(**{**base.__dict__, 'step_rpm': step})
+    opts = replace(base, step_rpm=step)
     if opts.search is not None:
-        opts = SweepOptions(**{**opts.__dict__, 'search': type(opts.search)(
-            **{**opts.search.__dict__, 'seed_step_rpm': step,
-               'nonperiodic_speeds': (s,)})})          # the envelope where it is asked
+        opts = replace(opts, search=replace(opts.search, seed_step_rpm=step,
+                                            nonperiodic_speeds=(s,)))   # the envelope where asked
     res = sweep(loads, load, (lo, hi), hbm_options=hbm_options, options=opts, progress=progress,
                 label=f'{s:g} rpm', faults=faults)
     hb: CondensedHBM = res.hbm
@@ -243,7 +242,7 @@ def dmf_modes(model, count: int = 2) -> list[tuple[np.ndarray, float]]:
     return out
 
 
-def _basins(out: SteadyStateSet, hb: CondensedHBM, loads: DrivelineLoads, b: BasinOptions,
+def _basins(out: SteadyStateSet, hb: CondensedHBM, loads: DrivelineExcitation, b: BasinOptions,
             progress: bool, forced_ratio: float | None = None) -> None:
     s, load = out.speed_rpm, out.load
     model = loads.model
@@ -268,8 +267,9 @@ def _basins(out: SteadyStateSet, hb: CondensedHBM, loads: DrivelineLoads, b: Bas
         for shape, om in modes:            # the wind-up offset and rate split over the modes
             dq += rng.uniform(-A, A) / len(modes) * shape
             dv += rng.uniform(-om * A, om * A) / len(modes) * shape
-        r = simulate(loads, s, load, dt=b.dt, max_cycles=b.max_cycles, steady_tol=b.steady_tol,
-                     initial=(q_s + dq, dv), factors=hb.factors)
+        r = simulate(loads, s, load, initial=(q_s + dq, dv), factors=hb.factors,
+                     options=SimulationOptions(dt=b.dt, max_cycles=b.max_cycles,
+                                               steady_tol=b.steady_tol))
         if bar is not None:
             bar.update(1)
         if not r.steady:

@@ -3,7 +3,7 @@
 
 * :class:`NodeProfile` follows a profile inside the node: set parameter ``profile`` to a profile
   (file, packaged name, ``ramp:`` or ``step:`` spec,
-  :func:`dmf_sim.transient.profiles.load_profile`) and
+  :func:`dmf_sim.transient.profiles.read_profile`) and
   the node's speed and load setpoints follow it from that moment of simulated time
   (:class:`ProfileFollower`, called after every published chunk in the tick thread); ``''``
   stops it (the setpoints stay where they are). A profile whose speeds lie outside the node's
@@ -21,7 +21,7 @@ from __future__ import annotations
 
 from dmf_sim.core.errors import DmfSimError, one_line
 from dmf_sim.transient.follow import ProfileFollower
-from dmf_sim.transient.profiles import Profile, load_profile
+from dmf_sim.transient.profiles import Profile, read_profile
 
 __all__ = ['PLAYER_RATE_HZ', 'check_profile', 'NodeProfile', 'ProfilePlayer']
 
@@ -36,13 +36,13 @@ def check_profile(value: str, speed_limits_rpm: tuple[float, float], *, engine=N
     if not value:
         return None, None
     try:
-        prof = load_profile(value)
+        prof = read_profile(value)
         prof.check_speed_range(*speed_limits_rpm, 'the node\'s speed_min_rpm/speed_max_rpm')
         if engine is not None:
             prof.check_load_range(engine)
         if dt is not None:
             prof.check_load_steps(dt, 'the node\'s dt')
-    except (DmfSimError, OSError) as exc:   # the message names the profile (load_profile)
+    except (DmfSimError, OSError) as exc:   # the message names the profile (read_profile)
         return None, one_line(exc)
     return prof, None
 

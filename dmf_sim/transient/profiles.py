@@ -1,7 +1,7 @@
 """Speed/load profiles: tables of time [s], engine speed [rpm], load [-1..1], linear between rows.
 
 A profile is what ``dmf-sim run`` integrates, what the node follows (parameter ``profile``) and
-what ``dmf-sim setpoint --profile`` publishes. Sources (:func:`load_profile`):
+what ``dmf-sim setpoint --profile`` publishes. Sources (:func:`read_profile`):
 
 * a CSV file with the header ``time_s,speed_rpm,load`` (``#`` starts a comment line);
 * a YAML mapping with ``points`` (rows ``[time_s, speed_rpm, load]``), ``ramp`` (a built-in
@@ -57,7 +57,7 @@ from dmf_sim.physics.engine import LOAD_LIMITS, load_error
 __all__ = ['COLUMNS', 'DEFAULT_SETTLE_S', 'DEFAULT_LOAD', 'DEFAULT_HOLD_S',
            'MAX_SPEED_RATE_RPM_PER_S', 'RAMP_RATE_RANGE', 'SETTLE_RANGE_S', 'STEP_TIME_RANGE_S',
            'PROFILE_DIR', 'RAMP_PREFIX', 'STEP_PREFIX', 'Profile', 'make_profile', 'ramp_profile',
-           'ramp_spec', 'step_profile', 'step_spec', 'packaged_profiles', 'load_profile']
+           'ramp_spec', 'step_profile', 'step_spec', 'packaged_profiles', 'read_profile']
 
 COLUMNS = ('time_s', 'speed_rpm', 'load')
 DEFAULT_SETTLE_S = 2.0            # dwell at a ramp's start speed [s] before it ramps
@@ -444,7 +444,7 @@ def packaged_profiles() -> list[str]:
     return sorted(p.stem for p in folder.glob('*.yaml')) if folder.is_dir() else []
 
 
-def load_profile(spec: str | os.PathLike) -> Profile:
+def read_profile(spec: str | os.PathLike) -> Profile:
     """A profile from a CSV/YAML path, a packaged name or a ``ramp:`` spec (module docstring).
     Every refusal is one line starting with ``profile <spec or path>``, so a caller (the node's
     ``profile`` parameter, ``dmf-sim run``, ``dmf-sim setpoint``) adds no prefix of its own."""

@@ -18,7 +18,7 @@ speed, load and their setpoints, DMF, solver), at the node's default ``diagnosti
 simulated time: chunks also end at each report, which is taken of the chunk's own end state. An
 interruption (Ctrl-C) closes the bag: what was simulated is readable.
 
-Faults (``RunOptions.faults``, a schedule file, :func:`dmf_sim.physics.faults.load_schedule`):
+Faults (``RunOptions.faults``, a schedule file, :func:`dmf_sim.physics.faults.read_schedule`):
 the live core follows their :class:`~dmf_sim.physics.faults.FaultTimeline` (times are the
 profile's); their ground truth goes into the bag as the node publishes it
 (:mod:`dmf_sim.live.faults`: one ``faults/ground_truth`` message per event, ``faults/active``
@@ -188,8 +188,8 @@ def _chunk_limit(profile: Profile, segment: int, chunk: int, stride: int, dt: fl
 def build_simulation(profile: Profile, opt: RunOptions) -> LiveSimulation:
     """The live core at the profile's first row (static equilibrium), speed limits = the
     engine's data range (a profile outside it: one-line OperatingRangeError)."""
-    from dmf_sim.physics.engine import load_engine
-    from dmf_sim.physics.model import load_driveline
+    from dmf_sim.physics.engine import read_engine
+    from dmf_sim.physics.model import read_driveline
 
     if not (CHUNK_RANGE_S[0] <= opt.chunk_s <= CHUNK_RANGE_S[1]):
         raise ConfigError(f'chunk_s must be within [{CHUNK_RANGE_S[0]:g}, {CHUNK_RANGE_S[1]:g}]'
@@ -199,8 +199,8 @@ def build_simulation(profile: Profile, opt: RunOptions) -> LiveSimulation:
         raise ConfigError(f'diagnostics_hz must be within [{lo_hz:g}, {hi_hz:g}] Hz, got '
                           f'{opt.diagnostics_hz!r}')
     try:
-        line = load_driveline(opt.driveline, alpha=opt.alpha, theta=opt.theta)
-        engine = load_engine(opt.engine, load_set=opt.load_set)
+        line = read_driveline(opt.driveline, alpha=opt.alpha, theta=opt.theta)
+        engine = read_engine(opt.engine, load_set=opt.load_set)
     except (ValueError, FileNotFoundError) as exc:
         if isinstance(exc, ConfigError):
             raise
@@ -211,7 +211,7 @@ def build_simulation(profile: Profile, opt: RunOptions) -> LiveSimulation:
     profile.check_load_range(engine)
     profile.check_load_steps(opt.dt, '--dt')
     if hasattr(engine, 'warm'):
-        engine.warm()           # the gas grid now (~0.1 s), not lazily inside the timed loop
+        engine.warm_up()           # the gas grid now (~0.1 s), not lazily inside the timed loop
     hi_lim = hi if math.isfinite(hi) else float(profile.speed_rpm.max()) * 2
     lo_lim = lo if lo > 0 else float(profile.speed_rpm.min()) / 2
     stride = publish_stride(opt.rate_hz, opt.dt)
@@ -232,9 +232,9 @@ def build_simulation(profile: Profile, opt: RunOptions) -> LiveSimulation:
 def _schedule(path: str, line, profile: Profile):
     """The fault schedule of ``path`` for ``line``; a fault that would start after the
     profile's end is refused (one line naming it)."""
-    from dmf_sim.physics.faults import load_schedule
+    from dmf_sim.physics.faults import read_schedule
 
-    schedule = load_schedule(path, line=line)
+    schedule = read_schedule(path, line=line)
     for i, f in enumerate(schedule.faults):
         start = f.window(0.0)[0]
         if start >= profile.duration_s:

@@ -33,7 +33,7 @@ import numpy as np
 from dmf_sim.analysis.cycle_orders import CycleOrders
 from dmf_sim.analysis.hbm_overlay import model_settings, overlay_all
 from dmf_sim.analysis.order_bins import bin_cycles
-from dmf_sim.analysis.pipeline import BagAnalysis, analyze_bag
+from dmf_sim.analysis.pipeline import AnalysisOptions, BagAnalysis, analyze_bag
 from dmf_sim.core.errors import BagError
 from dmf_sim.transient.defaults import DEFAULT_BIN_RPM, JUMP_WINDOW_CYCLES
 
@@ -233,7 +233,7 @@ def runup_analysis(bags: list[str | os.PathLike], *, bin_rpm: float = DEFAULT_BI
         raise BagError('give at least one run-up or run-down bag')
     runs, dirs, jumps, events = [], [], [], []
     for bag in bags:
-        res = analyze_bag(bag, bin_rpm=bin_rpm)
+        res = analyze_bag(bag, options=AnalysisOptions(bin_rpm=bin_rpm))
         sig = res.signal('windup')
         ramp = ramp_cycles(sig.cycles, res.series.bag.run_metadata.speed_rpm)
         cyc = sig.cycles.select(ramp)

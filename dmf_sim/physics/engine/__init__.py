@@ -35,7 +35,7 @@ Default model (``config/engine_d13.yaml``)
 model is described in :mod:`dmf_sim.physics.engine.pressure`. ``config/engine_d13_2500nm.yaml`` is
 the same engine with a 2500 Nm rating (``base: engine_d13``). ``A_n`` come from the half orders of
 one sampled cycle. The gas part is cached on a speed/load grid (YAML ``grid``), computed lazily
-cell by cell (or all at once with :meth:`Engine.warm`) and interpolated linearly (complex
+cell by cell (or all at once with :meth:`Engine.warm_up`) and interpolated linearly (complex
 bilinear) in between; the inertia part is exact at any speed.
 
 Load sets A, B, C (paper, "Load A, B and C")
@@ -85,6 +85,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from dmf_sim.core.deprecation import renamed
 from dmf_sim.core.paths import config_file, read_yaml_mapping
 from dmf_sim.physics.engine.config import EngineConfig, Geometry, engine_config, read_engine_config
 from dmf_sim.physics.engine.excitation import (
@@ -109,7 +110,7 @@ from dmf_sim.physics.engine.tables import (
 __all__ = [
     'LOAD_SETS', 'LOAD_LIMITS', 'load_range', 'load_error', 'DEFAULT_ENGINE', 'EngineExcitation',
     'Engine', 'EngineConfig', 'Geometry',
-    'PressureModel', 'CycleResult', 'load_engine', 'engine_from_mapping', 'read_engine_config',
+    'PressureModel', 'CycleResult', 'read_engine', 'engine_from_mapping', 'read_engine_config',
     'cylinder_torque_signal', 'engine_torque_orders', 'write_coefficient_table',
 ]
 
@@ -117,7 +118,7 @@ LOAD_SETS: tuple[str, ...] = ('A', 'B', 'C')
 """Load-set names of the paper; their shifts and limit speed live in the engine YAML."""
 
 
-def load_engine(source: str | Path = DEFAULT_ENGINE, load_set: str = 'A') -> Engine:
+def read_engine(source: str | Path = DEFAULT_ENGINE, load_set: str = 'A') -> Engine:
     """Engine excitation from a config name (``engine_d13``), an engine YAML or a table
     CSV/YAML."""
     path = config_file(source)
@@ -144,3 +145,6 @@ def engine_from_mapping(doc: Mapping[str, Any], path: str | Path, load_set: str 
     return Engine(cfg, grid, model.inertia_unit, load_set=load_set,
                   full_load_curve=cfg.full_load_curve, model=model, source=Path(path),
                   motored_gas=motored, brake_curve=cfg.brake_curve if cfg.has_brake else None)
+
+
+__getattr__ = renamed(__name__, {'load_engine': 'read_engine'}, globals())

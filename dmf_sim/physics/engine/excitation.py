@@ -9,6 +9,7 @@ from typing import Callable, Protocol, runtime_checkable
 
 import numpy as np
 
+from dmf_sim.core.deprecation import renamed_method
 from dmf_sim.core.errors import ConfigError, OperatingRangeError
 from dmf_sim.core.units import RPM_TO_RAD_S
 from dmf_sim.core.validation import Table1D
@@ -225,9 +226,11 @@ class Engine:
                       source=self.source, motored_gas=self._motored_gas,
                       brake_curve=self._brake_curve)
 
-    def warm(self) -> None:
+    def warm_up(self) -> None:
         """Compute every grid node now (about 0.1 s for the default grid)."""
         self._gas.fill_all()
+
+    warm = renamed_method('warm_up')
 
     # -- checks --------------------------------------------------------------------------------
     def _check(self, speed_rpm: float, load: float | None = None) -> None:

@@ -48,7 +48,7 @@ import numpy as np
 from dmf_sim.core.errors import ConfigError, ConvergenceError, OperatingRangeError
 from dmf_sim.core.units import RPM_TO_RAD_S
 from dmf_sim.physics.harmonic import solve_static
-from dmf_sim.physics.loads import DrivelineLoads
+from dmf_sim.physics.loads import DrivelineExcitation
 from dmf_sim.physics.orders import summarize_orders, summarize_rows, synthesize
 from dmf_sim.solvers.continuation import solve_small
 from dmf_sim.solvers.hbm import kernels, linear_kernels
@@ -110,7 +110,7 @@ class CondensedHBM(ContinuationSteps, DrivelineRecovery, FaultedParts):
     """Harmonic balance of one driveline at one load fraction, condensed on the DMF wind-up.
 
     Args:
-        loads: DrivelineLoads (merged model with a DMF + engine).
+        loads: DrivelineExcitation (merged model with a DMF + engine).
         load: engine load fraction (torque demand) -1..1, below 0 engine braking.
         options: HBMOptions.
         factors: per-cylinder combustion factors s_k (1 fires, 0 misfires every cycle; see
@@ -120,7 +120,7 @@ class CondensedHBM(ContinuationSteps, DrivelineRecovery, FaultedParts):
         symmetric: every cylinder fires alike (the 120 deg shift symmetries hold).
     """
 
-    def __init__(self, loads: DrivelineLoads, load: float, options: HBMOptions | None = None,
+    def __init__(self, loads: DrivelineExcitation, load: float, options: HBMOptions | None = None,
                  factors=None):
         self.loads = loads
         self.load = float(load)
@@ -183,8 +183,8 @@ class CondensedHBM(ContinuationSteps, DrivelineRecovery, FaultedParts):
 
     # ---- loads and linear parts -------------------------------------------------------------
     def dof_loads(self, speed_rpm: float) -> np.ndarray:
-        """(H+1, n_dof) complex generalized load harmonics P_n [Nm] (DrivelineLoads.dof_harmonics
-        truncated or zero-padded to H)."""
+        """(H+1, n_dof) complex generalized load harmonics P_n [Nm]
+        (DrivelineExcitation.dof_harmonics truncated or zero-padded to H)."""
         return fit_harmonics(np.asarray(self.loads.dof_harmonics(speed_rpm, self.load,
                                                                  self.factors),
                                         dtype=complex), self.H)

@@ -10,12 +10,12 @@ does not change the motion: :func:`steady_faults` refuses them with one line.
 :meth:`FaultSet.apply_to_driveline`): they enter through the model (:func:`apply_faults` builds
 the loads on it). Combustion faults give per-cylinder combustion factors s_k; cylinder k carries
 ``A^m + s_k (A^f - A^m)`` phased by eq. (17)
-(:meth:`DrivelineLoads.faulted_cylinder_coefficients`), so the generalized load is
+(:meth:`DrivelineExcitation.faulted_cylinder_coefficients`), so the generalized load is
 
     P_n = A^m_n p_n + (A^f_n - A^m_n) p^s_n,
     p_n = sum_k phase_kn T_k,   p^s_n = sum_k s_k phase_kn T_k
 
-plus, at n = 0, the rear load balancing the faulted mean (:meth:`DrivelineLoads.
+plus, at n = 0, the rear load balancing the faulted mean (:meth:`DrivelineExcitation.
 faulted_rear_load`). The condensed problem (eq. 15) sees the excitation only through its linear
 parts ``wlin_n = e.H_n P_n`` and their speed derivatives, which are linear in P: the two
 components add, each the healthy formula with its own coefficients (A^m, A^f - A^m), its own
@@ -43,7 +43,7 @@ import numpy as np
 from dmf_sim.core.errors import ConfigError
 from dmf_sim.core.units import RPM_TO_RAD_S
 from dmf_sim.physics.faults import Fault, FaultSet
-from dmf_sim.physics.loads import DrivelineLoads
+from dmf_sim.physics.loads import DrivelineExcitation
 from dmf_sim.solvers.hbm import linear_kernels
 from dmf_sim.solvers.hbm.layout import amplitudes, fit_harmonics, to_real
 from dmf_sim.solvers.hbm.point import LinearParts
@@ -111,7 +111,8 @@ def fingerprints(x: np.ndarray, H: int, symmetric: bool) -> np.ndarray:
     return amplitudes(x, H) if symmetric else np.asarray(x, dtype=float)
 
 
-def apply_faults(loads: DrivelineLoads, faults) -> tuple[DrivelineLoads, np.ndarray | None]:
+def apply_faults(loads: DrivelineExcitation, faults
+                 ) -> tuple[DrivelineExcitation, np.ndarray | None]:
     """(loads, combustion factors) of a steady state with ``faults`` (see :func:`steady_faults`):
     the loads on the driveline with the DMF faults applied (the same object without them), and
     the per-cylinder factors (None when every cylinder fires). A combustion fault on an engine
@@ -122,7 +123,7 @@ def apply_faults(loads: DrivelineLoads, faults) -> tuple[DrivelineLoads, np.ndar
     line = loads.model.line
     faulted = fs.apply_to_driveline(line)
     if faulted is not line:
-        loads = DrivelineLoads(faulted.reduce(), loads.engine)
+        loads = DrivelineExcitation(faulted.reduce(), loads.engine)
     factors = combustion_factors(fs.combustion_factors(len(line.cylinders)),
                                  len(line.cylinders))
     if factors is not None and not loads.has_motored:
@@ -149,7 +150,7 @@ class FaultedParts:
 
     def motored_harmonics(self, speed_rpm: float) -> np.ndarray:
         """(H+1,) A^m_n [Nm] of a cylinder that does not fire at ``speed_rpm`` and the problem's
-        load (:meth:`DrivelineLoads.motored_coefficients`), truncated or zero-padded to H."""
+        load (:meth:`DrivelineExcitation.motored_coefficients`), truncated or zero-padded to H."""
         return fit_harmonics(np.asarray(self.loads.motored_coefficients(speed_rpm, self.load),
                                         dtype=complex), self.H)
 

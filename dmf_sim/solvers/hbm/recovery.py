@@ -75,14 +75,14 @@ class DrivelineRecovery:
         return q, v
 
     # ---- cross-check by time integration -------------------------------------------------------
-    def newmark_from(self, point: HBMPoint, *, perturb: np.ndarray | None = None, **kwargs):
+    def newmark_from(self, point: HBMPoint, *, perturb: np.ndarray | None = None, **fields):
         """Newmark steady state (newmark.simulate) started on this HBM solution's DOF state at
-        psi = 0 (plus an optional DOF perturbation ``perturb`` [rad]); kwargs go to simulate
-        (dt=1e-4 by default). On a stable solution it stays there; an unstable one is left."""
-        from dmf_sim.solvers.newmark import simulate
+        psi = 0 (plus an optional DOF perturbation ``perturb`` [rad]); ``fields``: those of
+        :class:`~dmf_sim.solvers.newmark.SimulationOptions` (the defaults otherwise). On a stable
+        solution it stays there; an unstable one is left."""
+        from dmf_sim.solvers.newmark import SimulationOptions, simulate
         q, v = self.dof_state(point, 0.0)
         if perturb is not None:
             q = q + perturb
-        kwargs.setdefault('dt', 1e-4)
         return simulate(self.loads, point.speed_rpm, self.load, initial=(q, v),
-                        factors=self.factors, **kwargs)
+                        factors=self.factors, options=SimulationOptions(**fields))

@@ -38,7 +38,7 @@ from dmf_sim.solvers.hbm.deflation import DeflatedNewton, DeflationOptions
 from dmf_sim.solvers.hbm.layout import all_shifts, amplitudes, shift, to_complex, to_real
 from dmf_sim.solvers.hbm.point import HBMPoint
 from dmf_sim.solvers.hbm.results import Branch, NonPeriodicBand, SweepEvent
-from dmf_sim.solvers.newmark import simulate
+from dmf_sim.solvers.newmark import SimulationOptions, simulate
 from dmf_sim.solvers.nonperiodic import NonPeriodicOptions, analyze
 
 __all__ = ['N_SHIFTS', 'SearchOptions', 'StateSearch']
@@ -267,8 +267,8 @@ class StateSearch:
         u = hb.model.e / float(hb.model.e @ hb.model.e)
         q = q + 0.05 * max(p.order_3, 1e-3) * u
         try:
-            res = simulate(hb.loads, s, hb.load, initial=(q, v),
-                           max_cycles=self.search.shot_cycles, factors=hb.factors)
+            res = simulate(hb.loads, s, hb.load, initial=(q, v), factors=hb.factors,
+                           options=SimulationOptions(max_cycles=self.search.shot_cycles))
         except OperatingRangeError:
             return False
         if not res.steady or res.windup_orders is None:

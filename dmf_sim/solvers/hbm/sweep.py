@@ -9,8 +9,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from dmf_sim.core.errors import ConfigError, ConvergenceError, TimeLimitError
-from dmf_sim.core.kernel_cache import warm
-from dmf_sim.physics.loads import DrivelineLoads
+from dmf_sim.core.kernel_cache import warm_up
+from dmf_sim.physics.loads import DrivelineExcitation
 from dmf_sim.physics.orders import synthesize
 from dmf_sim.solvers.hbm.branches import BranchSwitching
 from dmf_sim.solvers.hbm.condensed import CondensedHBM
@@ -282,7 +282,7 @@ class SpeedSweep(BranchSwitching, StateSearch):
     def run(self, speed_range: tuple[float, float], progress=False,
             start_x: np.ndarray | None = None, desc: str = 'HBM sweep') -> SweepResult:
         if progress:      # compiled first if needed (with a notice): the bar's rate without it
-            warm((SWEEP,), prefix='dmf_sim')
+            warm_up((SWEEP,), prefix='dmf_sim')
         t0 = time.perf_counter()
         lo, hi = float(speed_range[0]), float(speed_range[1])
         if not hi > lo:
@@ -434,7 +434,7 @@ class SpeedSweep(BranchSwitching, StateSearch):
                 f'n=3 mod 6 share {mc.sub_harmonic_share:.2f}')
 
 
-def sweep(loads: DrivelineLoads, load: float,
+def sweep(loads: DrivelineExcitation, load: float,
           speed_range: tuple[float, float] = (600.0, 2000.0), *,
           hbm_options: HBMOptions | None = None, options: SweepOptions | None = None,
           continuation=None, progress=False, label: str = '', faults=None) -> SweepResult:
@@ -445,7 +445,7 @@ def sweep(loads: DrivelineLoads, load: float,
     loses stability to a sub-harmonic (or, failing that, seeds n = 3 perturbations near the knee).
 
     Args:
-        loads: DrivelineLoads (driveline with DMF + engine); load: load fraction -1..1.
+        loads: DrivelineExcitation (driveline with DMF + engine); load: load fraction -1..1.
         speed_range: (from, to) [rpm].
         hbm_options, options, continuation: HBMOptions, SweepOptions, ContinuationOptions.
         progress: show a tqdm bar.

@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from dmf_sim.physics.loads import ConstantTorque, DrivelineLoads
+from dmf_sim.physics.loads import ConstantTorque, DrivelineExcitation
 from dmf_sim.physics.model import ReducedModel
 from dmf_sim.solvers.nnm.subsystems import require_dmf
 
@@ -54,14 +54,14 @@ def integrate_chain(J, K, e, force, levels, P, x0, v0, t_end: float, rtol: float
 def static_state(model: ReducedModel, windup_static: float) -> tuple[np.ndarray, np.ndarray]:
     """Static DOF deflection q_s [rad] and the balanced mean load P0 [Nm] (an engine mean torque
     on the cylinder elements, minus it times the cumulative ratio on the rear-load element:
-    DrivelineLoads with a :class:`dmf_sim.physics.loads.ConstantTorque` engine) that hold the DMF
-    at ``windup_static`` [rad]."""
+    DrivelineExcitation with a :class:`dmf_sim.physics.loads.ConstantTorque` engine) that hold the
+    DMF at ``windup_static`` [rad]."""
     require_dmf(model)
     n_cyl = len(model.line.cylinders)
-    unit = DrivelineLoads(model, ConstantTorque(1.0, n_cyl)).static_state(0.0, 1.0)
+    unit = DrivelineExcitation(model, ConstantTorque(1.0, n_cyl)).static_state(0.0, 1.0)
     torque_per_unit = float(model.spring.torque(unit.windup))      # statics of a chain: linear
     T = float(model.spring.torque(windup_static)) / torque_per_unit
-    L = DrivelineLoads(model, ConstantTorque(T, n_cyl))
+    L = DrivelineExcitation(model, ConstantTorque(T, n_cyl))
     st = L.static_state(0.0, 1.0)
     return st.q, np.real(L.dof_harmonics(0.0, 1.0)[0])
 
