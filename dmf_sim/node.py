@@ -413,6 +413,7 @@ def main(argv: list[str] | None = None) -> int:
             _shut_down(node, signals)
             node.destroy_node()
         rclpy.try_shutdown()
+        signals.ignore_until_exit()
 
 
 def _shut_down(node: DrivelineNode, signals: StopSignals) -> None:

@@ -75,6 +75,16 @@ class StopSignals:
             signal.signal(signum, previous)
         self._previous.clear()
 
+    def ignore_until_exit(self) -> None:
+        """Ignore SIGINT and SIGTERM at the C level from now on (main thread only): called when
+        the node has closed everything. The interpreter's finalization gives every signal that
+        has a Python handler back to its default action, so without this a SIGTERM that came
+        while the process was exiting would end it with -15 after a clean stop; an ignored
+        signal stays ignored through the finalization."""
+        for signum in STOP_SIGNALS:
+            signal.signal(signum, signal.SIG_IGN)
+        self._previous.clear()
+
     @property
     def ignored(self) -> list[str]:
         """The signals that came after the first (logged, ignored)."""
