@@ -44,7 +44,8 @@ __all__ = ['SECTION_KEYS', 'WHEEL_KEYS_REQUIRED', 'WHEEL_KEYS_OPTIONAL', 'BUS_KE
            'DEFAULT_TIMER_RESOLUTION_S', 'TIMER_JITTER_MAX_S', 'BUS_PERIOD_RANGE_S',
            'BUS_DELAY_MAX_S', 'BUS_RESOLUTION_MAX_RPM', 'BUS_NOISE_MAX_RPM',
            'PITCH_SIGMA_MAX_PITCHES', 'PITCH_ERROR_MAX_PITCHES', 'STREAM_PITCH_PATTERN',
-           'MAX_SEED', 'NAME_PATTERN', 'ToothWheel', 'BusSignal', 'SensorSet', 'parse_sensors']
+           'MAX_SEED', 'NAME_PATTERN', 'FLAG_FIRST_AFTER_GAP', 'FLAG_SPURIOUS', 'ToothWheel',
+           'BusSignal', 'SensorSet', 'parse_sensors']
 
 SECTION_KEYS = ('tooth_wheels', 'bus_signals')
 WHEEL_KEYS_REQUIRED = ('name', 'element', 'teeth')
@@ -67,6 +68,11 @@ PITCH_ERROR_MAX_PITCHES = 0.5      # a given error: each edge stays between its 
 STREAM_PITCH_PATTERN = 6           # counter_random stream of the drawn pitch-error pattern
 MAX_SEED = 2**63 - 1               # seeds are int64 >= 0, as dmf_sim.core.counter_random takes
 NAME_PATTERN = re.compile(r'[A-Za-z][A-Za-z0-9_]*\Z')   # one token of a ROS topic name
+
+# flags of a tooth edge (dmf_sim.physics.sensor_signals sets them; the edge-batch messages carry
+# them, dmf_sim.bags.sensor_messages)
+FLAG_FIRST_AFTER_GAP = 1    # bit 0: the first edge after the gap (tooth 0 of a wheel with a gap)
+FLAG_SPURIOUS = 2           # bit 1: a spurious edge a sensor fault injected (ground truth)
 
 
 @dataclass(frozen=True)
