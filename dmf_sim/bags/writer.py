@@ -92,6 +92,9 @@ _COMPRESSION = {'none': CompressionType.NONE, 'lz4': CompressionType.LZ4,
 _MESSAGE_OVERHEAD = 31 + 16  # message record header + its message index entry, bytes
 _OP_MESSAGE, _OP_CHUNK, _OP_MESSAGE_INDEX = 5, 6, 7       # MCAP opcodes
 _MESSAGE_HEAD = 22                          # channel 2 + sequence 4 + log 8 + publish 8 bytes
+_MESSAGE_RECORD_HEAD = 9 + _MESSAGE_HEAD    # + opcode 1 + record length 8: before the data
+_RECORD_HEAD = np.dtype([('op', 'u1'), ('len', '<u8'), ('cid', '<u2'), ('seq', '<u4'),
+                         ('log', '<u8'), ('pub', '<u8')])       # packed: 31 bytes
 
 
 class _ArrayMessageIndex(MessageIndex):
@@ -485,6 +488,15 @@ class BagRecorder:
                 or now - self._chunk_wall0 >= self._chunk_seconds):
             self._flush()
 
+    def file_end_ns(self, first_ns: int) -> int:
+        """The log time from which messages go to the next file: the current file's start +
+        ``max_duration_s`` (its start is ``first_ns`` when nothing is in it yet). A writer of
+        several calls per time span (``dmf-sim run``: the samples, then the sensors) writes each
+        call's messages before it first, so every file holds its own span."""
+        with self._lock:
+            f = self._file
+            return (f.start if f.count else int(first_ns)) + self._max_duration_ns
+
     def write_block(self, log_ns: np.ndarray, payloads: list[tuple[str, np.ndarray]]) -> None:
         """Append rows of fixed-size messages at once: row i holds one message per
         (topic, payload) pair, in that order, all logged (and published) at ``log_ns[i]``;
@@ -575,6 +587,114 @@ class BagRecorder:
         self.message_count += n
         writer.flush()                            # the chunk, its indexes, to the OS
         return rows
+
+    def write_messages(self, log_ns: np.ndarray, topic_index: np.ndarray, topics: list[str],
+                       payload: np.ndarray, offsets: np.ndarray) -> None:
+        """Append messages of any sizes at once: message i on ``topics[topic_index[i]]``,
+        logged (and published) at ``log_ns[i]`` (non-decreasing), its CDR bytes
+        ``payload[offsets[i]:offsets[i + 1]]`` (uint8). The file gets exactly what :meth:`write`
+        called per message in that order would give it (records, sequence numbers, indexes,
+        splits, metadata), as one chunk per call and file, built with numpy (``dmf-sim run``
+        writes thousands of sensor messages per simulated second)."""
+        log_ns = np.asarray(log_ns, dtype=np.int64)
+        topic_index = np.asarray(topic_index, dtype=np.int64)
+        offsets = np.asarray(offsets, dtype=np.int64)
+        n = len(log_ns)
+        if topic_index.shape != (n,) or offsets.shape != (n + 1,) or payload.dtype != np.uint8:
+            raise BagError(f'write_messages: {n} log times need {n} topic indexes and {n + 1} '
+                           'offsets into a uint8 payload')
+        if n and (log_ns[0] < 0 or (np.diff(log_ns) < 0).any()):
+            raise BagError('write_messages: log times must be non-negative and non-decreasing')
+        if n and (topic_index.min() < 0 or topic_index.max() >= len(topics)):
+            raise BagError('write_messages: a topic index outside the topics given')
+        with self._lock:
+            start = 0
+            while start < n:
+                start += self._write_sized(log_ns[start:], topic_index[start:], topics,
+                                           payload, offsets[start:])
+
+    def _write_sized(self, log_ns: np.ndarray, topic_index: np.ndarray, topics: list[str],
+                     payload: np.ndarray, offsets: np.ndarray) -> int:
+        """:meth:`write_messages` of the messages that belong to the current file (as
+        :meth:`_write_rows` does for fixed sizes); returns how many were written."""
+        if self._closed:
+            raise BagError(f'bag {self.path} is closed')
+        if self._finisher_error is not None:
+            self._join_finisher()
+        f = self._file
+        if f.count and int(log_ns[0]) - f.start >= self._max_duration_ns:
+            self._split()
+            f = self._file
+        if self._repeat_due:
+            self._repeat_latched(int(log_ns[0]), skip='')
+            f = self._file
+        first = f.start if f.count else int(log_ns[0])
+        n = max(int(np.searchsorted(log_ns, first + self._max_duration_ns, side='left')), 1)
+        t, idx = log_ns[:n], topic_index[:n]
+        chans = []
+        for topic in topics:
+            if topic not in self._channels:
+                raise BagError(f'topic {topic!r} was not declared when the bag was opened')
+            chans.append(self._channels[topic])
+        writer = self._writer
+        builder = getattr(writer, '_Writer__chunk_builder', None)
+        stats = getattr(writer, '_Writer__statistics', None)
+        if builder is None or stats is None:      # another mcap version: message by message
+            for i in range(n):
+                self._write(chans[idx[i]][1].name, int(t[i]),
+                            payload[offsets[i]:offsets[i + 1]].tobytes())
+            return n
+        self._flush_chunk()                       # what write() left open goes first
+        sizes = offsets[1:n + 1] - offsets[:n]
+        rec_len = _MESSAGE_RECORD_HEAD + sizes
+        rec_at = np.zeros(n, np.int64)
+        np.cumsum(rec_len[:-1], out=rec_at[1:])
+        raw = np.empty(int(rec_at[-1] + rec_len[-1]), np.uint8)
+        head = np.zeros(n, _RECORD_HEAD)
+        head['op'] = _OP_MESSAGE
+        head['len'] = _MESSAGE_HEAD + sizes
+        head['log'] = t
+        head['pub'] = t
+        indexes = {}
+        for j, (cid, info) in enumerate(chans):
+            mine = np.flatnonzero(idx == j)
+            if not len(mine):
+                continue
+            head['cid'][mine] = cid
+            head['seq'][mine] = (info.count + np.arange(len(mine), dtype=np.int64)) & 0xFFFFFFFF
+            entries = np.empty((len(mine), 2), dtype='<u8')
+            entries[:, 0] = t[mine]
+            entries[:, 1] = rec_at[mine]
+            indexes[cid] = _ArrayMessageIndex(cid, entries)
+            info.count += len(mine)
+            stats.channel_message_counts[cid] += len(mine)
+            f.topic_counts[info.name] = f.topic_counts.get(info.name, 0) + len(mine)
+        raw[rec_at[:, None] + np.arange(_MESSAGE_RECORD_HEAD)] = (
+            head.view(np.uint8).reshape(n, _MESSAGE_RECORD_HEAD))
+        total = int(sizes.sum())
+        src = np.arange(total, dtype=np.int64) + np.repeat(offsets[:n] - np.concatenate(
+            [[0], np.cumsum(sizes[:-1])]), sizes)
+        dst = np.arange(total, dtype=np.int64) + np.repeat(
+            rec_at + _MESSAGE_RECORD_HEAD - np.concatenate([[0], np.cumsum(sizes[:-1])]), sizes)
+        raw[dst] = payload[src]
+        t0, t1 = int(t[0]), int(t[-1])
+        stats.message_start_time = (t0 if stats.message_count == 0
+                                    else min(t0, stats.message_start_time))
+        stats.message_end_time = max(t1, stats.message_end_time)
+        stats.message_count += n
+        if not (builder.count == 0 and self._compression == CompressionType.NONE
+                and _write_chunk(writer, raw, t0, t1, indexes)):
+            builder.record_writer.write(raw.data)   # after the file's schemas and channels
+            builder.num_messages = n
+            builder.message_start_time, builder.message_end_time = t0, t1
+            builder.message_indices = indexes
+        if f.count == 0:
+            f.start = f.end = t0
+        f.start, f.end = min(f.start, t0), max(f.end, t1)
+        f.count += n
+        self.message_count += n
+        writer.flush()                            # the chunk, its indexes, to the OS
+        return n
 
     def block_payloads(self, topics: list[str], sizes: list[int], rows: int
                        ) -> list[np.ndarray]:
