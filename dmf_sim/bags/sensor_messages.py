@@ -38,7 +38,8 @@ from dmf_sim.physics.sensors import FLAG_FIRST_AFTER_GAP, FLAG_SPURIOUS
 __all__ = ['EDGES_TYPE', 'BUS_TYPE', 'EDGE_DIM_LABELS', 'EDGE_FIELDS', 'FLAG_FIRST_AFTER_GAP',
            'FLAG_SPURIOUS', 'edge_topic', 'bus_topic', 'wheel_of_topic', 'signal_of_topic',
            'encode_edges', 'encode_edge_batches', 'decode_edges', 'edges_of_message',
-           'encode_float64', 'FLOAT64_BYTES', 'EDGE_HEADER_BYTES', 'EDGE_ROW_BYTES']
+           'encode_float64', 'float64_bytes', 'FLOAT64_BYTES', 'EDGE_HEADER_BYTES',
+           'EDGE_ROW_BYTES']
 
 EDGES_TYPE = 'std_msgs/msg/UInt64MultiArray'
 BUS_TYPE = 'std_msgs/msg/Float64'
@@ -93,9 +94,12 @@ _HEAD_B = _cdr_string(EDGE_DIM_LABELS[1]) + struct.pack('<III', 3, 3, 0)
 EDGE_HEADER_BYTES = len(_HEAD_A) + 8 + len(_HEAD_B) + 4     # before the data: 68
 EDGE_ROW_BYTES = 24                                           # three uint64 per edge
 _SIZE_AT = len(_HEAD_A)                                       # dim 0 size, stride
+_PAD_AT = _SIZE_AT - (-(len(EDGE_DIM_LABELS[0]) + 1)) % 4   # the label's padding: rclpy
+                                                              # leaves it unset, so not read
 _COUNT_AT = EDGE_HEADER_BYTES - 4                             # data count
 FLOAT64_BYTES = 12                                            # encapsulation + float64
 _FLOAT64_HEAD = b'\x00\x01\x00\x00'
+_FLOAT64 = struct.Struct('<4sd')
 
 
 def encode_edges(rows: np.ndarray, epoch_ns: int = 0) -> bytes:
@@ -143,7 +147,7 @@ def decode_edges(data: bytes | memoryview) -> tuple[np.ndarray, np.ndarray, np.n
     (time on the publisher's stamp clock). ValueError (one line) when the bytes are not an
     edge batch of this layout."""
     buf = bytes(data[:EDGE_HEADER_BYTES])
-    if len(buf) < EDGE_HEADER_BYTES or buf[:_SIZE_AT] != _HEAD_A \
+    if len(buf) < EDGE_HEADER_BYTES or buf[:_PAD_AT] != _HEAD_A[:_PAD_AT] \
             or buf[_SIZE_AT + 8:_COUNT_AT - 4] != _HEAD_B[:-4]:
         raise ValueError('not an edge batch (UInt64MultiArray with dims edge, '
                          f'{EDGE_DIM_LABELS[1]})')
@@ -169,6 +173,11 @@ def edges_of_message(msg: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         raise ValueError(f'edge batch of {n} edges holds {data.shape[0]} numbers')
     rows = data.reshape(n, 3).astype(np.int64)
     return rows[:, 0], rows[:, 1], rows[:, 2]
+
+
+def float64_bytes(value: float) -> bytes:
+    """One std_msgs/msg/Float64 (the node's bus messages, one at a time)."""
+    return _FLOAT64.pack(_FLOAT64_HEAD, value)
 
 
 def encode_float64(values: np.ndarray) -> np.ndarray:

@@ -16,6 +16,8 @@ testable with a fake clock and a list as the sink.
   :data:`FAST_BUDGET_S` of wall time per tick, then a short pause for the ROS callbacks.
 * Stamps (:class:`dmf_sim.live.pacing.TimeBase`): when pacing returns to real time at factor 1 the
   stamps are re-anchored to the wall clock and the loop says so (log and diagnostics).
+* Sensors (a simulation with sensors on): each chunk's signals go to the sink with the
+  chunk's samples (``publish_sensors``), also from a chunk in which no sample fell due.
 
 Hook points (for per-cycle order analysis, predictions, alarms): ``observers`` are called in the
 tick thread with every chunk of published :class:`dmf_sim.live.simulation.Samples` and their stamps
@@ -86,6 +88,10 @@ class SampleSink(Protocol):
                         log_ns: np.ndarray) -> None: ...
 
     def publish_clock(self, stamp_ns: int) -> None: ...
+
+    def publish_sensors(self, chunk, epoch_ns: int, log_offset_ns: int) -> None:
+        """A chunk's sensor signals (:class:`dmf_sim.physics.sensor_signals.SensorChunk`):
+        stamps are ``epoch_ns`` + simulated ns, log times the stamps + ``log_offset_ns``."""
 
     def publish_statuses(self, key: str, statuses: list, stamp_ns: int) -> None:
         """A DiagnosticArray of ``statuses`` (dmf_sim.monitor.messages.StatusData) on stream
@@ -272,8 +278,8 @@ class RunLoop:
                    else 'catching up') + f'; {pacer.overruns} overruns so far')
         samples = sim.advance(plan.nsteps)
         rows = len(samples)
+        self._emit(samples)
         if rows:
-            self._emit(samples)
             if rows == 1:
                 self.lag.add(self.clock() - pacer.due_wall_scalar(int(samples.step[0])))
             else:
@@ -283,6 +289,9 @@ class RunLoop:
         self.next_tick = pacer.next_tick(self.clock(), sim.next_sample_step)
 
     def _emit(self, samples: Samples) -> None:
+        if samples.sensors is not None and not samples.sensors.empty:
+            self.sink.publish_sensors(samples.sensors, self.time.epoch_ns,
+                                      self.time.log_offset_ns)
         if not len(samples):
             return
         stamps = self.time.stamps_ns(samples.t)

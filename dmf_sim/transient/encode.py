@@ -1,4 +1,5 @@
-"""The node's sample messages as CDR bytes, a block of samples at a time (numpy, no rclpy).
+"""The node's sample messages as CDR bytes, a block of samples at a time (numpy, no rclpy); the
+sensor messages of ``dmf-sim run`` likewise (:class:`SensorBlock`).
 
 The node serializes every sample into a ``sensor_msgs/JointState`` (stamp; one name per element;
 position = vibratory angle, velocity, effort = transmitted torque) and three ``std_msgs/Float64``
@@ -20,11 +21,12 @@ from collections.abc import Sequence
 import numpy as np
 
 from dmf_sim.bags.columns import FLOAT64, JOINT_STATE, joint_state_layout
+from dmf_sim.bags.sensor_messages import FLOAT64_BYTES, encode_edge_batches, encode_float64
 from dmf_sim.live.simulation import Samples
 from dmf_sim.live.streams import SAMPLE_STREAMS, STREAMS
 from dmf_sim.monitor.messages import StatusData
 
-__all__ = ['SampleEncoder', 'EncodedBlock', 'StatusEncoder']
+__all__ = ['SampleEncoder', 'EncodedBlock', 'StatusEncoder', 'SensorBlock']
 
 # the Float64 sample streams (SAMPLE_STREAMS after the joint states): the Samples field each
 # carries
@@ -32,7 +34,6 @@ _FLOAT_FIELDS = {'dmf_windup': 'windup', 'speed': 'speed_rpm', 'crank_angle': 'p
 
 _NS_PER_S = 1_000_000_000
 _DIAGNOSTIC_ARRAY = 'diagnostic_msgs/msg/DiagnosticArray'
-_FLOAT64_BYTES = 12            # CDR header 4 + float64 8
 
 
 def _typestore():
@@ -68,13 +69,13 @@ class SampleEncoder:
         f64 = store.types[FLOAT64]
         self.float_template = np.frombuffer(bytes(store.serialize_cdr(f64(data=0.0), FLOAT64)),
                                             np.uint8)
-        if len(self.float_template) != _FLOAT64_BYTES:
+        if len(self.float_template) != FLOAT64_BYTES:
             raise ValueError('unexpected Float64 layout')
 
     @property
     def sample_bytes(self) -> int:
         """Payload bytes of one sample: its JointState and its Float64 messages."""
-        return len(self.template) + (len(SAMPLE_STREAMS) - 1) * _FLOAT64_BYTES
+        return len(self.template) + (len(SAMPLE_STREAMS) - 1) * FLOAT64_BYTES
 
     def joint_states(self, stamps_ns: np.ndarray, position: np.ndarray, velocity: np.ndarray,
                      effort: np.ndarray) -> np.ndarray:
@@ -103,7 +104,7 @@ class SampleEncoder:
 
     def floats(self, values: np.ndarray) -> np.ndarray:
         """(rows, 12) uint8: one Float64 per row."""
-        out = np.empty((len(values), _FLOAT64_BYTES), np.uint8)
+        out = np.empty((len(values), FLOAT64_BYTES), np.uint8)
         out[:, :4] = self.float_template[:4]
         _float_field(out, 4, 1)[:, 0] = values
         return out
@@ -150,7 +151,7 @@ class EncodedBlock:
         self.encoder = encoder
         self.stamps = np.empty(rows, np.int64)
         self.topics = [topics[k] for k in SAMPLE_STREAMS]
-        sizes = [len(encoder.template)] + [_FLOAT64_BYTES] * (len(SAMPLE_STREAMS) - 1)
+        sizes = [len(encoder.template)] + [FLOAT64_BYTES] * (len(SAMPLE_STREAMS) - 1)
         if recorder is not None:      # encode into the records the bag recorder writes
             self.js, *self.fl = recorder.block_payloads(self.topics, sizes, rows)
         else:
@@ -184,3 +185,74 @@ class EncodedBlock:
         n, self.n = self.n, 0
         self.encoder.stamp(self.js[:n], self.stamps[:n])
         return self.stamps[:n], list(zip(self.topics, [self.js[:n]] + [f[:n] for f in self.fl]))
+
+
+class SensorBlock:
+    """The sensor messages of ``dmf-sim run``, gathered chunk by chunk and written in one call
+    (:meth:`dmf_sim.bags.writer.BagRecorder.write_messages`), as the node sends them: per wheel
+    one edge batch per sample period with the edges captured in it (logged at the period's end
+    sample, as the node logs a publish tick's batch at its end; none when empty), and one
+    ``Float64`` per bus value at its delivery (layouts: :mod:`dmf_sim.bags.sensor_messages`).
+
+    ``topics``: stream key -> topic (:func:`dmf_sim.live.streams.resolved_topics` of the run's
+    streams); ``sample_period_s``: the bag's sample period (1 / rate)."""
+
+    def __init__(self, wheel_names: Sequence[str], signal_names: Sequence[str],
+                 topics: dict[str, str], sample_period_s: float) -> None:
+        from dmf_sim.live.streams import bus_key, edge_key
+        self.wheel_names = tuple(wheel_names)
+        self.signal_names = tuple(signal_names)
+        self.topics = ([topics[edge_key(w)] for w in wheel_names]
+                       + [topics[bus_key(b)] for b in signal_names])
+        self.period_ns = sample_period_s * _NS_PER_S
+        self._parts: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
+
+    @property
+    def n(self) -> int:
+        return len(self._parts)
+
+    def add(self, chunk, epoch_ns: int) -> None:
+        """The messages of a :class:`~dmf_sim.physics.sensor_signals.SensorChunk`, stamped
+        ``epoch_ns`` + simulated ns."""
+        for w in range(len(self.wheel_names)):
+            rows = chunk.edge_rows(w)
+            if len(rows):
+                period = np.ceil(rows[:, 0] / self.period_ns).astype(np.int64)
+                ids, payload, offsets = encode_edge_batches(rows, period, epoch_ns)
+                log = epoch_ns + np.rint(ids * self.period_ns).astype(np.int64)
+                self._parts.append((log, np.full(len(ids), w), payload, offsets))
+        for b in range(len(self.signal_names)):
+            ns, rpm = chunk.bus_of(b)
+            if len(ns):
+                payload = encode_float64(rpm).reshape(-1)
+                offsets = np.arange(len(ns) + 1, dtype=np.int64) * FLOAT64_BYTES
+                self._parts.append((epoch_ns + ns, np.full(len(ns), len(self.wheel_names) + b),
+                                    payload, offsets))
+
+    def take(self, upto_ns: int | None = None
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The messages gathered with log times up to ``upto_ns`` (None: all) in log-time order,
+        as :meth:`~dmf_sim.bags.writer.BagRecorder.write_messages` takes them (log times, topic
+        indexes into :attr:`topics`, payload, offsets); the later ones stay."""
+        parts, self._parts = self._parts, []
+        if not parts:
+            return (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.uint8),
+                    np.zeros(1, np.int64))
+        log = np.concatenate([p[0] for p in parts])
+        topic = np.concatenate([p[1] for p in parts])
+        payload = np.concatenate([p[2] for p in parts])
+        starts = np.cumsum([0] + [len(p[2]) for p in parts[:-1]])
+        offsets = np.concatenate([p[3][:-1] + s for p, s in zip(parts, starts)]
+                                 + [[len(payload)]])
+        order = np.argsort(log, kind='stable')
+        sizes = np.diff(offsets)[order]
+        new_off = np.zeros(len(order) + 1, np.int64)
+        np.cumsum(sizes, out=new_off[1:])
+        idx = (np.repeat(offsets[:-1][order] - new_off[:-1], sizes)
+               + np.arange(int(new_off[-1]), dtype=np.int64))
+        log, topic, payload = log[order], topic[order], payload[idx]
+        n = len(log) if upto_ns is None else int(np.searchsorted(log, upto_ns, side='right'))
+        if n < len(log):               # the rest waits for its samples
+            self._parts.append((log[n:], topic[n:], payload[new_off[n]:],
+                                new_off[n:] - new_off[n]))
+        return log[:n], topic[:n], payload[:new_off[n]], new_off[:n + 1]
