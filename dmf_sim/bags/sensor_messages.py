@@ -94,6 +94,7 @@ _HEAD_B = _cdr_string(EDGE_DIM_LABELS[1]) + struct.pack('<III', 3, 3, 0)
 EDGE_HEADER_BYTES = len(_HEAD_A) + 8 + len(_HEAD_B) + 4     # before the data: 68
 EDGE_ROW_BYTES = 24                                           # three uint64 per edge
 _SIZE_AT = len(_HEAD_A)                                       # dim 0 size, stride
+_HEAD_B_DIMS = _HEAD_B[:-4]               # label 1, its size and stride (then data_offset)
 _PAD_AT = _SIZE_AT - (-(len(EDGE_DIM_LABELS[0]) + 1)) % 4   # the label's padding: rclpy
                                                               # leaves it unset, so not read
 _COUNT_AT = EDGE_HEADER_BYTES - 4                             # data count
@@ -106,11 +107,10 @@ def encode_edges(rows: np.ndarray, epoch_ns: int = 0) -> bytes:
     """One edge batch: (n, 3) int64 rows (time_ns of simulated time, tooth, flags), stamped
     ``epoch_ns`` + time_ns; the CDR bytes of its UInt64MultiArray."""
     n = rows.shape[0]
-    data = np.array(rows, dtype='<u8')
-    if epoch_ns:
-        data[:, 0] += np.uint64(epoch_ns)
-    return (_HEAD_A + struct.pack('<II', n, 3 * n) + _HEAD_B[:-4]
-            + struct.pack('<II', 0, 3 * n) + data.tobytes())
+    flat = rows.ravel().tolist()          # the node's batches hold an edge or two: struct
+    flat[0::3] = [t + epoch_ns for t in flat[0::3]]       # beats numpy's per-call overhead
+    return b''.join((_HEAD_A, struct.pack('<II', n, 3 * n), _HEAD_B_DIMS,
+                     struct.pack(f'<II{3 * n}Q', 0, 3 * n, *flat)))
 
 
 def encode_edge_batches(rows: np.ndarray, batch: np.ndarray, epoch_ns: int = 0
@@ -148,7 +148,7 @@ def decode_edges(data: bytes | memoryview) -> tuple[np.ndarray, np.ndarray, np.n
     edge batch of this layout."""
     buf = bytes(data[:EDGE_HEADER_BYTES])
     if len(buf) < EDGE_HEADER_BYTES or buf[:_PAD_AT] != _HEAD_A[:_PAD_AT] \
-            or buf[_SIZE_AT + 8:_COUNT_AT - 4] != _HEAD_B[:-4]:
+            or buf[_SIZE_AT + 8:_COUNT_AT - 4] != _HEAD_B_DIMS:
         raise ValueError('not an edge batch (UInt64MultiArray with dims edge, '
                          f'{EDGE_DIM_LABELS[1]})')
     n, stride = struct.unpack_from('<II', buf, _SIZE_AT)
