@@ -520,20 +520,7 @@ class BagRecorder:
     def _write_rows(self, log_ns: np.ndarray, payloads: list[tuple[str, np.ndarray]]) -> int:
         """Write the rows that belong to the current file (a split starts the next one as
         :meth:`_write` does); returns how many were written."""
-        if self._closed:
-            raise BagError(f'bag {self.path} is closed')
-        if self._finisher_error is not None:
-            self._join_finisher()
-        f = self._file
-        if f.count and int(log_ns[0]) - f.start >= self._max_duration_ns:
-            self._split()
-            f = self._file
-        if self._repeat_due:                      # a new file starts with the latched messages
-            self._repeat_latched(int(log_ns[0]), skip='')
-            f = self._file
-        first = f.start if f.count else int(log_ns[0])
-        rows = int(np.searchsorted(log_ns, first + self._max_duration_ns, side='left'))
-        rows = max(rows, 1)
+        f, rows = self._file_for(log_ns)
         t = log_ns[:rows]
         chans = []
         for topic, data in payloads:
@@ -567,9 +554,33 @@ class BagRecorder:
             info.count += rows
             stats.channel_message_counts[cid] += rows
             f.topic_counts[info.name] = f.topic_counts.get(info.name, 0) + rows
-        n = rows * len(chans)
-        t0, t1 = int(t[0]), int(t[-1])
         indexes = {cid: _ArrayMessageIndex(cid, index[j]) for j, (cid, _, _) in enumerate(chans)}
+        self._commit_chunk(f, raw, t, rows * len(chans), indexes)
+        return rows
+
+    def _file_for(self, log_ns: np.ndarray) -> tuple[FileInfo, int]:
+        """The file the messages from ``log_ns[0]`` on go to (split first, or the latched
+        messages first in a new file, as :meth:`_write` does) and how many belong in it."""
+        if self._closed:
+            raise BagError(f'bag {self.path} is closed')
+        if self._finisher_error is not None:
+            self._join_finisher()
+        if self._file.count and int(log_ns[0]) - self._file.start >= self._max_duration_ns:
+            self._split()
+        if self._repeat_due:                      # a new file starts with the latched messages
+            self._repeat_latched(int(log_ns[0]), skip='')
+        f = self._file
+        first = f.start if f.count else int(log_ns[0])
+        return f, max(int(np.searchsorted(log_ns, first + self._max_duration_ns, side='left')), 1)
+
+    def _commit_chunk(self, f: FileInfo, raw: np.ndarray, t: np.ndarray, n: int,
+                      indexes: dict[int, MessageIndex]) -> None:
+        """Write the records ``raw`` of ``n`` messages logged at ``t`` as one chunk with its
+        message ``indexes``: the writer's statistics, the file's span and counts, to the OS."""
+        writer = self._writer
+        builder = writer._Writer__chunk_builder
+        stats = writer._Writer__statistics
+        t0, t1 = int(t[0]), int(t[-1])
         stats.message_start_time = (t0 if stats.message_count == 0
                                     else min(t0, stats.message_start_time))
         stats.message_end_time = max(t1, stats.message_end_time)
@@ -586,7 +597,6 @@ class BagRecorder:
         f.count += n
         self.message_count += n
         writer.flush()                            # the chunk, its indexes, to the OS
-        return rows
 
     def write_messages(self, log_ns: np.ndarray, topic_index: np.ndarray, topics: list[str],
                        payload: np.ndarray, offsets: np.ndarray) -> None:
@@ -617,19 +627,7 @@ class BagRecorder:
                      payload: np.ndarray, offsets: np.ndarray) -> int:
         """:meth:`write_messages` of the messages that belong to the current file (as
         :meth:`_write_rows` does for fixed sizes); returns how many were written."""
-        if self._closed:
-            raise BagError(f'bag {self.path} is closed')
-        if self._finisher_error is not None:
-            self._join_finisher()
-        f = self._file
-        if f.count and int(log_ns[0]) - f.start >= self._max_duration_ns:
-            self._split()
-            f = self._file
-        if self._repeat_due:
-            self._repeat_latched(int(log_ns[0]), skip='')
-            f = self._file
-        first = f.start if f.count else int(log_ns[0])
-        n = max(int(np.searchsorted(log_ns, first + self._max_duration_ns, side='left')), 1)
+        f, n = self._file_for(log_ns)
         t, idx = log_ns[:n], topic_index[:n]
         chans = []
         for topic in topics:
@@ -677,23 +675,7 @@ class BagRecorder:
         dst = np.arange(total, dtype=np.int64) + np.repeat(
             rec_at + _MESSAGE_RECORD_HEAD - np.concatenate([[0], np.cumsum(sizes[:-1])]), sizes)
         raw[dst] = payload[src]
-        t0, t1 = int(t[0]), int(t[-1])
-        stats.message_start_time = (t0 if stats.message_count == 0
-                                    else min(t0, stats.message_start_time))
-        stats.message_end_time = max(t1, stats.message_end_time)
-        stats.message_count += n
-        if not (builder.count == 0 and self._compression == CompressionType.NONE
-                and _write_chunk(writer, raw, t0, t1, indexes)):
-            builder.record_writer.write(raw.data)   # after the file's schemas and channels
-            builder.num_messages = n
-            builder.message_start_time, builder.message_end_time = t0, t1
-            builder.message_indices = indexes
-        if f.count == 0:
-            f.start = f.end = t0
-        f.start, f.end = min(f.start, t0), max(f.end, t1)
-        f.count += n
-        self.message_count += n
-        writer.flush()                            # the chunk, its indexes, to the OS
+        self._commit_chunk(f, raw, t, n, indexes)
         return n
 
     def block_payloads(self, topics: list[str], sizes: list[int], rows: int

@@ -158,6 +158,14 @@ class BusSignal:
         return d
 
 
+def _named(items, name: str, what: str):
+    for item in items:
+        if item.name == name:
+            return item
+    raise ConfigError(f'unknown {what} {name!r}; {what}s are '
+                      f'{", ".join(i.name for i in items) or "none"}')
+
+
 @dataclass(frozen=True)
 class SensorSet:
     """The sensors of a driveline (empty without a ``sensors:`` section)."""
@@ -174,18 +182,12 @@ class SensorSet:
         return bool(self.tooth_wheels or self.bus_signals)
 
     def wheel(self, name: str) -> ToothWheel:
-        for w in self.tooth_wheels:
-            if w.name == name:
-                return w
-        raise ConfigError(f'unknown tooth wheel {name!r}; tooth wheels are '
-                          f'{", ".join(w.name for w in self.tooth_wheels) or "none"}')
+        """The tooth wheel called ``name`` (ConfigError naming the ones there are)."""
+        return _named(self.tooth_wheels, name, 'tooth wheel')
 
     def signal(self, name: str) -> BusSignal:
-        for s in self.bus_signals:
-            if s.name == name:
-                return s
-        raise ConfigError(f'unknown bus signal {name!r}; bus signals are '
-                          f'{", ".join(s.name for s in self.bus_signals) or "none"}')
+        """The bus signal called ``name`` (ConfigError naming the ones there are)."""
+        return _named(self.bus_signals, name, 'bus signal')
 
     def as_dict(self) -> dict[str, Any]:
         """The ``sensors:`` mapping that gives this set back (:func:`parse_sensors`)."""
