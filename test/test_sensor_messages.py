@@ -16,9 +16,9 @@ from dmf_sim.bags.sensor_messages import (
     decode_edges,
     edge_topic,
     edges_of_message,
-    encode_edge_batches,
     encode_edges,
     encode_float64,
+    encode_sensor_messages,
     float64_bytes,
     signal_of_topic,
     wheel_of_topic,
@@ -72,13 +72,15 @@ def test_edge_batches_equal_rclpy_serialization():
     assert np.array_equal(np.stack(edges_of_message(back), axis=1), ROWS + [[EPOCH, 0, 0]])
 
 
-def test_many_batches_at_once_equal_one_at_a_time():
+def test_many_messages_at_once_equal_one_at_a_time():
     rows = np.arange(30, dtype=np.int64).reshape(10, 3)
-    batch = np.array([0, 0, 2, 2, 2, 3, 7, 7, 7, 7])
-    ids, payload, offsets = encode_edge_batches(rows, batch, EPOCH)
-    assert list(ids) == [0, 2, 3, 7]
-    for i, b in enumerate(ids):
-        assert bytes(payload[offsets[i]:offsets[i + 1]]) == encode_edges(rows[batch == b], EPOCH)
+    groups = np.array([[0, 2], [2, 3], [5, 1], [6, 4]])
+    values = np.array([1200.125, -3.5])
+    order = np.array([4, 0, 1, 5, 3, 2])              # groups 0..3, then the values 4, 5
+    payload, offsets = encode_sensor_messages(rows, groups, values, order, EPOCH)
+    expect = [float64_bytes(values[m - 4]) if m >= 4
+              else encode_edges(rows[groups[m, 0]:groups[m].sum()], EPOCH) for m in order]
+    assert [bytes(payload[offsets[i]:offsets[i + 1]]) for i in range(len(order))] == expect
 
 
 def test_not_an_edge_batch_is_one_line():

@@ -33,11 +33,12 @@ from typing import Any
 
 import numpy as np
 
+from dmf_sim.core.compiled import jit
 from dmf_sim.physics.sensors import FLAG_FIRST_AFTER_GAP, FLAG_SPURIOUS
 
 __all__ = ['EDGES_TYPE', 'BUS_TYPE', 'EDGE_DIM_LABELS', 'EDGE_FIELDS', 'FLAG_FIRST_AFTER_GAP',
            'FLAG_SPURIOUS', 'edge_topic', 'bus_topic', 'wheel_of_topic', 'signal_of_topic',
-           'encode_edges', 'encode_edge_batches', 'decode_edges', 'edges_of_message',
+           'encode_edges', 'encode_sensor_messages', 'decode_edges', 'edges_of_message',
            'encode_float64', 'float64_bytes', 'FLOAT64_BYTES', 'EDGE_HEADER_BYTES',
            'EDGE_ROW_BYTES']
 
@@ -113,33 +114,66 @@ def encode_edges(rows: np.ndarray, epoch_ns: int = 0) -> bytes:
                      struct.pack(f'<II{3 * n}Q', 0, 3 * n, *flat)))
 
 
-def encode_edge_batches(rows: np.ndarray, batch: np.ndarray, epoch_ns: int = 0
-                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Many edge batches of one wheel at once: rows (n, 3) in time order, ``batch`` (n,) the
-    non-decreasing batch number of each row. Returns (the batch numbers present, the payloads
-    concatenated as uint8, offsets (batches + 1,)): payload i is bytes offsets[i]:offsets[i+1],
-    each what :func:`encode_edges` gives for its rows."""
-    batch = np.asarray(batch, dtype=np.int64)
-    ids, first, counts = np.unique(batch, return_index=True, return_counts=True)
-    sizes = EDGE_HEADER_BYTES + EDGE_ROW_BYTES * counts
-    offsets = np.zeros(len(ids) + 1, np.int64)
+def _put(out, at, value, nbytes):
+    """``nbytes`` little-endian bytes of the integer ``value`` into out[at:]."""
+    for k in range(nbytes):
+        out[at + k] = (value >> (8 * k)) & 0xFF
+
+
+def _fill(rows, groups, values_bits, order, epoch, head, out, offsets):
+    """The messages of :func:`encode_sensor_messages` into ``out`` at ``offsets`` (compiled)."""
+    n_groups = groups.shape[0]
+    for i in range(order.shape[0]):
+        m = order[i]
+        p = offsets[i]
+        if m < n_groups:
+            start = groups[m, 0]
+            n = groups[m, 1]
+            for k in range(head.shape[0]):
+                out[p + k] = head[k]
+            _put(out, p + _SIZE_AT, n, 4)
+            _put(out, p + _SIZE_AT + 4, 3 * n, 4)
+            _put(out, p + _COUNT_AT, 3 * n, 4)
+            q = p + head.shape[0]
+            for r in range(start, start + n):
+                _put(out, q, rows[r, 0] + epoch, 8)
+                _put(out, q + 8, rows[r, 1], 8)
+                _put(out, q + 16, rows[r, 2], 8)
+                q += EDGE_ROW_BYTES
+        else:
+            out[p] = 0
+            out[p + 1] = 1
+            out[p + 2] = 0
+            out[p + 3] = 0
+            _put(out, p + 4, values_bits[m - n_groups], 8)
+
+
+def encode_sensor_messages(rows: np.ndarray, groups: np.ndarray, values: np.ndarray,
+                           order: np.ndarray, epoch_ns: int = 0
+                           ) -> tuple[np.ndarray, np.ndarray]:
+    """Many sensor messages at once (``dmf-sim run``): edge batch g holds rows
+    ``groups[g, 0]`` .. + ``groups[g, 1]`` of ``rows`` ((n, 3) int64: time_ns of simulated
+    time, tooth, flags; stamped ``epoch_ns`` + time_ns), bus message k the Float64
+    ``values[k]``; ``order`` lists the messages to write, g < len(groups) an edge batch,
+    len(groups) + k a bus value. Returns the payloads concatenated (uint8) and their offsets
+    (messages + 1): each what :func:`encode_edges` / :func:`float64_bytes` gives."""
+    groups = np.asarray(groups, dtype=np.int64).reshape(-1, 2)
+    order = np.asarray(order, dtype=np.int64)
+    edge = order < len(groups)
+    sizes = np.full(len(order), FLOAT64_BYTES, np.int64)
+    sizes[edge] = EDGE_HEADER_BYTES + EDGE_ROW_BYTES * groups[order[edge], 1]
+    offsets = np.zeros(len(order) + 1, np.int64)
     np.cumsum(sizes, out=offsets[1:])
     out = np.empty(int(offsets[-1]), np.uint8)
-    head = np.frombuffer(encode_edges(np.zeros((0, 3), np.int64)), np.uint8)
-    # headers: the template, then the counts written in place
-    hdr_idx = offsets[:-1, None] + np.arange(EDGE_HEADER_BYTES)
-    out[hdr_idx] = head
-    for at, values in ((_SIZE_AT, counts), (_SIZE_AT + 4, 3 * counts), (_COUNT_AT, 3 * counts)):
-        out[offsets[:-1, None] + at + np.arange(4)] = (
-            values.astype('<u4').view(np.uint8).reshape(-1, 4))
-    data = np.array(rows, dtype='<u8')
-    if epoch_ns:
-        data[:, 0] += np.uint64(epoch_ns)
-    # each batch's data after its header: row r of batch i at offsets[i] + 68 + 24 (r - first_i)
-    row_at = (np.repeat(offsets[:-1] + EDGE_HEADER_BYTES - EDGE_ROW_BYTES * first, counts)
-              + EDGE_ROW_BYTES * np.arange(len(batch)))
-    out[row_at[:, None] + np.arange(EDGE_ROW_BYTES)] = data.view(np.uint8).reshape(-1, 24)
-    return ids, out, offsets
+    _fill(np.ascontiguousarray(rows, dtype=np.int64), groups,
+          np.ascontiguousarray(values, dtype=np.float64).view(np.int64), order, int(epoch_ns),
+          _EDGE_HEAD, out, offsets)
+    return out, offsets
+
+
+_put = jit(_put)
+_fill = jit(_fill)
+_EDGE_HEAD = np.frombuffer(encode_edges(np.zeros((0, 3), np.int64)), np.uint8)[:EDGE_HEADER_BYTES]
 
 
 def decode_edges(data: bytes | memoryview) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

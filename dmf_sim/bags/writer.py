@@ -68,6 +68,7 @@ from dmf_sim.bags.layout import (
 from dmf_sim.bags.mcap_internals import WriterState, set_data_section_crc, writer_state
 from dmf_sim.bags.read import BagMessage, bag_topics, read_messages
 from dmf_sim.bags.recovery import RecoverReport, recover_bag
+from dmf_sim.core.compiled import jit
 from dmf_sim.core.errors import BagError, BagExistsError
 
 __all__ = [
@@ -203,6 +204,19 @@ def _write_chunk(writer: Writer, state: WriterState, records: np.ndarray, t0: in
         uncompressed_size=size))
     state.statistics.chunk_count += 1
     return True
+
+
+def _pack_records(raw, rec_at, heads, payload, offsets):
+    """Message records into ``raw``: record i at ``rec_at[i]``, its head ``heads[i]`` then its
+    data ``payload[offsets[i]:offsets[i + 1]]`` (compiled: thousands of small records)."""
+    width = heads.shape[1]
+    for i in range(rec_at.shape[0]):
+        p = rec_at[i]
+        raw[p:p + width] = heads[i]
+        raw[p + width:p + width + offsets[i + 1] - offsets[i]] = payload[offsets[i]:offsets[i + 1]]
+
+
+_pack_records = jit(_pack_records)
 
 
 def _same_view(a: np.ndarray, b: np.ndarray) -> bool:
@@ -667,14 +681,8 @@ class BagRecorder:
             info.count += len(mine)
             stats.channel_message_counts[cid] += len(mine)
             f.topic_counts[info.name] = f.topic_counts.get(info.name, 0) + len(mine)
-        raw[rec_at[:, None] + np.arange(_MESSAGE_RECORD_HEAD)] = (
-            head.view(np.uint8).reshape(n, _MESSAGE_RECORD_HEAD))
-        total = int(sizes.sum())
-        src = np.arange(total, dtype=np.int64) + np.repeat(offsets[:n] - np.concatenate(
-            [[0], np.cumsum(sizes[:-1])]), sizes)
-        dst = np.arange(total, dtype=np.int64) + np.repeat(
-            rec_at + _MESSAGE_RECORD_HEAD - np.concatenate([[0], np.cumsum(sizes[:-1])]), sizes)
-        raw[dst] = payload[src]
+        _pack_records(raw, rec_at, head.view(np.uint8).reshape(n, _MESSAGE_RECORD_HEAD),
+                      payload, offsets[:n + 1])
         self._commit_chunk(f, raw, t, n, indexes)
         return n
 

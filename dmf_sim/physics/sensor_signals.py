@@ -95,8 +95,8 @@ FAULT_NOISY = 5
 WI_COL, WI_TEETH, WI_GAP, WI_SEED, WI_NEXT, WI_COUNT, WI_TICK, WI_TOOTH, WI_N = range(9)
 WI_SLOTS, WI_SLOT = 10, 4
 # wheels, float64 row: parameters, cached levels around the angle, slots [start, end, value, next]
-WF_SCALE, WF_INV_R, WF_RES, WF_JITTER, WF_LEV_HI, WF_LEV_LO = range(6)
-WF_SLOTS, WF_SLOT = 6, 4
+WF_SCALE, WF_INV_R, WF_RES, WF_JITTER, WF_LEV_HI, WF_LEV_LO, WF_SPACING = range(7)
+WF_SLOTS, WF_SLOT = 8, 4
 # bus, int64 row: parameters, state (next k, started, pending head/count, outputs), slots
 # [mode, seed]
 BI_COL, BI_SEED, BI_NEXT, BI_STARTED, BI_HEAD, BI_PENDING, BI_N = range(7)
@@ -257,6 +257,33 @@ def _room(t1, track_row, wi, wf, angles, bi, bf, out_w, out_b_ns, pend_ns):
     return True
 
 
+def _surely_room(row, p, th1s, wi, wf, bi, bf, out_w, out_b_ns, pend_ns):
+    """A quick bound of :func:`_room`: True when no output can overflow in this step (the
+    levels crossed are at most the angle travelled over the closest spacing of two levels,
+    plus one; a wheel with a spurious-edge fault is left to the exact count)."""
+    for w in range(wi.shape[0]):
+        th0 = p[1] * wf[w, WF_INV_R] + wf[w, WF_SCALE] * p[3 + wi[w, WI_COL]]
+        need = abs(th1s[w] - th0) / wf[w, WF_SPACING] + 2.0
+        if wi[w, WI_N] + need > out_w.shape[1]:
+            return False
+        for s in range(FAULT_SLOTS):
+            if wi[w, WI_SLOTS + WI_SLOT * s] == FAULT_EXTRA:
+                return False
+    h = row[0] - p[0]
+    for b in range(bi.shape[0]):
+        sends = h / bf[b, BF_PERIOD] + 2.0
+        if (bi[b, BI_N] + bi[b, BI_PENDING] + sends > out_b_ns.shape[1]
+                or bi[b, BI_PENDING] + sends > pend_ns.shape[1]):
+            return False
+    return True
+
+
+def _spurious_due(w, wi, wf):
+    """The earliest pending spurious edge of wheel w [s] (inf: none)."""
+    s = _next_spurious(w, wi, wf)
+    return wf[w, WF_SLOTS + WF_SLOT * s + 3] if s >= 0 else math.inf
+
+
 def synthesize(track, prev, angles, wi, wf, bi, bf, pend_ns, pend_val, out_w, out_b_ns,
                out_b_val):
     """Tooth edges and bus deliveries of the steps in ``track`` (rows t, psi, omega, q[k],
@@ -266,29 +293,58 @@ def synthesize(track, prev, angles, wi, wf, bi, bf, pend_ns, pend_val, out_w, ou
     Appends to out_w (W, cap, 3) int64 rows (time ns, tooth, flags), out_b_ns, out_b_val
     (B, cap_b), their counts in wi[:, WI_N] / bi[:, BI_N]. Returns the steps processed: fewer
     than the rows when an output would overflow (the caller grows it and calls again with the
-    rest)."""
+    rest).
+
+    Most steps cross no tooth and send nothing: each wheel's angle is compared with the two
+    levels around it (cached) and each bus timer with the step's end, and the step is done."""
     n_rows = track.shape[0]
     k = (track.shape[1] - 3) // 2
     cap_p = pend_ns.shape[1]
+    n_w = wi.shape[0]
+    n_b = bi.shape[0]
+    th1s = np.empty(n_w)
+    spur_t = np.empty(n_w)
+    for w in range(n_w):
+        spur_t[w] = _spurious_due(w, wi, wf)
+    p = prev
     for step in range(n_rows):
-        t0 = prev[0]
-        t1 = track[step, 0]
-        h = t1 - t0
-        if not _room(t1, track[step], wi, wf, angles, bi, bf, out_w, out_b_ns, pend_ns):
+        row = track[step]
+        if step > 0:
+            p = track[step - 1]
+        t1 = row[0]
+        busy = False
+        for w in range(n_w):
+            th1 = row[1] * wf[w, WF_INV_R] + wf[w, WF_SCALE] * row[3 + wi[w, WI_COL]]
+            th1s[w] = th1
+            if not (wf[w, WF_LEV_LO] < th1 < wf[w, WF_LEV_HI]) or spur_t[w] <= t1:
+                busy = True
+        t1_ns = np.int64(math.floor(t1 * _NS + 0.5))
+        for b in range(n_b):
+            if bi[b, BI_NEXT] * bf[b, BF_PERIOD] <= t1 or (
+                    bi[b, BI_PENDING] > 0 and pend_ns[b, bi[b, BI_HEAD]] <= t1_ns):
+                busy = True
+        if not busy:
+            continue
+        if not (_surely_room(row, p, th1s, wi, wf, bi, bf, out_w, out_b_ns, pend_ns)
+                or _room(t1, row, wi, wf, angles, bi, bf, out_w, out_b_ns, pend_ns)):
+            if step > 0:
+                for i in range(prev.shape[0]):
+                    prev[i] = track[step - 1, i]
             return step
+        t0 = p[0]
+        h = t1 - t0
         # --- tooth edges, spurious ones merged in time order ----------------------------------
-        for w in range(wi.shape[0]):
+        for w in range(n_w):
+            th1 = th1s[w]
+            if spur_t[w] > t1 and wf[w, WF_LEV_LO] < th1 < wf[w, WF_LEV_HI]:
+                continue
             c = wi[w, WI_COL]
-            th1 = track[step, 1] * wf[w, WF_INV_R] + wf[w, WF_SCALE] * track[step, 3 + c]
-            spur = _next_spurious(w, wi, wf)
-            if spur < 0 and wf[w, WF_LEV_LO] < th1 < wf[w, WF_LEV_HI]:
-                continue                         # no level crossed, no fault edge: the usual
             m = wi[w, WI_TEETH]
-            th0 = prev[1] * wf[w, WF_INV_R] + wf[w, WF_SCALE] * prev[3 + c]
-            hv0 = h * (prev[2] * wf[w, WF_INV_R] + wf[w, WF_SCALE] * prev[3 + k + c])
-            hv1 = h * (track[step, 2] * wf[w, WF_INV_R]
-                       + wf[w, WF_SCALE] * track[step, 3 + k + c])
+            th0 = p[1] * wf[w, WF_INV_R] + wf[w, WF_SCALE] * p[3 + c]
+            hv0 = h * (p[2] * wf[w, WF_INV_R] + wf[w, WF_SCALE] * p[3 + k + c])
+            hv1 = h * (row[2] * wf[w, WF_INV_R] + wf[w, WF_SCALE] * row[3 + k + c])
             d1 = th1 - th0
+            spur = _next_spurious(w, wi, wf)
             while spur >= 0 and wf[w, WF_SLOTS + WF_SLOT * spur + 3] <= t0:
                 spurious_step(w, spur, wi, wf)   # arrivals from before the fault reached us
                 spur = _next_spurious(w, wi, wf)
@@ -323,19 +379,18 @@ def synthesize(track, prev, angles, wi, wf, bi, bf, pend_ns, pend_val, out_w, ou
                       FLAG_SPURIOUS, wi, wf, out_w)
                 spurious_step(w, spur, wi, wf)
                 spur = _next_spurious(w, wi, wf)
+            spur_t[w] = _spurious_due(w, wi, wf)
         # --- bus: sends at t_k = k period, deliveries at t_k + delay ---------------------------
-        t1_ns = np.int64(math.floor(t1 * _NS + 0.5))
-        for b in range(bi.shape[0]):
+        for b in range(n_b):
             c = bi[b, BI_COL]
             period = bf[b, BF_PERIOD]
             while bi[b, BI_NEXT] * period <= t1:
                 kk = bi[b, BI_NEXT]
                 tk = kk * period
-                th0 = prev[1] * bf[b, BF_INV_R] + bf[b, BF_SCALE] * prev[3 + c]
-                th1 = track[step, 1] * bf[b, BF_INV_R] + bf[b, BF_SCALE] * track[step, 3 + c]
-                hv0 = h * (prev[2] * bf[b, BF_INV_R] + bf[b, BF_SCALE] * prev[3 + k + c])
-                hv1 = h * (track[step, 2] * bf[b, BF_INV_R]
-                           + bf[b, BF_SCALE] * track[step, 3 + k + c])
+                th0 = p[1] * bf[b, BF_INV_R] + bf[b, BF_SCALE] * p[3 + c]
+                th1 = row[1] * bf[b, BF_INV_R] + bf[b, BF_SCALE] * row[3 + c]
+                hv0 = h * (p[2] * bf[b, BF_INV_R] + bf[b, BF_SCALE] * p[3 + k + c])
+                hv1 = h * (row[2] * bf[b, BF_INV_R] + bf[b, BF_SCALE] * row[3 + k + c])
                 tau = (tk - t0) / h if h > 0.0 else 1.0
                 d1 = th1 - th0
                 c2 = 3.0 * d1 - 2.0 * hv0 - hv1
@@ -375,8 +430,9 @@ def synthesize(track, prev, angles, wi, wf, bi, bf, pend_ns, pend_val, out_w, ou
                 bi[b, BI_N] = j + 1
                 bi[b, BI_HEAD] = (bi[b, BI_HEAD] + 1) % cap_p
                 bi[b, BI_PENDING] -= 1
+    if n_rows > 0:
         for i in range(prev.shape[0]):
-            prev[i] = track[step, i]
+            prev[i] = track[n_rows - 1, i]
     return n_rows
 
 
@@ -388,6 +444,8 @@ _next_spurious = jit(_next_spurious)
 spurious_step = jit(spurious_step)
 _emit = jit(_emit)
 _room = jit(_room)
+_surely_room = jit(_surely_room)
+_spurious_due = jit(_spurious_due)
 synthesize = jit(synthesize)
 
 
@@ -518,8 +576,10 @@ class SensorSynthesizer:
             self._angles[j, :w.present_teeth] = w.tooth_angles_rad()
             self._wi[j, [WI_COL, WI_TEETH, WI_GAP, WI_SEED]] = (c, w.present_teeth, w.gap,
                                                                  w.seed)
-            self._wf[j, [WF_SCALE, WF_INV_R, WF_RES, WF_JITTER]] = (
-                scale, inv_r, w.timer_resolution_s, w.timer_jitter_s)
+            a = self._angles[j, :w.present_teeth]
+            spacing = np.min(np.diff(np.append(a, a[0] + 2.0 * math.pi)))    # of two levels
+            self._wf[j, [WF_SCALE, WF_INV_R, WF_RES, WF_JITTER, WF_SPACING]] = (
+                scale, inv_r, w.timer_resolution_s, w.timer_jitter_s, spacing)
         self._bi = np.zeros((n_b, BI_SLOTS + BI_SLOT * FAULT_SLOTS), np.int64)
         self._bf = np.zeros((n_b, BF_SLOTS + BF_SLOT * FAULT_SLOTS))
         for j, (s, i) in enumerate(zip(signals, elements[n_w:])):

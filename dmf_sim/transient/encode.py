@@ -21,7 +21,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from dmf_sim.bags.columns import FLOAT64, JOINT_STATE, joint_state_layout
-from dmf_sim.bags.sensor_messages import FLOAT64_BYTES, encode_edge_batches, encode_float64
+from dmf_sim.bags.sensor_messages import FLOAT64_BYTES, encode_sensor_messages
 from dmf_sim.live.simulation import Samples
 from dmf_sim.live.streams import SAMPLE_STREAMS, STREAMS
 from dmf_sim.monitor.messages import StatusData
@@ -188,71 +188,82 @@ class EncodedBlock:
 
 
 class SensorBlock:
-    """The sensor messages of ``dmf-sim run``, gathered chunk by chunk and written in one call
-    (:meth:`dmf_sim.bags.writer.BagRecorder.write_messages`), as the node sends them: per wheel
+    """The sensor messages of ``dmf-sim run``, gathered chunk by chunk and encoded and written
+    at once (:func:`dmf_sim.bags.sensor_messages.encode_sensor_messages`,
+    :meth:`dmf_sim.bags.writer.BagRecorder.write_messages`), as the node sends them: per wheel
     one edge batch per sample period with the edges captured in it (logged at the period's end
     sample, as the node logs a publish tick's batch at its end; none when empty), and one
     ``Float64`` per bus value at its delivery (layouts: :mod:`dmf_sim.bags.sensor_messages`).
 
     ``topics``: stream key -> topic (:func:`dmf_sim.live.streams.resolved_topics` of the run's
-    streams); ``sample_period_s``: the bag's sample period (1 / rate)."""
+    streams); ``sample_period_s``: the bag's sample period (1 / rate); ``epoch_ns``: the stamp
+    of simulated time 0 (:class:`dmf_sim.live.pacing.TimeBase`)."""
 
     def __init__(self, wheel_names: Sequence[str], signal_names: Sequence[str],
-                 topics: dict[str, str], sample_period_s: float) -> None:
+                 topics: dict[str, str], sample_period_s: float, epoch_ns: int) -> None:
         from dmf_sim.live.streams import bus_key, edge_key
         self.wheel_names = tuple(wheel_names)
         self.signal_names = tuple(signal_names)
         self.topics = ([topics[edge_key(w)] for w in wheel_names]
                        + [topics[bus_key(b)] for b in signal_names])
         self.period_ns = sample_period_s * _NS_PER_S
-        self._parts: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
+        self.epoch_ns = int(epoch_ns)
+        self._edges: list[list[np.ndarray]] = [[] for _ in self.wheel_names]
+        self._bus: list[list[tuple[np.ndarray, np.ndarray]]] = [[] for _ in self.signal_names]
 
-    @property
-    def n(self) -> int:
-        return len(self._parts)
-
-    def add(self, chunk, epoch_ns: int) -> None:
-        """The messages of a :class:`~dmf_sim.physics.sensor_signals.SensorChunk`, stamped
-        ``epoch_ns`` + simulated ns."""
-        for w in range(len(self.wheel_names)):
-            rows = chunk.edge_rows(w)
-            if len(rows):
-                period = np.ceil(rows[:, 0] / self.period_ns).astype(np.int64)
-                ids, payload, offsets = encode_edge_batches(rows, period, epoch_ns)
-                log = epoch_ns + np.rint(ids * self.period_ns).astype(np.int64)
-                self._parts.append((log, np.full(len(ids), w), payload, offsets))
-        for b in range(len(self.signal_names)):
-            ns, rpm = chunk.bus_of(b)
-            if len(ns):
-                payload = encode_float64(rpm).reshape(-1)
-                offsets = np.arange(len(ns) + 1, dtype=np.int64) * FLOAT64_BYTES
-                self._parts.append((epoch_ns + ns, np.full(len(ns), len(self.wheel_names) + b),
-                                    payload, offsets))
+    def add(self, chunk) -> None:
+        """A :class:`~dmf_sim.physics.sensor_signals.SensorChunk`'s signals (its own arrays)."""
+        for w, n in enumerate(chunk.edge_counts):
+            if n:
+                self._edges[w].append(chunk.edge_rows(w))
+        for b, n in enumerate(chunk.bus_counts):
+            if n:
+                self._bus[b].append(chunk.bus_of(b))
 
     def take(self, upto_ns: int | None = None
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """The messages gathered with log times up to ``upto_ns`` (None: all) in log-time order,
-        as :meth:`~dmf_sim.bags.writer.BagRecorder.write_messages` takes them (log times, topic
-        indexes into :attr:`topics`, payload, offsets); the later ones stay."""
-        parts, self._parts = self._parts, []
-        if not parts:
+        """The messages gathered with log times up to ``upto_ns`` (None: all), encoded, in
+        log-time order, as :meth:`~dmf_sim.bags.writer.BagRecorder.write_messages` takes them
+        (log times, topic indexes into :attr:`topics`, payload, offsets); the later ones
+        stay."""
+        limit = np.inf if upto_ns is None else upto_ns - self.epoch_ns    # simulated ns
+        rows, groups, logs, topic = [], [], [], []
+        at = 0
+        for w, parts in enumerate(self._edges):
+            if not parts:
+                continue
+            r = np.concatenate(parts) if len(parts) > 1 else parts[0]
+            period = np.ceil(r[:, 0] / self.period_ns)
+            log = np.rint(period * self.period_ns).astype(np.int64)
+            n = int(np.searchsorted(log, limit, side='right'))
+            self._edges[w] = [r[n:]] if n < len(r) else []
+            if not n:
+                continue
+            starts = np.flatnonzero(np.diff(log[:n], prepend=-1))
+            counts = np.diff(np.append(starts, n))
+            rows.append(r[:n])
+            groups.append(np.stack([starts + at, counts], axis=1))
+            logs.append(log[starts])
+            topic.append(np.full(len(starts), w))
+            at += n
+        values = []
+        for b, parts in enumerate(self._bus):
+            if not parts:
+                continue
+            ns = np.concatenate([p[0] for p in parts])
+            rpm = np.concatenate([p[1] for p in parts])
+            n = int(np.searchsorted(ns, limit, side='right'))
+            self._bus[b] = [(ns[n:], rpm[n:])] if n < len(ns) else []
+            values.append(rpm[:n])
+            logs.append(ns[:n])
+            topic.append(np.full(n, len(self.wheel_names) + b))
+        if not logs:
             return (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.uint8),
                     np.zeros(1, np.int64))
-        log = np.concatenate([p[0] for p in parts])
-        topic = np.concatenate([p[1] for p in parts])
-        payload = np.concatenate([p[2] for p in parts])
-        starts = np.cumsum([0] + [len(p[2]) for p in parts[:-1]])
-        offsets = np.concatenate([p[3][:-1] + s for p, s in zip(parts, starts)]
-                                 + [[len(payload)]])
+        log = np.concatenate(logs)
         order = np.argsort(log, kind='stable')
-        sizes = np.diff(offsets)[order]
-        new_off = np.zeros(len(order) + 1, np.int64)
-        np.cumsum(sizes, out=new_off[1:])
-        idx = (np.repeat(offsets[:-1][order] - new_off[:-1], sizes)
-               + np.arange(int(new_off[-1]), dtype=np.int64))
-        log, topic, payload = log[order], topic[order], payload[idx]
-        n = len(log) if upto_ns is None else int(np.searchsorted(log, upto_ns, side='right'))
-        if n < len(log):               # the rest waits for its samples
-            self._parts.append((log[n:], topic[n:], payload[new_off[n]:],
-                                new_off[n:] - new_off[n]))
-        return log[:n], topic[:n], payload[:new_off[n]], new_off[:n + 1]
+        payload, offsets = encode_sensor_messages(
+            np.concatenate(rows) if rows else np.zeros((0, 3), np.int64),
+            np.concatenate(groups) if groups else np.zeros((0, 2), np.int64),
+            np.concatenate(values) if values else np.zeros(0), order, self.epoch_ns)
+        return self.epoch_ns + log[order], np.concatenate(topic)[order], payload, offsets

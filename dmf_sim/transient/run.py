@@ -481,8 +481,8 @@ def _stream(profile: Profile, out, opt: RunOptions, sim: LiveSimulation,
     statuses = StatusEncoder() if write else None
     health = _Health(sim, 1.0 / opt.diagnostics_hz)
     ls = sim.live_sensors
-    sensors = (SensorBlock(ls.wheel_names, ls.signal_names, topics, sim.stride * sim.dt)
-               if write and ls is not None else None)
+    sensors = (SensorBlock(ls.wheel_names, ls.signal_names, topics, sim.stride * sim.dt,
+                           timebase.epoch_ns) if write and ls is not None else None)
     max_rows = chunk // stride + 1
     work = np.zeros((max_rows, 3 * sim.model.n_elements))
 
@@ -564,7 +564,7 @@ def _stream(profile: Profile, out, opt: RunOptions, sim: LiveSimulation,
                 start = 0
                 stamps = timebase.stamps_ns(s.t) if block is not None else None
                 if sensors is not None and s.sensors is not None:
-                    sensors.add(s.sensors, timebase.epoch_ns)
+                    sensors.add(s.sensors)
                 while block is not None and start < rows:
                     k = min(block.free, rows - start)
                     block.add(s, stamps, start, start + k)
