@@ -127,3 +127,22 @@ def test_sensors_off_publishes_none(tmp_path):
     assert code == 0
     assert not any(m.topic.startswith(('/sensors/', '/vehicle_bus/'))
                    for m in read_messages(bag, raw=True))
+
+
+@pytest.mark.bench
+def test_bench_node_sensor_pairs_quick():
+    """``bench_node.py --sensors-pairs``: the sensors' cost figures in its JSON line (small
+    sizes: the figures themselves are the benchmark's, not pass conditions)."""
+    import json
+    import subprocess
+    import sys
+    res = subprocess.run([sys.executable, str(REPO / 'benchmarks' / 'bench_node.py'),
+                          '--sensors-pairs', '1', '--duration', '2', '--warmup', '0.5',
+                          '--monitor', 'off', '--domain', str(new_domain())],
+                         capture_output=True, text=True, timeout=400, cwd=REPO)
+    assert res.returncode == 0, res.stdout + res.stderr
+    data = json.loads(res.stdout.strip().splitlines()[-1])
+    for key in ('node_cpu_ratio_sensors', 'node_lag_p99_ms_sensors', 'lag_p99_ms_sensors'):
+        assert isinstance(data[key], float) and 0 < data[key] < 1e4, key
+    assert data['sensor_messages_per_s'] > 100        # the probe received the sensor topics
+    assert data['bag_complete'] and data['node_exit_code'] == 0
