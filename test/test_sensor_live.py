@@ -176,3 +176,29 @@ def test_no_sensors_run_has_none_and_the_same_samples(sensor_bag, tmp_path, caps
     a = [m.msg for m in read_messages(out, topic, raw=True)]
     b = [m.msg for m in msgs if m.topic == topic]
     assert a == b and len(a) == round(prof.duration_s * 1000)
+
+
+def test_the_fault_timeline_s_sensor_faults_act_in_their_windows():
+    """Sensor faults of a schedule (the FaultTimeline of dmf_sim.physics.faults) act from their
+    start to their end inside chunks (fault_windows gives the synthesis each one's window):
+    spurious crank edges only within [0.05, 0.15) s, the engine speed stuck within
+    [0.1, 0.2) s."""
+    from dmf_sim.physics.faults import parse_faults
+    s = sim(sensors=True)
+    faults = parse_faults('[{kind: sensor_edges, sensor: crank, mode: extra, rate_per_s: 400, '
+                          'start_s: 0.05, end_s: 0.15, seed: 3}, {kind: bus_signal, '
+                          'signal: engine_speed, mode: stuck, start_s: 0.1, end_s: 0.2}]',
+                          line=s.line)
+    s.attach_faults(faults)
+    edges, bus = [], []
+    for _ in range(30):                                  # 0.3 s in chunks of 10 ms
+        chunk = s.advance(100).sensors
+        edges.append(chunk.edge_rows(chunk.wheel_names.index('crank')).copy())
+        bus.append(np.stack(chunk.bus('engine_speed'), axis=1).copy())
+    e, b = np.concatenate(edges), np.concatenate(bus)
+    spur = e[(e[:, 2] & FLAG_SPURIOUS) > 0, 0] / 1e9
+    assert 20 < len(spur) < 65 and spur.min() >= 0.05 and spur.max() < 0.15     # ~40
+    sent = b[:, 0] / 1e9 - s.line.sensors.signal('engine_speed').delay_s
+    stuck = (sent >= 0.1) & (sent < 0.2)
+    held = b[np.flatnonzero(stuck)[0] - 1, 1]
+    assert np.all(b[stuck, 1] == held) and len(set(b[~stuck, 1])) > 3

@@ -38,7 +38,8 @@ from dmf_sim.physics.sensors import FLAG_FIRST_AFTER_GAP, FLAG_SPURIOUS
 
 __all__ = ['EDGES_TYPE', 'BUS_TYPE', 'EDGE_DIM_LABELS', 'EDGE_FIELDS', 'FLAG_FIRST_AFTER_GAP',
            'FLAG_SPURIOUS', 'edge_topic', 'bus_topic', 'wheel_of_topic', 'signal_of_topic',
-           'encode_edges', 'encode_sensor_messages', 'decode_edges', 'edges_of_message',
+           'encode_edges', 'encode_sensor_messages', 'fill_messages', 'decode_edges',
+           'edges_of_message',
            'encode_float64', 'float64_bytes', 'FLOAT64_BYTES', 'EDGE_HEADER_BYTES',
            'EDGE_ROW_BYTES']
 
@@ -120,7 +121,7 @@ def _put(out, at, value, nbytes):
         out[at + k] = (value >> (8 * k)) & 0xFF
 
 
-def _fill(rows, groups, values_bits, order, epoch, head, out, offsets):
+def fill_messages(rows, groups, values_bits, order, epoch, head, out, offsets):
     """The messages of :func:`encode_sensor_messages` into ``out`` at ``offsets`` (compiled)."""
     n_groups = groups.shape[0]
     for i in range(order.shape[0]):
@@ -165,14 +166,14 @@ def encode_sensor_messages(rows: np.ndarray, groups: np.ndarray, values: np.ndar
     offsets = np.zeros(len(order) + 1, np.int64)
     np.cumsum(sizes, out=offsets[1:])
     out = np.empty(int(offsets[-1]), np.uint8)
-    _fill(np.ascontiguousarray(rows, dtype=np.int64), groups,
+    fill_messages(np.ascontiguousarray(rows, dtype=np.int64), groups,
           np.ascontiguousarray(values, dtype=np.float64).view(np.int64), order, int(epoch_ns),
           _EDGE_HEAD, out, offsets)
     return out, offsets
 
 
 _put = jit(_put)
-_fill = jit(_fill)
+fill_messages = jit(fill_messages)
 _EDGE_HEAD = np.frombuffer(encode_edges(np.zeros((0, 3), np.int64)), np.uint8)[:EDGE_HEADER_BYTES]
 
 

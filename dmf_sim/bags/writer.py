@@ -72,7 +72,8 @@ from dmf_sim.core.compiled import jit
 from dmf_sim.core.errors import BagError, BagExistsError
 
 __all__ = [
-    'BagMessage', 'BagRecorder', 'RecoverReport', 'bag_topics', 'latched_depth', 'qos_profile',
+    'BagMessage', 'BagRecorder', 'RecoverReport', 'bag_topics', 'latched_depth', 'pack_records',
+    'qos_profile',
     'read_messages', 'recover_bag', 'MAX_DURATION_RANGE_S',
 ]
 
@@ -206,7 +207,7 @@ def _write_chunk(writer: Writer, state: WriterState, records: np.ndarray, t0: in
     return True
 
 
-def _pack_records(raw, rec_at, heads, payload, offsets):
+def pack_records(raw, rec_at, heads, payload, offsets):
     """Message records into ``raw``: record i at ``rec_at[i]``, its head ``heads[i]`` then its
     data ``payload[offsets[i]:offsets[i + 1]]`` (compiled: thousands of small records)."""
     width = heads.shape[1]
@@ -216,7 +217,7 @@ def _pack_records(raw, rec_at, heads, payload, offsets):
         raw[p + width:p + width + offsets[i + 1] - offsets[i]] = payload[offsets[i]:offsets[i + 1]]
 
 
-_pack_records = jit(_pack_records)
+pack_records = jit(pack_records)
 
 
 def _same_view(a: np.ndarray, b: np.ndarray) -> bool:
@@ -681,7 +682,7 @@ class BagRecorder:
             info.count += len(mine)
             stats.channel_message_counts[cid] += len(mine)
             f.topic_counts[info.name] = f.topic_counts.get(info.name, 0) + len(mine)
-        _pack_records(raw, rec_at, head.view(np.uint8).reshape(n, _MESSAGE_RECORD_HEAD),
+        pack_records(raw, rec_at, head.view(np.uint8).reshape(n, _MESSAGE_RECORD_HEAD),
                       payload, offsets[:n + 1])
         self._commit_chunk(f, raw, t, n, indexes)
         return n

@@ -6,7 +6,7 @@ The generator is SplitMix64 (Steele, Lea and Flood, "Fast splittable pseudorando
 generators", OOPSLA 2014; the finalizer of Java's ``SplittableRandom``): a key from (seed,
 stream), mixed with the counter. Uniform numbers take the top 53 bits; Gaussian numbers come from
 two uniforms by the Box-Muller transform. Compiled with :func:`dmf_sim.core.compiled.jit`, so
-the kernels call them per draw; :func:`gaussians` and :func:`uniforms` fill arrays from Python.
+the kernels call them per draw; :func:`gaussians` fills an array from Python.
 These are test signals (timer jitter, noise, pitch-error patterns, sensor faults), not
 cryptography.
 """
@@ -18,7 +18,7 @@ import numpy as np
 
 from dmf_sim.core.compiled import jit
 
-__all__ = ['uniform', 'gaussian', 'uniforms', 'gaussians']
+__all__ = ['uniform', 'gaussian', 'gaussians']
 
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 _MIX1 = np.uint64(0xBF58476D1CE4E5B9)
@@ -52,12 +52,6 @@ def gaussian(seed, stream, k):
     return math.sqrt(-2.0 * math.log(1.0 - u1)) * math.cos(2.0 * math.pi * u2)
 
 
-def uniforms(seed, stream, first, out):
-    """``out[i]`` = :func:`uniform` (seed, stream, first + i)."""
-    for i in range(out.shape[0]):
-        out[i] = uniform(seed, stream, first + i)
-
-
 def gaussians(seed, stream, first, out):
     """``out[i]`` = :func:`gaussian` (seed, stream, first + i)."""
     for i in range(out.shape[0]):
@@ -67,5 +61,4 @@ def gaussians(seed, stream, first, out):
 _mix = jit(_mix)
 uniform = jit(uniform)
 gaussian = jit(gaussian)
-uniforms = jit(uniforms)
 gaussians = jit(gaussians)
