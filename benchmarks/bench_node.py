@@ -26,11 +26,12 @@ Each bag is closed by SIGTERM and checked (message counts in metadata.yaml vs th
 Last line: one JSON object.
 
 Sensors (the driveline's tooth wheels and bus signals, parameter ``sensors``): ``--sensors on``
-(the node's default) or ``off`` for the runs above; with them on the probe also subscribes to
-every sensor topic, as a stack under test would. ``--sensors-pairs N`` measures their cost
-instead: N pairs of real-time runs, each a fresh node, sensors off then on (alternating, so a
-machine whose speed drifts affects both alike), and reports ``node_cpu_ratio_sensors`` (median
-of the per-pair CPU ratios on/off, with min and max) and ``node_lag_p99_ms_sensors`` (the
+(the node's default) or ``off`` for the runs above; with them on a process of its own (a stack
+under test) subscribes to every sensor topic and counts what it receives. ``--sensors-pairs N``
+measures their cost instead: N pairs of real-time runs, each a fresh node, sensors off then on
+(alternating, so a machine whose speed drifts affects both alike), and reports
+``node_cpu_ratio_sensors`` (median of the per-pair CPU ratios on/off, with min and max) and
+``node_lag_p99_ms_sensors`` (the
 node-side lag p99 of the worst 1-s window of the measurement with sensors on: median and max
 over the runs; the node's lag since its start would count its start-up), ``lag_p99_ms_sensors``
 (the end-to-end JointState lag p99, the same over the runs) and the real-time factor.
@@ -137,8 +138,7 @@ class NodeRun:
 class Probe:
     """rclpy peer on the nodes' domain: JointState stamps (raw CDR) and diagnostics per node."""
 
-    def __init__(self, domain: int, cap: int, fqns: list[str],
-                 sensor_topics: list[str] = ()) -> None:
+    def __init__(self, domain: int, cap: int, fqns: list[str]) -> None:
         import rclpy
         from diagnostic_msgs.msg import DiagnosticArray
         from rcl_interfaces.srv import SetParameters
@@ -161,9 +161,6 @@ class Probe:
             JointState, f'{f.rsplit("/", 1)[0]}/driveline/joint_states',
             lambda data, f=f: self._on_js(f, data), qos, raw=True) for f in fqns]
         self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, qos)
-        self.sensor_msgs = 0          # a stack's subscriptions to the sensors (raw, counted)
-        self.sensor_subs = [self.node.create_subscription(
-            msgtype, topic, self._on_sensor, qos, raw=True) for topic, msgtype in sensor_topics]
         self.param_clients = {f: self.node.create_client(SetParameters, f'{f}/set_parameters')
                               for f in fqns}
         self.executor = SingleThreadedExecutor(context=self.ctx)
@@ -185,10 +182,6 @@ class Probe:
             self.recv[fqn][n] = now
             self.stamp[fqn][n] = sec * 1_000_000_000 + nsec
             self.n[fqn] = n + 1
-
-    def _on_sensor(self, _data: bytes) -> None:
-        if self.recording:
-            self.sensor_msgs += 1
 
     def _on_diag(self, msg) -> None:
         for st in msg.status:     # the node's health status (its monitor shares hardware_id)
@@ -239,7 +232,7 @@ class Probe:
         return pubs
 
     def drop_joint_states(self) -> None:
-        for sub in self.js_subs + self.sensor_subs:
+        for sub in self.js_subs:
             self.node.destroy_subscription(sub)
 
     def close(self) -> None:
@@ -378,17 +371,46 @@ def summarize(per_node: list[dict], args) -> dict:
     }
 
 
-def sensor_topics(namespaces: list[str]) -> list[tuple[str, object]]:
-    """(topic, rclpy type) of every sensor stream of the default driveline in each namespace."""
-    from std_msgs.msg import Float64, UInt64MultiArray
+# A stack's subscriber of the sensor topics, a process of its own (as the stack under test
+# would be): raw, counted between its start signal (a line on stdin) and its stop (another)
+STACK = r"""
+import sys, threading, time, rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from std_msgs.msg import Float64, UInt64MultiArray
+rclpy.init()
+node = rclpy.create_node('bench_stack')
+qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+state = {'on': False, 'n': 0}
+def count(_data):
+    if state['on']:
+        state['n'] += 1
+for topic in sys.argv[1:]:
+    msgtype = UInt64MultiArray if topic.endswith('/edges') else Float64
+    node.create_subscription(msgtype, topic, count, qos, raw=True)
+ex = SingleThreadedExecutor()
+ex.add_node(node)
+threading.Thread(target=ex.spin, daemon=True).start()
+print('ready', flush=True)
+sys.stdin.readline()
+state['on'] = True
+t0 = time.monotonic()
+sys.stdin.readline()
+state['on'] = False
+print(state['n'] / (time.monotonic() - t0), flush=True)
+ex.shutdown(timeout_sec=2.0)
+node.destroy_node()
+rclpy.try_shutdown()
+"""
 
+
+def sensor_topics(namespaces: list[str]) -> list[str]:
+    """Every sensor topic of the default driveline in each namespace."""
     from dmf_sim.live.streams import resolved_topics, sensor_streams
     from dmf_sim.physics.model import load_driveline
 
     streams = sensor_streams(load_driveline('truck_dmf').sensors)
-    types = {'std_msgs/msg/Float64': Float64, 'std_msgs/msg/UInt64MultiArray': UInt64MultiArray}
-    return [(resolved_topics(ns, streams)[k], types[s.msgtype])
-            for ns in namespaces for k, s in streams.items()]
+    return [resolved_topics(ns, streams)[k] for ns in namespaces for k in streams]
 
 
 def run_nodes(args, domain: int, tmp: Path, sensors: bool, fast: bool,
@@ -401,18 +423,29 @@ def run_nodes(args, domain: int, tmp: Path, sensors: bool, fast: bool,
     namespaces = [''] if args.nodes == 1 else [f'/truck{i + 1}' for i in range(args.nodes)]
     runs = [NodeRun(ns, tmp / f'bench_bag{tag}{ns.replace("/", "_")}', tmp, extra)
             for ns in namespaces]
-    probe = None
+    probe = stack = None
     result: dict = {'sensors': sensors}
     try:
         cap = int((args.duration + 5) * args.publish_rate * 1.2) + 1000
-        probe = Probe(domain, cap, [r.fqn for r in runs],
-                      sensor_topics(namespaces) if sensors else [])
+        probe = Probe(domain, cap, [r.fqn for r in runs])
+        if sensors:
+            stack = subprocess.Popen([sys.executable, '-c', STACK, *sensor_topics(namespaces)],
+                                     stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+            stack.stdout.readline()
         if not probe.wait(lambda: all(probe.diags[r.fqn] for r in runs), 90.0 + 30 * len(runs)):
             raise RuntimeError(f'a node did not publish diagnostics; logs in {tmp}')
         time.sleep(args.warmup)
+        if stack is not None:
+            stack.stdin.write('start\n')
+            stack.stdin.flush()
         per_node = measure_realtime(probe, runs, args.duration, args.setpoint_period)
         result.update(summarize(per_node, args))
-        result['sensor_messages_per_s'] = probe.sensor_msgs / args.duration
+        if stack is not None:
+            stack.stdin.write('stop\n')
+            stack.stdin.flush()
+            result['sensor_messages_per_s'] = float(stack.stdout.readline())
+        else:
+            result['sensor_messages_per_s'] = 0.0
         if len(runs) == 1 and fast:
             result.update(measure_fast(probe, runs[0], args.fast_duration))
         elif len(runs) > 1:
@@ -420,6 +453,13 @@ def run_nodes(args, domain: int, tmp: Path, sensors: bool, fast: bool,
     finally:
         if probe is not None:
             probe.close()
+        if stack is not None:
+            stack.stdin.close()            # (after its count: it ends by itself)
+            try:
+                stack.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                stack.kill()
+                stack.wait()
         codes = [r.stop() for r in runs]
 
     checks = [r.bag_check() for r in runs]
