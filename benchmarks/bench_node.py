@@ -390,7 +390,8 @@ for topic in sys.argv[1:]:
     node.create_subscription(msgtype, topic, count, qos, raw=True)
 ex = SingleThreadedExecutor()
 ex.add_node(node)
-threading.Thread(target=ex.spin, daemon=True).start()
+spinner = threading.Thread(target=ex.spin, daemon=True)
+spinner.start()
 print('ready', flush=True)
 sys.stdin.readline()
 state['on'] = True
@@ -399,6 +400,7 @@ sys.stdin.readline()
 state['on'] = False
 print(state['n'] / (time.monotonic() - t0), flush=True)
 ex.shutdown(timeout_sec=2.0)
+spinner.join(timeout=5.0)
 node.destroy_node()
 rclpy.try_shutdown()
 """
