@@ -551,7 +551,7 @@ class BagRecorder:
                     self._write(info.name, int(t[i]), data[i].tobytes())
             return rows
         self._flush_chunk()                       # what write() left open goes first
-        builder, stats = state.chunk_builder, state.statistics
+        stats = state.statistics
         block = self._block_buffer(tuple((cid, d.shape[1]) for cid, _, d in chans), rows)
         layout = block.dtype
         raw = block.view(np.uint8).reshape(rows, layout.itemsize)
@@ -593,15 +593,15 @@ class BagRecorder:
         """Write the records ``raw`` of ``n`` messages logged at ``t`` as one chunk with its
         message ``indexes``: the writer's statistics, the file's span and counts, to the OS."""
         writer = self._writer
-        builder = writer._Writer__chunk_builder
-        stats = writer._Writer__statistics
+        state = writer_state(writer)                # after the flush: its data-section CRC
+        builder, stats = state.chunk_builder, state.statistics
         t0, t1 = int(t[0]), int(t[-1])
         stats.message_start_time = (t0 if stats.message_count == 0
                                     else min(t0, stats.message_start_time))
         stats.message_end_time = max(t1, stats.message_end_time)
         stats.message_count += n
         if not (builder.count == 0 and self._compression == CompressionType.NONE
-                and _write_chunk(writer, writer_state(writer), raw, t0, t1, indexes)):
+                and _write_chunk(writer, state, raw, t0, t1, indexes)):
             builder.record_writer.write(raw.data)   # after the file's schemas and channels
             builder.num_messages = n
             builder.message_start_time, builder.message_end_time = t0, t1
@@ -649,15 +649,14 @@ class BagRecorder:
             if topic not in self._channels:
                 raise BagError(f'topic {topic!r} was not declared when the bag was opened')
             chans.append(self._channels[topic])
-        writer = self._writer
-        builder = getattr(writer, '_Writer__chunk_builder', None)
-        stats = getattr(writer, '_Writer__statistics', None)
-        if builder is None or stats is None:      # another mcap version: message by message
+        state = writer_state(self._writer)
+        if state is None:                         # another mcap version: message by message
             for i in range(n):
                 self._write(chans[idx[i]][1].name, int(t[i]),
                             payload[offsets[i]:offsets[i + 1]].tobytes())
             return n
         self._flush_chunk()                       # what write() left open goes first
+        stats = state.statistics
         sizes = offsets[1:n + 1] - offsets[:n]
         rec_len = _MESSAGE_RECORD_HEAD + sizes
         rec_at = np.zeros(n, np.int64)
