@@ -409,9 +409,9 @@ rclpy.try_shutdown()
 def sensor_topics(namespaces: list[str]) -> list[str]:
     """Every sensor topic of the default driveline in each namespace."""
     from dmf_sim.live.streams import resolved_topics, sensor_streams
-    from dmf_sim.physics.model import load_driveline
+    from dmf_sim.physics.model import read_driveline
 
-    streams = sensor_streams(load_driveline('truck_dmf').sensors)
+    streams = sensor_streams(read_driveline('truck_dmf').sensors)
     return [resolved_topics(ns, streams)[k] for ns in namespaces for k in streams]
 
 
