@@ -25,7 +25,19 @@ fast-mode part runs only with one node.
 Each bag is closed by SIGTERM and checked (message counts in metadata.yaml vs the MCAP summary).
 Last line: one JSON object.
 
+Sensors (the driveline's tooth wheels and bus signals, parameter ``sensors``): ``--sensors on``
+(the node's default) or ``off`` for the runs above; with them on a process of its own (a stack
+under test) subscribes to every sensor topic and counts what it receives. ``--sensors-pairs N``
+measures their cost instead: N pairs of real-time runs, each a fresh node, sensors off then on
+(alternating, so a machine whose speed drifts affects both alike), and reports
+``node_cpu_ratio_sensors`` (median of the per-pair CPU ratios on/off, with min and max) and
+``node_lag_p99_ms_sensors`` (the
+node-side lag p99 of the worst 1-s window of the measurement with sensors on: median and max
+over the runs; the node's lag since its start would count its start-up), ``lag_p99_ms_sensors``
+(the end-to-end JointState lag p99, the same over the runs) and the real-time factor.
+
     python benchmarks/bench_node.py [--duration 60] [--fast-duration 10] [--warmup 3] [--nodes N]
+    python benchmarks/bench_node.py --sensors-pairs 3 --duration 30
 """
 from __future__ import annotations
 
@@ -359,6 +371,153 @@ def summarize(per_node: list[dict], args) -> dict:
     }
 
 
+# A stack's subscriber of the sensor topics, a process of its own (as the stack under test
+# would be): raw, counted between its start signal (a line on stdin) and its stop (another)
+STACK = r"""
+import sys, threading, time, rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from std_msgs.msg import Float64, UInt64MultiArray
+rclpy.init()
+node = rclpy.create_node('bench_stack')
+qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+state = {'on': False, 'n': 0}
+def count(_data):
+    if state['on']:
+        state['n'] += 1
+for topic in sys.argv[1:]:
+    msgtype = UInt64MultiArray if topic.endswith('/edges') else Float64
+    node.create_subscription(msgtype, topic, count, qos, raw=True)
+ex = SingleThreadedExecutor()
+ex.add_node(node)
+spinner = threading.Thread(target=ex.spin, daemon=True)
+spinner.start()
+print('ready', flush=True)
+sys.stdin.readline()
+state['on'] = True
+t0 = time.monotonic()
+sys.stdin.readline()
+state['on'] = False
+print(state['n'] / (time.monotonic() - t0), flush=True)
+ex.shutdown(timeout_sec=2.0)
+spinner.join(timeout=5.0)
+node.destroy_node()
+rclpy.try_shutdown()
+"""
+
+
+def sensor_topics(namespaces: list[str]) -> list[str]:
+    """Every sensor topic of the default driveline in each namespace."""
+    from dmf_sim.live.streams import resolved_topics, sensor_streams
+    from dmf_sim.physics.model import read_driveline
+
+    streams = sensor_streams(read_driveline('truck_dmf').sensors)
+    return [resolved_topics(ns, streams)[k] for ns in namespaces for k in streams]
+
+
+def run_nodes(args, domain: int, tmp: Path, sensors: bool, fast: bool,
+              tag: str = '') -> dict:
+    """Start the nodes, measure real time (and fast mode when ``fast``), stop them, check the
+    bags; returns the figures."""
+    extra = ['-p', f'publish_rate:={args.publish_rate!r}', '-p', 'dt:=0.0001',
+             '-p', 'diagnostics_rate:=1.0', '-p', f'monitor:={args.monitor == "on"}'.lower(),
+             '-p', f'sensors:={str(sensors).lower()}']
+    namespaces = [''] if args.nodes == 1 else [f'/truck{i + 1}' for i in range(args.nodes)]
+    runs = [NodeRun(ns, tmp / f'bench_bag{tag}{ns.replace("/", "_")}', tmp, extra)
+            for ns in namespaces]
+    probe = stack = None
+    result: dict = {'sensors': sensors}
+    try:
+        cap = int((args.duration + 5) * args.publish_rate * 1.2) + 1000
+        probe = Probe(domain, cap, [r.fqn for r in runs])
+        if sensors:
+            stack = subprocess.Popen([sys.executable, '-c', STACK, *sensor_topics(namespaces)],
+                                     stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+            stack.stdout.readline()
+        if not probe.wait(lambda: all(probe.diags[r.fqn] for r in runs), 90.0 + 30 * len(runs)):
+            raise RuntimeError(f'a node did not publish diagnostics; logs in {tmp}')
+        time.sleep(args.warmup)
+        if stack is not None:
+            stack.stdin.write('start\n')
+            stack.stdin.flush()
+        per_node = measure_realtime(probe, runs, args.duration, args.setpoint_period)
+        result.update(summarize(per_node, args))
+        if stack is not None:
+            stack.stdin.write('stop\n')
+            stack.stdin.flush()
+            result['sensor_messages_per_s'] = float(stack.stdout.readline())
+        else:
+            result['sensor_messages_per_s'] = 0.0
+        if len(runs) == 1 and fast:
+            result.update(measure_fast(probe, runs[0], args.fast_duration))
+        elif len(runs) > 1:
+            result['per_node'] = per_node
+    finally:
+        if probe is not None:
+            probe.close()
+        if stack is not None:
+            stack.stdin.close()            # (after its count: it ends by itself)
+            try:
+                stack.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                stack.kill()
+                stack.wait()
+        codes = [r.stop() for r in runs]
+
+    checks = [r.bag_check() for r in runs]
+    result.update({
+        'node_exit_code': max(codes, key=abs),
+        'bag_messages': sum(c['bag_messages'] for c in checks),
+        'bag_complete': all(c['bag_complete'] for c in checks),
+        'bag_files': sum(c['bag_files'] for c in checks),
+        'bag_mb': sum(c['bag_mb'] for c in checks),
+    })
+    return result
+
+
+def sensor_pairs(args, domain: int, tmp: Path) -> dict:
+    """``--sensors-pairs``: alternating off/on runs; the cost of the sensors."""
+    runs: dict[str, list[dict]] = {'off': [], 'on': []}
+    for i in range(args.sensors_pairs):
+        for mode in ('off', 'on'):
+            r = run_nodes(args, domain, tmp, mode == 'on', fast=False, tag=f'_{mode}{i}')
+            runs[mode].append(r)
+            print(f'pair {i + 1} sensors {mode}: CPU {r["cpu_pct"]:.1f} %, node lag p99 (worst '
+                  f'1-s window) {r["node_lag_p99_ms_worst_window"]:.2f} ms, end-to-end p99 '
+                  f'{r["lag_p99_ms"]:.2f} ms, '
+                  f'factor {r["rtf_mean"]:.4f} ({r["rtf_min"]:.4f}..{r["rtf_max"]:.4f}), '
+                  f'{r["sensor_messages_per_s"]:.0f} sensor messages/s received', flush=True)
+    ratios = [on['cpu_pct'] / off['cpu_pct'] for off, on in zip(runs['off'], runs['on'])]
+    lag_on = [r['node_lag_p99_ms_worst_window'] for r in runs['on']]
+
+    def stat(values):
+        return {'min': float(np.min(values)), 'median': float(np.median(values)),
+                'max': float(np.max(values))}
+    return {
+        'sensors_pairs': args.sensors_pairs, 'duration_s': args.duration,
+        'publish_rate_hz': args.publish_rate, 'monitor': args.monitor == 'on',
+        'node_cpu_ratio_sensors': float(np.median(ratios)),
+        'node_cpu_ratio_sensors_all': stat(ratios),
+        'node_lag_p99_ms_sensors': float(np.median(lag_on)),
+        'node_lag_p99_ms_sensors_all': stat(lag_on),
+        'node_lag_p99_ms_no_sensors_all': stat([r['node_lag_p99_ms_worst_window']
+                                                for r in runs['off']]),
+        'lag_p99_ms_sensors': float(np.median([r['lag_p99_ms'] for r in runs['on']])),
+        'lag_p99_ms_sensors_all': stat([r['lag_p99_ms'] for r in runs['on']]),
+        'lag_p99_ms_no_sensors_all': stat([r['lag_p99_ms'] for r in runs['off']]),
+        'cpu_pct_sensors_all': stat([r['cpu_pct'] for r in runs['on']]),
+        'cpu_pct_no_sensors_all': stat([r['cpu_pct'] for r in runs['off']]),
+        'rtf_min_sensors': min(r['rtf_min'] for r in runs['on']),
+        'rtf_max_sensors': max(r['rtf_max'] for r in runs['on']),
+        'overruns_sensors': sum(r['overruns'] for r in runs['on']),
+        'sensor_messages_per_s': float(np.median([r['sensor_messages_per_s']
+                                                  for r in runs['on']])),
+        'realtime_ok_sensors': all(r['realtime_ok'] for r in runs['on']),
+        'bag_complete': all(r['bag_complete'] for m in runs.values() for r in m),
+        'node_exit_code': max((r['node_exit_code'] for m in runs.values() for r in m), key=abs),
+    }
+
+
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('--duration', type=float, default=60.0, help='real-time measurement [s]')
@@ -376,48 +535,28 @@ def main(argv=None) -> dict:
     ap.add_argument('--setpoint-period', type=float, default=0.0,
                     help='send a new speed setpoint every this many seconds during the '
                          'real-time measurement (0 = none)')
+    ap.add_argument('--sensors', choices=('on', 'off'), default='on',
+                    help="the node's sensors (edge batches, bus speeds; default on, as the "
+                         'node); on: the probe subscribes to them too')
+    ap.add_argument('--sensors-pairs', type=int, default=0, metavar='N',
+                    help='measure the sensors\' cost: N pairs of real-time runs, sensors off '
+                         'then on (no fast-mode part)')
     args = ap.parse_args(argv)
     if args.nodes < 1:
         ap.error('--nodes must be >= 1')
     if args.setpoint_period < 0:
         ap.error('--setpoint-period must be >= 0')
+    if args.sensors_pairs < 0:
+        ap.error('--sensors-pairs must be >= 0')
 
     domain = args.domain or default_domain()
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     os.environ['ROS_DOMAIN_ID'] = str(domain)
     tmp = Path(tempfile.mkdtemp(prefix='bench_node_'))
-    extra = ['-p', f'publish_rate:={args.publish_rate!r}', '-p', 'dt:=0.0001',
-             '-p', 'diagnostics_rate:=1.0', '-p', f'monitor:={args.monitor == "on"}'.lower()]
-    namespaces = [''] if args.nodes == 1 else [f'/truck{i + 1}' for i in range(args.nodes)]
-    runs = [NodeRun(ns, tmp / f'bench_bag{ns.replace("/", "_")}', tmp, extra)
-            for ns in namespaces]
-    probe = None
-    result: dict = {}
-    try:
-        cap = int((args.duration + 5) * args.publish_rate * 1.2) + 1000
-        probe = Probe(domain, cap, [r.fqn for r in runs])
-        if not probe.wait(lambda: all(probe.diags[r.fqn] for r in runs), 90.0 + 30 * len(runs)):
-            raise RuntimeError(f'a node did not publish diagnostics; logs in {tmp}')
-        time.sleep(args.warmup)
-        per_node = measure_realtime(probe, runs, args.duration, args.setpoint_period)
-        result.update(summarize(per_node, args))
-        if len(runs) == 1:
-            result.update(measure_fast(probe, runs[0], args.fast_duration))
-        else:
-            result['per_node'] = per_node
-    finally:
-        if probe is not None:
-            probe.close()
-        codes = [r.stop() for r in runs]
-
-    checks = [r.bag_check() for r in runs]
-    result.update({
-        'node_exit_code': max(codes, key=abs),
-        'bag_messages': sum(c['bag_messages'] for c in checks),
-        'bag_complete': all(c['bag_complete'] for c in checks),
-        'bag_files': sum(c['bag_files'] for c in checks),
-        'bag_mb': sum(c['bag_mb'] for c in checks),
-    })
+    if args.sensors_pairs:
+        result = sensor_pairs(args, domain, tmp)
+    else:
+        result = run_nodes(args, domain, tmp, args.sensors == 'on', fast=True)
     if not args.keep:
         shutil.rmtree(tmp, ignore_errors=True)
     else:
@@ -427,10 +566,23 @@ def main(argv=None) -> dict:
 
 
 def report(r: dict) -> None:
+    if 'sensors_pairs' in r:
+        ratio, lag = r['node_cpu_ratio_sensors_all'], r['node_lag_p99_ms_sensors_all']
+        print(f'sensors on vs off, {r["sensors_pairs"]} alternating pairs of '
+              f'{r["duration_s"]:g} s at {r["publish_rate_hz"]:g} Hz: node CPU '
+              f'x{r["node_cpu_ratio_sensors"]:.3f} '
+              f'(min {ratio["min"]:.3f}, max {ratio["max"]:.3f}); with sensors node lag p99 '
+              f'{r["node_lag_p99_ms_sensors"]:.2f} ms (worst 1-s window; max {lag["max"]:.2f}), '
+              f'end-to-end {r["lag_p99_ms_sensors"]:.2f} ms; real-time factor '
+              f'{r["rtf_min_sensors"]:.4f}..{r["rtf_max_sensors"]:.4f}, overruns '
+              f'{r["overruns_sensors"]}; {r["sensor_messages_per_s"]:.0f} sensor messages/s')
+        print(json.dumps(clean_json(r)))
+        return
     setpoints = (f'a speed setpoint every {r["setpoint_period_s"]:g} s'
                  if r['setpoint_period_s'] else 'fixed setpoints')
     print(f'real time, {r["duration_s"]:g} s, dt 1e-4 s, {r["publish_rate_hz"]:g} Hz, recording, '
-          f'monitor {"on" if r["monitor"] else "off"}, {setpoints}, {r["nodes"]} node(s) at once:')
+          f'monitor {"on" if r["monitor"] else "off"}, sensors {"on" if r["sensors"] else "off"}, '
+          f'{setpoints}, {r["nodes"]} node(s) at once:')
     for n in r.get('per_node', [r]):
         label = f'  {n["node"]}:' if 'node' in n else ' '
         print(f'{label} real-time factor  mean {n["rtf_mean"]:.4f}  min {n["rtf_min"]:.4f}  max '

@@ -31,7 +31,15 @@ from dmf_sim.core.errors import ConfigError, DmfSimError, one_line
 from dmf_sim.core.numbers import fmt_num
 from dmf_sim.live.parameters import DMF_PARAMETERS, PARAMETERS, coerce
 from dmf_sim.live.stop_signals import StopSignals
-from dmf_sim.live.streams import CLOCK, PUBLISHED, SERVICES, STREAMS, SUBSCRIPTIONS
+from dmf_sim.live.streams import (
+    CLOCK,
+    PUBLISHED,
+    SENSOR_STREAMS,
+    SERVICES,
+    STREAMS,
+    SUBSCRIPTIONS,
+    streams_for,
+)
 from dmf_sim.transient.live_profile import NodeProfile, check_profile
 
 __all__ = ['EXIT_CONFIG_ERROR', 'DrivelineNode', 'usage', 'main']
@@ -67,7 +75,7 @@ try:
     from rclpy.serialization import serialize_message
     from rosgraph_msgs.msg import Clock
     from sensor_msgs.msg import JointState
-    from std_msgs.msg import Float64, String
+    from std_msgs.msg import Float64, String, UInt64MultiArray
     from std_srvs.srv import SetBool, Trigger
     ROS_IMPORT_ERROR: ImportError | None = None
 except ImportError as _exc:      # no ROS: PARAMETERS, STREAMS and main()'s message still work
@@ -151,9 +159,11 @@ class DrivelineNode(Node):
                                    dt=values['dt'])[1]:
             raise ConfigError(reason)
         types = {'sensor_msgs/msg/JointState': JointState, 'std_msgs/msg/Float64': Float64,
-                 'diagnostic_msgs/msg/DiagnosticArray': DiagnosticArray}
+                 'diagnostic_msgs/msg/DiagnosticArray': DiagnosticArray,
+                 'std_msgs/msg/UInt64MultiArray': UInt64MultiArray}
+        streams = streams_for(line.sensors if values['sensors'] else None)
         self._pubs = {k: self.create_publisher(types[s.msgtype], s.topic, _stream_qos(s))
-                      for k, s in STREAMS.items()}
+                      for k, s in streams.items()}
         self._topics = {k: pub.topic_name for k, pub in self._pubs.items()}
         self._js = JointState()
         self._f64 = Float64()
@@ -161,9 +171,9 @@ class DrivelineNode(Node):
         self._clock_pub = None
         self._answers: list[str] = []
         self.runtime = LiveRuntime(values, line, self, self.get_logger(), node_name=self.fqn,
-                                   topics={self._topics[k]: s.msgtype for k, s in STREAMS.items()},
+                                   topics={self._topics[k]: s.msgtype for k, s in streams.items()},
                                    qos={self._topics[k]: s.qos_profile()
-                                        for k, s in STREAMS.items()})
+                                        for k, s in streams.items()}, streams=streams)
         self._js.name = self.runtime.sim.names
         self._update_clock_publisher()
         self.profile = NodeProfile(self.runtime, self.get_logger())     # parameter 'profile'
@@ -201,7 +211,10 @@ class DrivelineNode(Node):
 
     # ---- sink of the run loop (tick thread) ---------------------------------------------
     def _emit(self, key: str, msg, log_ns: int) -> None:
-        data = serialize_message(msg)       # serialized once: published, recorded, served
+        self._emit_raw(key, serialize_message(msg), log_ns)
+
+    def _emit_raw(self, key: str, data: bytes, log_ns: int) -> None:
+        """Serialized once: published, recorded, served."""
         self._pubs[key].publish(data)
         rt = self.runtime
         rt.recording.write(self._topics[key], log_ns, data)
@@ -230,6 +243,10 @@ class DrivelineNode(Node):
             self._emit('speed', f, log)
             f.data = float(s.psi[i])
             self._emit('crank_angle', f, log)
+
+    def publish_sensors(self, chunk, epoch_ns: int, log_offset_ns: int) -> None:
+        for key, log_ns, data in self.runtime.sensor_messages.of(chunk, epoch_ns, log_offset_ns):
+            self._emit_raw(key, data, log_ns)
 
     def publish_clock(self, stamp_ns: int) -> None:
         if self._clock_pub is not None:
@@ -348,7 +365,7 @@ def usage() -> str:
 
     rows = [('pub', st.topic, st.msgtype, qos(st.depth, st.latched),
              f'{st.what}; {PUBLISHED.get(st.per, st.per)}')
-            for st in (*STREAMS.values(), CLOCK)]
+            for st in (*STREAMS.values(), *SENSOR_STREAMS.values(), CLOCK)]
     rows += [('sub', su.topic, su.msgtype, qos(su.depth), su.what)
              for su in SUBSCRIPTIONS.values()]
     width = max(len(r[1]) for r in rows)

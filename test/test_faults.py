@@ -115,9 +115,17 @@ def test_bad_faults_one_line_naming_the_field(text, words, line):
         assert w in msg, (w, msg)
 
 
-def test_unknown_sensors_not_checked_without_names(line):
-    parse_fault('{kind: sensor_edges, sensor: anything, mode: missing, probability: 0.1}',
-                line=line)
+def test_sensor_names_checked_against_the_driveline_s_sensors(line):
+    """The shipped truck has sensors (its YAML's sensors section): an unknown wheel is refused
+    in one line naming the known ones, a known one's tooth within the teeth present; without a
+    driveline, names are not checked."""
+    text = '{kind: sensor_edges, sensor: anything, mode: missing, probability: 0.1}'
+    with pytest.raises(ConfigError, match='known: crank, flywheel_secondary'):
+        parse_fault(text, line=line)
+    parse_fault(text)
+    parse_fault('{kind: sensor_edges, sensor: crank, mode: missing, tooth: 57}', line=line)
+    with pytest.raises(ConfigError, match=r"'tooth' must be in 0\.\.57"):
+        parse_fault('{kind: sensor_edges, sensor: crank, mode: missing, tooth: 58}', line=line)
 
 
 def test_no_dmf_refused_for_dmf_faults():

@@ -43,6 +43,9 @@ class Sink:
     def publish_clock(self, stamp_ns):
         pass
 
+    def publish_sensors(self, chunk, epoch_ns, log_offset_ns):
+        pass
+
     def publish_statuses(self, key, statuses, stamp_ns):
         self.statuses.setdefault(key, []).append((stamp_ns, list(statuses)))
 

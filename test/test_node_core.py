@@ -51,6 +51,7 @@ class ListSink:
 
     def __init__(self) -> None:
         self.stamps, self.logs, self.t, self.psi, self.clock = [], [], [], [], []
+        self.sensors = []
 
     def publish_samples(self, s, stamps_ns, log_ns):
         self.stamps += stamps_ns.tolist()
@@ -60,6 +61,9 @@ class ListSink:
 
     def publish_clock(self, stamp_ns):
         self.clock.append(stamp_ns)
+
+    def publish_sensors(self, chunk, epoch_ns, log_offset_ns):
+        self.sensors.append((chunk, epoch_ns, log_offset_ns))
 
 
 class FakeClock:

@@ -6,7 +6,14 @@ import pytest
 
 from dmf_sim import node
 from dmf_sim.live.parameters import DMF_PARAMETERS, PARAMETERS
-from dmf_sim.live.streams import CLOCK, PUBLISHED, SERVICES, STREAMS, SUBSCRIPTIONS
+from dmf_sim.live.streams import (
+    CLOCK,
+    PUBLISHED,
+    SENSOR_STREAMS,
+    SERVICES,
+    STREAMS,
+    SUBSCRIPTIONS,
+)
 
 
 def _line_of(text: str, topic: str) -> str:
@@ -19,6 +26,15 @@ def test_every_published_stream_is_in_the_usage_with_its_type_and_qos(key):
     line = _line_of(node.usage(), st.topic)
     assert line.split()[:3] == ['pub', st.topic, st.msgtype]
     assert f'depth {st.depth}' in line and ('latched' in line) == st.latched
+    assert st.what and PUBLISHED[st.per]
+
+
+@pytest.mark.parametrize('key', sorted(SENSOR_STREAMS))
+def test_the_sensor_streams_are_in_the_usage_with_a_placeholder_name(key):
+    st = SENSOR_STREAMS[key]
+    assert '<' in st.topic
+    line = _line_of(node.usage(), st.topic)
+    assert line.split()[:3] == ['pub', st.topic, st.msgtype] and f'depth {st.depth}' in line
     assert st.what and PUBLISHED[st.per]
 
 

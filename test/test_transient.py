@@ -20,10 +20,13 @@ from dmf_sim.analysis.pipeline import AnalysisOptions, analyze_bag
 from dmf_sim.bags.columns import joint_state_layout
 from dmf_sim.bags.layout import resolve_bag
 from dmf_sim.bags.metadata import RunMetadata
+from dmf_sim.bags.sensor_messages import decode_edges
 from dmf_sim.bags.writer import BagRecorder
 from dmf_sim.cli import main as cli_main
 from dmf_sim.core.errors import ConfigError, OperatingRangeError
-from dmf_sim.live.streams import STREAMS, resolved_topics
+from dmf_sim.live.streams import SAMPLE_STREAMS, STREAMS, resolved_topics, streams_for
+from dmf_sim.physics.model import read_driveline
+from dmf_sim.physics.sensors import parse_sensors
 from dmf_sim.transient.encode import SampleEncoder
 from dmf_sim.transient.profiles import ramp_profile, read_profile
 from dmf_sim.transient.run import RunOptions, run_profile
@@ -120,17 +123,19 @@ def test_run_bag_has_the_nodes_topics_and_follows_the_profile(run_bag):
     meta = yaml.safe_load((out / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
     topics = {t['topic_metadata']['name']: t['topic_metadata']['type']
               for t in meta['topics_with_message_count']}
-    names = resolved_topics()
-    assert topics == {names[k]: s.msgtype for k, s in STREAMS.items()}
+    streams = streams_for(read_driveline('truck_dmf').sensors)     # the node's, sensors on
+    names = resolved_topics('', streams)
+    assert topics == {names[k]: s.msgtype for k, s in streams.items()}
     assert len(meta['files']) == 3                       # split every simulated second
     counts = {t['topic_metadata']['name']: t['message_count']
               for t in meta['topics_with_message_count']}
     # the node's health status every simulated second (diagnostics_rate 1 Hz), the sample
-    # streams one message per sample
+    # streams one message per sample, the sensors as the node publishes them
     assert counts['/diagnostics'] == int(prof.duration_s)
-    assert meta['message_count'] == 4 * summary.samples + int(prof.duration_s) \
-        == summary.messages
+    assert all(counts[names[k]] == summary.samples for k in SAMPLE_STREAMS)
+    assert meta['message_count'] == sum(counts.values()) == summary.messages
     rm = RunMetadata.from_bag_metadata(meta)
+    assert parse_sensors(rm.sensors) == read_driveline('truck_dmf').sensors
     assert rm.profile == prof.name and rm.node == 'dmf-sim run' and rm.publish_rate_hz == 1000
     # the reference speed is on the table at every sample (ramp exact in the kernel)
     msgs = _read(out, {'/engine/speed', '/engine/crank_angle'})
@@ -339,8 +344,9 @@ def test_threaded_run_writes_the_sequential_bag(tmp_path):
         msgs = _read(bag)
         t0 = msgs[0][1]
         stamped = ('joint_states', 'diagnostics')      # header stamps: the wall clock
-        return [(tp, t - t0, raw[:4] + raw[12:] if tp.endswith(stamped) else raw)
-                for tp, t, raw, _ in msgs]
+        return [(tp, t - t0, raw[:4] + raw[12:] if tp.endswith(stamped)
+                 else (decode_edges(raw)[0] - t0).tobytes() + raw[:68] if tp.endswith('edges')
+                 else raw) for tp, t, raw, _ in msgs]
     assert strip(bags[1]) == strip(bags[2])
 
 
@@ -429,6 +435,7 @@ def test_node_profile_parameter_follows_and_refuses(tmp_path):
     class Sink:
         def publish_samples(self, *a): pass
         def publish_clock(self, *a): pass
+        def publish_sensors(self, *a): pass
         def publish_statuses(self, *a): pass
 
     values = {n: s.default for n, s in PARAMETERS.items()}

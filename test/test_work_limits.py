@@ -175,7 +175,7 @@ def test_the_bag_size_estimate_is_close(tmp_path):
     prof = read_profile('ramp:1000:1100:500:1:0.5')
     summary = run_profile(prof, tmp_path / 'bag', RunOptions(threads=1))
     size = sum(f.stat().st_size for f in (tmp_path / 'bag').iterdir())
-    estimate = bag_bytes(build_simulation(prof, RunOptions()), summary.samples)
+    estimate = bag_bytes(build_simulation(prof, RunOptions()), summary.samples, prof)
     assert 0.9 * size <= estimate <= size, (estimate, size)
 
 

@@ -29,7 +29,7 @@ def _float(raw: str | None) -> float | None:
     return v if math.isfinite(v) else None
 
 
-def _spring(raw: str | None) -> dict | None:
+def _mapping(raw: str | None) -> dict | None:
     if raw in (None, ''):
         return None
     try:
@@ -56,6 +56,9 @@ class RunMetadata:
         settle_s: the first seconds of the recording (from its first message) in which the
             driveline settles from static equilibrium (``dmf-sim run`` starts there): their
             engine cycles are not steady running, and the analysis leaves them out.
+        sensors: the sensors recorded (``SensorSet.as_dict()`` of
+            :mod:`dmf_sim.physics.sensors`; ``parse_sensors`` gives the set back), None when
+            the recording has none.
     """
 
     driveline: str | None = None
@@ -71,8 +74,10 @@ class RunMetadata:
     node: str | None = None
     profile: str | None = None
     settle_s: float | None = None
+    sensors: dict | None = None
 
     _FLOATS = ('alpha', 'theta_rad', 'load', 'speed_rpm', 'dt_s', 'publish_rate_hz', 'settle_s')
+    _MAPPINGS = ('spring', 'sensors')
 
     def to_custom_data(self) -> dict[str, str]:
         """The ``custom_data`` entries (only the known values)."""
@@ -81,7 +86,7 @@ class RunMetadata:
             v = getattr(self, f.name)
             if v is None:
                 continue
-            if f.name == 'spring':
+            if f.name in self._MAPPINGS:
                 text = json.dumps(v, separators=(',', ':'))
             elif f.name in self._FLOATS:
                 text = repr(float(v))
@@ -97,8 +102,8 @@ class RunMetadata:
         kw: dict[str, Any] = {}
         for f in fields(cls):
             raw = custom.get(CUSTOM_PREFIX + f.name)
-            if f.name == 'spring':
-                kw[f.name] = _spring(raw)
+            if f.name in cls._MAPPINGS:
+                kw[f.name] = _mapping(raw)
             elif f.name in cls._FLOATS:
                 kw[f.name] = _float(raw)
             else:

@@ -68,10 +68,12 @@ from dmf_sim.bags.layout import (
 from dmf_sim.bags.mcap_internals import WriterState, set_data_section_crc, writer_state
 from dmf_sim.bags.read import BagMessage, bag_topics, read_messages
 from dmf_sim.bags.recovery import RecoverReport, recover_bag
+from dmf_sim.core.compiled import jit
 from dmf_sim.core.errors import BagError, BagExistsError
 
 __all__ = [
-    'BagMessage', 'BagRecorder', 'RecoverReport', 'bag_topics', 'latched_depth', 'qos_profile',
+    'BagMessage', 'BagRecorder', 'RecoverReport', 'bag_topics', 'latched_depth', 'pack_records',
+    'qos_profile',
     'read_messages', 'recover_bag', 'MAX_DURATION_RANGE_S',
 ]
 
@@ -92,6 +94,9 @@ _COMPRESSION = {'none': CompressionType.NONE, 'lz4': CompressionType.LZ4,
 _MESSAGE_OVERHEAD = 31 + 16  # message record header + its message index entry, bytes
 _OP_MESSAGE, _OP_CHUNK, _OP_MESSAGE_INDEX = 5, 6, 7       # MCAP opcodes
 _MESSAGE_HEAD = 22                          # channel 2 + sequence 4 + log 8 + publish 8 bytes
+_MESSAGE_RECORD_HEAD = 9 + _MESSAGE_HEAD    # + opcode 1 + record length 8: before the data
+_RECORD_HEAD = np.dtype([('op', 'u1'), ('len', '<u8'), ('cid', '<u2'), ('seq', '<u4'),
+                         ('log', '<u8'), ('pub', '<u8')])       # packed: 31 bytes
 
 
 class _ArrayMessageIndex(MessageIndex):
@@ -200,6 +205,19 @@ def _write_chunk(writer: Writer, state: WriterState, records: np.ndarray, t0: in
         uncompressed_size=size))
     state.statistics.chunk_count += 1
     return True
+
+
+def pack_records(raw, rec_at, heads, payload, offsets):
+    """Message records into ``raw``: record i at ``rec_at[i]``, its head ``heads[i]`` then its
+    data ``payload[offsets[i]:offsets[i + 1]]`` (compiled: thousands of small records)."""
+    width = heads.shape[1]
+    for i in range(rec_at.shape[0]):
+        p = rec_at[i]
+        raw[p:p + width] = heads[i]
+        raw[p + width:p + width + offsets[i + 1] - offsets[i]] = payload[offsets[i]:offsets[i + 1]]
+
+
+pack_records = jit(pack_records)
 
 
 def _same_view(a: np.ndarray, b: np.ndarray) -> bool:
@@ -485,6 +503,15 @@ class BagRecorder:
                 or now - self._chunk_wall0 >= self._chunk_seconds):
             self._flush()
 
+    def file_end_ns(self, first_ns: int) -> int:
+        """The log time from which messages go to the next file: the current file's start +
+        ``max_duration_s`` (its start is ``first_ns`` when nothing is in it yet). A writer of
+        several calls per time span (``dmf-sim run``: the samples, then the sensors) writes each
+        call's messages before it first, so every file holds its own span."""
+        with self._lock:
+            f = self._file
+            return (f.start if f.count else int(first_ns)) + self._max_duration_ns
+
     def write_block(self, log_ns: np.ndarray, payloads: list[tuple[str, np.ndarray]]) -> None:
         """Append rows of fixed-size messages at once: row i holds one message per
         (topic, payload) pair, in that order, all logged (and published) at ``log_ns[i]``;
@@ -508,20 +535,7 @@ class BagRecorder:
     def _write_rows(self, log_ns: np.ndarray, payloads: list[tuple[str, np.ndarray]]) -> int:
         """Write the rows that belong to the current file (a split starts the next one as
         :meth:`_write` does); returns how many were written."""
-        if self._closed:
-            raise BagError(f'bag {self.path} is closed')
-        if self._finisher_error is not None:
-            self._join_finisher()
-        f = self._file
-        if f.count and int(log_ns[0]) - f.start >= self._max_duration_ns:
-            self._split()
-            f = self._file
-        if self._repeat_due:                      # a new file starts with the latched messages
-            self._repeat_latched(int(log_ns[0]), skip='')
-            f = self._file
-        first = f.start if f.count else int(log_ns[0])
-        rows = int(np.searchsorted(log_ns, first + self._max_duration_ns, side='left'))
-        rows = max(rows, 1)
+        f, rows = self._file_for(log_ns)
         t = log_ns[:rows]
         chans = []
         for topic, data in payloads:
@@ -537,7 +551,7 @@ class BagRecorder:
                     self._write(info.name, int(t[i]), data[i].tobytes())
             return rows
         self._flush_chunk()                       # what write() left open goes first
-        builder, stats = state.chunk_builder, state.statistics
+        stats = state.statistics
         block = self._block_buffer(tuple((cid, d.shape[1]) for cid, _, d in chans), rows)
         layout = block.dtype
         raw = block.view(np.uint8).reshape(rows, layout.itemsize)
@@ -555,15 +569,39 @@ class BagRecorder:
             info.count += rows
             stats.channel_message_counts[cid] += rows
             f.topic_counts[info.name] = f.topic_counts.get(info.name, 0) + rows
-        n = rows * len(chans)
-        t0, t1 = int(t[0]), int(t[-1])
         indexes = {cid: _ArrayMessageIndex(cid, index[j]) for j, (cid, _, _) in enumerate(chans)}
+        self._commit_chunk(f, raw, t, rows * len(chans), indexes)
+        return rows
+
+    def _file_for(self, log_ns: np.ndarray) -> tuple[FileInfo, int]:
+        """The file the messages from ``log_ns[0]`` on go to (split first, or the latched
+        messages first in a new file, as :meth:`_write` does) and how many belong in it."""
+        if self._closed:
+            raise BagError(f'bag {self.path} is closed')
+        if self._finisher_error is not None:
+            self._join_finisher()
+        if self._file.count and int(log_ns[0]) - self._file.start >= self._max_duration_ns:
+            self._split()
+        if self._repeat_due:                      # a new file starts with the latched messages
+            self._repeat_latched(int(log_ns[0]), skip='')
+        f = self._file
+        first = f.start if f.count else int(log_ns[0])
+        return f, max(int(np.searchsorted(log_ns, first + self._max_duration_ns, side='left')), 1)
+
+    def _commit_chunk(self, f: FileInfo, raw: np.ndarray, t: np.ndarray, n: int,
+                      indexes: dict[int, MessageIndex]) -> None:
+        """Write the records ``raw`` of ``n`` messages logged at ``t`` as one chunk with its
+        message ``indexes``: the writer's statistics, the file's span and counts, to the OS."""
+        writer = self._writer
+        state = writer_state(writer)                # after the flush: its data-section CRC
+        builder, stats = state.chunk_builder, state.statistics
+        t0, t1 = int(t[0]), int(t[-1])
         stats.message_start_time = (t0 if stats.message_count == 0
                                     else min(t0, stats.message_start_time))
         stats.message_end_time = max(t1, stats.message_end_time)
         stats.message_count += n
         if not (builder.count == 0 and self._compression == CompressionType.NONE
-                and _write_chunk(writer, writer_state(writer), raw, t0, t1, indexes)):
+                and _write_chunk(writer, state, raw, t0, t1, indexes)):
             builder.record_writer.write(raw.data)   # after the file's schemas and channels
             builder.num_messages = n
             builder.message_start_time, builder.message_end_time = t0, t1
@@ -574,7 +612,79 @@ class BagRecorder:
         f.count += n
         self.message_count += n
         writer.flush()                            # the chunk, its indexes, to the OS
-        return rows
+
+    def write_messages(self, log_ns: np.ndarray, topic_index: np.ndarray, topics: list[str],
+                       payload: np.ndarray, offsets: np.ndarray) -> None:
+        """Append messages of any sizes at once: message i on ``topics[topic_index[i]]``,
+        logged (and published) at ``log_ns[i]`` (non-decreasing), its CDR bytes
+        ``payload[offsets[i]:offsets[i + 1]]`` (uint8). The file gets exactly what :meth:`write`
+        called per message in that order would give it (records, sequence numbers, indexes,
+        splits, metadata), as one chunk per call and file, built with numpy (``dmf-sim run``
+        writes thousands of sensor messages per simulated second)."""
+        log_ns = np.asarray(log_ns, dtype=np.int64)
+        topic_index = np.asarray(topic_index, dtype=np.int64)
+        offsets = np.asarray(offsets, dtype=np.int64)
+        n = len(log_ns)
+        if topic_index.shape != (n,) or offsets.shape != (n + 1,) or payload.dtype != np.uint8:
+            raise BagError(f'write_messages: {n} log times need {n} topic indexes and {n + 1} '
+                           'offsets into a uint8 payload')
+        if n and (log_ns[0] < 0 or (np.diff(log_ns) < 0).any()):
+            raise BagError('write_messages: log times must be non-negative and non-decreasing')
+        if n and (topic_index.min() < 0 or topic_index.max() >= len(topics)):
+            raise BagError('write_messages: a topic index outside the topics given')
+        with self._lock:
+            start = 0
+            while start < n:
+                start += self._write_sized(log_ns[start:], topic_index[start:], topics,
+                                           payload, offsets[start:])
+
+    def _write_sized(self, log_ns: np.ndarray, topic_index: np.ndarray, topics: list[str],
+                     payload: np.ndarray, offsets: np.ndarray) -> int:
+        """:meth:`write_messages` of the messages that belong to the current file (as
+        :meth:`_write_rows` does for fixed sizes); returns how many were written."""
+        f, n = self._file_for(log_ns)
+        t, idx = log_ns[:n], topic_index[:n]
+        chans = []
+        for topic in topics:
+            if topic not in self._channels:
+                raise BagError(f'topic {topic!r} was not declared when the bag was opened')
+            chans.append(self._channels[topic])
+        state = writer_state(self._writer)
+        if state is None:                         # another mcap version: message by message
+            for i in range(n):
+                self._write(chans[idx[i]][1].name, int(t[i]),
+                            payload[offsets[i]:offsets[i + 1]].tobytes())
+            return n
+        self._flush_chunk()                       # what write() left open goes first
+        stats = state.statistics
+        sizes = offsets[1:n + 1] - offsets[:n]
+        rec_len = _MESSAGE_RECORD_HEAD + sizes
+        rec_at = np.zeros(n, np.int64)
+        np.cumsum(rec_len[:-1], out=rec_at[1:])
+        raw = np.empty(int(rec_at[-1] + rec_len[-1]), np.uint8)
+        head = np.zeros(n, _RECORD_HEAD)
+        head['op'] = _OP_MESSAGE
+        head['len'] = _MESSAGE_HEAD + sizes
+        head['log'] = t
+        head['pub'] = t
+        indexes = {}
+        for j, (cid, info) in enumerate(chans):
+            mine = np.flatnonzero(idx == j)
+            if not len(mine):
+                continue
+            head['cid'][mine] = cid
+            head['seq'][mine] = (info.count + np.arange(len(mine), dtype=np.int64)) & 0xFFFFFFFF
+            entries = np.empty((len(mine), 2), dtype='<u8')
+            entries[:, 0] = t[mine]
+            entries[:, 1] = rec_at[mine]
+            indexes[cid] = _ArrayMessageIndex(cid, entries)
+            info.count += len(mine)
+            stats.channel_message_counts[cid] += len(mine)
+            f.topic_counts[info.name] = f.topic_counts.get(info.name, 0) + len(mine)
+        pack_records(raw, rec_at, head.view(np.uint8).reshape(n, _MESSAGE_RECORD_HEAD),
+                      payload, offsets[:n + 1])
+        self._commit_chunk(f, raw, t, n, indexes)
+        return n
 
     def block_payloads(self, topics: list[str], sizes: list[int], rows: int
                        ) -> list[np.ndarray]:

@@ -69,6 +69,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument('--namespace', default='', help='write the topics under this ROS 2 namespace '
                    '(e.g. /truck1; checked by ROS 2\'s rules)')
     p.add_argument('--no-write', action='store_true', help='integrate only (timing)')
+    p.add_argument('--no-sensors', action='store_true',
+                   help="no sensor topics (the driveline YAML's tooth wheels and bus signals; "
+                        'default: recorded as the node publishes them)')
     p.add_argument('--threads', type=int, choices=(1, 2), default=None,
                    help='1: integrate and write in turn; 2: integrate the next chunks in a '
                         'thread of their own while the last ones are written (the same bag) '
@@ -94,8 +97,8 @@ def run(args: argparse.Namespace) -> int:
                      alpha=args.alpha, theta=args.theta, dt=args.dt, rate_hz=args.rate,
                      chunk_s=args.chunk, write=not args.no_write, namespace=namespace,
                      threads=default_threads() if args.threads is None else args.threads,
-                     faults=args.faults)
-    warm_up(NAME, 'time integration')      # before the bar: its rate without a compile
+                     faults=args.faults, sensors=not args.no_sensors)
+    warm_up(NAME, 'time integration')    # before the bar: its rate without a compile
     summary = run_profile(profile, None if args.no_write else args.out, opt,
                           progress=not (args.no_progress or args.json), destination=dest)
     if args.json:

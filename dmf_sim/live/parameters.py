@@ -80,6 +80,10 @@ PARAMETERS: dict[str, ParameterSpec] = {
                              '(time_s, speed_rpm, load), a packaged name (truck_road_cycle) or '
                              "ramp:FROM:TO:RATE[:LOAD[:SETTLE]]; '' = none. Overrides the "
                              'setpoint topics while it runs; the last row holds after it'),
+    'sensors': ParameterSpec(True, 'Publish (and record) the driveline\'s sensors: tooth-wheel '
+                             'edge batches on sensors/<wheel>/edges, bus speeds on '
+                             'vehicle_bus/<signal> (the driveline YAML\'s sensors section); '
+                             'false: none, at no cost', None, True),
     'bag_max_duration_s': ParameterSpec(60.0, 'Split recordings into MCAP files of this many '
                                         'seconds (as ros2 bag record --max-bag-duration); '
                                         'applies to the next recording', (1.0, 86400.0)),

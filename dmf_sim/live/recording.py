@@ -45,7 +45,9 @@ def run_metadata(sim, *, driveline: str, engine: str, node: str,
         driveline=driveline, engine=engine, load_set=str(getattr(sim.engine, 'load_set', '')),
         alpha=spring.alpha if spring else None, theta_rad=spring.theta if spring else None,
         spring=spring.as_dict() if spring else None, load=sim.load, speed_rpm=sim.speed,
-        dt_s=sim.dt, publish_rate_hz=publish_rate_hz, node=node)
+        dt_s=sim.dt, publish_rate_hz=publish_rate_hz, node=node,
+        sensors=(sim.line.sensors.as_dict() if getattr(sim, 'live_sensors', None) is not None
+                 else None))
 
 
 def _missing_parents(path: Path) -> list[Path]:

@@ -16,6 +16,9 @@ testable with a fake clock and a list as the sink.
   :data:`FAST_BUDGET_S` of wall time per tick, then a short pause for the ROS callbacks.
 * Stamps (:class:`dmf_sim.live.pacing.TimeBase`): when pacing returns to real time at factor 1 the
   stamps are re-anchored to the wall clock and the loop says so (log and diagnostics).
+* Sensors (a simulation with sensors on): each chunk's signals go to the sink right after the
+  chunk's samples and their lag are taken (``publish_sensors``), also from a chunk in which no
+  sample fell due.
 
 Hook points (for per-cycle order analysis, predictions, alarms): ``observers`` are called in the
 tick thread with every chunk of published :class:`dmf_sim.live.simulation.Samples` and their stamps
@@ -86,6 +89,10 @@ class SampleSink(Protocol):
                         log_ns: np.ndarray) -> None: ...
 
     def publish_clock(self, stamp_ns: int) -> None: ...
+
+    def publish_sensors(self, chunk, epoch_ns: int, log_offset_ns: int) -> None:
+        """A chunk's sensor signals (:class:`dmf_sim.physics.sensor_signals.SensorChunk`):
+        stamps are ``epoch_ns`` + simulated ns, log times the stamps + ``log_offset_ns``."""
 
     def publish_statuses(self, key: str, statuses: list, stamp_ns: int) -> None:
         """A DiagnosticArray of ``statuses`` (dmf_sim.monitor.messages.StatusData) on stream
@@ -251,7 +258,9 @@ class RunLoop:
             chunk = sim.stride * max(1, math.ceil(FAST_CHUNK_S / (sim.dt * sim.stride)))
             end = now + FAST_BUDGET_S
             while True:
-                self._emit(sim.advance(chunk))
+                samples = sim.advance(chunk)
+                self._emit(samples)
+                self._emit_sensors(samples)
                 self.sink.publish_clock(self.time.stamp_ns(sim.t))
                 if self.clock() >= end:
                     break
@@ -278,9 +287,15 @@ class RunLoop:
                 self.lag.add(self.clock() - pacer.due_wall_scalar(int(samples.step[0])))
             else:
                 self.lag.add(self.clock() - pacer.due_wall(samples.step))
+        self._emit_sensors(samples)        # after the samples (and their lag): they go first
         if self.clock_on:
             self.sink.publish_clock(self.time.stamp_ns(sim.t))
         self.next_tick = pacer.next_tick(self.clock(), sim.next_sample_step)
+
+    def _emit_sensors(self, samples: Samples) -> None:
+        if samples.sensors is not None and not samples.sensors.empty:
+            self.sink.publish_sensors(samples.sensors, self.time.epoch_ns,
+                                      self.time.log_offset_ns)
 
     def _emit(self, samples: Samples) -> None:
         if not len(samples):

@@ -56,15 +56,21 @@ class LiveRuntime:
             :meth:`dmf_sim.live.streams.Stream.qos_profile`): written into bags; the latched
             (transient-local) topics start every recording and are resent to Foxglove clients
             that subscribe later.
+        streams: stream key -> :class:`~dmf_sim.live.streams.Stream` of every stream
+            (:func:`dmf_sim.live.streams.streams_for`; default :data:`~dmf_sim.live.streams.
+            STREAMS`, no sensors).
     """
 
     def __init__(self, values: Mapping, line, sink, log, *, topics: Mapping[str, str],
                  node_name: str = '/driveline_node',
-                 qos: Mapping[str, dict] | None = None) -> None:
+                 qos: Mapping[str, dict] | None = None, streams=None) -> None:
         from dmf_sim.live.run_loop import RunLoop
+        from dmf_sim.live.sensors import SensorMessages
+        from dmf_sim.live.streams import STREAMS
         from dmf_sim.physics.engine import read_engine
 
         p = self.values = dict(values)
+        self.streams = dict(STREAMS if streams is None else streams)
         self.log, self.node_name = log, node_name
         self.has_dmf = line.dmf is not None
         try:
@@ -89,9 +95,13 @@ class LiveRuntime:
                 line, engine, dt=p['dt'], speed_rpm=p['initial_speed_rpm'],
                 load=p['initial_load'], speed_ramp_rpm_per_s=p['speed_ramp_rpm_per_s'],
                 load_ramp_per_s=p['load_ramp_per_s'],
-                speed_limits_rpm=(p['speed_min_rpm'], p['speed_max_rpm']), stride=stride)
+                speed_limits_rpm=(p['speed_min_rpm'], p['speed_max_rpm']), stride=stride,
+                sensors=bool(p.get('sensors', False)))
         except ValueError as exc:
             raise ConfigError(one_line(exc)) from None
+        ls = self.sim.live_sensors
+        self.sensor_messages = (SensorMessages(ls.wheel_names, ls.signal_names)
+                                if ls is not None else None)
         pacer = Pacer(p['dt'], _rtf(p['real_time_factor'], p['pacing']), p['max_lag'],
                       p['overrun_policy'])
         self.loop = RunLoop(self.sim, pacer, sink, log, publish_clock=p['publish_clock'],
@@ -195,13 +205,13 @@ class LiveRuntime:
         """What the node says once it runs: its topics with their rates, where to look, how
         to stop. ``topics``: stream key (:data:`dmf_sim.live.streams.STREAMS`) -> resolved
         topic name."""
-        from dmf_sim.live.streams import STREAMS
         by = {}
         for key, name in topics.items():
-            per = STREAMS[key].per
+            per = self.streams[key].per
             if per in ('cycle', 'setpoint') and self.monitor is None:
                 continue
-            by.setdefault(per, []).append(name + (' (latched)' if STREAMS[key].latched else ''))
+            by.setdefault(per, []).append(name + (' (latched)' if self.streams[key].latched
+                                                  else ''))
         rate = 1.0 / self.loop.diagnostics_period_s
         ns = topics['speed'].rsplit('/', 2)[0]
         where = f' --namespace {ns}' if ns else ''
@@ -212,6 +222,10 @@ class LiveRuntime:
                          f'{", ".join(by["setpoint"])} when the setpoint changes')
         lines.append(f'faults: {", ".join(by["fault"])}; inject: dmf-sim fault{where} '
                      "'{kind: misfire, cylinders: [3]}' or the fault_* parameters")
+        if 'edges' in by or 'bus' in by:
+            lines.append(f'sensors: edge batches {", ".join(by.get("edges", ())) or "none"} '
+                         f'per publish tick; bus {", ".join(by.get("bus", ())) or "none"} when '
+                         'delivered')
         lines.append(f'look: dmf-sim monitor{where} | ros2 topic hz {topics["speed"]} | set: '
                      f'dmf-sim setpoint{where} --speed 1200 --load 0.8')
         bag = f' (closes the bag {self.recording.path})' if self.recording.active else ''

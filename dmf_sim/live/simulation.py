@@ -17,6 +17,11 @@ DMF fault starts or ends (exact to one step); the cylinder coefficients of the n
 ``DrivelineExcitation.excitation`` with the timeline's factors, and a DMF change rebuilds the
 integrator keeping the state (:meth:`LiveSimulation._swap`). Without faults (or an idle
 timeline) a chunk is what it always was.
+
+Sensors (``sensors=True`` and a driveline with a ``sensors:`` section): the kernel also writes
+the sensor elements' DOFs every step, and each chunk's signals (tooth edges, bus values) come
+with its samples (:attr:`Samples.sensors`, :class:`dmf_sim.live.sensors.LiveSensors`). Off, the
+kernel tracks nothing and nothing else runs.
 """
 from __future__ import annotations
 
@@ -29,11 +34,13 @@ from dmf_sim.core.errors import ConfigError, OperatingRangeError
 from dmf_sim.core.numbers import fmt_num
 from dmf_sim.core.units import RAD_S_TO_RPM
 from dmf_sim.live.peaks import WindupPeaks
+from dmf_sim.live.sensors import LiveSensors, fault_windows
 from dmf_sim.live.torques import TorqueOperator
 from dmf_sim.physics.engine import load_error
 from dmf_sim.physics.faults import COMBUSTION_KINDS, FaultEvent, FaultTimeline
 from dmf_sim.physics.loads import DrivelineExcitation
 from dmf_sim.physics.model import Driveline, read_driveline
+from dmf_sim.physics.sensor_signals import SensorChunk
 from dmf_sim.solvers.newmark import NewmarkIntegrator, StepRecord
 
 __all__ = ['check_setpoint', 'ramp_toward', 'split_steps', 'Samples', 'Integrated',
@@ -102,7 +109,8 @@ class Samples:
 
     step: absolute step index; t [s]; psi crank angle [rad]; speed_rpm reference engine speed;
     windup [rad]; position/velocity: vibratory element angles [rad] / velocities [rad/s];
-    effort: torque transmitted into each element [Nm] (rows x elements).
+    effort: torque transmitted into each element [Nm] (rows x elements); sensors: the chunk's
+    sensor signals (None without sensors), whether or not samples fell due in it.
     """
 
     step: np.ndarray
@@ -113,6 +121,7 @@ class Samples:
     position: np.ndarray
     velocity: np.ndarray
     effort: np.ndarray
+    sensors: SensorChunk | None = None
 
     def __len__(self) -> int:
         return int(self.t.shape[0])
@@ -124,7 +133,8 @@ class Integrated:
 
     record: the kernel's recorded states (rows from 0); rows: how many; first: step index of the
     first row; omega_dot: reference acceleration at the chunk's end [rad/s^2]; loads: element
-    loads of the rows (rows x elements) where the read-out needs them, else None.
+    loads of the rows (rows x elements) where the read-out needs them, else None; sensors: the
+    chunk's sensor signals (None without sensors).
     """
 
     record: StepRecord
@@ -133,6 +143,7 @@ class Integrated:
     omega_dot: float
     loads: np.ndarray | None = None
     fault_events: list[FaultEvent] = field(default_factory=list)
+    sensors: SensorChunk | None = None
 
 
 @dataclass
@@ -142,7 +153,9 @@ class LiveSimulation:
     Build with :meth:`from_config`. Setpoint setters return None on success or the reason for
     refusing (the previous setpoint stays); structural changes raise ConfigError and leave the
     simulation unchanged. :attr:`line` is the driveline as configured (alpha/theta apply to
-    it); the integrated one (:attr:`model`) has the active DMF faults applied.
+    it); the integrated one (:attr:`model`) has the active DMF faults applied. ``sensors``:
+    synthesize the driveline's sensor signals (:attr:`live_sensors`; nothing when the driveline
+    has none); the timeline's sensor faults act on them.
     """
 
     line: Driveline
@@ -154,6 +167,7 @@ class LiveSimulation:
     load_ramp_per_s: float = 1.0
     speed_limits_rpm: tuple[float, float] = (500.0, 2200.0)
     stride: int = 10
+    sensors: bool = False
     solver_resets: int = field(default=0, init=False)
 
     @classmethod
@@ -200,6 +214,10 @@ class LiveSimulation:
         self.peaks = WindupPeaks(self.model.spring, self.t)
         """Peak wind-up and DMF torque (and end stops) of the recorded steps since the start
         or the last :meth:`reset`."""
+        self.live_sensors = None
+        if self.sensors and self.line.sensors:
+            self.live_sensors = LiveSensors(self.line, self.integ.model)
+            self.live_sensors.start(self.integ)
         self._rec = StepRecord.allocate(64, self.integ.model.n_dof)
         self._work = np.zeros((64, 3 * self.integ.model.n_elements))
         # ... and the compiled read-out
@@ -242,6 +260,8 @@ class LiveSimulation:
                                   factors=old.factors)
         new.a[:] = new.acceleration(new.q, new.v)
         new.set_target(self.speed_setpoint, self.speed_ramp_rpm_per_s)
+        if self.live_sensors is not None:
+            self.live_sensors.attach(new)
         self._knees += old.knee_crossings
         self._secondary += old.steps_secondary
         self.integ, self._torques, self.line, self.engine = new, torques, line, engine
@@ -370,6 +390,16 @@ class LiveSimulation:
         it.reset(self.speed_setpoint, self.load, psi=it.psi, t=it.t)
         it.set_target(self.speed_setpoint, self.speed_ramp_rpm_per_s)
         self._exc_key = None
+        if self.live_sensors is not None:
+            self.live_sensors.resync(it)
+
+    def set_sensor_faults(self, faults) -> None:
+        """The sensor faults acting from the next chunk on (objects with the fault grammar's
+        fields and ``start_s`` / ``end_s``; see
+        :meth:`dmf_sim.physics.sensor_signals.SensorSynthesizer.set_faults`); ignored without
+        sensors."""
+        if self.live_sensors is not None:
+            self.live_sensors.set_faults(faults)
 
     # ---- state ------------------------------------------------------------------------------
     @property
@@ -460,9 +490,11 @@ class LiveSimulation:
         row = 0
         events: list[FaultEvent] = []
         parts: list[np.ndarray] = []
+        if self.live_sensors is not None and self.faults is not None:
+            self.live_sensors.set_faults(fault_windows(self.faults))
         if self.faults is None or self.faults.idle:
             for k, s, _ in calls:
-                row += it.advance(k, record if row == 0 else record.rows_from(row), s)
+                row += self._advance(it, k, record if row == 0 else record.rows_from(row), s)
         else:
             row, parts = self._integrate_faulted(int(nsteps), record)
             events = self.faults.take_events()
@@ -473,7 +505,7 @@ class LiveSimulation:
             # Newmark (average acceleration) is unconditionally stable; a non-finite state means
             # bad input data. Never publish it: restart from static equilibrium.
             self.solver_resets += 1
-            self.reset(peaks=False)
+            self.reset(peaks=False)      # the sensors resync: the chunk's steps are dropped
             row = 0
             parts = []
         self.peaks.observe(record.windup[:row], record.t[:row])
@@ -483,7 +515,16 @@ class LiveSimulation:
         if self._torques.needs_loads:
             done = sum(len(p) for p in parts)
             loads = np.concatenate(parts + [it.element_loads(record.psi[done:row], omega_dot)])
-        return Integrated(record, row, first, omega_dot, loads, events)
+        # a caller's record is read out later (dmf-sim run's pipeline): the signals copied
+        sensors = (self.live_sensors.finish(copy=record is not self._rec)
+                   if self.live_sensors is not None else None)
+        return Integrated(record, row, first, omega_dot, loads, events, sensors)
+
+    def _advance(self, it: NewmarkIntegrator, nsteps: int, record: StepRecord,
+                 stride: int) -> int:
+        """``it.advance``, the sensor DOFs of the steps tracked when the sensors are on."""
+        return it.advance(nsteps, record, stride, None if self.live_sensors is None
+                          else self.live_sensors.next_rows(nsteps))
 
     def _integrate_faulted(self, nsteps: int, record: StepRecord) -> tuple[int, list]:
         """The kernel over ``nsteps`` steps in parts that end where the fault timeline changes
@@ -501,7 +542,7 @@ class LiveSimulation:
             start = row
             calls, phase = split_steps(k, phase, self.stride)
             for n, s, _ in calls:
-                row += it.advance(n, record if row == 0 else record.rows_from(row), s)
+                row += self._advance(it, n, record if row == 0 else record.rows_from(row), s)
             done += k
             if changed:             # (a scan that changes nothing took the remaining steps)
                 if self._torques.needs_loads:
@@ -526,4 +567,5 @@ class LiveSimulation:
             rec.q[:row], rec.v[:row], rec.a[:row], w, psi, chunk.omega_dot, chunk.loads, work)
         return Samples(step=chunk.first + self.stride * np.arange(row, dtype=np.int64),
                        t=rec.t[:row], psi=psi, speed_rpm=rec.omega[:row] * RAD_S_TO_RPM,
-                       windup=w, position=position, velocity=velocity, effort=effort)
+                       windup=w, position=position, velocity=velocity, effort=effort,
+                       sensors=chunk.sensors)

@@ -19,17 +19,24 @@ message per event, the last :data:`GROUND_TRUTH_DEPTH` for a late joiner (the ba
 The subscriptions (:data:`SUBSCRIPTIONS`, setpoints and fault requests) are commands: reliable and
 keep-all. ``/clock`` (:data:`CLOCK`) is advertised only while it is published and not recorded.
 ``driveline_node --help`` prints these tables (:func:`dmf_sim.node.usage`).
+
+:data:`STREAMS` is what every node publishes. The sensors depend on the driveline
+(:mod:`dmf_sim.physics.sensors`): :func:`streams_for` adds theirs — ``edges/<wheel>`` (edge
+batches, ``sensors/<wheel>/edges``) and ``bus/<signal>`` (``vehicle_bus/<signal>``), layouts in
+:mod:`dmf_sim.bags.sensor_messages` — and every place that must agree takes that table.
 """
 from __future__ import annotations
 
 from typing import Any, NamedTuple
 
+from dmf_sim.bags.sensor_messages import BUS_TYPE, EDGES_TYPE, bus_topic, edge_topic
 from dmf_sim.core.names import check_namespace
 from dmf_sim.monitor.messages import TOPIC_CYCLE, TOPIC_PREDICTED
 
 __all__ = ['DIAGNOSTICS_DEPTH', 'GROUND_TRUTH_DEPTH', 'LATCHED_DEPTH', 'SAMPLE_STREAMS',
            'STATUS_STREAMS', 'STREAMS', 'STREAM_DEPTH', 'PUBLISHED', 'CLOCK', 'Stream',
-           'Subscription', 'SUBSCRIPTIONS', 'Service', 'SERVICES', 'resolved_topics']
+           'SENSOR_STREAMS', 'Subscription', 'SUBSCRIPTIONS', 'Service', 'SERVICES',
+           'edge_key', 'bus_key', 'sensor_streams', 'streams_for', 'resolved_topics']
 
 STREAM_DEPTH = 100          # 0.1 s of samples at 1 kHz for a subscriber that falls behind
 DIAGNOSTICS_DEPTH = 10      # status arrays (1 Hz health, one per engine cycle)
@@ -42,8 +49,9 @@ class Stream(NamedTuple):
     with '/'), ROS type, history depth, latched (transient-local durability), and when it is
     published: per ``'sample'`` (publish_rate), ``'diagnostics'`` (diagnostics_rate),
     ``'cycle'`` (per engine cycle), ``'setpoint'`` (when the setpoint changes), ``'fault'``
-    (when a fault starts or ends, a combustion misfires) or ``'clock'`` (with the samples,
-    while /clock is on); what it carries, for people."""
+    (when a fault starts or ends, a combustion misfires), ``'edges'`` (per publish tick, when a
+    tooth wheel has edges), ``'bus'`` (when a bus value is delivered) or ``'clock'`` (with
+    the samples, while /clock is on); what it carries, for people."""
 
     topic: str
     msgtype: str
@@ -90,8 +98,18 @@ CLOCK = Stream('/clock', 'rosgraph_msgs/msg/Clock', LATCHED_DEPTH, per='clock',
 """/clock: not in :data:`STREAMS` (not recorded; advertised only while published)."""
 PUBLISHED = {'sample': 'every sample (publish_rate)', 'diagnostics': 'diagnostics_rate',
              'cycle': 'per engine cycle', 'setpoint': 'when the setpoint changes',
-             'fault': 'per fault event', 'clock': 'with the samples'}
+             'fault': 'per fault event', 'edges': 'a batch per publish tick with edges',
+             'bus': 'when the bus delivers a value', 'clock': 'with the samples'}
 """When a stream is published (:attr:`Stream.per`), for people."""
+SENSOR_STREAMS = {
+    'edges': Stream(edge_topic('<wheel>'), EDGES_TYPE, STREAM_DEPTH, per='edges',
+                    what="the tooth edges of each tooth wheel of the driveline YAML's sensors "
+                         '(layout: dmf_sim.bags.sensor_messages); parameter sensors'),
+    'bus': Stream(bus_topic('<signal>'), BUS_TYPE, STREAM_DEPTH, per='bus',
+                  what="each bus signal of the driveline YAML's sensors: speed [rpm]"),
+}
+"""The sensors' streams, one per tooth wheel and bus signal (:func:`sensor_streams`): reliable,
+keep-last :data:`STREAM_DEPTH` as the samples; the topic names the sensor."""
 
 
 class Subscription(NamedTuple):
@@ -130,9 +148,37 @@ SERVICES: dict[str, Service] = {
 }
 
 
-def resolved_topics(namespace: str = '') -> dict[str, str]:
+def edge_key(wheel: str) -> str:
+    """The stream key of a tooth wheel's edge batches."""
+    return f'edges/{wheel}'
+
+
+def bus_key(signal: str) -> str:
+    """The stream key of a bus signal."""
+    return f'bus/{signal}'
+
+
+def sensor_streams(sensors) -> dict[str, Stream]:
+    """The streams of a :class:`~dmf_sim.physics.sensors.SensorSet`: each tooth wheel's edge
+    batches, each bus signal (:data:`SENSOR_STREAMS` with the sensor's name)."""
+    edges, bus = SENSOR_STREAMS['edges'], SENSOR_STREAMS['bus']
+    out = {edge_key(w.name): edges._replace(topic=edge_topic(w.name))
+           for w in sensors.tooth_wheels}
+    out.update({bus_key(b.name): bus._replace(topic=bus_topic(b.name))
+                for b in sensors.bus_signals})
+    return out
+
+
+def streams_for(sensors=None) -> dict[str, Stream]:
+    """The streams of a node or run: :data:`STREAMS`, and those of ``sensors`` (a
+    :class:`~dmf_sim.physics.sensors.SensorSet`; None or empty: no sensors)."""
+    return {**STREAMS, **sensor_streams(sensors)} if sensors else dict(STREAMS)
+
+
+def resolved_topics(namespace: str = '', streams: dict[str, Stream] | None = None
+                    ) -> dict[str, str]:
     """Stream key -> absolute topic name under ``namespace`` ('' = none), as rclpy resolves
-    the relative names (absolute ones stay)."""
+    the relative names (absolute ones stay); ``streams``: default :data:`STREAMS`."""
     ns = check_namespace(namespace, 'namespace')
     return {k: (s.topic if s.topic.startswith('/') else f'{ns}/{s.topic}')
-            for k, s in STREAMS.items()}
+            for k, s in (STREAMS if streams is None else streams).items()}

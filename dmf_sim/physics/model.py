@@ -31,6 +31,7 @@ from dmf_sim.core.deprecation import renamed
 from dmf_sim.core.errors import ConfigError
 from dmf_sim.core.paths import read_yaml_mapping
 from dmf_sim.core.validation import as_number, bounded, check_keys, field_error
+from dmf_sim.physics.sensors import SensorSet, parse_sensors
 from dmf_sim.physics.spring import PiecewiseLinearSpring, Stage
 
 __all__ = ['ELEMENT_KEYS', 'TOP_KEYS_REQUIRED', 'TOP_KEYS_OPTIONAL', 'DMF_KEYS_REQUIRED',
@@ -40,7 +41,8 @@ __all__ = ['ELEMENT_KEYS', 'TOP_KEYS_REQUIRED', 'TOP_KEYS_OPTIONAL', 'DMF_KEYS_R
 
 ELEMENT_KEYS = ('name', 'ratio', 'stiffness', 'damping', 'inertia')
 TOP_KEYS_REQUIRED = ('name', 'elements')
-TOP_KEYS_OPTIONAL = ('description', 'cylinders', 'firing_phases_deg', 'rear_load_element', 'dmf')
+TOP_KEYS_OPTIONAL = ('description', 'cylinders', 'firing_phases_deg', 'rear_load_element', 'dmf',
+                     'sensors')
 DMF_KEYS_REQUIRED = ('element',)
 DMF_KEYS_OPTIONAL = ('stiffness', 'stages', 'coast_stages', 'theta_rad', 'alpha', 'coast')
 COAST_KEYS = ('theta_rad', 'alpha')
@@ -94,7 +96,9 @@ class DMFSpec:
 
 @dataclass(frozen=True)
 class Driveline:
-    """A validated driveline description (element level, as in the YAML)."""
+    """A validated driveline description (element level, as in the YAML); ``sensors``: its
+    tooth wheels and bus signals (:mod:`dmf_sim.physics.sensors`, empty without a
+    ``sensors:`` section)."""
 
     name: str
     elements: tuple[Element, ...]
@@ -103,6 +107,7 @@ class Driveline:
     rear_load_element: str | None = None
     dmf: DMFSpec | None = None
     description: str = ''
+    sensors: SensorSet = SensorSet()
 
     @property
     def names(self) -> list[str]:
@@ -317,7 +322,8 @@ def driveline_from_dict(data: dict, source: str = 'driveline') -> Driveline:
 
     line = Driveline(name=str(data['name']), elements=elements, cylinders=cylinders,
                      firing_phases_deg=phases, rear_load_element=rear,
-                     description=str(data.get('description') or ''))
+                     description=str(data.get('description') or ''),
+                     sensors=parse_sensors(data.get('sensors'), names))
     raw_dmf = data.get('dmf')
     if raw_dmf is not None:
         dmf = _parse_dmf(raw_dmf, names)

@@ -121,6 +121,7 @@ class NewmarkIntegrator:
         self._scal = np.zeros(6)  # t, psi, omega, omega_target, ramp, omega_dot
         self._state = (self.q, self.v, self.a, self._scal)
         self._counters = np.zeros(4, dtype=np.int64)  # crossings, drive stage, coast stage, splits
+        self.track_dofs = np.zeros(0, dtype=np.int64)
         self.load = 0.0
         self._rear_torque = 0.0
         #: per-cylinder combustion factors of the excitation (None: every cylinder fires)
@@ -245,21 +246,40 @@ class NewmarkIntegrator:
         return p
 
     # ---- stepping ------------------------------------------------------------------------
-    def advance(self, nsteps: int, record: StepRecord | None = None, stride: int = 1) -> int:
+    def set_tracked(self, dofs) -> None:
+        """DOFs whose angle and velocity :meth:`advance` writes every step into its ``track``
+        rows (the sensors' elements); empty: none."""
+        self.track_dofs = np.ascontiguousarray(dofs, dtype=np.int64)
+
+    def track_columns(self) -> int:
+        """Columns of a ``track`` row: t [s], psi [rad], omega [rad/s], then the tracked DOFs'
+        angles [rad] and velocities [rad/s]."""
+        return 3 + 2 * len(self.track_dofs)
+
+    def advance(self, nsteps: int, record: StepRecord | None = None, stride: int = 1,
+                track: np.ndarray | None = None) -> int:
         """Advance ``nsteps`` steps; every ``stride`` steps write the state into ``record``
-        (rows from 0; needs nsteps // stride rows). Returns the number of rows written."""
+        (rows from 0; needs nsteps // stride rows); with ``track`` ((>= nsteps, track_columns())
+        float64, C order), every step's tracked DOFs (:meth:`set_tracked`) into its rows from 0.
+        Returns the number of rows of ``record`` written."""
         if record is None:
             record = self._scratch(max(nsteps // stride, 1))
             stride = max(nsteps, 1)
         out = (record.t, record.psi, record.omega, record.q, record.v, record.a, record.windup)
+        tracked = None                  # the kernel as it is without sensors
+        if track is not None and len(self.track_dofs):
+            if track.shape[0] < nsteps or track.shape[1] != self.track_columns():
+                raise ValueError(f'track rows {track.shape}: need ({nsteps}, '
+                                 f'{self.track_columns()})')
+            tracked = (self.track_dofs, track)
         if self.use_numba:
             rows = kernel.advance_compiled(int(nsteps), int(stride), self._state, self._system,
                                            self._factors, self._spring, self._excitation, out,
-                                           self._counters)
+                                           self._counters, tracked)
         else:
             rows = kernel.advance_reference(int(nsteps), int(stride), self._state, self._system,
                                             self._factors, self.model.spring, self._excitation,
-                                            out, self._counters)
+                                            out, self._counters, tracked)
         record.count = rows
         self.knee_crossings, self.steps_secondary, self.steps_coast, self.split_steps = (
             self._counters.tolist())

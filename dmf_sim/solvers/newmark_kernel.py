@@ -43,6 +43,10 @@ Packed arguments (all float64 unless noted):
 * ``spring`` = (knees, slopes, offsets, primary_index) from ``PiecewiseLinearSpring.arrays()``
 * ``excitation`` = (B complex (n_cyl, N+1), cyl_dof int64, cyl_scale, dal, fixed)
 * ``out`` = (t, psi, omega, q, v, a, w) recorded every ``stride`` steps
+* ``track`` = (dofs int64 (k,), rows (nsteps, 3 + 2k)): every step's t, psi, omega and the
+  angles and velocities of DOFs ``dofs`` (the sensors' elements), row j = step j; or None (no
+  sensors): numba compiles that call without the tracking at all (its dead-branch pruning of
+  ``track is not None`` on a None argument), so the kernel without sensors is the one it was
 * ``counters`` int64 = [knee crossings, steps beyond a drive knee, steps beyond a coast knee,
   steps split at a knee]
 """
@@ -183,9 +187,11 @@ def regular_block(nb, h, scal, Br, Bi, blk_scal, blk_cyl, cr, ci, zr, zi):
 # The kernel
 # ------------------------------------------------------------------------------------------------
 
-def advance_kernel(nsteps, stride, state, system, factors, spring, excitation, out, counters):
+def advance_kernel(nsteps, stride, state, system, factors, spring, excitation, out, counters,
+                   track):
     """Advance ``nsteps`` Newmark steps of factors[0][0] seconds in place; every ``stride`` steps
-    write the state into ``out`` (row j = step // stride). Returns the rows written.
+    write the state into ``out`` (row j = step // stride), every step the tracked DOFs into
+    ``track`` (when it tracks any). Returns the rows written.
 
     One loop body does every (sub)step: the regular step with the precomputed factors, or a piece
     of a step split at a knee with factors for its length (:func:`factor`). The body is written
@@ -395,6 +401,16 @@ def advance_kernel(nsteps, stride, state, system, factors, spring, excitation, o
             counters[2] += 1
         r_prev = r
         w_prev = w
+        if track is not None:
+            track_dofs = track[0]
+            track_rows = track[1]
+            nt = track_dofs.shape[0]
+            track_rows[step, 0] = scal[0]
+            track_rows[step, 1] = scal[1]
+            track_rows[step, 2] = scal[2]
+            for i in range(nt):
+                track_rows[step, 3 + i] = q[track_dofs[i]]
+                track_rows[step, 3 + nt + i] = v[track_dofs[i]]
         if (step + 1) % stride == 0:
             out_t[j] = scal[0]
             out_psi[j] = scal[1]
@@ -425,7 +441,7 @@ advance_compiled = jit(advance_kernel, fastmath={'reassoc', 'contract'})
 # ------------------------------------------------------------------------------------------------
 
 def advance_reference(nsteps, stride, state, system, factors, spring_obj, excitation, out,
-                      counters):
+                      counters, track):
     """Readable numpy version of :func:`advance_kernel` (same packed arguments, but the spring
     object instead of its arrays): dense matrices, ``numpy.linalg.solve`` and Newton on the
     condensed DMF equation with the spring's own torque and tangent."""
@@ -505,6 +521,10 @@ def advance_reference(nsteps, stride, state, system, factors, spring_obj, excita
         counters[1] += r > p
         counters[2] += r < p
         r_prev, w_prev = r, w
+        if track is not None:
+            dofs, rows = track
+            rows[n_step, :3] = scal[:3]
+            rows[n_step, 3:] = np.concatenate([q[dofs], v[dofs]])
         if (n_step + 1) % stride == 0:
             out_t, out_psi, out_omega, out_q, out_v, out_a, out_w = out
             out_t[j], out_psi[j], out_omega[j], out_w[j] = scal[0], scal[1], scal[2], w

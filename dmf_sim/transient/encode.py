@@ -1,4 +1,5 @@
-"""The node's sample messages as CDR bytes, a block of samples at a time (numpy, no rclpy).
+"""The node's sample messages as CDR bytes, a block of samples at a time (numpy, no rclpy); the
+sensor messages of ``dmf-sim run`` likewise (:class:`SensorBlock`).
 
 The node serializes every sample into a ``sensor_msgs/JointState`` (stamp; one name per element;
 position = vibratory angle, velocity, effort = transmitted torque) and three ``std_msgs/Float64``
@@ -20,11 +21,12 @@ from collections.abc import Sequence
 import numpy as np
 
 from dmf_sim.bags.columns import FLOAT64, JOINT_STATE, joint_state_layout
+from dmf_sim.bags.sensor_messages import FLOAT64_BYTES, encode_sensor_messages
 from dmf_sim.live.simulation import Samples
 from dmf_sim.live.streams import SAMPLE_STREAMS, STREAMS
 from dmf_sim.monitor.messages import StatusData
 
-__all__ = ['SampleEncoder', 'EncodedBlock', 'StatusEncoder']
+__all__ = ['SampleEncoder', 'EncodedBlock', 'StatusEncoder', 'SensorBlock']
 
 # the Float64 sample streams (SAMPLE_STREAMS after the joint states): the Samples field each
 # carries
@@ -32,7 +34,6 @@ _FLOAT_FIELDS = {'dmf_windup': 'windup', 'speed': 'speed_rpm', 'crank_angle': 'p
 
 _NS_PER_S = 1_000_000_000
 _DIAGNOSTIC_ARRAY = 'diagnostic_msgs/msg/DiagnosticArray'
-_FLOAT64_BYTES = 12            # CDR header 4 + float64 8
 
 
 def _typestore():
@@ -68,13 +69,13 @@ class SampleEncoder:
         f64 = store.types[FLOAT64]
         self.float_template = np.frombuffer(bytes(store.serialize_cdr(f64(data=0.0), FLOAT64)),
                                             np.uint8)
-        if len(self.float_template) != _FLOAT64_BYTES:
+        if len(self.float_template) != FLOAT64_BYTES:
             raise ValueError('unexpected Float64 layout')
 
     @property
     def sample_bytes(self) -> int:
         """Payload bytes of one sample: its JointState and its Float64 messages."""
-        return len(self.template) + (len(SAMPLE_STREAMS) - 1) * _FLOAT64_BYTES
+        return len(self.template) + (len(SAMPLE_STREAMS) - 1) * FLOAT64_BYTES
 
     def joint_states(self, stamps_ns: np.ndarray, position: np.ndarray, velocity: np.ndarray,
                      effort: np.ndarray) -> np.ndarray:
@@ -103,7 +104,7 @@ class SampleEncoder:
 
     def floats(self, values: np.ndarray) -> np.ndarray:
         """(rows, 12) uint8: one Float64 per row."""
-        out = np.empty((len(values), _FLOAT64_BYTES), np.uint8)
+        out = np.empty((len(values), FLOAT64_BYTES), np.uint8)
         out[:, :4] = self.float_template[:4]
         _float_field(out, 4, 1)[:, 0] = values
         return out
@@ -150,7 +151,7 @@ class EncodedBlock:
         self.encoder = encoder
         self.stamps = np.empty(rows, np.int64)
         self.topics = [topics[k] for k in SAMPLE_STREAMS]
-        sizes = [len(encoder.template)] + [_FLOAT64_BYTES] * (len(SAMPLE_STREAMS) - 1)
+        sizes = [len(encoder.template)] + [FLOAT64_BYTES] * (len(SAMPLE_STREAMS) - 1)
         if recorder is not None:      # encode into the records the bag recorder writes
             self.js, *self.fl = recorder.block_payloads(self.topics, sizes, rows)
         else:
@@ -184,3 +185,85 @@ class EncodedBlock:
         n, self.n = self.n, 0
         self.encoder.stamp(self.js[:n], self.stamps[:n])
         return self.stamps[:n], list(zip(self.topics, [self.js[:n]] + [f[:n] for f in self.fl]))
+
+
+class SensorBlock:
+    """The sensor messages of ``dmf-sim run``, gathered chunk by chunk and encoded and written
+    at once (:func:`dmf_sim.bags.sensor_messages.encode_sensor_messages`,
+    :meth:`dmf_sim.bags.writer.BagRecorder.write_messages`), as the node sends them: per wheel
+    one edge batch per sample period with the edges captured in it (logged at the period's end
+    sample, as the node logs a publish tick's batch at its end; none when empty), and one
+    ``Float64`` per bus value at its delivery (layouts: :mod:`dmf_sim.bags.sensor_messages`).
+
+    ``topics``: stream key -> topic (:func:`dmf_sim.live.streams.resolved_topics` of the run's
+    streams); ``sample_period_s``: the bag's sample period (1 / rate); ``epoch_ns``: the stamp
+    of simulated time 0 (:class:`dmf_sim.live.pacing.TimeBase`)."""
+
+    def __init__(self, wheel_names: Sequence[str], signal_names: Sequence[str],
+                 topics: dict[str, str], sample_period_s: float, epoch_ns: int) -> None:
+        from dmf_sim.live.streams import bus_key, edge_key
+        self.wheel_names = tuple(wheel_names)
+        self.signal_names = tuple(signal_names)
+        self.topics = ([topics[edge_key(w)] for w in wheel_names]
+                       + [topics[bus_key(b)] for b in signal_names])
+        self.period_ns = sample_period_s * _NS_PER_S
+        self.epoch_ns = int(epoch_ns)
+        self._edges: list[list[np.ndarray]] = [[] for _ in self.wheel_names]
+        self._bus: list[list[tuple[np.ndarray, np.ndarray]]] = [[] for _ in self.signal_names]
+
+    def add(self, chunk) -> None:
+        """A :class:`~dmf_sim.physics.sensor_signals.SensorChunk`'s signals (its own arrays)."""
+        for w, n in enumerate(chunk.edge_counts):
+            if n:
+                self._edges[w].append(chunk.edge_rows(w))
+        for b, n in enumerate(chunk.bus_counts):
+            if n:
+                self._bus[b].append(chunk.bus_of(b))
+
+    def take(self, upto_ns: int | None = None
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The messages gathered with log times up to ``upto_ns`` (None: all), encoded, in
+        log-time order, as :meth:`~dmf_sim.bags.writer.BagRecorder.write_messages` takes them
+        (log times, topic indexes into :attr:`topics`, payload, offsets); the later ones
+        stay."""
+        limit = np.inf if upto_ns is None else upto_ns - self.epoch_ns    # simulated ns
+        rows, groups, logs, topic = [], [], [], []
+        at = 0
+        for w, parts in enumerate(self._edges):
+            if not parts:
+                continue
+            r = np.concatenate(parts) if len(parts) > 1 else parts[0]
+            period = np.ceil(r[:, 0] / self.period_ns)
+            log = np.rint(period * self.period_ns).astype(np.int64)
+            n = int(np.searchsorted(log, limit, side='right'))
+            self._edges[w] = [r[n:]] if n < len(r) else []
+            if not n:
+                continue
+            starts = np.flatnonzero(np.diff(log[:n], prepend=-1))
+            counts = np.diff(np.append(starts, n))
+            rows.append(r[:n])
+            groups.append(np.stack([starts + at, counts], axis=1))
+            logs.append(log[starts])
+            topic.append(np.full(len(starts), w))
+            at += n
+        values = []
+        for b, parts in enumerate(self._bus):
+            if not parts:
+                continue
+            ns = np.concatenate([p[0] for p in parts])
+            rpm = np.concatenate([p[1] for p in parts])
+            n = int(np.searchsorted(ns, limit, side='right'))
+            self._bus[b] = [(ns[n:], rpm[n:])] if n < len(ns) else []
+            values.append(rpm[:n])
+            logs.append(ns[:n])
+            topic.append(np.full(n, len(self.wheel_names) + b))
+        if not logs:
+            return (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.uint8),
+                    np.zeros(1, np.int64))
+        log = np.concatenate(logs)
+        order = np.argsort(log, kind='stable')
+        payload, offsets = encode_sensor_messages(
+            np.concatenate(rows) if rows else np.zeros((0, 3), np.int64),
+            np.concatenate(groups) if groups else np.zeros((0, 2), np.int64),
+            np.concatenate(values) if values else np.zeros(0), order, self.epoch_ns)
+        return self.epoch_ns + log[order], np.concatenate(topic)[order], payload, offsets

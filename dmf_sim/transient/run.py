@@ -23,6 +23,9 @@ the live core follows their :class:`~dmf_sim.physics.faults.FaultTimeline` (time
 profile's); their ground truth goes into the bag as the node publishes it
 (:mod:`dmf_sim.live.faults`: one ``faults/ground_truth`` message per event, ``faults/active``
 at the start and whenever the set changes), each written after the chunk it fell in.
+With sensors (``RunOptions.sensors``, the default; the driveline YAML's ``sensors:``), the bag
+also holds the node's sensor topics, the same layouts and the edge batches per sample period
+(:class:`dmf_sim.transient.encode.SensorBlock`).
 
 Two threads (``RunOptions.threads`` 2, the default when the process may use two CPUs, see
 :func:`dmf_sim.transient.defaults.default_threads`): the chunks are integrated
@@ -62,7 +65,7 @@ from dmf_sim.live.pacing import TimeBase, publish_stride
 from dmf_sim.live.parameters import PARAMETERS
 from dmf_sim.live.recording import run_metadata
 from dmf_sim.live.simulation import Integrated, LiveSimulation
-from dmf_sim.live.streams import SAMPLE_STREAMS, STREAMS, resolved_topics
+from dmf_sim.live.streams import SAMPLE_STREAMS, resolved_topics, streams_for
 from dmf_sim.monitor.messages import StatusData
 from dmf_sim.solvers.newmark import StepRecord
 from dmf_sim.transient.defaults import CHUNK_RANGE_S, DEFAULT_CHUNK_S, default_threads
@@ -109,7 +112,8 @@ class RunOptions:
     threads: 1 integrates and writes in turn, 2 integrates the next chunks in a thread of its own
     while this one reads out and writes the last ones (the same bag, byte for byte); default
     :func:`~dmf_sim.transient.defaults.default_threads`. faults: a fault schedule file (YAML
-    ``faults: [...]``) or None.
+    ``faults: [...]``) or None; sensors: the driveline's sensor signals in the bag (False: none,
+    at no cost).
     """
 
     driveline: str = 'truck_dmf'
@@ -126,6 +130,7 @@ class RunOptions:
     namespace: str = ''
     threads: int = field(default_factory=default_threads)
     faults: str | None = None
+    sensors: bool = True
 
     def __post_init__(self) -> None:
         self.namespace = check_namespace(self.namespace, 'namespace')
@@ -219,7 +224,7 @@ def build_simulation(profile: Profile, opt: RunOptions) -> LiveSimulation:
     try:
         sim = LiveSimulation(line, engine, dt=opt.dt, speed_rpm=float(profile.speed_rpm[0]),
                              load=float(profile.load[0]), speed_limits_rpm=(lo_lim, hi_lim),
-                             stride=stride)
+                             stride=stride, sensors=opt.sensors)
     except OperatingRangeError:
         raise
     except ValueError as exc:
@@ -249,13 +254,14 @@ def open_bag(out, sim: LiveSimulation, profile: Profile, opt: RunOptions, rate_h
     """A new bag with the node's topics and this run's metadata (never overwrites)."""
     from dmf_sim.bags.writer import BagRecorder
 
-    topics = resolved_topics(opt.namespace)
+    streams = streams_for(sim.line.sensors if sim.live_sensors is not None else None)
+    topics = resolved_topics(opt.namespace, streams)
     meta = run_metadata(sim, driveline=opt.driveline, engine=opt.engine, node=WRITER_NAME,
                         publish_rate_hz=rate_hz)
     custom = replace(meta, profile=profile.name,
                      settle_s=profile.start_settle_s).to_custom_data()
-    return BagRecorder(out, {topics[k]: s.msgtype for k, s in STREAMS.items()},
-                       qos={topics[k]: s.qos_profile() for k, s in STREAMS.items()},
+    return BagRecorder(out, {topics[k]: s.msgtype for k, s in streams.items()},
+                       qos={topics[k]: s.qos_profile() for k, s in streams.items()},
                        max_duration_s=opt.split_s, custom_data=custom), topics
 
 
@@ -408,12 +414,25 @@ class _Integrating:
         self.thread.join()
 
 
-def bag_bytes(sim: LiveSimulation, samples: int) -> float:
+def bag_bytes(sim: LiveSimulation, samples: int, profile: Profile | None = None) -> float:
     """About how many bytes a run's bag of ``samples`` samples takes (the sample messages'
-    payloads and MCAP records; the latched messages and the summary are small beside them)."""
+    payloads and MCAP records, and with sensors and ``profile`` theirs at its highest speed;
+    the latched messages and the summary are small beside them)."""
+    from dmf_sim.bags.sensor_messages import EDGE_HEADER_BYTES, EDGE_ROW_BYTES, FLOAT64_BYTES
     from dmf_sim.transient.encode import SampleEncoder
     per_sample = SampleEncoder(sim.names).sample_bytes
-    return samples * (per_sample + len(SAMPLE_STREAMS) * MESSAGE_OVERHEAD_BYTES)
+    total = samples * (per_sample + len(SAMPLE_STREAMS) * MESSAGE_OVERHEAD_BYTES)
+    if sim.live_sensors is None or profile is None:
+        return total
+    seconds, rpm = profile.duration_s, float(profile.speed_rpm.max())
+    sensors, line = sim.line.sensors, sim.line
+    for w in sensors.tooth_wheels:        # every edge; at most one batch per sample
+        edges = w.present_teeth * rpm / 60.0 / abs(sim.model.R[line.index(w.element)]) * seconds
+        total += (edges * EDGE_ROW_BYTES
+                  + min(edges, samples) * (EDGE_HEADER_BYTES + MESSAGE_OVERHEAD_BYTES))
+    for b in sensors.bus_signals:
+        total += seconds / b.period_s * (FLOAT64_BYTES + MESSAGE_OVERHEAD_BYTES)
+    return total
 
 
 def run_profile(profile: Profile, out: str | Path | None, options: RunOptions | None = None, *,
@@ -436,7 +455,7 @@ def run_profile(profile: Profile, out: str | Path | None, options: RunOptions | 
                           f'{MIN_SAMPLES}: raise the rate')
     if not write:
         return _stream(profile, None, opt, sim, progress)
-    check_free_space(out, bag_bytes(sim, samples_due),
+    check_free_space(out, bag_bytes(sim, samples_due, profile),
                      f'the bag ({samples_due} samples at {rate_hz:g} Hz)',
                      'shorten the profile or lower --rate',
                      freed_bytes=destination.replaced_bytes() if destination else 0)
@@ -447,7 +466,7 @@ def run_profile(profile: Profile, out: str | Path | None, options: RunOptions | 
 def _stream(profile: Profile, out, opt: RunOptions, sim: LiveSimulation,
             progress: bool) -> RunSummary:
     """The run itself (:func:`run_profile`): ``out`` None writes nothing."""
-    from dmf_sim.transient.encode import EncodedBlock, SampleEncoder, StatusEncoder
+    from dmf_sim.transient.encode import EncodedBlock, SampleEncoder, SensorBlock, StatusEncoder
 
     rate_hz = 1.0 / (sim.stride * sim.dt)
     write = out is not None
@@ -461,12 +480,38 @@ def _stream(profile: Profile, out, opt: RunOptions, sim: LiveSimulation,
              else None)
     statuses = StatusEncoder() if write else None
     health = _Health(sim, 1.0 / opt.diagnostics_hz)
+    ls = sim.live_sensors
+    sensors = (SensorBlock(ls.wheel_names, ls.signal_names, topics, sim.stride * sim.dt,
+                           timebase.epoch_ns) if write and ls is not None else None)
     max_rows = chunk // stride + 1
     work = np.zeros((max_rows, 3 * sim.model.n_elements))
 
-    def write_out() -> None:
-        if block is not None and block.n:
-            recorder.write_block(*block.take())
+    def write_out(final: bool = False) -> None:
+        stamps, payloads = block.take() if block is not None else (np.zeros(0, np.int64), [])
+        if sensors is None:
+            if len(stamps):
+                recorder.write_block(stamps, payloads)
+            return
+        # the sensor messages up to the last sample, interleaved with the samples file by
+        # file (each call's messages before the current file's end), so every split file
+        # holds its own time span as the node's recording does
+        log, topic, payload, offsets = sensors.take(None if final or not len(stamps)
+                                                    else int(stamps[-1]))
+        i = j = 0
+        while i < len(stamps) or j < len(log):
+            first = min(stamps[i] if i < len(stamps) else log[j],
+                        log[j] if j < len(log) else stamps[i])
+            end = recorder.file_end_ns(int(first))
+            if end <= first:           # the next call starts a new file at `first`
+                end = int(first) + int(opt.split_s * 1e9)
+            i2 = int(np.searchsorted(stamps, end, side='left'))
+            j2 = int(np.searchsorted(log, end, side='left'))
+            if i2 > i:
+                recorder.write_block(stamps[i:i2], [(tp, p[i:i2]) for tp, p in payloads])
+            if j2 > j:
+                recorder.write_messages(log[j:j2], topic[j:j2], sensors.topics, payload,
+                                        offsets[j:j2 + 1])
+            i, j = i2, j2
 
     active = ActiveFaults()
     counts = {'events': 0, 'misfires': 0}
@@ -518,6 +563,8 @@ def _stream(profile: Profile, out, opt: RunOptions, sim: LiveSimulation,
                 samples += rows
                 start = 0
                 stamps = timebase.stamps_ns(s.t) if block is not None else None
+                if sensors is not None and s.sensors is not None:
+                    sensors.add(s.sensors)
                 while block is not None and start < rows:
                     k = min(block.free, rows - start)
                     block.add(s, stamps, start, start + k)
@@ -546,7 +593,7 @@ def _stream(profile: Profile, out, opt: RunOptions, sim: LiveSimulation,
                 bar.close()
             if recorder is not None:
                 try:
-                    write_out()         # the samples gathered so far, also after Ctrl-C
+                    write_out(final=True)   # what was gathered so far, also after Ctrl-C
                 finally:
                     recorder.close()
     wall, cpu = time.perf_counter() - t_wall, time.process_time() - t_cpu

@@ -1,0 +1,144 @@
+"""The live core's sensors, without ROS: per chunk of Newmark steps, the sensor signals of that
+chunk, and the messages that carry them.
+
+:class:`LiveSensors` is what :class:`dmf_sim.live.simulation.LiveSimulation` holds when its
+sensors are on (the node's ``sensors`` parameter, ``dmf-sim run`` without ``--no-sensors``):
+it has the integrator write the sensor elements' DOFs every step into its rows
+(:meth:`next_rows`, one slice per kernel call of a chunk), and turns a chunk's rows into
+signals (:meth:`finish`: :class:`dmf_sim.physics.sensor_signals.SensorSynthesizer`). With the
+sensors off there is no :class:`LiveSensors`: the kernel tracks nothing and nothing else runs.
+
+:class:`SensorMessages` turns a chunk's signals into the node's messages (stream key, log time,
+CDR bytes; layouts in :mod:`dmf_sim.bags.sensor_messages`): an edge batch per wheel with edges,
+logged at the chunk's end, and a Float64 per bus value delivered, logged at its delivery.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+from typing import Sequence
+
+import numpy as np
+
+from dmf_sim.bags.sensor_messages import encode_edges, float64_bytes
+from dmf_sim.live.streams import bus_key, edge_key
+from dmf_sim.physics.faults import SENSOR_KINDS
+from dmf_sim.physics.sensor_signals import SensorChunk, SensorSynthesizer
+
+__all__ = ['LiveSensors', 'SensorMessages', 'fault_windows']
+
+_INITIAL_ROWS = 256           # steps per chunk the row buffer holds before it grows
+
+
+def fault_windows(timeline) -> list:
+    """The sensor faults of a :class:`~dmf_sim.physics.faults.FaultTimeline` not ended yet,
+    each with the window it acts in (``start_s``/``end_s``: started or scheduled start, ended or
+    scheduled end; None = open), as the synthesis applies them per edge and per bus value. Taken
+    before a chunk runs: nothing starts or ends inside it but by these windows (live requests
+    come between chunks)."""
+    out = []
+    for e in timeline.entries:
+        if e.fault.kind not in SENSOR_KINDS or e.state == 'ended':
+            continue
+        start = e.started_s if e.started_s is not None else e.start_s
+        out.append(replace(e.fault, start_s=start, duration_s=None,
+                           end_s=None if math.isinf(e.end_s) else e.end_s))
+    return out
+
+
+class LiveSensors:
+    """The sensor signals of a live simulation's chunks (see the module docstring).
+
+    Args:
+        line: the driveline (its ``sensors``).
+        model: its reduced model (which DOF carries each sensor's element).
+    """
+
+    def __init__(self, line, model) -> None:
+        self.synth = SensorSynthesizer(line.sensors, model)
+        self._rows = np.zeros((_INITIAL_ROWS, self.synth.track_columns))
+        self._used = 0
+        self.faults: Sequence = ()
+
+    @property
+    def wheel_names(self) -> tuple[str, ...]:
+        return self.synth.wheel_names
+
+    @property
+    def signal_names(self) -> tuple[str, ...]:
+        return self.synth.signal_names
+
+    def attach(self, integ) -> None:
+        """Have ``integ`` (a :class:`~dmf_sim.solvers.newmark.NewmarkIntegrator`) track the
+        sensors' DOFs (a rebuilt integrator too)."""
+        integ.set_tracked(self.synth.dofs)
+
+    def state_row(self, integ) -> np.ndarray:
+        """``integ``'s state as a track row: t, psi, omega, q[dofs], v[dofs]."""
+        d = self.synth.dofs
+        return np.concatenate([[integ.t, integ.psi, integ.omega], integ.q[d], integ.v[d]])
+
+    def start(self, integ) -> None:
+        """The signals begin at ``integ``'s state (nothing emitted before)."""
+        self.attach(integ)
+        self.synth.start(self.state_row(integ))
+        self.synth.warm_up()
+        self._used = 0
+
+    def resync(self, integ) -> None:
+        """``integ``'s state jumped (a reset): continue from it, no edges for the jump."""
+        self.synth.resync(self.state_row(integ))
+        self._used = 0
+
+    def set_faults(self, faults: Sequence) -> None:
+        """The sensor faults acting from the next chunk on (see
+        :meth:`SensorSynthesizer.set_faults`)."""
+        self.faults = tuple(faults)
+
+    def next_rows(self, nsteps: int) -> np.ndarray:
+        """Rows for the next ``nsteps`` steps of this chunk (the kernel's ``track``)."""
+        end = self._used + nsteps
+        if end > self._rows.shape[0]:
+            grown = np.zeros((max(end, 2 * self._rows.shape[0]), self._rows.shape[1]))
+            grown[:self._used] = self._rows[:self._used]
+            self._rows = grown
+        rows = self._rows[self._used:end]
+        self._used = end
+        return rows
+
+    def finish(self, copy: bool = True) -> SensorChunk:
+        """The signals of the chunk's rows so far; the next rows start a new chunk. ``copy``
+        False: views valid until the next :meth:`finish` (a caller that consumes them at
+        once)."""
+        chunk = self.synth.process(self._rows[:self._used], self.faults, copy=copy)
+        self._used = 0
+        return chunk
+
+
+class SensorMessages:
+    """The node's sensor messages of a chunk: (stream key, log time [ns], CDR bytes), keys as
+    :func:`dmf_sim.live.streams.streams_for` names them."""
+
+    def __init__(self, wheel_names: Sequence[str], signal_names: Sequence[str]) -> None:
+        self.edge_keys = [edge_key(w) for w in wheel_names]
+        self.bus_keys = [bus_key(b) for b in signal_names]
+
+    def of(self, chunk: SensorChunk, epoch_ns: int, log_offset_ns: int = 0
+           ) -> list[tuple[str, int, bytes]]:
+        """Stamps = ``epoch_ns`` + simulated ns (:class:`dmf_sim.live.pacing.TimeBase`); log
+        times = stamps + ``log_offset_ns``."""
+        out = []
+        if any(chunk.edge_counts):
+            log_end = epoch_ns + int(round(chunk.t_end_s * 1e9)) + log_offset_ns
+            for w, n in enumerate(chunk.edge_counts):
+                if n:
+                    out.append((self.edge_keys[w], log_end,
+                                encode_edges(chunk.edge_rows(w), epoch_ns)))
+        if any(chunk.bus_counts):
+            for b, n in enumerate(chunk.bus_counts):
+                if n:
+                    ns, rpm = chunk.bus_of(b)
+                    key = self.bus_keys[b]
+                    for t, v in zip(ns.tolist(), rpm.tolist()):
+                        out.append((key, epoch_ns + t + log_offset_ns, float64_bytes(v)))
+        return out
