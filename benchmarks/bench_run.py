@@ -10,7 +10,9 @@ own), on the paper driveline (``truck_dmf``, ``engine_d13``, Load A, full load) 
   process); ``speed_runs`` lists every run, ``speed_min`` / ``speed_median`` both. The
   headline figures are the command's default (``threads_default``: 2 threads on a machine with
   two CPUs), the ``*_threads1`` ones ``--threads 1`` (integrating and writing in turn), the
-  ``*_threads2`` ones ``--threads 2`` (integrating in a thread of its own).
+  ``*_threads2`` ones ``--threads 2`` (integrating in a thread of its own), the
+  ``*_no_sensors`` ones ``--no-sensors`` (no tooth-wheel and bus topics: what the sensors
+  cost). ``messages_by_topic``: the messages of the first bag per topic.
 * ``breakdown_ms_per_sim_s``: where the time of one ``--threads 1`` run with the bag goes, in
   wall milliseconds per simulated second, timed in this process around the stages: the Newmark
   kernel, the excitation update and the rest of a chunk's integration, the read-out of the
@@ -82,10 +84,12 @@ def cli(*args: str) -> dict:
 
 
 def speed_runs(profile: str, work: Path, repeat: int) -> dict:
-    """``dmf-sim run`` with and without the bag, with its default threads and with 1 and 2,
-    ``repeat`` times each (alternating); per variant the wall and CPU factors of every run, min
-    and median, and the default's thread count (``threads_default``)."""
-    variants = {'': (), '_threads1': ('--threads', '1'), '_threads2': ('--threads', '2')}
+    """``dmf-sim run`` with and without the bag, with its default threads, with 1 and 2 and
+    without the sensors, ``repeat`` times each (alternating); per variant the wall and CPU
+    factors of every run, min and median, and the default's thread count
+    (``threads_default``)."""
+    variants = {'': (), '_threads1': ('--threads', '1'), '_threads2': ('--threads', '2'),
+                '_no_sensors': ('--no-sensors',)}
     runs: dict[str, list[float]] = {}
     first = None
     runs_threads = None
@@ -110,6 +114,15 @@ def speed_runs(profile: str, work: Path, repeat: int) -> dict:
                speed_min={k: round(min(v), 1) for k, v in runs.items()},
                speed_median={k: round(statistics.median(v), 1) for k, v in runs.items()})
     return out, first
+
+
+def messages_by_topic(bag: Path) -> dict[str, int]:
+    """Topic -> messages of a bag, as its ``metadata.yaml`` counts them."""
+    from dmf_sim.bags.layout import resolve_bag
+    out: dict[str, int] = {}
+    for item in resolve_bag(bag).metadata.get('topics_with_message_count') or []:
+        out[item['topic_metadata']['name']] = int(item['message_count'])
+    return out
 
 
 def breakdown(profile: str, out: Path) -> dict:
@@ -214,7 +227,7 @@ def main() -> None:
         speeds, (w, bag) = speed_runs(up, work, 1 if args.small else max(args.repeat, 1))
         out.update(profile_runup=up, simulated_s=w['simulated_s'], **speeds,
                    bag_mib=sum(f.stat().st_size for f in bag.glob('*.mcap')) / 2 ** 20,
-                   messages=w['messages'])
+                   messages=w['messages'], messages_by_topic=messages_by_topic(bag))
         out.update(breakdown(up, work / 'breakdown'))
         if args.speed_only:
             out['load_average_1min_end'] = os.getloadavg()[0]
