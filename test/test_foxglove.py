@@ -137,6 +137,7 @@ def test_layout_is_a_foxglove_layout_of_the_node_s_topics_and_keys():
     the right type, and every key filter a key the monitor's messages carry."""
     from types import SimpleNamespace
 
+    from dmf_sim.live.streams import streams_for
     from dmf_sim.monitor.alarms import AlarmReport
     from dmf_sim.monitor.messages import (
         TOPIC_CYCLE,
@@ -148,6 +149,7 @@ def test_layout_is_a_foxglove_layout_of_the_node_s_topics_and_keys():
     )
     from dmf_sim.monitor.prediction import OperatingPoint, PredictedState, Prediction
     from dmf_sim.node import STREAMS as NODE_STREAMS
+    from dmf_sim.physics.model import read_driveline
     from dmf_sim.physics.orders import OrderSummary
 
     layout = json.loads(LAYOUT.read_text())
@@ -157,9 +159,18 @@ def test_layout_is_a_foxglove_layout_of_the_node_s_topics_and_keys():
     assert sorted(ids) == sorted(layout['configById'])
     kinds = {i.split('!')[0] for i in ids}
     assert kinds >= {'Plot', 'DiagnosticSummary', 'DiagnosticStatusPanel'}
+    # the virtual truck's panels: the bus speeds beside the true speed, the active faults,
+    # their ground truth and the crank tooth edges
+    every_path = json.dumps(layout['configById'])
+    for topic in ('/vehicle_bus/engine_speed', '/vehicle_bus/gearbox_input_speed',
+                  '/vehicle_bus/output_shaft_speed', '/faults/active', '/faults/ground_truth',
+                  '/sensors/crank/edges'):
+        assert f'"{topic}' in every_path, topic
 
+    sensors = read_driveline('truck_dmf').sensors          # the node's default sensors
     topics = {'/' + t.lstrip('/'): msgtype for t, msgtype in
-              [(v[0], v[1]) for v in NODE_STREAMS.values()]}
+              [(v[0], v[1]) for v in streams_for(sensors).values()]}
+    assert set(NODE_STREAMS) < set(streams_for(sensors))
     topics['/' + TOPIC_CYCLE] = topics['/' + TOPIC_PREDICTED] = \
         'diagnostic_msgs/msg/DiagnosticArray'
     # keys the messages really carry (built by the same functions as the node)
@@ -237,8 +248,12 @@ def test_layout_for_a_namespaced_node_moves_its_topics_and_selects_its_health(tm
     assert panel['selectedHardwareId'] == '/truck1/driveline_node'
     assert panel['topicToRender'] == '/diagnostics'                 # not namespaced
     paths = [p['value'] for cfg in layout['configById'].values() for p in cfg.get('paths', ())]
-    assert all(p.startswith(('/truck1/driveline/', '/truck1/engine/', '/diagnostics.'))
-               for p in paths), paths
+    assert all(p.startswith(('/truck1/driveline/', '/truck1/engine/', '/diagnostics.',
+                             '/truck1/vehicle_bus/')) for p in paths), paths
+    topics = {cfg.get('topicToRender') or cfg.get('topicPath')
+              for cfg in layout['configById'].values()} - {None}
+    assert topics == {'/diagnostics', '/truck1/driveline/dmf_predicted', '/truck1/faults/active',
+                      '/truck1/faults/ground_truth', '/truck1/sensors/crank/edges'}
     assert layout['configById']['RawMessages!dmfpredicted']['topicPath'] == \
         '/truck1/driveline/dmf_predicted'
     with pytest.raises(ConfigError, match='fully qualified ROS node name'):

@@ -31,6 +31,7 @@ def _layout_topics(layout: dict) -> dict[str, str]:
         for path in filter(None, paths):
             topic, _, rest = re.match(r'^(/[\w/]+?)(\.|$)(.*)$', path).groups()
             out[topic] = ('std_msgs/msg/Float64' if rest.startswith('data')
+                          else 'std_msgs/msg/UInt64MultiArray' if topic.endswith('/edges')
                           else 'diagnostic_msgs/msg/DiagnosticArray')
         if 'topicToRender' in cfg:
             out[cfg['topicToRender']] = 'diagnostic_msgs/msg/DiagnosticArray'

@@ -156,7 +156,8 @@ def foxglove_layout(node: str = DEFAULT_NODE) -> dict:
     import json
 
     from dmf_sim.core.paths import config_dir, read_text
-    from dmf_sim.live.streams import STREAMS
+    from dmf_sim.live.streams import streams_for
+    from dmf_sim.physics.model import read_driveline
 
     fqn = '/' + node.strip().strip('/')
     if fqn == '/' or any(not part.replace('_', 'a').isalnum() for part in fqn[1:].split('/')):
@@ -164,7 +165,10 @@ def foxglove_layout(node: str = DEFAULT_NODE) -> dict:
                           '/truck1/driveline_node')
     ns = fqn.rsplit('/', 1)[0]
     layout = json.loads(read_text(config_dir() / LAYOUT_FILE))
-    relative = tuple('/' + s.topic for s in STREAMS.values() if not s.topic.startswith('/'))
+    # the layout shows the default driveline's sensors (the node's default, read_driveline's
+    # too): their topics move with the others
+    streams = streams_for(read_driveline().sensors)
+    relative = tuple('/' + s.topic for s in streams.values() if not s.topic.startswith('/'))
 
     def move(path: str) -> str:
         for topic in relative:
