@@ -148,3 +148,33 @@ def test_the_bag_recover_page_runs_as_printed(tmp_path, monkeypatch, capsys):
     assert _run(['dmf-sim', 'bag-recover', 'run1', '-o', 'whole.mcap']) == 2
     err = capsys.readouterr().err
     assert err.count('\n') == 1 and 'whole.mcap: a bare .mcap file holds one file' in err, err
+
+
+def test_the_virtual_truck_page_offline_run_records_its_misfire(tmp_path, monkeypatch, capsys):
+    """The page's offline run, as printed (its --out moved to a scratch directory): the bag
+    holds the sensor topics and, in the ground truth, the single misfire of cylinder 3 the
+    schedule puts at 2 s."""
+    from dmf_sim.bags.read import read_messages
+    from dmf_sim.live.streams import resolved_topics
+    from dmf_sim.physics.faults import event_from_values
+    monkeypatch.chdir(ROOT)
+    runs = [a for a in _shell_lines('doc/guide/virtual-truck.md')
+            if a[0].endswith('dmf-sim') and a[1] == 'run']
+    assert len(runs) == 1
+    argv = runs[0][1:]
+    argv[argv.index('--out') + 1] = str(tmp_path / 'faults_run')
+    from dmf_sim.cli import main as cli_main
+    assert cli_main([*argv, '--no-progress']) == 0
+    capsys.readouterr()
+    topics = resolved_topics()
+    misfires, counts = [], {}
+    for m in read_messages(tmp_path / 'faults_run'):
+        counts[m.topic] = counts.get(m.topic, 0) + 1
+        if m.topic == topics['fault_ground_truth']:
+            s = m.msg.status[0]
+            event = event_from_values(s.message, {kv.key: kv.value for kv in s.values})
+            if s.message.startswith('misfire:'):
+                misfires.append(event)
+    assert counts['/sensors/crank/edges'] > 0 and counts['/vehicle_bus/engine_speed'] > 0
+    first = misfires[0]
+    assert first['cylinder'] == 3 and 2.0 <= first['event_s'] < 2.2, first
