@@ -69,7 +69,12 @@ class Parameter:
 
     @property
     def unit(self) -> str:
-        return BOUNDS[_QUANTITY[self.kind][0]].unit
+        return self.bound.unit
+
+    @property
+    def bound(self):
+        """The :class:`~dmf_sim.core.bounds.Bound` of the parameter's physical quantity."""
+        return BOUNDS[_QUANTITY[self.kind][0]]
 
     def check_value(self, value, where: str, field: str | None = None) -> float:
         """``value`` as a float within the parameter's allowed range (the bound of its physical

@@ -64,7 +64,7 @@ from dmf_sim.live.health import SimulationHealth
 from dmf_sim.live.pacing import TimeBase, publish_stride
 from dmf_sim.live.parameters import PARAMETERS
 from dmf_sim.live.recording import run_metadata
-from dmf_sim.live.simulation import Integrated, LiveSimulation
+from dmf_sim.live.simulation import Integrated, LiveSimulation, Samples
 from dmf_sim.live.streams import SAMPLE_STREAMS, resolved_topics, streams_for
 from dmf_sim.monitor.messages import StatusData
 from dmf_sim.solvers.newmark import StepRecord
@@ -339,11 +339,13 @@ def _chunk_steps(sim: LiveSimulation, chunk_s: float) -> int:
     return max(int(round(chunk_s / sim.dt)) // sim.stride, 1) * sim.stride
 
 
-def follow_profile(sim: LiveSimulation, profile: Profile, chunk_s: float = DEFAULT_CHUNK_S):
+def follow_profile(sim: LiveSimulation, profile: Profile, chunk_s: float = DEFAULT_CHUNK_S,
+                   on_samples: Callable[[Samples], None] | None = None):
     """Integrate ``profile`` with the live core ``sim`` from its state now, in the chunks
     :func:`run_profile` integrates (the same setpoints, excitation updates and values), without
-    reading out or writing anything: what a design study's load step is
-    (``dmf_sim.design.transient``). Returns the run's :class:`~dmf_sim.live.peaks.WindupPeaks`
+    writing anything: what a design study's load step is (``dmf_sim.design.transient``).
+    ``on_samples``: called with each chunk's samples (views, valid during the call; None: no
+    read-out at all). Returns the run's :class:`~dmf_sim.live.peaks.WindupPeaks`
     (``sim.peaks``, started afresh)."""
     follower = ProfileFollower(profile, sim)
     chunk = _chunk_steps(sim, chunk_s)
@@ -351,7 +353,9 @@ def follow_profile(sim: LiveSimulation, profile: Profile, chunk_s: float = DEFAU
     record = StepRecord.allocate(chunk // sim.stride + 1, sim.model.n_dof)
     sim.peaks.reset(sim.t)
     for n in _chunk_plan(profile, sim, follower, total, chunk, threading.Event(), None):
-        sim.integrate(n, record)
+        raw = sim.integrate(n, record)
+        if on_samples is not None:
+            on_samples(sim.read_out(raw))
     follower.finish()
     return sim.peaks
 
