@@ -1,0 +1,104 @@
+"""``dmf-sim identify BAG``: the DMF's spring stages, knee(s) and damping fitted to a recorded
+run (``dmf_sim.identify.fit``), with each parameter's uncertainty and a plot of measured
+against fitted."""
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from dmf_sim.commands import _options as opt
+
+__all__ = ['NAME', 'HELP', 'add_arguments', 'run']
+
+NAME = 'identify'
+HELP = ("Fit the DMF's spring (stiffness, knee, stage factor) and damping to a recorded run-up "
+        'or drive cycle (its wind-up, or the two flywheel speeds): fitted values with their '
+        'uncertainty, the fit from several starting points (on Dask with --workers or '
+        '--scheduler), a plot of measured against fitted')
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    from dmf_sim.identify.fit import DEFAULT_PARAMETERS, SIGNALS, IdentifyOptions
+    d = IdentifyOptions()
+    p.add_argument('bag', metavar='BAG', help='rosbag2 bag directory, one of its .mcap files, '
+                   'or a bare .mcap file')
+    p.add_argument('--parameters', default=','.join(DEFAULT_PARAMETERS), metavar='NAMES',
+                   help='comma-separated design parameters to fit (k, damping, theta, alpha, '
+                        f'stages[i].angle_rad, ...; default {",".join(DEFAULT_PARAMETERS)})')
+    p.add_argument('--signal', default=d.signal, choices=SIGNALS,
+                   help='what to fit: the wind-up, or the speeds of the two flywheels '
+                        f'(default {d.signal})')
+    p.add_argument('--config', help="driveline YAML to start from (default: the bag's)")
+    p.add_argument('--engine', help="engine YAML (default: the bag's)")
+    p.add_argument('--load-set', help="load set A/B/C (default: the bag's)")
+    p.add_argument('--profile', help="the profile the bag was recorded along (default: the "
+                   "one the bag names, else rebuilt from its recorded speed and load)")
+    p.add_argument('--starts', type=int, default=d.starts,
+                   help=f'starting points (default {d.starts})')
+    p.add_argument('--max-evaluations', type=int, default=d.max_evaluations,
+                   help=f'simulations per start at most (default {d.max_evaluations})')
+    p.add_argument('--seed', type=int, default=d.seed, help='seed of the starting points')
+    p.add_argument('--local', action='store_true',
+                   help='run the starts in this process, in turn (default without --workers '
+                        'or --scheduler)')
+    opt.add_cluster(p)
+    p.add_argument('--out', type=Path, help='output directory (identify.json, identify.png)')
+    opt.add_overwrite(p)
+    p.add_argument('--json', action='store_true', help='print one JSON object to stdout')
+
+
+def run(args: argparse.Namespace) -> int:
+    from dmf_sim.identify.fit import IdentifyOptions, fitted_signals, identify, read_measurement
+    from dmf_sim.live.warm import warm_up
+
+    names = tuple(n.strip() for n in args.parameters.split(',') if n.strip())
+    options = IdentifyOptions(parameters=names, signal=args.signal, starts=args.starts,
+                              max_evaluations=args.max_evaluations, driveline=args.config,
+                              engine=args.engine, load_set=args.load_set,
+                              profile=args.profile, seed=args.seed)
+    opt.check_cluster(args)
+    dest = opt.output(args, NAME) if args.out is not None else None
+    dask = args.workers is not None or args.scheduler
+    if dask:
+        from dmf_sim.core.optional import require_extra
+        require_extra('design')             # dask, distributed: one line if missing
+    meas = read_measurement(args.bag, options)
+    warm_up(NAME, 'bag reading', 'time integration')
+    cluster = client = None
+    if dask:
+        from dmf_sim.cluster import close_local, connect, start_local
+        if args.scheduler:
+            client = connect(args.scheduler, args.connect_timeout)
+        else:
+            cluster, client = start_local(args.workers)
+    try:
+        result = identify(meas, options, client=client)
+    finally:
+        if cluster is not None:
+            close_local(cluster, client)
+        elif client is not None:
+            client.close()
+    written = []
+    if dest is not None:
+        from dmf_sim.identify.plots import plot_identification
+        with dest.writing() as out:
+            path = out / 'identify.json'
+            path.write_text(json.dumps(result.as_dict(), indent=2) + '\n')
+            written.append(path)
+            written.append(plot_identification(result, *fitted_signals(result, meas),
+                                               out / 'identify.png'))
+    if args.json:
+        print(json.dumps(result.as_dict()))
+        return 0
+    print(f'{result.bag}: {result.samples} samples of the {result.signal} '
+          f'({"rebuilt profile" if meas.rebuilt else "profile " + result.profile}), '
+          f'{result.evaluations} simulations from {len(result.starts)} starts, '
+          f'{result.seconds:.1f} s')
+    for n in result.parameters:
+        print(f'  {n:>22} = {result.values[n]:.6g}   (start {result.initial[n]:.6g}, '
+              f'± {100 * result.rel_std[n]:.2g} %)')
+    print(f'  rms residual {result.rms:.3g} {result.unit} (at the start {result.rms_initial:.3g})')
+    for path in written:
+        print(f'wrote {path}')
+    return 0

@@ -1,0 +1,406 @@
+"""Fit the DMF's spring and damping to a recorded run (``dmf-sim identify``).
+
+**Model.** The bag's driveline, engine and load set (its ``custom_data``, or given) with the DMF
+parameters to fit replaced: the design parameter names of :mod:`dmf_sim.design.parameters`
+(``k`` primary stiffness [Nm/rad], ``theta`` first drive knee [rad], ``alpha`` first drive stage
+factor, ``damping`` [Nms/rad], further ``stages[i].…`` / ``coast_stages[j].…``), every value
+within the bound of its physical quantity (:data:`dmf_sim.core.bounds.BOUNDS`).
+
+**Run.** The profile the bag was recorded along (``custom_data`` of a ``dmf-sim run`` bag), or
+for a node's recording one rebuilt from what it recorded: the engine speed and the load of its
+health statuses every :data:`REBUILT_ROW_S`. The live core integrates it as ``dmf-sim run``
+does (:func:`dmf_sim.transient.run.follow_profile`, sensors off), and the simulated signal is
+taken at the bag's sample times.
+
+**Measurement.** The DMF wind-up (``/driveline/dmf_windup``), or where only the speeds of the
+two flywheels were recorded (``--signal speeds``), their difference (the wind-up rate, from
+the joint states' velocities). The cycles in which the run settles from static equilibrium
+(``settle_s``) are left out.
+
+**Fit.** Least squares of simulated minus measured over the samples,
+``min_p sum_i (y_sim,i(p) - y_meas,i)^2`` (scipy's ``least_squares``, trust region reflective,
+on the logarithms of the parameters within their bounds: every parameter here is positive and
+spans decades), from :attr:`IdentifyOptions.starts` starting points (a Latin hypercube within a
+factor :data:`START_SPREAD` of the bag's own values, the first one those values); the best
+result is the answer. The starts run on the Dask cluster of :mod:`dmf_sim.cluster` when one is
+given (:func:`identify` ``client``), else in turn here.
+
+**Uncertainty.** Linearized at the optimum: with J the Jacobian of the residuals in the log
+parameters, ``cov = s^2 (J^T J)^-1`` with ``s^2 = sum r_i^2 / (m - n)`` (m samples, n
+parameters); the relative standard deviation of a parameter is the square root of its diagonal
+entry (log parameters), the correlations from the same matrix. Consecutive samples of a run are
+correlated (the residual is coloured noise), so these are lower bounds; the benchmark
+(``benchmarks/bench_identify.py``) measures the real error against known parameters.
+"""
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from dmf_sim.core.errors import ConfigError
+
+__all__ = ['DEFAULT_PARAMETERS', 'SIGNALS', 'START_SPREAD', 'REBUILT_ROW_S', 'IdentifyOptions',
+           'Measurement', 'Identification', 'read_measurement', 'simulate', 'identify',
+           'fitted_signals']
+
+DEFAULT_PARAMETERS = ('k', 'theta', 'alpha', 'damping')
+"""What :func:`identify` fits unless told: the two-step spring and its damping."""
+SIGNALS = ('windup', 'speeds')
+"""What a fit compares: the wind-up [rad], or the flywheels' relative speed [rad/s]."""
+START_SPREAD = 2.0
+"""Starting points lie within the bag's value / START_SPREAD .. x START_SPREAD."""
+LOG_FLOOR = 1e-6
+"""The lower end of a parameter whose bound starts at 0, for its logarithm."""
+REBUILT_ROW_S = 0.05
+"""Row spacing [s] of a profile rebuilt from a recording's speed and load."""
+DECIMATE_HZ = 200.0
+"""Samples per simulated second the fit compares (of the bag's 1 kHz): the wind-up's content
+lies below 100 Hz (the 3rd order at 2000 rpm); fewer samples, the same information."""
+
+
+@dataclass(frozen=True)
+class IdentifyOptions:
+    """What to fit and how.
+
+    parameters: design parameter names (:mod:`dmf_sim.design.parameters`); signal: one of
+    :data:`SIGNALS`; starts: starting points; max_evaluations: simulations per start at most;
+    driveline, engine, load_set: the model (None: the bag's); dt: Newmark step [s] (None: the
+    bag's); profile: the run's profile (None: the one the bag names, else rebuilt from what it
+    recorded); seed: the Latin hypercube's.
+    """
+
+    parameters: tuple[str, ...] = DEFAULT_PARAMETERS
+    signal: str = 'windup'
+    starts: int = 4
+    max_evaluations: int = 60
+    driveline: str | None = None
+    engine: str | None = None
+    load_set: str | None = None
+    dt: float | None = None
+    profile: str | None = None
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.signal not in SIGNALS:
+            raise ConfigError(f"--signal {self.signal!r}: allowed {', '.join(SIGNALS)}")
+        if not 1 <= self.starts <= 1000:
+            raise ConfigError(f'--starts {self.starts}: allowed 1..1000')
+        if not 5 <= self.max_evaluations <= 10000:
+            raise ConfigError(f'--max-evaluations {self.max_evaluations}: allowed 5..10000')
+        if not self.parameters:
+            raise ConfigError('--parameters: give at least one parameter to fit')
+        if len(set(self.parameters)) != len(self.parameters):
+            raise ConfigError(f'--parameters {",".join(self.parameters)}: a parameter is named '
+                              'twice')
+
+
+@dataclass
+class Measurement:
+    """What a fit compares with: the bag's signal at its sample times and the run behind it.
+
+    t_s: sample times [s] from the run's start (simulated time); y: the signal; signal: its
+    kind; profile: the run's :class:`~dmf_sim.transient.profiles.Profile`; driveline, engine,
+    load_set, dt: the model; settle_s: left out from the start [s]; bag: its path;
+    rebuilt: the profile was rebuilt from the recorded speed and load.
+    """
+
+    t_s: np.ndarray
+    y: np.ndarray
+    signal: str
+    profile: object
+    driveline: str
+    engine: str
+    load_set: str
+    dt: float
+    settle_s: float
+    bag: str
+    rebuilt: bool = False
+
+
+@dataclass
+class Identification:
+    """The result of :func:`identify` (SI units; ``as_dict`` for JSON).
+
+    values: parameter -> fitted value; initial: parameter -> the bag's own value;
+    rel_std: parameter -> relative standard deviation (linearized, a lower bound);
+    correlation: the parameters' correlation matrix (rows/columns in ``parameters`` order);
+    rms: root mean square of the residual (the signal's unit); rms_initial: at the bag's own
+    values; evaluations: simulations in all; starts: per start (its values, rms, evaluations,
+    status); seconds: wall time.
+    """
+
+    parameters: tuple[str, ...]
+    values: dict[str, float]
+    initial: dict[str, float]
+    rel_std: dict[str, float]
+    correlation: list[list[float]]
+    rms: float
+    rms_initial: float
+    signal: str
+    unit: str
+    samples: int
+    evaluations: int
+    seconds: float
+    starts: list[dict] = field(default_factory=list)
+    bag: str = ''
+    profile: str = ''
+
+    def as_dict(self) -> dict:
+        return {'bag': self.bag, 'profile': self.profile, 'signal': self.signal,
+                'unit': self.unit, 'parameters': list(self.parameters), 'values': self.values,
+                'initial': self.initial, 'rel_std': self.rel_std,
+                'correlation': self.correlation, 'rms': self.rms,
+                'rms_initial': self.rms_initial, 'samples': self.samples,
+                'evaluations': self.evaluations, 'seconds': self.seconds,
+                'starts': self.starts}
+
+
+# ---------------------------------------------------------------------------- the measurement
+def _rebuilt_profile(series, health):
+    """A profile from a recording's engine speed and the load of its health statuses."""
+    from dmf_sim.analysis.load_timeline import HEALTH_KEYS
+    from dmf_sim.transient.profiles import make_profile
+    speed = series.series.get('speed')
+    if speed is None or len(speed) < 2 or health is None:
+        raise ConfigError(f'{series.bag.path}: the bag names no profile (not a dmf-sim run '
+                          'bag) and holds no engine speed and health statuses to rebuild one')
+    t0 = int(speed.t_ns[0])
+    ts = (speed.t_ns - t0) * 1e-9
+    rows_t = np.arange(0.0, ts[-1], REBUILT_ROW_S)
+    hs_t = (health[0] - t0) * 1e-9
+    load_col = health[1][:, HEALTH_KEYS.index('load')]
+    idx = np.clip(np.searchsorted(hs_t, rows_t, side='right') - 1, 0, len(hs_t) - 1)
+    rows = np.column_stack([rows_t, np.interp(rows_t, ts, speed.values), load_col[idx]])
+    return make_profile(rows, name='rebuilt', source=str(series.bag.path),
+                        where=f'{series.bag.path}: rebuilt profile')
+
+
+def read_measurement(bag, options: IdentifyOptions = IdentifyOptions()) -> Measurement:
+    """The signal of ``bag`` to fit, with the run and model behind it (one-line
+    :class:`~dmf_sim.core.errors.ConfigError` / BagError when the bag lacks what is needed)."""
+    from dmf_sim.analysis.series import SignalSpec, read_bag_series
+    from dmf_sim.bags.layout import resolve_bag
+    from dmf_sim.transient.profiles import read_profile
+
+    resolved = resolve_bag(bag)
+    meta = resolved.run_metadata
+    specs = ([SignalSpec.parse('windup')] if options.signal == 'windup' else
+             [SignalSpec.parse('velocity:PRIMARY FLYWHEEL'),
+              SignalSpec.parse('velocity:SECONDARY FLYWHEEL')])
+    series = read_bag_series(resolved, signals=specs)
+    got = [series.series.get(s.label) for s in specs]
+    if any(g is None or len(g) < 10 for g in got):
+        raise ConfigError(f'{resolved.path}: no {options.signal} signal to fit '
+                          f'({", ".join(s.label for s in specs)}: not recorded or empty)')
+    if options.signal == 'windup':
+        t_ns, y = got[0].t_ns, got[0].values
+    else:
+        n = min(len(got[0]), len(got[1]))
+        t_ns, y = got[0].t_ns[:n], got[1].values[:n] - got[0].values[:n]
+    rebuilt = options.profile is None and meta.profile is None
+    if options.profile is not None:
+        profile = read_profile(options.profile)
+    elif not rebuilt:
+        try:
+            profile = read_profile(meta.profile)
+        except ConfigError:                 # a file of the recording machine: not here
+            rebuilt = True
+    if rebuilt:
+        profile = _rebuilt_profile(series, series.health)
+    rate = meta.publish_rate_hz or 1000.0
+    t_s = (t_ns - t_ns[0]) * 1e-9 + 1.0 / rate        # the first sample: one period in
+    return Measurement(
+        t_s=t_s, y=np.asarray(y, float), signal=options.signal, profile=profile,
+        driveline=options.driveline or meta.driveline or 'truck_dmf',
+        engine=options.engine or meta.engine or 'engine_d13',
+        load_set=options.load_set or meta.load_set or 'A',
+        dt=options.dt or meta.dt_s or 1e-4,
+        settle_s=float(meta.settle_s if meta.settle_s is not None
+                       else profile.start_settle_s),
+        bag=str(resolved.path), rebuilt=rebuilt)
+
+
+# ---------------------------------------------------------------------------- the model
+@dataclass
+class _Model:
+    """The base driveline and engine of a measurement, and the parameters' objects."""
+
+    base: object
+    engine: object
+    params: list
+    speed_limits: tuple[float, float]
+
+
+def _model(meas: Measurement, names: Sequence[str]) -> _Model:
+    from dmf_sim.design.parameters import parse_parameter
+    from dmf_sim.physics.engine import read_engine
+    from dmf_sim.physics.model import read_driveline
+    base = read_driveline(meas.driveline)
+    if base.spring is None:
+        raise ConfigError(f'driveline {meas.driveline}: has no DMF spring to identify')
+    engine = read_engine(meas.engine, load_set=meas.load_set)
+    lo, hi = getattr(engine, 'speed_range_rpm', (0.0, math.inf))
+    if not math.isfinite(hi):
+        hi = float(np.max(meas.profile.speed_rpm)) * 2
+    params = [parse_parameter(n, '--parameters') for n in names]
+    return _Model(base, engine, params, (float(lo), float(hi)))
+
+
+def _base_values(model: _Model) -> dict[str, float]:
+    """The base driveline's value of each parameter."""
+    spring = model.base.spring
+    out = {}
+    for p in model.params:
+        if p.kind == 'k':
+            out[p.name] = float(spring.k)
+        elif p.kind == 'damping':
+            out[p.name] = float(model.base.dmf_element.damping)
+        else:
+            stages = spring.drive if p.side == 'stages' else spring.coast
+            if p.index >= len(stages):
+                raise ConfigError(f'--parameters {p.name}: the spring of the bag has '
+                                  f'{len(stages)} {p.side.replace("_", " ")}')
+            out[p.name] = float(getattr(stages[p.index], p.kind))
+    return out
+
+
+def simulate(meas: Measurement, model: _Model, values: dict[str, float]) -> np.ndarray:
+    """The signal of the model with ``values`` at the measurement's sample times."""
+    from dmf_sim.design.parameters import design_driveline
+    from dmf_sim.live.simulation import LiveSimulation
+    from dmf_sim.transient.run import follow_profile
+    line = design_driveline(model.base, {p: values[p.name] for p in model.params})
+    prof = meas.profile
+    sim = LiveSimulation(line, model.engine, dt=meas.dt, speed_rpm=float(prof.speed_rpm[0]),
+                         load=float(prof.load[0]), speed_limits_rpm=model.speed_limits,
+                         sensors=False)
+    ts, ys = [], []
+    i_pf = line.names.index('PRIMARY FLYWHEEL') if meas.signal == 'speeds' else 0
+    i_sf = line.names.index('SECONDARY FLYWHEEL') if meas.signal == 'speeds' else 0
+
+    def take(s) -> None:
+        ts.append(s.t.copy())
+        ys.append(s.windup.copy() if meas.signal == 'windup'
+                  else s.velocity[:, i_sf] - s.velocity[:, i_pf])
+    follow_profile(sim, prof, on_samples=take)
+    t, y = np.concatenate(ts), np.concatenate(ys)
+    return np.interp(meas.t_s, t, y)
+
+
+# ---------------------------------------------------------------------------- the fit
+def _start_points(initial: np.ndarray, lo: np.ndarray, hi: np.ndarray, n: int,
+                  seed: int) -> np.ndarray:
+    """``n`` starting points in log space: the bag's own values first, then a Latin
+    hypercube within a factor START_SPREAD of them (clipped to the bounds)."""
+    from scipy.stats import qmc
+    pts = [initial]
+    if n > 1:
+        u = qmc.LatinHypercube(d=len(initial), seed=seed).random(n - 1)
+        spread = math.log(START_SPREAD)
+        pts += list(initial + (2 * u - 1) * spread)
+    return np.clip(np.array(pts), lo + 1e-9, hi - 1e-9)
+
+
+def _log_bounds(model: _Model) -> tuple[np.ndarray, np.ndarray]:
+    lo, hi = [], []
+    for p in model.params:
+        b = p.bound
+        lo.append(math.log(max(b.lo, LOG_FLOOR)))
+        hi.append(math.log(b.hi))
+    return np.array(lo), np.array(hi)
+
+
+def _fit_one(meas: Measurement, names: tuple[str, ...], x0: np.ndarray, lo: np.ndarray,
+             hi: np.ndarray, max_evaluations: int) -> dict:
+    """One least-squares run from ``x0`` (log parameters): its result as a dict (what a Dask
+    worker sends back)."""
+    from scipy.optimize import least_squares
+    model = _model(meas, names)
+    keep = meas.t_s >= meas.settle_s
+    step = max(int(round(1.0 / (DECIMATE_HZ * np.median(np.diff(meas.t_s))))), 1)
+    keep &= (np.arange(len(keep)) % step) == 0
+    t_fit, y_fit = meas.t_s[keep], meas.y[keep]
+    sub = replace(meas, t_s=t_fit, y=y_fit)
+    scale = float(np.std(y_fit)) or 1.0
+
+    def residual(x: np.ndarray) -> np.ndarray:
+        values = {n: math.exp(v) for n, v in zip(names, x)}
+        try:
+            return (simulate(sub, model, values) - y_fit) / scale
+        except (ConfigError, ValueError, FloatingPointError):
+            return np.full(len(y_fit), 1e3)              # a failed design: far off
+    t0 = time.perf_counter()
+    res = least_squares(residual, x0, bounds=(lo, hi), method='trf', x_scale=1.0,
+                        diff_step=1e-3, max_nfev=max_evaluations)
+    m, n = len(y_fit), len(x0)
+    rss = float(np.sum(res.fun ** 2)) * scale ** 2
+    s2 = float(np.sum(res.fun ** 2)) / max(m - n, 1)
+    try:
+        cov = s2 * np.linalg.inv(res.jac.T @ res.jac)
+    except np.linalg.LinAlgError:
+        cov = np.full((n, n), np.nan)
+    return {'x': res.x.tolist(), 'rms': math.sqrt(rss / m), 'cov': cov.tolist(),
+            'evaluations': int(res.nfev), 'status': int(res.status),
+            'message': str(res.message), 'seconds': time.perf_counter() - t0, 'samples': m}
+
+
+def identify(bag, options: IdentifyOptions = IdentifyOptions(), *, client=None,
+             progress=None) -> Identification:
+    """Fit ``options.parameters`` to ``bag`` (module docstring): a bag, or a
+    :class:`Measurement` read from one (:func:`read_measurement`, e.g. with noise added to its
+    signal); ``client``: a ``dask.distributed`` client to run the starts on (None: here, in
+    turn); ``progress``: called with (starts done, starts) after each."""
+    t0 = time.perf_counter()
+    meas = bag if isinstance(bag, Measurement) else read_measurement(bag, options)
+    model = _model(meas, options.parameters)
+    initial = _base_values(model)
+    lo, hi = _log_bounds(model)
+    x_init = np.log([initial[n] for n in options.parameters])
+    starts = _start_points(x_init, lo, hi, options.starts, options.seed)
+    args = (meas, tuple(options.parameters))
+    if client is None:
+        results = []
+        for x0 in starts:
+            results.append(_fit_one(*args, x0, lo, hi, options.max_evaluations))
+            if progress is not None:
+                progress(len(results), len(starts))
+    else:
+        futures = [client.submit(_fit_one, *args, x0, lo, hi, options.max_evaluations,
+                                 pure=False) for x0 in starts]
+        results = client.gather(futures)
+    best = min(results, key=lambda r: r['rms'])
+    names = options.parameters
+    values = {n: math.exp(v) for n, v in zip(names, best['x'])}
+    cov = np.array(best['cov'])
+    sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    with np.errstate(invalid='ignore', divide='ignore'):
+        corr = cov / np.outer(sd, sd)
+    keep = meas.t_s >= meas.settle_s
+    y0 = simulate(replace(meas, t_s=meas.t_s[keep]), model, initial)
+    rms0 = float(np.sqrt(np.mean((y0 - meas.y[keep]) ** 2)))
+    return Identification(
+        parameters=tuple(names), values=values, initial=initial,
+        rel_std={n: float(s) for n, s in zip(names, sd)},
+        correlation=[[float(c) for c in row] for row in corr], rms=best['rms'],
+        rms_initial=rms0, signal=meas.signal,
+        unit='rad' if meas.signal == 'windup' else 'rad/s', samples=best['samples'],
+        evaluations=sum(r['evaluations'] for r in results),
+        seconds=time.perf_counter() - t0,
+        starts=[{'values': {n: math.exp(v) for n, v in zip(names, r['x'])}, 'rms': r['rms'],
+                 'evaluations': r['evaluations'], 'status': r['message']} for r in results],
+        bag=meas.bag, profile=getattr(meas.profile, 'name', ''))
+
+
+def fitted_signals(result: Identification, meas: Measurement
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(times [s], measured, fitted, at the starting values) after the settling: what the plot
+    of measured against fitted shows."""
+    model = _model(meas, result.parameters)
+    keep = meas.t_s >= meas.settle_s
+    sub = replace(meas, t_s=meas.t_s[keep], y=meas.y[keep])
+    return (sub.t_s, sub.y, simulate(sub, model, result.values),
+            simulate(sub, model, result.initial))
