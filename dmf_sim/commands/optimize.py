@@ -118,7 +118,7 @@ def _finish(problem, result, baseline, args, say, seconds_so_far: float) -> dict
         spread,
         write_report,
     )
-    from dmf_sim.optimize.verify import verification_extremes, verify_design
+    from dmf_sim.optimize.verify import verification_extremes, verify_design, verify_transient
     t0 = time.perf_counter()
     front = [r for r in result.rows('design') if r['pareto']]
     exported = write_designs(problem, front, args.out)
@@ -130,6 +130,7 @@ def _finish(problem, result, baseline, args, say, seconds_so_far: float) -> dict
         for r in chosen[:args.verify]:
             say(f'verifying design {r["design_id"]} in the time domain')
             result.verification += verify_design(problem, r)
+            result.transient_verification += verify_transient(problem, r)
     say('the paper\'s design')
     ref = reference_design(problem)
     bvp = compare_with_reference(result, ref)

@@ -122,14 +122,15 @@ def parse_load_steps(w: Where, raw, engines: dict) -> list[LoadStep]:
     return steps
 
 
-def step_metrics(line, engine, step: LoadStep) -> dict:
+def step_metrics(line, engine, step: LoadStep, dt: float = LOAD_STEP_DT_S) -> dict:
     """The peaks of one load step of the driveline ``line`` (a design) under ``engine``
-    (:meth:`dmf_sim.live.peaks.WindupPeaks.as_dict`) and its compute time ``seconds``."""
+    (:meth:`dmf_sim.live.peaks.WindupPeaks.as_dict`) and its compute time ``seconds``;
+    ``dt``: the Newmark step [s] (a finer one checks the study's, ``dmf_sim.optimize.verify``)."""
     from dmf_sim.live.simulation import LiveSimulation
     t0 = time.perf_counter()
     prof = step.profile()
     lo, hi = getattr(engine, 'speed_range_rpm', (0.0, math.inf))
-    sim = LiveSimulation(line, engine, dt=LOAD_STEP_DT_S, speed_rpm=step.speed_rpm,
+    sim = LiveSimulation(line, engine, dt=dt, speed_rpm=step.speed_rpm,
                          load=step.from_load, speed_limits_rpm=(lo, hi))
     out = follow_profile(sim, prof).as_dict()
     out['seconds'] = time.perf_counter() - t0

@@ -485,6 +485,17 @@ def _blocks(result, baseline, ref, hv, bvp, exported, seconds, front) -> list[Bl
                                    f'{100 * v.rel_diff:.2f} %', _g(v.run_up),
                                    _pct(v.run_up_rel_diff), f'{v.settled}/{len(v.shots)}']
                                   for v in result.verification])))
+    if result.transient_verification:
+        b.append(Block('h2', 'Verification of the transient objectives (step refinement)'))
+        b.append(Block('p', "The load steps of each verified design run again with the "
+                            "verification's finer Newmark step: the transient objectives at "
+                            "both steps."))
+        b.append(Block('table', (['design', 'objective', 'load step', 'study', 'dt [s]',
+                                  'refined', 'refined dt [s]', 'difference'],
+                                 [[str(v.design_id), v.objective, v.condition,
+                                   _g(v.study_value), f'{v.dt_s:g}', _g(v.refined),
+                                   f'{v.refined_dt_s:g}', f'{100 * v.rel_diff:.2f} %']
+                                  for v in result.transient_verification])))
     b.append(Block('h2', 'Figures'))
     for name, caption in FIGURES.items():
         b.append(Block('figure', (name, caption)))

@@ -61,11 +61,13 @@ class OptimizationResult(StudyResult):
     """A design study's result (every evaluated design as rows of its table, plus
     :data:`EXTRA`; ``pareto_ids``: the *feasible* non-dominated designs of the first two
     objectives; ``best_id``: the compromise among them) with the problem, the hypervolume after
-    each evaluation and the time-domain verification."""
+    each evaluation and the time-domain verification (of the harmonic-balance objectives, and
+    of the transient ones by step refinement)."""
 
     problem: Problem | None = None
     hypervolume: np.ndarray = field(default_factory=lambda: np.zeros(0))
     verification: list = field(default_factory=list)
+    transient_verification: list = field(default_factory=list)
 
     def summary(self) -> dict:
         """A design study's summary (counts, front, best, failures, throughput, files) plus
@@ -82,7 +84,8 @@ class OptimizationResult(StudyResult):
             'constraints': p.constraints.as_dict(),
             'hypervolume_final': (float(self.hypervolume[-1]) if len(self.hypervolume)
                                   else None),
-            'verification': [v.as_dict() for v in self.verification]})
+            'verification': [v.as_dict() for v in self.verification],
+            'transient_verification': [v.as_dict() for v in self.transient_verification]})
         return out
 
 

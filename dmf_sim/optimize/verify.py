@@ -17,6 +17,11 @@ transmitted_torques`` of the recorded states). The shots' largest value is the t
 value compared with the harmonic-balance one; the run-ups' largest value near the speed is
 reported beside it, over the cycles within half a grid step of the speed (a ramp passes
 coexisting states one way up and another way down, and it sees peaks between grid speeds).
+
+The transient objectives (peak wind-up or DMF torque in the study's load steps,
+:mod:`dmf_sim.design.transient`) are time-domain values already: :func:`verify_transient` runs a
+design's load steps again with the verification's finer Newmark step (``VerifySettings.dt``)
+and compares: the step-refinement check of the study's value.
 """
 from __future__ import annotations
 
@@ -28,12 +33,17 @@ import numpy as np
 from dmf_sim.design.parameters import design_driveline
 from dmf_sim.physics.orders import ORDER_1_5, ORDER_3
 
-__all__ = ['VERIFIABLE', 'VerifySettings', 'Check', 'verify_design', 'verify_worst',
-           'verification_extremes', 'verification_lines']
+__all__ = ['VERIFIABLE', 'TRANSIENT_VERIFIABLE', 'VerifySettings', 'Check', 'TransientCheck',
+           'verify_design', 'verify_worst', 'verify_transient', 'verification_extremes',
+           'verification_lines']
 
 VERIFIABLE = {'worst_order_1_5': ('windup', ORDER_1_5), 'worst_order_3': ('windup', ORDER_3),
               'worst_torque_3': ('torque', ORDER_3)}
 """Objectives the time domain can check: (signal, half-order index)."""
+
+
+TRANSIENT_VERIFIABLE = ('transient_windup', 'transient_dmf_torque')
+"""Transient objectives checked by step refinement (:func:`verify_transient`)."""
 
 
 @dataclass(frozen=True)
@@ -84,6 +94,50 @@ class Check:
     def as_dict(self) -> dict:
         return {**asdict(self), 'rel_diff': self.rel_diff,
                 'run_up_rel_diff': self.run_up_rel_diff}
+
+
+@dataclass
+class TransientCheck:
+    """One transient objective of one design: the study's value (Newmark at the study's step
+    ``dt_s``) against the same load steps at the verification's finer step ``refined_dt_s``."""
+
+    design_id: int
+    objective: str
+    condition: str
+    study_value: float
+    refined: float
+    dt_s: float
+    refined_dt_s: float
+
+    @property
+    def rel_diff(self) -> float:
+        """|refined - study| / |study|."""
+        return (abs(self.refined - self.study_value) / abs(self.study_value)
+                if self.study_value else math.nan)
+
+    def as_dict(self) -> dict:
+        return {**asdict(self), 'rel_diff': self.rel_diff}
+
+
+def verify_transient(problem, row: dict, settings: VerifySettings | None = None
+                     ) -> list[TransientCheck]:
+    """The step-refinement checks of a design's transient objectives (module docstring)."""
+    from dmf_sim.design.evaluate import StudyContext
+    from dmf_sim.design.transient import LOAD_STEP_DT_S, step_metrics, transient_summary
+    s = settings or VerifySettings()
+    study = problem.study
+    wanted = [o for o in study.objectives if o in TRANSIENT_VERIFIABLE
+              and row.get(o) is not None and np.isfinite(row[o])]
+    if not wanted or not study.load_steps:
+        return []
+    ctx = StudyContext.from_study(study)
+    line = design_driveline(study.base, ctx.design_values([row[v] for v in study.variable_names]))
+    results = [step_metrics(line, study.engines[step.load_set], step, dt=s.dt)
+               for step in study.load_steps]
+    refined = transient_summary(study.load_steps, results)
+    return [TransientCheck(int(row['design_id']), o, str(row.get(f'{o}_condition', '')),
+                           float(row[o]), float(refined[o]), LOAD_STEP_DT_S, s.dt)
+            for o in wanted]
 
 
 def verify_design(problem, row: dict, settings: VerifySettings | None = None) -> list[Check]:
