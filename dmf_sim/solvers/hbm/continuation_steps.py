@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from dmf_sim.solvers.continuation import CorrectorFailed
+from dmf_sim.solvers.continuation import CompiledSteps, CorrectorFailed, GridRun
 from dmf_sim.solvers.hbm import continuation_kernels, kernels, linear_kernels
 
 __all__ = ['ContinuationSteps']
@@ -19,6 +19,15 @@ __all__ = ['ContinuationSteps']
 
 class ContinuationSteps:
     """What ``continuation.continue_branch`` calls on a condensed HBM problem."""
+
+    def compiled_steps(self) -> CompiledSteps:
+        """The compiled steps to hand the continuation (``BranchHooks.steps``): each method
+        below, or none of them when ``compiled`` is off."""
+        if not self.compiled:
+            return CompiledSteps()
+        return CompiledSteps(tangent=self.tangent, corrector_at=self.corrector_at,
+                             corrector_arc=self.corrector_arc, step_at=self.step_at,
+                             grid_run=self.grid_run)
 
     def residual_and_jacobians(self, x: np.ndarray, speed_rpm: float):
         """(r, dr/dx, dr/ds) at wind-up harmonics x and speed [rpm]."""
@@ -145,7 +154,7 @@ class ContinuationSteps:
         (:func:`continuation_kernels.grid_run`: the loop's own steps and step control, until a
         step it leaves to the loop). With ``check_linear`` it stops at every later on-grid
         point whose non-linear torque harmonics are all zero (where the sweep's fast-forward
-        may apply). Returns (X, S, T, IT, RES, ONG, y, t, h, why): the new points'
+        may apply). Returns a :class:`~dmf_sim.solvers.continuation.GridRun`: the new points'
         rows (x [rad], s [rpm], unit tangent, iterations, max|r|, on the grid), the last state
         and a ``RUN_*`` code; None where the loop is to take every step itself (``compiled``
         off, an engine without a compiled table, or no steps allowed)."""
@@ -170,7 +179,7 @@ class ContinuationSteps:
             float(s), y, t, float(h), float(s_bounds[0]), float(s_bounds[1]), opts,
             int(options.max_iter), int(options.easy_iter), bool(check_linear), size, fd, table,
             statics, modal, self._aft_mats, self._spring_arrays, X, S, T, IT, RES, ONG)
-        return X[:k], S[:k], T[:k], IT[:k], RES[:k], ONG[:k], y, t, h, why
+        return GridRun(X[:k], S[:k], T[:k], IT[:k], RES[:k], ONG[:k], y, t, h, why)
 
     @staticmethod
     def _run_rows(s_bounds: tuple[float, float], grid: float) -> int:

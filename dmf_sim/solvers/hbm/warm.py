@@ -11,7 +11,7 @@ import numpy as np
 
 from dmf_sim.core.kernel_cache import KernelGroup
 from dmf_sim.physics.spring import PiecewiseLinearSpring
-from dmf_sim.solvers import stability_kernel
+from dmf_sim.solvers import stability_kernel, step_control
 from dmf_sim.solvers.hbm.continuation_kernels import (
     RUN_OPTIONS,
     corrector_arclength,
@@ -122,6 +122,14 @@ def warm_up() -> float:
                                   np.empty(1, dtype=np.int64))
     # the multipliers of one point analyzed alone (stability.eigenvalues calls it from Python)
     eigenvalues_into(np.eye(ns), np.empty(ns), np.empty(ns))
+    # the continuation loop's step control, called from Python with these types
+    step_control.on_grid(1.0, 1.0)
+    step_control.grid_step(1.0, 1.0, 1.0, 0.0, 2.0, 1.0, 1.0, 1.0, 0.2)
+    step_control.moved_too_far(0.1, 1.0, 0.5, 1e-4)
+    step_control.turned_too_far(step_control.tangent_turn(1.0), True, 1.0, 0.6, 1e-4)
+    step_control.after_failure(1.0, 0.5, True, 1e-4)
+    step_control.next_step(1.0, 2, 3, 1e-4, 1.0)
+    step_control.on_bound(1.0, 0.0, 2.0)
     return time.perf_counter() - t0
 
 
@@ -131,7 +139,10 @@ def kernels() -> tuple:
     return (residual_jacobian_py, residual_jacobians_py, harmonics_py, newton, deflated_newton,
             deflated_newton_first, corrector_fixed_speed, tangent, step_fixed_speed, modal_sums,
             linear_parts, residual_jacobians_at, linear_parts_many_at, corrector_arclength,
-            grid_run, stability_kernel.floquet, stability_kernel.floquet_many, eigenvalues_into)
+            grid_run, stability_kernel.floquet, stability_kernel.floquet_many, eigenvalues_into,
+            step_control.on_grid, step_control.grid_step, step_control.moved_too_far,
+            step_control.tangent_turn, step_control.turned_too_far, step_control.after_failure,
+            step_control.next_step, step_control.on_bound)
 
 
 SWEEP_COMPILE_S = 40.0
