@@ -16,7 +16,7 @@ from dmf_sim.physics.loads import DrivelineExcitation
 from dmf_sim.physics.model import read_driveline
 from dmf_sim.solvers.hbm import CondensedHBM, SweepOptions, sweep
 from dmf_sim.solvers.hbm.deflation import DeflatedNewton
-from dmf_sim.solvers.hbm.layout import amplitudes, shift, to_real
+from dmf_sim.solvers.hbm.unknowns import amplitudes, shift, to_real
 from dmf_sim.solvers.newmark import SimulationOptions, simulate
 from dmf_sim.solvers.nonperiodic import NonPeriodicOptions, classify_section
 from dmf_sim.solvers.steady import BasinOptions, find_steady_states, wilson_interval

@@ -25,9 +25,9 @@ import numpy as np
 
 from dmf_sim.core.errors import ConvergenceError
 from dmf_sim.solvers.hbm.faulted import fingerprints
-from dmf_sim.solvers.hbm.layout import SUB_HARMONICS, sub_part, to_complex, to_real
 from dmf_sim.solvers.hbm.point import HBMPoint
 from dmf_sim.solvers.hbm.results import Branch, SweepEvent, on_grid, runs
+from dmf_sim.solvers.hbm.unknowns import SUB_HARMONICS, sub_part, to_complex, to_real
 
 __all__ = ['BranchSwitching']
 

@@ -34,7 +34,7 @@ frequency-time (AFT) pass: w(psi_j) on M samples of the cycle -> g(w(psi_j)) -> 
 analytic Jacobian dg_n/dw_m = (2/M) sum_j g'(w_j) exp(-i n phi_j) dw_j/dw_m.
 
 All element responses are recovered afterwards, ``q_n = H_n (P_n - e g_n)``
-(:mod:`dmf_sim.solvers.hbm.recovery`, a mixin of :class:`CondensedHBM`).
+(:mod:`dmf_sim.solvers.hbm.expansion`, a mixin of :class:`CondensedHBM`).
 
 Real unknown layout used throughout: ``x = [w_0, Re w_1..Re w_H, Im w_1..Im w_H]`` [rad].
 """
@@ -53,10 +53,10 @@ from dmf_sim.physics.orders import summarize_orders, summarize_rows, synthesize
 from dmf_sim.solvers.continuation import solve_small
 from dmf_sim.solvers.hbm import kernels, linear_kernels
 from dmf_sim.solvers.hbm.continuation_steps import ContinuationSteps
+from dmf_sim.solvers.hbm.expansion import DrivelineRecovery
 from dmf_sim.solvers.hbm.faulted import FaultedParts, combustion_factors, is_symmetric
-from dmf_sim.solvers.hbm.layout import fit_harmonics, times_h, to_complex, to_real
 from dmf_sim.solvers.hbm.point import HBMOptions, HBMPoint, LinearParts
-from dmf_sim.solvers.hbm.recovery import DrivelineRecovery
+from dmf_sim.solvers.hbm.unknowns import fit_harmonics, times_h, to_complex, to_real
 from dmf_sim.solvers.stability import FlexibleModes
 
 __all__ = ['aft_tables', 'SHARP_DAMPING_RATIO', 'RESONANCE_SHARE', 'LINEAR_PARTS_CACHE',

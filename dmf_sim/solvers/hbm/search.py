@@ -22,7 +22,7 @@ After continuation and branch switching (dmf_sim.solvers.hbm.sweep, .branches):
    that cannot be done gets an explicit reason instead (``not_computed``).
 
 Twins: when the cylinders fire alike, the 120 deg shifts of a state
-(dmf_sim.solvers.hbm.layout.shift) are one physical state; its multiplicity is the number of
+(dmf_sim.solvers.hbm.unknowns.shift) are one physical state; its multiplicity is the number of
 distinct shifted solutions Newton confirms. With faults that make the cylinders differ
 (dmf_sim.solvers.hbm.faulted) a shifted state is no solution: only the known states themselves
 are deflated, and every state counts once.
@@ -35,9 +35,9 @@ import numpy as np
 
 from dmf_sim.core.errors import ConvergenceError, OperatingRangeError
 from dmf_sim.solvers.hbm.deflation import DeflatedNewton, DeflationOptions
-from dmf_sim.solvers.hbm.layout import all_shifts, amplitudes, shift, to_complex, to_real
 from dmf_sim.solvers.hbm.point import HBMPoint
 from dmf_sim.solvers.hbm.results import Branch, NonPeriodicBand, SweepEvent
+from dmf_sim.solvers.hbm.unknowns import all_shifts, amplitudes, shift, to_complex, to_real
 from dmf_sim.solvers.newmark import SimulationOptions, simulate
 from dmf_sim.solvers.nonperiodic import NonPeriodicOptions, analyze
 

@@ -15,10 +15,10 @@ from dmf_sim.physics.orders import synthesize
 from dmf_sim.solvers.hbm.branches import BranchSwitching
 from dmf_sim.solvers.hbm.condensed import CondensedHBM
 from dmf_sim.solvers.hbm.faulted import apply_faults, steady_faults
-from dmf_sim.solvers.hbm.layout import to_complex
 from dmf_sim.solvers.hbm.point import HBMOptions, HBMPoint
 from dmf_sim.solvers.hbm.results import Branch, SweepEvent, SweepResult
 from dmf_sim.solvers.hbm.search import SearchOptions, StateSearch
+from dmf_sim.solvers.hbm.unknowns import to_complex
 from dmf_sim.solvers.hbm.warm import SWEEP
 from dmf_sim.solvers.stability import by_modulus
 

@@ -29,8 +29,8 @@ from dmf_sim.solvers.hbm.kernels import (
     residual_jacobian_py,
     residual_jacobians_py,
 )
-from dmf_sim.solvers.hbm.layout import to_real
 from dmf_sim.solvers.hbm.linear_kernels import linear_parts, linear_parts_many_at, modal_sums
+from dmf_sim.solvers.hbm.unknowns import to_real
 from dmf_sim.solvers.lapack_kernel import eigenvalues_into
 
 __all__ = ['warm_up', 'kernels', 'SWEEP', 'SWEEP_COMPILE_S']

@@ -11,8 +11,8 @@ import numpy as np
 
 from dmf_sim.core.units import RPM_TO_RAD_S
 from dmf_sim.physics.harmonic import solve_harmonic, solve_static
-from dmf_sim.solvers.hbm.layout import to_complex
 from dmf_sim.solvers.hbm.point import HBMPoint
+from dmf_sim.solvers.hbm.unknowns import to_complex
 
 __all__ = ['DrivelineRecovery']
 
