@@ -11,7 +11,7 @@ import numpy as np
 
 from dmf_sim.core.kernel_cache import KernelGroup
 from dmf_sim.physics.spring import PiecewiseLinearSpring
-from dmf_sim.solvers import stability_kernel, step_control
+from dmf_sim.solvers import kernel_registry, stability_kernel, step_control
 from dmf_sim.solvers.hbm.continuation_kernels import (
     RUN_OPTIONS,
     corrector_arclength,
@@ -135,14 +135,9 @@ def warm_up() -> float:
 
 
 def kernels() -> tuple:
-    """The entry points :func:`warm_up` loads (numba dispatchers)."""
-    return (residual_jacobian_py, residual_jacobians_py, harmonics_py, newton, deflated_newton,
-            deflated_newton_first, corrector_fixed_speed, tangent, step_fixed_speed, modal_sums,
-            linear_parts, residual_jacobians_at, linear_parts_many_at, corrector_arclength,
-            grid_run, stability_kernel.floquet, stability_kernel.floquet_many, eigenvalues_into,
-            step_control.on_grid, step_control.grid_step, step_control.moved_too_far,
-            step_control.tangent_turn, step_control.turned_too_far, step_control.after_failure,
-            step_control.next_step, step_control.on_bound)
+    """The entry points :func:`warm_up` loads (numba dispatchers): the sweep group of
+    :mod:`dmf_sim.solvers.kernel_registry`."""
+    return kernel_registry.entry_points(kernel_registry.SWEEP)
 
 
 SWEEP_COMPILE_S = 40.0
