@@ -50,9 +50,9 @@ from dmf_sim.core.units import RPM_TO_RAD_S
 from dmf_sim.physics.harmonic import solve_static
 from dmf_sim.physics.loads import DrivelineExcitation
 from dmf_sim.physics.orders import summarize_orders, summarize_rows, synthesize
-from dmf_sim.solvers.continuation import solve_small
+from dmf_sim.solvers.continuation import CompiledSteps, solve_small
 from dmf_sim.solvers.hbm import kernels, linear_kernels
-from dmf_sim.solvers.hbm.continuation_steps import ContinuationSteps
+from dmf_sim.solvers.hbm.continuation_steps import CondensedSteps
 from dmf_sim.solvers.hbm.expansion import DrivelineRecovery
 from dmf_sim.solvers.hbm.faulted import FaultedParts, combustion_factors, is_symmetric
 from dmf_sim.solvers.hbm.point import HBMOptions, HBMPoint, LinearParts
@@ -106,7 +106,7 @@ def aft_tables(H: int, M: int) -> tuple[np.ndarray, ...]:
     return out
 
 
-class CondensedHBM(ContinuationSteps, DrivelineRecovery, FaultedParts):
+class CondensedHBM(DrivelineRecovery, FaultedParts):
     """Harmonic balance of one driveline at one load fraction, condensed on the DMF wind-up.
 
     Args:
@@ -118,6 +118,8 @@ class CondensedHBM(ContinuationSteps, DrivelineRecovery, FaultedParts):
 
     Attributes:
         symmetric: every cylinder fires alike (the 120 deg shift symmetries hold).
+        steps: what the continuation calls on the problem, compiled
+            (:class:`~dmf_sim.solvers.hbm.continuation_steps.CondensedSteps`).
     """
 
     def __init__(self, loads: DrivelineExcitation, load: float, options: HBMOptions | None = None,
@@ -178,6 +180,7 @@ class CondensedHBM(ContinuationSteps, DrivelineRecovery, FaultedParts):
                              int(self.options.stall_iter), float(self.options.stall_ratio))
         self.factors = combustion_factors(factors, L.phase.shape[0])
         self.symmetric = is_symmetric(self.factors)
+        self.steps = CondensedSteps(self)
         if self.factors is not None:
             self._set_up_faults()
 
@@ -462,6 +465,16 @@ class CondensedHBM(ContinuationSteps, DrivelineRecovery, FaultedParts):
     def _speed_range(self) -> tuple[float, float]:
         rng = getattr(self.loads.engine, 'speed_range_rpm', None)
         return (float(rng[0]), float(rng[1])) if rng is not None else (-np.inf, np.inf)
+
+    def residual_and_jacobians(self, x: np.ndarray, speed_rpm: float):
+        """(r, dr/dx, dr/ds) at wind-up harmonics x and speed [rpm]: the continuation problem
+        (:meth:`CondensedSteps.residual_and_jacobians`)."""
+        return self.steps.residual_and_jacobians(x, speed_rpm)
+
+    def compiled_steps(self) -> CompiledSteps:
+        """The compiled continuation steps to hand ``continue_branch`` (``BranchHooks.steps``);
+        empty when ``compiled`` is off."""
+        return self.steps.compiled_steps()
 
     def _engine_kernel_args(self):
         """(fd, engine table, statics, modal): what the kernels that query the engine read
