@@ -65,3 +65,4 @@ def test_the_groups_load_the_registered_entry_points():
         assert all(len(k.signatures) >= 1 for k in mine), group.name
     assert kernel_registry.SWEEP == SWEEP.name
     assert kernel_registry.TIME_INTEGRATION == TIME_INTEGRATION.name
+

@@ -8,7 +8,7 @@ what :class:`StepsHost` lists; each method returns None where the reference is t
 """
 from __future__ import annotations
 
-from typing import Protocol
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
@@ -19,6 +19,7 @@ from dmf_sim.solvers.hbm.point import LinearParts
 __all__ = ['StepsHost', 'CondensedSteps']
 
 
+@runtime_checkable
 class StepsHost(Protocol):
     """What :class:`CondensedSteps` reads of the condensed problem (``CondensedHBM``).
 

@@ -1,11 +1,12 @@
 """Recovery of the whole driveline from a condensed harmonic balance solution (paper eq. 10-13):
 every DOF's and element's harmonics, the torque transmitted into every element, the DOF state at
 a crank angle, and the Newmark cross-check started on it. A mixin of
-:class:`dmf_sim.solvers.hbm.condensed.CondensedHBM` (it reads the problem's ``model``, ``loads``,
-``load``, ``factors``, ``H``, ``_u0``, ``dof_loads`` and ``nonlinear_harmonics``): the condensed
-solver itself needs none of it, only the wind-up.
+:class:`dmf_sim.solvers.hbm.condensed.CondensedHBM` that reads of its host only what
+:class:`ExpansionHost` lists: the condensed solver itself needs none of it, only the wind-up.
 """
 from __future__ import annotations
+
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
@@ -14,12 +15,40 @@ from dmf_sim.physics.harmonic import solve_harmonic, solve_static
 from dmf_sim.solvers.hbm.point import HBMPoint
 from dmf_sim.solvers.hbm.unknowns import to_complex
 
-__all__ = ['DrivelineRecovery']
+__all__ = ['ExpansionHost', 'DrivelineRecovery']
+
+
+@runtime_checkable
+class ExpansionHost(Protocol):
+    """What :class:`DrivelineRecovery` reads of the condensed problem it is mixed into.
+
+    1. ``model`` (the reduced driveline: ``J``, ``C``, ``K``, ``e``, its elements), ``loads``
+       (the :class:`~dmf_sim.physics.loads.DrivelineExcitation`), ``load`` (the load fraction)
+       and ``factors`` (per-cylinder combustion factors, None: healthy) are the problem's
+       inputs, never changed.
+    2. ``H`` is the number of harmonics of the 720 deg base frequency, and ``_u0`` the static
+       flexibility K^+ e at the DMF (rigid mode removed).
+    3. ``dof_loads(speed_rpm)`` gives the generalized loads P_n on every DOF (H+1, n_dof).
+    4. ``nonlinear_harmonics(x, jacobian=False)`` gives the spring's extra-torque harmonics g_n
+       of a wind-up solution x (and their Jacobian, or None).
+    """
+
+    model: object
+    loads: object
+    load: float
+    factors: object
+    H: int
+    _u0: np.ndarray
+
+    def dof_loads(self, speed_rpm: float) -> np.ndarray: ...
+
+    def nonlinear_harmonics(self, x: np.ndarray, jacobian: bool = False): ...
 
 
 class DrivelineRecovery:
     """Every element's motion and torque from a wind-up solution, by direct solves of the whole
-    chain (the condensed solver's modal receptances are its fast path; these are the check)."""
+    chain (the condensed solver's modal receptances are its fast path; these are the check).
+    Its host is an :class:`ExpansionHost`."""
 
     def linear_parts_direct(self, speed_rpm: float
                             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

@@ -2,6 +2,7 @@
 (paper Fig. 13/15)."""
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass
@@ -128,9 +129,8 @@ class SpeedSweep(BranchSwitching, StateSearch):
         self.hbm = hbm
         self.options = options or SweepOptions()
         base = continuation or ContinuationOptions()
-        self.cont = ContinuationOptions(**{**base.__dict__, 'grid': self.options.step_rpm,
-                                           's_scale': self.options.step_rpm,
-                                           'tol': hbm.options.tol})
+        self.cont = dataclasses.replace(base, grid=self.options.step_rpm,
+                                        s_scale=self.options.step_rpm, tol=hbm.options.tol)
         self.floquet = FloquetAnalyzer(hbm.model, modes=hbm.modes, compiled=hbm.compiled)
         self.search = self.options.search
         self.events: list[SweepEvent] = []
