@@ -273,8 +273,8 @@ RUN_OPTIONS = ('s_scale', 'x_scale', 'step_min', 'step_max', 'grid', 'grid_mode_
 """The ``ContinuationOptions`` fields in grid_run's float array ``opts``, in this order."""
 
 
-def grid_run(s0, y, t, h, lo, hi, opts, max_iter, easy_iter, check_linear, budget, fd, table,
-             statics, modal, aft_mats, spring, X, S, T, IT, RES, ONG):
+def grid_run(s0, y, t, h, lo, hi, opts, max_iter, easy_iter, check_linear, budget, engine,
+             aft_mats, spring, rows):
     """Grid steps of ``continuation.continue_branch`` one after the other, as its loop takes them
     (reference: that loop, the step in grid mode and its step control), from the last point at s0
     [rpm] with scaled unknowns y, unit tangent t and arc step h, the speed range [lo, hi] [rpm];
@@ -290,10 +290,13 @@ def grid_run(s0, y, t, h, lo, hi, opts, max_iter, easy_iter, check_linear, budge
     point whose non-linear torque harmonics are all zero when ``check_linear`` (there the
     fast-forward may apply), where the next step is not a grid step, and where a step is not
     accepted as it stands (the loop retries it its way). Stops after a point on a bound and
-    after ``budget`` steps. Writes the points into rows of X (x [rad]), S (s [rpm]), T (unit
-    tangent), IT (iterations), RES (max|r|), ONG (on the grid), and the last state into y, t;
-    returns (points, h, why: a ``RUN_*`` code)."""
+    after ``budget`` steps. ``engine``: (fd, table, statics, modal) of
+    :func:`linear_parts_at`. Writes the points into the arrays ``rows`` = (X (x [rad]),
+    S (s [rpm]), T (unit tangent), IT (iterations), RES (max|r|), ONG (on the grid)), and the
+    last state into y, t; returns (points, h, why: a ``RUN_*`` code)."""
     ss, xs, step_min, step_max, grid, min_ts, max_corr, max_turn, tol = opts
+    fd, table, statics, modal = engine
+    X, S, T, IT, RES, ONG = rows
     n = y.shape[0] - 1
     A, A2, dA, hh, dh, wlin, dw, wr, dwr = one_speed_work(n)
     G = np.empty(n)

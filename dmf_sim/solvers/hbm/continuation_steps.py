@@ -206,7 +206,6 @@ class CondensedSteps:
         args = self.host._engine_kernel_args()
         if args is None:
             return None
-        fd, table, statics, modal = args
         n1 = len(y)
         size = min(budget, self._run_rows(s_bounds, options.grid))
         X = np.empty((size, n1 - 1))
@@ -220,8 +219,8 @@ class CondensedSteps:
         opts = np.array([float(getattr(options, f)) for f in continuation_kernels.RUN_OPTIONS])
         k, h, why = continuation_kernels.grid_run(
             float(s), y, t, float(h), float(s_bounds[0]), float(s_bounds[1]), opts,
-            int(options.max_iter), int(options.easy_iter), bool(check_linear), size, fd, table,
-            statics, modal, self.host._aft_mats, self.host._spring_arrays, X, S, T, IT, RES, ONG)
+            int(options.max_iter), int(options.easy_iter), bool(check_linear), size, args,
+            self.host._aft_mats, self.host._spring_arrays, (X, S, T, IT, RES, ONG))
         return GridRun(X[:k], S[:k], T[:k], IT[:k], RES[:k], ONG[:k], y, t, h, why)
 
     @staticmethod

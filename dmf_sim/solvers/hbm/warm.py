@@ -105,9 +105,10 @@ def warm_up() -> float:
                         aft_mats, spring, np.empty(n + 1), np.empty(n), np.empty((n, n)),
                         np.empty(n))
     opts = np.ones(len(RUN_OPTIONS))
-    grid_run(1.0, y1, t1, 1.0, 0.0, 2.0, opts, 3, 3, True, 1, 0.05, table, statics, modal,
-             aft_mats, spring, np.empty((1, n)), np.empty(1), np.empty((1, n + 1)),
-             np.empty(1, dtype=np.int64), np.empty(1), np.empty(1, dtype=np.bool_))
+    grid_run(1.0, y1, t1, 1.0, 0.0, 2.0, opts, 3, 3, True, 1, (0.05, table, statics, modal),
+             aft_mats, spring, (np.empty((1, n)), np.empty(1), np.empty((1, n + 1)),
+                                np.empty(1, dtype=np.int64), np.empty(1),
+                                np.empty(1, dtype=np.bool_)))
     ns = 2
     W = np.zeros((2, 2, ns, ns))
     W[:, :] = np.eye(ns)
