@@ -66,3 +66,17 @@ def test_the_groups_load_the_registered_entry_points():
     assert kernel_registry.SWEEP == SWEEP.name
     assert kernel_registry.TIME_INTEGRATION == TIME_INTEGRATION.name
 
+
+
+def test_the_parity_marker_selects_the_registry_parity_tests():
+    """``pytest -m parity`` collects exactly the tests the registry names (test/conftest.py
+    marks them from the table)."""
+    import os
+    import subprocess
+    import sys
+    files = sorted({k.parity.partition('::')[0] for k in KERNELS})
+    out = subprocess.run([sys.executable, '-m', 'pytest', '--collect-only', '-q', '-m', 'parity',
+                          '-p', 'no:cacheprovider', *files], cwd=ROOT, capture_output=True,
+                         text=True, timeout=300, env=dict(os.environ)).stdout
+    collected = {line.split('[')[0] for line in out.splitlines() if '::' in line}
+    assert collected == {k.parity for k in KERNELS}

@@ -14,7 +14,9 @@ that
    listed is missing;
 2. every entry point's reference exists, and its parity test exists in the named file;
 3. every group's ``warm_up`` loads each of its entry points, and a sweep after it compiles
-   nothing new (``test/test_hbm_compiled.py``, from :func:`entry_points`).
+   nothing new (``test/test_hbm_compiled.py``, from :func:`entry_points`);
+4. the tests named here carry the ``parity`` marker (set by ``test/conftest.py`` from this
+   table), so ``pytest -m parity`` runs every kernel against its reference.
 
 Names are strings (``module:attribute``, ``module:Class.method``) so that reading the table
 imports nothing; :func:`resolve` imports one.
