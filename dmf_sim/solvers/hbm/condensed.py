@@ -33,7 +33,7 @@ the chain's complex modes, computed once per model (exactly the direct n_dof x n
 frequency-time (AFT) pass: w(psi_j) on M samples of the cycle -> g(w(psi_j)) -> g_n, with the
 analytic Jacobian dg_n/dw_m = (2/M) sum_j g'(w_j) exp(-i n phi_j) dw_j/dw_m.
 
-All element responses are recovered afterwards, ``q_n = H_n (P_n - e g_n)``
+All element responses follow afterwards (the expansion), ``q_n = H_n (P_n - e g_n)``
 (:mod:`dmf_sim.solvers.hbm.expansion`, a mixin of :class:`CondensedHBM`).
 
 Real unknown layout used throughout: ``x = [w_0, Re w_1..Re w_H, Im w_1..Im w_H]`` [rad].
@@ -53,7 +53,7 @@ from dmf_sim.physics.orders import summarize_orders, summarize_rows, synthesize
 from dmf_sim.solvers.continuation import CompiledSteps, solve_small
 from dmf_sim.solvers.hbm import kernels, linear_kernels
 from dmf_sim.solvers.hbm.continuation_steps import CondensedSteps
-from dmf_sim.solvers.hbm.expansion import DrivelineRecovery
+from dmf_sim.solvers.hbm.expansion import DrivelineExpansion
 from dmf_sim.solvers.hbm.faulted import FaultedParts, combustion_factors, is_symmetric
 from dmf_sim.solvers.hbm.point import HBMOptions, HBMPoint, LinearParts
 from dmf_sim.solvers.hbm.unknowns import fit_harmonics, times_h, to_complex, to_real
@@ -106,7 +106,7 @@ def aft_tables(H: int, M: int) -> tuple[np.ndarray, ...]:
     return out
 
 
-class CondensedHBM(DrivelineRecovery, FaultedParts):
+class CondensedHBM(DrivelineExpansion, FaultedParts):
     """Harmonic balance of one driveline at one load fraction, condensed on the DMF wind-up.
 
     Args:

@@ -1,4 +1,4 @@
-"""Recovery of the whole driveline from a condensed harmonic balance solution (paper eq. 10-13):
+"""Expansion of a condensed harmonic balance solution to the whole driveline (paper eq. 10-13):
 every DOF's and element's harmonics, the torque transmitted into every element, the DOF state at
 a crank angle, and the Newmark cross-check started on it. A mixin of
 :class:`dmf_sim.solvers.hbm.condensed.CondensedHBM` that reads of its host only what
@@ -15,12 +15,12 @@ from dmf_sim.physics.harmonic import solve_harmonic, solve_static
 from dmf_sim.solvers.hbm.point import HBMPoint
 from dmf_sim.solvers.hbm.unknowns import to_complex
 
-__all__ = ['ExpansionHost', 'DrivelineRecovery']
+__all__ = ['ExpansionHost', 'DrivelineExpansion']
 
 
 @runtime_checkable
 class ExpansionHost(Protocol):
-    """What :class:`DrivelineRecovery` reads of the condensed problem it is mixed into.
+    """What :class:`DrivelineExpansion` reads of the condensed problem it is mixed into.
 
     1. ``model`` (the reduced driveline: ``J``, ``C``, ``K``, ``e``, its elements), ``loads``
        (the :class:`~dmf_sim.physics.loads.DrivelineExcitation`), ``load`` (the load fraction)
@@ -45,7 +45,7 @@ class ExpansionHost(Protocol):
     def nonlinear_harmonics(self, x: np.ndarray, jacobian: bool = False): ...
 
 
-class DrivelineRecovery:
+class DrivelineExpansion:
     """Every element's motion and torque from a wind-up solution, by direct solves of the whole
     chain (the condensed solver's modal receptances are its fast path; these are the check).
     Its host is an :class:`ExpansionHost`."""
@@ -54,7 +54,7 @@ class DrivelineRecovery:
                             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(h, wlin, u, v) by direct complex solves Z_n [u_n, v_n] = [e, P_n]
         (harmonic.solve_harmonic); u_n = H_n e, v_n = H_n P_n are DOF vectors (H+1, n_dof). Used
-        for recovery and as a check."""
+        for the expansion and as a check."""
         m = self.model
         P = self.dof_loads(speed_rpm)
         omega = float(speed_rpm) * RPM_TO_RAD_S
