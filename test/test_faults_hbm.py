@@ -26,9 +26,9 @@ from dmf_sim.physics.orders import CYCLE_RAD, OrderSummary, half_orders, resampl
 from dmf_sim.solvers.hbm import CondensedHBM, HBMOptions, SweepOptions, sweep
 from dmf_sim.solvers.hbm.branches import BranchSwitching
 from dmf_sim.solvers.hbm.faulted import apply_faults, is_symmetric, steady_faults
-from dmf_sim.solvers.hbm.layout import shift
 from dmf_sim.solvers.hbm.results import Branch, SweepResult
 from dmf_sim.solvers.hbm.search import N_SHIFTS, StateSearch
+from dmf_sim.solvers.hbm.unknowns import shift
 from dmf_sim.solvers.newmark import SimulationOptions, simulate
 from dmf_sim.solvers.steady import BasinOptions, SteadyState, _Matcher, find_steady_states
 

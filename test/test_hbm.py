@@ -358,7 +358,7 @@ def test_pairs_benchmark_refuses_a_tree_that_borrows_modules(tmp_path):
 def test_fit_harmonics_truncates_pads_and_keeps():
     """Engine and load harmonics n = 0..N are fitted to the HBM's n = 0..H along their harmonic
     axis: the first H+1 kept, missing ones zero, the array itself when N = H."""
-    from dmf_sim.solvers.hbm.layout import fit_harmonics
+    from dmf_sim.solvers.hbm.unknowns import fit_harmonics
     a = np.arange(12, dtype=float).reshape(3, 4) * (1 + 1j)        # 3 speeds, n = 0..3
     assert fit_harmonics(a, 3, axis=1) is a
     assert np.array_equal(fit_harmonics(a, 1, axis=1), a[:, :2])

@@ -4,6 +4,8 @@ the Floquet multipliers, on the paper's two-step spring and on a spring with thr
 and a coast stage; and a whole sweep both ways (same branches, events and stable states)."""
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import yaml
@@ -123,7 +125,7 @@ def test_continuation_jacobians_equal_reference(case, request):
 
 @pytest.mark.parametrize('case', CASES)
 def test_continuation_tangent_equals_reference(case, request):
-    """The continuation's unit tangent at a point (CondensedHBM.tangent, one compiled call with
+    """The continuation's unit tangent at a point (CondensedSteps.tangent, one compiled call with
     the kernels' LU) against continuation._tangent (numpy, LAPACK): the same vector, oriented
     along the previous one; a singular bordered system raises LinAlgError both ways, and the
     reference problem leaves the tangent to the reference."""
@@ -135,16 +137,16 @@ def test_continuation_tangent_equals_reference(case, request):
         _, Jx, rs = hb.residual_and_jacobians(x, s)
         prev = rng.standard_normal(len(x) + 1)
         prev /= np.linalg.norm(prev)
-        got = continuation.tangent_of(hb, Jx, rs, prev, xs, ss)
+        got = continuation.tangent_of(Jx, rs, prev, xs, ss, hb.compiled_steps())
         want = continuation._tangent(Jx, rs, prev, xs, ss)
         assert close(got, want)
         assert abs(np.linalg.norm(got) - 1.0) <= 1e-12 and got @ prev > 0
         assert np.abs(Jx @ got[:-1] * xs + rs * got[-1] * ss).max() <= 1e-10 * np.abs(Jx).max()
-        flipped = continuation.tangent_of(hb, Jx, rs, -prev, xs, ss)
+        flipped = continuation.tangent_of(Jx, rs, -prev, xs, ss, hb.compiled_steps())
         assert close(flipped, -want)
-    assert ref.tangent(Jx, rs, prev, xs, ss) is None
+    assert ref.steps.tangent(Jx, rs, prev, xs, ss) is None
     zero = np.zeros_like(Jx)
-    for tangent in (lambda: hb.tangent(zero, rs * 0.0, prev, xs, ss),
+    for tangent in (lambda: hb.steps.tangent(zero, rs * 0.0, prev, xs, ss),
                     lambda: continuation._tangent(zero, rs * 0.0, prev, xs, ss)):
         with pytest.raises(np.linalg.LinAlgError):
             tangent()
@@ -245,7 +247,7 @@ def check_seeds(hb, ref, lp, seeds, known):
 
 @pytest.mark.parametrize('case', CASES)
 def test_grid_corrector_equals_reference(case, request):
-    """continuation.correct on a grid speed: one compiled call (HBM.corrector_at) vs the
+    """continuation.correct on a grid speed: one compiled call (CondensedSteps.corrector_at) vs the
     reference iteration over residual_and_jacobians."""
     loads, speed = request.getfixturevalue(case)
     hb, ref = both(loads)
@@ -254,8 +256,8 @@ def test_grid_corrector_equals_reference(case, request):
     y_pred = np.concatenate([x * 1.05 / xs, [(speed + 10.0) / ss]])   # next grid speed
     normal = np.zeros(len(y_pred))
     normal[-1] = 1.0
-    a = continuation.correct(hb, y_pred, normal, xs, ss, 1e-10, 12)
-    b = continuation.correct(ref, y_pred, normal, xs, ss, 1e-10, 12)
+    a = continuation.correct(hb, y_pred, normal, xs, ss, 1e-10, 12, steps=hb.compiled_steps())
+    b = continuation.correct(ref, y_pred, normal, xs, ss, 1e-10, 12, steps=ref.compiled_steps())
     assert a[1] == b[1] and a[1] > 0
     assert close(a[0], b[0])
     r, Jx, rs = a[3]
@@ -265,7 +267,7 @@ def test_grid_corrector_equals_reference(case, request):
 
 @pytest.mark.parametrize('case', CASES)
 def test_grid_step_in_one_call_is_corrector_then_tangent(case, request):
-    """A continuation step on a grid speed in one compiled call (HBM.step_at, through
+    """A continuation step on a grid speed in one compiled call (CondensedSteps.step_at, through
     continuation.correct_step) gives bitwise the corrector's point and the tangent there that the
     two calls give, and the reference problem's two Python calls agree with it."""
     loads, speed = request.getfixturevalue(case)
@@ -277,28 +279,29 @@ def test_grid_step_in_one_call_is_corrector_then_tangent(case, request):
     normal[-1] = 1.0
     prev = np.zeros(len(y_pred))
     prev[-1], prev[0] = 0.8, 0.6
-    y, it, res, t = continuation.correct_step(hb, y_pred, normal, prev, xs, ss, 1e-10, 12)
-    a = continuation.correct(hb, y_pred, normal, xs, ss, 1e-10, 12)
-    ta = continuation.tangent_of(hb, a[3][1], a[3][2], prev, xs, ss)
+    steps = hb.compiled_steps()
+    y, it, res, t = continuation.correct_step(hb, y_pred, normal, prev, xs, ss, 1e-10, 12,
+                                              steps=steps)
+    a = continuation.correct(hb, y_pred, normal, xs, ss, 1e-10, 12, steps=steps)
+    ta = continuation.tangent_of(a[3][1], a[3][2], prev, xs, ss, steps)
     assert np.array_equal(y, a[0]) and (it, res) == (a[1], a[2]) and np.array_equal(t, ta)
-    assert ref.step_at(y_pred, prev, xs, ss, 1e-10, 12) is None
-    yr, itr, _, tr = continuation.correct_step(ref, y_pred, normal, prev, xs, ss, 1e-10, 12)
+    assert ref.steps.step_at(y_pred, prev, xs, ss, 1e-10, 12) is None
+    yr, itr, _, tr = continuation.correct_step(ref, y_pred, normal, prev, xs, ss, 1e-10, 12,
+                                               steps=ref.compiled_steps())
     assert itr == it and close(yr, y) and close(tr, t)
     with pytest.raises(continuation.CorrectorFailed):
-        hb.step_at(np.concatenate([x * 40.0 / xs, [speed / ss]]), prev, xs, ss, 1e-10, 2)
+        hb.steps.step_at(np.concatenate([x * 40.0 / xs, [speed / ss]]), prev, xs, ss, 1e-10, 2)
 
 
 def _branch(hb, x0, s0, bounds, options, grid_run, fast_forward=None):
     """continue_branch on hb with ``grid_run`` as its grid runs (None: every step taken by the
     Python loop); (points, why the branch ended)."""
-    hb.grid_run = grid_run                  # getattr(problem, 'grid_run') finds this
     ended = []
-    try:
-        pts = continuation.continue_branch(hb, x0, s0, bounds, 1.0, options,
-                                           fast_forward=fast_forward,
-                                           on_end=lambda why, p: ended.append(why))
-    finally:
-        del hb.grid_run
+    steps = dataclasses.replace(hb.compiled_steps(), grid_run=grid_run)
+    pts = continuation.continue_branch(
+        hb, continuation.BranchStart(x0, s0, bounds, 1.0), options,
+        continuation.BranchHooks(fast_forward=fast_forward,
+                                 on_end=lambda why, p: ended.append(why), steps=steps))
     return pts, ended[0]
 
 
@@ -312,7 +315,7 @@ GRID_RUN_OPTIONS = {
 @pytest.mark.parametrize('case', ['paper', 'staged_d13'])
 @pytest.mark.parametrize('variant', list(GRID_RUN_OPTIONS))
 def test_grid_runs_are_the_loops_grid_steps(case, variant, request):
-    """continue_branch with the problem's compiled grid runs (ContinuationSteps.grid_run) gives
+    """continue_branch with the problem's compiled grid runs (CondensedSteps.grid_run) gives
     bitwise the points of the Python loop taking every step itself: x, speed, tangent,
     iterations, residual, on-grid flag, and the same end; across the knee (grid steps, a turning
     region's arc-length steps), with rejected grid steps retried by the loop and with a step
@@ -326,8 +329,8 @@ def test_grid_runs_are_the_loops_grid_steps(case, variant, request):
     made = []
 
     def run(*args):
-        out = hb.__class__.grid_run(hb, *args)
-        made.append(len(out[1]))
+        out = hb.steps.grid_run(*args)
+        made.append(len(out.s))
         return out
 
     a, why_a = _branch(hb, x0, lo, (lo, hi), o, run)
@@ -349,8 +352,8 @@ def test_grid_run_on_a_range_given_the_wrong_way_round_is_the_loop(paper):
     made = []
 
     def run(*args):
-        out = hb.__class__.grid_run(hb, *args)
-        made.append(len(out[1]))
+        out = hb.steps.grid_run(*args)
+        made.append(len(out.s))
         return out
 
     a, why_a = _branch(hb, x0, 845.0, (900.0, 850.0), o, run)
@@ -377,7 +380,7 @@ def test_grid_run_stops_where_the_fast_forward_may_apply(paper):
             return []
         return fast_forward
 
-    a, _ = _branch(hb, x0, lo, (lo, hi), o, hb.__class__.grid_run.__get__(hb), ff(True))
+    a, _ = _branch(hb, x0, lo, (lo, hi), o, hb.steps.grid_run, ff(True))
     b, _ = _branch(hb, x0, lo, (lo, hi), o, None, ff(False))
     assert len(a) == len(b) and all(np.array_equal(p.x, q.x) for p, q in zip(a, b))
     linear = [[s for s, lin in asked[k] if lin] for k in (True, False)]
@@ -393,7 +396,8 @@ def test_grid_corrector_failure_raises_corrector_failed(paper):
     normal = np.zeros(len(y_pred))
     normal[-1] = 1.0
     with pytest.raises(continuation.CorrectorFailed):
-        continuation.correct(hb, y_pred, normal, 0.01, 10.0, 1e-10, 2)
+        continuation.correct(hb, y_pred, normal, 0.01, 10.0, 1e-10, 2,
+                             steps=hb.compiled_steps())
 
 
 def test_compiled_engine_query_is_the_engine(paper):
@@ -447,15 +451,15 @@ def _arc_step(hb, speed, h=0.6):
 
 def test_arc_length_corrector_equals_reference(paper):
     """continuation.correct with the tangent as normal: one compiled call
-    (CondensedHBM.corrector_arc, every iterate's linear parts in the kernel) vs the reference
+    (CondensedSteps.corrector_arc, every iterate's linear parts in the kernel) vs the reference
     iteration over the numpy residual and Jacobians."""
     loads, speed = paper
     hb, ref = both(loads)
     y_pred, t, xs, ss = _arc_step(hb, speed)
-    assert hb.corrector_arc(y_pred, t, xs, ss, 1e-10, 12) is not None
-    assert ref.corrector_arc(y_pred, t, xs, ss, 1e-10, 12) is None
-    a = continuation.correct(hb, y_pred, t, xs, ss, 1e-10, 12)
-    b = continuation.correct(ref, y_pred, t, xs, ss, 1e-10, 12)
+    assert hb.steps.corrector_arc(y_pred, t, xs, ss, 1e-10, 12) is not None
+    assert ref.steps.corrector_arc(y_pred, t, xs, ss, 1e-10, 12) is None
+    a = continuation.correct(hb, y_pred, t, xs, ss, 1e-10, 12, steps=hb.compiled_steps())
+    b = continuation.correct(ref, y_pred, t, xs, ss, 1e-10, 12, steps=ref.compiled_steps())
     assert a[1] == b[1] and a[1] > 0
     assert close(a[0], b[0])
     assert a[0][-1] != y_pred[-1]                      # the speed moved: an arc-length step
@@ -472,14 +476,15 @@ def test_arc_length_corrector_on_a_lazy_engine(paper):
     assert not lazy.engine._gas.done.all()
     warm, cold = CondensedHBM(loads, 1.0), CondensedHBM(lazy, 1.0)
     y_pred, t, xs, ss = _arc_step(warm, speed)
-    a = continuation.correct(warm, y_pred, t, xs, ss, 1e-10, 12)
-    b = continuation.correct(cold, y_pred, t, xs, ss, 1e-10, 12)
+    a = continuation.correct(warm, y_pred, t, xs, ss, 1e-10, 12, steps=warm.compiled_steps())
+    b = continuation.correct(cold, y_pred, t, xs, ss, 1e-10, 12, steps=cold.compiled_steps())
     assert a[1] == b[1] and np.array_equal(a[0], b[0])
     top = loads.engine.speed_range_rpm[1]
     y_out = y_pred.copy()
     y_out[-1] = (top + 5.0) / ss
     with pytest.raises(continuation.LeftRange):
-        continuation.correct(warm, y_out, t, xs, ss, 1e-10, 12)
+        continuation.correct(warm, y_out, t, xs, ss, 1e-10, 12,
+                             steps=warm.compiled_steps())
 
 
 @pytest.mark.parametrize('case', CASES)
@@ -531,16 +536,9 @@ def test_sweep_compiled_equals_reference(paper):
 def test_warm_up_compiles_what_a_sweep_calls(paper):
     """warm_up (run by a design-study worker when it starts) leaves no compilation for
     the first sweep: the sweep adds no new signature to any kernel."""
-    from dmf_sim.solvers import stability_kernel
-    from dmf_sim.solvers.hbm import continuation_kernels, kernels, linear_kernels
-    from dmf_sim.solvers.hbm.warm import warm_up
+    from dmf_sim.solvers.hbm.warm import kernels, warm_up
     warm_up()
-    fs = [kernels.residual_jacobian_py, kernels.harmonics_py, kernels.newton,
-          kernels.deflated_newton, kernels.deflated_newton_first,
-          continuation_kernels.corrector_fixed_speed, continuation_kernels.step_fixed_speed,
-          continuation_kernels.grid_run, linear_kernels.modal_sums,
-          linear_kernels.linear_parts_many_at,
-          stability_kernel.floquet, stability_kernel.floquet_many]
+    fs = kernels()            # the sweep group of the kernel registry
     before = [len(f.signatures) for f in fs]
     assert all(n >= 1 for n in before)
     loads, _ = paper
@@ -580,16 +578,11 @@ import numpy as np
 from dmf_sim.physics.engine import read_engine
 from dmf_sim.physics.loads import DrivelineExcitation
 from dmf_sim.physics.model import read_model
-from dmf_sim.solvers import lapack_kernel, stability, stability_kernel
-from dmf_sim.solvers.hbm import CondensedHBM, SweepOptions, kernels, linear_kernels, sweep
-from dmf_sim.solvers.hbm import continuation_kernels
-from dmf_sim.solvers.hbm.warm import warm_up
+from dmf_sim.solvers import stability
+from dmf_sim.solvers.hbm import CondensedHBM, SweepOptions, sweep
+from dmf_sim.solvers.hbm.warm import kernels, warm_up
 warm_up()
-fs = [kernels.residual_jacobian_py, kernels.harmonics_py, kernels.newton, kernels.deflated_newton,
-      continuation_kernels.corrector_fixed_speed, linear_kernels.modal_sums,
-      linear_kernels.linear_parts, kernels.residual_jacobians_py,
-      continuation_kernels.step_fixed_speed, linear_kernels.linear_parts_many_at,
-      stability_kernel.floquet, stability_kernel.floquet_many, lapack_kernel.eigenvalues_into]
+fs = kernels()
 before = [len(f.signatures) for f in fs]
 loads = DrivelineExcitation(read_model('truck_dmf', alpha=3.0),
                             read_engine('engine_d13', load_set='A'))

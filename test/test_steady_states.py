@@ -16,7 +16,7 @@ from dmf_sim.physics.loads import DrivelineExcitation
 from dmf_sim.physics.model import read_driveline
 from dmf_sim.solvers.hbm import CondensedHBM, SweepOptions, sweep
 from dmf_sim.solvers.hbm.deflation import DeflatedNewton
-from dmf_sim.solvers.hbm.layout import amplitudes, shift, to_real
+from dmf_sim.solvers.hbm.unknowns import amplitudes, shift, to_real
 from dmf_sim.solvers.newmark import SimulationOptions, simulate
 from dmf_sim.solvers.nonperiodic import NonPeriodicOptions, classify_section
 from dmf_sim.solvers.steady import BasinOptions, find_steady_states, wilson_interval
@@ -170,7 +170,12 @@ def test_a_failing_case_does_not_lose_the_others(monkeypatch, capsys, tmp_path):
 
 def test_corrector_leaving_the_engine_data_ends_the_branch_with_an_event():
     from dmf_sim.core.errors import OperatingRangeError
-    from dmf_sim.solvers.continuation import ContinuationOptions, continue_branch
+    from dmf_sim.solvers.continuation import (
+        BranchHooks,
+        BranchStart,
+        ContinuationOptions,
+        continue_branch,
+    )
 
     class Problem:                       # r = x - s^2 / 1e4, but no data above 1000
         def residual_and_jacobians(self, x, s):
@@ -179,9 +184,9 @@ def test_corrector_leaving_the_engine_data_ends_the_branch_with_an_event():
             return x - np.array([s * s / 1e4]), np.eye(1), np.array([-2 * s / 1e4])
 
     ends = []
-    pts = continue_branch(Problem(), np.array([81.0]), 900.0, (0.0, 2000.0), 1.0,
+    pts = continue_branch(Problem(), BranchStart(np.array([81.0]), 900.0, (0.0, 2000.0), 1.0),
                           ContinuationOptions(s_scale=10.0, x_scale=1.0, grid=10.0),
-                          on_end=lambda reason, p: ends.append((reason, p.s)))
+                          BranchHooks(on_end=lambda reason, p: ends.append((reason, p.s))))
     assert ends and ends[0][0] == 'left_range'
     assert 990.0 <= pts[-1].s <= 1000.0
 

@@ -14,10 +14,10 @@ from dmf_sim.physics.model import read_model
 from dmf_sim.physics.orders import fig13_rows, summarize_orders, synthesize
 from dmf_sim.physics.spring import PiecewiseLinearSpring
 from dmf_sim.solvers.hbm import CondensedHBM, SweepOptions
-from dmf_sim.solvers.hbm.layout import to_real
 from dmf_sim.solvers.hbm.point import HBMOptions, HBMPoint
 from dmf_sim.solvers.hbm.results import Branch
 from dmf_sim.solvers.hbm.sweep import SpeedSweep
+from dmf_sim.solvers.hbm.unknowns import to_real
 
 
 @pytest.fixture(scope='module')

@@ -53,9 +53,9 @@ def _kernels() -> tuple:
     from dmf_sim.core.counter_random import gaussians
     from dmf_sim.live.torques import sparse_outputs
     from dmf_sim.physics.sensor_signals import synthesize
-    from dmf_sim.solvers import newmark_kernel
-    return (newmark_kernel.factor, newmark_kernel.advance_compiled, sparse_outputs, synthesize,
-            gaussians, sensor_messages.fill_messages, pack_records)
+    from dmf_sim.solvers import kernel_registry
+    return (*kernel_registry.entry_points(kernel_registry.TIME_INTEGRATION), sparse_outputs,
+            synthesize, gaussians, sensor_messages.fill_messages, pack_records)
 
 
 TIME_INTEGRATION = KernelGroup('time integration', 'the Newmark step and the torque read-out '

@@ -13,21 +13,29 @@ grid (natural-parameter stepping on a regular grid, so tables come out at round 
 tangent keeps its orientation (t_{k+1} . t_k > 0), which is what carries the continuation around a
 fold and onto the coexisting solutions behind it.
 
-Step control: the step h grows after easy corrections (few Newton iterations) and is halved after a
+Step control (:mod:`dmf_sim.solvers.step_control`, compiled, shared with the compiled grid
+steps): the step h grows after easy corrections (few Newton iterations) and is halved after a
 failed one or a sharp turn of the tangent, between ``step_min`` and ``step_max``.
+
+The caller hands :func:`continue_branch` a :class:`BranchStart`, the options and a
+:class:`BranchHooks` (its callbacks, and the problem's compiled steps, :class:`CompiledSteps`):
+the contract of each is in its docstring.
 """
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from typing import Callable, Protocol
+from dataclasses import dataclass, field
+from typing import Callable, NamedTuple, Protocol
 
 import numpy as np
 from scipy.linalg.lapack import dgesv
 
 from dmf_sim.core.errors import OperatingRangeError
+from dmf_sim.solvers import step_control as sc
+from dmf_sim.solvers.step_control import next_grid, on_grid
 
 __all__ = ['solve_small', 'ContinuationProblem', 'ContinuationOptions', 'ContinuationPoint',
+           'Corrected', 'Step', 'GridRun', 'CompiledSteps', 'BranchStart', 'BranchHooks',
            'CorrectorFailed', 'LeftRange', 'correct', 'tangent_of', 'correct_step',
            'continue_branch', 'on_grid', 'next_grid']
 
@@ -40,10 +48,6 @@ def solve_small(A: np.ndarray, b: np.ndarray) -> np.ndarray:
     return x
 
 
-class ContinuationProblem(Protocol):
-    def residual_and_jacobians(self, x: np.ndarray, s: float
-                               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(r, dr/dx, dr/ds)."""
 
 
 @dataclass(frozen=True)
@@ -88,12 +92,142 @@ class ContinuationOptions:
 
 @dataclass
 class ContinuationPoint:
+    """A point of a branch: unknowns x and parameter s, the unit tangent in scaled coordinates
+    (last entry: dS/da), the corrector's iterations and max|r|, whether s lies on the output
+    grid, and ``point``: the caller's own finished point where a fast-forward made it (else
+    None)."""
+
     x: np.ndarray
     s: float
-    tangent: np.ndarray        # unit tangent in scaled coordinates (last entry: dS/da)
+    tangent: np.ndarray
     iterations: int
     residual: float
     on_grid: bool
+    point: object = None
+
+
+class ContinuationProblem(Protocol):
+    """What :func:`continue_branch` asks of a problem r(x, s) = 0.
+
+    1. ``residual_and_jacobians(x, s)`` returns (r, dr/dx, dr/ds) at unknowns x and parameter s
+       (r of the length of x, dr/dx square, dr/ds a vector), unscaled.
+    2. It raises :class:`dmf_sim.core.errors.OperatingRangeError` for a parameter outside the
+       problem's data (the branch then ends with 'left_range'), nothing else for a bad point
+       (a non-finite r makes the corrector fail and the step shrink).
+    3. It does not keep state between calls that changes its answers: the continuation may ask
+       the same point twice and any point in any order.
+    4. A problem with compiled versions of the steps hands them over in :class:`CompiledSteps`
+       (in :class:`BranchHooks`); the continuation never looks for them on the problem.
+    """
+
+    def residual_and_jacobians(self, x: np.ndarray, s: float
+                               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(r, dr/dx, dr/ds)."""
+
+
+class Corrected(NamedTuple):
+    """A converged corrector: scaled point y = [x / x_scale, s / s_scale], iterations, max|r|,
+    and (r, dr/dx, dr/ds) there."""
+
+    y: np.ndarray
+    iterations: int
+    residual: float
+    jacobians: tuple
+
+
+class Step(NamedTuple):
+    """A corrected step and its unit tangent (None where the tangent's system is singular)."""
+
+    y: np.ndarray
+    iterations: int
+    residual: float
+    tangent: np.ndarray | None
+
+
+class GridRun(NamedTuple):
+    """Grid steps taken in one compiled call (:attr:`CompiledSteps.grid_run`): the new points'
+    rows (x [unknown units], s [parameter units], unit tangent, iterations, max|r|, on the grid)
+    and the state after the last one (scaled point y, tangent t, arc step h), and why the run
+    stopped (a ``RUN_*`` code of :mod:`dmf_sim.solvers.hbm.continuation_kernels`)."""
+
+    x: np.ndarray
+    s: np.ndarray
+    tangent: np.ndarray
+    iterations: np.ndarray
+    residual: np.ndarray
+    on_grid: np.ndarray
+    y: np.ndarray
+    t: np.ndarray
+    h: float
+    why: int
+
+
+@dataclass(frozen=True)
+class CompiledSteps:
+    """A problem's own (compiled) versions of the continuation's steps; a field left None, or a
+    call that returns None, means the reference in this module is used.
+
+    1. ``tangent(Jx, rs, prev, xs, ss)`` is :func:`_tangent`: the unit tangent oriented along
+       ``prev``; raises numpy's LinAlgError on a singular system.
+    2. ``corrector_at(y_pred, xs, ss, tol, max_iter)`` is :func:`correct` with the normal e_S
+       (s fixed on a grid value) and ``corrector_arc(y_pred, normal, xs, ss, tol, max_iter)``
+       with any other normal: each returns a :class:`Corrected` (or a tuple in its order),
+       raises :class:`CorrectorFailed` when it does not converge and OperatingRangeError for a
+       parameter outside the data.
+    3. ``step_at(y_pred, prev, xs, ss, tol, max_iter)`` is ``corrector_at`` and then ``tangent``
+       in one call: a :class:`Step`, its tangent None on a singular system.
+    4. ``grid_run(s, y, t, h, s_bounds, options, check_linear, budget)`` takes the grid step the
+       loop of :func:`continue_branch` has chosen and the grid steps after it, each as the loop
+       takes it (the decisions of :mod:`dmf_sim.solvers.step_control`), and returns a
+       :class:`GridRun` before any other step: at every on-grid point where the fast-forward may
+       apply (``check_linear``), before an arc-length step, before a step it would not accept
+       as it stands, after a point on a bound and after ``budget`` steps.
+    5. Each gives the reference's result to the tolerance its parity test states
+       (:mod:`dmf_sim.solvers.kernel_registry`); ``grid_run`` the loop's points bitwise.
+    """
+
+    tangent: Callable | None = None
+    corrector_at: Callable | None = None
+    corrector_arc: Callable | None = None
+    step_at: Callable | None = None
+    grid_run: Callable | None = None
+
+
+@dataclass(frozen=True)
+class BranchStart:
+    """Where :func:`continue_branch` starts: the converged solution x0 at parameter s0, the
+    parameter range ``s_bounds`` (lo, hi) and the direction (+1 / -1: toward higher / lower s;
+    ignored when ``tangent0``, the first tangent's orientation in scaled coordinates, is
+    given)."""
+
+    x0: np.ndarray
+    s0: float
+    s_bounds: tuple[float, float]
+    direction: float = 1.0
+    tangent0: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class BranchHooks:
+    """What :func:`continue_branch` tells the caller and asks of it during a branch (each
+    optional).
+
+    1. ``on_point(point)`` is called with every new point, the first one included, before the
+       end tests.
+    2. ``stop(point, points)`` returning True ends the branch at that point (reason 'stop').
+    3. ``fast_forward(point, sign)``, called at on-grid points away from turning points, may
+       return further grid points (in the direction ``sign`` of s) whose solutions it knows
+       without iterating; the last one must carry the exact tangent; it must return none where
+       the problem's non-linear part is active (where ``steps.grid_run`` would not stop).
+    4. ``on_end(reason, last_point)`` is told why the branch ended (see :func:`continue_branch`).
+    5. ``steps``: the problem's compiled steps (:class:`CompiledSteps`).
+    """
+
+    stop: Callable[[ContinuationPoint, list[ContinuationPoint]], bool] | None = None
+    on_point: Callable[[ContinuationPoint], None] | None = None
+    fast_forward: Callable[[ContinuationPoint, float], list[ContinuationPoint]] | None = None
+    on_end: Callable[[str, ContinuationPoint], None] | None = None
+    steps: CompiledSteps = field(default_factory=CompiledSteps)
 
 
 class CorrectorFailed(RuntimeError):
@@ -126,11 +260,11 @@ def _tangent(Jx: np.ndarray, rs: np.ndarray, prev: np.ndarray, xs: float, ss: fl
     return t
 
 
-def tangent_of(problem: ContinuationProblem, Jx: np.ndarray, rs: np.ndarray, prev: np.ndarray,
-               xs: float, ss: float) -> np.ndarray:
-    """:func:`_tangent`, by the problem's own compiled ``problem.tangent(Jx, rs, prev, xs, ss)``
-    where it has one (None from it: use :func:`_tangent`)."""
-    own = getattr(problem, 'tangent', None)
+def tangent_of(Jx: np.ndarray, rs: np.ndarray, prev: np.ndarray, xs: float, ss: float,
+               steps: CompiledSteps | None = None) -> np.ndarray:
+    """:func:`_tangent`, by the problem's compiled ``steps.tangent`` where it has one (None
+    from it: :func:`_tangent`)."""
+    own = steps.tangent if steps is not None else None
     t = own(Jx, rs, prev, xs, ss) if own is not None else None
     return _tangent(Jx, rs, prev, xs, ss) if t is None else t
 
@@ -143,23 +277,29 @@ def _evaluate(problem: ContinuationProblem, x: np.ndarray, s: float):
         raise LeftRange(f'parameter {s:g} outside the data: {exc}') from None
 
 
+def _is_e_s(normal: np.ndarray) -> bool:
+    """Whether ``normal`` is e_S (the last unit vector: s fixed)."""
+    n = len(normal) - 1
+    return bool(normal[n] == 1.0 and not np.any(normal[:n]))
+
+
 def correct(problem: ContinuationProblem, y_pred: np.ndarray, normal: np.ndarray,
-            xs: float, ss: float, tol: float, max_iter: int
-            ) -> tuple[np.ndarray, int, float, tuple]:
+            xs: float, ss: float, tol: float, max_iter: int,
+            steps: CompiledSteps | None = None) -> Corrected:
     """Newton on [r(x, s); normal . (y - y_pred)] = 0 in scaled coordinates.
 
-    A problem may do the whole corrector in one call (same iteration, compiled; each returns
-    None to use this one): with the normal e_S (s fixed on a grid speed)
-    ``problem.corrector_at(y_pred, xs, ss, tol, max_iter)``, with any other normal
-    ``problem.corrector_arc(y_pred, normal, xs, ss, tol, max_iter)``."""
+    The problem's compiled corrector does the whole iteration in one call where ``steps`` has
+    one (each returns None to use this one): ``steps.corrector_at`` with the normal e_S (s fixed
+    on a grid speed), ``steps.corrector_arc`` with any other normal."""
     y = y_pred.copy()
     n = len(y) - 1
-    fixed_s = normal[n] == 1.0 and not np.any(normal[:n])
+    fixed_s = _is_e_s(normal)
+    steps = steps or _NO_STEPS
     if fixed_s:
-        compiled = getattr(problem, 'corrector_at', None)
+        compiled = steps.corrector_at
         args = (y_pred, xs, ss, tol, max_iter)
     else:
-        compiled = getattr(problem, 'corrector_arc', None)
+        compiled = steps.corrector_arc
         args = (y_pred, normal, xs, ss, tol, max_iter)
     if compiled is not None:        # the problem's own compiled corrector
         try:
@@ -167,7 +307,7 @@ def correct(problem: ContinuationProblem, y_pred: np.ndarray, normal: np.ndarray
         except OperatingRangeError as exc:
             raise LeftRange(f'parameter {y_pred[n] * ss:g} outside the data: {exc}') from None
         if out is not None:
-            return out
+            return Corrected(*out)
     A = np.empty((n + 1, n + 1))
     res = np.inf
     for it in range(max_iter + 1):
@@ -176,7 +316,7 @@ def correct(problem: ContinuationProblem, y_pred: np.ndarray, normal: np.ndarray
         res = float(np.abs(r).max())
         g = float(normal @ (y - y_pred))
         if res <= tol and abs(g) <= 1e-12:
-            return y, it, res, (r, Jx, rs)
+            return Corrected(y, it, res, (r, Jx, rs))
         if it == max_iter or not np.isfinite(res):
             break
         try:
@@ -194,33 +334,34 @@ def correct(problem: ContinuationProblem, y_pred: np.ndarray, normal: np.ndarray
         if np.abs(dy).max() < 1e-13 and res < 1e3 * tol:
             x, s = y[:n] * xs, y[n] * ss
             r, Jx, rs = _evaluate(problem, x, s)
-            return y, it + 1, float(np.abs(r).max()), (r, Jx, rs)
+            return Corrected(y, it + 1, float(np.abs(r).max()), (r, Jx, rs))
     raise CorrectorFailed.not_converged(res, max_iter)
 
 
 def correct_step(problem: ContinuationProblem, y_pred: np.ndarray, normal: np.ndarray,
                  prev: np.ndarray, xs: float, ss: float, tol: float, max_iter: int,
-                 fixed_s: bool | None = None) -> tuple[np.ndarray, int, float, np.ndarray]:
-    """:func:`correct`, then the unit tangent there oriented along ``prev`` (:func:`tangent_of`):
-    (y, iterations, max|r|, tangent), the tangent None where its system is singular (the caller
-    decides: continue_branch first checks how far the corrector moved). With the normal e_S a
-    problem may do both in one compiled call, ``problem.step_at(y_pred, prev, xs, ss, tol,
-    max_iter)`` (None from it: the two calls). ``fixed_s``: whether ``normal`` is e_S, if the
-    caller knows."""
-    n = len(y_pred) - 1
+                 fixed_s: bool | None = None, steps: CompiledSteps | None = None) -> Step:
+    """:func:`correct`, then the unit tangent there oriented along ``prev`` (:func:`tangent_of`),
+    the tangent None where its system is singular (the caller decides: continue_branch first
+    checks how far the corrector moved). With the normal e_S the problem's ``steps.step_at``
+    does both in one compiled call (None from it: the two calls). ``fixed_s``: whether
+    ``normal`` is e_S, if the caller knows."""
     if fixed_s is None:
-        fixed_s = bool(normal[n] == 1.0 and not normal[:n].any())
-    if fixed_s:
-        compiled = getattr(problem, 'step_at', None)
-        out = compiled(y_pred, prev, xs, ss, tol, max_iter) if compiled is not None else None
+        fixed_s = _is_e_s(normal)
+    steps = steps or _NO_STEPS
+    if fixed_s and steps.step_at is not None:
+        out = steps.step_at(y_pred, prev, xs, ss, tol, max_iter)
         if out is not None:
-            return out
-    y, it, res, (r, Jx, rs) = correct(problem, y_pred, normal, xs, ss, tol, max_iter)
+            return Step(*out)
+    y, it, res, (r, Jx, rs) = correct(problem, y_pred, normal, xs, ss, tol, max_iter, steps)
     try:
-        t = tangent_of(problem, Jx, rs, prev, xs, ss)
+        t = tangent_of(Jx, rs, prev, xs, ss, steps)
     except np.linalg.LinAlgError:
         t = None
-    return y, it, res, t
+    return Step(y, it, res, t)
+
+
+_NO_STEPS = CompiledSteps()
 
 
 class _LoopDetector:
@@ -274,106 +415,118 @@ class _LoopDetector:
         return bool(np.any((gap < self.tol) & (along > 0.9)))
 
 
-def continue_branch(problem: ContinuationProblem, x0: np.ndarray, s0: float,
-                    s_bounds: tuple[float, float],
-                    direction: float = 1.0, options: ContinuationOptions | None = None,
-                    tangent0: np.ndarray | None = None,
-                    stop: (Callable[[ContinuationPoint, list[ContinuationPoint]], bool]
-                           | None) = None,
-                    on_point: Callable[[ContinuationPoint], None] | None = None,
-                    fast_forward: (Callable[[ContinuationPoint, float], list[ContinuationPoint]]
-                                   | None) = None,
-                    on_end: Callable[[str, ContinuationPoint], None] | None = None
-                    ) -> list[ContinuationPoint]:
-    """Follow the solution branch through (x0, s0) (a converged solution) until s leaves
-    ``s_bounds``, ``stop(point, branch)`` returns True, or ``max_steps``.
+class _Branch:
+    """The points of a branch being followed, and why it ended: appending a point tells the
+    caller (``hooks.on_point``) and runs the end tests (:meth:`_ends`)."""
 
-    ``direction`` +1/-1 starts toward higher/lower s (ignored if ``tangent0`` is given).
-    The last point of a branch that reaches a bound lies exactly on the bound.
-    ``fast_forward(point, sign)``, called at grid points away from turning points, may return
-    further grid points (in the direction ``sign`` of s) whose solutions it knows without
-    iterating (the HBM: stretches where the wind-up never reaches a knee, so the response is the
-    linear one); the last one must carry the exact tangent.
-    A problem with ``grid_run`` (the condensed HBM: ``ContinuationSteps.grid_run``) takes a grid
-    step the loop has chosen and the grid steps after it in one call, each as the loop takes it,
-    and returns before any other step: at every on-grid point where its non-linear torque
-    harmonics are all zero (``fast_forward`` must return no points where they are not, as the
-    sweep's does), before an arc-length step and before a step it would not accept as it stands.
-    ``on_end(reason, last_point)`` is told why the branch ended: 'bound' (s reached a bound),
-    'stop', 'closed' (the branch came back onto its own earlier part: see
+    def __init__(self, first: ContinuationPoint, s_bounds: tuple[float, float],
+                 hooks: BranchHooks, closes: _LoopDetector):
+        self.points = [first]
+        self.lo, self.hi = s_bounds
+        self.hooks = hooks
+        self.closes = closes
+        self.done = False
+        self.reason = 'max_steps'
+        if hooks.on_point:
+            hooks.on_point(first)
+
+    def extend(self, new) -> int:
+        """Append the new points in turn (on_point, then the end tests) until the branch ends;
+        how many were appended."""
+        for k, p in enumerate(new):
+            self.points.append(p)
+            if self.hooks.on_point:
+                self.hooks.on_point(p)
+            why = self._ends(p)
+            if why is not None:
+                self.done, self.reason = True, why
+                return k + 1
+        return len(new)
+
+    def _ends(self, p: ContinuationPoint) -> str | None:
+        """Why the branch ends at its new point p: 'bound' (p on a bound of the range), 'stop'
+        (``hooks.stop(p, points)``) or 'closed' (the loop detector); None where it goes on."""
+        if sc.on_bound(p.s, self.lo, self.hi):
+            return 'bound'
+        if self.hooks.stop is not None and self.hooks.stop(p, self.points):
+            return 'stop'
+        if self.closes(p):
+            return 'closed'
+        return None
+
+
+def continue_branch(problem: ContinuationProblem, start: BranchStart,
+                    options: ContinuationOptions | None = None,
+                    hooks: BranchHooks | None = None) -> list[ContinuationPoint]:
+    """Follow the solution branch through (start.x0, start.s0) (a converged solution) until s
+    leaves ``start.s_bounds``, ``hooks.stop(point, branch)`` returns True, or ``max_steps``.
+
+    The last point of a branch that reaches a bound lies exactly on the bound. Every decision
+    of the step control (grid step or arc-length step, accepted or not, the next step size) is
+    a function of :mod:`dmf_sim.solvers.step_control`, which the problem's compiled grid runs
+    (``hooks.steps.grid_run``, :class:`CompiledSteps`) call too.
+    ``hooks.on_end(reason, last_point)`` is told why the branch ended: 'bound' (s reached a
+    bound), 'stop', 'closed' (the branch came back onto its own earlier part: see
     ``ContinuationOptions.loop_skip``), 'left_range' (the corrector needed parameters outside
     the problem's data), 'corrector_failed' (no step, however small, converged) or
     'max_steps'.
     """
     o = options or ContinuationOptions()
+    hooks = hooks or BranchHooks()
+    steps = hooks.steps
     xs, ss = o.x_scale, o.s_scale
-    lo, hi = s_bounds
+    s_bounds = start.s_bounds
+    lo, hi = float(s_bounds[0]), float(s_bounds[1])
+    step_min, step_max = float(o.step_min), float(o.step_max)
+    x0, s0 = np.asarray(start.x0, float), start.s0
     n = len(x0)
-    y = np.concatenate([np.asarray(x0, float) / xs, [s0 / ss]])
-    r, Jx, rs = problem.residual_and_jacobians(np.asarray(x0, float), s0)
-    if tangent0 is None:
+    y = np.concatenate([x0 / xs, [s0 / ss]])
+    r, Jx, rs = problem.residual_and_jacobians(x0, s0)
+    if start.tangent0 is None:
         prev = np.zeros(n + 1)
-        prev[n] = 1.0 if direction >= 0 else -1.0
+        prev[n] = 1.0 if start.direction >= 0 else -1.0
     else:
-        prev = np.asarray(tangent0, float)
-    t = tangent_of(problem, Jx, rs, prev, xs, ss)
-    pts = [ContinuationPoint(np.asarray(x0, float).copy(), float(s0), t, 0, float(np.abs(r).max()),
-                             _on_grid(s0, o.grid))]
-    if on_point:
-        on_point(pts[0])
+        prev = np.asarray(start.tangent0, float)
+    t = tangent_of(Jx, rs, prev, xs, ss, steps)
+    branch = _Branch(ContinuationPoint(x0.copy(), float(s0), t, 0, float(np.abs(r).max()),
+                                       _on_grid(s0, o.grid)), (lo, hi), hooks, _LoopDetector(y, o))
+    pts = branch.points
     h = o.step
     e_s = np.zeros(n + 1)
     e_s[n] = 1.0
-    closes = _LoopDetector(y, o)
-
+    fast_forward = hooks.fast_forward
+    run = steps.grid_run if o.grid is not None else None
     force_arc = False
-    done = False
-    reason = 'max_steps'
     last_failure: CorrectorFailed | None = None
-    run = getattr(problem, 'grid_run', None) if o.grid is not None else None
-    steps = 0
-
-    def extend(new) -> int:
-        """Append the new points in turn (on_point, then the end tests) until the branch ends;
-        how many were appended."""
-        nonlocal done, reason
-        for k, p in enumerate(new):
-            pts.append(p)
-            if on_point:
-                on_point(p)
-            why = _ends(p, pts, lo, hi, stop, closes)
-            if why is not None:
-                done, reason = True, why
-                return k + 1
-        return len(new)
-
-    while steps < o.max_steps and not done:
-        steps += 1
+    count = 0
+    while count < o.max_steps and not branch.done:
+        count += 1
         s = pts[-1].s
         if (fast_forward is not None and pts[-1].on_grid and not force_arc
                 and abs(t[n]) >= o.grid_mode_min_ts):
             jump = fast_forward(pts[-1], 1.0 if t[n] > 0 else -1.0)
-            extend(jump)
+            branch.extend(jump)
             if jump:
                 y = np.concatenate([pts[-1].x / xs, [pts[-1].s / ss]])
                 t = pts[-1].tangent if pts[-1].tangent @ t > 0 else -pts[-1].tangent
                 continue
         # --- choose the step: land on the next grid speed, or a plain arc-length step ----------
-        grid_mode = (not force_arc) and o.grid is not None and abs(t[n]) >= o.grid_mode_min_ts
-        if grid_mode:
-            target = next_grid(s, 1.0 if t[n] > 0 else -1.0, o.grid)
-            target = min(max(target, lo), hi)
-            h_grid = (target - s) / ss / t[n]
-            grid_mode = 0.0 < h_grid <= min(1.5 * o.step_max, 2.0 * h)
+        grid_mode = False
+        if not force_arc and o.grid is not None:
+            grid_mode, target, h_grid = sc.grid_step(float(s), float(t[n]), float(h), lo, hi,
+                                                     float(o.grid), float(ss), step_max,
+                                                     float(o.grid_mode_min_ts))
         if grid_mode and run is not None:
             # this grid step and those after it in one call, each as this loop takes it; the
             # call returns before any other step (none made: the loop takes this one itself)
-            ran = run(s, y, t, h, s_bounds, o, fast_forward is not None, o.max_steps - steps + 1)
-            if ran is not None and len(ran[1]):
-                X, S, T, IT, RES, ONG, y, t, h, _ = ran
-                steps += extend([ContinuationPoint(X[k], float(S[k]), T[k], int(IT[k]),
-                                                   float(RES[k]), bool(ONG[k]))
-                                 for k in range(len(S))]) - 1
+            ran = run(s, y, t, h, s_bounds, o, fast_forward is not None, o.max_steps - count + 1)
+            if ran is not None and len(ran.s):
+                y, t, h = ran.y, ran.t, ran.h
+                count += branch.extend([
+                    ContinuationPoint(ran.x[k], float(ran.s[k]), ran.tangent[k],
+                                      int(ran.iterations[k]), float(ran.residual[k]),
+                                      bool(ran.on_grid[k]))
+                    for k in range(len(ran.s))]) - 1
                 continue
         if grid_mode:
             y_pred = y + h_grid * t
@@ -390,97 +543,64 @@ def continue_branch(problem: ContinuationProblem, x0: np.ndarray, s0: float,
                 normal = e_s
         try:
             y_new, it, res, t_new = correct_step(problem, y_pred, normal, t, xs, ss, o.tol,
-                                                 o.max_iter, normal is e_s)
+                                                 o.max_iter, normal is e_s, steps)
             step_len = abs(h_grid) if grid_mode else h
             moved = y_new - y_pred
-            if math.sqrt(moved @ moved) > o.max_correction * max(step_len, o.step_min):
+            if sc.moved_too_far(math.sqrt(moved @ moved), float(step_len),
+                                float(o.max_correction), step_min):
                 # converged far from the prediction: maybe onto another branch (e.g. a grid
                 # speed beyond a turning point); retry with a smaller arc-length step
                 raise CorrectorFailed('corrector moved too far from the predictor')
             if t_new is None:
                 raise np.linalg.LinAlgError('singular matrix')
-            turn = math.acos(min(max(float(t_new @ t), -1.0), 1.0))
-            if turn > o.max_turn and (grid_mode or h > o.step_min * 1.01):
+            turn = sc.tangent_turn(float(t_new @ t))
+            if sc.turned_too_far(turn, grid_mode, float(h), float(o.max_turn), step_min):
                 raise CorrectorFailed(f'tangent turned by {turn:.2f} rad')
         except CorrectorFailed as exc:
             last_failure = exc
-            if grid_mode:                  # retry the same stretch with arc-length steps
+            action, h = sc.after_failure(float(h), h_grid if grid_mode else math.nan, grid_mode,
+                                         step_min)
+            if action == sc.RETRY_ARC:     # retry the same stretch with arc-length steps
                 force_arc = True
-                h = max(min(h, 0.5 * h_grid), o.step_min)
                 continue
-            if h > o.step_min * 1.01:
-                h = max(h * 0.5, o.step_min)
+            if action == sc.RETRY_HALF:
                 continue
             # The step cannot be made small enough: a (near) branch point, where the tangent is
             # ill-defined. Jump over it along the last good tangent; orient the new tangent by
             # the secant. If that fails too, the branch ends here.
-            jumped = _jump(problem, y, t, xs, ss, o)
+            jumped = _jump(problem, y, t, xs, ss, o, steps)
             if jumped is None:
-                reason = ('left_range' if isinstance(last_failure, LeftRange)
-                          else 'corrector_failed')
+                branch.reason = ('left_range' if isinstance(last_failure, LeftRange)
+                                 else 'corrector_failed')
                 break
             y_new, it, res, t_new = jumped
             h = o.step
         force_arc = False
         y, t = y_new, t_new
         x_new, s_new = y[:n] * xs, float(y[n] * ss)
-        if it <= o.easy_iter:
-            h = min(h * 1.5, o.step_max)
-        elif it > o.easy_iter + 3:
-            h = max(h * 0.6, o.step_min)
-        extend([ContinuationPoint(x_new, s_new, t.copy(), it, res, _on_grid(s_new, o.grid))])
-    if on_end is not None:
-        on_end(reason, pts[-1])
+        h = sc.next_step(float(h), int(it), int(o.easy_iter), step_min, step_max)
+        branch.extend([ContinuationPoint(x_new, s_new, t.copy(), it, res,
+                                         _on_grid(s_new, o.grid))])
+    if hooks.on_end is not None:
+        hooks.on_end(branch.reason, pts[-1])
     return pts
 
 
-def _ends(p: ContinuationPoint, pts: list[ContinuationPoint], lo: float, hi: float, stop,
-          closes: _LoopDetector) -> str | None:
-    """Why the branch ends at its new point p: 'bound' (p on a bound of the range), 'stop'
-    (``stop(p, pts)``) or 'closed' (the loop detector); None where it goes on."""
-    if p.s >= hi - 1e-9 or p.s <= lo + 1e-9:
-        return 'bound'
-    if stop is not None and stop(p, pts):
-        return 'stop'
-    if closes(p):
-        return 'closed'
-    return None
-
-
-def _jump(problem, y, t, xs, ss, o: ContinuationOptions):
+def _jump(problem, y, t, xs, ss, o: ContinuationOptions, steps: CompiledSteps) -> Step | None:
     """Try arc steps of growing length along t with relaxed checks (passing a branch point)."""
     for hj in (0.05, 0.2, 0.5):
         y_pred = y + hj * t
         try:
-            y_new, it, res, jac = correct(problem, y_pred, t, xs, ss, o.tol, o.max_iter)
+            y_new, it, res, jac = correct(problem, y_pred, t, xs, ss, o.tol, o.max_iter, steps)
         except CorrectorFailed:
             continue
         if np.linalg.norm(y_new - y_pred) > hj:
             continue
         secant = y_new - y
-        t_new = tangent_of(problem, jac[1], jac[2], secant / np.linalg.norm(secant), xs, ss)
-        return y_new, it, res, t_new
+        t_new = tangent_of(jac[1], jac[2], secant / np.linalg.norm(secant), xs, ss, steps)
+        return Step(y_new, it, res, t_new)
     return None
 
 
-def on_grid(s: float, grid: float) -> bool:
-    """Whether the parameter s lies on the grid of spacing ``grid`` (within 1e-7 of s). Written
-    once: the compiled grid steps use this function, compiled
-    (:mod:`dmf_sim.solvers.hbm.continuation_kernels`)."""
-    k = round(s / grid)
-    return abs(s - k * grid) < 1e-7 * max(1.0, abs(s))
-
-
-def next_grid(s: float, sign: float, grid: float) -> float:
-    """The next grid value beyond s in the direction ``sign`` (a value within 1e-7 grid spacings
-    of a grid value counts as on it). Compiled for the grid steps as :func:`on_grid` is."""
-    k = s / grid
-    if sign > 0:
-        nxt = math.floor(k + 1e-7) + 1
-    else:
-        nxt = math.ceil(k - 1e-7) - 1
-    return nxt * grid
-
-
 def _on_grid(s: float, grid: float | None) -> bool:
-    return grid is not None and on_grid(s, grid)
+    return grid is not None and on_grid(float(s), float(grid))

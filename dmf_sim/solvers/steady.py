@@ -29,7 +29,7 @@ from dmf_sim.core.errors import ConfigError, ConvergenceError
 from dmf_sim.physics.loads import DrivelineExcitation
 from dmf_sim.solvers.hbm import CondensedHBM, HBMOptions, HBMPoint, SweepOptions, sweep
 from dmf_sim.solvers.hbm.faulted import fingerprints
-from dmf_sim.solvers.hbm.layout import to_real
+from dmf_sim.solvers.hbm.unknowns import to_real
 from dmf_sim.solvers.newmark import SimulationOptions, simulate
 from dmf_sim.solvers.nonperiodic import NonPeriodicResult
 from dmf_sim.solvers.stability import FlexibleModes, FloquetAnalyzer

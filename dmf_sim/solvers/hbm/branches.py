@@ -21,22 +21,50 @@ directions when it converges to a solution not yet on a branch:
 """
 from __future__ import annotations
 
+from typing import Protocol, runtime_checkable
+
 import numpy as np
 
 from dmf_sim.core.errors import ConvergenceError
 from dmf_sim.solvers.hbm.faulted import fingerprints
-from dmf_sim.solvers.hbm.layout import SUB_HARMONICS, sub_part, to_complex, to_real
 from dmf_sim.solvers.hbm.point import HBMPoint
 from dmf_sim.solvers.hbm.results import Branch, SweepEvent, on_grid, runs
+from dmf_sim.solvers.hbm.unknowns import SUB_HARMONICS, sub_part, to_complex, to_real
 
-__all__ = ['BranchSwitching']
+__all__ = ['SwitchingHost', 'BranchSwitching']
+
+
+@runtime_checkable
+class SwitchingHost(Protocol):
+    """What :class:`BranchSwitching` reads of the sweep it is mixed into
+    (:class:`dmf_sim.solvers.hbm.sweep.SpeedSweep`).
+
+    1. ``hbm`` (the :class:`~dmf_sim.solvers.hbm.condensed.CondensedHBM`), ``options``
+       (``SweepOptions``), ``cont`` (``ContinuationOptions``) and ``floquet`` (the
+       ``FloquetAnalyzer``) are the sweep's settings and solvers, never changed.
+    2. ``branches`` (list of :class:`~dmf_sim.solvers.hbm.results.Branch`) and ``events`` (list
+       of ``SweepEvent``) are the sweep's results so far; branch switching appends to them,
+       each new branch with the next id.
+    3. ``_trace(x0, s0, direction, branch, kind, bar, stop=None)`` follows a branch by
+       continuation from a solution and returns its finished points.
+    4. ``_events(branch)`` records a traced branch's folds and stability changes.
+    """
+
+    hbm: object
+    options: object
+    cont: object
+    floquet: object
+    branches: list
+    events: list
+
+    def _trace(self, x0, s0, direction, branch, kind, bar, stop=None) -> list: ...
+
+    def _events(self, b) -> None: ...
 
 
 class BranchSwitching:
     """Seeding and following of further branches: a mixin of
-    :class:`dmf_sim.solvers.hbm.sweep.SpeedSweep`
-    (it uses the sweep's ``hbm``, ``options``, ``floquet``, ``branches``, ``events``, ``_trace``
-    and ``_events``)."""
+    :class:`dmf_sim.solvers.hbm.sweep.SpeedSweep`, whose host is a :class:`SwitchingHost`."""
 
     # ---- is a solution already on a branch? -----------------------------------------------------
     def _fingerprints(self, x: np.ndarray) -> np.ndarray:

@@ -33,8 +33,8 @@ the chain's complex modes, computed once per model (exactly the direct n_dof x n
 frequency-time (AFT) pass: w(psi_j) on M samples of the cycle -> g(w(psi_j)) -> g_n, with the
 analytic Jacobian dg_n/dw_m = (2/M) sum_j g'(w_j) exp(-i n phi_j) dw_j/dw_m.
 
-All element responses are recovered afterwards, ``q_n = H_n (P_n - e g_n)``
-(:mod:`dmf_sim.solvers.hbm.recovery`, a mixin of :class:`CondensedHBM`).
+All element responses follow afterwards (the expansion), ``q_n = H_n (P_n - e g_n)``
+(:mod:`dmf_sim.solvers.hbm.expansion`, a mixin of :class:`CondensedHBM`).
 
 Real unknown layout used throughout: ``x = [w_0, Re w_1..Re w_H, Im w_1..Im w_H]`` [rad].
 """
@@ -50,13 +50,13 @@ from dmf_sim.core.units import RPM_TO_RAD_S
 from dmf_sim.physics.harmonic import solve_static
 from dmf_sim.physics.loads import DrivelineExcitation
 from dmf_sim.physics.orders import summarize_orders, summarize_rows, synthesize
-from dmf_sim.solvers.continuation import solve_small
+from dmf_sim.solvers.continuation import CompiledSteps, solve_small
 from dmf_sim.solvers.hbm import kernels, linear_kernels
-from dmf_sim.solvers.hbm.continuation_steps import ContinuationSteps
+from dmf_sim.solvers.hbm.continuation_steps import CondensedSteps
+from dmf_sim.solvers.hbm.expansion import DrivelineExpansion
 from dmf_sim.solvers.hbm.faulted import FaultedParts, combustion_factors, is_symmetric
-from dmf_sim.solvers.hbm.layout import fit_harmonics, times_h, to_complex, to_real
 from dmf_sim.solvers.hbm.point import HBMOptions, HBMPoint, LinearParts
-from dmf_sim.solvers.hbm.recovery import DrivelineRecovery
+from dmf_sim.solvers.hbm.unknowns import fit_harmonics, times_h, to_complex, to_real
 from dmf_sim.solvers.stability import FlexibleModes
 
 __all__ = ['aft_tables', 'SHARP_DAMPING_RATIO', 'RESONANCE_SHARE', 'LINEAR_PARTS_CACHE',
@@ -106,7 +106,7 @@ def aft_tables(H: int, M: int) -> tuple[np.ndarray, ...]:
     return out
 
 
-class CondensedHBM(ContinuationSteps, DrivelineRecovery, FaultedParts):
+class CondensedHBM(DrivelineExpansion, FaultedParts):
     """Harmonic balance of one driveline at one load fraction, condensed on the DMF wind-up.
 
     Args:
@@ -118,6 +118,8 @@ class CondensedHBM(ContinuationSteps, DrivelineRecovery, FaultedParts):
 
     Attributes:
         symmetric: every cylinder fires alike (the 120 deg shift symmetries hold).
+        steps: what the continuation calls on the problem, compiled
+            (:class:`~dmf_sim.solvers.hbm.continuation_steps.CondensedSteps`).
     """
 
     def __init__(self, loads: DrivelineExcitation, load: float, options: HBMOptions | None = None,
@@ -178,6 +180,7 @@ class CondensedHBM(ContinuationSteps, DrivelineRecovery, FaultedParts):
                              int(self.options.stall_iter), float(self.options.stall_ratio))
         self.factors = combustion_factors(factors, L.phase.shape[0])
         self.symmetric = is_symmetric(self.factors)
+        self.steps = CondensedSteps(self)
         if self.factors is not None:
             self._set_up_faults()
 
@@ -462,6 +465,16 @@ class CondensedHBM(ContinuationSteps, DrivelineRecovery, FaultedParts):
     def _speed_range(self) -> tuple[float, float]:
         rng = getattr(self.loads.engine, 'speed_range_rpm', None)
         return (float(rng[0]), float(rng[1])) if rng is not None else (-np.inf, np.inf)
+
+    def residual_and_jacobians(self, x: np.ndarray, speed_rpm: float):
+        """(r, dr/dx, dr/ds) at wind-up harmonics x and speed [rpm]: the continuation problem
+        (:meth:`CondensedSteps.residual_and_jacobians`)."""
+        return self.steps.residual_and_jacobians(x, speed_rpm)
+
+    def compiled_steps(self) -> CompiledSteps:
+        """The compiled continuation steps to hand ``continue_branch`` (``BranchHooks.steps``);
+        empty when ``compiled`` is off."""
+        return self.steps.compiled_steps()
 
     def _engine_kernel_args(self):
         """(fd, engine table, statics, modal): what the kernels that query the engine read

@@ -27,7 +27,6 @@ import math
 import numpy as np
 
 from dmf_sim.core.compiled import jit
-from dmf_sim.solvers import continuation
 from dmf_sim.solvers.hbm.dense_kernels import lu_solve, lu_work, max_abs
 from dmf_sim.solvers.hbm.kernels import (
     CONVERGED,
@@ -40,6 +39,15 @@ from dmf_sim.solvers.hbm.kernels import (
     speed_derivative,
 )
 from dmf_sim.solvers.hbm.linear_kernels import ENGINE_OK, linear_parts_at, one_speed_work
+from dmf_sim.solvers.step_control import (
+    grid_step,
+    moved_too_far,
+    next_step,
+    on_bound,
+    on_grid,
+    tangent_turn,
+    turned_too_far,
+)
 
 __all__ = ['TANGENT_SINGULAR', 'tangent', 'add_step', 'corrector_fixed_speed',
            'step_fixed_speed', 'residual_jacobians_at', 'corrector_arclength', 'grid_run',
@@ -265,25 +273,30 @@ RUN_OPTIONS = ('s_scale', 'x_scale', 'step_min', 'step_max', 'grid', 'grid_mode_
 """The ``ContinuationOptions`` fields in grid_run's float array ``opts``, in this order."""
 
 
-def grid_run(s0, y, t, h, lo, hi, opts, max_iter, easy_iter, check_linear, budget, fd, table,
-             statics, modal, aft_mats, spring, X, S, T, IT, RES, ONG):
+def grid_run(s0, y, t, h, lo, hi, opts, max_iter, easy_iter, check_linear, budget, engine,
+             aft_mats, spring, rows):
     """Grid steps of ``continuation.continue_branch`` one after the other, as its loop takes them
     (reference: that loop, the step in grid mode and its step control), from the last point at s0
     [rpm] with scaled unknowns y, unit tangent t and arc step h, the speed range [lo, hi] [rpm];
     the first step is one the loop has chosen (its fast-forward asked already). ``opts``: the
     floats of :data:`RUN_OPTIONS`; ``max_iter``, ``easy_iter`` the corrector's. Each step predicts
-    the next grid speed along t, corrects there (:func:`step_fixed_speed`, the linear parts by
-    :func:`linear_parts_at`) and is accepted by the loop's tests (corrector displacement, turn of
-    the tangent); then h grows after an easy step and shrinks after a hard one.
+    the next grid speed along t (:func:`dmf_sim.solvers.step_control.grid_step`), corrects there
+    (:func:`step_fixed_speed`, the linear parts by :func:`linear_parts_at`) and is accepted by
+    the loop's tests (``step_control.moved_too_far``, ``step_control.turned_too_far``); then h
+    changes as the loop's (``step_control.next_step``): every decision is the loop's own
+    function.
 
     Stops before any step the loop would take otherwise, leaving it to the loop: at a new on-grid
     point whose non-linear torque harmonics are all zero when ``check_linear`` (there the
     fast-forward may apply), where the next step is not a grid step, and where a step is not
     accepted as it stands (the loop retries it its way). Stops after a point on a bound and
-    after ``budget`` steps. Writes the points into rows of X (x [rad]), S (s [rpm]), T (unit
-    tangent), IT (iterations), RES (max|r|), ONG (on the grid), and the last state into y, t;
-    returns (points, h, why: a ``RUN_*`` code)."""
+    after ``budget`` steps. ``engine``: (fd, table, statics, modal) of
+    :func:`linear_parts_at`. Writes the points into the arrays ``rows`` = (X (x [rad]),
+    S (s [rpm]), T (unit tangent), IT (iterations), RES (max|r|), ONG (on the grid)), and the
+    last state into y, t; returns (points, h, why: a ``RUN_*`` code)."""
     ss, xs, step_min, step_max, grid, min_ts, max_corr, max_turn, tol = opts
+    fd, table, statics, modal = engine
+    X, S, T, IT, RES, ONG = rows
     n = y.shape[0] - 1
     A, A2, dA, hh, dh, wlin, dw, wr, dwr = one_speed_work(n)
     G = np.empty(n)
@@ -308,12 +321,8 @@ def grid_run(s0, y, t, h, lo, hi, opts, max_iter, easy_iter, check_linear, budge
                     break
             if linear:
                 return count, h, RUN_LINEAR
-        if not abs(tn) >= min_ts:
-            return count, h, RUN_NOT_GRID
-        target = next_grid(s, 1.0 if tn > 0 else -1.0, grid)
-        target = min(max(target, lo), hi)
-        h_grid = (target - s) / ss / tn
-        if not 0.0 < h_grid <= min(1.5 * step_max, 2.0 * h):
+        grid_mode, target, h_grid = grid_step(s, tn, h, lo, hi, grid, ss, step_max, min_ts)
+        if not grid_mode:
             return count, h, RUN_NOT_GRID
         for i in range(n + 1):
             y_pred[i] = y[i] + h_grid * t[i]
@@ -328,9 +337,9 @@ def grid_run(s0, y, t, h, lo, hi, opts, max_iter, easy_iter, check_linear, budge
             return count, h, RUN_RETRY
         for i in range(n + 1):
             moved[i] = y_new[i] - y_pred[i]
-        if math.sqrt(np.dot(moved, moved)) > max_corr * max(abs(h_grid), step_min):
+        if moved_too_far(math.sqrt(np.dot(moved, moved)), abs(h_grid), max_corr, step_min):
             return count, h, RUN_RETRY
-        if math.acos(min(max(np.dot(t_new, t), -1.0), 1.0)) > max_turn:
+        if turned_too_far(tangent_turn(np.dot(t_new, t)), True, h, max_turn, step_min):
             return count, h, RUN_RETRY
         for i in range(n + 1):
             y[i] = y_new[i]
@@ -345,11 +354,8 @@ def grid_run(s0, y, t, h, lo, hi, opts, max_iter, easy_iter, check_linear, budge
         RES[count] = res
         ONG[count] = on_grid(s, grid)
         count += 1
-        if it <= easy_iter:
-            h = min(h * 1.5, step_max)
-        elif it > easy_iter + 3:
-            h = max(h * 0.6, step_min)
-        if s >= hi - 1e-9 or s <= lo + 1e-9:
+        h = next_step(h, it, easy_iter, step_min, step_max)
+        if on_bound(s, lo, hi):
             return count, h, RUN_BOUND
     return count, h, RUN_BUDGET
 
@@ -361,6 +367,4 @@ residual_jacobians_at = jit(residual_jacobians_at)
 _evaluate_scaled = jit(_evaluate_scaled)
 corrector_arclength = jit(corrector_arclength)
 step_fixed_speed = jit(step_fixed_speed)
-on_grid = jit(continuation.on_grid)        # the continuation's grid convention, compiled
-next_grid = jit(continuation.next_grid)
 grid_run = jit(grid_run)

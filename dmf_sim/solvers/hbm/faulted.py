@@ -45,8 +45,8 @@ from dmf_sim.core.units import RPM_TO_RAD_S
 from dmf_sim.physics.faults import Fault, FaultSet
 from dmf_sim.physics.loads import DrivelineExcitation
 from dmf_sim.solvers.hbm import linear_kernels
-from dmf_sim.solvers.hbm.layout import amplitudes, fit_harmonics, to_real
 from dmf_sim.solvers.hbm.point import LinearParts
+from dmf_sim.solvers.hbm.unknowns import amplitudes, fit_harmonics, to_real
 
 __all__ = ['steady_faults', 'apply_faults', 'combustion_factors', 'is_symmetric',
            'fingerprints', 'FaultedParts']

@@ -122,7 +122,7 @@ def aft(x, aft_mats, spring, G, dG, jac):
 
 def times_h_into(h, v, out):
     """out <- h_n * v_n on the real layout (complex product per harmonic): the compiled
-    :func:`dmf_sim.solvers.hbm.layout.times_h` of a vector."""
+    :func:`dmf_sim.solvers.hbm.unknowns.times_h` of a vector."""
     H = h.shape[0] - 1
     out[0] = h[0].real * v[0]
     for k in range(1, H + 1):

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dmf_sim.physics.orders import OrderSummary
-from dmf_sim.solvers.hbm.layout import SUB_HARMONICS
+from dmf_sim.solvers.hbm.unknowns import SUB_HARMONICS
 
 __all__ = ['HBMOptions', 'LinearParts', 'HBMPoint']
 

@@ -22,7 +22,7 @@ After continuation and branch switching (dmf_sim.solvers.hbm.sweep, .branches):
    that cannot be done gets an explicit reason instead (``not_computed``).
 
 Twins: when the cylinders fire alike, the 120 deg shifts of a state
-(dmf_sim.solvers.hbm.layout.shift) are one physical state; its multiplicity is the number of
+(dmf_sim.solvers.hbm.unknowns.shift) are one physical state; its multiplicity is the number of
 distinct shifted solutions Newton confirms. With faults that make the cylinders differ
 (dmf_sim.solvers.hbm.faulted) a shifted state is no solution: only the known states themselves
 are deflated, and every state counts once.
@@ -30,18 +30,20 @@ are deflated, and every state counts once.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
 from dmf_sim.core.errors import ConvergenceError, OperatingRangeError
+from dmf_sim.solvers.hbm.branches import SwitchingHost
 from dmf_sim.solvers.hbm.deflation import DeflatedNewton, DeflationOptions
-from dmf_sim.solvers.hbm.layout import all_shifts, amplitudes, shift, to_complex, to_real
 from dmf_sim.solvers.hbm.point import HBMPoint
 from dmf_sim.solvers.hbm.results import Branch, NonPeriodicBand, SweepEvent
+from dmf_sim.solvers.hbm.unknowns import all_shifts, amplitudes, shift, to_complex, to_real
 from dmf_sim.solvers.newmark import SimulationOptions, simulate
 from dmf_sim.solvers.nonperiodic import NonPeriodicOptions, analyze
 
-__all__ = ['N_SHIFTS', 'SearchOptions', 'StateSearch']
+__all__ = ['N_SHIFTS', 'SearchOptions', 'SearchHost', 'StateSearch']
 
 N_SHIFTS = 6        # a 720 deg cycle holds six 120 deg firing intervals
 
@@ -136,11 +138,48 @@ def _seed_label(label: tuple) -> str:
     return f'3rd-order seed x {label[1]:g}'
 
 
+@runtime_checkable
+class SearchHost(SwitchingHost, Protocol):
+    """What :class:`StateSearch` reads of the sweep it is mixed into
+    (:class:`dmf_sim.solvers.hbm.sweep.SpeedSweep`), besides a :class:`SwitchingHost`'s.
+
+    1. ``search`` is the ``SearchOptions`` of the sweep (never None when the search runs), and
+       ``range`` the sweep's speed range (lo, hi) [rpm].
+    2. ``non_periodic``, ``uncovered`` and ``not_computed`` are result lists the search fills
+       (bands without a stable periodic state, grid speeds no branch reached, speeds that could
+       not be computed and why).
+    3. ``output_grid()`` gives the requested speeds [rpm] and ``_uncovered()`` the grid speeds
+       no branch reached.
+    4. ``check_time(speed_rpm)`` raises ``TimeLimitError`` once the time limit has passed,
+       naming ``_phase``, which the search sets to the step it is in.
+    5. ``_follow(seed, origin, bar)``, ``_known(point, tol)`` and ``_novelty_tol(point)`` are
+       the branch switching's (:class:`~dmf_sim.solvers.hbm.branches.BranchSwitching`): follow
+       a new state both ways as a new branch, and whether a state is on a known branch.
+    """
+
+    search: object
+    range: tuple
+    non_periodic: list
+    uncovered: list
+    not_computed: list
+    _phase: str
+
+    def output_grid(self) -> np.ndarray: ...
+
+    def _uncovered(self) -> np.ndarray: ...
+
+    def check_time(self, speed_rpm: float) -> None: ...
+
+    def _follow(self, seed, origin: str, bar): ...
+
+    def _known(self, q, tol: float) -> bool: ...
+
+    def _novelty_tol(self, q) -> float: ...
+
+
 class StateSearch:
-    """The full search: a mixin of :class:`dmf_sim.solvers.hbm.sweep.SpeedSweep` (it uses the
-    sweep's ``hbm``, ``options``, ``floquet``, ``branches``, ``events``, ``range``,
-    ``not_computed``, ``output_grid``, ``_point``, ``_follow``, ``_known``, ``_novelty_tol``,
-    ``_trace``, and ``check_time`` with the ``_phase`` it names)."""
+    """The full search: a mixin of :class:`dmf_sim.solvers.hbm.sweep.SpeedSweep`, whose host is
+    a :class:`SearchHost`."""
 
     # ---- known states at one speed --------------------------------------------------------------
     def states_at(self, s: float) -> list[tuple[np.ndarray, bool | None]]:

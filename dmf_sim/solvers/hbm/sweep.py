@@ -2,6 +2,7 @@
 (paper Fig. 13/15)."""
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass
@@ -15,10 +16,10 @@ from dmf_sim.physics.orders import synthesize
 from dmf_sim.solvers.hbm.branches import BranchSwitching
 from dmf_sim.solvers.hbm.condensed import CondensedHBM
 from dmf_sim.solvers.hbm.faulted import apply_faults, steady_faults
-from dmf_sim.solvers.hbm.layout import to_complex
 from dmf_sim.solvers.hbm.point import HBMOptions, HBMPoint
 from dmf_sim.solvers.hbm.results import Branch, SweepEvent, SweepResult
 from dmf_sim.solvers.hbm.search import SearchOptions, StateSearch
+from dmf_sim.solvers.hbm.unknowns import to_complex
 from dmf_sim.solvers.hbm.warm import SWEEP
 from dmf_sim.solvers.stability import by_modulus
 
@@ -128,9 +129,8 @@ class SpeedSweep(BranchSwitching, StateSearch):
         self.hbm = hbm
         self.options = options or SweepOptions()
         base = continuation or ContinuationOptions()
-        self.cont = ContinuationOptions(**{**base.__dict__, 'grid': self.options.step_rpm,
-                                           's_scale': self.options.step_rpm,
-                                           'tol': hbm.options.tol})
+        self.cont = dataclasses.replace(base, grid=self.options.step_rpm,
+                                        s_scale=self.options.step_rpm, tol=hbm.options.tol)
         self.floquet = FloquetAnalyzer(hbm.model, modes=hbm.modes, compiled=hbm.compiled)
         self.search = self.options.search
         self.events: list[SweepEvent] = []
@@ -175,13 +175,13 @@ class SpeedSweep(BranchSwitching, StateSearch):
         return pts
 
     def _trace(self, x0, s0, direction, branch, kind, bar, stop=None) -> list[HBMPoint]:
-        from dmf_sim.solvers.continuation import continue_branch
+        from dmf_sim.solvers.continuation import BranchHooks, BranchStart, continue_branch
         pts: list[HBMPoint | None] = []
         solved: list = []              # (index in pts, continuation point): made at the end
         last = [s0]
 
         def on_point(cp):
-            pre = getattr(cp, 'point', None)
+            pre = cp.point
             if pre is not None:
                 pre.branch, pre.kind = branch, kind
                 pts.append(pre)
@@ -202,8 +202,9 @@ class SpeedSweep(BranchSwitching, StateSearch):
                                               'the branch came back onto its own earlier part '
                                               '(a closed loop): it ends here'))
 
-        continue_branch(self.hbm, x0, s0, self.range, direction, self.cont, stop=stop,
-                        on_point=on_point, fast_forward=self._linear_stretch, on_end=on_end)
+        hooks = BranchHooks(stop=stop, on_point=on_point, fast_forward=self._linear_stretch,
+                            on_end=on_end, steps=self.hbm.compiled_steps())
+        continue_branch(self.hbm, BranchStart(x0, s0, self.range, direction), self.cont, hooks)
         made = self._points([cp for _, cp in solved], branch, kind)
         for (i, _), p in zip(solved, made):
             pts[i] = p
@@ -254,8 +255,7 @@ class SpeedSweep(BranchSwitching, StateSearch):
                 if mu is not None:
                     p.multipliers, p.max_multiplier = mu[j], top[j]
                     p.stable = top[j] < 1.0 + self.floquet.tol
-                q = ContinuationPoint(p.x, p.speed_rpm, None, 0, 0.0, True)
-                q.point = p
+                q = ContinuationPoint(p.x, p.speed_rpm, None, 0, 0.0, True, point=p)
                 out.append(q)
             if k < len(ok) or len(speeds) < batch:
                 break
@@ -274,7 +274,7 @@ class SpeedSweep(BranchSwitching, StateSearch):
                 q.point.tangent_speed = float(d[-1])
             last = out[-1]
             r, Jx, rs = hb.residual_and_jacobians(last.x, last.s)
-            last.tangent = tangent_of(hb, Jx, rs, last.tangent, xs, ss)
+            last.tangent = tangent_of(Jx, rs, last.tangent, xs, ss, hb.compiled_steps())
             last.point.tangent_speed = float(last.tangent[-1])
         return out
 
@@ -346,8 +346,9 @@ class SpeedSweep(BranchSwitching, StateSearch):
             x = self.hbm.solve(start).x
         except ConvergenceError:
             return None, ''
-        from dmf_sim.solvers.continuation import continue_branch
-        pts = continue_branch(self.hbm, x, start, (start, lo), 1.0, self.cont)
+        from dmf_sim.solvers.continuation import BranchHooks, BranchStart, continue_branch
+        pts = continue_branch(self.hbm, BranchStart(x, start, (start, lo), 1.0), self.cont,
+                              BranchHooks(steps=self.hbm.compiled_steps()))
         if abs(pts[-1].s - lo) > 1e-6:
             return None, ''
         return pts[-1].x, (f'continuation from {lo:g} rpm (its start solution continued from '

@@ -11,7 +11,7 @@ import numpy as np
 
 from dmf_sim.core.kernel_cache import KernelGroup
 from dmf_sim.physics.spring import PiecewiseLinearSpring
-from dmf_sim.solvers import stability_kernel
+from dmf_sim.solvers import kernel_registry, stability_kernel, step_control
 from dmf_sim.solvers.hbm.continuation_kernels import (
     RUN_OPTIONS,
     corrector_arclength,
@@ -29,8 +29,8 @@ from dmf_sim.solvers.hbm.kernels import (
     residual_jacobian_py,
     residual_jacobians_py,
 )
-from dmf_sim.solvers.hbm.layout import to_real
 from dmf_sim.solvers.hbm.linear_kernels import linear_parts, linear_parts_many_at, modal_sums
+from dmf_sim.solvers.hbm.unknowns import to_real
 from dmf_sim.solvers.lapack_kernel import eigenvalues_into
 
 __all__ = ['warm_up', 'kernels', 'SWEEP', 'SWEEP_COMPILE_S']
@@ -105,9 +105,10 @@ def warm_up() -> float:
                         aft_mats, spring, np.empty(n + 1), np.empty(n), np.empty((n, n)),
                         np.empty(n))
     opts = np.ones(len(RUN_OPTIONS))
-    grid_run(1.0, y1, t1, 1.0, 0.0, 2.0, opts, 3, 3, True, 1, 0.05, table, statics, modal,
-             aft_mats, spring, np.empty((1, n)), np.empty(1), np.empty((1, n + 1)),
-             np.empty(1, dtype=np.int64), np.empty(1), np.empty(1, dtype=np.bool_))
+    grid_run(1.0, y1, t1, 1.0, 0.0, 2.0, opts, 3, 3, True, 1, (0.05, table, statics, modal),
+             aft_mats, spring, (np.empty((1, n)), np.empty(1), np.empty((1, n + 1)),
+                                np.empty(1, dtype=np.int64), np.empty(1),
+                                np.empty(1, dtype=np.bool_)))
     ns = 2
     W = np.zeros((2, 2, ns, ns))
     W[:, :] = np.eye(ns)
@@ -122,16 +123,22 @@ def warm_up() -> float:
                                   np.empty(1, dtype=np.int64))
     # the multipliers of one point analyzed alone (stability.eigenvalues calls it from Python)
     eigenvalues_into(np.eye(ns), np.empty(ns), np.empty(ns))
+    # the continuation loop's step control, called from Python with these types
+    step_control.on_grid(1.0, 1.0)
+    step_control.grid_step(1.0, 1.0, 1.0, 0.0, 2.0, 1.0, 1.0, 1.0, 0.2)
+    step_control.moved_too_far(0.1, 1.0, 0.5, 1e-4)
+    step_control.turned_too_far(step_control.tangent_turn(1.0), True, 1.0, 0.6, 1e-4)
+    step_control.after_failure(1.0, 0.5, True, 1e-4)
+    step_control.next_step(1.0, 2, 3, 1e-4, 1.0)
+    step_control.on_bound(1.0, 0.0, 2.0)
     return time.perf_counter() - t0
 
 
 
 def kernels() -> tuple:
-    """The entry points :func:`warm_up` loads (numba dispatchers)."""
-    return (residual_jacobian_py, residual_jacobians_py, harmonics_py, newton, deflated_newton,
-            deflated_newton_first, corrector_fixed_speed, tangent, step_fixed_speed, modal_sums,
-            linear_parts, residual_jacobians_at, linear_parts_many_at, corrector_arclength,
-            grid_run, stability_kernel.floquet, stability_kernel.floquet_many, eigenvalues_into)
+    """The entry points :func:`warm_up` loads (numba dispatchers): the sweep group of
+    :mod:`dmf_sim.solvers.kernel_registry`."""
+    return kernel_registry.entry_points(kernel_registry.SWEEP)
 
 
 SWEEP_COMPILE_S = 40.0

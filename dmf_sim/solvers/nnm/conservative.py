@@ -76,6 +76,8 @@ import scipy.linalg
 from dmf_sim.core.errors import ConfigError
 from dmf_sim.physics.model import ReducedModel
 from dmf_sim.solvers.continuation import (
+    BranchHooks,
+    BranchStart,
     ContinuationOptions,
     CorrectorFailed,
     continue_branch,
@@ -256,8 +258,10 @@ class ConservativeNNM:
         def stop(p, pts):
             return self.energy(p.x, p.s) / self.e_nl > xi_stop
 
-        pts = continue_branch(self, a0, W0, (0.05 * self.omega_lin, 20.0 * self.omega_lin),
-                              options=copt, tangent0=tangent0, stop=stop)
+        pts = continue_branch(self, BranchStart(a0, W0, (0.05 * self.omega_lin,
+                                                         20.0 * self.omega_lin),
+                                                tangent0=tangent0),
+                              copt, BranchHooks(stop=stop))
         A = np.array([p.x for p in pts])
         W = np.array([p.s for p in pts])
         shares = np.array([self.kinetic_shares(x, w) for x, w in zip(A, W)])

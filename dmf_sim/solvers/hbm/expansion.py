@@ -1,31 +1,60 @@
-"""Recovery of the whole driveline from a condensed harmonic balance solution (paper eq. 10-13):
+"""Expansion of a condensed harmonic balance solution to the whole driveline (paper eq. 10-13):
 every DOF's and element's harmonics, the torque transmitted into every element, the DOF state at
 a crank angle, and the Newmark cross-check started on it. A mixin of
-:class:`dmf_sim.solvers.hbm.condensed.CondensedHBM` (it reads the problem's ``model``, ``loads``,
-``load``, ``factors``, ``H``, ``_u0``, ``dof_loads`` and ``nonlinear_harmonics``): the condensed
-solver itself needs none of it, only the wind-up.
+:class:`dmf_sim.solvers.hbm.condensed.CondensedHBM` that reads of its host only what
+:class:`ExpansionHost` lists: the condensed solver itself needs none of it, only the wind-up.
 """
 from __future__ import annotations
+
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
 from dmf_sim.core.units import RPM_TO_RAD_S
 from dmf_sim.physics.harmonic import solve_harmonic, solve_static
-from dmf_sim.solvers.hbm.layout import to_complex
 from dmf_sim.solvers.hbm.point import HBMPoint
+from dmf_sim.solvers.hbm.unknowns import to_complex
 
-__all__ = ['DrivelineRecovery']
+__all__ = ['ExpansionHost', 'DrivelineExpansion']
 
 
-class DrivelineRecovery:
+@runtime_checkable
+class ExpansionHost(Protocol):
+    """What :class:`DrivelineExpansion` reads of the condensed problem it is mixed into.
+
+    1. ``model`` (the reduced driveline: ``J``, ``C``, ``K``, ``e``, its elements), ``loads``
+       (the :class:`~dmf_sim.physics.loads.DrivelineExcitation`), ``load`` (the load fraction)
+       and ``factors`` (per-cylinder combustion factors, None: healthy) are the problem's
+       inputs, never changed.
+    2. ``H`` is the number of harmonics of the 720 deg base frequency, and ``_u0`` the static
+       flexibility K^+ e at the DMF (rigid mode removed).
+    3. ``dof_loads(speed_rpm)`` gives the generalized loads P_n on every DOF (H+1, n_dof).
+    4. ``nonlinear_harmonics(x, jacobian=False)`` gives the spring's extra-torque harmonics g_n
+       of a wind-up solution x (and their Jacobian, or None).
+    """
+
+    model: object
+    loads: object
+    load: float
+    factors: object
+    H: int
+    _u0: np.ndarray
+
+    def dof_loads(self, speed_rpm: float) -> np.ndarray: ...
+
+    def nonlinear_harmonics(self, x: np.ndarray, jacobian: bool = False): ...
+
+
+class DrivelineExpansion:
     """Every element's motion and torque from a wind-up solution, by direct solves of the whole
-    chain (the condensed solver's modal receptances are its fast path; these are the check)."""
+    chain (the condensed solver's modal receptances are its fast path; these are the check).
+    Its host is an :class:`ExpansionHost`."""
 
     def linear_parts_direct(self, speed_rpm: float
                             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(h, wlin, u, v) by direct complex solves Z_n [u_n, v_n] = [e, P_n]
         (harmonic.solve_harmonic); u_n = H_n e, v_n = H_n P_n are DOF vectors (H+1, n_dof). Used
-        for recovery and as a check."""
+        for the expansion and as a check."""
         m = self.model
         P = self.dof_loads(speed_rpm)
         omega = float(speed_rpm) * RPM_TO_RAD_S
