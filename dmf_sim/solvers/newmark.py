@@ -301,6 +301,12 @@ class NewmarkIntegrator:
         self._read_counters()
         return rows
 
+    def restart_stop_peak(self) -> None:
+        """Start :attr:`peak_stop_torque_nm` afresh (the next chunk's own largest contact
+        torque; the contacts and the friction heat keep counting)."""
+        self._sums[1] = 0.0
+        self.peak_stop_torque_nm = 0.0
+
     def _read_counters(self) -> None:
         c = self._counters.tolist()
         self.knee_crossings, self.steps_secondary, self.steps_coast, self.split_steps = c[:4]
