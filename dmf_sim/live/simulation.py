@@ -570,7 +570,8 @@ class LiveSimulation:
         # d'Alembert part with the reference acceleration at the end of the chunk (exact while
         # the speed is constant or ramping; a ramp that ends inside the chunk is off for <= 1 row)
         position, velocity, effort = self._torques.outputs_of(
-            rec.q[:row], rec.v[:row], rec.a[:row], w, psi, chunk.omega_dot, chunk.loads, work)
+            rec.q[:row], rec.v[:row], rec.a[:row], w, psi, chunk.omega_dot, chunk.loads, work,
+            rec.omega[:row])
         return Samples(step=chunk.first + self.stride * np.arange(row, dtype=np.int64),
                        t=rec.t[:row], psi=psi, speed_rpm=rec.omega[:row] * RAD_S_TO_RPM,
                        windup=w, position=position, velocity=velocity, effort=effort,
