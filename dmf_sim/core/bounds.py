@@ -92,9 +92,9 @@ BOUNDS: dict[str, Bound] = {
         'stop): 2 rad = 115 deg, beyond the arc-spring travel of any DMF (truck DMFs travel '
         '~40-70 deg; the shipped knee is at 0.24 rad); > 0: a knee on the drive or coast side')),
     'stiffness_factor': Bound(0.0, 50.0, '', reason=(
-        'a stage stiffness k (1 + factor): a stage stiffer than 51 k is an end stop, which a '
-        'piecewise-linear arc-spring model does not describe (and the Newmark step cannot '
-        'resolve); the paper varies alpha 1..5')),
+        'a stage stiffness k (1 + factor): a stage stiffer than 51 k is an end stop, which '
+        "has its own contact law (the spring's dmf.end_stops) rather than a stage; the paper "
+        'varies alpha 1..5')),
     'friction_torque': Bound(0.0, 1.0e4, 'Nm', reason=(
         "the arc springs' constant friction torque T0 (eq. 8a of doc/theory.md): measured DMF "
         'hysteresis loops of car and truck DMFs show tens to a few hundred Nm; 1e4 Nm is 3.6x '

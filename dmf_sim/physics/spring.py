@@ -65,9 +65,9 @@ __all__ = ['Stage', 'ArcFriction', 'EndStops', 'PiecewiseLinearSpring', 'STIFFNE
            'STAGE_ANGLE_MAX_RAD', 'HBM_FRICTION_MESSAGE', 'LAW_SIZE']
 
 STIFFNESS_FACTOR_MAX = BOUNDS['stiffness_factor'].hi
-"""Largest stage stiffness factor [-]: a stage stiffer than 51 k is an end stop, which a
-piecewise-linear arc-spring model does not describe (and the Newmark step cannot resolve); from
-the table of bounds, :data:`dmf_sim.core.bounds.BOUNDS`."""
+"""Largest stage stiffness factor [-]: a stage stiffer than 51 k is an end stop, which has its
+own contact law (:class:`EndStops`) rather than a stage; from the table of bounds,
+:data:`dmf_sim.core.bounds.BOUNDS`."""
 
 STAGE_ANGLE_MAX_RAD = BOUNDS['windup_angle'].hi
 """Largest stage angle [rad] (115 deg: beyond any arc-spring travel of a DMF; the table of
