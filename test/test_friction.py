@@ -289,3 +289,43 @@ def test_the_harmonic_balance_refuses_friction_in_one_line(capsys, tmp_path):
     stops_only = _line(end_stops=_doc()['dmf']['end_stops'])
     assert stops_only.spring.friction is None and stops_only.spring.stops is not None
     assert math.isfinite(stops_only.spring.stops.stiffness)
+
+
+def test_the_monitor_keeps_its_orders_but_predicts_nothing_with_friction():
+    """The node's monitor: no harmonic-balance job for a spring with friction (the solver is
+    never called), and the reason in its status values."""
+    from dmf_sim.monitor.worker import LiveMonitor, MonitorSettings
+    calls = []
+
+    def solver(*args, **kw):
+        calls.append(args)
+        raise AssertionError('the prediction must not run')
+
+    line = dmf.read_driveline('truck_dmf_friction')
+    mon = LiveMonitor(line, dmf.read_engine(ENGINE), MonitorSettings(worker='thread'),
+                      solver=solver)
+    try:
+        mon.wait_ready(60.0)
+        mon.set_setpoint(1200.0, 1.0)
+        assert mon._job is None                      # nothing submitted to the worker
+        assert mon.poll().prediction is None and not calls
+        assert mon.counters['prediction_off'] == HBM_FRICTION_MESSAGE
+    finally:
+        mon.close()
+    plain = LiveMonitor(dmf.read_driveline('truck_dmf'), dmf.read_engine(ENGINE),
+                        MonitorSettings(worker='thread'), solver=solver)
+    try:
+        assert plain.counters['prediction_off'] == ''
+    finally:
+        plain.close()
+
+
+def test_runup_and_analyze_skip_the_overlay_with_one_warning(tmp_path, capsys):
+    bag = tmp_path / 'ru'
+    assert cli_main(['run', 'ramp:1000:1200:200', '--config', 'truck_dmf_friction', '--out',
+                     str(bag), '--no-progress', '--no-sensors']) == 0
+    capsys.readouterr()
+    assert cli_main(['runup', str(bag), '--out', str(tmp_path / 'r')]) == 0
+    capsys.readouterr()
+    text = (tmp_path / 'r' / 'runup.json').read_text()
+    assert text.count(f'no HBM overlay: {HBM_FRICTION_MESSAGE}') == 1
