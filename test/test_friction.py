@@ -329,3 +329,29 @@ def test_runup_and_analyze_skip_the_overlay_with_one_warning(tmp_path, capsys):
     capsys.readouterr()
     text = (tmp_path / 'r' / 'runup.json').read_text()
     assert text.count(f'no HBM overlay: {HBM_FRICTION_MESSAGE}') == 1
+
+
+def test_published_torques_carry_the_friction_and_stop_torque():
+    """The node's element torques (effort) with friction and a stop contact equal the model's
+    transmitted torques with the DMF's non-linear torque g + T_f + T_s (eq. 8a-8b), and differ
+    from the elastic spring's by exactly that torque at the DMF."""
+    from dmf_sim.live.simulation import LiveSimulation
+    line = _line(friction={'torque_nm': 80.0, 'speed_coefficient': 3e-3},
+                 end_stops={'drive_angle_rad': 0.25, 'coast_angle_rad': 0.2,
+                            'stiffness': 1e6, 'damping': 300.0})
+    sim = LiveSimulation(line, dmf.read_engine(ENGINE), speed_rpm=1200.0, load=1.0)
+    sim.advance(2000)
+    it, op = sim.integ, sim._torques
+    m = it.model
+    q = np.vstack([it.q, it.q + m.e * (0.02 / float(m.e @ m.e))])    # the second in contact
+    v, a = np.vstack([it.v, it.v]), np.vstack([it.a, it.a])
+    w, psi = q @ m.e, np.repeat(it.psi, 2)
+    omega = np.full(2, it.omega)
+    law = m.spring.law_torque(w, v @ m.e, omega)
+    assert abs(law[0]) > 10.0 and law[1] > 1e3                  # friction; friction + contact
+    loads = it.element_loads(psi, it.omega_dot)
+    ref = m.transmitted_torques(q, v, a, loads, m.spring.extra_torque(w) + law)
+    with_law = op.outputs_of(q, v, a, w, psi, it.omega_dot, omega_rad_s=omega)[2].copy()
+    elastic = op.outputs_of(q, v, a, w, psi, it.omega_dot)[2].copy()
+    np.testing.assert_allclose(with_law, ref, rtol=1e-9, atol=1e-6)
+    np.testing.assert_allclose(with_law - elastic, np.multiply.outer(law, op.c), atol=1e-6)
