@@ -4,9 +4,17 @@ Figures printed: steps per second and real-time factor at dt = 1e-4 s (one core,
 kernel, numba compile excluded), and the speed-up over solve_ivp on the same case (same start,
 same excitation) at the same accuracy: both are compared with a reference run (Newmark at dt/8)
 over the same interval; solve_ivp's rtol is tightened until its wind-up error is no larger than
-Newmark's at dt. Last line: one JSON object.
+Newmark's at dt.
 
-    python benchmarks/bench_newmark.py [--steps N] [--ivp-seconds S] [--quick]
+What arc-spring friction and end stops cost (``config/truck_dmf_friction.yaml``, the paper's DMF
+with both; doc/theory.md eq. 8a-8c): ``kernel_friction_slowdown``, the kernel's time per step
+with them over without (same case, same steps); ``run_friction_slowdown``, the wall time of
+``dmf-sim run --no-write`` of a tip-in (``step:1200:0:1:0.1``, 4.2 s simulated, the node's 1 kHz
+samples read out) with them over without, the median of ``--repeat`` alternating runs in this
+process; ``realtime_factor_run_friction``: simulated / wall seconds of that run with friction
+(the node at 1 kHz keeps real time while it is > 1). Last line: one JSON object.
+
+    python benchmarks/bench_newmark.py [--steps N] [--ivp-seconds S] [--repeat R] [--quick]
 """
 from __future__ import annotations
 
@@ -65,16 +73,70 @@ def ivp_windup(L, t_eval: np.ndarray, rtol: float) -> tuple[np.ndarray, float, i
     return sol.y[:n].T @ m.e, wall, sol.nfev
 
 
+FRICTION_CONFIG = 'truck_dmf_friction'
+TIP_IN = 'step:1200:0:1:0.1'           # 0 -> 1 -> 0 in 0.1 s at 1200 rpm: sliding and sticking
+TIP_IN_QUICK = 'step:1200:0:1:0.1:0.3:0.2'
+
+
+def kernel_seconds(L, steps: int) -> float:
+    """Wall seconds of ``steps`` Newmark steps (recorded at 100 Hz) after a warm-up."""
+    integ = NewmarkIntegrator(L, dt=DT)
+    integ.reset(SPEED_RPM, LOAD)
+    integ.advance(1000, StepRecord.allocate(1000, L.model.n_dof), 1)
+    stride = 100
+    rec = StepRecord.allocate(steps // stride + 1, L.model.n_dof)
+    t0 = time.perf_counter()
+    integ.advance(steps, rec, stride)
+    return time.perf_counter() - t0
+
+
+def run_seconds(config: str, profile: str) -> tuple[float, float]:
+    """(wall, simulated) seconds of ``dmf-sim run PROFILE --config CONFIG --no-write``."""
+    from dmf_sim.transient.profiles import read_profile
+    from dmf_sim.transient.run import RunOptions, run_profile
+    s = run_profile(read_profile(profile), None,
+                    RunOptions(driveline=config, write=False))
+    return s.wall_s, s.simulated_s
+
+
+def friction_cost(steps: int, profile: str, repeat: int) -> dict:
+    """The friction figures of the module docstring."""
+    import statistics
+    plain = make_loads()
+    rough = DrivelineExcitation(read_model(FRICTION_CONFIG, alpha=ALPHA),
+                                read_engine('engine_d13'))
+    k_plain, k_rough = kernel_seconds(plain, steps), kernel_seconds(rough, steps)
+    for config in ('truck_dmf', FRICTION_CONFIG):          # compile / load once
+        run_seconds(config, profile)
+    walls: dict[str, list[float]] = {'truck_dmf': [], FRICTION_CONFIG: []}
+    simulated = 0.0
+    for _ in range(repeat):
+        for config in walls:
+            wall, simulated = run_seconds(config, profile)
+            walls[config].append(wall)
+    w_plain = statistics.median(walls['truck_dmf'])
+    w_rough = statistics.median(walls[FRICTION_CONFIG])
+    return {'kernel_friction_slowdown': round(k_rough / k_plain, 3),
+            'kernel_steps_per_s_friction': round(steps / k_rough),
+            'run_friction_slowdown': round(w_rough / w_plain, 3),
+            'realtime_factor_run_friction': round(simulated / w_rough, 1),
+            'realtime_factor_run_no_friction': round(simulated / w_plain, 1),
+            'friction_profile': profile, 'friction_config': FRICTION_CONFIG,
+            'friction_repeat': repeat}
+
+
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('--steps', type=int, default=2_000_000,
                     help='Newmark steps timed (default 2e6 = 200 s)')
     ap.add_argument('--ivp-seconds', type=float, default=0.2,
                     help='simulated seconds for the accuracy race')
+    ap.add_argument('--repeat', type=int, default=5,
+                    help='runs with and without friction (alternating; the medians)')
     ap.add_argument('--quick', action='store_true', help='small sizes (used by the test suite)')
     args = ap.parse_args(argv)
     if args.quick:
-        args.steps, args.ivp_seconds = 200_000, 0.05
+        args.steps, args.ivp_seconds, args.repeat = 200_000, 0.05, 1
     os.environ.setdefault('NUMBA_NUM_THREADS', '1')
     L = make_loads()
 
@@ -121,14 +183,21 @@ def main(argv=None) -> dict:
         'solve_ivp_seconds': round(ivp_wall, 3),
         'speedup_vs_solve_ivp': round(ivp_wall / nm_wall, 1),
         'simulated_seconds_compared': T,
-        'targets': {'steps_per_s': 1e6, 'realtime_factor': 100, 'speedup_vs_solve_ivp': 50},
+        'targets': {'steps_per_s': 1e6, 'realtime_factor': 100, 'speedup_vs_solve_ivp': 50,
+                    'run_friction_slowdown_max': 2.0, 'realtime_factor_run_friction_min': 1.0},
     }
+    result.update(friction_cost(args.steps, TIP_IN_QUICK if args.quick else TIP_IN,
+                                args.repeat))
     print(f'Newmark (numba, 1 core): {steps_per_s:,.0f} steps/s = {rtf:.0f}x real time '
           f'at dt={DT} s')
     print(f'accuracy over {T} s vs dt/8 reference: Newmark {err_nm:.2e}, '
           f'solve_ivp RK45 rtol={rtol_used:g} {err_ivp:.2e}')
     print(f'wall: Newmark {nm_wall*1e3:.1f} ms, solve_ivp {ivp_wall*1e3:.0f} ms '
           f'-> speed-up {ivp_wall/nm_wall:.0f}x')
+    r = result
+    print(f'friction and end stops ({FRICTION_CONFIG}): kernel x{r["kernel_friction_slowdown"]} '
+          f'per step, dmf-sim run {r["friction_profile"]} x{r["run_friction_slowdown"]} '
+          f'({r["realtime_factor_run_friction"]:.0f}x real time with them)')
     print(json.dumps(result))
     return result
 

@@ -37,6 +37,7 @@ over the runs; the node's lag since its start would count its start-up), ``lag_p
 (the end-to-end JointState lag p99, the same over the runs) and the real-time factor.
 
     python benchmarks/bench_node.py [--duration 60] [--fast-duration 10] [--warmup 3] [--nodes N]
+                                    [--config truck_dmf_friction]
     python benchmarks/bench_node.py --sensors-pairs 3 --duration 30
 """
 from __future__ import annotations
@@ -421,12 +422,12 @@ def run_nodes(args, domain: int, tmp: Path, sensors: bool, fast: bool,
     bags; returns the figures."""
     extra = ['-p', f'publish_rate:={args.publish_rate!r}', '-p', 'dt:=0.0001',
              '-p', 'diagnostics_rate:=1.0', '-p', f'monitor:={args.monitor == "on"}'.lower(),
-             '-p', f'sensors:={str(sensors).lower()}']
+             '-p', f'sensors:={str(sensors).lower()}', '-p', f'driveline:={args.config}']
     namespaces = [''] if args.nodes == 1 else [f'/truck{i + 1}' for i in range(args.nodes)]
     runs = [NodeRun(ns, tmp / f'bench_bag{tag}{ns.replace("/", "_")}', tmp, extra)
             for ns in namespaces]
     probe = stack = None
-    result: dict = {'sensors': sensors}
+    result: dict = {'sensors': sensors, 'config': args.config}
     try:
         cap = int((args.duration + 5) * args.publish_rate * 1.2) + 1000
         probe = Probe(domain, cap, [r.fqn for r in runs])
@@ -535,6 +536,9 @@ def main(argv=None) -> dict:
     ap.add_argument('--setpoint-period', type=float, default=0.0,
                     help='send a new speed setpoint every this many seconds during the '
                          'real-time measurement (0 = none)')
+    ap.add_argument('--config', default='truck_dmf',
+                    help="the node's driveline (parameter driveline; e.g. truck_dmf_friction: "
+                         'the DMF with arc-spring friction and end stops)')
     ap.add_argument('--sensors', choices=('on', 'off'), default='on',
                     help="the node's sensors (edge batches, bus speeds; default on, as the "
                          'node); on: the probe subscribes to them too')

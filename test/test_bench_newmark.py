@@ -22,3 +22,9 @@ def test_bench_newmark_quick_prints_json():
             or data['solve_ivp_rtol'] == 1e-8)
     assert data['realtime_factor'] == data['steps_per_s'] * data['dt_s'] or \
         abs(data['realtime_factor'] - data['steps_per_s'] * data['dt_s']) < 0.1
+    # what friction and end stops cost: the kernel and dmf-sim run with them over without
+    for key in ('kernel_friction_slowdown', 'run_friction_slowdown',
+                'realtime_factor_run_friction', 'kernel_steps_per_s_friction'):
+        assert math.isfinite(data[key]) and data[key] > 0, key
+    assert data['realtime_factor_run_friction'] > 1.0     # the node at 1 kHz keeps real time
+    assert data['friction_config'] == 'truck_dmf_friction'

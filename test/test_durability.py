@@ -196,7 +196,8 @@ def test_durability_command_on_a_run_bag(road_bag, tmp_path, capsys):
     assert sum(b['damage'] for b in d['speed_bands']) + d['damage_residue'] == \
         pytest.approx(d['damage'])
     assert sum(s['time_s'] for s in d['stages'].values()) == pytest.approx(d['duration_s'])
-    assert 'arc springs is not in the model' in d['dissipated_power']['note']
+    assert 'the spring has no arc-spring friction' in d['dissipated_power']['note']
+    assert d['dissipated_power']['friction_energy_j'] == 0.0 and d['end_stops'] is None
     assert d['largest_torques'][0]['torque_nm'] == pytest.approx(
         max(abs(d['torque_nm']['min']), abs(d['torque_nm']['max'])))
     assert d['batches'] >= 2                      # read in batches, not whole

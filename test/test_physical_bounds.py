@@ -24,7 +24,7 @@ def _raw(name: str) -> dict:
 
 
 BASE = {name: _raw(name) for name in ('truck_dmf', 'engine_d13', 'study_example',
-                                      'optimize_example', 'durability')}
+                                      'optimize_example', 'durability', 'truck_dmf_friction')}
 
 
 def _edges(b: Bound, positive: bool = False) -> tuple[list[float], list[float]]:
@@ -143,6 +143,20 @@ CASES = [
      "dmf: field 'alpha'", True),
     ('windup_angle', False, 'truck_dmf', _driveline, _dmf_stages('angle_rad'),
      "dmf.stages[0]: field 'angle_rad'", True),
+    # the DMF's arc-spring friction and end stops
+    ('friction_torque', False, 'truck_dmf_friction', _driveline, _set('dmf.friction.torque_nm'),
+     "dmf.friction: field 'torque_nm'", True),
+    ('friction_speed_coefficient', False, 'truck_dmf_friction', _driveline,
+     _set('dmf.friction.speed_coefficient'), "dmf.friction: field 'speed_coefficient'", True),
+    ('friction_regularization', False, 'truck_dmf_friction', _driveline,
+     _set('dmf.friction.regularization_rad_s'), "dmf.friction: field 'regularization_rad_s'",
+     True),
+    ('windup_angle', False, 'truck_dmf_friction', _driveline,
+     _set('dmf.end_stops.drive_angle_rad'), "dmf.end_stops: field 'drive_angle_rad'", False),
+    ('stiffness', True, 'truck_dmf_friction', _driveline, _set('dmf.end_stops.stiffness'),
+     "dmf.end_stops: field 'stiffness'", True),
+    ('damping', False, 'truck_dmf_friction', _driveline, _set('dmf.end_stops.damping'),
+     "dmf.end_stops: field 'damping'", True),
     ('stiffness_factor', False, 'truck_dmf', _driveline, _dmf_stages('stiffness_factor'),
      "dmf.stages[0]: field 'stiffness_factor'", True),
     # the engine file

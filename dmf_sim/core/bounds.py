@@ -92,9 +92,22 @@ BOUNDS: dict[str, Bound] = {
         'stop): 2 rad = 115 deg, beyond the arc-spring travel of any DMF (truck DMFs travel '
         '~40-70 deg; the shipped knee is at 0.24 rad); > 0: a knee on the drive or coast side')),
     'stiffness_factor': Bound(0.0, 50.0, '', reason=(
-        'a stage stiffness k (1 + factor): a stage stiffer than 51 k is an end stop, which a '
-        'piecewise-linear arc-spring model does not describe (and the Newmark step cannot '
-        'resolve); the paper varies alpha 1..5')),
+        'a stage stiffness k (1 + factor): a stage stiffer than 51 k is an end stop, which '
+        "has its own contact law (the spring's dmf.end_stops) rather than a stage; the paper "
+        'varies alpha 1..5')),
+    'friction_torque': Bound(0.0, 1.0e4, 'Nm', reason=(
+        "the arc springs' constant friction torque T0 (eq. 8a of doc/theory.md): measured DMF "
+        'hysteresis loops of car and truck DMFs show tens to a few hundred Nm; 1e4 Nm is 3.6x '
+        "the shipped engine's peak torque (a DMF that never slips); 0: no constant friction")),
+    'friction_speed_coefficient': Bound(0.0, 0.1, 'Nm s^2/rad^2', reason=(
+        'the centrifugal friction coefficient c_Omega of T0 + c_Omega Omega^2 (eq. 8a): a '
+        'few hundred Nm at 2000 rpm (209 rad/s) is ~5e-3 Nm s^2/rad^2; 0.1 gives 4.4 kNm at '
+        '2000 rpm, beyond what a truck DMF carries; 0: no speed-dependent friction')),
+    'friction_regularization': Bound(0.0, 10.0, 'rad/s', lo_open=True, reason=(
+        'the slip speed omega_reg of the regularized Coulomb law (eq. 8a): 63 % of the full '
+        'friction torque at this relative speed. The 3rd-order wind-up rate of the shipped DMF '
+        'is ~1-10 rad/s; above 10 rad/s the law is viscous rather than Coulomb; > 0: the '
+        'regularization that makes the law smooth')),
     # ---- the operating point ---------------------------------------------------------------
     'engine_speed': Bound(0.0, 1.0e4, 'rpm', reason=(
         'truck diesels run below 2500 rpm (the shipped engine to 2200 rpm), the fastest '

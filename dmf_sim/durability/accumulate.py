@@ -14,8 +14,11 @@ Inputs per sample: time [ns], DMF wind-up w [rad] and its rate dw/dt [rad/s], en
 * the power the DMF's viscous damping dissipates, c (dw/dt)^2 [W], averaged per engine cycle
   (720 deg of crank angle; every complete cycle is kept: its start, mean power and mean speed,
   24 bytes, e.g. 1.4 MB for an hour at 2000 rpm), and those per-cycle values averaged over
-  ``power_time_s``. The paper's model has only this viscous damping: the friction and
-  hysteresis of real arc springs, usually the larger part of a DMF's heat, are not in it.
+  ``power_time_s``. With arc-spring friction in the spring (doc/theory.md eq. 8a) its power
+  T_f(dw/dt, Omega) dw/dt is added: the real DMF's heat, usually larger than the viscous part
+  (both energies are reported apart too); without it (the paper's model) the viscous power alone;
+* with end stops (eq. 8b): the contacts (entries beyond a stop, on the samples) and the largest
+  contact torque |T_s(w, dw/dt)| [Nm] of the samples (the impact).
 """
 from __future__ import annotations
 
@@ -25,6 +28,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from dmf_sim.core.units import RPM_TO_RAD_S
 from dmf_sim.durability.rainflow import StreamingRainflow
 from dmf_sim.durability.settings import DurabilitySettings
 from dmf_sim.physics.orders import CYCLE_RAD
@@ -90,6 +94,10 @@ class DurabilityResult:
     torque_max_nm: float
     damping_nms: float
     notes: list = field(default_factory=list)
+    friction_energy_j: float = 0.0     # of energy_j, the arc-spring friction's [J]
+    has_friction: bool = False
+    stop_contacts: int | None = None   # end-stop contacts (spring with stops)
+    peak_stop_torque_nm: float | None = None
 
     def as_dict(self) -> dict:
         s = self.settings
@@ -121,9 +129,15 @@ class DurabilityResult:
                                  'engine_cycles': len(self.cycle_power_w),
                                  'energy_j': self.energy_j,
                                  'damping_nms_per_rad': self.damping_nms,
-                                 'note': 'viscous DMF damping c (dw/dt)^2 of the model only; '
-                                         'the friction/hysteresis of real arc springs is not '
-                                         'in the model'},
+                                 'viscous_energy_j': self.energy_j - self.friction_energy_j,
+                                 'friction_energy_j': self.friction_energy_j,
+                                 'note': ('viscous DMF damping c (dw/dt)^2 plus the arc-spring '
+                                          'friction T_f dw/dt' if self.has_friction else
+                                          'viscous DMF damping c (dw/dt)^2 of the model only; '
+                                          'the spring has no arc-spring friction')},
+            'end_stops': ({'contacts': self.stop_contacts,
+                           'peak_impact_torque_nm': self.peak_stop_torque_nm}
+                          if self.stop_contacts is not None else None),
             'torque_histogram': {'bin_nm': s.torque_bin_nm,
                                  'bins': [[k * s.torque_bin_nm, v]
                                           for k, v in sorted(self.torque_hist.items())]},
@@ -174,6 +188,12 @@ class DurabilityAccumulator:
         self.t0_ns: int | None = None
         self.notes: list[str] = []
         self._gaps = 0
+        self.friction = getattr(spring, 'friction', None)
+        self.stops = getattr(spring, 'stops', None)
+        self.friction_energy = 0.0
+        self.stop_contacts = 0
+        self.peak_stop_torque = 0.0
+        self._beyond = 0                     # the last sample's side: +1 drive stop, -1 coast
 
     # ---- per batch -------------------------------------------------------------------------
     def _weights(self, t_ns: np.ndarray) -> np.ndarray:
@@ -220,6 +240,18 @@ class DurabilityAccumulator:
             rec.torque_max_nm = max(rec.torque_max_nm, float(torque[sel].max()))
             rec.torque_sum += float((torque[sel] * dt[sel]).sum())
         power = self.c * wdot * wdot
+        if self.friction is not None:        # eq. 8a: its heat joins the viscous one
+            friction_power = self.friction.torque(wdot, speed_rpm * RPM_TO_RAD_S) * wdot
+            self.friction_energy += float((friction_power * dt).sum())
+            power = power + friction_power
+        if self.stops is not None:           # eq. 8b: contacts and the largest impact torque
+            st = self.stops
+            side = (w > st.drive_angle_rad).astype(np.int64) - (w < -st.coast_angle_rad)
+            prev = np.concatenate(([self._beyond], side[:-1]))
+            self.stop_contacts += int(np.count_nonzero((side != 0) & (side != prev)))
+            self._beyond = int(side[-1])
+            self.peak_stop_torque = max(self.peak_stop_torque,
+                                        float(np.abs(st.torque(w, wdot)).max()))
         self.energy += float((power * dt).sum())
         self._cycle_power(t_ns, psi, power, dt, speed_rpm)
         self._windows(t_ns, torque, band, speed_rpm)
@@ -335,4 +367,7 @@ class DurabilityAccumulator:
             power_mean_w=self.energy / self.duration if self.duration > 0 else 0.0,
             power_max_cycle_w=self.cycle_power_max, energy_j=self.energy,
             torque_min_nm=self.tmin, torque_max_nm=self.tmax, damping_nms=self.c,
+            friction_energy_j=self.friction_energy, has_friction=self.friction is not None,
+            stop_contacts=self.stop_contacts if self.stops is not None else None,
+            peak_stop_torque_nm=self.peak_stop_torque if self.stops is not None else None,
             notes=self.notes)

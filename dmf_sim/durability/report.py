@@ -49,10 +49,18 @@ def _text(run: DurabilityRun) -> str:
         'stages: ' + '; '.join(f'{name} {st.time_s / r.duration_s:.0%} of the time, '
                                f'{st.torque_min_nm:.0f}..{st.torque_max_nm:.0f} Nm'
                                for name, st in r.stages.items()),
-        f'DMF damping power c (dw/dt)^2: mean {r.power_mean_w:.0f} W, highest engine-cycle '
-        f'mean {r.power_max_cycle_w:.0f} W',
-        '  (the model\'s viscous damping only: real arc-spring friction is not modelled)',
     ]
+    if r.has_friction:
+        lines += [f'DMF heat, damping c (dw/dt)^2 + arc-spring friction T_f dw/dt: mean '
+                  f'{r.power_mean_w:.0f} W, highest engine-cycle mean {r.power_max_cycle_w:.0f} '
+                  f'W; friction {r.friction_energy_j:.0f} J of {r.energy_j:.0f} J']
+    else:
+        lines += [f'DMF damping power c (dw/dt)^2: mean {r.power_mean_w:.0f} W, highest '
+                  f'engine-cycle mean {r.power_max_cycle_w:.0f} W',
+                  '  (the model\'s viscous damping only: this spring has no arc-spring friction)']
+    if r.stop_contacts is not None:
+        lines.append(f'end stops: {r.stop_contacts} contacts, peak impact torque '
+                     f'{r.peak_stop_torque_nm:.0f} Nm')
     if r.largest:
         top = r.largest[0]
         lines.append(f'largest torque {top[1]:.0f} Nm at {top[3]:.0f} rpm (t = {top[2]:.1f} s)')
@@ -133,6 +141,8 @@ def report_figure(run: DurabilityRun) -> Figure:
         ax.plot(r.power_t_s + s.power_time_s / 2, r.power_w, color=_POWER_MEAN_COLOR, lw=1)
     ax.set_xlabel('time [s]')
     ax.set_ylabel('damping power [W]')
-    ax.set_title(f'DMF damping power c (dw/dt)², viscous only\ndots: each engine cycle ({n}), '
+    what = ('c (dw/dt)² + friction T_f dw/dt' if r.has_friction
+            else 'c (dw/dt)², viscous only')
+    ax.set_title(f'DMF damping power {what}\ndots: each engine cycle ({n}), '
                  f'line: their mean over {s.power_time_s:g} s', fontsize=9)
     return fig

@@ -130,6 +130,10 @@ def peak_values(peaks) -> dict[str, str]:
     if 'stop_contacts' in d:
         out.update(travel_margin_rad=f'{d["travel_margin_rad"]:.6f}',
                    stop_contacts=str(d['stop_contacts']))
+    if 'peak_stop_torque_nm' in d:
+        out['peak_stop_torque_nm'] = f'{d["peak_stop_torque_nm"]:.1f}'
+    if 'friction_heat_j' in d:
+        out['friction_heat_j'] = f'{d["friction_heat_j"]:.3f}'
     return out
 
 

@@ -14,6 +14,10 @@ amplitude, the slow overshoot of a load step not at all):
   the spring has none): ``travel_margin_rad``, the smallest distance of the wind-up to a stop
   (negative: beyond it), and ``stop_contacts``, how often the wind-up went from inside to beyond
   a stop. Without stops the two are not reported (no stop, no contact, no margin).
+* with the spring's end-stop law (``spring.stops``, doc/theory.md eq. 8b) the contacts are the
+  Newmark kernel's, counted at every step (:meth:`WindupPeaks.observe_law`), and
+  ``peak_stop_torque_nm`` is the largest contact torque |T_s| [Nm]: the impact;
+* with arc-spring friction (eq. 8a) ``friction_heat_j``: the friction's work [J], its heat.
 """
 from __future__ import annotations
 
@@ -52,6 +56,17 @@ class WindupPeaks:
         self.contacts = 0
         self.margin = math.inf
         self._beyond = False
+        self.law_contacts = 0
+        self.peak_stop_torque = 0.0
+        self.friction_heat = 0.0
+
+    def observe_law(self, contacts: int, heat_j: float, peak_stop_torque_nm: float) -> None:
+        """Take one chunk's figures of the kernel (every step, not only the recorded ones):
+        end-stop ``contacts`` begun in it, the friction's work ``heat_j`` [J] and the largest
+        contact torque |T_s| [Nm] (eq. 8a-8b)."""
+        self.law_contacts += int(contacts)
+        self.friction_heat += float(heat_j)
+        self.peak_stop_torque = max(self.peak_stop_torque, float(peak_stop_torque_nm))
 
     def set_spring(self, spring) -> None:
         """The spring from now on (a new DMF: the torques at later peaks use it)."""
@@ -92,7 +107,12 @@ class WindupPeaks:
                'peak_windup_t_s': [self.t_lo, self.t_hi], 'since_s': self.since_s}
         if stop_angles(self.spring) is not None:
             out['travel_margin_rad'] = self.margin if self.observed else math.nan
-            out['stop_contacts'] = self.contacts
+            law = getattr(self.spring, 'stops', None) is not None
+            out['stop_contacts'] = self.law_contacts if law else self.contacts
+            if law:
+                out['peak_stop_torque_nm'] = self.peak_stop_torque
+        if getattr(self.spring, 'friction', None) is not None:
+            out['friction_heat_j'] = self.friction_heat
         return out
 
 
@@ -106,4 +126,8 @@ def peaks_text(d: dict) -> str:
     if 'stop_contacts' in d:
         text += (f'; end stops: travel margin {d["travel_margin_rad"]:.4f} rad, '
                  f'{d["stop_contacts"]} contacts')
+        if d.get('peak_stop_torque_nm') is not None:
+            text += f', peak impact {d["peak_stop_torque_nm"]:.0f} Nm'
+    if d.get('friction_heat_j') is not None:
+        text += f'; friction heat {d["friction_heat_j"]:.1f} J'
     return text

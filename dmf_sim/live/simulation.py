@@ -488,6 +488,8 @@ class LiveSimulation:
             raise ValueError(f'record holds {record.t.shape[0]} rows, the chunk needs {rows}')
         first = self.steps + (self.stride - self.phase)
         row = 0
+        law_start = (it, sum(it.stop_contacts), it.friction_heat_j)
+        it.restart_stop_peak()
         events: list[FaultEvent] = []
         parts: list[np.ndarray] = []
         if self.live_sensors is not None and self.faults is not None:
@@ -509,6 +511,10 @@ class LiveSimulation:
             row = 0
             parts = []
         self.peaks.observe(record.windup[:row], record.t[:row])
+        if law_start[0] is it:         # the kernel's stop contacts and friction heat of the chunk
+            self.peaks.observe_law(max(sum(it.stop_contacts) - law_start[1], 0),
+                                   max(it.friction_heat_j - law_start[2], 0.0),
+                                   it.peak_stop_torque_nm)
         omega_dot = it.omega_dot
         # element loads with this chunk's excitation, now (the next chunk changes it)
         loads = None
@@ -564,7 +570,8 @@ class LiveSimulation:
         # d'Alembert part with the reference acceleration at the end of the chunk (exact while
         # the speed is constant or ramping; a ramp that ends inside the chunk is off for <= 1 row)
         position, velocity, effort = self._torques.outputs_of(
-            rec.q[:row], rec.v[:row], rec.a[:row], w, psi, chunk.omega_dot, chunk.loads, work)
+            rec.q[:row], rec.v[:row], rec.a[:row], w, psi, chunk.omega_dot, chunk.loads, work,
+            rec.omega[:row])
         return Samples(step=chunk.first + self.stride * np.arange(row, dtype=np.int64),
                        t=rec.t[:row], psi=psi, speed_rpm=rec.omega[:row] * RAD_S_TO_RPM,
                        windup=w, position=position, velocity=velocity, effort=effort,

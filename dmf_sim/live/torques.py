@@ -142,11 +142,22 @@ class TorqueOperator:
         self._add_loads(torques, w, psi, omega_dot, loads)
         return out[:, :m], out[:, m:2 * m], torques
 
-    def outputs_of(self, q, v, a, w, psi, omega_dot: float, loads=None, out=None):
+    def outputs_of(self, q, v, a, w, psi, omega_dot: float, loads=None, out=None,
+                   omega_rad_s=None):
         """:meth:`outputs` of the states q, v, a (rows x n_dof each), with ``out`` (rows x 3
         elements) as the result's storage when given: one compiled pass over M's non-zeros
         where the element loads reduce to the d'Alembert part (the truck models; ~10x faster
-        than the dense product, equal to it to round-off), else :meth:`outputs`."""
+        than the dense product, equal to it to round-off), else :meth:`outputs`. A spring
+        with friction or end stops adds their torque (doc/theory.md eq. 8a-8b) at the rows'
+        wind-up rates and reference speeds ``omega_rad_s`` [rad/s] where it acts like g."""
+        res = self._outputs_of(q, v, a, w, psi, omega_dot, loads, out)
+        sp = self.spring
+        if sp is not None and not sp.smooth_elastic and omega_rad_s is not None:
+            res[2][:] += np.multiply.outer(
+                sp.law_torque(w, v @ self.integ.model.e, omega_rad_s), self.c)
+        return res
+
+    def _outputs_of(self, q, v, a, w, psi, omega_dot: float, loads=None, out=None):
         rows, m = q.shape[0], self.m
         if self.needs_loads:
             res = self.outputs(np.hstack([q, v, a]), w, psi, omega_dot, loads)

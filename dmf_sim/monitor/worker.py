@@ -38,6 +38,7 @@ from dmf_sim.monitor.prediction import (
     solve_prediction,
     steady_part,
 )
+from dmf_sim.physics.spring import HBM_FRICTION_MESSAGE
 
 __all__ = ['WORKER_MODES', 'MONITOR_PARAMETERS', 'MonitorSettings', 'CycleReport',
            'MonitorUpdate', 'LiveMonitor']
@@ -283,6 +284,10 @@ class LiveMonitor:
         self._version += 1
         self._model = ((self._uid, self._version), line, engine)
         self.spring = line.spring
+        # the prediction is a harmonic balance, which does not model arc-spring friction: off
+        # (its reason in the status) while the spring has friction; the live orders go on
+        self.counters['prediction_off'] = (HBM_FRICTION_MESSAGE if line.spring.has_friction
+                                           else '')
         self.load_set = str(getattr(engine, 'load_set', ''))
         self.tracker.set_spring(line.spring)
         if self._setpoint is not None:
@@ -311,7 +316,7 @@ class LiveMonitor:
         point = OperatingPoint.rounded(speed_rpm, load, self.load_set, self.spring,
                                        s.prediction_speed_step_rpm, s.prediction_load_step,
                                        self.faults)
-        if point == self._want:
+        if point == self._want or self.counters['prediction_off']:
             return
         self._want, self._want_since = point, time.perf_counter()
         if point not in self._cache and self._job is None:

@@ -32,10 +32,11 @@ from dmf_sim.core.errors import ConfigError
 from dmf_sim.core.paths import read_yaml_mapping
 from dmf_sim.core.validation import as_number, bounded, check_keys, field_error
 from dmf_sim.physics.sensors import SensorSet, parse_sensors
-from dmf_sim.physics.spring import PiecewiseLinearSpring, Stage
+from dmf_sim.physics.spring import ArcFriction, EndStops, PiecewiseLinearSpring, Stage
 
 __all__ = ['ELEMENT_KEYS', 'TOP_KEYS_REQUIRED', 'TOP_KEYS_OPTIONAL', 'DMF_KEYS_REQUIRED',
-           'DMF_KEYS_OPTIONAL', 'COAST_KEYS', 'STAGE_KEYS', 'STAGE_ANGLE_KEYS', 'RIGID_WORDS',
+           'DMF_KEYS_OPTIONAL', 'FRICTION_KEYS', 'END_STOP_KEYS', 'END_STOP_KEYS_OPTIONAL',
+           'COAST_KEYS', 'STAGE_KEYS', 'STAGE_ANGLE_KEYS', 'RIGID_WORDS',
            'Element', 'DMFSpec', 'Driveline', 'driveline_from_dict', 'read_driveline',
            'ReducedModel', 'read_model']
 
@@ -44,7 +45,11 @@ TOP_KEYS_REQUIRED = ('name', 'elements')
 TOP_KEYS_OPTIONAL = ('description', 'cylinders', 'firing_phases_deg', 'rear_load_element', 'dmf',
                      'sensors')
 DMF_KEYS_REQUIRED = ('element',)
-DMF_KEYS_OPTIONAL = ('stiffness', 'stages', 'coast_stages', 'theta_rad', 'alpha', 'coast')
+DMF_KEYS_OPTIONAL = ('stiffness', 'stages', 'coast_stages', 'theta_rad', 'alpha', 'coast',
+                     'friction', 'end_stops')
+FRICTION_KEYS = ('torque_nm', 'speed_coefficient', 'regularization_rad_s')
+END_STOP_KEYS = ('drive_angle_rad', 'coast_angle_rad', 'stiffness')
+END_STOP_KEYS_OPTIONAL = ('damping',)
 COAST_KEYS = ('theta_rad', 'alpha')
 STAGE_KEYS = ('stiffness_factor',)
 STAGE_ANGLE_KEYS = ('angle_rad', 'angle')   # the same quantity [rad]; give one
@@ -72,12 +77,15 @@ class DMFSpec:
 
     The element's own stiffness is the primary stiffness k, its damping the DMF damping.
     ``stages`` / ``coast_stages``: drive / coast stages; the paper's (theta, alpha) is one drive
-    stage (:attr:`theta`, :attr:`alpha` read the first one).
+    stage (:attr:`theta`, :attr:`alpha` read the first one). ``friction``: the arc springs'
+    friction, ``end_stops``: the travel's stops (None: none; dmf_sim.physics.spring).
     """
 
     element: str
     stages: tuple[Stage, ...] = ()
     coast_stages: tuple[Stage, ...] = ()
+    friction: ArcFriction | None = None
+    end_stops: EndStops | None = None
 
     @property
     def theta(self) -> float:
@@ -91,7 +99,8 @@ class DMFSpec:
 
     def spring(self, k: float) -> PiecewiseLinearSpring:
         """The spring with primary stiffness ``k`` [Nm/rad] (validates the stages)."""
-        return PiecewiseLinearSpring(k, self.stages, self.coast_stages)
+        return PiecewiseLinearSpring(k, self.stages, self.coast_stages, self.friction,
+                                     self.end_stops)
 
 
 @dataclass(frozen=True)
@@ -273,7 +282,28 @@ def _parse_dmf(raw, names: list[str]) -> DMFSpec:
         coast_stages = (_shorthand_stage(coast, 'dmf.coast'),)
     else:
         coast_stages = ()
-    return DMFSpec(element=element, stages=stages, coast_stages=coast_stages)
+    return DMFSpec(element=element, stages=stages, coast_stages=coast_stages,
+                   friction=_parse_friction(raw.get('friction')),
+                   end_stops=_parse_end_stops(raw.get('end_stops')))
+
+
+def _parse_friction(raw) -> ArcFriction | None:
+    """``dmf.friction``: {torque_nm, speed_coefficient, regularization_rad_s} (eq. 8a; every key
+    optional, the defaults of :class:`ArcFriction`); absent or all zero: no friction."""
+    if raw is None:
+        return None
+    check_keys(raw, 'dmf.friction', '', (), FRICTION_KEYS)
+    law = ArcFriction(**{key: raw[key] for key in FRICTION_KEYS if key in raw})
+    return law if law.active else None
+
+
+def _parse_end_stops(raw) -> EndStops | None:
+    """``dmf.end_stops``: {drive_angle_rad, coast_angle_rad, stiffness, damping} (eq. 8b)."""
+    if raw is None:
+        return None
+    check_keys(raw, 'dmf.end_stops', '', END_STOP_KEYS, END_STOP_KEYS_OPTIONAL)
+    return EndStops(**{key: raw[key] for key in END_STOP_KEYS + END_STOP_KEYS_OPTIONAL
+                       if key in raw})
 
 
 def _check_spring(dmf: DMFSpec, line: 'Driveline') -> None:

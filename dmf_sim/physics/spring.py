@@ -29,6 +29,24 @@ Regions are numbered two ways:
 * ``index`` 0 .. n_knees, ascending in w (what arrays and the numba kernel use):
   ``knees[r-1] < w <= knees[r]`` is region r (ties to the primary side);
 * ``stage`` = index - :attr:`primary_index`: 0 primary, +i drive stage i, -j coast stage j.
+
+Beside the elastic law the spring carries the two laws of a DMF as it is built (doc/theory.md §2),
+both off unless configured:
+
+* **arc-spring friction** (:class:`ArcFriction`, eq. 8a): the springs slide in a greased channel,
+  pressed outward by centrifugal force, so the friction torque on the relative motion is
+  ``T_f = (T0 + c_Omega Omega^2) tanh(w_dot / omega_reg)``: ``T0`` [Nm] the constant part,
+  ``c_Omega`` [Nm s^2/rad^2] the centrifugal part (Omega [rad/s] the engine speed), a
+  Coulomb law regularized over the slip speed ``omega_reg`` [rad/s];
+* **end stops** (:class:`EndStops`, eq. 8b): beyond the travel (drive angle, coast angle) the
+  spring rests on a very stiff contact of stiffness ``k_s`` [Nm/rad] and damping ``c_s``
+  [Nms/rad], ``T_s = max(0, k_s d + c_s d_dot)`` (d >= 0 the penetration; the contact pushes,
+  never pulls: Kelvin-Voigt clipped at zero).
+
+Both are torques along the wind-up like ``g`` (:meth:`PiecewiseLinearSpring.law_torque`); the time
+integration takes them (the Newmark kernel solves its condensed equation with them,
+:mod:`dmf_sim.solvers.newmark_kernel`); the harmonic balance does not model them and refuses a
+spring with friction (:meth:`PiecewiseLinearSpring.require_no_friction`).
 """
 from __future__ import annotations
 
@@ -43,16 +61,102 @@ from dmf_sim.core.bounds import BOUNDS
 from dmf_sim.core.errors import ConfigError
 from dmf_sim.core.validation import bounded
 
-__all__ = ['Stage', 'PiecewiseLinearSpring', 'STIFFNESS_FACTOR_MAX', 'STAGE_ANGLE_MAX_RAD']
+__all__ = ['Stage', 'ArcFriction', 'EndStops', 'PiecewiseLinearSpring', 'STIFFNESS_FACTOR_MAX',
+           'STAGE_ANGLE_MAX_RAD', 'HBM_FRICTION_MESSAGE', 'LAW_SIZE']
 
 STIFFNESS_FACTOR_MAX = BOUNDS['stiffness_factor'].hi
-"""Largest stage stiffness factor [-]: a stage stiffer than 51 k is an end stop, which a
-piecewise-linear arc-spring model does not describe (and the Newmark step cannot resolve); from
-the table of bounds, :data:`dmf_sim.core.bounds.BOUNDS`."""
+"""Largest stage stiffness factor [-]: a stage stiffer than 51 k is an end stop, which has its
+own contact law (:class:`EndStops`) rather than a stage; from the table of bounds,
+:data:`dmf_sim.core.bounds.BOUNDS`."""
 
 STAGE_ANGLE_MAX_RAD = BOUNDS['windup_angle'].hi
 """Largest stage angle [rad] (115 deg: beyond any arc-spring travel of a DMF; the table of
 bounds)."""
+
+
+HBM_FRICTION_MESSAGE = ('the harmonic balance does not model arc-spring friction yet: set '
+                        'dmf.friction to zero or use the time integration (dmf-sim run, runup)')
+"""The one line every harmonic-balance entry gives for a spring with friction."""
+
+LAW_SIZE = 7
+"""Length of :meth:`PiecewiseLinearSpring.law_array` (the compiled kernels' friction and stops)."""
+
+
+@dataclass(frozen=True)
+class ArcFriction:
+    """Arc-spring friction (eq. 8a): ``T_f = (torque_nm + speed_coefficient Omega^2)
+    tanh(w_dot / regularization_rad_s)``.
+
+    Attributes:
+        torque_nm: constant part T0 [Nm] (>= 0).
+        speed_coefficient: centrifugal part c_Omega [Nm s^2/rad^2] (>= 0), Omega the engine
+            speed [rad/s].
+        regularization_rad_s: slip speed omega_reg [rad/s] (> 0) over which the Coulomb law is
+            smoothed: tanh(1) = 76 % of the full torque at w_dot = omega_reg.
+    """
+
+    torque_nm: float = 0.0
+    speed_coefficient: float = 0.0
+    regularization_rad_s: float = 0.05
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, 'torque_nm', bounded(self.torque_nm, 'dmf.friction',
+                                                       'torque_nm', 'friction_torque'))
+        object.__setattr__(self, 'speed_coefficient',
+                           bounded(self.speed_coefficient, 'dmf.friction', 'speed_coefficient',
+                                   'friction_speed_coefficient'))
+        object.__setattr__(self, 'regularization_rad_s',
+                           bounded(self.regularization_rad_s, 'dmf.friction',
+                                   'regularization_rad_s', 'friction_regularization'))
+
+    @property
+    def active(self) -> bool:
+        """Whether the law gives any torque (False: both parts zero)."""
+        return self.torque_nm > 0.0 or self.speed_coefficient > 0.0
+
+    def amplitude(self, omega_rad_s):
+        """The sliding friction torque T0 + c_Omega Omega^2 [Nm] at engine speed(s) Omega."""
+        omega = np.asarray(omega_rad_s, dtype=float)
+        return self.torque_nm + self.speed_coefficient * omega * omega
+
+    def torque(self, windup_rate_rad_s, omega_rad_s):
+        """Friction torque T_f [Nm] (eq. 8a) at wind-up rate(s) w_dot [rad/s] and engine speed
+        Omega [rad/s]; it opposes the relative motion (the same sign as w_dot, acting like g)."""
+        return self.amplitude(omega_rad_s) * np.tanh(
+            np.asarray(windup_rate_rad_s, dtype=float) / self.regularization_rad_s)
+
+
+@dataclass(frozen=True)
+class EndStops:
+    """The spring's end stops (eq. 8b): contact beyond ``drive_angle_rad`` (w > 0) and beyond
+    ``-coast_angle_rad``, stiffness ``stiffness`` [Nm/rad], damping ``damping`` [Nms/rad]."""
+
+    drive_angle_rad: float
+    coast_angle_rad: float
+    stiffness: float
+    damping: float = 0.0
+
+    def __post_init__(self) -> None:
+        w = 'dmf.end_stops'
+        object.__setattr__(self, 'drive_angle_rad', bounded(self.drive_angle_rad, w,
+                                                             'drive_angle_rad', 'windup_angle'))
+        object.__setattr__(self, 'coast_angle_rad', bounded(self.coast_angle_rad, w,
+                                                             'coast_angle_rad', 'windup_angle'))
+        object.__setattr__(self, 'stiffness', bounded(self.stiffness, w, 'stiffness',
+                                                       'stiffness', positive=True))
+        object.__setattr__(self, 'damping', bounded(self.damping, w, 'damping', 'damping'))
+
+    def torque(self, windup_rad, windup_rate_rad_s):
+        """Contact torque T_s [Nm] (eq. 8b): ``max(0, k_s d + c_s d_dot)`` beyond the drive stop
+        (d = w - drive angle), ``-max(0, k_s d + c_s d_dot)`` beyond the coast stop (d = -w -
+        coast angle), 0 between."""
+        w = np.asarray(windup_rad, dtype=float)
+        wd = np.asarray(windup_rate_rad_s, dtype=float)
+        dd = w - self.drive_angle_rad
+        dc = -w - self.coast_angle_rad
+        drive = np.where(dd > 0, np.maximum(0.0, self.stiffness * dd + self.damping * wd), 0.0)
+        coast = np.where(dc > 0, np.maximum(0.0, self.stiffness * dc - self.damping * wd), 0.0)
+        return drive - coast
 
 
 @dataclass(frozen=True)
@@ -91,10 +195,25 @@ class PiecewiseLinearSpring:
         coast: coast stages, angles (magnitudes) strictly increasing.
     """
 
-    def __init__(self, k: float, drive=(), coast=()) -> None:
+    def __init__(self, k: float, drive=(), coast=(), friction: ArcFriction | None = None,
+                 stops: EndStops | None = None) -> None:
         self.k = bounded(k, 'dmf', 'k', 'stiffness', positive=True)
         self.drive = _check_stages(drive, 'dmf.stages')
         self.coast = _check_stages(coast, 'dmf.coast_stages')
+        #: arc-spring friction (eq. 8a) or None: none
+        self.friction = friction if friction is not None and friction.active else None
+        #: end stops (eq. 8b) or None: the spring law holds at any wind-up
+        self.stops = stops
+        if stops is not None:
+            for side, angle, stages in (('drive', stops.drive_angle_rad, self.drive),
+                                        ('coast', stops.coast_angle_rad, self.coast)):
+                last = stages[-1].angle_rad if stages else 0.0
+                if angle <= last:
+                    raise ConfigError(
+                        f'dmf.end_stops: field \'{side}_angle_rad\' must be beyond the last '
+                        f'{side} stage angle {last:g} rad (in ({last:g}, '
+                        f'{STAGE_ANGLE_MAX_RAD:g}] rad), got {angle!r}')
+            self.stop_angles_rad = (-stops.coast_angle_rad, stops.drive_angle_rad)
         nc = len(self.coast)
         self.primary_index = nc
         knees = [-s.angle_rad for s in reversed(self.coast)] + [s.angle_rad for s in self.drive]
@@ -122,7 +241,7 @@ class PiecewiseLinearSpring:
 
     #: The end stops as (coast < 0, drive > 0) wind-ups [rad], or None: no end stop (this
     #: spring law holds at any wind-up). Read by the transient peaks (dmf_sim.live.peaks: travel
-    #: margin and stop contacts); the end-stop model sets it.
+    #: margin and stop contacts); set from :attr:`stops`.
     stop_angles_rad: tuple[float, float] | None = None
 
     # ---- construction shorthands -------------------------------------------------------------
@@ -136,10 +255,11 @@ class PiecewiseLinearSpring:
 
     def replace(self, *, k: float | None = None, drive=None, coast=None
                 ) -> 'PiecewiseLinearSpring':
-        """A copy with some of k, drive, coast replaced."""
+        """A copy with some of k, drive, coast replaced (friction and end stops kept)."""
         return PiecewiseLinearSpring(self.k if k is None else k,
                                      self.drive if drive is None else drive,
-                                     self.coast if coast is None else coast)
+                                     self.coast if coast is None else coast,
+                                     self.friction, self.stops)
 
     def with_first_stage(self, *, theta: float | None = None,
                          alpha: float | None = None) -> 'PiecewiseLinearSpring':
@@ -230,22 +350,42 @@ class PiecewiseLinearSpring:
                 np.ascontiguousarray(self.offsets))
 
     def as_dict(self) -> dict:
-        return {'k': self.k,
-                'stages': [{'angle_rad': s.angle_rad, 'stiffness_factor': s.stiffness_factor}
-                           for s in self.drive],
-                'coast_stages': [{'angle_rad': s.angle_rad, 'stiffness_factor': s.stiffness_factor}
-                                 for s in self.coast]}
+        out = {'k': self.k,
+               'stages': [{'angle_rad': s.angle_rad, 'stiffness_factor': s.stiffness_factor}
+                          for s in self.drive],
+               'coast_stages': [{'angle_rad': s.angle_rad, 'stiffness_factor': s.stiffness_factor}
+                                for s in self.coast]}
+        if self.friction is not None:
+            out['friction'] = {'torque_nm': self.friction.torque_nm,
+                               'speed_coefficient': self.friction.speed_coefficient,
+                               'regularization_rad_s': self.friction.regularization_rad_s}
+        if self.stops is not None:
+            out['end_stops'] = {'drive_angle_rad': self.stops.drive_angle_rad,
+                                'coast_angle_rad': self.stops.coast_angle_rad,
+                                'stiffness': self.stops.stiffness,
+                                'damping': self.stops.damping}
+        return out
 
     def describe(self) -> str:
         """One line for people: the paper's ``alpha=.. theta=.. rad`` for a two-step spring,
-        every stage (angle rad x stiffness factor) otherwise."""
+        every stage (angle rad x stiffness factor) otherwise; friction and end stops appended
+        when the spring has them."""
         if len(self.drive) == 1 and not self.coast:
-            return f'alpha={self.alpha:g} theta={self.theta:g} rad'
-        if not self.drive and not self.coast:
-            return f'linear k={self.k:g} Nm/rad'
-        st = ', '.join(f'{s.angle_rad:g} rad: +{s.stiffness_factor:g}k' for s in self.drive)
-        co = ', '.join(f'-{s.angle_rad:g} rad: +{s.stiffness_factor:g}k' for s in self.coast)
-        return f'k={self.k:g} Nm/rad, drive stages [{st}], coast stages [{co}]'
+            text = f'alpha={self.alpha:g} theta={self.theta:g} rad'
+        elif not self.drive and not self.coast:
+            text = f'linear k={self.k:g} Nm/rad'
+        else:
+            st = ', '.join(f'{s.angle_rad:g} rad: +{s.stiffness_factor:g}k' for s in self.drive)
+            co = ', '.join(f'-{s.angle_rad:g} rad: +{s.stiffness_factor:g}k' for s in self.coast)
+            text = f'k={self.k:g} Nm/rad, drive stages [{st}], coast stages [{co}]'
+        if self.friction is not None:
+            f = self.friction
+            text += (f', friction {f.torque_nm:g} Nm + {f.speed_coefficient:g} Omega^2 '
+                     f'(omega_reg {f.regularization_rad_s:g} rad/s)')
+        if self.stops is not None:
+            text += (f', end stops -{self.stops.coast_angle_rad:g} .. '
+                     f'{self.stops.drive_angle_rad:g} rad')
+        return text
 
     def __repr__(self) -> str:
         st = ', '.join(f'{s.angle_rad:g}:{s.stiffness_factor:g}' for s in self.drive)
@@ -254,10 +394,51 @@ class PiecewiseLinearSpring:
 
     def __eq__(self, other) -> bool:
         return (isinstance(other, PiecewiseLinearSpring) and self.k == other.k
-                and self.drive == other.drive and self.coast == other.coast)
+                and self.drive == other.drive and self.coast == other.coast
+                and self.friction == other.friction and self.stops == other.stops)
 
     def __hash__(self) -> int:
-        return hash((self.k, self.drive, self.coast))
+        return hash((self.k, self.drive, self.coast, self.friction, self.stops))
+
+    # ---- friction and end stops (eq. 8a, 8b) -------------------------------------------------
+    @property
+    def has_friction(self) -> bool:
+        """Whether the spring has arc-spring friction (eq. 8a)."""
+        return self.friction is not None
+
+    @property
+    def smooth_elastic(self) -> bool:
+        """True when the spring is its elastic law alone (no friction, no end stops): what the
+        harmonic balance and the frequency-domain tools model."""
+        return self.friction is None and self.stops is None
+
+    def require_no_friction(self) -> None:
+        """Raise the one-line :class:`ConfigError` of a harmonic-balance entry when the spring
+        has friction (:data:`HBM_FRICTION_MESSAGE`)."""
+        if self.friction is not None:
+            raise ConfigError(HBM_FRICTION_MESSAGE)
+
+    def law_torque(self, w, w_dot, omega_rad_s):
+        """Friction plus end-stop torque [Nm] along the wind-up (eq. 8a + 8b) at wind-up(s) w
+        [rad], wind-up rate(s) w_dot [rad/s] and engine speed Omega [rad/s]; 0 without them.
+        The full DMF torque is ``torque(w) + law_torque(...)`` plus the element's viscous
+        damping c w_dot."""
+        out = np.zeros(np.broadcast(np.asarray(w), np.asarray(w_dot)).shape)
+        if self.friction is not None:
+            out = out + self.friction.torque(w_dot, omega_rad_s)
+        if self.stops is not None:
+            out = out + self.stops.torque(w, w_dot)
+        return out if out.ndim else float(out)
+
+    def law_array(self) -> np.ndarray:
+        """Friction and end stops for compiled kernels, float64[:data:`LAW_SIZE`]:
+        [T0 Nm, c_Omega Nm s^2/rad^2, omega_reg rad/s, coast stop (< 0) rad, drive stop rad,
+        k_s Nm/rad (0: no stops), c_s Nms/rad]; all zero but omega_reg = 1 without them."""
+        f, st = self.friction, self.stops
+        return np.array([f.torque_nm if f else 0.0, f.speed_coefficient if f else 0.0,
+                         f.regularization_rad_s if f else 1.0,
+                         -st.coast_angle_rad if st else 0.0, st.drive_angle_rad if st else 0.0,
+                         st.stiffness if st else 0.0, st.damping if st else 0.0])
 
     # ---- the law -----------------------------------------------------------------------------
     def region_index(self, w):

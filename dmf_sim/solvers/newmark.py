@@ -79,6 +79,12 @@ class NewmarkIntegrator:
     steps_secondary: int = field(default=0, init=False)
     steps_coast: int = field(default=0, init=False)
     split_steps: int = field(default=0, init=False)
+    #: end-stop contacts (drive, coast) since the last reset (doc/theory.md eq. 8b)
+    stop_contacts: tuple[int, int] = field(default=(0, 0), init=False)
+    #: work of the arc-spring friction since the last reset [J]: its heat (eq. 8a)
+    friction_heat_j: float = field(default=0.0, init=False)
+    #: largest end-stop contact torque |T_s| since the last reset [Nm] (eq. 8b)
+    peak_stop_torque_nm: float = field(default=0.0, init=False)
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.dt) and self.dt > 0):
@@ -105,7 +111,11 @@ class NewmarkIntegrator:
         sp = m.spring
         knees, slopes, offsets = (sp.arrays() if sp is not None
                                   else (np.zeros(0), np.zeros(1), np.zeros(1)))
-        self._spring = (knees, slopes, offsets, sp.primary_index if sp is not None else 0)
+        law = (sp.law_array() if sp is not None
+               else np.array([0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0]))
+        self._sums = np.zeros(2)   # friction heat [J], largest |end-stop torque| [Nm]
+        self._spring = (knees, slopes, offsets, sp.primary_index if sp is not None else 0, law,
+                        self._sums)
         L = self.loads
         cyl_dof = np.array([int(np.flatnonzero(row)[0]) for row in L.cylinder_dof_vectors],
                            dtype=np.int64)
@@ -120,7 +130,8 @@ class NewmarkIntegrator:
         self.a = np.zeros(n)
         self._scal = np.zeros(6)  # t, psi, omega, omega_target, ramp, omega_dot
         self._state = (self.q, self.v, self.a, self._scal)
-        self._counters = np.zeros(4, dtype=np.int64)  # crossings, drive stage, coast stage, splits
+        # crossings, drive stage, coast stage, splits, drive stop contacts, coast stop contacts
+        self._counters = np.zeros(6, dtype=np.int64)
         self.track_dofs = np.zeros(0, dtype=np.int64)
         self.load = 0.0
         self._rear_torque = 0.0
@@ -220,12 +231,18 @@ class NewmarkIntegrator:
             self.v[:] = r * eta_dot
         self.a[:] = self.acceleration(self.q, self.v)
         self._counters[:] = 0
+        self._sums[:] = 0.0
+        self._read_counters()
 
     def acceleration(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
-        """a = J^-1 (P - C v - K q - e g(e q)) at the current psi and omega_dot."""
+        """a = J^-1 (P - C v - K q - e (g + T_f + T_s)) at the current psi, omega and
+        omega_dot (T_f, T_s: friction and end stops, eq. 8a-8b, where the spring has them)."""
         P = self.generalized_load(self.psi, self.omega_dot)
         m = self.model
-        g = float(m.spring.extra_torque(m.e @ q)) if m.spring is not None else 0.0
+        sp = m.spring
+        g = float(sp.extra_torque(m.e @ q)) if sp is not None else 0.0
+        if sp is not None and not sp.smooth_elastic:
+            g += float(sp.law_torque(m.e @ q, m.e @ v, self.omega))
         return (P - m.C @ v - m.K @ q - m.e * g) / self._Jd
 
     def generalized_load(self, psi, omega_dot=0.0) -> np.ndarray:
@@ -278,12 +295,24 @@ class NewmarkIntegrator:
                                            self._counters, tracked)
         else:
             rows = kernel.advance_reference(int(nsteps), int(stride), self._state, self._system,
-                                            self._factors, self.model.spring, self._excitation,
-                                            out, self._counters, tracked)
+                                            self._factors, (self.model.spring, self._sums),
+                                            self._excitation, out, self._counters, tracked)
         record.count = rows
-        self.knee_crossings, self.steps_secondary, self.steps_coast, self.split_steps = (
-            self._counters.tolist())
+        self._read_counters()
         return rows
+
+    def restart_stop_peak(self) -> None:
+        """Start :attr:`peak_stop_torque_nm` afresh (the next chunk's own largest contact
+        torque; the contacts and the friction heat keep counting)."""
+        self._sums[1] = 0.0
+        self.peak_stop_torque_nm = 0.0
+
+    def _read_counters(self) -> None:
+        c = self._counters.tolist()
+        self.knee_crossings, self.steps_secondary, self.steps_coast, self.split_steps = c[:4]
+        self.stop_contacts = (c[4], c[5])
+        self.friction_heat_j = float(self._sums[0])
+        self.peak_stop_torque_nm = float(self._sums[1])
 
     def _scratch(self, rows: int) -> StepRecord:
         buf = getattr(self, '_scratch_buf', None)

@@ -40,7 +40,10 @@ Packed arguments (all float64 unless noted):
 * ``system`` = (Jd, Klo, Kd, Kup, Clo, Cd, Cup, e, params) with params = [beta, gamma]
 * ``factors`` = (coef, f_lo, f_inv, f_cp, u): Newmark constants coef = [h, a0..a5, gamma, h_c],
   Thomas factors of Khat for the regular step, u = Khat^-1 e
-* ``spring`` = (knees, slopes, offsets, primary_index) from ``PiecewiseLinearSpring.arrays()``
+* ``spring`` = (knees, slopes, offsets, primary_index, law, sums):
+  ``PiecewiseLinearSpring.arrays()``, its ``law_array()`` (friction and end stops, eq.
+  8a-8b; all zero but omega_reg: none) and
+  ``sums`` float64[2], accumulated in place: [friction heat J, largest |end-stop torque| Nm]
 * ``excitation`` = (B complex (n_cyl, N+1), cyl_dof int64, cyl_scale, dal, fixed)
 * ``out`` = (t, psi, omega, q, v, a, w) recorded every ``stride`` steps
 * ``track`` = (dofs int64 (k,), rows (nsteps, 3 + 2k)): every step's t, psi, omega and the
@@ -48,23 +51,42 @@ Packed arguments (all float64 unless noted):
   sensors): numba compiles that call without the tracking at all (its dead-branch pruning of
   ``track is not None`` on a None argument), so the kernel without sensors is the one it was
 * ``counters`` int64 = [knee crossings, steps beyond a drive knee, steps beyond a coast knee,
-  steps split at a knee]
+  steps split at a knee, drive end-stop contacts, coast end-stop contacts]
+
+Friction and end stops (doc/theory.md §2, eq. 8a-8b) are torques N(w, w_dot) along the wind-up
+like g. With Newmark's velocity update the wind-up rate of the new state is linear in the new
+wind-up, ``w_dot = a1 (w - w_n) - a4 w_dot_n - a5 w_ddot_n``, so the condensed equation stays one
+scalar equation (eq. 8c),
+
+    w + h_c (g(w) + N(w, w_dot(w))) = w_lin,
+
+still increasing in w (every term is non-decreasing), solved by Newton's method safeguarded by
+bisection on a bracket (:func:`law_solve`); the engine speed Omega of the centrifugal friction
+is the reference speed at the step's end. Without friction and stops the kernel runs the exact
+region solve above and nothing else (the same bits as a kernel without them). The friction heat
+is the trapezoidal work of T_f over each (piece of a) step, the work the average-acceleration
+rule's energy balance books (doc/theory.md §5). End-stop contacts are not split at the contact
+(the contact is resolved by the step: see the configuration guide's stiffness rule); a contact
+is counted when the wind-up goes from inside to beyond a stop.
 """
 from __future__ import annotations
 
 import math
 
 import numpy as np
+from scipy.optimize import brentq
 
 from dmf_sim.core.compiled import jit
 
 __all__ = ['MAX_PIECES', 'SPLIT_MIN_FRACTION', 'LOOKAHEAD_STEPS', 'newmark_constants', 'thomas',
-           'factor', 'region_of', 'knee_between', 'regular_block', 'advance_kernel',
-           'advance_reference']
+           'factor', 'region_of', 'knee_between', 'regular_block', 'law_parts', 'law_solve',
+           'advance_kernel', 'advance_reference', 'LAW_MAX_ITER', 'LAW_TOL_RAD']
 
 
 MAX_PIECES = 8           # a step is split at most this many times (knees crossed in one step)
 SPLIT_MIN_FRACTION = 0.01  # crossings this close to a step end are not split (no tiny steps)
+LAW_MAX_ITER = 200       # iterations of the safeguarded Newton solve with friction / end stops
+LAW_TOL_RAD = 1e-15      # its wind-up tolerance [rad] (a few ulp of a 0.1 rad wind-up)
 LOOKAHEAD_STEPS = 64     # regular steps whose speed, phase and cylinder loads are computed ahead
                          # in one vectorizable pass (see :func:`regular_block`)
 
@@ -127,6 +149,80 @@ def region_of(w, knees, primary):
 def knee_between(r_from, r_to, knees):
     """The first knee crossed going from region r_from toward region r_to."""
     return knees[r_from] if r_to > r_from else knees[r_from - 1]
+
+
+def law_parts(w, wd, amp, law):
+    """(friction torque T_f, end-stop torque T_s, d(T_f)/d(w_dot), d(T_s)/dw, d(T_s)/d(w_dot))
+    at wind-up w [rad], rate wd [rad/s] and sliding friction torque ``amp`` = T0 + c_Omega
+    Omega^2 [Nm] (eq. 8a, 8b; ``law`` = PiecewiseLinearSpring.law_array())."""
+    th = math.tanh(wd / law[2])
+    tf = amp * th
+    dtf = amp * (1.0 - th * th) / law[2]
+    ts = 0.0
+    dts_w = 0.0
+    dts_v = 0.0
+    if law[5] > 0.0:
+        if w > law[4]:
+            f = law[5] * (w - law[4]) + law[6] * wd
+            if f > 0.0:
+                ts = f
+                dts_w = law[5]
+                dts_v = law[6]
+        elif w < law[3]:
+            f = law[5] * (law[3] - w) - law[6] * wd
+            if f > 0.0:
+                ts = -f
+                dts_w = law[5]
+                dts_v = law[6]
+    return tf, ts, dtf, dts_w, dts_v
+
+
+def law_solve(w_lin, hc, a1, w_n, rate0, amp, law, knees, slopes, offsets, primary, w0):
+    """Solve the condensed equation with friction and end stops (eq. 8c),
+    ``w + hc (g(w) + T_f(w_dot) + T_s(w, w_dot)) = w_lin`` with ``w_dot = a1 (w - w_n) + rate0``,
+    for w: Newton's method from ``w0`` (the solution without friction and stops), kept inside a
+    bracket of the root and bisecting when a Newton step leaves it. F is increasing in w, so the
+    bracket is found by doubling a step away from w0. Returns w [rad]."""
+    r = region_of(w0, knees, primary)
+    tf, ts, dtf, dws, dvs = law_parts(w0, a1 * (w0 - w_n) + rate0, amp, law)
+    f0 = w0 + hc * (slopes[r] * w0 + offsets[r] + tf + ts) - w_lin
+    if f0 == 0.0:
+        return w0
+    d = abs(f0) + hc * amp + 1e-12
+    lo = w0
+    hi = w0
+    for _ in range(LAW_MAX_ITER):
+        x = w0 - d if f0 > 0.0 else w0 + d
+        r = region_of(x, knees, primary)
+        tf, ts, dtf, dws, dvs = law_parts(x, a1 * (x - w_n) + rate0, amp, law)
+        fx = x + hc * (slopes[r] * x + offsets[r] + tf + ts) - w_lin
+        if (fx > 0.0) == (f0 > 0.0) and fx != 0.0:
+            d *= 2.0
+            continue
+        if f0 > 0.0:
+            lo = x
+        else:
+            hi = x
+        break
+    x = w0
+    for _ in range(LAW_MAX_ITER):
+        r = region_of(x, knees, primary)
+        tf, ts, dtf, dws, dvs = law_parts(x, a1 * (x - w_n) + rate0, amp, law)
+        fx = x + hc * (slopes[r] * x + offsets[r] + tf + ts) - w_lin
+        if fx == 0.0:
+            return x
+        if fx > 0.0:
+            hi = x
+        else:
+            lo = x
+        dfx = 1.0 + hc * (slopes[r] + dtf * a1 + dws + dvs * a1)
+        xn = x - fx / dfx
+        if not lo < xn < hi:
+            xn = 0.5 * (lo + hi)
+        if abs(xn - x) <= LAW_TOL_RAD or hi - lo <= LAW_TOL_RAD:
+            return xn
+        x = xn
+    return x
 
 
 def regular_block(nb, h, scal, Br, Bi, blk_scal, blk_cyl, cr, ci, zr, zi):
@@ -203,7 +299,7 @@ def advance_kernel(nsteps, stride, state, system, factors, spring, excitation, o
     q, v, a, scal = state
     Jd, Klo, Kd, Kup, Clo, Cd, Cup, e, params = system
     coef, f_lo, f_inv, f_cp, u = factors
-    knees, slopes, offsets, primary = spring
+    knees, slopes, offsets, primary, law, sums = spring
     B, cyl_dof, cyl_scale, dal, fixed = excitation
     out_t, out_psi, out_omega, out_q, out_v, out_a, out_w = out
     n = q.shape[0]
@@ -243,6 +339,20 @@ def advance_kernel(nsteps, stride, state, system, factors, spring, excitation, o
     w = w_prev
     r = r_prev
     j = 0
+    # friction and end stops (eq. 8a-8c): off unless the spring has them
+    law_on = law[0] > 0.0 or law[1] > 0.0 or law[5] > 0.0
+    tf_a = 0.0                       # friction torque at the start of the rest of the step
+    tf = 0.0
+    ts = 0.0
+    beyond = 0                       # +1 beyond the drive stop, -1 beyond the coast stop
+    if law_on:
+        wd_prev = 0.0
+        for i in range(n):
+            wd_prev += e[i] * v[i]
+        tf_a, ts, _, _, _ = law_parts(w_prev, wd_prev,
+                                      law[0] + law[1] * scal[2] * scal[2], law)
+        if law[5] > 0.0:
+            beyond = 1 if w_prev > law[4] else (-1 if w_prev < law[3] else 0)
     for step in range(nsteps):
         if jb >= nb:
             nb = min(LOOKAHEAD_STEPS, nsteps - step)
@@ -353,6 +463,19 @@ def advance_kernel(nsteps, stride, state, system, factors, spring, excitation, o
                 r += 1
             w = (w_lin - hc * offsets[r]) / (1.0 + hc * slopes[r])
             g = slopes[r] * w + offsets[r]
+            if law_on:
+                # eq. 8c: w_dot = a1 (w - w_n) + rate0, w_n and its rates those of this piece
+                w_n = 0.0
+                rate0 = 0.0
+                for i in range(n):
+                    w_n += e[i] * q[i]
+                    rate0 -= e[i] * (a4 * v[i] + a5 * a[i])
+                amp = law[0] + law[1] * scal[2] * scal[2]
+                w = law_solve(w_lin, hc, a1, w_n, rate0, amp, law, knees, slopes, offsets,
+                              primary, w)
+                r = region_of(w, knees, primary)
+                tf, ts, _, _, _ = law_parts(w, a1 * (w - w_n) + rate0, amp, law)
+                g = slopes[r] * w + offsets[r] + tf + ts
             for i in range(n):
                 qn = x[i] - uu[i] * g
                 an = a0 * (qn - q[i]) - a2 * v[i] - a3 * a[i]
@@ -361,6 +484,9 @@ def advance_kernel(nsteps, stride, state, system, factors, spring, excitation, o
                 q[i] = qn
             # --- knee crossings: redo the step in pieces that end at the knees -------------
             if phase == 1:               # landed on a knee: try the rest of the step from here
+                if law_on:
+                    sums[0] += 0.5 * (tf_a + tf) * (w - w_a)
+                    tf_a = tf
                 w_a = w
                 r_a = r
                 pieces += 1
@@ -393,6 +519,16 @@ def advance_kernel(nsteps, stride, state, system, factors, spring, excitation, o
                    s_cp, s_u)
             phase = 1
         jb += 1
+        if law_on:                       # the step's last piece: its friction heat, stop contacts
+            sums[0] += 0.5 * (tf_a + tf) * (w - w_a)
+            tf_a = tf
+            if abs(ts) > sums[1]:
+                sums[1] = abs(ts)
+            if law[5] > 0.0:
+                now = 1 if w > law[4] else (-1 if w < law[3] else 0)
+                if now != beyond and now != 0:
+                    counters[4 if now > 0 else 5] += 1
+                beyond = now
         if pieces > 0 or phase != 0:
             nb = 0                       # a split step: the steps ahead start from its end
         if r > primary:
@@ -429,6 +565,8 @@ thomas = jit(thomas)
 factor = jit(factor)
 region_of = jit(region_of)
 knee_between = jit(knee_between)
+law_parts = jit(law_parts)
+law_solve = jit(law_solve)
 regular_block = jit(regular_block)
 # reassociation and FMA contraction: the sums over the DOFs vectorize (~10 % less time per step,
 # measured 2026-12-02); the results differ from the strict order by round-off (~1e-12 rad over
@@ -443,8 +581,14 @@ advance_compiled = jit(advance_kernel, fastmath={'reassoc', 'contract'})
 def advance_reference(nsteps, stride, state, system, factors, spring_obj, excitation, out,
                       counters, track):
     """Readable numpy version of :func:`advance_kernel` (same packed arguments, but the spring
-    object instead of its arrays): dense matrices, ``numpy.linalg.solve`` and Newton on the
-    condensed DMF equation with the spring's own torque and tangent."""
+    object instead of its arrays, and ``spring_obj`` may be a tuple (spring, sums) to collect the
+    friction heat and peak stop torque): dense matrices, ``numpy.linalg.solve`` and Newton on
+    the condensed DMF equation with the spring's own torque and tangent; with friction or end
+    stops, Brent's method (``scipy.optimize.brentq``) on eq. 8c with the spring's own
+    :meth:`~dmf_sim.physics.spring.PiecewiseLinearSpring.law_torque`."""
+    sums = np.zeros(2)
+    if isinstance(spring_obj, tuple):
+        spring_obj, sums = spring_obj
     q, v, a, scal = state
     Jd, Klo, Kd, Kup, Clo, Cd, Cup, e, (beta, gam) = system
     dt = factors[0][0]
@@ -463,6 +607,15 @@ def advance_reference(nsteps, stride, state, system, factors, spring_obj, excita
 
     def region(w):
         return int(sp.region_index(w)) if sp is not None else 0
+
+    has_law = sp is not None and not sp.smooth_elastic
+
+    def law_at(w, wd):
+        return float(sp.law_torque(w, wd, scal[2])) if has_law else 0.0
+
+    def friction_at(wd):
+        return (float(sp.friction.torque(wd, scal[2])) if has_law and sp.friction is not None
+                else 0.0)
 
     def step(h, q, v, a):
         c = np.zeros(8)
@@ -488,15 +641,49 @@ def advance_reference(nsteps, stride, state, system, factors, spring_obj, excita
             if abs(res) <= 1e-15 * max(1.0, abs(w_lin)):
                 break
             w -= res / (1 + hc * dg)
-        qn = x - uu * g_of(w)[0]
+        nl = g_of(w)[0]
+        if has_law:                                # eq. 8c: w_dot linear in w (Newmark)
+            w_n, rate0 = e @ q, -a4 * (e @ v) - a5 * (e @ a)
+
+            def resid(x):
+                return x + hc * (g_of(x)[0] + law_at(x, a1 * (x - w_n) + rate0)) - w_lin
+            lo = hi = w
+            step_w = abs(resid(w)) + 1e-12
+            while resid(lo) > 0:
+                lo -= step_w
+                step_w *= 2
+            while resid(hi) < 0:
+                hi += step_w
+                step_w *= 2
+            w = w if lo == hi else brentq(resid, lo, hi, xtol=1e-16, rtol=4 * np.finfo(float).eps)
+            nl = g_of(w)[0] + law_at(w, a1 * (w - w_n) + rate0)
+        qn = x - uu * nl
         an = a0 * (qn - q) - a2 * v - a3 * a
         return qn, v + h * ((1 - gam) * a + gam * an), an, w
 
     w_prev = float(e @ q)
     r_prev = region(w_prev)
+    stops = sp.stop_angles_rad if sp is not None else None
+    def side(w):
+        """+1 beyond the drive stop, -1 beyond the coast stop, 0 between (or no stops)."""
+        return 0 if stops is None else int(w > stops[1]) - int(w < stops[0])
+
+    beyond = side(w_prev)
     j = 0
+
+    tf_a = [friction_at(e @ v)]          # friction torque at the end of the last piece
+
+    def heat(qa, qb, vb):
+        """Trapezoidal work [J] of the friction over a (piece of a) step from qa to (qb, vb),
+        T_f at the start that of the last piece's end (its speed), at the end at this one's."""
+        tf = friction_at(e @ vb)
+        out = 0.5 * (tf_a[0] + tf) * (e @ qb - e @ qa)
+        tf_a[0] = tf
+        return out
+
     for n_step in range(nsteps):
         saved = (q.copy(), v.copy(), a.copy(), scal.copy())
+        start = saved
         qn, vn, an, w = step(dt, q, v, a)                    # regular trial
         r = region(w)
         if r != r_prev:
@@ -511,15 +698,25 @@ def advance_reference(nsteps, stride, state, system, factors, spring_obj, excita
                     break                                    # keep the trial as it is
                 scal[:] = saved[3]                           # back to the start of the rest
                 qk, vk, ak, w_a = step(frac * h_rem, *saved[:3])   # piece ending at the knee
+                sums[0] += heat(saved[0], qk, vk)
+                start = (qk,)
                 r_a = region(w_a)
                 counters[3] += 1
                 h_rem -= frac * h_rem
                 saved = (qk, vk, ak, scal.copy())
                 qn, vn, an, w = step(h_rem, qk, vk, ak)     # trial of the rest
                 r = region(w)
+        sums[0] += heat(start[0], qn, vn)
         q[:], v[:], a[:] = qn, vn, an
         counters[1] += r > p
         counters[2] += r < p
+        if stops is not None:
+            ts = float(sp.stops.torque(w, e @ v))
+            sums[1] = max(sums[1], abs(ts))
+            now = side(w)
+            if now != beyond and now != 0:
+                counters[4 if now > 0 else 5] += 1
+            beyond = now
         r_prev, w_prev = r, w
         if track is not None:
             dofs, rows = track

@@ -162,11 +162,15 @@ class RunSummary:
     peak_dmf_torque_nm: list = field(default_factory=list)  # spring torque at those wind-ups
     travel_margin_rad: float | None = None  # smallest distance to an end stop (spring with stops)
     stop_contacts: int | None = None        # entries beyond an end stop (spring with stops)
+    peak_stop_torque_nm: float | None = None  # largest end-stop contact torque (end-stop law)
+    friction_heat_j: float | None = None    # arc-spring friction's work [J] (spring with friction)
 
     def as_dict(self) -> dict:
-        """Every field; the end-stop fields only for a spring that has stops."""
+        """Every field; the end-stop fields only for a spring that has stops, the friction
+        heat only for one with friction."""
         out = asdict(self)
-        for key in ('travel_margin_rad', 'stop_contacts'):
+        for key in ('travel_margin_rad', 'stop_contacts', 'peak_stop_torque_nm',
+                    'friction_heat_j'):
             if out[key] is None:
                 del out[key]
         return out
@@ -615,4 +619,6 @@ def _stream(profile: Profile, out, opt: RunOptions, sim: LiveSimulation,
         peak_windup_rad=extremes['peak_windup_rad'],
         peak_dmf_torque_nm=extremes['peak_dmf_torque_nm'],
         travel_margin_rad=extremes.get('travel_margin_rad'),
-        stop_contacts=extremes.get('stop_contacts'))
+        stop_contacts=extremes.get('stop_contacts'),
+        peak_stop_torque_nm=extremes.get('peak_stop_torque_nm'),
+        friction_heat_j=extremes.get('friction_heat_j'))

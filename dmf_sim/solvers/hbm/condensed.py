@@ -132,6 +132,7 @@ class CondensedHBM(DrivelineExpansion, FaultedParts):
             raise ConfigError(f'driveline {self.model.line.name!r} has no dmf section: '
                               'nothing to condense on')
         self.spring = self.model.spring
+        self.spring.require_no_friction()          # friction is modelled in time domain only
         self.H = H = int(self.options.n_harmonics)
         if H < 1:
             raise ConfigError(f'n_harmonics={H}: must be >= 1')
