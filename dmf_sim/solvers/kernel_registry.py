@@ -134,7 +134,8 @@ HELPERS: tuple[str, ...] = (
     'dmf_sim.solvers.francis_qr:hessenberg_eigenvalues',
     *(f'dmf_sim.solvers.newmark_kernel:{n}' for n in ('newmark_constants', 'thomas',
                                                       'region_of', 'knee_between',
-                                                      'regular_block')),
+                                                      'regular_block', 'law_parts',
+                                                      'law_solve')),
 )
 """Compiled functions called only from other kernels (compiled and cached with their callers)."""
 
