@@ -1,8 +1,9 @@
 """Benchmark: ``dmf-sim identify`` recovers known DMF parameters from noisy recordings.
 
 Three cases, each a bag written by ``dmf-sim run`` with a DMF that is not the shipped one
-(primary stiffness, knee, stage factor and damping all changed), along a profile that drives
-the wind-up across the knee (part load, a tip-in to full load and a tip-out). The wind-up read
+(primary stiffness, knee, stage factor, damping and the arc-spring friction's constant and
+centrifugal parts all changed), along a profile that drives the wind-up across the knee (a
+tip-in to full load and back) and sweeps the speed at part load. The wind-up read
 from the bag gets white Gaussian noise of ``noise_rad`` (a wind-up measured from two tooth
 wheels) before the fit, which starts from the shipped ``truck_dmf`` values:
 
@@ -12,7 +13,8 @@ wheels) before the fit, which starts from the shipped ``truck_dmf`` values:
   ``starts`` starting points in turn in this process), ``simulations`` per case;
 * ``rel_std``: the fit's own (linearized) relative standard deviations, beside the real error.
 
-Friction is not among the parameters: the model has no arc-spring friction yet.
+The fit starts from the shipped spring, which has no friction: the friction starts at
+``dmf_sim.identify.fit.FRICTION_START``.
 
     python benchmarks/bench_identify.py [--small] [--starts 2] [--noise-rad 5e-4]
 
@@ -34,19 +36,27 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
-# (name, true DMF values, profile rows (time_s, speed_rpm, load))
-TIP = [(0, 1000, 0.3), (2, 1000, 0.3), (6, 1400, 0.3), (6.1, 1400, 1.0), (7.5, 1400, 1.0),
-       (7.6, 1400, 0.0), (9, 1400, 0.0)]
-TIP_LOW = [(0, 1100, 0.4), (2, 1100, 0.4), (4, 1200, 0.4), (4.1, 1200, 1.0), (5.5, 1200, 1.0),
-           (5.6, 1200, 0.1), (7, 1200, 0.1)]
+# (name, true DMF values, profile rows (time_s, speed_rpm, load)). Each profile settles 2 s
+# (left out of the fit), crosses the knee in a tip-in to full load and back, and sweeps the speed
+# widely at part load: the centrifugal part of the friction grows with the speed squared, the
+# constant part does not, and only a speed range tells them apart.
+WIDE = [(0, 700, 0.3), (2, 700, 0.3), (4, 1100, 0.3), (4.1, 1100, 1.0), (5.5, 1100, 1.0),
+        (5.6, 1100, 0.2), (10, 2100, 0.2), (11, 2100, 0.2)]
+WIDE_LOW = [(0, 800, 0.4), (2, 800, 0.4), (3.5, 1000, 0.4), (3.6, 1000, 1.0), (5, 1000, 1.0),
+            (5.1, 1000, 0.1), (9, 2000, 0.1), (10, 2000, 0.1)]
 CASES = [
-    ('soft_early_knee', {'k': 9800.0, 'theta': 0.22, 'alpha': 2.0, 'damping': 42.0}, TIP),
-    ('stiff_high_damping', {'k': 12000.0, 'theta': 0.21, 'alpha': 3.0, 'damping': 65.0}, TIP_LOW),
-    ('soft_late_knee', {'k': 9000.0, 'theta': 0.25, 'alpha': 1.5, 'damping': 35.0}, TIP),
+    ('soft_early_knee', {'k': 9800.0, 'theta': 0.22, 'alpha': 2.0, 'damping': 42.0,
+                         'friction.torque_nm': 40.0, 'friction.speed_coefficient': 3.0e-3}, WIDE),
+    ('stiff_high_friction', {'k': 12000.0, 'theta': 0.21, 'alpha': 3.0, 'damping': 30.0,
+                             'friction.torque_nm': 80.0, 'friction.speed_coefficient': 6.0e-3},
+     WIDE_LOW),
+    ('soft_late_knee', {'k': 9000.0, 'theta': 0.25, 'alpha': 1.5, 'damping': 55.0,
+                        'friction.torque_nm': 25.0, 'friction.speed_coefficient': 1.5e-3}, WIDE),
 ]
-SMALL = [('small', {'k': 9800.0, 'theta': 0.22, 'alpha': 2.0, 'damping': 42.0},
-          [(0, 1400, 0.3), (2, 1400, 0.3), (2.1, 1400, 1.0), (3.5, 1400, 1.0), (3.6, 1400, 0.0),
-           (4.5, 1400, 0.0)])]
+SMALL = [('small', {'k': 9800.0, 'theta': 0.22, 'alpha': 2.0, 'damping': 42.0,
+                    'friction.torque_nm': 40.0, 'friction.speed_coefficient': 3.0e-3},
+          [(0, 900, 0.3), (2, 900, 0.3), (2.1, 900, 1.0), (3, 900, 1.0), (3.1, 900, 0.2),
+           (5, 1800, 0.2)])]
 # a table profile's first 2 s settle from static equilibrium and are left out of the fit
 # (dmf_sim.transient.profiles): every case's steps come after them
 
@@ -63,6 +73,9 @@ def make_bag(work: Path, name: str, true: dict, rows) -> tuple[Path, Path]:
         if el['name'] == dmf_element:
             el['stiffness'], el['damping'] = true['k'], true['damping']
     data['dmf']['theta_rad'], data['dmf']['alpha'] = true['theta'], true['alpha']
+    if 'friction.torque_nm' in true:
+        data['dmf']['friction'] = {'torque_nm': true['friction.torque_nm'],
+                                   'speed_coefficient': true['friction.speed_coefficient']}
     line = work / f'{name}.yaml'
     line.write_text(yaml.safe_dump(data, sort_keys=False))
     prof = work / f'{name}.csv'
@@ -93,8 +106,8 @@ def main() -> None:
     try:
         for name, true, rows in cases:
             bag, prof = make_bag(work, name, true, rows)
-            options = IdentifyOptions(driveline='truck_dmf', profile=str(prof), starts=starts,
-                                      seed=args.seed)
+            options = IdentifyOptions(parameters=tuple(true), driveline='truck_dmf',
+                                      profile=str(prof), starts=starts, seed=args.seed)
             meas = read_measurement(bag, options)
             windup_max = float(meas.y[meas.t_s >= meas.settle_s].max())
             meas = replace(meas, y=meas.y + rng.normal(0.0, args.noise_rad, len(meas.y)))

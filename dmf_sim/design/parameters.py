@@ -13,6 +13,9 @@ A design is a mapping ``{name: value}`` (SI units) applied to the study's base d
 ``stages[i].stiffness_factor``            drive stage i: stiffness k (1 + factor) (>= 0)
 ``coast_stages[j].angle_rad``             coast stage j: knee at -angle [rad] (> 0)
 ``coast_stages[j].stiffness_factor``      coast stage j: stiffness factor (>= 0)
+``friction.torque_nm``                    arc-spring friction: constant part T0 [Nm] (>= 0)
+``friction.speed_coefficient``            arc-spring friction: centrifugal part c_Omega
+                                          [Nm s^2/rad^2] (>= 0)
 ========================================  ===================================================
 
 Every value lies within the bound of its physical quantity (the table
@@ -26,27 +29,33 @@ from __future__ import annotations
 
 import math
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from dmf_sim.core.bounds import BOUNDS
 from dmf_sim.core.errors import ConfigError
 from dmf_sim.core.validation import bounded
 from dmf_sim.physics.model import Driveline
-from dmf_sim.physics.spring import Stage
+from dmf_sim.physics.spring import ArcFriction, Stage
 
-__all__ = ['ALIASES', 'SCALARS', 'STAGE_ATTRS', 'ALLOWED_TEXT', 'Parameter', 'parse_parameter',
-           'check_parameter_set', 'design_driveline']
+__all__ = ['ALIASES', 'SCALARS', 'FRICTION', 'STAGE_ATTRS', 'ALLOWED_TEXT', 'Parameter',
+           'parse_parameter', 'check_parameter_set', 'design_driveline']
 
 ALIASES = {'theta': ('stages', 0, 'angle_rad'), 'alpha': ('stages', 0, 'stiffness_factor')}
 SCALARS = ('k', 'damping')
+FRICTION = ('friction.torque_nm', 'friction.speed_coefficient')
+"""The arc-spring friction's parameters (:class:`dmf_sim.physics.spring.ArcFriction`, eq. 8a);
+the slip speed of its regularization stays the base driveline's."""
 STAGE_ATTRS = ('angle_rad', 'stiffness_factor')
 _STAGE_RE = re.compile(r'^(stages|coast_stages)\[(\d+)\]\.(angle_rad|stiffness_factor)$')
 ALLOWED_TEXT = ('k, damping, theta, alpha, stages[i].angle_rad, stages[i].stiffness_factor, '
-                'coast_stages[j].angle_rad, coast_stages[j].stiffness_factor')
+                'coast_stages[j].angle_rad, coast_stages[j].stiffness_factor, '
+                'friction.torque_nm, friction.speed_coefficient')
 
 # the physical quantity of each kind of parameter (its bound: the one table,
 # dmf_sim.core.bounds.BOUNDS, as for the driveline file), and whether 0 is excluded
 _QUANTITY = {'k': ('stiffness', True), 'damping': ('damping', False),
+             'friction.torque_nm': ('friction_torque', False),
+             'friction.speed_coefficient': ('friction_speed_coefficient', False),
              'angle_rad': ('windup_angle', False), 'stiffness_factor': ('stiffness_factor', False)}
 
 
@@ -88,7 +97,7 @@ def parse_parameter(name: str, where: str) -> Parameter:
     """The :class:`Parameter` called ``name``; one-line ConfigError naming ``where`` otherwise."""
     if not isinstance(name, str):
         raise ConfigError(f'{where}: a parameter name must be text, got {name!r}')
-    if name in SCALARS:
+    if name in SCALARS or name in FRICTION:
         return Parameter(name, name)
     if name in ALIASES:
         side, index, kind = ALIASES[name]
@@ -137,6 +146,11 @@ def design_driveline(base: Driveline, values: dict[Parameter, float]) -> Driveli
         while len(stages) <= p.index:
             stages.append([math.nan, math.nan])
         stages[p.index][STAGE_ATTRS.index(p.kind)] = float(v)
+    friction = None
+    if any(name in scalars for name in FRICTION):
+        friction = replace(base.dmf.friction or ArcFriction(),
+                           **{n.split('.', 1)[1]: scalars[n] for n in FRICTION if n in scalars})
     return base.with_dmf(k=scalars.get('k'), damping=scalars.get('damping'),
                          stages=tuple(Stage(a, f) for a, f in sides['stages']),
-                         coast_stages=tuple(Stage(a, f) for a, f in sides['coast_stages']))
+                         coast_stages=tuple(Stage(a, f) for a, f in sides['coast_stages']),
+                         friction=friction)

@@ -141,12 +141,13 @@ class Driveline:
 
     def with_dmf(self, alpha: float | None = None, theta: float | None = None, *,
                  k: float | None = None, damping: float | None = None,
-                 stages=None, coast_stages=None) -> 'Driveline':
+                 stages=None, coast_stages=None, friction=None) -> 'Driveline':
         """A copy with other DMF data. ``alpha``, ``theta`` [rad]: the paper's shorthand on the
         first drive stage; ``stages`` / ``coast_stages``: sequences of :class:`Stage` (or
         (angle_rad, stiffness_factor) pairs) replacing them; ``k`` [Nm/rad] and ``damping``
-        [Nms/rad]: the DMF element's primary stiffness and damping."""
-        given = (alpha, theta, k, damping, stages, coast_stages)
+        [Nms/rad]: the DMF element's primary stiffness and damping; ``friction``: an
+        :class:`~dmf_sim.physics.spring.ArcFriction` replacing the arc springs' friction."""
+        given = (alpha, theta, k, damping, stages, coast_stages, friction)
         if self.dmf is None:
             if all(v is None for v in given):
                 return self
@@ -169,6 +170,8 @@ class Driveline:
             d = el.damping if damping is None else bounded(damping, 'dmf', 'damping', 'damping')
             els[s] = replace(el, stiffness=spring.k, damping=d)
         dmf = replace(self.dmf, stages=spring.drive, coast_stages=spring.coast)
+        if friction is not None:
+            dmf = replace(dmf, friction=friction)
         line = replace(self, elements=tuple(els), dmf=dmf)
         _check_spring(dmf, line)
         return line
