@@ -1,4 +1,4 @@
-"""Benchmark: the DMF spring optimizer against Latin-hypercube sampling (issue 23).
+"""Benchmark: the DMF spring optimizer against Latin-hypercube sampling.
 
     python benchmarks/bench_optimize.py [--study config/optimize_example.yaml] [--budget 200]
                                          [--seeds 1 2 3] [--verify 3] [--rate-budget 16]
