@@ -157,7 +157,7 @@ def write_samples(rec, s, names: list[str] | None) -> None:
             rec.write(topic, ns, serialize_message(Float64(data=float(val))))
 
 
-# ------------------------------------------------------------------ damaged files (issue 20)
+# ------------------------------------------------------------------ damaged files
 
 def chunk_spans(file: Path) -> list[tuple[int, int, int, int]]:
     """(record offset, record length, message start, message end [ns]) of every chunk of a
@@ -185,7 +185,7 @@ def flip_chunks(file: Path, which, nbytes: int = 64) -> list[tuple[int, int, int
     return picked
 
 
-# ------------------------------------------------------------- a load change (issue 20, item 11)
+# ------------------------------------------------------------- a load change
 
 NODE = '/driveline_node'
 

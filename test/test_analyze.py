@@ -275,7 +275,7 @@ def test_cli_json_and_files(bags, tmp_path, capsys):
 
 
 def test_cli_text_report(bags, tmp_path, capsys, monkeypatch):
-    """The analysis goes beside the bag by default (issue 20), not into the current directory."""
+    """The analysis goes beside the bag by default, not into the current directory."""
     monkeypatch.chdir(tmp_path)
     assert cli_main(['analyze', str(bags['no_crank']), '--no-hbm', '--no-plots', '--bin-rpm',
                      '50']) == 0
@@ -389,7 +389,7 @@ print((kib('VmHWM') - base) / 1024)
 @pytest.mark.bench
 def test_bench_analyze_quick(tmp_path):
     """The benchmark on a small bag: figures sane, the fast reader agrees with the libraries
-    alone and is faster; and (issue 14) the analysis' memory does not grow with the bag: a
+    alone and is faster; and the analysis' memory does not grow with the bag: a
     32 MiB bag costs a few MiB (at cbb69f1 the memory-mapped file grew RSS by its whole size)."""
     out = subprocess.run([sys.executable, str(REPO / 'benchmarks' / 'bench_analyze.py'),
                           '--minutes', '0.5', '--no-plots', '--keep', str(tmp_path)],

@@ -1,4 +1,4 @@
-"""What ``dmf-sim analyze`` accepts (issues 11, 12, 14): namespaced bags, a file inside a bag,
+"""What ``dmf-sim analyze`` accepts: namespaced bags, a file inside a bag,
 split and truncated bags, re-anchored clocks, bounded options, files that are not MCAP; and the
 per-cycle orders the live node shares with it.
 """
@@ -35,7 +35,7 @@ def root(tmp_path_factory):
 
 
 def test_namespaced_bag_detects_its_driveline(root, capsys):
-    """Issue 14: topics under /truck1/... are found without options; a bag with two drivelines
+    """Topics under /truck1/... are found without options; a bag with two drivelines
     asks which one (one line listing them); --namespace picks it."""
     one = write_synthetic(root / 'truck1', ('windup', 'speed', 'crank'), namespaces=('/truck1',),
                           **SHORT)
@@ -56,7 +56,7 @@ def test_namespaced_bag_detects_its_driveline(root, capsys):
 
 
 def test_file_inside_a_bag_uses_its_metadata(root, capsys):
-    """Issue 11: `dmf-sim analyze run1/run1_0.mcap` reads the bag's metadata.yaml beside it and
+    """`dmf-sim analyze run1/run1_0.mcap` reads the bag's metadata.yaml beside it and
     uses the stored load, alpha, theta and load set instead of silently using load 1.0."""
     stored = RunMetadata(driveline='truck_dmf', engine='engine_d13', load_set='B', alpha=2.0,
                          theta_rad=0.22, load=0.6)
@@ -81,7 +81,7 @@ def test_file_inside_a_bag_uses_its_metadata(root, capsys):
 
 
 def test_help_says_where_the_load_comes_from(capsys):
-    """Issue 11: --help and the docs agree: the load is the stored one, else 1.0."""
+    """--help and the docs agree: the load is the stored one, else 1.0."""
     with pytest.raises(SystemExit):
         cli_main(['analyze', '--help'])
     text = ' '.join(capsys.readouterr().out.split())
@@ -99,7 +99,7 @@ def test_help_says_where_the_load_comes_from(capsys):
     (['--start', '5', '--end', '2'], '--end'), (['--load', '1.5'], '--load'),
 ])
 def test_size_like_options_are_bounded(tmp_path, capsys, argv, field):
-    """Issue 14: every size-like option is refused with one line naming it and its range,
+    """Every size-like option is refused with one line naming it and its range,
     before any bag is read."""
     assert cli_main(['analyze', str(tmp_path / 'no_such_bag'), *argv]) == 2
     err = one_line_error(capsys)
@@ -107,7 +107,7 @@ def test_size_like_options_are_bounded(tmp_path, capsys, argv, field):
 
 
 def test_empty_or_random_mcap_is_not_an_mcap_file(tmp_path, capsys):
-    """Issue 14: an empty x.mcap gets "not an MCAP file", like random bytes."""
+    """An empty x.mcap gets "not an MCAP file", like random bytes."""
     empty = tmp_path / 'x.mcap'
     empty.write_bytes(b'')
     noise = tmp_path / 'y.mcap'
@@ -143,7 +143,7 @@ def test_split_bag_with_truncated_last_file(root):
 
 
 def test_clock_re_anchored_while_recording(root):
-    """Issue 14: stamps jump back 27 s half-way (fast pacing, then real time again): the
+    """Stamps jump back 27 s half-way (fast pacing, then real time again): the
     analysis unrolls the jump, says so, and loses at most the cycle across it."""
     plain = analyze_bag(write_synthetic(root / 'plain', ('windup', 'crank'), **SHORT))
     bag = write_synthetic(root / 'jump', ('windup', 'crank'), jump_back_s=27.0, **SHORT)

@@ -1,4 +1,4 @@
-"""``analyze`` at the load the bag recorded (issue 20, item 11).
+"""``analyze`` at the load the bag recorded.
 
 A recording whose load setpoint goes 0.5 -> 1.0 mid-way at a fixed 1000 rpm, made offline with
 the node's simulation core and its health statuses in /diagnostics (as the node records them).

@@ -1,4 +1,4 @@
-"""The model beside a recorded bag (issues 11, 12): the stored spring rebuilt exactly, the paper's
+"""The model beside a recorded bag: the stored spring rebuilt exactly, the paper's
 green line (theta minus the static wind-up of the mean torque), ramp bins marked and left out of
 the comparison with the harmonic balance.
 """
@@ -68,7 +68,7 @@ def test_stored_spring_is_rebuilt_exactly():
 
 
 def test_green_line_is_theta_minus_static_windup(tmp_path):
-    """Issue 11: the Fig. 13 green line is theta minus the static wind-up of the mean torque
+    """The Fig. 13 green line is theta minus the static wind-up of the mean torque
     (DrivelineExcitation.static_state), drawn as such; the dynamic mean stays in CSV/JSON."""
     load = 0.8
     run = RunMetadata(driveline='truck_dmf', engine='engine_d13', load_set='A', load=load)
@@ -97,7 +97,7 @@ def test_green_line_is_theta_minus_static_windup(tmp_path):
 
 
 def test_ramp_bins_marked_and_not_compared(tmp_path, capsys):
-    """Issue 11: a fast speed step (500 rpm/s) between two holds: the bins it sweeps through
+    """A fast speed step (500 rpm/s) between two holds: the bins it sweeps through
     hold few cycles; they are drawn hollow and the text summary compares only the steady bins,
     so no ramp bin reports hundreds of percent of the HBM peak. (The 2500 Nm engine: with the
     2800 Nm default the wind-up at 960 rpm sits in a 1.5th-order resonance that takes longer

@@ -173,7 +173,7 @@ def test_existing_path_refused(tmp_path: Path) -> None:
 
 
 def test_missing_parents_created_and_reported(tmp_path: Path) -> None:
-    """Issue 14: like rosbag2, missing parent directories are created; the recorder lists
+    """Like rosbag2, missing parent directories are created; the recorder lists
     them so the node can log what it created."""
     with BagRecorder(tmp_path / 'a' / 'b' / 'run', TOPICS) as rec:
         assert rec.created_dirs == [tmp_path / 'a', tmp_path / 'a' / 'b']
@@ -223,7 +223,7 @@ def test_truncated_read_and_recover(bag: Path, tmp_path: Path, fraction: float) 
         check_values(msgs[-1].topic, msgs[-1].timestamp_ns, msgs[-1].msg)
 
     out = tmp_path / 'cut_recovered'
-    if not msgs:           # issue 20: a stub with no complete message is refused, not emptied
+    if not msgs:           # a stub with no complete message is refused, not emptied
         with pytest.raises(BagError, match='nothing to recover'):
             recover_bag(cut)
         assert not out.exists()
@@ -243,7 +243,7 @@ def test_truncated_read_and_recover(bag: Path, tmp_path: Path, fraction: float) 
 
 def test_empty_or_random_file_is_not_mcap(bag: Path, tmp_path: Path,
                                           capsys: pytest.CaptureFixture[str]) -> None:
-    """Issue 14: an empty file and random bytes are both "not an MCAP file"; bag-recover
+    """An empty file and random bytes are both "not an MCAP file"; bag-recover
     refuses them (exit 2, one line) and writes nothing."""
     cut = truncated_copy(bag, tmp_path / 'cut', 0.0)
     empty = tmp_path / 'x.mcap'

@@ -1,4 +1,4 @@
-"""Damaged bags (issue 20, items 9 and 10): real recorded files with flipped bytes inside chunks,
+"""Damaged bags: real recorded files with flipped bytes inside chunks,
 a damaged index, a corrupt first chunk, truncations; what ``analyze``, ``durability``, ``runup``
 and ``bag-recover`` make of them (the same words for what each skipped), stubs and bags whose
 topics hold no message, and the output directory of ``analyze`` checked before anything is

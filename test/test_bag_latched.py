@@ -1,4 +1,4 @@
-"""Latched (transient-local) topics and offered QoS in recorded bags (issue 20 item 3).
+"""Latched (transient-local) topics and offered QoS in recorded bags.
 
 A recording started after the prediction was published held no ``dmf_predicted`` message, and
 ``metadata.yaml`` offered every topic as keep-last 10, volatile. Now every recording and every

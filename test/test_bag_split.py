@@ -1,4 +1,4 @@
-"""Bags split into files of bounded duration (issue 15 §4) and flat recorder memory (issue 14).
+"""Bags split into files of bounded duration and flat recorder memory.
 
 Every closed split is a complete MCAP file listed in ``metadata.yaml``, so after SIGKILL the
 bag stays readable by rosbags' rosbag2 reader, the ``mcap`` reader and the rosbag2 layout; the
@@ -121,7 +121,7 @@ CHILD = textwrap.dedent('''
 
 
 def test_sigkill_leaves_every_closed_split_readable(tmp_path: Path) -> None:
-    """Issue 15 §4: SIGKILL while recording; rosbags reads all closed splits as they are,
+    """SIGKILL while recording; rosbags reads all closed splits as they are,
     mcap reads each of them, our reader reads the last one up to its last chunk, and
     bag-recover completes it (only it is rewritten)."""
     from rosbags.rosbag2 import Reader
@@ -188,7 +188,7 @@ SOAK = textwrap.dedent('''
 
 
 def test_recorder_memory_flat_over_ten_simulated_minutes(tmp_path: Path) -> None:
-    """Issue 14: 4 topics, 11 simulated minutes through BagRecorder as fast as it goes
+    """4 topics, 11 simulated minutes through BagRecorder as fast as it goes
     (chunks of 0.1 s of log time, ~6600 of them): RSS grows < 1 MiB after a 2-minute warm-up.
     Before the fix the writer's chunk indexes grew it by ~4 MiB over this run."""
     script = tmp_path / 'soak.py'

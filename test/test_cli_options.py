@@ -1,4 +1,4 @@
-"""Issue 14: every size-like option of sweep / loads / modes / nnm / paper is bounded and refused
+"""Every size-like option of sweep / loads / modes / nnm / paper is bounded and refused
 with one line naming the option and the allowed range (exit 2), before any computation; an
 option that was silently accepted (an empty --config, --torque-speeds without --out) is refused
 the same way."""

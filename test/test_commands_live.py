@@ -98,7 +98,7 @@ def _health(fqn: str, speed: str) -> Status:
                                              ('/truck1', 'driveline_node'),
                                              ('/truck1', '/truck1/driveline_node')])
 def test_monitor_view_keeps_to_its_node_by_full_name(namespace, node):
-    """Issue 20 item 2: the filter compared only the last name segment (the same for every
+    """The filter compared only the last name segment (the same for every
     truck), and --namespace alone did not filter /diagnostics at all."""
     view = MonitorView(node=select_node(namespace, node))
     assert view.node.namespace == '/truck1'

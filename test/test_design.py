@@ -1,4 +1,4 @@
-"""DMF design studies (issue 16): a study on a local Dask cluster gives the numbers of direct
+"""DMF design studies: a study on a local Dask cluster gives the numbers of direct
 sweeps, resumes after an interruption to the same table, records failing designs and goes on,
 and refuses bad study files (and an unreachable scheduler) with one line before any work."""
 from __future__ import annotations
@@ -75,7 +75,7 @@ REL_TOL = 1e-12
 """Rows computed in different processes (Dask workers, or a worker and this process) agree to
 this relative tolerance, not bitwise: a worker's BLAS may use another thread count and so another
 summation order, and the last bit of e.g. worst_order_1_5 differed on another machine
-(0.003220760291894178 vs 0.00322076029189417, issue 20). The absolute floor only spares values
+(0.003220760291894178 vs 0.00322076029189417). The absolute floor only spares values
 that are zero on one path and ~1e-17 on the other."""
 ABS_TOL = 1e-15
 

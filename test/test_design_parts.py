@@ -140,7 +140,7 @@ def test_non_periodic_speeds_count_in_the_worst_values(tmp_path):
 
 
 def test_worst_condition_and_speed_do_not_hang_on_the_last_bit():
-    """Issue 20: two load sets with the same worst value but for the last bits (as a Dask worker
+    """Two load sets with the same worst value but for the last bits (as a Dask worker
     and this process computed them) named either condition; the first within TIE_REL is named."""
     hi, lo = 0.003220760291894178, 0.00322076029189417      # the field report's two values
 

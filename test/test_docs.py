@@ -1,4 +1,4 @@
-"""The documentation stays where a clone can read it (issue 21).
+"""The documentation stays where a clone can read it.
 
 The site itself is built by `make docs` (run by `make test`) with warnings as errors; these checks
 are the cheap ones that need no Sphinx: nothing in the repository cites notes outside it, the
@@ -19,7 +19,7 @@ SKIP_DIRS = {'.git', '.venv', 'build', 'install', 'log', '_build', '__pycache__'
              '.pytest_cache', 'out'}
 TEXT_SUFFIXES = {'.py', '.md', '.yaml', '.yml', '.xml', '.cfg', '.toml', '.json', '.csv', '.txt',
                  ''}
-README_MAX_BYTES = 12 * 1024          # issue 21: README <= ~12 KB, the rest lives in doc/
+README_MAX_BYTES = 12 * 1024          # README <= ~12 KB, the rest lives in doc/
 # A citation of the design notes or of anything beside the repository (the notes folder beside a
 # checkout). The page doc/commands/design-study.md is named so that it never matches.
 OUTSIDE = re.compile(r'(?<![\w-])design\.md|\.\./shared\b|/shared/(design|engine-notes)')
@@ -77,7 +77,7 @@ def _python_blocks(path: Path) -> list[str]:
 
 @pytest.mark.parametrize('page', ['README.md', 'doc/guide/python-api.md'])
 def test_the_api_examples_run(page, capsys):
-    """The README's API example and the guide's first script run as printed (issue 21: a short
+    """The README's API example and the guide's first script run as printed (a short
     example in the README, a runnable one in the docs), through `import dmf_sim as dmf` only."""
     code = _python_blocks(ROOT / page)[0]
     assert code.startswith('import dmf_sim as dmf\n')

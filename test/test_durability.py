@@ -1,4 +1,4 @@
-"""Durability (issue 24): rainflow and Palmgren-Miner damage against closed forms (a pure sine, a
+"""Durability: rainflow and Palmgren-Miner damage against closed forms (a pure sine, a
 two-level block), batch-size invariance, time per spring stage and dissipated power against
 closed forms, and ``dmf-sim durability`` on a run bag (batches, report, one-line errors)."""
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The Floquet multipliers' eigenvalue call (issue 22, eighth step): LAPACK's balancing and
+"""The Floquet multipliers' eigenvalue call: LAPACK's balancing and
 Hessenberg reduction, then the package's compiled double-shift QR (``francis_qr``), against
 ``numpy.linalg.eigvals`` on random and hard matrices and on a sweep's monodromies; the fall-back
 on ``dgeev`` where the QR iteration does not converge; numpy's contract kept."""

@@ -375,7 +375,7 @@ def test_bad_table_references_and_yaml_fields(tmp_path):
 # Ratings: the default reaches the DMF knee, the 2500 Nm rating is the same engine otherwise
 # ------------------------------------------------------------------------------------------------
 def test_default_rating_reaches_the_dmf_knee(engine):
-    """Issue 11: the default 13-litre curve has a ~2800 Nm plateau reached by 1000 rpm, above the
+    """The default 13-litre curve has a ~2800 Nm plateau reached by 1000 rpm, above the
     paper DMF's knee torque k theta, so full Load A puts the mean wind-up at the knee."""
     spring = read_model('truck_dmf').spring
     knee_torque = spring.k * spring.theta
@@ -413,7 +413,7 @@ def test_engine_from_mapping_variant(engine, base_yaml, tmp_path):
 
 
 # ------------------------------------------------------------------------------------------------
-# base: files and files that are not engine YAMLs (issue 14)
+# base: files and files that are not engine YAMLs
 # ------------------------------------------------------------------------------------------------
 def test_base_file_relative_and_override(tmp_path):
     (tmp_path / 'mine.yaml').write_text(

@@ -1,4 +1,4 @@
-"""Figures a reader can trust (issue 11 §3): wind-up panels scaled to the vibration with the
+"""Figures a reader can trust: wind-up panels scaled to the vibration with the
 green line = theta - static wind-up, stability as line style, legends outside the data, DMF
 element names on the mode plot; the sweep tables carry both the green line and the dynamic mean."""
 from __future__ import annotations
@@ -69,7 +69,7 @@ def _legend_clear_of_axes(fig) -> None:
 
 
 def test_figure_legends_below_the_panels_on_this_matplotlib():
-    """Issue 20.15: loc='outside lower center' is matplotlib >= 3.7 only; Ubuntu 24.04 (ROS 2
+    """``loc='outside lower center'`` is matplotlib >= 3.7 only; Ubuntu 24.04 (ROS 2
     Jazzy) has 3.6.3, where every figure path raised. legend_below works on both (make
     test-platform runs this on 3.6.3)."""
     c = _curves()

@@ -207,7 +207,7 @@ def test_layout_is_a_foxglove_layout_of_the_node_s_topics_and_keys():
             paths.append(cfg['topicPath'])
     assert len(paths) >= 8
     # the node's health status is picked by its hardware_id, the node's fully qualified name:
-    # a layout variable, and the Diagnostic Status panel selects it (issue 20 item 4: it
+    # a layout variable, and the Diagnostic Status panel selects it (it
     # selected 'dmf_sim', which no status carries); `dmf-sim foxglove-layout` for other names
     assert layout['globalVariables'] == {'node': '/driveline_node'}
     published = {monitor_status('/driveline_node', AlarmReport(0, ()), None, None, {}).hardware_id,
@@ -231,7 +231,7 @@ def test_layout_is_a_foxglove_layout_of_the_node_s_topics_and_keys():
 
 
 def test_layout_for_a_namespaced_node_moves_its_topics_and_selects_its_health(tmp_path, capsys):
-    """Issue 20 item 4: the layout for /truck1/driveline_node (``dmf-sim monitor --namespace
+    """The layout for /truck1/driveline_node (``dmf-sim monitor --namespace
     /truck1 --foxglove-layout FILE``)."""
     from dmf_sim.cli import main
 
@@ -261,7 +261,7 @@ def test_layout_for_a_namespaced_node_moves_its_topics_and_selects_its_health(tm
 
 
 def test_a_client_connecting_after_the_latched_message_gets_it():
-    """Issue 20 item 4: the prediction (latched) was published before the client connected;
+    """The prediction (latched) was published before the client connected;
     the client gets it as soon as it subscribes, as a late transient-local DDS subscriber."""
     store = _store()
     bridge = FoxgloveBridge(STREAMS, port=0, latched=['/driveline/dmf_orders'])

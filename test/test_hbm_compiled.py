@@ -1,4 +1,4 @@
-"""The compiled hot paths of a sweep point (issue 22) against their readable numpy reference:
+"""The compiled hot paths of a sweep point against their readable numpy reference:
 AFT residual and Jacobian, Newton, deflated Newton, the continuation corrector on a grid speed and
 the Floquet multipliers, on the paper's two-step spring and on a spring with three drive stages
 and a coast stage; and a whole sweep both ways (same branches, events and stable states)."""

@@ -1,5 +1,5 @@
-"""A three-stage drive spring with a coast stage, given only in YAML, through every solver
-(issue 12): Newmark (kernel = reference path, energy balance), harmonic balance vs Newmark,
+"""A three-stage drive spring with a coast stage, given only in YAML, through every solver:
+Newmark (kernel = reference path, energy balance), harmonic balance vs Newmark,
 Floquet multipliers vs a brute-force monodromy from finite differences of Newmark, modes per
 stage, non-linear normal modes, the speed sweep CLI and the live simulation."""
 from __future__ import annotations

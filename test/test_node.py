@@ -78,8 +78,8 @@ def _bag_meta(path: Path) -> dict:
 
 def test_setpoints_outputs_fast_spell_and_a_bag_that_analyses(tmp_path, capsys):
     """Setpoints reach the outputs; a fast spell and back re-anchors the stamps to the wall
-    clock (issue 14) while the bag's log times stay continuous, so the bag recorded across
-    the switch still analyses (orders vs HBM); /clock is advertised only while used (issue 15);
+    clock while the bag's log times stay continuous, so the bag recorded across
+    the switch still analyses (orders vs HBM); /clock is advertised only while used;
     SIGTERM closes a complete bag."""
     from diagnostic_msgs.msg import DiagnosticArray
     from sensor_msgs.msg import JointState
@@ -167,7 +167,7 @@ def test_setpoints_outputs_fast_spell_and_a_bag_that_analyses(tmp_path, capsys):
     out = node.output()
     assert rc == 0, out
     assert 'Traceback' not in out and 'closed' in out
-    assert out.count('recording to') == 1            # issue 15: logged once at start-up
+    assert out.count('recording to') == 1            # logged once at start-up
     assert 'stamps re-anchored to the wall clock (jumped back' in out
 
     # complete bag: metadata counts == MCAP summary == what an independent reader decodes
@@ -253,7 +253,7 @@ def test_bad_input_parameters_reset_and_record_service(tmp_path):
             (res,) = peer.set_params('driveline_node', **{name: value})
             assert not res.successful, name
             assert res.reason and word in res.reason, (name, res.reason)
-        # issue 14: a rate the step cannot divide is refused, and the reason says what fits
+        # a rate the step cannot divide is refused, and the reason says what fits
         (res,) = peer.set_params('driveline_node', publish_rate=3000.0)
         assert not res.successful and '3333.33 Hz (every 3 steps)' in res.reason
         (res,) = peer.set_params('driveline_node', alpha=3.0)
@@ -263,7 +263,7 @@ def test_bad_input_parameters_reset_and_record_service(tmp_path):
         assert peer.spin_until(lambda: peer.counts['/engine/speed'] > n0 + 50, 5.0)
 
         # ---- reset: static equilibrium at the setpoints (speed jumps past the slow ramp) -----
-        # issue 15: an integer for a float parameter (what 'ros2 param set ... 10' sends)
+        # an integer for a float parameter (what 'ros2 param set ... 10' sends)
         (res,) = peer.set_params('driveline_node', speed_ramp_rpm_per_s=10)
         assert res.successful, res.reason
         speed_pub = peer.node.create_publisher(Float64, '/engine/speed_setpoint', peer.qos)
@@ -309,7 +309,7 @@ def test_bad_input_parameters_reset_and_record_service(tmp_path):
         d = peer.diagnostics()
         assert d['_level'] == b'\x01' and 'overrun' in d['_message']
         assert float(d['skipped_s']) - float(d0['skipped_s']) > 0.25
-        assert float(d['lag_max_ms_total']) > 250.0     # issue 14: the overrun is in the stats
+        assert float(d['lag_max_ms_total']) > 250.0     # the overrun is in the stats
         assert abs(float(d['wall_minus_stamp_s'])) < 0.05     # published time skipped ahead
         assert peer.spin_until(                      # live again at once, at real time
             lambda: abs(float(peer.diagnostics()['real_time_factor']) - 1.0) < 0.02, 5.0)
@@ -339,7 +339,7 @@ def test_bad_input_parameters_reset_and_record_service(tmp_path):
 
 
 def test_setpoint_flood_applies_the_last_valid_one_and_counts_every_one(tmp_path):
-    """Issue 14: under 2.5k msg/s of mixed setpoints the final good one (followed by 100 bad
+    """Under 2.5k msg/s of mixed setpoints the final good one (followed by 100 bad
     ones) was never applied, and good ones were dropped uncounted."""
     from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -402,7 +402,7 @@ def test_setpoint_flood_applies_the_last_valid_one_and_counts_every_one(tmp_path
 
 
 def test_two_trucks_keep_topics_and_diagnostics_apart(tmp_path):
-    """Issue 14: two nodes in /truck1 and /truck2 published the same status name and
+    """Two nodes in /truck1 and /truck2 published the same status name and
     hardware_id; both record here, and a setpoint for one reaches only that one."""
     from diagnostic_msgs.msg import DiagnosticArray
     from std_msgs.msg import Float64
@@ -530,7 +530,7 @@ def test_startup_error_names_the_node_and_leaves_no_bag(tmp_path):
 
 
 def test_setup_passes_no_option_setuptools_warns_about():
-    """Issue 20 item 14: setuptools >= 72 (what a fresh ``pip install`` builds with) warns
+    """Setuptools >= 72 (what a fresh ``pip install`` builds with) warns
     "Unknown distribution option: 'tests_require'" on every install; the test extra says it."""
     import ast
     tree = ast.parse((REPO / 'setup.py').read_text())
@@ -577,7 +577,7 @@ def test_installed_layout_runs_like_ros2_run(tmp_path):
     assert Path(module_file).is_relative_to(prefix)          # the installed copy runs
     assert Path(config_dir) == prefix / 'share' / 'dmf_sim' / 'config'
 
-    # issue 20 item 5: both console scripts are in lib/dmf_sim (where `ros2 run dmf_sim X`
+    # both console scripts are in lib/dmf_sim (where `ros2 run dmf_sim X`
     # looks), not on PATH, and run from there: `ros2 run dmf_sim dmf-sim --help`
     lib = Path(found_prefix) / 'lib' / 'dmf_sim'
     assert not (prefix / 'bin' / 'dmf-sim').exists()

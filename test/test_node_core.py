@@ -111,7 +111,7 @@ def test_check_setpoint_and_ramp():
 
 
 def test_refused_setpoint_shows_every_digit_that_refuses_it():
-    """Issue 14: 2200.001 rpm was logged as '2200 rpm outside [500, 2200] rpm'."""
+    """2200.001 rpm was logged as '2200 rpm outside [500, 2200] rpm'."""
     assert check_setpoint(2200.001, 500.0, 2200.0, 'speed setpoint', 'rpm') == \
         'speed setpoint 2200.001 rpm outside [500, 2200] rpm'
     assert '2200.0000000001' in check_setpoint(2200.0000000001, 500.0, 2200.0, 'speed', 'rpm')
@@ -125,7 +125,7 @@ def test_publish_stride_refuses_rates_the_step_cannot_divide():
     assert publish_stride(200.0, 1e-4) == 50
     assert publish_stride(0.1, 1e-4) == 100000
     assert publish_stride(1000.0, 5e-5) == 20
-    # issue 14: 3000 Hz was accepted and published at 3333.33 Hz
+    # 3000 Hz was accepted and published at 3333.33 Hz
     with pytest.raises(ConfigError, match=r'3000 Hz is not a whole number.*3333\.33 Hz \(every 3 '
                                           r'steps\) or 2500 Hz \(every 4 steps\)'):
         publish_stride(3000.0, 1e-4)
@@ -252,7 +252,7 @@ def test_run_loop_publishes_due_samples_with_wall_clock_stamps():
 
 
 def test_overrun_lag_is_in_the_lag_statistics():
-    """Issue 14: lag_max_ms_total (45 ms) left out the 65 ms overrun the log reported."""
+    """``lag_max_ms_total`` (45 ms) left out the 65 ms overrun the log reported."""
     loop, clock, sink, log = new_loop()
     health = HealthMonitor(loop, cpu_clock=lambda: 0.0)
     health.start(0.0)
@@ -272,7 +272,7 @@ def test_overrun_lag_is_in_the_lag_statistics():
 
 
 def test_fast_then_real_time_reanchors_stamps_log_times_stay_monotonic():
-    """Issue 14: after fast pacing and back, stamps stayed 27 s ahead of the wall clock."""
+    """After fast pacing and back, stamps stayed 27 s ahead of the wall clock."""
     loop, clock, sink, log = new_loop()
     for k in range(1, 11):
         clock.now = k * 0.002
@@ -461,7 +461,7 @@ def test_params_file_matches_parameter_table():
 
 
 def test_integers_are_accepted_for_float_parameters():
-    """Issue 15: 'ros2 param set /driveline_node speed_ramp_rpm_per_s 1000' was refused."""
+    """'ros2 param set /driveline_node speed_ramp_rpm_per_s 1000' was refused."""
     assert coerce('speed_ramp_rpm_per_s', 1000) == 1000.0
     assert type(coerce('speed_ramp_rpm_per_s', 1000)) is float
     assert type(coerce('alpha', 3)) is float
@@ -603,7 +603,7 @@ def test_launch_file_declares_namespace_params_record_and_wires_them(monkeypatch
 
 
 def test_start_lines_say_topics_rates_where_to_look_and_how_to_stop(tmp_path):
-    """Issue 20 item 14: ``make node`` printed one line, then nothing; the node now says what
+    """``make node`` printed one line, then nothing; the node now says what
     it publishes at which rate, where to look and how to stop (and which bag Ctrl-C closes)."""
     from dmf_sim.live.streams import STREAMS
 

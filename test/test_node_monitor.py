@@ -1,7 +1,7 @@
-"""The DMF monitor and the Foxglove server wired into the running node (issue 15 items 1-3):
+"""The DMF monitor and the Foxglove server wired into the running node:
 per-cycle orders and the latched prediction on their topics, the monitor's status beside the
 node's health in /diagnostics, and a Foxglove client receiving the node's own wind-up stream.
-Issue 20 items 3-4: a Foxglove client and a recording that start after the prediction get it,
+A Foxglove client and a recording that start after the prediction get it,
 the bag offers the real QoS, and the layout matches what the node publishes."""
 from __future__ import annotations
 
@@ -79,7 +79,7 @@ def test_node_publishes_cycle_orders_prediction_and_serves_foxglove(tmp_path: Pa
         assert 0.0 < w < 0.6
         assert f'Foxglove server at ws://127.0.0.1:{port}' in node.output()
 
-        # issue 20 item 4: a client connecting after the prediction gets it at once, and the
+        # a client connecting after the prediction gets it at once, and the
         # layout for this node names topics it serves with the types the panels expect and
         # selects the hardware id its health status carries
         from rosbags.typesys import Stores, get_typestore
@@ -118,7 +118,7 @@ def test_node_publishes_cycle_orders_prediction_and_serves_foxglove(tmp_path: Pa
         peer.spin_for(2.0)
         assert late['durability flag alone'] == []
 
-        # issue 20 item 3: a recording started after the prediction begins with it
+        # a recording started after the prediction begins with it
         from std_srvs.srv import SetBool
         bag = tmp_path / 'late_bag'
         assert peer.set_params('/truck7/driveline_node', bag_path=str(bag))[0].successful

@@ -1,4 +1,4 @@
-"""Issue 20 item 8: every requested grid speed without a stable periodic state gets the envelope of
+"""Every requested grid speed without a stable periodic state gets the envelope of
 a long time integration, ON the requested grid, or an explicit reason why not.
 
 The issue's case: a two-stage coast spring (drive stage 0.02 rad factor 1.0; coast stages 0.004 rad

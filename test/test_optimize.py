@@ -1,4 +1,4 @@
-"""dmf-sim optimize (issue 23): the optimizer improves on its own first generation, resumes
+"""dmf-sim optimize: the optimizer improves on its own first generation, resumes
 without recomputing finished designs, ranks infeasible designs after feasible ones and records
 failing designs as rows; stage angles are ascending by construction; the constraints are the
 spring's physics; HBM worst values agree with the time domain; bad study files are one line."""

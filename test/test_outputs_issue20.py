@@ -1,4 +1,4 @@
-"""Issue 20 item 13: figures and printed output say what was computed and nothing else: CSV
+"""Figures and printed output say what was computed and nothing else: CSV
 numbers as people write them (one writer), `modes` of a driveline without DMF, no basin share for
 an unstable state, every computed sweep case in a figure."""
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""`dmf-sim paper` (issue 11 §2) on the reduced study, run through its benchmark
+"""`dmf-sim paper` on the reduced study, run through its benchmark
 (benchmarks/bench_paper.py --quick: the last line is JSON): figures, report.md / report.html,
 claims.json, and claim rows that are computed from the study (they follow the data), with the
 physics verdicts the package reaches for the default engine."""

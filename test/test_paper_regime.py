@@ -1,4 +1,4 @@
-"""Issue 11 §1: with the default engine (2800 Nm rating) and Table 1, the package shows the
+"""With the default engine (2800 Nm rating) and Table 1, the package shows the
 paper's phenomena. HBM sweeps (dmf_sim.solvers.hbm, used as a black box) on a 20 rpm grid (the
 alpha 2.5
 and 3 peaks lie on it; alpha 2's is 1.2 % below the 10 rpm grid's) with the default H = 24 (H = 16

@@ -1,4 +1,4 @@
-"""The ROS 2 Jazzy platform's library versions (issue 20.15): constraints/platform-jazzy.txt pins
+"""The ROS 2 Jazzy platform's library versions: constraints/platform-jazzy.txt pins
 every rosdep key of package.xml that names a Python library, setup.py's minimums admit every pin
 (pip install -c constraints/platform-jazzy.txt must resolve), and the environment that
 ``make test-platform`` runs in has exactly those versions."""

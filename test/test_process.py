@@ -1,4 +1,4 @@
-"""core/process.py: a process ends with its parent (issue 20 item 7), with Linux's parent-death
+"""core/process.py: a process ends with its parent, with Linux's parent-death
 signal and with the parent-pid watch used where that does not exist."""
 from __future__ import annotations
 

@@ -72,7 +72,7 @@ def test_stage_validation_one_line_errors():
         PiecewiseLinearSpring(K, (), (Stage(0.1, -2.0),))
     with pytest.raises(ConfigError, match='> 0 rad'):
         PiecewiseLinearSpring.two_step(K, 0.0, 1.0)
-    # bounded above too (issue 20: a YAML `alpha: 1e300` is a number now, refused by its range)
+    # bounded above too (a YAML `alpha: 1e300` is a number now, refused by its range)
     with pytest.raises(ConfigError, match=r'stiffness_factor must be finite and in \[0, 50\]'):
         PiecewiseLinearSpring.two_step(K, 0.24, 1e300)
     with pytest.raises(ConfigError, match=r'angle_rad must be finite, > 0 rad and <= 2 rad'):

@@ -1,4 +1,4 @@
-"""Every steady state, found and trusted (issue 13): deflated Newton, twins and multiplicity,
+"""Every steady state, found and trusted: deflated Newton, twins and multiplicity,
 stable 1.5th-order states continuation alone missed, non-periodic speeds, no lost work, the
 `dmf-sim steady` basins."""
 from __future__ import annotations

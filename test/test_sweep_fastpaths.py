@@ -1,4 +1,4 @@
-"""The sweep's cheaper per-point paths (issue 22, third to seventh steps) give what the general
+"""The sweep's cheaper per-point paths give what the general
 code gives: the stable-state mask of many speeds, the linear parts of one off-grid speed and of
 many speeds, the scalar order summary, the spring's condensed static solve, a linear stretch's
 points made in one batch and where it starts, a traced branch's points made in one batch and

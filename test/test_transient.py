@@ -1,4 +1,4 @@
-"""Transient runs (issue 24): profiles and their one-line errors, the profile followed exactly,
+"""Transient runs: profiles and their one-line errors, the profile followed exactly,
 the node's messages encoded in bulk, block writing equal to per-message writing, a run bag read
 by analyze, an interrupted run leaves a readable bag, a slow run-up follows the HBM branch."""
 from __future__ import annotations

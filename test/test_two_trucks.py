@@ -1,5 +1,5 @@
 """Two trucks in two namespaces under one launch parent, over real DDS (a domain from
-DMF_SIM_TEST_DOMAINS); one pair of node starts serves two fixes of issue 20:
+DMF_SIM_TEST_DOMAINS); one pair of node starts serves two checks:
 
 * item 2: ``dmf-sim monitor --namespace /truck1`` (and ``--node /truck1/driveline_node``)
   showed the other truck's health; every frame must show its own truck's node and speed;

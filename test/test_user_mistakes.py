@@ -1,4 +1,4 @@
-"""Issue 20 items 9 and 12: user mistakes of `steady`, `sweep` and the number parsers are refused
+"""User mistakes of `steady`, `sweep` and the number parsers are refused
 in one line naming the option or field and its allowed range (exit 2), before any computation."""
 from __future__ import annotations
 
