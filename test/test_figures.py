@@ -172,7 +172,7 @@ def _fake_sweep(scale: float = 1.0):
 def test_sweep_figures_keep_their_titles_on_the_canvas(tmp_path):
     """fig13.png / fig15.png of `sweep --alpha 2 2.5 3 --load-set A B C`: the titles naming the
     other figures were wider than the canvas and cut at both edges."""
-    from figure_checks import texts_off_canvas
+    from support.figure_checks import texts_off_canvas
 
     from dmf_sim.commands.sweep import figures
     from dmf_sim.figures import save
@@ -195,7 +195,7 @@ def test_sweep_figures_keep_their_titles_on_the_canvas(tmp_path):
 
 
 def test_a_long_title_is_wrapped_not_cut():
-    from figure_checks import texts_off_canvas
+    from support.figure_checks import texts_off_canvas
 
     from dmf_sim.figures import fit_titles
     fig = Figure(figsize=(5.0, 4.0), layout='constrained')
@@ -225,7 +225,7 @@ def test_design_and_optimizer_legends_sit_beside_the_data():
     likewise the optimizer's pareto_vs_lhs.png and hypervolume.png."""
     from types import SimpleNamespace
 
-    from figure_checks import points_under_legends, texts_off_canvas
+    from support.figure_checks import points_under_legends, texts_off_canvas
 
     from dmf_sim.design.plots import _pareto
     from dmf_sim.optimize.report import hypervolume_figure, pareto_figure
@@ -253,7 +253,7 @@ def test_springs_figure_shows_every_coast_knee():
     -0.224 rad was off the axis."""
     from types import SimpleNamespace
 
-    from figure_checks import points_under_legends, texts_off_canvas
+    from support.figure_checks import points_under_legends, texts_off_canvas
 
     from dmf_sim.design.parameters import design_driveline
     from dmf_sim.optimize import read_problem
@@ -279,7 +279,7 @@ def test_runup_legend_below_the_panels():
     """runup.png drew its legend inside the 3rd-order panel (upper left), over the tracks."""
     from types import SimpleNamespace
 
-    from figure_checks import points_under_legends, texts_off_canvas
+    from support.figure_checks import points_under_legends, texts_off_canvas
 
     from dmf_sim.transient.plots import runup_figure
     from dmf_sim.transient.runup import Jump

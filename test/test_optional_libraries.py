@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 from packaging.requirements import Requirement
-from setup_args import setup_kwargs
+from support.setup_args import setup_kwargs
 
 from dmf_sim.cli import main as cli_main
 from dmf_sim.core.errors import MissingExtraError

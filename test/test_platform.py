@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 from packaging.requirements import Requirement
 from packaging.version import Version
-from setup_args import setup_kwargs
+from support.setup_args import setup_kwargs
 
 ROOT = Path(__file__).resolve().parents[1]
 CONSTRAINTS = ROOT / 'constraints' / 'platform-jazzy.txt'
