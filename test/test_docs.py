@@ -36,6 +36,7 @@ def _repository_files():
             yield rel, path
 
 
+@pytest.mark.slow
 def test_nothing_cites_notes_outside_the_repository():
     hits = []
     for rel, path in _repository_files():
@@ -150,6 +151,7 @@ def test_the_bag_recover_page_runs_as_printed(tmp_path, monkeypatch, capsys):
     assert err.count('\n') == 1 and 'whole.mcap: a bare .mcap file holds one file' in err, err
 
 
+@pytest.mark.slow
 def test_the_virtual_truck_page_offline_run_records_its_misfire(tmp_path, monkeypatch, capsys):
     """The page's offline run, as printed (its --out moved to a scratch directory): the bag
     holds the sensor topics and, in the ground truth, the single misfire of cylinder 3 the

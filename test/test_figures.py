@@ -169,6 +169,7 @@ def _fake_sweep(scale: float = 1.0):
     return SimpleNamespace(branches=[_FakeBranch(c)], non_periodic=[], sharp_resonances=[])
 
 
+@pytest.mark.slow
 def test_sweep_figures_keep_their_titles_on_the_canvas(tmp_path):
     """fig13.png / fig15.png of `sweep --alpha 2 2.5 3 --load-set A B C`: the titles naming the
     other figures were wider than the canvas and cut at both edges."""

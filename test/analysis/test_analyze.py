@@ -50,6 +50,7 @@ def bags(tmp_path_factory):
 
 # ---------------------------------------------------------------------------------- recovery
 
+@pytest.mark.slow
 def test_synthetic_orders_recovered_on_speed_ramp(bags):
     res = analyze_bag(bags['full'], ['windup', 'angle:CYL1', 'torque:INPUT SHAFT'],
                       options=AnalysisOptions(bin_rpm=20, theta=0.24))
@@ -77,6 +78,7 @@ def test_synthetic_orders_recovered_on_speed_ramp(bags):
     assert np.allclose(w.table.min_deviation, x.min() - x.mean(), rtol=TOL)
 
 
+@pytest.mark.slow
 def test_fast_reader_matches_reference_reader(bags):
     specs = [SignalSpec.parse(s) for s in ('windup', 'angle:cyl1', 'torque:INPUT_SHAFT')]
     fast = read_bag_series(bags['full'], signals=specs)
@@ -107,6 +109,7 @@ def test_missing_crank_angle_integrates_speed(bags):
     check_table(res.signal('windup').table, WINDUP)
 
 
+@pytest.mark.slow
 def test_neither_crank_angle_nor_speed_is_a_clear_error(bags, capsys):
     assert cli_main(['analyze', str(bags['neither']), '--json']) == 2
     err = [line for line in capsys.readouterr().err.strip().splitlines()
@@ -116,6 +119,7 @@ def test_neither_crank_angle_nor_speed_is_a_clear_error(bags, capsys):
     assert '/driveline/dmf_windup' in err[0]        # lists what the bag holds
 
 
+@pytest.mark.slow
 def test_truncated_bag(bags):
     bag = bags['root'] / 'truncated'
     shutil.copytree(bags['full'], bag)
@@ -215,6 +219,7 @@ def write_ros2_record_style(path: Path, jitter_ns: int = 100_000, wrap: bool = T
     return path
 
 
+@pytest.mark.slow
 def test_bag_recorded_by_ros2_bag_record(tmp_path):
     bag = write_ros2_record_style(tmp_path / 'rec')
     for stamp in ('publish', 'log'):
@@ -251,6 +256,7 @@ def test_signal_errors(bags):
 
 # ---------------------------------------------------------------------------------- CLI output
 
+@pytest.mark.slow
 def test_cli_json_and_files(bags, tmp_path, capsys):
     out = tmp_path / 'out'
     assert cli_main(['analyze', str(bags['full']), '--signal', 'windup', '--signal',
@@ -289,6 +295,7 @@ def test_cli_text_report(bags, tmp_path, capsys, monkeypatch):
 
 # ------------------------------------------------------------- node run-up against the HBM
 
+@pytest.mark.slow
 def test_node_run_up_agrees_with_hbm(tmp_path, capsys):
     """850 -> 1150 rpm at 20 rpm/s, full load: the DMF crosses its knee near 1000 rpm."""
     bag = record_node_run_up(tmp_path / 'runup', 850.0, 1150.0, 20.0, hold_s=3.0)
@@ -314,6 +321,7 @@ def test_node_run_up_agrees_with_hbm(tmp_path, capsys):
     assert all(r['mean_minus_theta'] > -0.015 for r in rows if r['speed_rpm'] >= 1020)
 
 
+@pytest.mark.slow
 @pytest.mark.ros
 def test_node_end_to_end_killed_recording(tmp_path, capsys):
     """The real driveline_node (separate process, fast pacing, full load at 1100 rpm, where the
@@ -381,6 +389,7 @@ print((kib('VmHWM') - base) / 1024)
 """
 
 
+@pytest.mark.slow
 @pytest.mark.bench
 def test_bench_analyze_quick(tmp_path):
     """The benchmark on a small bag: figures sane, the fast reader agrees with the libraries

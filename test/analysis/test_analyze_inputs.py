@@ -29,6 +29,7 @@ def root(tmp_path_factory):
     return tmp_path_factory.mktemp('inputs')
 
 
+@pytest.mark.slow
 def test_namespaced_bag_detects_its_driveline(root, capsys):
     """Topics under /truck1/... are found without options; a bag with two drivelines
     asks which one (one line listing them); --namespace picks it."""
@@ -50,6 +51,7 @@ def test_namespaced_bag_detects_its_driveline(root, capsys):
     assert data['signals']['windup']['topic'] == '/truck2/driveline/dmf_windup'
 
 
+@pytest.mark.slow
 def test_file_inside_a_bag_uses_its_metadata(root, capsys):
     """`dmf-sim analyze run1/run1_0.mcap` reads the bag's metadata.yaml beside it and
     uses the stored load, alpha, theta and load set instead of silently using load 1.0."""
@@ -112,6 +114,7 @@ def test_empty_or_random_mcap_is_not_an_mcap_file(tmp_path, capsys):
         assert 'is not an MCAP file' in one_line_error(capsys)
 
 
+@pytest.mark.slow
 def test_split_bag_with_truncated_last_file(root):
     """A bag split into files (the recorder's default) whose last file a crash truncated and
     metadata.yaml does not list yet: every file is read, fast reader == library reader."""

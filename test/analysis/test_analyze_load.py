@@ -30,6 +30,7 @@ def step(tmp_path_factory):
     return record_load_change(root / 'step', 1000.0, 0.5, 1.0, CHANGE_S, DURATION_S)
 
 
+@pytest.mark.slow
 def test_rows_per_load_each_compared_at_its_own_load(step, capsys):
     assert cli_main(['analyze', str(step), '--json', '--no-plots']) == 0
     data = json.loads(capsys.readouterr().out)
@@ -99,6 +100,7 @@ def test_load_setpoint_topic_marks_the_change():
     assert load_timeline(None, None, 0.5, 0, s) is None     # the start value alone: no timeline
 
 
+@pytest.mark.slow
 def test_start_load_only_and_no_load_are_warned(tmp_path):
     """A bag that stores only the start load (no health statuses, no setpoints) is analysed
     at it, with a warning that it was assumed constant; with no load at all: 1.0, warned; and

@@ -67,6 +67,7 @@ def test_stored_spring_is_rebuilt_exactly():
         model_settings(bag_info(RunMetadata(driveline='truck_dmf', spring=bad)))
 
 
+@pytest.mark.slow
 def test_green_line_is_theta_minus_static_windup(tmp_path):
     """The Fig. 13 green line is theta minus the static wind-up of the mean torque
     (DrivelineExcitation.static_state), drawn as such; the dynamic mean stays in CSV/JSON."""
@@ -96,6 +97,7 @@ def test_green_line_is_theta_minus_static_windup(tmp_path):
     assert 'θ = 0.24 rad' in fig._suptitle.get_text() and 'load 0.8' in fig._suptitle.get_text()
 
 
+@pytest.mark.slow
 def test_ramp_bins_marked_and_not_compared(tmp_path, capsys):
     """A fast speed step (500 rpm/s) between two holds: the bins it sweeps through
     hold few cycles; they are drawn hollow and the text summary compares only the steady bins,

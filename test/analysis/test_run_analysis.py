@@ -59,6 +59,7 @@ def _agrees(row: dict) -> None:
     assert abs(row['mean_minus_theta'] - row['hbm_mean_minus_theta']) < TOL_MEAN, row
 
 
+@pytest.mark.slow
 def test_run_writes_the_nodes_health_status(step):
     """/diagnostics: the node's health status every simulated second, stamped like the samples
     of that instant; its keys are the simulation part of the node's own report."""
@@ -109,6 +110,7 @@ def test_load_step_rows_compared_at_their_own_load(step, capsys):
     assert not any('assumed constant' in w for w in data['warnings'])
 
 
+@pytest.mark.slow
 def test_road_cycle_compared_at_its_loads(tmp_path, capsys):
     """The packaged road cycle, its first 45 s (idle at load 0.05, launch, upshifts with the
     load changing all the time): the steady rows are the idle at 600 rpm, at load 0.05, within
@@ -130,6 +132,7 @@ def test_road_cycle_compared_at_its_loads(tmp_path, capsys):
     assert len(faster) > 10 and not any(r['steady'] for r in faster)
 
 
+@pytest.mark.slow
 def test_settle_left_out_of_a_ramp(tmp_path, capsys):
     """ramp:800:900:10 (2 s settle at 800 rpm): the bag marks the settle, analyze leaves its
     cycles out and says so; every steady row then agrees with the HBM within the run-up
@@ -160,6 +163,7 @@ def test_settle_left_out_of_a_ramp(tmp_path, capsys):
     assert max(worst([first]).values()) > 1.0
 
 
+@pytest.mark.slow
 def test_settle_marked_in_any_bag_is_left_out(tmp_path):
     """The mark is the bag's, not the writer's: a bag of another recorder with ``settle_s`` in
     its custom_data loses the cycles of its first seconds, and its orders are those written."""

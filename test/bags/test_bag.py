@@ -68,6 +68,7 @@ def check_values(topic: str, t: int, msg: object) -> None:
 
 # ------------------------------------------------------------------------------ round trip
 
+@pytest.mark.slow
 def test_own_reader_round_trip(bag: Path) -> None:
     msgs = list(read_messages(bag))
     assert len(msgs) == 2 * N
@@ -83,6 +84,7 @@ def test_own_reader_round_trip(bag: Path) -> None:
     assert bag_topics(mcap_file(bag)) == TOPICS
 
 
+@pytest.mark.slow
 def test_mcap_reader_with_ros2_decoder(bag: Path) -> None:
     with mcap_file(bag).open('rb') as f:
         reader = make_reader(f, decoder_factories=[DecoderFactory()])
@@ -210,6 +212,7 @@ def truncated_copy(bag: Path, dst: Path, fraction: float) -> Path:
     return dst
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('fraction', [0.003, 0.37, 0.9999])
 def test_truncated_read_and_recover(bag: Path, tmp_path: Path, fraction: float) -> None:
     cut = truncated_copy(bag, tmp_path / 'cut', fraction)
@@ -289,6 +292,7 @@ WRITTEN_BEFORE_KILL = 2000      # JointState messages the child reports written 
 CHUNK_SECONDS = 0.1             # BagRecorder's default: a chunk closes once it spans this
 
 
+@pytest.mark.slow
 def test_sigkill_loses_little_and_recovers(tmp_path: Path) -> None:
     """SIGKILL while recording ~2 kHz: everything in closed chunks survives. Load-independent:
     the kill waits for the child's report of WRITTEN_BEFORE_KILL messages (not a sleep), and
@@ -333,6 +337,7 @@ def test_sigkill_loses_little_and_recovers(tmp_path: Path) -> None:
 
 # ------------------------------------------------------------------- bags from other tools
 
+@pytest.mark.slow
 def test_bare_mcap_files(bag: Path, tmp_path: Path) -> None:
     from mcap_ros2.writer import Writer as Ros2Writer
 
@@ -442,6 +447,7 @@ def test_rosbags_written_bag(tmp_path: Path) -> None:
 
 # ------------------------------------------------------------------------------ CLI, speed
 
+@pytest.mark.slow
 def test_cli_bag_recover(bag: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     cut = truncated_copy(bag, tmp_path / 'cut', 0.5)
     n = sum(1 for _ in read_messages(cut))
@@ -461,6 +467,7 @@ def test_cli_bag_recover(bag: Path, tmp_path: Path, capsys: pytest.CaptureFixtur
     assert sorted(p.name for p in tmp_path.iterdir()) == ['cut', 'fixed']
 
 
+@pytest.mark.slow
 def test_write_throughput(tmp_path: Path) -> None:
     data = serialize_message(joint_state(1, T0))
     n = 20000

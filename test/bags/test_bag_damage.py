@@ -66,6 +66,7 @@ def _count(bag: Path) -> int:
     return sum(1 for _ in read_messages(bag))
 
 
+@pytest.mark.slow
 def test_corrupt_chunks_are_skipped_and_reported(recorded, corrupt, capsys):
     """Before: analyze read the flipped chunks as data (55 of 62 cycles, no warning). Now each
     corrupt chunk is skipped by both readers and reported: file, reason, time range, messages
@@ -106,6 +107,7 @@ def test_corrupt_chunks_are_skipped_and_reported(recorded, corrupt, capsys):
     check_table(w.table, WINDUP)
 
 
+@pytest.mark.slow
 def test_bag_recover_drops_corrupt_chunks(corrupt, tmp_path, capsys):
     """Before: "input was complete", corrupt chunks copied. Now the damaged file is rewritten
     without them and bag-recover says what it dropped; the repaired bag reads clean."""
@@ -153,6 +155,7 @@ def test_corrupt_first_chunk_takes_declarations_from_the_summary(recorded, tmp_p
     check_table(res.signal('windup').table, WINDUP)
 
 
+@pytest.mark.slow
 def test_damaged_index_fails_the_data_section_crc(recorded, tmp_path):
     """A flipped byte in a message index (outside every chunk) leaves the data intact but the
     data section CRC (the recorder writes it) catches it: the message reader and an analysis
@@ -255,6 +258,7 @@ def run_damaged(tmp_path_factory):
     return intact, bag
 
 
+@pytest.mark.slow
 def test_every_command_reports_skipped_chunks_alike(run_damaged, tmp_path, capsys):
     """Before: durability noted only "1 gap in the time stamps", runup said nothing. Now
     analyze, durability and runup report the flipped chunk in the same words, in their text

@@ -120,6 +120,7 @@ CHILD = textwrap.dedent('''
 ''')
 
 
+@pytest.mark.slow
 def test_sigkill_leaves_every_closed_split_readable(tmp_path: Path) -> None:
     """SIGKILL while recording; rosbags reads all closed splits as they are,
     mcap reads each of them, our reader reads the last one up to its last chunk, and
@@ -187,6 +188,7 @@ SOAK = textwrap.dedent('''
 ''')
 
 
+@pytest.mark.slow
 def test_recorder_memory_flat_over_ten_simulated_minutes(tmp_path: Path) -> None:
     """4 topics, 11 simulated minutes through BagRecorder as fast as it goes
     (chunks of 0.1 s of log time, ~6600 of them): RSS grows < 1 MiB after a 2-minute warm-up.

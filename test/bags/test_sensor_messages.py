@@ -110,6 +110,7 @@ def test_float64_payload_equals_rosbags():
             float64_bytes(v)
 
 
+@pytest.mark.slow
 def test_write_messages_equals_write_per_message(tmp_path):
     topics = {'/a': EDGES_TYPE, '/b': 'std_msgs/msg/Float64'}
     rng = np.random.default_rng(1)

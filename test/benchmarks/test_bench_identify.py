@@ -5,9 +5,12 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 BENCH = Path(__file__).resolve().parents[2] / 'benchmarks' / 'bench_identify.py'
 
 
+@pytest.mark.slow
 def test_bench_identify_small_prints_json():
     out = subprocess.run([sys.executable, str(BENCH), '--small'], capture_output=True, text=True,
                          check=True, timeout=600).stdout.strip().splitlines()

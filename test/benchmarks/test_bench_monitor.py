@@ -12,6 +12,7 @@ pytestmark = pytest.mark.bench
 BENCH = Path(__file__).resolve().parents[2] / 'benchmarks' / 'bench_monitor.py'
 
 
+@pytest.mark.slow
 def test_bench_monitor_quick():
     # a number of ticks and the first prediction, not 4 s of wall time: with both cores busy
     # the loop managed 1275 ticks in 4 s and the worker no prediction

@@ -11,6 +11,7 @@ pytestmark = pytest.mark.bench
 BENCH = Path(__file__).resolve().parents[2] / 'benchmarks' / 'bench_newmark.py'
 
 
+@pytest.mark.slow
 def test_bench_newmark_quick_prints_json():
     out = subprocess.run([sys.executable, str(BENCH), '--quick'], capture_output=True, text=True,
                          check=True, timeout=300).stdout.strip().splitlines()

@@ -7,9 +7,12 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 BENCH = Path(__file__).resolve().parents[2] / 'benchmarks' / 'bench_run.py'
 
 
+@pytest.mark.slow
 def test_bench_run_small_prints_json():
     out = subprocess.run([sys.executable, str(BENCH), '--small'], capture_output=True, text=True,
                          check=True, timeout=900).stdout.strip().splitlines()

@@ -136,6 +136,7 @@ class Node:
         self.log.close()
 
 
+@pytest.mark.slow
 @pytest.mark.ros
 def test_setpoint_and_monitor_against_a_running_node(tmp_path):
     domain = new_domain()

@@ -119,6 +119,7 @@ CASES = [
 ]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('argv', CASES, ids=[' '.join(c)[:60] for c in CASES])
 def test_hostile_input_gets_one_line(argv, tmp_path, capsys, monkeypatch):
     # a command that got as far as DDS stays on this machine, in a domain of the tests' range

@@ -29,6 +29,7 @@ def test_csv_floats_read_as_written(tmp_path):
     assert abs(float(csv_value(x)) - x) <= 5e-12 * abs(x)       # 12 significant digits kept
 
 
+@pytest.mark.slow
 def test_every_csv_of_the_package_goes_through_the_one_writer():
     """No CSV writer outside dmf_sim/core/csv_out.py (csv.writer, DictWriter, pyarrow's)."""
     root = Path(dmf_sim.__file__).parent
@@ -134,6 +135,7 @@ def test_the_1251_rpm_spike_is_the_6th_order_meeting_the_125_hz_crank_mode():
     assert min(jumps) > 1e-3 and jumps[0] == pytest.approx(jumps[1], rel=0.02)
 
 
+@pytest.mark.slow
 def test_sweep_figures_hold_every_computed_case_and_label_the_spike(capsys, tmp_path):
     out = tmp_path / 'out'
     assert cli_main(['sweep', '--fast', '--no-progress', '--speeds', '1240', '1260', '20',

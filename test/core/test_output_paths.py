@@ -124,6 +124,7 @@ def test_an_input_path_the_file_system_refuses_is_one_line(argv, bags, tmp_path,
 
 # ---- the rule, written once: the same command's earlier output is replaced, nothing else --------
 
+@pytest.mark.slow
 def test_overwrite_replaces_only_the_same_commands_earlier_files(tmp_path, capsys):
     out = tmp_path / 'modes'
     assert cli_main(['modes', '--out', str(out)]) == 0

@@ -68,6 +68,7 @@ def test_a_file_larger_than_the_limit_is_refused_before_it_is_read(tmp_path, mon
             read_profile(path)
 
 
+@pytest.mark.slow
 def test_a_large_csv_table_is_read_whole_and_its_errors_name_the_line(tmp_path):
     n = 200_000
     t = np.arange(n) * 1e-3

@@ -28,6 +28,8 @@ from dmf_sim.physics.loads import DrivelineExcitation
 from dmf_sim.physics.orders import ORDER_3
 from dmf_sim.solvers.hbm import SweepOptions, sweep
 
+pytestmark = pytest.mark.slow     # studies on a local Dask cluster: its start and workers
+
 REPO = Path(__file__).resolve().parents[2]
 
 STUDY = {   # 12 designs x 2 load sets; knee reached or not, 1.5th-order states and coexistence

@@ -113,6 +113,7 @@ def test_speed_ranges_and_pareto():
     assert compromise(f1, f2, mask) == 1
 
 
+@pytest.mark.slow
 def test_non_periodic_speeds_count_in_the_worst_values(tmp_path):
     """Where no periodic state is stable (the pure-3rd-order table at 600-640 rpm, alpha 2.5: a
     torus instability) the study reports the speeds as non-periodic and takes the worst values

@@ -54,6 +54,7 @@ def test_two_level_block_damage_closed_form():
     assert c[np.isclose(r, 2 * a2)].sum() == pytest.approx(n2, abs=1)
 
 
+@pytest.mark.slow
 def test_batches_do_not_change_the_count():
     y = np.random.default_rng(7).normal(size=30_000).cumsum()
     ref = sorted(zip(*count_cycles(y)))
@@ -135,6 +136,7 @@ def test_stage_time_and_dissipated_power_closed_form():
     assert res.largest[0][1] == pytest.approx(res.torque_max_nm)
 
 
+@pytest.mark.slow
 def test_damping_power_has_a_point_per_engine_cycle():
     """The report's power panel said 'per engine cycle' but drew one point per second (14 points
     for 152 cycles). Every whole engine cycle is now a point, at c A^2 W^2 / 2 for a pure 3rd
@@ -183,6 +185,7 @@ def road_bag(tmp_path_factory):
     return out
 
 
+@pytest.mark.slow
 def test_durability_command_on_a_run_bag(road_bag, tmp_path, capsys):
     out = tmp_path / 'rep'
     assert cli_main(['durability', str(road_bag), '--out', str(out)]) == 0

@@ -27,6 +27,7 @@ def case(tmp_path_factory):
     return make_bag(tmp_path_factory.mktemp('identify'), NAME, TRUE, ROWS)
 
 
+@pytest.mark.slow
 def test_the_model_identifies_itself_from_the_windup(case):
     bag, prof = case
     options = IdentifyOptions(driveline='truck_dmf', profile=str(prof), starts=1)
@@ -40,6 +41,7 @@ def test_the_model_identifies_itself_from_the_windup(case):
     assert r.rms < 1e-6 < r.rms_initial
 
 
+@pytest.mark.slow
 def test_the_flywheel_speeds_identify_the_spring_too(case):
     """Where the two flywheel speeds are what was recorded: their difference, the wind-up
     rate, carries the same parameters."""

@@ -470,6 +470,7 @@ def test_runtime_validates_then_applies_parameter_changes(tmp_path):
     assert rt.reset().startswith('reset to static equilibrium at 1000 rpm')
 
 
+@pytest.mark.slow
 def test_node_module_imports_and_refuses_cleanly_without_ros():
     code = ("import sys; sys.modules['rclpy'] = None\n"
             "import dmf_sim.node as n\n"

@@ -42,6 +42,7 @@ def _drain(sim, mon, cond, cycles, preds):
     assert cond()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('worker', ['process', 'thread'])
 def test_monitor_predicts_compares_and_alarms(worker):
     sim = LiveSimulation.from_config(engine='engine_d13_2500nm', alpha=3.0, theta=0.2,
@@ -121,6 +122,7 @@ def test_monitor_settings_refuse_bad_values():
         MonitorSettings(prediction_speed_step_rpm=0.0)
 
 
+@pytest.mark.slow
 def test_monitor_survives_a_killed_worker():
     """A worker process that dies (killed) costs the cycles in flight, not the monitor: the
     next jobs start a new worker and the prediction is computed again."""
@@ -152,6 +154,7 @@ LONG_JOB_S = 120.0     # a running job close() must not wait for [s]
 CLOSE_LIMIT_S = 20.0   # close() with a worker killed, on a loaded machine [s]
 
 
+@pytest.mark.slow
 def test_monitor_workers_end_with_the_node_not_with_its_signals():
     """``kill -TERM %1`` on a launch job (and Ctrl-C) reaches the node's whole process group.
     The workers must not die of it (the node then started new ones while it stopped, which

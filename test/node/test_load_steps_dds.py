@@ -23,6 +23,7 @@ def _value(peer, key: str) -> float:
     return float(v) if v not in (None, 'nan') else float('nan')
 
 
+@pytest.mark.slow
 def test_fast_tip_in_and_braking_setpoints(tmp_path):
     from diagnostic_msgs.msg import DiagnosticArray
     from std_msgs.msg import Float64

@@ -76,6 +76,7 @@ def _bag_meta(path: Path) -> dict:
     return yaml.safe_load((path / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
 
 
+@pytest.mark.slow
 def test_setpoints_outputs_fast_spell_and_a_bag_that_analyses(tmp_path, capsys):
     """Setpoints reach the outputs; a fast spell and back re-anchors the stamps to the wall
     clock while the bag's log times stay continuous, so the bag recorded across
@@ -224,6 +225,7 @@ def test_setpoints_outputs_fast_spell_and_a_bag_that_analyses(tmp_path, capsys):
     assert abs(row['mean_minus_theta'] - row['hbm_mean_minus_theta']) < 2e-3
 
 
+@pytest.mark.slow
 def test_bad_input_parameters_reset_and_record_service(tmp_path):
     from diagnostic_msgs.msg import DiagnosticArray
     from std_msgs.msg import Float64
@@ -338,6 +340,7 @@ def test_bad_input_parameters_reset_and_record_service(tmp_path):
     assert 'Traceback' not in node.output()
 
 
+@pytest.mark.slow
 def test_setpoint_flood_applies_the_last_valid_one_and_counts_every_one(tmp_path):
     """Under 2.5k msg/s of mixed setpoints the final good one (followed by 100 bad
     ones) was never applied, and good ones were dropped uncounted."""
@@ -401,6 +404,7 @@ def test_setpoint_flood_applies_the_last_valid_one_and_counts_every_one(tmp_path
     assert 'rejected speed setpoint' in out and 'rejected load setpoint' in out
 
 
+@pytest.mark.slow
 def test_two_trucks_keep_topics_and_diagnostics_apart(tmp_path):
     """Two nodes in /truck1 and /truck2 published the same status name and
     hardware_id; both record here, and a setpoint for one reaches only that one."""
@@ -442,6 +446,7 @@ def test_two_trucks_keep_topics_and_diagnostics_apart(tmp_path):
         assert f'/truck{i}/driveline/dmf_windup' in topics and '/diagnostics' in topics
 
 
+@pytest.mark.slow
 def test_sigkill_leaves_readable_bag_that_recovers(tmp_path):
     from std_msgs.msg import Float64
 
@@ -498,6 +503,7 @@ def _bad_configs(tmp: Path):
     ]
 
 
+@pytest.mark.slow
 def test_bad_configuration_stops_startup_with_one_line(tmp_path):
     env = dict(os.environ, ROS_DOMAIN_ID=str(new_domain()))
     for args, word in _bad_configs(tmp_path):
@@ -510,6 +516,7 @@ def test_bad_configuration_stops_startup_with_one_line(tmp_path):
         assert len(lines) == 1 and ('error' in lines[0].lower() or 'failed' in lines[0]), err
 
 
+@pytest.mark.slow
 def test_startup_error_names_the_node_and_leaves_no_bag(tmp_path):
     """A refused start says which node (its namespace: several trucks start at once), and a
     bag it had created is removed, so the corrected start can use the same bag_path."""
@@ -540,6 +547,7 @@ def test_setup_passes_no_option_setuptools_warns_about():
     assert 'tests_require' not in keywords and 'extras_require' in keywords
 
 
+@pytest.mark.slow
 def test_installed_layout_runs_like_ros2_run(tmp_path):
     """colcon's install form (executable, ament index, config, launch file), then launch the way
     ``ros2 run`` finds executables."""
@@ -631,6 +639,7 @@ def _bench_json(script: Path, *args: str) -> dict:
     return json.loads(res.stdout.strip().splitlines()[-1])
 
 
+@pytest.mark.slow
 @pytest.mark.bench
 def test_bench_node_quick_prints_json():
     data = _bench_json(BENCH, '--duration', '3', '--fast-duration', '1.5', '--warmup', '1')
@@ -641,6 +650,7 @@ def test_bench_node_quick_prints_json():
     assert data['bag_complete'] and data['node_exit_code'] == 0
 
 
+@pytest.mark.slow
 @pytest.mark.bench
 def test_bench_node_two_trucks_quick():
     data = _bench_json(BENCH, '--nodes', '2', '--duration', '2', '--warmup', '0.5')
@@ -654,6 +664,7 @@ def test_bench_node_two_trucks_quick():
     assert data['bag_complete'] and data['node_exit_code'] == 0
 
 
+@pytest.mark.slow
 @pytest.mark.bench
 def test_bench_soak_quick_prints_json():
     data = _bench_json(SOAK, '--minutes', '0.2', '--warmup-minutes', '0.05')

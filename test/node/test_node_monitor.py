@@ -38,6 +38,7 @@ def _layout_topics(layout: dict) -> dict[str, str]:
     return out
 
 
+@pytest.mark.slow
 def test_node_publishes_cycle_orders_prediction_and_serves_foxglove(tmp_path: Path):
     from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy

@@ -101,6 +101,7 @@ def _expect(proc, word: str) -> str:
     return line.strip()
 
 
+@pytest.mark.slow
 def test_later_signals_never_interrupt_closing_a_bag(tmp_path):
     """Without DDS: the first signal stops the recording; the 1-2 that follow, sent at once or
     after 0-50 ms, are ignored (and logged) also while the bag is being closed, in every round;

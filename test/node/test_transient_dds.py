@@ -59,6 +59,7 @@ def _start(tmp_path: Path, *extra: str):
     return domain, node, peer
 
 
+@pytest.mark.slow
 def test_setpoint_profile_plays_in_real_time_to_a_running_node(tmp_path):
     """``dmf-sim setpoint --profile``: the node's /engine/speed follows the profile's speeds
     at the profile's pace (not the node's faster ramp) and ends on its last row; the load
@@ -99,6 +100,7 @@ def test_setpoint_profile_plays_in_real_time_to_a_running_node(tmp_path):
     assert 'Traceback' not in node.output()
 
 
+@pytest.mark.slow
 def test_node_profile_parameter_at_start_and_at_run_time(tmp_path):
     """The node's ``profile`` parameter: a profile given at start-up is followed from t = 0;
     one set through the parameter service (what ``ros2 param set`` calls) is followed from

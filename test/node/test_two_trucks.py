@@ -59,6 +59,7 @@ def _monitors_show_their_own_truck(env: dict, speeds: dict) -> None:
         _kill(monitors)
 
 
+@pytest.mark.slow
 def test_two_trucks_monitor_apart_and_end_with_their_launch_parent(tmp_path):
     from std_msgs.msg import Float64
 

@@ -23,6 +23,8 @@ from dmf_sim.optimize.constraints import rank
 from dmf_sim.optimize.hypervolume import hypervolume, hypervolume_history
 from dmf_sim.optimize.runner import finish
 
+pytestmark = pytest.mark.slow     # optimizations on a local Dask cluster: its start and workers
+
 REPO = Path(__file__).resolve().parents[2]
 
 

@@ -72,6 +72,7 @@ def test_cylinder_count_mismatch_refused():
         DrivelineExcitation(read_model('truck_dmf'), Four({0: 1.0}))
 
 
+@pytest.mark.slow
 def test_cli_loads_json_and_png(tmp_path):
     out = subprocess.run([sys.executable, '-m', 'dmf_sim.cli', 'loads', '--json', '--speeds',
                           '600', '1200', '100', '--out', str(tmp_path)],

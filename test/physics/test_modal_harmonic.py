@@ -71,6 +71,7 @@ def test_single_dof_analytic():
                                rtol=1e-9)
 
 
+@pytest.mark.slow
 def test_cli_modes_json():
     out = subprocess.run([sys.executable, '-m', 'dmf_sim.cli', 'modes', '--variant', 'dmf',
                           '--alpha', '3', '--json'],

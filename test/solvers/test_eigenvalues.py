@@ -47,6 +47,7 @@ def _matrices():
     return out
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('k', range(len(_matrices())))
 def test_eigenvalues_equal_numpys(k):
     X = _matrices()[k]
@@ -109,6 +110,7 @@ def test_eigenvalues_keep_numpys_contract():
         eigenvalues(sym)
 
 
+@pytest.mark.slow
 def test_bench_eigen_quick_on_a_sweeps_monodromies():
     """The benchmark's small run: the monodromies a sweep meets, both calls within the tolerance
     of numpy's eigvals, the figures as the last JSON line."""

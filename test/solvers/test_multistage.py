@@ -105,6 +105,7 @@ def test_hbm_and_newmark_agree_within_one_percent(steady):
     assert s.mean == pytest.approx(n.mean, rel=1e-3)
 
 
+@pytest.mark.slow
 def test_floquet_matches_finite_difference_monodromy_of_newmark(loads, steady):
     """Brute force: the one-period map of the Newmark integrator from the periodic state,
     differentiated by central differences in the flexible (J-orthonormal modal) coordinates, at
@@ -232,6 +233,7 @@ def test_steady_cli_multistage(yaml_path, capsys):
     assert sum(s['basin']['hits'] for s in states) == 4
 
 
+@pytest.mark.slow
 @pytest.mark.ros
 def test_live_node_runs_the_multistage_yaml(yaml_path, tmp_path):
     """The ROS node with `driveline:=<the YAML>` (default engine, speed and load): its published

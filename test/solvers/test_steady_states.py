@@ -41,6 +41,7 @@ def loads_for(engine, alpha, **dmf):
     return DrivelineExcitation(line.reduce(), engine)
 
 
+@pytest.mark.slow
 def test_stable_subharmonic_at_950_rpm_agrees_with_newmark(pure3):
     """Continuation and branch switching alone stop the 1.5th-order branch at its fold (910 rpm);
     the full search finds the stable 1.5th-order state at 950 rpm (7.1 mrad), reported once with
@@ -96,6 +97,7 @@ def test_deflation_avoids_known_roots_and_shift_is_a_symmetry(pure3):
     assert np.abs(shift(q.x, 1, hb.H) - q.x).max() > 1e-3           # a distinct twin
 
 
+@pytest.mark.slow
 def test_torus_speed_is_non_periodic_with_newmark_envelope(pure3):
     """At 620 rpm (alpha 2.5) the periodic solution has lost stability through a complex
     multiplier pair; the sweep reports the speed non-periodic with the envelope of a long time

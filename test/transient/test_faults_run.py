@@ -37,6 +37,7 @@ def _ground_truth(bag):
     return gt, active
 
 
+@pytest.mark.slow
 def test_run_with_a_schedule_writes_the_ground_truth(tmp_path):
     path = tmp_path / 'faults.yaml'
     path.write_text(SCHEDULE)
@@ -97,6 +98,7 @@ def test_run_without_faults_declares_the_topics_writes_nothing(tmp_path):
     ('[{kind: misfire, cylinders: [2], at_s: 9.0}]', ["'at_s'", 'not before the end']),
     ('[{kind: misfire, cylinders: [2], sometimes: true}]', ["unknown key 'sometimes'"]),
 ])
+@pytest.mark.slow
 def test_bad_schedule_one_line_exit_2(tmp_path, capsys, faults, words):
     path = tmp_path / 'faults.yaml'
     path.write_text(f'faults: {faults}\n')

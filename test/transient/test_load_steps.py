@@ -90,6 +90,7 @@ def test_a_load_step_faster_than_one_newmark_step_is_refused(tmp_path, capsys):
 
 
 # ---- what a run reports ------------------------------------------------------------------------
+@pytest.mark.slow
 def test_tip_in_overshoots_the_static_windup(loads):
     """The DMF mode (the driveline's lowest, ~7.8 Hz) overshoots a fast load step: an undamped
     single mode reaches 1 + |sin(pi f T)/(pi f T)| of the static change for a ramp of T s (2 for a

@@ -324,6 +324,7 @@ def test_runup_takes_one_run_up_and_one_run_down(run_bag, times, needle, tmp_pat
     assert err.count('\n') == 1 and needle in err and not out.exists()
 
 
+@pytest.mark.slow
 def test_threaded_run_writes_the_sequential_bag(tmp_path):
     """Integrating in a thread of its own while the last chunks are read out and written
     (threads=2, the default with two CPUs) gives the bag one thread gives (threads=1), byte for
@@ -368,6 +369,7 @@ def test_run_shows_its_progress_when_stderr_is_not_a_terminal(capsys):
     assert capsys.readouterr().err == ''
 
 
+@pytest.mark.slow
 def test_interrupted_run_leaves_a_readable_bag(tmp_path):
     """SIGINT (Ctrl-C) during a long run: exit 130, the bag holds what was simulated and
     analyze reads it (with two threads: the integrating one is stopped and joined)."""

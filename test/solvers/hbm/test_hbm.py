@@ -261,6 +261,7 @@ def test_paper_case_sweep_runs_fast_on_the_grid(engine_a):
 # CLI and benchmark
 # ------------------------------------------------------------------------------------------------
 
+@pytest.mark.slow
 def test_cli_sweep_json_csv_png(tmp_path, capsys):
     rc = cli_main(['sweep', '--alpha', '2.5', '3', '--load-set', 'A', 'B', '--speeds', '900',
                    '1100', '10', '--json', '--no-progress', '--out', str(tmp_path)])
@@ -284,6 +285,7 @@ def test_cli_sweep_rejects_bad_input(capsys):
     assert '--load' in capsys.readouterr().err
 
 
+@pytest.mark.slow
 @pytest.mark.bench
 def test_benchmark_quick():
     # dt 5e-5 s: at the default engine's 1.5th-order resonance (1000 rpm) Newmark at 1e-4 s is
@@ -313,6 +315,7 @@ def test_benchmark_refuses_a_repeat_below_one():
     (['--speeds', '600', '700', '0'], '--speeds 600 700 0: need FROM < TO and STEP > 0'),
     (['--alpha', '-1'], 'alpha must be finite and >= 0'),
 ])
+@pytest.mark.slow
 def test_sweep_benchmarks_refuse_a_bad_range_or_model(script, args, says):
     """A speed range the wrong way round, a zero step or a bad DMF: one line naming it, exit 2,
     no traceback (the model's own message for the model)."""
@@ -322,6 +325,7 @@ def test_sweep_benchmarks_refuse_a_bad_range_or_model(script, args, says):
     assert says in out.stderr.strip().splitlines()[-1]
 
 
+@pytest.mark.slow
 def test_pairs_benchmark_quick():
     """bench_pairs --quick against this same tree: two warm workers, three alternating pairs of
     sweeps, the same points on both sides and a per-pair ratio near 1 (the same code; the
@@ -343,6 +347,7 @@ def test_pairs_benchmark_refuses_a_base_without_the_package(tmp_path):
     assert out.stderr.strip().splitlines()[-1].endswith('no dmf_sim package in that directory')
 
 
+@pytest.mark.slow
 def test_pairs_benchmark_refuses_a_tree_that_borrows_modules(tmp_path):
     """A base directory whose dmf_sim lacks the modules a sweep imports would have them from the
     installed package: one line saying so, exit 1, no figures, no traceback."""

@@ -600,6 +600,7 @@ print(json.dumps([before, [len(f.signatures) for f in fs]]))
 '''
 
 
+@pytest.mark.slow
 def test_warm_up_compiles_what_a_fresh_worker_calls():
     """In a fresh process (a design-study worker), warm_up leaves no signature for the first
     sweep to add: a prepared batch of speeds and a single speed reach the modal sums with

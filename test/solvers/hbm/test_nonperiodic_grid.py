@@ -42,6 +42,7 @@ def loads(tmp_path_factory):
                           read_engine(tmp / 'pure3.csv'))
 
 
+@pytest.mark.slow
 def test_every_grid_speed_without_a_stable_state_has_its_envelope_on_the_grid(loads):
     lo, hi, step = GRID
     res = sweep(loads, 1.0, (lo, hi), options=SweepOptions(step_rpm=step))

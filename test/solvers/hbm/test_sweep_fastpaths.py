@@ -275,6 +275,7 @@ def _modal_sums_complex(omega, dOm, d, ml, a, unit, dunit, h, dh):
             h[q, n], dh[q, n] = sh, sdh * dOm[n]
 
 
+@pytest.mark.slow
 def test_modal_sums_written_out_equal_complex_arithmetic_bitwise():
     """The linear parts' modal sums, harmonics innermost with the complex operations written out
     (SIMD), give the bits of the same sums in numba's complex arithmetic: random poles (one at

@@ -29,6 +29,7 @@ def result(model):
     return nnm_branches(model, xi_max=10.0)
 
 
+@pytest.mark.slow
 def test_linear_limit_at_xi_one(model, result):
     """At xi -> 1 the NNM frequencies are the linear ones at primary / secondary stiffness."""
     for region in ('primary', 'secondary'):
@@ -54,6 +55,7 @@ def test_primary_rises_secondary_falls_toward_one_frequency(result):
     assert np.all(gap > 0) and gap[-1] < 0.5 * gap[0]
 
 
+@pytest.mark.slow
 def test_periodic_solutions_return_after_one_period(model, result):
     """Full DOF state recovered from the HBM solution, integrated over one period in time
     (scipy DOP853, restart at each knee crossing), returns to its start."""
@@ -75,6 +77,7 @@ def test_periodic_solutions_return_after_one_period(model, result):
             assert ctrl > 5 * err
 
 
+@pytest.mark.slow
 def test_time_integration_error_shrinks_with_harmonics(model):
     errs = []
     for H in (10, 40):
@@ -96,6 +99,7 @@ def test_frequency_converged_in_harmonics(model):
     np.testing.assert_allclose(f[0], f[1], rtol=1e-5)
 
 
+@pytest.mark.slow
 def test_scaling_claim_frequency_independent_of_theta_and_distance(model):
     """Paper: for fixed alpha and xi the frequency does not depend on theta (nor on the static
     wind-up's distance to the knee). HBM for other (theta, d), and the scaled reference orbit
@@ -110,6 +114,7 @@ def test_scaling_claim_frequency_independent_of_theta_and_distance(model):
                                        sc[region]['rows'][0]['xi_scaled_orbit'], rtol=1e-9)
 
 
+@pytest.mark.slow
 def test_static_state_holds_the_requested_windup(model):
     for ws in (0.1, 0.4):
         q_s, P0 = static_state(model, ws)
@@ -173,6 +178,7 @@ def test_coast_knee_and_errors():
         ConservativeNNM(read_model('truck_dmf'), 0.24)
 
 
+@pytest.mark.slow
 def test_cli_writes_csv_json_png(tmp_path, capsys):
     out = tmp_path / 'nnm'
     assert main(['nnm', '--alpha', '2', '--xi-max', '4', '--harmonics', '12', '--json',
