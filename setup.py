@@ -48,7 +48,7 @@ setup(
         'tqdm>=4.66',
         'rosbags>=0.10',
         # < 2: the bag writer's block path uses the mcap writer's private state (present 1.1
-        # to 1.6; dmf_sim/bags/mcap_internals.py, checked by test/test_mcap_internals.py)
+        # to 1.6; dmf_sim/bags/mcap_internals.py, checked by test/bags/test_mcap_internals.py)
         'mcap>=1.1,<2',
         'rich>=13',
         'threadpoolctl>=3',            # dmf-sim run: BLAS in one thread for the small products

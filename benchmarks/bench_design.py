@@ -1,4 +1,4 @@
-"""Benchmark: design-study throughput on Dask (issue 16).
+"""Benchmark: design-study throughput on Dask.
 
     python benchmarks/bench_design.py [--designs 300] [--repeats 3] [--rss-designs 2000]
                                        [--engine engine_d13] [--search] [--quick]

@@ -1,4 +1,4 @@
-"""Benchmark: the Floquet multipliers' eigenvalue call against LAPACK's ``dgeev`` (issue 22).
+"""Benchmark: the Floquet multipliers' eigenvalue call against LAPACK's ``dgeev``.
 
     python benchmarks/bench_eigen.py [--alpha 3] [--speeds 600 2000 10] [--repeat 40] [--quick]
 

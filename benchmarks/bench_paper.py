@@ -18,7 +18,7 @@ import tempfile
 import time
 from pathlib import Path
 
-BUDGET_S = 120.0       # issue 11: the full run finishes in under 2 minutes on the 2-core machine
+BUDGET_S = 120.0       # the full run finishes in under 2 minutes on the 2-core machine
 
 
 def main(argv=None) -> int:

@@ -28,7 +28,7 @@ from dmf_sim.core.deprecation import warn_renamed
 __version__ = '0.1.0'
 
 # public name -> module that defines it (the one place it lives); the TYPE_CHECKING imports
-# below name the same (test/test_public_api.py checks it)
+# below name the same (test/test_api.py checks it)
 _API = {
     # model and excitation
     'read_model': 'dmf_sim.physics.model',

@@ -34,6 +34,7 @@ def _imported_after(code: str) -> set[str]:
     return set(out.stdout.split())
 
 
+@pytest.mark.slow
 def test_cli_help_and_package_import_load_neither_numba_nor_dask():
     assert _imported_after('import dmf_sim') == set()
     help_code = ('import contextlib, io\nfrom dmf_sim.cli import main\n'
@@ -42,11 +43,13 @@ def test_cli_help_and_package_import_load_neither_numba_nor_dask():
     assert _imported_after(help_code) == set()
 
 
+@pytest.mark.slow
 def test_node_core_start_up_does_not_load_dask():
     loaded = _imported_after('import dmf_sim.live.runtime')
     assert not {'dask', 'distributed', 'pyarrow'} & loaded
 
 
+@pytest.mark.slow
 def test_example_script_runs():
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     out = subprocess.run([sys.executable, str(ROOT / 'doc' / 'examples' / 'api_example.py'),

@@ -1,4 +1,4 @@
-"""The documentation stays where a clone can read it (issue 21).
+"""The documentation stays where a clone can read it.
 
 The site itself is built by `make docs` (run by `make test`) with warnings as errors; these checks
 are the cheap ones that need no Sphinx: nothing in the repository cites notes outside it, the
@@ -19,7 +19,7 @@ SKIP_DIRS = {'.git', '.venv', 'build', 'install', 'log', '_build', '__pycache__'
              '.pytest_cache', 'out'}
 TEXT_SUFFIXES = {'.py', '.md', '.yaml', '.yml', '.xml', '.cfg', '.toml', '.json', '.csv', '.txt',
                  ''}
-README_MAX_BYTES = 12 * 1024          # issue 21: README <= ~12 KB, the rest lives in doc/
+README_MAX_BYTES = 12 * 1024          # README <= ~12 KB, the rest lives in doc/
 # A citation of the design notes or of anything beside the repository (the notes folder beside a
 # checkout). The page doc/commands/design-study.md is named so that it never matches.
 OUTSIDE = re.compile(r'(?<![\w-])design\.md|\.\./shared\b|/shared/(design|engine-notes)')
@@ -36,6 +36,7 @@ def _repository_files():
             yield rel, path
 
 
+@pytest.mark.slow
 def test_nothing_cites_notes_outside_the_repository():
     hits = []
     for rel, path in _repository_files():
@@ -77,7 +78,7 @@ def _python_blocks(path: Path) -> list[str]:
 
 @pytest.mark.parametrize('page', ['README.md', 'doc/guide/python-api.md'])
 def test_the_api_examples_run(page, capsys):
-    """The README's API example and the guide's first script run as printed (issue 21: a short
+    """The README's API example and the guide's first script run as printed (a short
     example in the README, a runnable one in the docs), through `import dmf_sim as dmf` only."""
     code = _python_blocks(ROOT / page)[0]
     assert code.startswith('import dmf_sim as dmf\n')
@@ -150,6 +151,7 @@ def test_the_bag_recover_page_runs_as_printed(tmp_path, monkeypatch, capsys):
     assert err.count('\n') == 1 and 'whole.mcap: a bare .mcap file holds one file' in err, err
 
 
+@pytest.mark.slow
 def test_the_virtual_truck_page_offline_run_records_its_misfire(tmp_path, monkeypatch, capsys):
     """The page's offline run, as printed (its --out moved to a scratch directory): the bag
     holds the sensor topics and, in the ground truth, the single misfire of cylinder 3 the

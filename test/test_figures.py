@@ -1,4 +1,4 @@
-"""Figures a reader can trust (issue 11 §3): wind-up panels scaled to the vibration with the
+"""Figures a reader can trust: wind-up panels scaled to the vibration with the
 green line = theta - static wind-up, stability as line style, legends outside the data, DMF
 element names on the mode plot; the sweep tables carry both the green line and the dynamic mean."""
 from __future__ import annotations
@@ -69,7 +69,7 @@ def _legend_clear_of_axes(fig) -> None:
 
 
 def test_figure_legends_below_the_panels_on_this_matplotlib():
-    """Issue 20.15: loc='outside lower center' is matplotlib >= 3.7 only; Ubuntu 24.04 (ROS 2
+    """``loc='outside lower center'`` is matplotlib >= 3.7 only; Ubuntu 24.04 (ROS 2
     Jazzy) has 3.6.3, where every figure path raised. legend_below works on both (make
     test-platform runs this on 3.6.3)."""
     c = _curves()
@@ -169,10 +169,11 @@ def _fake_sweep(scale: float = 1.0):
     return SimpleNamespace(branches=[_FakeBranch(c)], non_periodic=[], sharp_resonances=[])
 
 
+@pytest.mark.slow
 def test_sweep_figures_keep_their_titles_on_the_canvas(tmp_path):
     """fig13.png / fig15.png of `sweep --alpha 2 2.5 3 --load-set A B C`: the titles naming the
     other figures were wider than the canvas and cut at both edges."""
-    from figure_checks import texts_off_canvas
+    from support.figure_checks import texts_off_canvas
 
     from dmf_sim.commands.sweep import figures
     from dmf_sim.figures import save
@@ -195,7 +196,7 @@ def test_sweep_figures_keep_their_titles_on_the_canvas(tmp_path):
 
 
 def test_a_long_title_is_wrapped_not_cut():
-    from figure_checks import texts_off_canvas
+    from support.figure_checks import texts_off_canvas
 
     from dmf_sim.figures import fit_titles
     fig = Figure(figsize=(5.0, 4.0), layout='constrained')
@@ -225,7 +226,7 @@ def test_design_and_optimizer_legends_sit_beside_the_data():
     likewise the optimizer's pareto_vs_lhs.png and hypervolume.png."""
     from types import SimpleNamespace
 
-    from figure_checks import points_under_legends, texts_off_canvas
+    from support.figure_checks import points_under_legends, texts_off_canvas
 
     from dmf_sim.design.plots import _pareto
     from dmf_sim.optimize.report import hypervolume_figure, pareto_figure
@@ -253,7 +254,7 @@ def test_springs_figure_shows_every_coast_knee():
     -0.224 rad was off the axis."""
     from types import SimpleNamespace
 
-    from figure_checks import points_under_legends, texts_off_canvas
+    from support.figure_checks import points_under_legends, texts_off_canvas
 
     from dmf_sim.design.parameters import design_driveline
     from dmf_sim.optimize import read_problem
@@ -279,7 +280,7 @@ def test_runup_legend_below_the_panels():
     """runup.png drew its legend inside the 3rd-order panel (upper left), over the tracks."""
     from types import SimpleNamespace
 
-    from figure_checks import points_under_legends, texts_off_canvas
+    from support.figure_checks import points_under_legends, texts_off_canvas
 
     from dmf_sim.transient.plots import runup_figure
     from dmf_sim.transient.runup import Jump

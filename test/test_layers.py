@@ -5,6 +5,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 MAX_LOOSE_MODULES = 12
 
@@ -24,6 +26,7 @@ def test_few_loose_modules():
     assert len(loose) <= MAX_LOOSE_MODULES, loose
 
 
+@pytest.mark.slow
 def test_every_public_module_declares_its_public_names():
     """``__all__`` in every public module (not ``_private.py``), naming objects that exist."""
     import ast

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 from packaging.requirements import Requirement
-from setup_args import setup_kwargs
+from support.setup_args import setup_kwargs
 
 from dmf_sim.cli import main as cli_main
 from dmf_sim.core.errors import MissingExtraError
@@ -48,6 +48,7 @@ def _provides(req: str) -> set[str]:
     return {r.name.lower()} | {e.lower() for e in r.extras}
 
 
+@pytest.mark.slow
 def test_optional_libraries_are_imported_only_through_require():
     imports = _imports()
     for name in OPTIONAL:
@@ -55,6 +56,7 @@ def test_optional_libraries_are_imported_only_through_require():
         assert not direct, f'{name} imported directly in {sorted(direct)}: use core.optional'
 
 
+@pytest.mark.slow
 def test_every_third_party_import_is_declared():
     kw = setup_kwargs()
     core = {Requirement(r).name.lower() for r in kw['install_requires']}

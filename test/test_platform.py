@@ -1,4 +1,4 @@
-"""The ROS 2 Jazzy platform's library versions (issue 20.15): constraints/platform-jazzy.txt pins
+"""The ROS 2 Jazzy platform's library versions: constraints/platform-jazzy.txt pins
 every rosdep key of package.xml that names a Python library, setup.py's minimums admit every pin
 (pip install -c constraints/platform-jazzy.txt must resolve), and the environment that
 ``make test-platform`` runs in has exactly those versions."""
@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 from packaging.requirements import Requirement
 from packaging.version import Version
-from setup_args import setup_kwargs
+from support.setup_args import setup_kwargs
 
 ROOT = Path(__file__).resolve().parents[1]
 CONSTRAINTS = ROOT / 'constraints' / 'platform-jazzy.txt'

@@ -68,6 +68,7 @@ warm_up('test', 'bag reading')
 '''
 
 
+@pytest.mark.slow
 def test_a_cold_cache_is_found_without_compiling(tmp_path):
     """`warm-up --check` reads numba's cache index only: on an empty cache every group is cold
     and nothing is written; once a group is compiled it is found, the others stay cold, and its

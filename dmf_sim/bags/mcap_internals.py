@@ -10,7 +10,7 @@ its ``ChunkBuilder``. They are not part of ``mcap``'s API, so:
 * :func:`writer_state` is None for a writer that lacks any of them, and the bag writer then
   writes message by message through the public API (correct, slower);
 * ``setup.py`` bounds ``mcap`` below its next major version (present from 1.1 through 1.6), and
-  ``test/test_mcap_internals.py`` fails when the installed ``mcap`` no longer has them, so a
+  ``test/bags/test_mcap_internals.py`` fails when the installed ``mcap`` no longer has them, so a
   release that renames them is noticed rather than silently slower.
 """
 from __future__ import annotations

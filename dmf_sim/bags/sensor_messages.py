@@ -24,7 +24,7 @@ analysis of bags decodes with it.
 message when each value is delivered (its send time + delay).
 
 The CDR bytes are built here with numpy (little-endian CDR, as rclpy writes on x86 and ARM);
-``test/test_sensor_messages.py`` compares them with rosbags' and rclpy's serializers.
+``test/bags/test_sensor_messages.py`` compares them with rosbags' and rclpy's serializers.
 """
 from __future__ import annotations
 

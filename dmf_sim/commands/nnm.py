@@ -21,7 +21,7 @@ HELP = ('Non-linear normal modes (no damping, no excitation, about the mean torq
         'and in the secondary region (paper Fig. 14).')
 XI_REPORT = (1.0, 1.5, 2.0, 3.0, 5.0, 7.0, 10.0)
 
-# Bounds of the size-like options (issue 14)
+# Bounds of the size-like options
 XI_MAX_RANGE = (1.0, 1000.0)       # xi = E/E_nl shown (1 = the linear limit, excluded)
 HARMONICS_RANGE = (1, 64)          # harmonics of the base frequency
 STEP_MAX_RANGE = (1e-4, 1.0)       # largest continuation step (scaled units)
@@ -59,7 +59,7 @@ def add_arguments(p) -> None:
 
 
 def check_options(args, model) -> None:
-    """One-line refusal of every option out of its range (issue 14)."""
+    """One-line refusal of every option out of its range."""
     lo, hi = XI_MAX_RANGE
     if not lo < args.xi_max <= hi:
         raise ConfigError(f'--xi-max={args.xi_max}: allowed range ({lo:g}, {hi:g}] (xi = 1 is the '

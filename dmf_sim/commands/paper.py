@@ -1,4 +1,4 @@
-"""``dmf-sim paper --out DIR``: the whole reference paper in one command (issue 11 §2).
+"""``dmf-sim paper --out DIR``: the whole reference paper in one command.
 
 Regenerates the paper's Figs. 8, 12, 13, 14 and 15 (plus the lower-damping comparison behind its
 720 rpm remark) and writes ``report.md`` and a self-contained ``report.html`` (figures embedded)

@@ -1,4 +1,4 @@
-"""DMF design studies: many designs x operating conditions, evaluated on Dask (issue 16).
+"""DMF design studies: many designs x operating conditions, evaluated on Dask.
 
 ``run_study(study, client=None) -> StudyResult`` from Python or a notebook; ``dmf-sim design
 STUDY.yaml --out DIR`` from the command line. Modules:

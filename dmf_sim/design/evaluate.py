@@ -2,8 +2,8 @@
 
 :func:`solve_condition` is the one place that decides how the steady states of a design are
 found. Today it is continuation (``dmf_sim.solvers.hbm.sweep``: the branch from the lowest speed,
-turning points, Floquet stability, branch switching to 1.5th-order branches); when the solution
-finder (issue 13) lands, its body changes and nothing else does.
+turning points, Floquet stability, branch switching to 1.5th-order branches); when another
+finder is wanted, its body changes and nothing else does.
 
 A design that cannot be built (e.g. stage angles out of order) or whose solver fails is recorded
 with its reason and never stops the study. :class:`StudyContext` is what a worker needs (base

@@ -52,7 +52,7 @@ TIE_REL = 1e-9
 worst value is (speed, condition): the first in grid or condition order is named. Load sets that
 differ only at low speed give the same worst value above, equal but for the last bits, and a Dask
 worker and this process may round those bits differently: a plain argmax then named either
-condition (issue 20)."""
+condition."""
 
 
 def condition_metrics(states, spring, step_rpm: float) -> dict:

@@ -7,7 +7,7 @@
   ``.branch``, ``.max_multiplier`` are used when present). The default sweeps a short speed range
   around the point with :func:`dmf_sim.solvers.hbm.sweep` (pseudo-arc-length continuation, Floquet
   stability, 1.5th-order branch switching) and takes :meth:`SweepResult.solutions_at` the point,
-  keeping the stable ones. Another finder (issue 13) replaces it by being passed as ``solver``.
+  keeping the stable ones. Another finder replaces it by being passed as ``solver``.
 * :class:`Prediction` — the result for one :class:`OperatingPoint` (speed and load rounded, load
   set, spring, the persistent faults acting): the stable states (with alike cylinders a state and
   its 120-deg shifted copy count once; with faults that make the cylinders differ they are two

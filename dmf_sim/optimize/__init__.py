@@ -1,4 +1,4 @@
-"""Designing the DMF spring: multi-objective, robust, constrained optimization on Dask (issue 23).
+"""Designing the DMF spring: multi-objective, robust, constrained optimization on Dask.
 
 ``run_optimization(problem, client=None) -> OptimizationResult`` from Python; ``dmf-sim optimize
 STUDY.yaml --out DIR`` from the command line. A layer beside ``dmf_sim.design``, built on it:

@@ -1,4 +1,4 @@
-"""What a real DMF spring must meet (issue 23), as constraint values (> 0: violated).
+"""What a real DMF spring must meet, as constraint values (> 0: violated).
 
 * ``capacity``: the spring reaches the torque capacity before its travel ends,
   ``T(max_travel_rad) >= capacity`` (T the spring's full torque, dmf_sim.physics.spring). The

@@ -1,4 +1,4 @@
-"""The optimization problem: a design study file plus an ``optimizer`` section (issue 23).
+"""The optimization problem: a design study file plus an ``optimizer`` section.
 
 The file is a ``dmf-sim design`` study (``dmf_sim.design.study``; its ``sampling`` section may be
 left out) with::

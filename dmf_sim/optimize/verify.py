@@ -1,4 +1,4 @@
-"""Verifying optimized designs in the time domain (Newmark), issue 23.
+"""Verifying optimized designs in the time domain (Newmark).
 
 For a design's worst value of an objective (the speed and condition where the harmonic-balance
 metrics put it), :func:`verify_worst` runs

@@ -1,4 +1,4 @@
-"""The reference paper's study, computed by the package (``dmf-sim paper``; issue 11 §2).
+"""The reference paper's study, computed by the package (``dmf-sim paper``).
 
 :class:`PaperStudy` runs what the paper's figures and statements rest on: modes (Fig. 12), the
 engine loads (Fig. 8), HBM speed sweeps for several alpha and Loads A/B/C (Figs. 13, 15), a

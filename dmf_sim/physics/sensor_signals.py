@@ -24,7 +24,7 @@ the first after the gap. Every level between the step's end angles is crossed on
 direction: a non-directional sensor gives an edge whichever way the tooth passes), at the root
 of (S1) minus the level found by Newton's method kept inside the bracket [0, 1] (bisection when
 a Newton step leaves it) to |delta tau| < 1e-15. (S1) interpolates a smooth motion with error
-O(h^4) theta'''' / 384, so an edge time is off by O(h^4) (``test/test_sensor_signals.py``
+O(h^4) theta'''' / 384, so an edge time is off by O(h^4) (``test/physics/test_sensor_signals.py``
 checks the order on a known motion). A motion reversing inside one step gives one edge per
 level between the end angles. The capture timer: the edge at t is read as
 ``floor((t + jitter) / timer_resolution_s)`` ticks, jitter Gaussian of ``timer_jitter_s``

@@ -7,14 +7,14 @@ A kernel (:func:`dmf_sim.core.compiled.jit`) called from Python is an *entry poi
 (the numpy path it replaces, or the Python loop whose decisions it repeats). A kernel only called
 from other kernels is a *helper* (:data:`HELPERS`): it is compiled with its callers.
 
-Adding a kernel is one entry here; ``test/test_kernel_registry.py`` checks, from this table,
-that
+Adding a kernel is one entry here; ``test/solvers/test_kernel_registry.py`` checks, from this
+table, that
 
 1. every compiled function of the solver modules is an entry point or a helper, and nothing
    listed is missing;
 2. every entry point's reference exists, and its parity test exists in the named file;
 3. every group's ``warm_up`` loads each of its entry points, and a sweep after it compiles
-   nothing new (``test/test_hbm_compiled.py``, from :func:`entry_points`);
+   nothing new (``test/solvers/hbm/test_hbm_compiled.py``, from :func:`entry_points`);
 4. the tests named here carry the ``parity`` marker (set by ``test/conftest.py`` from this
    table), so ``pytest -m parity`` runs every kernel against its reference.
 
@@ -41,8 +41,8 @@ _L = 'dmf_sim.solvers.hbm.linear_kernels'
 _S = 'dmf_sim.solvers.step_control'
 _HBM = 'dmf_sim.solvers.hbm.condensed:CondensedHBM'
 _CONT = 'dmf_sim.solvers.continuation'
-_T_HBM = 'test/test_hbm_compiled.py'
-_T_FAST = 'test/test_sweep_fastpaths.py'
+_T_HBM = 'test/solvers/hbm/test_hbm_compiled.py'
+_T_FAST = 'test/solvers/hbm/test_sweep_fastpaths.py'
 
 
 @dataclass(frozen=True)
@@ -110,14 +110,14 @@ KERNELS: tuple[Kernel, ...] = (
            'dmf_sim.solvers.stability:FloquetAnalyzer.analyze',
            f'{_T_FAST}::test_points_of_a_traced_branch_made_in_one_batch_equal_one_by_one'),
     Kernel('dmf_sim.solvers.lapack_kernel:eigenvalues_into', 'numpy.linalg:eigvals',
-           'test/test_eigenvalues.py::test_eigenvalues_equal_numpys'),
+           'test/solvers/test_eigenvalues.py::test_eigenvalues_equal_numpys'),
     # the Newmark step
     Kernel('dmf_sim.solvers.newmark_kernel:factor',
            'dmf_sim.solvers.newmark_kernel:advance_reference',
-           'test/test_newmark.py::test_kernel_equals_reference_path', TIME_INTEGRATION),
+           'test/solvers/test_newmark.py::test_kernel_equals_reference_path', TIME_INTEGRATION),
     Kernel('dmf_sim.solvers.newmark_kernel:advance_compiled',
            'dmf_sim.solvers.newmark_kernel:advance_reference',
-           'test/test_newmark.py::test_kernel_equals_reference_path', TIME_INTEGRATION),
+           'test/solvers/test_newmark.py::test_kernel_equals_reference_path', TIME_INTEGRATION),
 )
 """The compiled entry points of the solvers."""
 

@@ -294,7 +294,7 @@ def advance_kernel(nsteps, stride, state, system, factors, spring, excitation, o
     out here rather than called: numba's inlining of helpers that take many arrays costs 25-35 %
     of the step time (measured with numba 0.68), and this loop is the node's hot path. The
     Thomas sweeps carry the damping's off-diagonal terms and the wind-up sum with them (one pass
-    down, one up: 10-25 % less time per step than separate loops, measured 2026-12-02).
+    down, one up: 10-25 % less time per step than separate loops, measured).
     """
     q, v, a, scal = state
     Jd, Klo, Kd, Kup, Clo, Cd, Cup, e, params = system
@@ -569,7 +569,7 @@ law_parts = jit(law_parts)
 law_solve = jit(law_solve)
 regular_block = jit(regular_block)
 # reassociation and FMA contraction: the sums over the DOFs vectorize (~10 % less time per step,
-# measured 2026-12-02); the results differ from the strict order by round-off (~1e-12 rad over
+# measured); the results differ from the strict order by round-off (~1e-12 rad over
 # 2e5 steps), which the reference tests' tolerances state
 advance_compiled = jit(advance_kernel, fastmath={'reassoc', 'contract'})
 

@@ -1,5 +1,5 @@
 """Every steady state at one operating point, and how likely the driveline settles in each
-(issue 13; ``dmf-sim steady``).
+(``dmf-sim steady``).
 
 1. The states: a full harmonic balance sweep over a small speed window around the operating
    point (dmf_sim.solvers.hbm: continuation, Floquet stability, branch switching, deflated Newton

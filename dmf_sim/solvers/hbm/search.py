@@ -1,4 +1,4 @@
-"""The full steady-state search of a speed sweep (issue 13): every stable 720 deg periodic state,
+"""The full steady-state search of a speed sweep: every stable 720 deg periodic state,
 and what time integration shows where there is none.
 
 After continuation and branch switching (dmf_sim.solvers.hbm.sweep, .branches):

@@ -1,0 +1,100 @@
+"""``dmf-sim identify``: the DMF's spring, damping and arc-spring friction fitted to a
+recorded run.
+
+The model identifies itself: a bag written by ``dmf-sim run`` with a DMF that is not the
+shipped one (friction included), fitted from the shipped values, gives back the parameters it
+was written with (noise-free: to the solver's tolerance; the benchmark measures the noisy
+cases), from the wind-up or from the two flywheel speeds, here or on Dask."""
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / 'benchmarks'))
+from bench_identify import SMALL, make_bag  # noqa: E402
+
+from dmf_sim.cli import main as cli_main  # noqa: E402
+from dmf_sim.identify.fit import (  # noqa: E402
+    FRICTION_START,
+    IdentifyOptions,
+    identify,
+    read_measurement,
+)
+
+NAME, TRUE, ROWS = SMALL[0]
+PARAMETERS = tuple(TRUE)      # the spring, its damping and the arc-spring friction
+TOL = 1e-4            # noise-free: the fit ends where the residual is the solver's rounding
+
+
+@pytest.fixture(scope='module')
+def case(tmp_path_factory):
+    return make_bag(tmp_path_factory.mktemp('identify'), NAME, TRUE, ROWS)
+
+
+@pytest.mark.slow
+def test_the_model_identifies_itself_from_the_windup(case):
+    bag, prof = case
+    options = IdentifyOptions(parameters=PARAMETERS, driveline='truck_dmf', profile=str(prof),
+                              starts=1)
+    meas = read_measurement(bag, options)
+    assert meas.y[meas.t_s >= meas.settle_s].max() > TRUE['theta']   # the knee is crossed
+    r = identify(meas, options)
+    # the shipped spring's values, and the friction it lacks at its documented start
+    assert r.initial == {'k': 10890.0, 'theta': 0.24, 'alpha': 2.5, 'damping': 49.5,
+                         **FRICTION_START}
+    for name, true in TRUE.items():
+        assert r.values[name] == pytest.approx(true, rel=TOL), name
+        assert 0 <= r.rel_std[name] < 0.01, name
+    assert r.rms < 1e-6 < r.rms_initial
+
+
+@pytest.mark.slow
+def test_the_flywheel_speeds_identify_the_spring_too(case):
+    """Where the two flywheel speeds are what was recorded: their difference, the wind-up
+    rate, carries the same parameters."""
+    bag, prof = case
+    options = IdentifyOptions(parameters=PARAMETERS, signal='speeds', driveline='truck_dmf',
+                              profile=str(prof), starts=1)
+    r = identify(read_measurement(bag, options), options)
+    assert r.unit == 'rad/s' and r.signal == 'speeds'
+    for name, true in TRUE.items():
+        assert r.values[name] == pytest.approx(true, rel=1e-3), name
+
+
+@pytest.mark.slow
+def test_the_command_writes_json_and_plot_and_runs_on_dask(case, tmp_path, capsys):
+    bag, prof = case
+    argv = ['identify', str(bag), '--config', 'truck_dmf', '--profile', str(prof),
+            '--parameters', ','.join(PARAMETERS), '--starts', '2']
+    assert cli_main([*argv, '--out', str(tmp_path / 'local')]) == 0
+    local = json.loads((tmp_path / 'local' / 'identify.json').read_text())
+    assert (tmp_path / 'local' / 'identify.png').stat().st_size > 20_000
+    assert 'wrote' in capsys.readouterr().out
+    assert cli_main([*argv, '--workers', '2', '--json']) == 0
+    dask = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert len(dask['starts']) == 2
+    for name in TRUE:
+        assert dask['values'][name] == pytest.approx(local['values'][name], rel=1e-6)
+        assert dask['values'][name] == pytest.approx(TRUE[name], rel=TOL)
+
+
+@pytest.mark.parametrize('extra, needle', [
+    (['--parameters', 'k,stiffness'], '--parameters'),
+    (['--parameters', 'k,k'], 'named twice'),
+    (['--parameters', 'stages[3].angle_rad'], 'stages'),
+    (['--starts', '0'], '--starts 0: allowed 1..1000'),
+    (['--signal', 'torque'], 'invalid choice'),
+    (['--profile', 'no_such_profile'], 'no_such_profile'),
+])
+def test_bad_options_one_line(case, extra, needle, capsys):
+    bag, prof = case
+    try:
+        code = cli_main(['identify', str(bag), '--profile', str(prof), *extra])
+    except SystemExit as stop:
+        code = stop.code
+    err = capsys.readouterr().err
+    assert code == 2 and err.count('\n') == 1 and needle in err, err
+    assert err.startswith('dmf-sim identify: error: '), err
