@@ -18,17 +18,21 @@ i + 1 (cylinder i's power stroke) the primary side's energy balance per unit ine
 
     E_i = (omega_{i+1}^2 - omega_i^2) / 2 = (W_gas,i - W_dmf,i - W_loss,i) / J_P      (M1)
 
-with W_dmf,i ~ k_eff * phi_i * 4 pi / n_cyl the spring's work (phi_i: the mean wind-up (W1)
-over the interval). The healthy balance around interval i is fitted by least squares over the
-``window`` intervals each side of it (not i itself): E_j = c0 + c1 (t_j - t_i) + c2 phi_j, the
-trend c1 taking speed and load changes. The score is the work deficit relative to the
-reconstructed mean engine work c2 phi_i (the spring passes on the mean engine torque),
+with W_dmf,i = g * Tbar_i the spring's work: Tbar_i the mean DMF torque T(phi) over the interval
+(phi the wind-up (W1), T the DMF's characteristic from the bag's model) and g (= interval angle
+/ J_P) one factor per run, fitted by least squares of the first differences of E_i against
+those of Tbar_i (slow changes of speed and load cancel in them; differences beyond ``TRIM``
+median errors, a misfire's, are left out of a second fit). The engine's work per unit inertia
+is then w_i = E_i - g Tbar_i, flat while healthy: the DMF's swing after a misfire is in Tbar,
+not in w. Its local baselines are the medians of the ``window`` intervals before and after i
+(a median ignores a neighbouring misfire; a load step or a run-up's start moves only one side);
+the score is the deficit against the nearer of them, relative to the mean engine work
+|g * median(Tbar)| (the spring passes on the mean engine torque),
 
-    s_i = (E_i - c0 - c2 phi_i) / |c2 phi_i|                                         (M2)
+    s_i = max(w_i - median(w_left), w_i - median(w_right)) / |g * median(Tbar)|       (M2)
 
-about -1 for a misfire (the combustion's share of the work missing) and near 0 when healthy;
-an alarm is s_i < -``threshold``. The fit's neighbours make the DMF's swing after a misfire
-predictable (it is in phi) instead of an alarm.
+about -1 for a misfire (its combustion's share of the work missing) and near 0 when healthy;
+an alarm is s_i < -``threshold``.
 
 **Scoring** (:func:`score_detections`): a misfire of the ground truth (``faults/ground_truth``,
 its TDC crank angle) is detected when the interval of its TDC raised an alarm on its cylinder;
@@ -39,7 +43,7 @@ from __future__ import annotations
 import math
 import os
 from dataclasses import dataclass, field
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -59,8 +63,9 @@ __all__ = ['DEFAULT_WINDOW', 'DEFAULT_THRESHOLD', 'WINDUP_POINTS', 'CRANK_ANGLE_
            'GROUND_TRUTH_TOPIC', 'misfire_scores', 'MisfireScore', 'score_detections',
            'ground_truth_misfires', 'detect_bag']
 
-DEFAULT_WINDOW = 6          # intervals each side of the healthy-balance fit (two engine cycles)
-DEFAULT_THRESHOLD = 0.4     # alarm below -0.4 of the mean engine work per firing interval (M2)
+DEFAULT_WINDOW = 9          # intervals each side of the local baseline (1.5 engine cycles)
+DEFAULT_THRESHOLD = 0.3     # alarm below -0.3 of the mean engine work per firing interval (M2)
+TRIM = 5.0                  # the gain's fit leaves out differences beyond 5 median errors
 WINDUP_POINTS = 8           # points of the mean wind-up over an interval
 CRANK_ANGLE_TOPIC = 'engine/crank_angle'
 GROUND_TRUTH_TOPIC = 'faults/ground_truth'
@@ -68,13 +73,17 @@ GROUND_TRUTH_TOPIC = 'faults/ground_truth'
 
 def misfire_scores(t_p: np.ndarray, theta_p: np.ndarray, t_w: np.ndarray, phi: np.ndarray,
                    firing_phases_rad: Sequence[float], *, offset_rad: float = 0.0,
-                   window: int = DEFAULT_WINDOW) -> dict[str, np.ndarray]:
+                   window: int = DEFAULT_WINDOW,
+                   spring_torque: Callable[[np.ndarray], np.ndarray] | None = None
+                   ) -> dict[str, np.ndarray]:
     """Scores (M2) of every firing interval with a full fit window.
 
     t_p, theta_p: the crank wheel's edge times [s] and angles on the crank angle
     (:func:`~dmf_sim.analysis.tooth_signals.cycle_phase`); t_w, phi: the wind-up (W1) [rad]
-    at times [s]. Returns the segments of ``segment_speeds`` (``cylinder``, ``combustion``,
-    ``tdc_rad``, ...) for the scored intervals plus ``t_s`` (the TDC's time) and ``score``."""
+    at times [s]; spring_torque: the DMF characteristic T(phi) [Nm] (default: linear, Tbar
+    then the mean wind-up itself). Returns the segments of ``segment_speeds`` (``cylinder``,
+    ``combustion``, ``tdc_rad``, ...) of the scored intervals (each the segment whose TDC
+    starts it) plus ``t_s`` (the TDC's time) and ``score``."""
     n_cyl = len(firing_phases_rad)
     seg = segment_speeds(t_p, theta_p, firing_phases_rad, -2.0 * math.pi / n_cyl,
                          offset_rad=offset_rad)
@@ -83,16 +92,24 @@ def misfire_scores(t_p: np.ndarray, theta_p: np.ndarray, t_w: np.ndarray, phi: n
     energy = 0.5 * np.diff(w ** 2)                           # (M1), interval i: tm_i .. tm_i+1
     frac = (np.arange(WINDUP_POINTS) + 0.5) / WINDUP_POINTS
     tt = tm[:-1, None] + np.diff(tm)[:, None] * frac[None, :]
-    wind = np.interp(tt, t_w, phi).mean(axis=1)
+    wind_t = np.interp(tt, t_w, phi)
+    tbar = (wind_t if spring_torque is None else spring_torque(wind_t)).mean(axis=1)
     n = len(energy)
-    nb = np.concatenate([np.arange(-window, 0), np.arange(1, window + 1)])
+    # the spring's work per unit inertia, one factor for the run: first differences of (M1)
+    # against those of Tbar (slow levels cancel; refitted without the outliers)
+    de, dtq = np.diff(energy), np.diff(tbar)
+    use = np.ones(len(de), bool)
+    for _ in range(2):
+        gain = float(np.dot(de[use], dtq[use]) / np.dot(dtq[use], dtq[use]))
+        err = np.abs(de - gain * dtq)
+        use = err <= TRIM * np.median(err)
+    work = energy - gain * tbar                      # engine work per unit inertia (M2)
     score = np.full(n, np.nan)
     for i in range(window, n - window):
-        j = i + nb
-        a = np.stack([np.ones(len(j)), tm[j] - tm[i], wind[j]], axis=1)
-        c = np.linalg.lstsq(a, energy[j], rcond=None)[0]
-        mean_work = abs(c[2] * wind[i])
-        score[i] = (energy[i] - c[0] - c[2] * wind[i]) / max(mean_work, 1e-300)
+        left = np.median(work[i - window:i])
+        right = np.median(work[i + 1:i + window + 1])
+        scale = abs(gain * np.median(tbar[i - window:i + window + 1]))
+        score[i] = max(work[i] - left, work[i] - right) / max(scale, 1e-300)
     ok = np.isfinite(score)
     out = {k: v[:-1][ok] for k, v in seg.items()}
     out['t_s'] = tm[:-1][ok]
@@ -182,12 +199,12 @@ def detect_bag(path: str | os.PathLike | BagFiles, *, crank: str = 'crank',
     against its ground truth. skip_s: seconds from the first crank edge not scored (default:
     the run's settling time from the metadata). Returns the scores (:func:`misfire_scores`,
     plus ``alarm``) and the :class:`MisfireScore`."""
-    from dmf_sim.physics.model import read_driveline
+    from dmf_sim.analysis.hbm_overlay import build_model, model_settings
 
     bag = path if isinstance(path, BagFiles) else resolve_bag(path)
     meta = RunMetadata.from_bag_metadata(bag.metadata)
-    line = read_driveline(meta.driveline or 'truck_dmf')
-    beta = np.radians(np.asarray(line.firing_phases_deg, float))
+    model = build_model(model_settings(bag.metadata))
+    beta = np.radians(np.asarray(model.line.firing_phases_deg, float))
     edges = read_wheel_edges(bag, [crank, secondary])
     ep, es = edges[crank], edges[secondary]
     origin = int(ep.t_ns[0])
@@ -197,7 +214,9 @@ def detect_bag(path: str | os.PathLike | BagFiles, *, crank: str = 'crank',
     tw, phi = estimate_windup(tp, thp - off_p, ts, ths - off_s)
     ct_ns, psi = read_float64(bag, CRANK_ANGLE_TOPIC)
     thp = cycle_phase(tp, thp, (ct_ns - origin) * 1e-9, psi, ep.wheel)
-    sc = misfire_scores(tp, thp, tw, phi, beta, offset_rad=off_p, window=window)
+    spring = model.spring
+    sc = misfire_scores(tp, thp, tw, phi, beta, offset_rad=off_p, window=window,
+                        spring_torque=None if spring is None else spring.torque)
     skip = (meta.settle_s or 0.0) if skip_s is None else skip_s
     keep = sc['t_s'] >= skip
     sc = {k: v[keep] for k, v in sc.items()}
