@@ -39,13 +39,13 @@ from dmf_sim.bags.sensor_messages import decode_edges, wheel_of_topic
 from dmf_sim.core.errors import BagError
 from dmf_sim.physics.sensors import ToothWheel, parse_sensors
 
-__all__ = ['LEARN_HALF_WINDOW', 'LEARN_ITERATIONS', 'WheelEdges', 'read_wheel_edges',
+__all__ = ['LEARN_HALF_WINDOW', 'LEARN_RCOND', 'WheelEdges', 'read_wheel_edges',
            'bag_wheels', 'read_float64', 'edge_angles', 'tooth_speeds', 'learn_pitch_errors',
            'cycle_phase', 'segment_speeds']
 
 NS = 1e-9
 LEARN_HALF_WINDOW = 3      # edges each side of the local cubic that learns a pitch error
-LEARN_ITERATIONS = 1       # refinements of the learned pattern (more amplify the rapid patterns)
+LEARN_RCOND = 1e-2         # singular values of the learning's equations below this are noise
 
 
 @dataclass(frozen=True)
@@ -135,23 +135,37 @@ def tooth_speeds(t_s: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.nda
     return 0.5 * (t_s[1:] + t_s[:-1]), np.diff(theta) / dt
 
 
-def learn_pitch_errors(edges: WheelEdges, half_window: int = LEARN_HALF_WINDOW,
-                       iterations: int = LEARN_ITERATIONS, period_teeth: int | None = None
-                       ) -> np.ndarray:
+def _prediction_operator(wheel: ToothWheel, h: int) -> np.ndarray:
+    """(n, n) matrix P: (P e)_j is what the local cubic through the ``h`` teeth each side of
+    tooth j (by angle, across the gap) predicts from their errors; the residual of a pattern
+    e is (I - P) e."""
+    n = wheel.present_teeth
+    pos = np.arange(n, dtype=float)
+    pos_ext = np.concatenate([pos - wheel.teeth, pos, pos + wheel.teeth])   # neighbours' revs
+    p = np.zeros((n, n))
+    for j in range(n):
+        ks = np.concatenate([np.arange(-h, 0), np.arange(1, h + 1)])
+        x = pos_ext[n + j + ks] - pos[j]
+        v = np.stack([x ** q for q in range(4)], axis=1)
+        weights = np.linalg.pinv(v)[0]                 # the fit's value at x = 0
+        np.add.at(p[j], (j + ks) % n, weights)
+    return p
+
+
+def learn_pitch_errors(edges: WheelEdges, half_window: int = LEARN_HALF_WINDOW) -> np.ndarray:
     """The pitch errors e_j [rad] of a wheel learned from a healthy stretch of its edges.
 
-    Each edge's angle (T1, with the pattern learned so far) is compared with a cubic in time
-    fitted through the ``half_window`` edges each side of it (not itself): the motion between
-    a few teeth is smooth, a pitch error is not. The residuals averaged per tooth over the
-    revolutions, their mean removed, refine the pattern; ``iterations`` passes take out the
-    neighbours' errors the first fit sees. Firing pulsations spanning many teeth pass the
-    cubic; what of them does not (high orders) repeats every firing interval at steady running:
-    with ``period_teeth`` (tooth positions per firing interval, e.g. 20 for a 60-tooth wheel of
-    a six-cylinder four-stroke engine) the part of the residual pattern that repeats with that
-    period is removed (the pitch errors' own part of that period is not learned then)."""
+    Each edge's angle (T1, without errors) is compared with a cubic in time fitted through the
+    ``half_window`` edges each side of it (not itself): the motion between a few teeth is
+    smooth, a pitch error is not. The residuals averaged per tooth over the revolutions are
+    (P - I) e with P the same fit applied to the errors (:func:`_prediction_operator`); e is
+    the least-squares solution of that ring of equations, its mean removed (patterns the cubic
+    follows, a constant and slow ones, are not observable and not learned). Firing pulsations
+    spanning many teeth pass the cubic and are not mistaken for pitch errors; the stretch must
+    be one where the wheel's motion is smooth over a few teeth (the secondary flywheel, a crank
+    wheel in overrun): on a fired crank behind a DMF the combustion's high orders defeat it."""
     w = edges.wheel
     n = w.present_teeth
-    e = np.zeros(n)
     keep = np.ones(len(edges.tooth), bool)
     keep[1:] = edges.tooth[1:] != edges.tooth[:-1]
     tooth = edges.tooth[keep]
@@ -162,26 +176,19 @@ def learn_pitch_errors(edges: WheelEdges, half_window: int = LEARN_HALF_WINDOW,
     offsets = np.concatenate([np.arange(-h, 0), np.arange(1, h + 1)])
     centre = np.arange(h, len(tooth) - h)
     idx = centre[:, None] + offsets[None, :]
-    for _ in range(iterations):
-        t, theta = edge_angles(edges, e)
-        tt = t[idx] - t[centre][:, None]
-        scale = np.maximum(np.abs(tt).max(axis=1, keepdims=True), 1e-12)
-        x = tt / scale
-        vand = np.stack([x ** p for p in range(4)], axis=2)          # (m, 2h, 4)
-        a = np.einsum('mki,mkj->mij', vand, vand)
-        b = np.einsum('mki,mk->mi', vand, theta[idx])
-        fit0 = np.linalg.solve(a, b[..., None])[:, 0, 0]            # the cubic at the edge
-        resid = theta[centre] - fit0        # e_assumed - e_true of each edge
-        sums = np.bincount(tooth[centre], resid, n)
-        counts = np.bincount(tooth[centre], None, n)
-        step = sums / np.maximum(counts, 1)
-        if period_teeth:
-            cls = np.arange(n) % period_teeth
-            step -= (np.bincount(cls, step, period_teeth)
-                     / np.bincount(cls, None, period_teeth))[cls]
-        step -= step.mean()
-        e = e - step
-    return e
+    t, theta = edge_angles(edges)
+    tt = t[idx] - t[centre][:, None]
+    scale = np.maximum(np.abs(tt).max(axis=1, keepdims=True), 1e-12)
+    vand = np.stack([(tt / scale) ** q for q in range(4)], axis=2)          # (m, 2h, 4)
+    a = np.einsum('mki,mkj->mij', vand, vand)
+    b = np.einsum('mki,mk->mi', vand, theta[idx])
+    fit0 = np.linalg.solve(a, b[..., None])[:, 0, 0]                # each cubic at its edge
+    resid = theta[centre] - fit0                                    # = ((P - I) e)_j + noise
+    counts = np.bincount(tooth[centre], None, n)
+    r = np.bincount(tooth[centre], resid, n) / np.maximum(counts, 1)
+    m = _prediction_operator(w, h) - np.eye(n)
+    e = np.linalg.lstsq(m, r, rcond=LEARN_RCOND)[0]
+    return e - e.mean()
 
 
 def cycle_phase(t_s: np.ndarray, theta: np.ndarray, crank_t_s: np.ndarray,
