@@ -13,6 +13,9 @@ jitter), read back through the analysis layer:
   steps) (target <= 1e-3; ``engine_cycles`` says how many cycles it rests on);
 * ``windup_from_sensors_rel_err``: peak-to-peak of the wind-up from the two tooth wheels against
   the true one, 1200 rpm, full load (target <= 0.03);
+* ``campaign_runs_per_s``: ``dmf-sim campaign`` throughput (:mod:`dmf_sim.campaign.runner`,
+  scores only) on a local Dask cluster of 1 and 2 workers, ``CAMPAIGN_CASES`` steady runs of
+  ``CAMPAIGN_DURATION_S`` (no target; the cluster's start is not counted);
 * ``table``: detections, misses and false alarms per (speed, load) and per healthy run.
 
     python benchmarks/bench_faults.py [--small]
@@ -43,6 +46,24 @@ HEALTHY = ('ramp:800:2000:600:1.0:0.5', 'ramp:2000:800:600:0.3:0.5',
            'step:1600:1:0.3:0.1:0.8:0.5', 'step:2000:1:0.3:0.1:0.8:0.5')
 SMALL_HEALTHY = ('ramp:800:2000:1200:1.0:0.5',)
 WINDUP_POINT = (1200.0, 1.0)
+CAMPAIGN_CASES = 8
+SMALL_CAMPAIGN_CASES = 2
+CAMPAIGN_DURATION_S = 1.0
+
+
+def campaign_rate(n_cases: int, workers: int) -> float:
+    """Runs per second of a campaign of ``n_cases`` on a local cluster of ``workers``."""
+    from dmf_sim.campaign.runner import Case, run_campaign
+    from dmf_sim.cluster import close_local, start_local
+
+    grid = [Case(800.0 + 1200.0 * i / max(n_cases - 1, 1), 0.3 + 0.7 * (i % 2), 'misfire', 1.0)
+            for i in range(n_cases)]
+    cluster, client = start_local(workers)
+    try:
+        _, summary = run_campaign(grid, client, duration_s=CAMPAIGN_DURATION_S)
+    finally:
+        close_local(cluster, client)
+    return summary['runs_per_s']
 
 
 def _steady(speed: float, load: float, duration_s: float):
@@ -105,6 +126,9 @@ def main(argv=None) -> dict:
               f'rad, rel. error {w.rel_err:.4f}')
     finally:
         shutil.rmtree(work, ignore_errors=True)
+    n_camp = SMALL_CAMPAIGN_CASES if args.small else CAMPAIGN_CASES
+    rates = {str(w): campaign_rate(n_camp, w) for w in (1, 2)}
+    print('campaign runs/s: ' + ', '.join(f'{r:.2f} on {w} worker(s)' for w, r in rates.items()))
     wall = time.perf_counter() - t0
     result = {
         'small': args.small,
@@ -114,6 +138,8 @@ def main(argv=None) -> dict:
         'false_alarms': totals['false_alarms'], 'engine_cycles': totals['cycles'],
         'windup_from_sensors_rel_err': w.rel_err,
         'windup_p2p_rad': {'sensors': w.p2p_est_rad, 'true': w.p2p_true_rad},
+        'campaign_runs_per_s': rates, 'campaign_cases': n_camp,
+        'campaign_run_s': SETTLE_S + CAMPAIGN_DURATION_S,
         'speeds_rpm': list(speeds), 'loads': list(loads), 'healthy_runs': list(healthy),
         'simulated_s': sim_s, 'wall_s': wall, 'table': table,
     }

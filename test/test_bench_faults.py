@@ -22,3 +22,5 @@ def test_bench_faults_small_prints_json():
     runs = [row['run'] for row in data['table']]
     assert len(runs) == 5 and runs[-1].startswith('ramp:')
     assert all(row['false_alarms'] == 0 for row in data['table'])
+    assert set(data['campaign_runs_per_s']) == {'1', '2'}
+    assert all(r > 0 for r in data['campaign_runs_per_s'].values())
