@@ -3,6 +3,8 @@ injected misfires found at their cylinder and combustion, no alarm on a healthy 
 step; the scoring counts per cylinder."""
 from __future__ import annotations
 
+import json
+
 import numpy as np
 
 from dmf_sim.analysis.misfire_detector import detect_bag, ground_truth_misfires, score_detections
@@ -57,3 +59,20 @@ def test_scoring_counts_per_cylinder():
     assert result.per_cylinder[3]['detected'] == 1
     assert result.cycles == 2 and result.false_alarm_rate == 0.5
     assert abs(result.mean_speed_rpm - 1200) < 1e-9
+
+
+def test_detect_command_prints_the_score(tmp_path, capsys):
+    from dmf_sim.cli import main as cli_main
+
+    (tmp_path / 'f.yaml').write_text(SCHEDULE)
+    prof = make_profile([(0.0, 1500.0, 1.0), (3.3, 1500.0, 1.0)])
+    run_profile(prof, tmp_path / 'bag', RunOptions(faults=str(tmp_path / 'f.yaml')))
+    assert cli_main(['detect', str(tmp_path / 'bag'), '--json']) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert (out['misfires'], out['detected'], out['false_alarms']) == (2, 2, 0)
+    assert [a['cylinder'] for a in out['alarms']] == [3, 5]
+    assert out['per_cylinder']['3']['detected'] == 1
+    assert out['windup']['rel_err'] < 0.03
+    assert cli_main(['detect', str(tmp_path / 'bag'), '--crank', 'cam']) == 2
+    err = capsys.readouterr().err
+    assert "no tooth wheel 'cam' recorded; wheels are crank" in err

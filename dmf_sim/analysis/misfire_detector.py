@@ -153,7 +153,8 @@ class MisfireScore:
 
 def score_detections(scores: dict[str, np.ndarray], misfire_tdc_rad: Sequence[float],
                      n_cyl: int, threshold: float = DEFAULT_THRESHOLD) -> MisfireScore:
-    """Alarms (score < -threshold) against the ground truth's misfired TDCs [rad]."""
+    """Alarms (score < -threshold) against the ground truth's misfired TDCs [rad]; misfires
+    outside the scored intervals (the settling, the ends' fit windows) are not counted."""
     tdc = scores['tdc_rad']
     alarm = scores['score'] < -threshold
     half = math.pi / n_cyl                   # TDCs are 4 pi / n_cyl apart
