@@ -76,3 +76,17 @@ def test_detect_command_prints_the_score(tmp_path, capsys):
     assert cli_main(['detect', str(tmp_path / 'bag'), '--crank', 'cam']) == 2
     err = capsys.readouterr().err
     assert "no tooth wheel 'cam' recorded; wheels are crank" in err
+
+
+def test_dropped_and_spurious_edges_do_not_raise_alarms(tmp_path):
+    # sensor faults: 1 % of the crank's edges dropped, spurious edges on the secondary wheel
+    (tmp_path / 'f.yaml').write_text('''faults:
+  - {kind: misfire, cylinders: [2], at_s: 2.3}
+  - {kind: sensor_edges, sensor: crank, mode: missing, probability: 0.01, seed: 5}
+  - {kind: sensor_edges, sensor: flywheel_secondary, mode: extra, rate_per_s: 20, seed: 6}
+''')
+    prof = make_profile([(0.0, 1400.0, 0.6), (3.3, 1400.0, 0.6)])
+    run_profile(prof, tmp_path / 'bag', RunOptions(faults=str(tmp_path / 'f.yaml')))
+    scores, result = detect_bag(tmp_path / 'bag')
+    assert (result.misfires, result.detected, result.false_alarms) == (1, 1, 0)
+    assert list(scores['cylinder'][scores['alarm']]) == [2]
