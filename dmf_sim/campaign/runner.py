@@ -16,7 +16,6 @@ per engine cycle over the campaign, per fault and noise level, runs per second),
 """
 from __future__ import annotations
 
-import csv
 import itertools
 import json
 import shutil
@@ -26,6 +25,7 @@ from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any, Sequence
 
+from dmf_sim.core.csv_out import write_csv
 from dmf_sim.core.errors import ConfigError
 
 __all__ = ['FAULTS', 'SETTLE_S', 'MISFIRE_SPACING_S', 'DEFAULT_DURATION_S', 'MAX_NOISE',
@@ -176,10 +176,7 @@ def write_outputs(rows: Sequence[dict[str, Any]], summary: dict[str, Any], out: 
     keys = ['case', 'speed_rpm', 'load', 'fault', 'noise', 'misfires', 'detected', 'missed',
             'false_alarms', 'cycles', 'detection_rate', 'false_alarm_rate', 'mean_speed_rpm',
             'seconds', 'bag']
-    with open(out / 'scores.csv', 'w', newline='') as fh:
-        w = csv.DictWriter(fh, keys, extrasaction='ignore')
-        w.writeheader()
-        w.writerows(rows)
+    write_csv(out / 'scores.csv', keys, rows)
     files['scores'] = str(out / 'scores.csv')
     (out / 'summary.json').write_text(json.dumps(summary, indent=1) + '\n')
     files['summary'] = str(out / 'summary.json')

@@ -14,22 +14,23 @@ HELP = ('reference misfire detector on the tooth edges of a bag (DMF-aware), sco
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from dmf_sim.analysis.misfire_detector import DEFAULT_THRESHOLD
-
     p.add_argument('bag', help='a bag with tooth-wheel edges (dmf-sim run, or a recording node)')
     p.add_argument('--crank', default='crank', help='the crank (primary flywheel) tooth wheel')
     p.add_argument('--secondary', default='flywheel_secondary',
                    help='the secondary flywheel tooth wheel')
-    p.add_argument('--threshold', type=float, default=DEFAULT_THRESHOLD,
+    p.add_argument('--threshold', type=float,
                    help='alarm when the engine work of a firing interval falls this fraction of '
-                        f'the mean work below its neighbours (default {DEFAULT_THRESHOLD:g})')
+                        'the mean work below its neighbours (default: the detector\'s '
+                        'DEFAULT_THRESHOLD, 0.3)')
     p.add_argument('--json', action='store_true', help='print one JSON object')
 
 
 def run(args: argparse.Namespace) -> int:
-    from dmf_sim.analysis.misfire_detector import detect_bag
+    from dmf_sim.analysis.misfire_detector import DEFAULT_THRESHOLD, detect_bag
     from dmf_sim.analysis.windup_estimate import windup_from_bag
 
+    if args.threshold is None:
+        args.threshold = DEFAULT_THRESHOLD
     if not 0.0 < args.threshold < 10.0:
         raise ConfigError(f'--threshold {args.threshold!r}: must be in (0, 10)')
     scores, result = detect_bag(args.bag, crank=args.crank, secondary=args.secondary,
