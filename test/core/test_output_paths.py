@@ -216,8 +216,8 @@ def test_every_command_that_writes_files_has_overwrite_with_the_same_help():
         if '--out' in opts or '--output' in opts:
             writers[name] = opts.get('--overwrite')
     assert set(writers) == {'modes', 'loads', 'sweep', 'nnm', 'paper', 'analyze', 'design',
-                            'optimize', 'run', 'runup', 'durability', 'bag-recover',
-                            'identify'}
+                            'optimize', 'run', 'runup', 'durability', 'bag-recover', 'identify',
+                            'campaign'}
     assert all(a is not None and a.help == OVERWRITE_HELP for a in writers.values()), writers
 
 

@@ -1,0 +1,26 @@
+"""The faults benchmark runs small and prints its figures as the last JSON line: every injected
+misfire of its grid found, no false alarm, the wind-up from the sensors within 3 %."""
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+BENCH = Path(__file__).resolve().parents[2] / 'benchmarks' / 'bench_faults.py'
+
+
+@pytest.mark.slow
+def test_bench_faults_small_prints_json():
+    out = subprocess.run([sys.executable, str(BENCH), '--small'], capture_output=True, text=True,
+                         check=True, timeout=600).stdout.strip().splitlines()
+    data = json.loads(out[-1])
+    assert data['small'] and data['misfires'] == 12 and data['engine_cycles'] > 50
+    assert data['misfire_detection_rate'] >= 0.99
+    assert data['false_alarm_rate'] <= 1e-3
+    assert data['windup_from_sensors_rel_err'] <= 0.03
+    runs = [row['run'] for row in data['table']]
+    assert len(runs) == 5 and runs[-1].startswith('ramp:')
+    assert all(row['false_alarms'] == 0 for row in data['table'])
+    assert set(data['campaign_runs_per_s']) == {'1', '2'}
+    assert all(r > 0 for r in data['campaign_runs_per_s'].values())
