@@ -31,13 +31,25 @@ import numpy as np
 from scipy.linalg.lapack import dgesv
 
 from dmf_sim.core.errors import OperatingRangeError
-from dmf_sim.solvers import step_control as sc
-from dmf_sim.solvers.step_control import next_grid, on_grid
 
 __all__ = ['solve_small', 'ContinuationProblem', 'ContinuationOptions', 'ContinuationPoint',
            'Corrected', 'Step', 'GridRun', 'CompiledSteps', 'BranchStart', 'BranchHooks',
            'CorrectorFailed', 'LeftRange', 'correct', 'tangent_of', 'correct_step',
-           'continue_branch', 'on_grid', 'next_grid']
+           'continue_branch']
+
+
+def _step_control():
+    """:mod:`dmf_sim.solvers.step_control`, imported when a branch is continued: it is
+    compiled (numba), and importing this module (``dmf-sim --help``, ``import dmf_sim``) must
+    not load numba."""
+    from dmf_sim.solvers import step_control
+    return step_control
+
+
+def __getattr__(name: str):
+    if name in ('next_grid', 'on_grid'):          # re-exported from the step control
+        return getattr(_step_control(), name)
+    raise AttributeError(f'module {__name__!r} has no attribute {name!r}')
 
 
 def solve_small(A: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -446,7 +458,7 @@ class _Branch:
     def _ends(self, p: ContinuationPoint) -> str | None:
         """Why the branch ends at its new point p: 'bound' (p on a bound of the range), 'stop'
         (``hooks.stop(p, points)``) or 'closed' (the loop detector); None where it goes on."""
-        if sc.on_bound(p.s, self.lo, self.hi):
+        if _step_control().on_bound(p.s, self.lo, self.hi):
             return 'bound'
         if self.hooks.stop is not None and self.hooks.stop(p, self.points):
             return 'stop'
@@ -471,6 +483,7 @@ def continue_branch(problem: ContinuationProblem, start: BranchStart,
     the problem's data), 'corrector_failed' (no step, however small, converged) or
     'max_steps'.
     """
+    sc = _step_control()
     o = options or ContinuationOptions()
     hooks = hooks or BranchHooks()
     steps = hooks.steps
@@ -603,4 +616,4 @@ def _jump(problem, y, t, xs, ss, o: ContinuationOptions, steps: CompiledSteps) -
 
 
 def _on_grid(s: float, grid: float | None) -> bool:
-    return grid is not None and on_grid(float(s), float(grid))
+    return grid is not None and _step_control().on_grid(float(s), float(grid))
