@@ -197,6 +197,7 @@ class _Worker:
             # let a starting worker finish its start first (its imports, 1-3 s)
             wait([self.ready], timeout=WORKER_START_WAIT_S)
         processes = list((getattr(self.ex, '_processes', None) or {}).values())
+        manager = getattr(self.ex, '_executor_manager_thread', None)   # shutdown forgets it
         self.ex.shutdown(wait=False, cancel_futures=True)
         for proc in processes:
             if proc.is_alive():
@@ -204,11 +205,27 @@ class _Worker:
         for proc in processes:
             proc.join()
         self.ex.shutdown(wait=True)
+        if manager is not None:
+            _forget_exit_wakeup(manager)
 
     @property
     def pids(self) -> list[int]:
         """The worker processes' ids (none for a thread)."""
         return [p.pid for p in (getattr(self.ex, '_processes', None) or {}).values()]
+
+
+def _forget_exit_wakeup(manager) -> None:
+    """Take a closed pool's manager thread (``manager``) out of concurrent.futures' exit hook.
+
+    The hook (``concurrent.futures.process._python_exit``) wakes every manager thread it still
+    knows when the interpreter exits; after a pool whose worker was killed has been shut down,
+    the thread's wake-up pipe is closed, and the hook's write to it ends the node with a
+    traceback ('Bad file descriptor') although everything was closed in order. The pool is
+    finished, so nothing is lost by not waking it."""
+    from concurrent.futures import process as cf_process
+    wakeups = getattr(cf_process, '_threads_wakeups', None)
+    if wakeups is not None:
+        wakeups.pop(manager, None)
 
 
 # ------------------------------------------------------------------------------------------------
