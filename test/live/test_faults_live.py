@@ -86,7 +86,10 @@ def test_parameters_in_the_table_and_the_params_file():
     assert STREAMS['fault_active'].latched and STREAMS['fault_active'].depth == 1
 
 
-def test_topic_request_single_misfire_ground_truth_and_active():
+def test_topic_request_single_misfire_ground_truth_and_active(monkeypatch):
+    # one 1 ms chunk per tick, however fast the machine: the active set is published per tick,
+    # and a tick spanning the whole fault (start, misfire, end) would never show it active
+    monkeypatch.setattr('dmf_sim.live.run_loop.FAST_BUDGET_S', 0.0)
     rt, sink, log = make()
     run_for(rt, 0.01)
     # the first tick publishes the (empty) active set: a late joiner learns "none"
