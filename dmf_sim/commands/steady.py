@@ -5,6 +5,7 @@ import json
 
 from dmf_sim.commands import _options as opt
 from dmf_sim.core.errors import ConfigError
+from dmf_sim.core.validation import SEED_MAX
 
 __all__ = ['NAME', 'HELP', 'SEED_MAX', 'LIMITS', 'add_arguments', 'run']
 
@@ -14,7 +15,6 @@ HELP = ('Every steady state of the DMF wind-up at one engine speed and load (har
         'Floquet stability and a basin estimate: the share of random initial states that Newmark '
         'carries to each state, with a Wilson 95 per cent confidence interval.')
 
-SEED_MAX = 2 ** 32 - 1         # random generator seeds: 0 .. 2**32 - 1
 LIMITS = {'samples': (0, 10000), 'window': (1.0, 300.0),
           'amplitude': (1e-4, 1.0), 'max_cycles': (10, 5000), 'seed': (0, SEED_MAX)}
 

@@ -25,8 +25,12 @@ import numpy as np
 from dmf_sim.core.bounds import BOUNDS
 from dmf_sim.core.errors import ConfigError
 
-__all__ = ['field_error', 'check_keys', 'as_number', 'number', 'bounded', 'integer', 'number_list',
-           'nonempty_list', 'Where', 'Table1D', 'table_1d']
+__all__ = ['SEED_MAX', 'field_error', 'check_keys', 'as_number', 'number', 'bounded', 'integer',
+           'number_list', 'nonempty_list', 'Where', 'Table1D', 'table_1d']
+
+SEED_MAX = 2 ** 32 - 1
+"""Largest seed of a random generator (numpy's seeds are 0 .. 2**32 - 1; a negative one is an
+error there): every seed a user gives is checked against 0 .. SEED_MAX."""
 
 _NO_VALUE = object()
 

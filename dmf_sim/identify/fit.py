@@ -44,6 +44,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from dmf_sim.core.errors import ConfigError
+from dmf_sim.core.validation import SEED_MAX
 
 __all__ = ['DEFAULT_PARAMETERS', 'SIGNALS', 'START_SPREAD', 'REBUILT_ROW_S', 'IdentifyOptions',
            'Measurement', 'Identification', 'read_measurement', 'simulate', 'identify',
@@ -96,6 +97,9 @@ class IdentifyOptions:
             raise ConfigError(f"--signal {self.signal!r}: allowed {', '.join(SIGNALS)}")
         if not 1 <= self.starts <= 1000:
             raise ConfigError(f'--starts {self.starts}: allowed 1..1000')
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) \
+                or not 0 <= self.seed <= SEED_MAX:
+            raise ConfigError(f'--seed {self.seed}: allowed 0..{SEED_MAX}')
         if not 5 <= self.max_evaluations <= 10000:
             raise ConfigError(f'--max-evaluations {self.max_evaluations}: allowed 5..10000')
         if not self.parameters:
@@ -167,11 +171,11 @@ class Identification:
 
 
 # ---------------------------------------------------------------------------- the measurement
-def _rebuilt_profile(series, health):
+def _rebuilt_profile(series):
     """A profile from a recording's engine speed and the load of its health statuses."""
     from dmf_sim.analysis.load_timeline import HEALTH_KEYS
     from dmf_sim.transient.profiles import make_profile
-    speed = series.series.get('speed')
+    speed, health = series.series.get('speed'), series.health
     if speed is None or len(speed) < 2 or health is None:
         raise ConfigError(f'{series.bag.path}: the bag names no profile (not a dmf-sim run '
                           'bag) and holds no engine speed and health statuses to rebuild one')
@@ -217,7 +221,7 @@ def read_measurement(bag, options: IdentifyOptions = IdentifyOptions()) -> Measu
         except ConfigError:                 # a file of the recording machine: not here
             rebuilt = True
     if rebuilt:
-        profile = _rebuilt_profile(series, series.health)
+        profile = _rebuilt_profile(series)
     rate = meta.publish_rate_hz or 1000.0
     t_s = (t_ns - t_ns[0]) * 1e-9 + 1.0 / rate        # the first sample: one period in
     return Measurement(
@@ -359,12 +363,12 @@ def _fit_one(meas: Measurement, names: tuple[str, ...], x0: np.ndarray, lo: np.n
             'message': str(res.message), 'seconds': time.perf_counter() - t0, 'samples': m}
 
 
-def identify(bag, options: IdentifyOptions = IdentifyOptions(), *, client=None,
-             progress=None) -> Identification:
+def identify(bag, options: IdentifyOptions = IdentifyOptions(), *, client=None
+             ) -> Identification:
     """Fit ``options.parameters`` to ``bag`` (module docstring): a bag, or a
     :class:`Measurement` read from one (:func:`read_measurement`, e.g. with noise added to its
     signal); ``client``: a ``dask.distributed`` client to run the starts on (None: here, in
-    turn); ``progress``: called with (starts done, starts) after each."""
+    turn)."""
     t0 = time.perf_counter()
     meas = bag if isinstance(bag, Measurement) else read_measurement(bag, options)
     model = _model(meas, options.parameters)
@@ -374,11 +378,7 @@ def identify(bag, options: IdentifyOptions = IdentifyOptions(), *, client=None,
     starts = _start_points(x_init, lo, hi, options.starts, options.seed)
     args = (meas, tuple(options.parameters))
     if client is None:
-        results = []
-        for x0 in starts:
-            results.append(_fit_one(*args, x0, lo, hi, options.max_evaluations))
-            if progress is not None:
-                progress(len(results), len(starts))
+        results = [_fit_one(*args, x0, lo, hi, options.max_evaluations) for x0 in starts]
     else:
         futures = [client.submit(_fit_one, *args, x0, lo, hi, options.max_evaluations,
                                  pure=False) for x0 in starts]

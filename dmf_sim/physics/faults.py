@@ -64,7 +64,7 @@ import yaml
 
 from dmf_sim.core.errors import ConfigError, one_line
 from dmf_sim.core.paths import parse_yaml, read_yaml_mapping
-from dmf_sim.core.validation import check_keys, field_error, number
+from dmf_sim.core.validation import SEED_MAX, check_keys, field_error, number
 from dmf_sim.physics.model import Driveline
 
 __all__ = ['FAULT_KINDS', 'COMBUSTION_KINDS', 'DMF_KINDS', 'SENSOR_KINDS', 'MISFIRE_MODES',
@@ -85,9 +85,6 @@ BUS_MODES = ('stuck', 'noisy')
 DMF_DAMPING_FACTOR_MAX = 100.0
 """Largest DMF damping factor [-]: 100 times the design damping is far beyond any worn or
 seized DMF; above it the damping term, not the spring, would set the wind-up."""
-SEED_MAX = 2 ** 32 - 1
-"""Largest random seed (numpy's SeedSequence takes any non-negative integer; this keeps seeds
-what a YAML file or a parameter writes)."""
 CYCLE_RAD = 4.0 * math.pi               # one engine cycle, 720 deg
 WINDOW_OPEN_RAD = -math.pi              # a combustion's window opens 180 deg before its TDC
 

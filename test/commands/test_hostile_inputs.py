@@ -105,6 +105,8 @@ CASES = [
     ['design', '{d}/study_empty.yaml', '--out', '{d}/study'],
     ['design', '{d}/missing.yaml', '--out', '{d}/study'],
     ['design', 'config/study_example.yaml', '--workers', '100000', '--out', '{d}/study'],
+    ['identify', '{d}/tiny.mcap'],
+    ['identify', '{d}/text.mcap', '--seed', '-1'],
     ['optimize', 'config/optimize_example.yaml', '--budget', '-3', '--out', '{d}/opt'],
     ['optimize', 'config/optimize_example.yaml', '--budget', '1e12', '--out', '{d}/opt'],
     ['nnm', '--out', TRUCK],

@@ -86,6 +86,7 @@ def test_the_command_writes_json_and_plot_and_runs_on_dask(case, tmp_path, capsy
     (['--parameters', 'k,k'], 'named twice'),
     (['--parameters', 'stages[3].angle_rad'], 'stages'),
     (['--starts', '0'], '--starts 0: allowed 1..1000'),
+    (['--seed', '-1', '--starts', '2'], '--seed -1: allowed 0..4294967295'),
     (['--signal', 'torque'], 'invalid choice'),
     (['--profile', 'no_such_profile'], 'no_such_profile'),
 ])
