@@ -119,10 +119,17 @@ class TransientCheck:
         return {**asdict(self), 'rel_diff': self.rel_diff}
 
 
+def _design(study, row: dict):
+    """(the study's evaluation context, the driveline of a design's summary row)."""
+    from dmf_sim.design.evaluate import StudyContext
+    ctx = StudyContext.from_study(study)
+    return ctx, design_driveline(study.base,
+                                 ctx.design_values([row[v] for v in study.variable_names]))
+
+
 def verify_transient(problem, row: dict, settings: VerifySettings | None = None
                      ) -> list[TransientCheck]:
     """The step-refinement checks of a design's transient objectives (module docstring)."""
-    from dmf_sim.design.evaluate import StudyContext
     from dmf_sim.design.transient import LOAD_STEP_DT_S, step_metrics, transient_summary
     s = settings or VerifySettings()
     study = problem.study
@@ -130,8 +137,7 @@ def verify_transient(problem, row: dict, settings: VerifySettings | None = None
               and row.get(o) is not None and np.isfinite(row[o])]
     if not wanted or not study.load_steps:
         return []
-    ctx = StudyContext.from_study(study)
-    line = design_driveline(study.base, ctx.design_values([row[v] for v in study.variable_names]))
+    _, line = _design(study, row)
     results = [step_metrics(line, study.engines[step.load_set], step, dt=s.dt)
                for step in study.load_steps]
     refined = transient_summary(study.load_steps, results)
@@ -144,9 +150,7 @@ def verify_design(problem, row: dict, settings: VerifySettings | None = None) ->
     """Time-domain checks of every verifiable objective of a design's summary row."""
     s = settings or VerifySettings()
     study = problem.study
-    from dmf_sim.design.evaluate import StudyContext
-    ctx = StudyContext.from_study(study)
-    line = design_driveline(study.base, ctx.design_values([row[v] for v in study.variable_names]))
+    ctx, line = _design(study, row)
     out = []
     for obj in study.objectives:
         if obj not in VERIFIABLE or row.get(obj) is None or not np.isfinite(row[obj]):
