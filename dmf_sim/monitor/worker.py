@@ -20,7 +20,7 @@ import os
 import signal
 import time
 from collections import OrderedDict
-from concurrent.futures import Future, ProcessPoolExecutor, ThreadPoolExecutor, wait
+from concurrent.futures import Future, ProcessPoolExecutor, ThreadPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field, replace
 
@@ -47,7 +47,6 @@ WORKER_MODES = ('process', 'thread')
 WORKER_IGNORES = (signal.SIGINT, signal.SIGTERM)   # a worker process ends when the node says so
 PREDICTION_CACHE_SIZE = 256        # operating points kept
 WORKER_MODELS = 4                  # driveline models a worker keeps built
-WORKER_START_WAIT_S = 5.0          # a worker still starting when the node stops: its start [s]
 _uid = itertools.count(1)
 
 # Node parameters of the monitor: name -> (default, description, (lo, hi) or None).
@@ -191,11 +190,6 @@ class _Worker:
         runs a job (a prediction takes up to seconds) or is still starting (importing, one to
         three seconds): the node is stopping and wants no more results. A thread finishes
         its job."""
-        if self.mode == 'process':
-            # a worker killed while multiprocessing still spawns it can leave concurrent.futures'
-            # exit hook a closed pipe ('Bad file descriptor' with a traceback as the node exits):
-            # let a starting worker finish its start first (its imports, 1-3 s)
-            wait([self.ready], timeout=WORKER_START_WAIT_S)
         processes = list((getattr(self.ex, '_processes', None) or {}).values())
         manager = getattr(self.ex, '_executor_manager_thread', None)   # shutdown forgets it
         self.ex.shutdown(wait=False, cancel_futures=True)
