@@ -33,6 +33,7 @@ from dmf_sim.live.parameters import DMF_PARAMETERS, PARAMETERS, coerce
 from dmf_sim.live.stop_signals import StopSignals
 from dmf_sim.live.streams import (
     CLOCK,
+    DETECTIONS,
     PUBLISHED,
     SENSOR_STREAMS,
     SERVICES,
@@ -365,7 +366,7 @@ def usage() -> str:
 
     rows = [('pub', st.topic, st.msgtype, qos(st.depth, st.latched),
              f'{st.what}; {PUBLISHED.get(st.per, st.per)}')
-            for st in (*STREAMS.values(), *SENSOR_STREAMS.values(), CLOCK)]
+            for st in (*STREAMS.values(), *SENSOR_STREAMS.values(), DETECTIONS, CLOCK)]
     rows += [('sub', su.topic, su.msgtype, qos(su.depth), su.what)
              for su in SUBSCRIPTIONS.values()]
     width = max(len(r[1]) for r in rows)

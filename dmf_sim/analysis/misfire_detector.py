@@ -43,11 +43,12 @@ from __future__ import annotations
 import math
 import os
 from dataclasses import dataclass, field
-from typing import Callable, Sequence
+from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
 from dmf_sim.analysis.tooth_signals import (
+    WheelEdges,
     cycle_phase,
     edge_angles,
     read_float64,
@@ -60,8 +61,8 @@ from dmf_sim.bags.metadata import RunMetadata
 from dmf_sim.bags.read import read_messages
 
 __all__ = ['DEFAULT_WINDOW', 'DEFAULT_THRESHOLD', 'WINDUP_POINTS', 'CRANK_ANGLE_TOPIC',
-           'GROUND_TRUTH_TOPIC', 'misfire_scores', 'MisfireScore', 'score_detections',
-           'ground_truth_misfires', 'detect_bag']
+           'GROUND_TRUTH_TOPIC', 'GainSums', 'misfire_scores', 'MisfireScore', 'score_detections',
+           'ground_truth_misfires', 'detect_edges', 'detect_bag']
 
 DEFAULT_WINDOW = 9          # intervals each side of the local baseline (1.5 engine cycles)
 DEFAULT_THRESHOLD = 0.3     # alarm below -0.3 of the mean engine work per firing interval (M2)
@@ -71,11 +72,34 @@ CRANK_ANGLE_TOPIC = 'engine/crank_angle'
 GROUND_TRUTH_TOPIC = 'faults/ground_truth'
 
 
+@dataclass
+class GainSums:
+    """The least-squares fit of the gain g (M2) accumulated over a run: the sums of
+    dE*dTbar and dTbar^2 of the inlier first differences up to the TDC angle ``after_rad``
+    [rad] (a live detector, :mod:`dmf_sim.monitor.misfire`, learns it window by window;
+    a bag is fitted at once)."""
+
+    num: float = 0.0
+    den: float = 0.0
+    after_rad: float = -math.inf
+
+    def add(self, scores: Mapping[str, np.ndarray]) -> None:
+        """The differences of a window (:func:`misfire_scores` with ``learned``) beyond
+        ``after_rad``, each once."""
+        label = scores.get('diff_rad')
+        if label is None or not len(label):
+            return
+        new = scores['diff_use'] & (label > self.after_rad)
+        self.num += float(scores['diff_num'][new].sum())
+        self.den += float(scores['diff_den'][new].sum())
+        self.after_rad = max(self.after_rad, float(label[-1]))
+
+
 def misfire_scores(t_p: np.ndarray, theta_p: np.ndarray, t_w: np.ndarray, phi: np.ndarray,
                    firing_phases_rad: Sequence[float], *, offset_rad: float = 0.0,
                    window: int = DEFAULT_WINDOW,
-                   spring_torque: Callable[[np.ndarray], np.ndarray] | None = None
-                   ) -> dict[str, np.ndarray]:
+                   spring_torque: Callable[[np.ndarray], np.ndarray] | None = None,
+                   learned: GainSums | None = None) -> dict[str, np.ndarray]:
     """Scores (M2) of every firing interval with a full fit window.
 
     t_p, theta_p: the crank wheel's edge times [s] and angles on the crank angle
@@ -83,7 +107,12 @@ def misfire_scores(t_p: np.ndarray, theta_p: np.ndarray, t_w: np.ndarray, phi: n
     at times [s]; spring_torque: the DMF characteristic T(phi) [Nm] (default: linear, Tbar
     then the mean wind-up itself). Returns the segments of ``segment_speeds`` (``cylinder``,
     ``combustion``, ``tdc_rad``, ...) of the scored intervals (each the segment whose TDC
-    starts it) plus ``t_s`` (the TDC's time) and ``score``."""
+    starts it) plus ``t_s`` (the TDC's time) and ``score``. ``learned``: the gain's fit
+    accumulated over the data before (a live detector's earlier windows): the gain is
+    fitted to those and this window's later differences together, as on the whole run, and
+    the window's differences are returned too (``diff_rad``, ``diff_num``, ``diff_den``,
+    ``diff_use``: the second TDC of each, its terms of the fit, inlier or not) for
+    :meth:`GainSums.add`."""
     n_cyl = len(firing_phases_rad)
     seg = segment_speeds(t_p, theta_p, firing_phases_rad, -2.0 * math.pi / n_cyl,
                          offset_rad=offset_rad)
@@ -103,6 +132,12 @@ def misfire_scores(t_p: np.ndarray, theta_p: np.ndarray, t_w: np.ndarray, phi: n
         gain = float(np.dot(de[use], dtq[use]) / np.dot(dtq[use], dtq[use]))
         err = np.abs(de - gain * dtq)
         use = err <= TRIM * np.median(err)
+    if learned is not None:
+        label = seg['tdc_rad'][1:n]           # difference k: intervals k and k+1
+        new = use & (label > learned.after_rad)
+        num = learned.num + float(np.dot(de[new], dtq[new]))
+        den = learned.den + float(np.dot(dtq[new], dtq[new]))
+        gain = num / den if den > 0.0 else gain
     work = energy - gain * tbar                      # engine work per unit inertia (M2)
     score = np.full(n, np.nan)
     for i in range(window, n - window):
@@ -114,6 +149,8 @@ def misfire_scores(t_p: np.ndarray, theta_p: np.ndarray, t_w: np.ndarray, phi: n
     out = {k: v[:-1][ok] for k, v in seg.items()}
     out['t_s'] = tm[:-1][ok]
     out['score'] = score[ok]
+    if learned is not None:
+        out.update(diff_rad=label, diff_num=de * dtq, diff_den=dtq * dtq, diff_use=use)
     return out
 
 
@@ -192,14 +229,41 @@ def ground_truth_misfires(path: str | os.PathLike | BagFiles) -> np.ndarray:
     return np.asarray(out, float)
 
 
+def detect_edges(crank: WheelEdges, secondary: WheelEdges, crank_t_ns: np.ndarray,
+                 crank_psi: np.ndarray, firing_phases_rad: Sequence[float], *,
+                 spring_torque: Callable[[np.ndarray], np.ndarray] | None = None,
+                 threshold: float = DEFAULT_THRESHOLD, window: int = DEFAULT_WINDOW,
+                 learned: GainSums | None = None) -> dict[str, np.ndarray]:
+    """The detector on the edges of the two tooth wheels around the DMF (pitch errors from the
+    wheels), the engine-cycle phase from the crank angle ``crank_psi`` [rad] at
+    ``crank_t_ns`` (the clock of the edges): the scores of :func:`misfire_scores` plus
+    ``alarm``, times ``t_s`` from the crank wheel's first edge (``origin_ns``, also returned);
+    ``learned`` as :func:`misfire_scores` takes it.
+    One function for a bag (:func:`detect_bag`) and the node's monitor
+    (:mod:`dmf_sim.monitor.misfire`)."""
+    origin = int(crank.t_ns[0])
+    tp, thp = edge_angles(crank, crank.wheel.pitch_errors_rad(), origin)
+    ts, ths = edge_angles(secondary, secondary.wheel.pitch_errors_rad(), origin)
+    off_p = math.radians(crank.wheel.offset_deg)
+    off_s = math.radians(secondary.wheel.offset_deg)
+    tw, phi = estimate_windup(tp, thp - off_p, ts, ths - off_s)
+    thp = cycle_phase(tp, thp, (np.asarray(crank_t_ns) - origin) * 1e-9, crank_psi,
+                      crank.wheel)
+    sc = misfire_scores(tp, thp, tw, phi, firing_phases_rad, offset_rad=off_p, window=window,
+                        spring_torque=spring_torque, learned=learned)
+    sc['alarm'] = sc['score'] < -threshold
+    sc['origin_ns'] = np.full(len(sc['score']), origin, np.int64)
+    return sc
+
+
 def detect_bag(path: str | os.PathLike | BagFiles, *, crank: str = 'crank',
                secondary: str = 'flywheel_secondary', threshold: float = DEFAULT_THRESHOLD,
                window: int = DEFAULT_WINDOW, skip_s: float | None = None
                ) -> tuple[dict[str, np.ndarray], MisfireScore]:
     """Run the detector on a bag's tooth wheels (pitch errors from its metadata) and score it
     against its ground truth. skip_s: seconds from the first crank edge not scored (default:
-    the run's settling time from the metadata). Returns the scores (:func:`misfire_scores`,
-    plus ``alarm``) and the :class:`MisfireScore`."""
+    the run's settling time from the metadata). Returns the scores (:func:`detect_edges`)
+    and the :class:`MisfireScore`."""
     from dmf_sim.analysis.hbm_overlay import build_model, model_settings
 
     bag = path if isinstance(path, BagFiles) else resolve_bag(path)
@@ -207,19 +271,12 @@ def detect_bag(path: str | os.PathLike | BagFiles, *, crank: str = 'crank',
     model = build_model(model_settings(bag.metadata))
     beta = np.radians(np.asarray(model.line.firing_phases_deg, float))
     edges = read_wheel_edges(bag, [crank, secondary])
-    ep, es = edges[crank], edges[secondary]
-    origin = int(ep.t_ns[0])
-    tp, thp = edge_angles(ep, ep.wheel.pitch_errors_rad(), origin)
-    ts, ths = edge_angles(es, es.wheel.pitch_errors_rad(), origin)
-    off_p, off_s = math.radians(ep.wheel.offset_deg), math.radians(es.wheel.offset_deg)
-    tw, phi = estimate_windup(tp, thp - off_p, ts, ths - off_s)
     ct_ns, psi = read_float64(bag, CRANK_ANGLE_TOPIC)
-    thp = cycle_phase(tp, thp, (ct_ns - origin) * 1e-9, psi, ep.wheel)
     spring = model.spring
-    sc = misfire_scores(tp, thp, tw, phi, beta, offset_rad=off_p, window=window,
-                        spring_torque=None if spring is None else spring.torque)
+    sc = detect_edges(edges[crank], edges[secondary], ct_ns, psi, beta,
+                      spring_torque=None if spring is None else spring.torque,
+                      threshold=threshold, window=window)
     skip = (meta.settle_s or 0.0) if skip_s is None else skip_s
     keep = sc['t_s'] >= skip
     sc = {k: v[keep] for k, v in sc.items()}
-    sc['alarm'] = sc['score'] < -threshold
     return sc, score_detections(sc, ground_truth_misfires(bag), len(beta), threshold)

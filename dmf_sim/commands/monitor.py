@@ -97,6 +97,9 @@ class MonitorView:
     monitor: Status | None = None
     cycle: Status | None = None
     predicted: list[Status] = field(default_factory=list)
+    intervals_scored: int = 0
+    last_alarm: Status | None = None
+    alarms_seen: int = 0
     received: dict[str, float] = field(default_factory=dict)
 
     def on_diagnostics(self, statuses, now: float) -> None:
@@ -114,6 +117,15 @@ class MonitorView:
         if statuses:
             self.cycle = statuses[0]
             self.received['cycle'] = now
+
+    def on_detections(self, statuses, now: float) -> None:
+        """The live misfire detector's statuses (one per scored firing interval)."""
+        for st in statuses:             # the node's own topic (namespaced), as on_cycle
+            self.intervals_scored += 1
+            if st.values.get('alarm') == 'true':
+                self.alarms_seen += 1
+                self.last_alarm = st
+            self.received['detections'] = now
 
     def on_predicted(self, statuses, now: float) -> None:
         self.predicted = list(statuses)
@@ -148,6 +160,7 @@ class MonitorView:
                     f'{v.get("knee_crossings", "?")}', 0))
         out += self._cycle_rows()
         out += self._prediction_rows()
+        out.append(self._detector_row())
         level, text = 0, 'none'
         for st in (self.monitor, self.cycle):
             if st is not None and st.values.get('alarms'):
@@ -180,6 +193,19 @@ class MonitorView:
                          f'predicted {_num(c, "order_1_5_minus_predicted_rad", "{:+.5f}")}) rad',
                          0))
         return rows
+
+    def _detector_row(self) -> tuple[str, str, int]:
+        if not self.intervals_scored:
+            return ('misfires', 'no firing interval scored (topic faults/detections: parameters '
+                    'sensors and monitor)', 3)
+        text = f'{self.intervals_scored} firing intervals scored, {self.alarms_seen} alarms'
+        if self.last_alarm is None:
+            return ('misfires', text, 0)
+        a = self.last_alarm.values
+        return ('misfires', f'{text}; last: cylinder {a.get("cylinder", "?")} at '
+                f'{_num(a, "tdc_time_s", "{:.3f}")} s, crank angle '
+                f'{_num(a, "tdc_crank_angle_rad", "{:.2f}")} rad, score '
+                f'{_num(a, "score", "{:.2f}")}', self.last_alarm.level)
 
     def _prediction_rows(self) -> list[tuple[str, str, int]]:
         if not self.predicted:
@@ -228,7 +254,7 @@ def render_rich(view: MonitorView, now: float, title: str):
 
 def run(args: argparse.Namespace) -> int:
     from dmf_sim.commands._ros import reliable_qos, ros_session, topic
-    from dmf_sim.monitor.messages import TOPIC_CYCLE, TOPIC_PREDICTED
+    from dmf_sim.monitor.messages import TOPIC_CYCLE, TOPIC_DETECTIONS, TOPIC_PREDICTED
 
     if not (math.isfinite(args.rate) and 0.1 <= args.rate <= 50):
         raise ConfigError(f'--rate must be in [0.1, 50] Hz, got {args.rate!r}')
@@ -255,6 +281,7 @@ def run(args: argparse.Namespace) -> int:
         sub('/diagnostics', view.on_diagnostics)
         sub(topic(ns, TOPIC_CYCLE), view.on_cycle)
         sub(topic(ns, TOPIC_PREDICTED), view.on_predicted, latched=True)
+        sub(topic(ns, TOPIC_DETECTIONS), view.on_detections)
         try:
             return _loop(args, view, executor, title)
         except KeyboardInterrupt:

@@ -23,7 +23,9 @@ testable with a fake clock and a list as the sink.
 Hook points (for per-cycle order analysis, predictions, alarms): ``observers`` are called in the
 tick thread with every chunk of published :class:`dmf_sim.live.simulation.Samples` and their stamps
 [ns] (views: copy what you keep, return within ~0.1 ms, hand heavy work to a worker: the node's DMF
-monitor, :class:`dmf_sim.monitor.worker.LiveMonitor`, is one); ``setpoint_listeners`` are called
+monitor, :class:`dmf_sim.monitor.worker.LiveMonitor`, is one); ``sensor_observers`` likewise with
+each chunk's sensor signals that has any (:class:`dmf_sim.physics.sensor_signals.SensorChunk`,
+after they are published); ``setpoint_listeners`` are called
 with ``(speed_setpoint_rpm, load_setpoint)`` whenever an applied setpoint changes;
 ``before_tick`` callables run in the tick thread after the setpoints are applied (requests
 queued by other threads, e.g. faults, applied between ticks) and ``after_tick`` ones after the
@@ -96,7 +98,7 @@ class SampleSink(Protocol):
 
     def publish_statuses(self, key: str, statuses: list, stamp_ns: int) -> None:
         """A DiagnosticArray of ``statuses`` (dmf_sim.monitor.messages.StatusData) on stream
-        ``key`` ('dmf_orders', 'dmf_predicted'), stamped ``stamp_ns``."""
+        ``key`` ('dmf_orders', 'dmf_predicted', 'misfire_detections'), stamped ``stamp_ns``."""
 
 
 # ------------------------------------------------------------------------------------------------
@@ -176,6 +178,7 @@ class RunLoop:
         self.publish_clock_param = bool(publish_clock)
         self.diagnostics_period_s = float(diagnostics_period_s)
         self.observers: list[Callable[[Samples, np.ndarray], None]] = []
+        self.sensor_observers: list[Callable[[object], None]] = []
         self.setpoint_listeners: list[Callable[[float, float], None]] = []
         self.before_tick: list[Callable[[], None]] = []
         self.after_tick: list[Callable[[], None]] = []
@@ -296,6 +299,8 @@ class RunLoop:
         if samples.sensors is not None and not samples.sensors.empty:
             self.sink.publish_sensors(samples.sensors, self.time.epoch_ns,
                                       self.time.log_offset_ns)
+            for observe in self.sensor_observers:
+                observe(samples.sensors)
 
     def _emit(self, samples: Samples) -> None:
         if not len(samples):

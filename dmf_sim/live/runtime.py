@@ -183,7 +183,13 @@ class LiveRuntime:
             if up.prediction is not None:
                 sink.publish_statuses('dmf_predicted', list(up.prediction_statuses),
                                       int(stamps_ns[-1]))
+            if up.detection_statuses:     # stamped with the last interval's TDC
+                sink.publish_statuses('misfire_detections', up.detection_statuses,
+                                      self.loop.time.epoch_ns + up.detections[-1].t_ns)
         self.loop.observers.append(observe)
+        if monitor.misfires is not None and sim.live_sensors is not None:
+            self.loop.sensor_observers.append(
+                lambda chunk: monitor.add_sensors(chunk, sim.t, sim.psi))
         return monitor
 
     def describe(self) -> str:
@@ -277,6 +283,8 @@ class LiveRuntime:
         """Static equilibrium at the current setpoints (``~/reset``)."""
         with self.lock:
             self.sim.reset()
+            if self.monitor is not None:
+                self.monitor.reset_sensors()
             sim = self.sim
             msg = (f'reset to static equilibrium at {fmt_num(sim.speed_setpoint)} rpm, load '
                    f'{fmt_num(sim.load_setpoint)} (t = {sim.t:.4f} s); the peak wind-up and DMF '

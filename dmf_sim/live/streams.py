@@ -23,7 +23,9 @@ keep-all. ``/clock`` (:data:`CLOCK`) is advertised only while it is published an
 :data:`STREAMS` is what every node publishes. The sensors depend on the driveline
 (:mod:`dmf_sim.physics.sensors`): :func:`streams_for` adds theirs — ``edges/<wheel>`` (edge
 batches, ``sensors/<wheel>/edges``) and ``bus/<signal>`` (``vehicle_bus/<signal>``), layouts in
-:mod:`dmf_sim.bags.sensor_messages` — and every place that must agree takes that table.
+:mod:`dmf_sim.bags.sensor_messages`, and ``misfire_detections`` (``faults/detections``, the
+monitor's live misfire detector, :mod:`dmf_sim.monitor.misfire`) — and every place that must
+agree takes that table.
 """
 from __future__ import annotations
 
@@ -31,11 +33,11 @@ from typing import Any, NamedTuple
 
 from dmf_sim.bags.sensor_messages import BUS_TYPE, EDGES_TYPE, bus_topic, edge_topic
 from dmf_sim.core.names import check_namespace
-from dmf_sim.monitor.messages import TOPIC_CYCLE, TOPIC_PREDICTED
+from dmf_sim.monitor.messages import TOPIC_CYCLE, TOPIC_DETECTIONS, TOPIC_PREDICTED
 
 __all__ = ['DIAGNOSTICS_DEPTH', 'GROUND_TRUTH_DEPTH', 'LATCHED_DEPTH', 'SAMPLE_STREAMS',
            'STATUS_STREAMS', 'STREAMS', 'STREAM_DEPTH', 'PUBLISHED', 'CLOCK', 'Stream',
-           'SENSOR_STREAMS', 'Subscription', 'SUBSCRIPTIONS', 'Service', 'SERVICES',
+           'SENSOR_STREAMS', 'DETECTIONS', 'Subscription', 'SUBSCRIPTIONS', 'Service', 'SERVICES',
            'edge_key', 'bus_key', 'sensor_streams', 'streams_for', 'resolved_topics']
 
 STREAM_DEPTH = 100          # 0.1 s of samples at 1 kHz for a subscriber that falls behind
@@ -110,6 +112,13 @@ SENSOR_STREAMS = {
 }
 """The sensors' streams, one per tooth wheel and bus signal (:func:`sensor_streams`): reliable,
 keep-last :data:`STREAM_DEPTH` as the samples; the topic names the sensor."""
+DETECTIONS = Stream(TOPIC_DETECTIONS, _DIAG, DIAGNOSTICS_DEPTH, per='cycle',
+                    what='the live misfire detector on the tooth wheels around the DMF: one '
+                         'status per scored firing interval, WARN for an alarm (parameters '
+                         'monitor, sensors)')
+"""``misfire_detections``: declared with any tooth wheel (:func:`sensor_streams`), published
+by the monitor when the driveline has one on each side of the DMF
+(:mod:`dmf_sim.monitor.misfire`)."""
 
 
 class Subscription(NamedTuple):
@@ -166,6 +175,8 @@ def sensor_streams(sensors) -> dict[str, Stream]:
            for w in sensors.tooth_wheels}
     out.update({bus_key(b.name): bus._replace(topic=bus_topic(b.name))
                 for b in sensors.bus_signals})
+    if sensors.tooth_wheels:
+        out['misfire_detections'] = DETECTIONS
     return out
 
 

@@ -22,6 +22,9 @@ Topics (relative to the node's namespace):
   transient-local, depth 1): :func:`prediction_statuses` (a summary status, then one status per
   stable state).
 * ``/diagnostics`` — one more status, :func:`monitor_status` (alarms, last cycle, prediction).
+* :data:`TOPIC_DETECTIONS` — per engine cycle, with the tooth wheels around the DMF on:
+  :func:`detection_statuses` (one status per firing interval the live misfire detector scored,
+  :mod:`dmf_sim.monitor.misfire`; WARN for an alarm).
 
 The node converts a :class:`StatusData` with :meth:`StatusData.to_msg` (given the message
 classes) and stamps the array; clients read values back with :func:`values_of`.
@@ -34,16 +37,19 @@ from dataclasses import dataclass
 from dmf_sim.monitor.alarms import LEVEL_NAMES, OK, WARN, AlarmReport
 from dmf_sim.monitor.prediction import QUANTITIES, Comparison, Prediction
 
-__all__ = ['TOPIC_CYCLE', 'TOPIC_PREDICTED', 'HARDWARE_ID', 'StatusData', 'format_value',
-           'cycle_status', 'prediction_statuses', 'monitor_status', 'values_of']
+__all__ = ['TOPIC_CYCLE', 'TOPIC_PREDICTED', 'TOPIC_DETECTIONS', 'HARDWARE_ID', 'StatusData',
+           'format_value', 'cycle_status', 'prediction_statuses', 'monitor_status',
+           'detection_statuses', 'values_of']
 
 TOPIC_CYCLE = 'driveline/dmf_orders'
 TOPIC_PREDICTED = 'driveline/dmf_predicted'
+TOPIC_DETECTIONS = 'faults/detections'
 HARDWARE_ID = 'dmf_sim'
 CYCLE_NAME = 'DMF cycle orders'
 PREDICTION_NAME = 'DMF prediction'
 STATE_NAME = 'DMF predicted state'
 MONITOR_NAME = 'DMF monitor'
+DETECTOR_NAME = 'misfire detector'
 
 
 def format_value(v) -> str:
@@ -163,6 +169,23 @@ def monitor_status(node: str, report: AlarmReport, cycle, prediction: Prediction
     text = report.message or (f'no alarm ({LEVEL_NAMES[OK]})' if cycle is not None
                               else 'waiting for the first engine cycle')
     return StatusData(report.level, f'{node}: {MONITOR_NAME}', text, _pairs(values), node)
+
+
+def detection_statuses(node: str, detections) -> list[StatusData]:
+    """The live misfire detector's message: one status per scored firing interval
+    (:class:`dmf_sim.monitor.misfire.Detection`), in crank-angle order; WARN and 'misfire
+    cylinder N' for an alarm. ``tdc_crank_angle_rad`` is the crank angle of the interval's
+    TDC, as the ground truth (``faults/ground_truth``) gives a misfire's."""
+    out = []
+    for d in detections:
+        vals = {'cylinder': d.cylinder, 'combustion': d.combustion,
+                'tdc_crank_angle_rad': d.tdc_crank_angle_rad, 'tdc_time_s': d.t_ns * 1e-9,
+                'speed_rpm': d.speed_rpm, 'score': d.score, 'alarm': d.alarm}
+        text = (f'misfire cylinder {d.cylinder}' if d.alarm
+                else f'cylinder {d.cylinder}: no misfire')
+        out.append(StatusData(WARN if d.alarm else OK, f'{node}: {DETECTOR_NAME}',
+                              f'{text} (score {d.score:.2f})', _pairs(vals), node))
+    return out
 
 
 def values_of(status) -> dict[str, str]:

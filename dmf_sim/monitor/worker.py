@@ -3,7 +3,9 @@
 One :class:`LiveMonitor` per node. The tick thread hands it the published samples
 (:meth:`LiveMonitor.add_samples`, a few microseconds: :meth:`CycleOrderTracker.collect`); the
 order analysis of completed cycles (~1 ms each) and the harmonic-balance prediction at the
-setpoint (:func:`dmf_sim.monitor.prediction.predict_states`, 5 ms .. 0.3 s) run in worker processes
+setpoint (:func:`dmf_sim.monitor.prediction.predict_states`, 5 ms .. 0.3 s) and, with the tooth
+wheels around the DMF on, the live misfire detector (:mod:`dmf_sim.monitor.misfire`, a few ms per
+engine cycle: :meth:`LiveMonitor.add_sensors`) run in worker processes
 (``worker='process'``, default: no GIL shared with the tick thread; ``niceness`` can lower
 their scheduling priority) or threads (``worker='thread'``). :meth:`LiveMonitor.poll`, called
 from the node's loop, returns what finished: per-cycle reports (the cycle, live minus predicted,
@@ -24,10 +26,25 @@ from concurrent.futures import Future, ProcessPoolExecutor, ThreadPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field, replace
 
+import numpy as np
+
+from dmf_sim.analysis.misfire_detector import DEFAULT_THRESHOLD
 from dmf_sim.core.errors import ConfigError
 from dmf_sim.core.process import blocked_signals, die_with_parent
 from dmf_sim.monitor.alarms import AlarmReport, AlarmSettings, evaluate
-from dmf_sim.monitor.messages import StatusData, cycle_status, monitor_status, prediction_statuses
+from dmf_sim.monitor.messages import (
+    StatusData,
+    cycle_status,
+    detection_statuses,
+    monitor_status,
+    prediction_statuses,
+)
+from dmf_sim.monitor.misfire import (
+    MisfireTracker,
+    MisfireWindow,
+    analyze_window as analyze_misfires,
+    dmf_wheels,
+)
 from dmf_sim.monitor.orders import CycleOrderTracker, CycleResult, CycleWindow, analyze_window
 from dmf_sim.monitor.prediction import (
     Comparison,
@@ -66,6 +83,9 @@ MONITOR_PARAMETERS: dict[str, tuple] = {
                                     'speed of the prediction [rpm]', (0.1, 500.0)),
     'compare_load_tolerance': (0.02, 'Live minus predicted only for cycles within this load of '
                                'the prediction', (1e-4, 1.0)),
+    'misfire_threshold': (DEFAULT_THRESHOLD, 'Live misfire detector (topic faults/detections): '
+                          'alarm when a firing interval\'s engine work falls this fraction of '
+                          'the mean work below its neighbours', (0.01, 10.0)),
 }
 
 
@@ -79,6 +99,7 @@ class MonitorSettings:
     prediction_load_step: float = MONITOR_PARAMETERS['prediction_load_step'][0]
     compare_speed_tolerance_rpm: float = MONITOR_PARAMETERS['compare_speed_tolerance_rpm'][0]
     compare_load_tolerance: float = MONITOR_PARAMETERS['compare_load_tolerance'][0]
+    misfire_threshold: float = MONITOR_PARAMETERS['misfire_threshold'][0]
     worker: str = MONITOR_PARAMETERS['monitor_worker'][0]
     niceness: int = 0             # added to the workers' nice value (see doc/monitoring.md)
 
@@ -146,6 +167,11 @@ def _job_predict(key, payload, solver, point: OperatingPoint) -> Prediction:
 def _job_cycles(key, payload, window: CycleWindow) -> list[CycleResult]:
     loads = _loads(key, payload)
     return analyze_window(window, lambda speed, load: loads.static_state(speed, load).windup)
+
+
+def _job_misfires(key, payload, window: MisfireWindow) -> list:
+    spring = _loads(key, payload).model.spring
+    return analyze_misfires(window, None if spring is None else spring.torque)
 
 
 class _Worker:
@@ -238,12 +264,16 @@ class CycleReport:
 
 @dataclass
 class MonitorUpdate:
-    """What :meth:`LiveMonitor.poll` found finished: cycle reports (in order) and, when the
-    prediction at the setpoint changed, the new prediction and its message content."""
+    """What :meth:`LiveMonitor.poll` found finished: cycle reports (in order), when the
+    prediction at the setpoint changed, the new prediction and its message content, and the
+    firing intervals the misfire detector scored for the first time
+    (:class:`dmf_sim.monitor.misfire.Detection`, in order) with their message content."""
 
     cycles: list[CycleReport] = field(default_factory=list)
     prediction: Prediction | None = None
     prediction_statuses: list[StatusData] = field(default_factory=list)
+    detections: list = field(default_factory=list)
+    detection_statuses: list[StatusData] = field(default_factory=list)
 
 
 class LiveMonitor:
@@ -272,6 +302,8 @@ class LiveMonitor:
         self._cycles_worker = _Worker(s.worker, s.niceness, 'dmf-cycles')
         self._predict_worker = _Worker(s.worker, s.niceness, 'dmf-prediction')
         self._cycle_jobs: list[Future] = []
+        self._misfire_jobs: list[Future] = []
+        self._reported_ns = -1          # the last firing interval reported (its TDC time)
         self._cache: OrderedDict[OperatingPoint, Prediction] = OrderedDict()
         self._job: tuple[OperatingPoint, Future] | None = None
         self._want: OperatingPoint | None = None
@@ -285,6 +317,7 @@ class LiveMonitor:
                          'prediction_latency_s': math.nan, 'worker_failures': 0,
                          'monitor_worker': s.worker}
         self.faults = steady_part(faults)
+        self.misfires = self._misfire_tracker(line)
         self.set_model(line, engine)
 
     # ---- configuration ---------------------------------------------------------------------
@@ -304,6 +337,19 @@ class LiveMonitor:
         if self._setpoint is not None:
             self.set_setpoint(*self._setpoint)
 
+    def _misfire_tracker(self, line) -> MisfireTracker | None:
+        """The live misfire detector's tracker when the driveline has tooth wheels on both
+        sides of the DMF and firing phases; else None (nothing detected, said in the status)."""
+        names = dmf_wheels(line)
+        if names is None or not line.firing_phases_deg:
+            self.counters['misfire_detector'] = 'off (no tooth wheels on both DMF sides)'
+            return None
+        wheels = {w.name: w for w in line.sensors.tooth_wheels}
+        self.counters.update({'misfire_detector': f'on ({names[0]}, {names[1]})',
+                              'intervals_scored': 0, 'misfire_alarms': 0})
+        return MisfireTracker([wheels[n] for n in names], np.radians(line.firing_phases_deg),
+                              threshold=self.settings.misfire_threshold)
+
     def set_faults(self, faults) -> None:
         """The faults acting now (a :class:`~dmf_sim.physics.faults.FaultSet`, e.g. a fault
         timeline's active set; None or empty: healthy): later predictions take their persistent
@@ -317,6 +363,8 @@ class LiveMonitor:
     def set_settings(self, settings: MonitorSettings) -> None:
         """New thresholds / rounding (the worker mode stays as started)."""
         self.settings = replace(settings, worker=self.settings.worker)
+        if self.misfires is not None:
+            self.misfires.threshold = self.settings.misfire_threshold
         if self._setpoint is not None:
             self.set_setpoint(*self._setpoint)
 
@@ -344,6 +392,22 @@ class LiveMonitor:
         if window is not None:
             self._cycle_jobs.append(self._cycles_worker.submit(_job_cycles, self._model, window))
 
+    def add_sensors(self, chunk, t_s: float, psi_rad: float) -> None:
+        """A chunk's sensor signals (:class:`~dmf_sim.physics.sensor_signals.SensorChunk`) and
+        the crank angle at its end [s, rad] (cheap; once per engine cycle the live misfire
+        detector runs in the cycle worker). Nothing without the tooth wheels around the DMF."""
+        if self.misfires is None:
+            return
+        window = self.misfires.add(chunk, t_s, psi_rad)
+        if window is not None:
+            self._misfire_jobs.append(self._cycles_worker.submit(_job_misfires, self._model,
+                                                                 window))
+
+    def reset_sensors(self) -> None:
+        """The motion jumped (a reset): the misfire detector starts over."""
+        if self.misfires is not None:
+            self.misfires.clear()     # simulated time goes on: nothing is reported twice
+
     # ---- results ---------------------------------------------------------------------------
     def poll(self) -> MonitorUpdate:
         """Finished cycle analyses (in order) and a new prediction at the setpoint, if any."""
@@ -356,7 +420,25 @@ class LiveMonitor:
                 continue
             for cycle in fut.result():
                 up.cycles.append(self._report(cycle))
+        self._poll_misfires(up)
         return up
+
+    def _poll_misfires(self, up: MonitorUpdate) -> None:
+        while self._misfire_jobs and self._misfire_jobs[0].done():
+            fut = self._misfire_jobs.pop(0)
+            if fut.exception() is not None:       # the worker died: these intervals are lost
+                self.counters['worker_failures'] += 1
+                continue
+            detections, terms = fut.result()
+            self.misfires.learned.add(terms)
+            for d in detections:
+                if d.t_ns > self._reported_ns:
+                    self._reported_ns = d.t_ns
+                    up.detections.append(d)
+        if up.detections:
+            self.counters['intervals_scored'] += len(up.detections)
+            self.counters['misfire_alarms'] += sum(d.alarm for d in up.detections)
+            up.detection_statuses = detection_statuses(self.node_name, up.detections)
 
     def _poll_prediction(self, up: MonitorUpdate) -> None:
         if self._job is not None and self._job[1].done():
@@ -406,6 +488,12 @@ class LiveMonitor:
         """Block until both workers are up (the node may call this at start-up)."""
         self._cycles_worker.ready.result(timeout)
         self._predict_worker.ready.result(timeout)
+
+    def wait_idle(self, timeout: float | None = None) -> None:
+        """Block until every cycle analysis and misfire window handed in so far is done (the
+        next :meth:`poll` returns them): for tests and offline use, never in the tick thread."""
+        for fut in list(self._cycle_jobs) + list(self._misfire_jobs):
+            fut.exception(timeout)
 
     @property
     def worker_pids(self) -> list[int]:

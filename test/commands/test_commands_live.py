@@ -68,6 +68,14 @@ def test_monitor_view_shows_every_quantity():
                  '1 stable state(s) at 950 rpm', 'live - predicted +0.00010',
                  '1.5th-order sub-harmonic present'):
         assert part in text, (part, text)
+    assert 'no firing interval scored' in text
+    from dmf_sim.monitor.messages import detection_statuses
+    from dmf_sim.monitor.misfire import Detection
+    dets = [Detection(10**9 + k, 1 + k % 6, 3, 30.0 + k, 950.0, -0.9 if k == 4 else 0.01, k == 4)
+            for k in range(6)]
+    view.on_detections([as_msg(s) for s in detection_statuses('n', dets)], now=1.2)
+    assert ('6 firing intervals scored, 1 alarms; last: cylinder 5 at 1.000 s, crank angle '
+            '34.00 rad, score -0.90') in render_plain(view, 1.5)
     assert 'diagnostics' not in text.splitlines()[0]        # fresh
     assert '(diagnostics 9 s old)' in render_plain(view, 10.0)
 

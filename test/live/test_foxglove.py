@@ -141,12 +141,15 @@ def test_layout_is_a_foxglove_layout_of_the_node_s_topics_and_keys():
     from dmf_sim.monitor.alarms import AlarmReport
     from dmf_sim.monitor.messages import (
         TOPIC_CYCLE,
+        TOPIC_DETECTIONS,
         TOPIC_PREDICTED,
         cycle_status,
+        detection_statuses,
         monitor_status,
         prediction_statuses,
         values_of,
     )
+    from dmf_sim.monitor.misfire import Detection
     from dmf_sim.monitor.prediction import OperatingPoint, PredictedState, Prediction
     from dmf_sim.node import STREAMS as NODE_STREAMS
     from dmf_sim.physics.model import read_driveline
@@ -164,7 +167,7 @@ def test_layout_is_a_foxglove_layout_of_the_node_s_topics_and_keys():
     every_path = json.dumps(layout['configById'])
     for topic in ('/vehicle_bus/engine_speed', '/vehicle_bus/gearbox_input_speed',
                   '/vehicle_bus/output_shaft_speed', '/faults/active', '/faults/ground_truth',
-                  '/sensors/crank/edges'):
+                  '/sensors/crank/edges', '/faults/detections'):
         assert f'"{topic}' in every_path, topic
 
     sensors = read_driveline('truck_dmf').sensors          # the node's default sensors
@@ -191,7 +194,9 @@ def test_layout_is_a_foxglove_layout_of_the_node_s_topics_and_keys():
     keys = {'/' + TOPIC_CYCLE: set(values_of(cycle_status('n', cyc, None, pred,
                                                           AlarmReport(0, ())))),
             '/' + TOPIC_PREDICTED: set().union(*(values_of(s) for s in
-                                                 prediction_statuses('n', pred, 2.5, 0.24)))}
+                                                 prediction_statuses('n', pred, 2.5, 0.24))),
+            '/' + TOPIC_DETECTIONS: set(values_of(detection_statuses(
+                'n', [Detection(1, 3, 2, 31.4, 1200.0, -0.9, True)])[0]))}
     diag_keys = {'speed_rpm', 'speed_setpoint_rpm', 'load', 'load_setpoint', 'windup_rad',
                  'lag_ms', 'lag_p99_ms', 'real_time_factor'}   # the node's health status
 
@@ -222,7 +227,7 @@ def test_layout_is_a_foxglove_layout_of_the_node_s_topics_and_keys():
         if topics[topic] == 'std_msgs/msg/Float64':
             assert rest in ('data', ''), path
         elif topics[topic] == 'diagnostic_msgs/msg/DiagnosticArray' and rest:
-            km = re.fullmatch(r'status(?:\[0\]|\[:\]\{hardware_id==\$node\})'
+            km = re.fullmatch(r'status(?:\[0\]|\[:\]|\[:\]\{hardware_id==\$node\})'
                               r'\.values\[:\]\{key=="(\w+)"\}\.value', rest)
             assert km, path
             key = km.group(1)
@@ -249,11 +254,12 @@ def test_layout_for_a_namespaced_node_moves_its_topics_and_selects_its_health(tm
     assert panel['topicToRender'] == '/diagnostics'                 # not namespaced
     paths = [p['value'] for cfg in layout['configById'].values() for p in cfg.get('paths', ())]
     assert all(p.startswith(('/truck1/driveline/', '/truck1/engine/', '/diagnostics.',
-                             '/truck1/vehicle_bus/')) for p in paths), paths
+                             '/truck1/vehicle_bus/', '/truck1/faults/')) for p in paths), paths
     topics = {cfg.get('topicToRender') or cfg.get('topicPath')
               for cfg in layout['configById'].values()} - {None}
     assert topics == {'/diagnostics', '/truck1/driveline/dmf_predicted', '/truck1/faults/active',
-                      '/truck1/faults/ground_truth', '/truck1/sensors/crank/edges'}
+                      '/truck1/faults/ground_truth', '/truck1/sensors/crank/edges',
+                      '/truck1/faults/detections'}
     assert layout['configById']['RawMessages!dmfpredicted']['topicPath'] == \
         '/truck1/driveline/dmf_predicted'
     with pytest.raises(ConfigError, match='fully qualified ROS node name'):

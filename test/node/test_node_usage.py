@@ -55,3 +55,13 @@ def test_the_usage_does_not_read_the_module_docstring(monkeypatch):
     before = node.usage()
     monkeypatch.setattr(node, '__doc__', 'prose only')
     assert node.usage() == before
+
+
+def test_the_live_detector_stream_is_in_the_usage_and_declared_with_tooth_wheels():
+    from dmf_sim.live.streams import DETECTIONS, streams_for
+    from dmf_sim.physics.model import read_driveline
+
+    line = _line_of(node.usage(), DETECTIONS.topic)
+    assert line.split()[:3] == ['pub', DETECTIONS.topic, DETECTIONS.msgtype]
+    assert streams_for(read_driveline().sensors)['misfire_detections'] == DETECTIONS
+    assert 'misfire_detections' not in streams_for(None)
