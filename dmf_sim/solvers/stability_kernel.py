@@ -2,7 +2,7 @@
 the exact monodromy of the piecewise-linear system region by region, and the multipliers — the
 hot part of :meth:`dmf_sim.solvers.stability.FloquetAnalyzer.analyze`, whose readable numpy path
 (``segments_from``, ``monodromy``, ``analyze_reference``) is the reference the tests compare it
-with. Region lookup: :func:`dmf_sim.solvers.newmark_kernel.region_of` on the spring's own arrays
+with. Region lookup: :func:`dmf_sim.solvers.spring_kernels.region_of` on the spring's own arrays
 (the law written once).
 """
 from __future__ import annotations
@@ -14,7 +14,7 @@ import numpy as np
 from dmf_sim.core.compiled import jit
 from dmf_sim.core.units import CYCLE_RAD
 from dmf_sim.solvers.lapack_kernel import eigenvalues_into
-from dmf_sim.solvers.newmark_kernel import region_of
+from dmf_sim.solvers.spring_kernels import region_of
 
 __all__ = ['floquet_segments', 'monodromy_similar', 'floquet', 'floquet_many']
 
