@@ -47,7 +47,8 @@ from dmf_sim.solvers.hbm.dense_kernels import lu_solve, max_abs
 from dmf_sim.solvers.spring_kernels import law_active, law_parts, region_of
 
 __all__ = ['CONVERGED', 'STALLED', 'MAX_ITER', 'SINGULAR', 'NOT_FINITE', 'ENGINE_FAILED',
-           'BACKTRACK_MIN', 'aft', 'aft_law', 'assemble', 'nonlinear', 'times_h_into', 'times_h_matrix', 'residual_jacobian',
+           'BACKTRACK_MIN', 'aft', 'aft_law', 'assemble', 'nonlinear', 'times_h_into',
+           'times_h_matrix', 'residual_jacobian',
            'residual_jacobian_py', 'speed_derivative', 'residual_jacobians_py', 'harmonics_py',
            'newton', 'deflated_newton', 'deflated_newton_first']
 
