@@ -60,7 +60,7 @@ from dmf_sim.solvers.hbm.unknowns import fit_harmonics, times_h, to_complex, to_
 from dmf_sim.solvers.spring_kernels import law_parts
 from dmf_sim.solvers.stability import FlexibleModes
 
-__all__ = ['aft_tables', 'SHARP_DAMPING_RATIO', 'RESONANCE_SHARE', 'LINEAR_PARTS_CACHE',
+__all__ = ['aft_tables', 'REGULARIZATION_HOMOTOPY', 'SHARP_DAMPING_RATIO', 'RESONANCE_SHARE', 'LINEAR_PARTS_CACHE',
            'PREPARE_BATCH', 'ENGINE_BATCH_MIN', 'CondensedHBM']
 
 SHARP_DAMPING_RATIO = 0.01
@@ -73,6 +73,10 @@ reaches this share of the linear wind-up's dynamic amplitude (sum of |w_n|, n >=
 
 #: linear parts kept per problem (one per speed; a sweep's grid + search revisit ~150 speeds)
 LINEAR_PARTS_CACHE = 512
+REGULARIZATION_HOMOTOPY = (1024.0, 256.0, 64.0, 16.0, 4.0, 1.0)
+"""Factors on the friction's slip speed omega_reg of the stages of
+:meth:`CondensedHBM.newton_regularized`, softest first, the last the spring's own law."""
+
 #: speeds per vectorized batch of :meth:`CondensedHBM.prepare`
 PREPARE_BATCH = 64
 #: fewest speeds asked of the engine in one vectorized query (``Engine.coefficients_many``);
@@ -637,8 +641,37 @@ class CondensedHBM(DrivelineExpansion, FaultedParts):
         if x0 is None:
             x0 = self.linear_solution(speed_rpm)
             x0[0] = self.spring.solve_condensed(float(lp.wlin[0].real), float(lp.h[0].real))
-        x, it, res = self.newton(x0, lp)
+        try:
+            x, it, res = self.newton(x0, lp)
+        except ConvergenceError:
+            if not (self.compiled and self.spring.has_friction):
+                raise
+            x, it, res = self.newton_regularized(x0, lp)
         return self.make_point(speed_rpm, x, res, it)
+
+    def newton_regularized(self, x0: np.ndarray, lp: LinearParts
+                           ) -> tuple[np.ndarray, int, float]:
+        """Newton by a homotopy in the friction's regularization (HBM-specific, doc/theory.md
+        §7): where the friction torque is large against the motion the residual is as stiff as
+        T_f / omega_reg and Newton from the linear guess stalls; solved first with omega_reg
+        times each factor of :data:`REGULARIZATION_HOMOTOPY` (a softer law), each solution the
+        next one's start, ending on the spring's own omega_reg. Returns (x, iterations in all,
+        max|r|); raises ConvergenceError where a stage fails."""
+        base = self._spring_arrays
+        x = np.array(x0, dtype=float)
+        out = np.empty_like(x)
+        total = 0
+        for factor in REGULARIZATION_HOMOTOPY:
+            law = base[4].copy()
+            law[2] *= factor
+            status, it, nr = kernels.newton(x, lp.lin, self._aft_mats, (*base[:4], law),
+                                            self._newton_opts, out)
+            total += it
+            if status != kernels.CONVERGED:
+                raise ConvergenceError(f'HBM Newton: residual {nr:.2e} rad with the friction '
+                                       f'regularization x{factor:g} at {lp.speed_rpm:.1f} rpm')
+            x = out.copy()
+        return x, total, nr
 
     def newton(self, x0: np.ndarray, lp: LinearParts) -> tuple[np.ndarray, int, float]:
         """Damped Newton on r(x) = 0 at fixed speed; returns (x, iterations, max|r|)."""
