@@ -113,6 +113,9 @@ KERNELS: tuple[Kernel, ...] = (
     Kernel('dmf_sim.solvers.stability_kernel:floquet_many',
            'dmf_sim.solvers.stability:FloquetAnalyzer.analyze',
            f'{_T_FAST}::test_points_of_a_traced_branch_made_in_one_batch_equal_one_by_one'),
+    Kernel('dmf_sim.solvers.stability_kernel:monodromy_law',
+           'dmf_sim.solvers.stability:FloquetAnalyzer.monodromy_law_reference',
+           f'{_T_FRICTION}::test_floquet_multipliers_with_friction_are_inside_and_converge'),
     Kernel('dmf_sim.solvers.lapack_kernel:eigenvalues_into', 'numpy.linalg:eigvals',
            'test/solvers/test_eigenvalues.py::test_eigenvalues_equal_numpys'),
     # the Newmark step
@@ -135,6 +138,7 @@ HELPERS: tuple[str, ...] = (
     f'{_C}:add_step', f'{_C}:_evaluate_scaled', f'{_S}:next_grid',
     'dmf_sim.solvers.stability_kernel:floquet_segments',
     'dmf_sim.solvers.stability_kernel:monodromy_similar',
+    'dmf_sim.solvers.stability_kernel:step_law',
     'dmf_sim.solvers.lapack_kernel:dgeev_into',
     'dmf_sim.solvers.francis_qr:hessenberg_eigenvalues',
     *(f'dmf_sim.solvers.newmark_kernel:{n}' for n in ('newmark_constants', 'thomas',

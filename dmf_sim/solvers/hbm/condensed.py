@@ -60,8 +60,8 @@ from dmf_sim.solvers.hbm.unknowns import fit_harmonics, times_h, to_complex, to_
 from dmf_sim.solvers.spring_kernels import law_parts
 from dmf_sim.solvers.stability import FlexibleModes
 
-__all__ = ['aft_tables', 'REGULARIZATION_HOMOTOPY', 'SHARP_DAMPING_RATIO', 'RESONANCE_SHARE', 'LINEAR_PARTS_CACHE',
-           'PREPARE_BATCH', 'ENGINE_BATCH_MIN', 'CondensedHBM']
+__all__ = ['aft_tables', 'REGULARIZATION_HOMOTOPY', 'SHARP_DAMPING_RATIO', 'RESONANCE_SHARE',
+           'LINEAR_PARTS_CACHE', 'PREPARE_BATCH', 'ENGINE_BATCH_MIN', 'CondensedHBM']
 
 SHARP_DAMPING_RATIO = 0.01
 """A mode damped less than this (damping ratio [-]) makes a resonance a few rpm wide: a spike in

@@ -22,6 +22,7 @@ from dmf_sim.solvers.hbm.continuation_kernels import (
     tangent,
 )
 from dmf_sim.solvers.hbm.kernels import (
+    aft_law,
     deflated_newton,
     deflated_newton_first,
     harmonics_py,
@@ -63,6 +64,7 @@ def warm_up() -> float:
     residual_jacobian_py(x0, lin, aft_mats, spring, True)
     residual_jacobians_py(x0, lin, dlin, aft_mats, spring)
     harmonics_py(x0, 1.0, aft_mats, spring, True)
+    aft_law(x0, 1.0, aft_mats, spring, np.empty(2 * n), np.empty((n, n)), True)
     newton(x0, lin, aft_mats, spring, (1e-10, 5, 8, 0.5), out)
     deflated_newton(x0, np.zeros((1, n)), lin, aft_mats, spring, 1e-10,
                     np.array([2.0, 1.0, 1e-2, 5.0, 0.125, 6.0]), out)
@@ -122,6 +124,12 @@ def warm_up() -> float:
                                   np.empty(1, dtype=np.int64), np.empty(1, dtype=np.int64),
                                   np.empty(1), np.empty((1, ns)), np.empty((1, ns)),
                                   np.empty(1, dtype=np.int64))
+    # the monodromy with friction and end stops (the spring's law array, a uniform grid)
+    grid = np.zeros(4)
+    stability_kernel.monodromy_law(grid, grid, 1.0, 1.0, *spring, -np.ones(ns, dtype=complex),
+                                   np.ones(ns, dtype=complex), np.ones(ns, dtype=complex),
+                                   np.ones(ns, dtype=complex), 1.0,
+                                   np.empty((ns, ns), dtype=complex))
     # the multipliers of one point analyzed alone (stability.eigenvalues calls it from Python)
     eigenvalues_into(np.eye(ns), np.empty(ns), np.empty(ns))
     # the continuation loop's step control, called from Python with these types
