@@ -22,7 +22,6 @@ import numpy as np
 from dmf_sim.analysis.order_bins import LOAD_TOLERANCE, OrderTable
 from dmf_sim.bags.metadata import RunMetadata
 from dmf_sim.core.errors import BagError, ConfigError, ConvergenceError, one_line
-from dmf_sim.physics.spring import HBM_FRICTION_MESSAGE
 
 __all__ = ['COMPARED', 'HBMOverlay', 'model_settings', 'build_model', 'natural_frequencies',
            'static_windups', 'hbm_overlay', 'overlay_all']
@@ -363,9 +362,6 @@ def overlay_all(res, settings: Mapping[str, Any], *, hbm: bool = True) -> dict[s
         return natural
     if not windups:
         return natural
-    if hbm and model.spring.has_friction:        # the HBM does not model it: no overlay, why
-        res.warnings.append(f'no HBM overlay: {HBM_FRICTION_MESSAGE}')
-        hbm = False
     from dmf_sim.physics.engine import load_error, read_engine
     from dmf_sim.physics.loads import DrivelineExcitation
 

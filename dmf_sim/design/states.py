@@ -187,7 +187,7 @@ def order_torques(hb, points, element: int, n: int = ORDER_3) -> np.ndarray:
     m = hb.model
     # AFT: harmonics of g(w(psi)), the solver's own pass per point (compiled: no BLAS call,
     # whose threads made the (points x samples) products ~100x slower on a busy 2-core machine)
-    G = np.array([hb.nonlinear_harmonics(p.x) for p in points])
+    G = np.array([hb.nonlinear_harmonics(p.x, speed_rpm=p.speed_rpm) for p in points])
     g = G[:, n] + 1j * G[:, hb.H + n]
     speeds = np.array([p.speed_rpm for p in points])
     L = hb.loads

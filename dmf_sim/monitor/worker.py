@@ -55,7 +55,6 @@ from dmf_sim.monitor.prediction import (
     solve_prediction,
     steady_part,
 )
-from dmf_sim.physics.spring import HBM_FRICTION_MESSAGE
 
 __all__ = ['WORKER_MODES', 'MONITOR_PARAMETERS', 'MonitorSettings', 'CycleReport',
            'MonitorUpdate', 'LiveMonitor']
@@ -328,10 +327,9 @@ class LiveMonitor:
         self._version += 1
         self._model = ((self._uid, self._version), line, engine)
         self.spring = line.spring
-        # the prediction is a harmonic balance, which does not model arc-spring friction: off
-        # (its reason in the status) while the spring has friction; the live orders go on
-        self.counters['prediction_off'] = (HBM_FRICTION_MESSAGE if line.spring.has_friction
-                                           else '')
+        # why the prediction is off ('' : on; the harmonic balance models every spring,
+        # friction and end stops included)
+        self.counters['prediction_off'] = ''
         self.load_set = str(getattr(engine, 'load_set', ''))
         self.tracker.set_spring(line.spring)
         if self._setpoint is not None:

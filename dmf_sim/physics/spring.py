@@ -43,10 +43,13 @@ both off unless configured:
   [Nms/rad], ``T_s = max(0, k_s d + c_s d_dot)`` (d >= 0 the penetration; the contact pushes,
   never pulls: Kelvin-Voigt clipped at zero).
 
-Both are torques along the wind-up like ``g`` (:meth:`PiecewiseLinearSpring.law_torque`); the time
-integration takes them (the Newmark kernel solves its condensed equation with them,
-:mod:`dmf_sim.solvers.newmark_kernel`); the harmonic balance does not model them and refuses a
-spring with friction (:meth:`PiecewiseLinearSpring.require_no_friction`).
+Both are torques along the wind-up like ``g`` (:meth:`PiecewiseLinearSpring.law_torque`; compiled
+once for every kernel: :mod:`dmf_sim.solvers.spring_kernels`). The time integration takes them
+(the Newmark kernel solves its condensed equation with them,
+:mod:`dmf_sim.solvers.newmark_kernel`), and so does the harmonic balance (its AFT samples the
+wind-up rate from the harmonics, :func:`dmf_sim.solvers.hbm.kernels.aft_law`) with its Floquet
+stability (:meth:`dmf_sim.solvers.stability.FloquetAnalyzer.analyze_law`); what the harmonic
+balance of the regularized law can claim where the spring sticks: doc/theory.md §7.
 """
 from __future__ import annotations
 
@@ -62,7 +65,7 @@ from dmf_sim.core.errors import ConfigError
 from dmf_sim.core.validation import bounded
 
 __all__ = ['Stage', 'ArcFriction', 'EndStops', 'PiecewiseLinearSpring', 'STIFFNESS_FACTOR_MAX',
-           'STAGE_ANGLE_MAX_RAD', 'HBM_FRICTION_MESSAGE', 'LAW_SIZE']
+           'STAGE_ANGLE_MAX_RAD', 'LAW_SIZE']
 
 STIFFNESS_FACTOR_MAX = BOUNDS['stiffness_factor'].hi
 """Largest stage stiffness factor [-]: a stage stiffer than 51 k is an end stop, which has its
@@ -73,10 +76,6 @@ STAGE_ANGLE_MAX_RAD = BOUNDS['windup_angle'].hi
 """Largest stage angle [rad] (115 deg: beyond any arc-spring travel of a DMF; the table of
 bounds)."""
 
-
-HBM_FRICTION_MESSAGE = ('the harmonic balance does not model arc-spring friction yet: set '
-                        'dmf.friction to zero or use the time integration (dmf-sim run, runup)')
-"""The one line every harmonic-balance entry gives for a spring with friction."""
 
 LAW_SIZE = 7
 """Length of :meth:`PiecewiseLinearSpring.law_array` (the compiled kernels' friction and stops)."""
@@ -408,15 +407,9 @@ class PiecewiseLinearSpring:
 
     @property
     def smooth_elastic(self) -> bool:
-        """True when the spring is its elastic law alone (no friction, no end stops): what the
-        harmonic balance and the frequency-domain tools model."""
+        """True when the spring is its elastic law alone (no friction, no end stops): the
+        solvers then take their elastic paths (exact region by region)."""
         return self.friction is None and self.stops is None
-
-    def require_no_friction(self) -> None:
-        """Raise the one-line :class:`ConfigError` of a harmonic-balance entry when the spring
-        has friction (:data:`HBM_FRICTION_MESSAGE`)."""
-        if self.friction is not None:
-            raise ConfigError(HBM_FRICTION_MESSAGE)
 
     def law_torque(self, w, w_dot, omega_rad_s):
         """Friction plus end-stop torque [Nm] along the wind-up (eq. 8a + 8b) at wind-up(s) w

@@ -43,6 +43,7 @@ _HBM = 'dmf_sim.solvers.hbm.condensed:CondensedHBM'
 _CONT = 'dmf_sim.solvers.continuation'
 _T_HBM = 'test/solvers/hbm/test_hbm_compiled.py'
 _T_FAST = 'test/solvers/hbm/test_sweep_fastpaths.py'
+_T_FRICTION = 'test/solvers/hbm/test_friction_hbm.py'
 
 
 @dataclass(frozen=True)
@@ -72,6 +73,9 @@ KERNELS: tuple[Kernel, ...] = (
            f'{_T_HBM}::test_aft_residual_and_jacobian_equal_reference'),
     Kernel(f'{_K}:residual_jacobians_py', f'{_HBM}.residual_speed_derivative',
            f'{_T_HBM}::test_continuation_jacobians_equal_reference'),
+    # the AFT with arc-spring friction and end stops (called by the kernels above)
+    Kernel(f'{_K}:aft_law', f'{_HBM}._nonlinear_reference',
+           f'{_T_FRICTION}::test_aft_with_friction_and_stops_equals_reference'),
     Kernel(f'{_K}:newton', f'{_HBM}.newton_reference',
            f'{_T_HBM}::test_newton_equals_reference'),
     Kernel(f'{_K}:deflated_newton', 'dmf_sim.solvers.hbm.deflation:DeflatedNewton.solve_reference',
@@ -109,6 +113,9 @@ KERNELS: tuple[Kernel, ...] = (
     Kernel('dmf_sim.solvers.stability_kernel:floquet_many',
            'dmf_sim.solvers.stability:FloquetAnalyzer.analyze',
            f'{_T_FAST}::test_points_of_a_traced_branch_made_in_one_batch_equal_one_by_one'),
+    Kernel('dmf_sim.solvers.stability_kernel:monodromy_law',
+           'dmf_sim.solvers.stability:FloquetAnalyzer.monodromy_law_reference',
+           f'{_T_FRICTION}::test_floquet_multipliers_with_friction_are_inside_and_converge'),
     Kernel('dmf_sim.solvers.lapack_kernel:eigenvalues_into', 'numpy.linalg:eigvals',
            'test/solvers/test_eigenvalues.py::test_eigenvalues_equal_numpys'),
     # the Newmark step
@@ -122,7 +129,8 @@ KERNELS: tuple[Kernel, ...] = (
 """The compiled entry points of the solvers."""
 
 HELPERS: tuple[str, ...] = (
-    *(f'{_K}:{n}' for n in ('aft', 'times_h_into', 'times_h_matrix', 'residual_jacobian',
+    *(f'{_K}:{n}' for n in ('aft', 'assemble', 'nonlinear', 'times_h_into', 'times_h_matrix',
+                            'residual_jacobian',
                             'speed_derivative', '_newton_start', '_accept', '_log_m',
                             '_log_floor')),
     *(f'dmf_sim.solvers.hbm.dense_kernels:{n}' for n in ('lu_solve', 'max_abs', 'lu_work')),
@@ -130,12 +138,13 @@ HELPERS: tuple[str, ...] = (
     f'{_C}:add_step', f'{_C}:_evaluate_scaled', f'{_S}:next_grid',
     'dmf_sim.solvers.stability_kernel:floquet_segments',
     'dmf_sim.solvers.stability_kernel:monodromy_similar',
+    'dmf_sim.solvers.stability_kernel:step_law',
     'dmf_sim.solvers.lapack_kernel:dgeev_into',
     'dmf_sim.solvers.francis_qr:hessenberg_eigenvalues',
     *(f'dmf_sim.solvers.newmark_kernel:{n}' for n in ('newmark_constants', 'thomas',
-                                                      'region_of', 'knee_between',
-                                                      'regular_block', 'law_parts',
+                                                      'knee_between', 'regular_block',
                                                       'law_solve')),
+    *(f'dmf_sim.solvers.spring_kernels:{n}' for n in ('region_of', 'law_parts', 'law_active')),
 )
 """Compiled functions called only from other kernels (compiled and cached with their callers)."""
 

@@ -77,9 +77,10 @@ import numpy as np
 from scipy.optimize import brentq
 
 from dmf_sim.core.compiled import jit
+from dmf_sim.solvers.spring_kernels import law_parts, region_of
 
 __all__ = ['MAX_PIECES', 'SPLIT_MIN_FRACTION', 'LOOKAHEAD_STEPS', 'newmark_constants', 'thomas',
-           'factor', 'region_of', 'knee_between', 'regular_block', 'law_parts', 'law_solve',
+           'factor', 'knee_between', 'regular_block', 'law_solve',
            'advance_kernel', 'advance_reference', 'LAW_MAX_ITER', 'LAW_TOL_RAD']
 
 
@@ -137,44 +138,9 @@ def factor(h, Jd, Klo, Kd, Kup, Clo, Cd, Cup, e, params, coef, f_lo, f_inv, f_cp
     coef[8] = hc
 
 
-def region_of(w, knees, primary):
-    """Region index of wind-up w (count of knees below w; ties go to the primary side)."""
-    r = 0
-    nk = knees.shape[0]
-    while r < nk and (w > knees[r] or (w == knees[r] and r < primary)):
-        r += 1
-    return r
-
-
 def knee_between(r_from, r_to, knees):
     """The first knee crossed going from region r_from toward region r_to."""
     return knees[r_from] if r_to > r_from else knees[r_from - 1]
-
-
-def law_parts(w, wd, amp, law):
-    """(friction torque T_f, end-stop torque T_s, d(T_f)/d(w_dot), d(T_s)/dw, d(T_s)/d(w_dot))
-    at wind-up w [rad], rate wd [rad/s] and sliding friction torque ``amp`` = T0 + c_Omega
-    Omega^2 [Nm] (eq. 8a, 8b; ``law`` = PiecewiseLinearSpring.law_array())."""
-    th = math.tanh(wd / law[2])
-    tf = amp * th
-    dtf = amp * (1.0 - th * th) / law[2]
-    ts = 0.0
-    dts_w = 0.0
-    dts_v = 0.0
-    if law[5] > 0.0:
-        if w > law[4]:
-            f = law[5] * (w - law[4]) + law[6] * wd
-            if f > 0.0:
-                ts = f
-                dts_w = law[5]
-                dts_v = law[6]
-        elif w < law[3]:
-            f = law[5] * (law[3] - w) - law[6] * wd
-            if f > 0.0:
-                ts = -f
-                dts_w = law[5]
-                dts_v = law[6]
-    return tf, ts, dtf, dts_w, dts_v
 
 
 def law_solve(w_lin, hc, a1, w_n, rate0, amp, law, knees, slopes, offsets, primary, w0):
@@ -563,9 +529,7 @@ def advance_kernel(nsteps, stride, state, system, factors, spring, excitation, o
 newmark_constants = jit(newmark_constants)
 thomas = jit(thomas)
 factor = jit(factor)
-region_of = jit(region_of)
 knee_between = jit(knee_between)
-law_parts = jit(law_parts)
 law_solve = jit(law_solve)
 regular_block = jit(regular_block)
 # reassociation and FMA contraction: the sums over the DOFs vectorize (~10 % less time per step,

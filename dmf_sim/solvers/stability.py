@@ -41,7 +41,7 @@ from dmf_sim.core.units import CYCLE_RAD, RPM_TO_RAD_S, cycle_period_s
 from dmf_sim.physics.model import ReducedModel
 from dmf_sim.physics.orders import synthesize
 from dmf_sim.solvers.lapack_kernel import eigenvalues_into
-from dmf_sim.solvers.stability_kernel import floquet, floquet_many
+from dmf_sim.solvers.stability_kernel import floquet, floquet_many, monodromy_law
 
 __all__ = ['CROSSING_NEWTON_STEPS', 'EXTREME_SPREAD', 'FloquetResult', 'ModeClass', 'by_modulus',
            'real_eigenbasis', 'extreme_quantity', 'FlexibleModes', 'FloquetAnalyzer']
@@ -257,6 +257,16 @@ class FlexibleModes:
         return self._eig[key]
 
 
+#: relative step of the centred differences that give the law's tangents in numpy
+SLOPE_STEP = 1e-7
+
+
+def _slope(f, x: np.ndarray) -> np.ndarray:
+    """Centred-difference tangent of f at x (step SLOPE_STEP relative, at least SLOPE_STEP)."""
+    dx = SLOPE_STEP * np.maximum(np.abs(x), 1.0)
+    return (f(x + dx) - f(x - dx)) / (2.0 * dx)
+
+
 def by_modulus(mu: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Multipliers sorted by decreasing modulus along the last axis (each row of a batch), and
     the largest modulus (a 0-d array for one point, one per row for a batch)."""
@@ -333,6 +343,20 @@ class FloquetAnalyzer:
                              np.stack([rb[1] for rb in real_bases]),
                              np.stack([rb[2] for rb in real_bases]),
                              np.stack([rb[3] for rb in real_bases]), W)
+        #: the spring has friction or end stops: the linearized DMF torque has a time-varying
+        #: damping too, and the monodromy is integrated step by step (:meth:`analyze_law`)
+        self.has_law = not sp.smooth_elastic
+        if self.has_law:
+            d, V, Vinv = self._eig[0]
+            nf = self.nf
+            zero = np.zeros(nf)
+            b = np.concatenate([zero, -self.er])
+            self._law_basis = (V, Vinv)
+            self._law_args = (*sp.arrays(), int(sp.primary_index), sp.law_array(),
+                              np.ascontiguousarray(d), np.ascontiguousarray(Vinv @ b),
+                              np.ascontiguousarray(np.concatenate([self.er, zero]) @ V),
+                              np.ascontiguousarray(np.concatenate([zero, self.er]) @ V),
+                              float(self.er @ self.er))
 
     # ---- regions and crossings -------------------------------------------------------------
     def linear_multipliers(self, speeds_rpm: np.ndarray, region: int = 0) -> np.ndarray:
@@ -410,6 +434,8 @@ class FloquetAnalyzer:
                 samples: np.ndarray | None = None) -> FloquetResult:
         """Floquet multipliers of the periodic wind-up with harmonics ``c`` at ``speed_rpm``
         (``samples``: the wind-up on a uniform grid of the cycle, if already computed)."""
+        if self.has_law:
+            return self.analyze_law(c, speed_rpm, keep_monodromy, samples)
         if not self.compiled:
             return self.analyze_reference(c, speed_rpm, keep_monodromy, samples)
         omega = speed_rpm * RPM_TO_RAD_S
@@ -432,7 +458,7 @@ class FloquetAnalyzer:
         crossings, monodromies and eigenvalues in one compiled call
         (:func:`dmf_sim.solvers.stability_kernel.floquet_many`)."""
         speeds = np.asarray(speeds_rpm, dtype=float).reshape(-1)
-        if not self.compiled or len(speeds) == 0:
+        if not self.compiled or self.has_law or len(speeds) == 0:
             res = [self.analyze(c, s, samples=w) for c, s, w in zip(C, speeds.tolist(), samples)]
             return ([r.multipliers for r in res], [r.max_abs for r in res],
                     [r.stable for r in res])
@@ -458,9 +484,114 @@ class FloquetAnalyzer:
         return ([mu[k].real.copy() if real[k] else mu[k] for k in range(K)], top,
                 [m < 1.0 + self.tol for m in top])
 
+    # ---- friction and end stops: the time-varying damping ------------------------------------
+    def law_samples(self, c: np.ndarray, speed_rpm: float, samples: np.ndarray | None = None
+                    ) -> tuple[np.ndarray, np.ndarray, float, float]:
+        """(w, w_dot, period [s], sliding friction torque [Nm]) of the periodic wind-up with
+        harmonics ``c`` at ``speed_rpm``, on the uniform grid of ``n_fine`` points of the cycle
+        (or of ``samples``' length): what the step-by-step monodromy reads."""
+        omega = speed_rpm * RPM_TO_RAD_S
+        c = np.asarray(c, dtype=complex)
+        N = self.n_fine if samples is None else len(samples)
+        w = synthesize(c, N) if samples is None else np.asarray(samples, dtype=float)
+        v = synthesize(1j * np.arange(len(c)) * (0.5 * omega) * c, N)
+        amp = float(self.spring.friction.amplitude(omega)) if self.spring.friction else 0.0
+        return (np.ascontiguousarray(w), np.ascontiguousarray(v), CYCLE_RAD / omega, amp)
+
+    def analyze_law(self, c: np.ndarray, speed_rpm: float, keep_monodromy: bool = False,
+                    samples: np.ndarray | None = None) -> FloquetResult:
+        """Floquet multipliers of a periodic wind-up of a spring with friction or end stops
+        (doc/theory.md §8): the linearization has the time-varying stiffness dg/dw + dT_s/dw and
+        damping dT_f/dw_dot + dT_s/dw_dot along the wind-up; the monodromy is formed over the
+        ``n_fine`` steps of the cycle by the compiled splitting
+        (:func:`dmf_sim.solvers.stability_kernel.monodromy_law`; ``compiled`` off: its numpy
+        twin :meth:`monodromy_law_reference`)."""
+        w, v, period, amp = self.law_samples(c, speed_rpm, samples)
+        ns = 2 * self.nf
+        if self.compiled:
+            Z = monodromy_law(w, v, period, amp, *self._law_args,
+                              np.empty((ns, ns), dtype=complex))
+        else:
+            Z = self.monodromy_law_reference(w, v, period, amp)
+        V, Vinv = self._law_basis
+        M = ((V @ Z) @ Vinv).real
+        mu, mx = by_modulus(eigenvalues(M))
+        mx = float(mx)
+        idx = self.spring.region_index(w)
+        crossings = int(np.count_nonzero(idx != np.roll(idx, -1)))
+        return FloquetResult(mu, mx, mx < 1.0 + self.tol, crossings,
+                             M if keep_monodromy else None, None)
+
+    def monodromy_law_reference(self, w: np.ndarray, v: np.ndarray, period: float, amp: float,
+                                record: bool = False):
+        """The compiled :func:`~dmf_sim.solvers.stability_kernel.monodromy_law` in numpy: the
+        same splitting step by step, with the law's numpy form (the spring's ``extra_torque``,
+        its friction's and end stops' ``torque``; a tangent where a secant is undefined, and the
+        end stop's, by a centred difference: exact on their linear pieces).
+        With ``record`` also the eigen-coordinate transition after each step (N, n, n)."""
+        sp = self.spring
+        d, beta, p, q, er2 = self._law_args[5:]
+        N = len(w)
+        h = period / N
+        E = np.exp(d * h)
+        w1, v1 = np.roll(w, -1), np.roll(v, -1)
+        dw, dv = w1 - w, v1 - v
+        g0, g1 = sp.extra_torque(w), sp.extra_torque(w1)
+        k = np.where(dw != 0, (g1 - g0) / np.where(dw != 0, dw, 1.0), sp.extra_stiffness(w))
+        omega = CYCLE_RAD / period
+        if sp.friction is not None:
+            f0 = sp.friction.torque(v, omega)
+            f1 = sp.friction.torque(v1, omega)
+            c = np.where(dv != 0, (f1 - f0) / np.where(dv != 0, dv, 1.0),
+                         _slope(lambda x: sp.friction.torque(x, omega), v))
+        else:
+            c = np.zeros(N)
+        if sp.stops is not None:            # the contact's tangents at the step's middle
+            wm, vm = 0.5 * (w + w1), 0.5 * (v + v1)
+            k = k + _slope(lambda x: sp.stops.torque(x, vm), wm)
+            c = c + _slope(lambda x: sp.stops.torque(wm, x), vm)
+        Z = np.eye(len(d), dtype=complex)
+        steps = []
+        for j in range(N):
+            Z = E[:, None] * Z
+            if k[j] != 0.0 or c[j] != 0.0:
+                sigma = -c[j] * er2
+                phi = h if abs(sigma * h) < 1e-12 else np.expm1(sigma * h) / sigma
+                Z = Z + np.outer(beta * phi, (k[j] * p + c[j] * q) @ Z)
+            if record:
+                steps.append(Z)
+        return (Z, np.array(steps)) if record else Z
+
+    def _law_eigen_solution(self, c: np.ndarray, speed_rpm: float, which: int, n_grid: int):
+        """(multiplier, wind-up perturbation on ``n_grid`` points of the cycle, 0.0) of the
+        ``which``-th largest Floquet multiplier with friction or end stops: the eigenvector of
+        the step-by-step monodromy (:meth:`monodromy_law_reference`, recording each step),
+        read out along the wind-up at every step and resampled."""
+        w, v, period, amp = self.law_samples(c, speed_rpm, None)
+        Z, steps = self.monodromy_law_reference(w, v, period, amp, record=True)
+        mu, vecs = np.linalg.eig(Z)
+        order = np.argsort(-np.abs(mu))
+        m = complex(mu[order[which]])
+        z0 = vecs[:, order[which]]
+        V, _ = self._law_basis
+        ev = self._ew @ V
+        dw_steps = np.concatenate([[ev @ z0], (steps @ z0) @ ev])[:-1]   # at t_0 .. t_(N-1)
+        grid = np.arange(n_grid) * len(w) / n_grid
+        dw = (np.interp(grid, np.arange(len(w)), dw_steps.real)
+              + 1j * np.interp(grid, np.arange(len(w)), dw_steps.imag))
+        if abs(m.imag) < 1e-12 * abs(m):       # real multiplier: a real eigen-solution
+            dw = dw * np.exp(-1j * np.angle(dw[np.argmax(np.abs(dw))]))
+        return m, dw, 0.0
+
     def analyze_reference(self, c: np.ndarray, speed_rpm: float, keep_monodromy: bool = False,
                           samples: np.ndarray | None = None) -> FloquetResult:
         """:meth:`analyze` in readable numpy (the compiled kernel's reference)."""
+        if self.has_law:
+            compiled, self.compiled = self.compiled, False
+            try:
+                return self.analyze_law(c, speed_rpm, keep_monodromy, samples)
+            finally:
+                self.compiled = compiled
         omega = speed_rpm * RPM_TO_RAD_S
         segs, _ = self.segments_from(c, omega, samples)
         if len(segs) == 1:
@@ -489,25 +620,28 @@ class FloquetAnalyzer:
         """
         omega = speed_rpm * RPM_TO_RAD_S
         T = CYCLE_RAD / omega
-        segs, t_start = self.segments_from(c, omega)
-        M = self.monodromy(segs)
-        mu, vecs = np.linalg.eig(M)
-        order = np.argsort(-np.abs(mu))
-        m = complex(mu[order[which]])
-        y = vecs[:, order[which]].astype(complex)
-        if abs(m.imag) < 1e-12 * abs(m):       # real multiplier: a real eigen-solution
-            y = y * np.exp(-1j * np.angle(y[np.argmax(np.abs(y))]))
         t_grid = np.arange(n_grid) * T / n_grid
-        dw = np.empty(n_grid, dtype=complex)
-        t0 = 0.0
-        for r, tau in segs:
-            w, V, Vinv = self._eig[r]
-            a = Vinv @ y
-            ev = self._ew @ V
-            sel = (t_grid >= t0) & (t_grid < t0 + tau)
-            dw[sel] = (np.exp(np.outer(t_grid[sel] - t0, w)) * a) @ ev
-            y = V @ (np.exp(w * tau) * a)
-            t0 += tau
+        if self.has_law:
+            m, dw, t_start = self._law_eigen_solution(c, speed_rpm, which, n_grid)
+        else:
+            segs, t_start = self.segments_from(c, omega)
+            M = self.monodromy(segs)
+            mu, vecs = np.linalg.eig(M)
+            order = np.argsort(-np.abs(mu))
+            m = complex(mu[order[which]])
+            y = vecs[:, order[which]].astype(complex)
+            if abs(m.imag) < 1e-12 * abs(m):       # real multiplier: a real eigen-solution
+                y = y * np.exp(-1j * np.angle(y[np.argmax(np.abs(y))]))
+            dw = np.empty(n_grid, dtype=complex)
+            t0 = 0.0
+            for r, tau in segs:
+                w, V, Vinv = self._eig[r]
+                a = Vinv @ y
+                ev = self._ew @ V
+                sel = (t_grid >= t0) & (t_grid < t0 + tau)
+                dw[sel] = (np.exp(np.outer(t_grid[sel] - t0, w)) * a) @ ev
+                y = V @ (np.exp(w * tau) * a)
+                t0 += tau
         p = dw * np.exp(-t_grid * np.log(m) / T)
         X = np.fft.fft(p) / n_grid
         n_idx = np.fft.fftfreq(n_grid, 1.0 / n_grid).astype(int)

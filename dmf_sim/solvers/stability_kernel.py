@@ -2,7 +2,7 @@
 the exact monodromy of the piecewise-linear system region by region, and the multipliers — the
 hot part of :meth:`dmf_sim.solvers.stability.FloquetAnalyzer.analyze`, whose readable numpy path
 (``segments_from``, ``monodromy``, ``analyze_reference``) is the reference the tests compare it
-with. Region lookup: :func:`dmf_sim.solvers.newmark_kernel.region_of` on the spring's own arrays
+with. Region lookup: :func:`dmf_sim.solvers.spring_kernels.region_of` on the spring's own arrays
 (the law written once).
 """
 from __future__ import annotations
@@ -14,9 +14,10 @@ import numpy as np
 from dmf_sim.core.compiled import jit
 from dmf_sim.core.units import CYCLE_RAD
 from dmf_sim.solvers.lapack_kernel import eigenvalues_into
-from dmf_sim.solvers.newmark_kernel import region_of
+from dmf_sim.solvers.spring_kernels import law_parts, region_of
 
-__all__ = ['floquet_segments', 'monodromy_similar', 'floquet', 'floquet_many']
+__all__ = ['floquet_segments', 'monodromy_similar', 'floquet', 'floquet_many', 'step_law',
+           'monodromy_law']
 
 
 def floquet_segments(c, w, omega, knees, primary, n_newton, stages, taus):
@@ -186,7 +187,82 @@ def floquet_many(C, w, omegas, knees, primary, n_newton, kind, sigma, freq, W, c
             status[k] = 2
 
 
+def step_law(w0, w1, v0, v1, amp, knees, slopes, offsets, primary, law):
+    """(k, c): the extra stiffness [Nm/rad] and damping [Nms/rad] of the DMF's non-linear torque
+    over one step of the cycle from (w0, v0) to (w1, v1) (wind-up [rad], rate [rad/s]), as the
+    linearized system of a spring with friction and end stops sees them (doc/theory.md §8):
+    the secants of g over w and of the friction T_f over w_dot (exact averages of the tangents
+    when w, w_dot are linear in time over the step: the friction's tangent is a spike of width
+    ~omega_reg / |w_ddot| at a reversal, which a sample would miss or overweight), plus the end
+    stop's tangents at the step's middle."""
+    r0 = region_of(w0, knees, primary)
+    r1 = region_of(w1, knees, primary)
+    if w1 != w0:
+        k = ((slopes[r1] * w1 + offsets[r1]) - (slopes[r0] * w0 + offsets[r0])) / (w1 - w0)
+    else:
+        k = slopes[r0]
+    tf0, _, dtf0, _, _ = law_parts(w0, v0, amp, law)
+    tf1, _, dtf1, _, _ = law_parts(w1, v1, amp, law)
+    c = (tf1 - tf0) / (v1 - v0) if v1 != v0 else 0.5 * (dtf0 + dtf1)
+    _, _, _, dsw, dsv = law_parts(0.5 * (w0 + w1), 0.5 * (v0 + v1), amp, law)
+    return k + dsw, c + dsv
+
+
+def monodromy_law(w, v, period, amp, knees, slopes, offsets, primary, law, d, beta, p, q, er2,
+                  Z):
+    """Z <- the monodromy (up to similarity) of the driveline linearized about a periodic wind-up
+    with friction and end stops, in the eigen-coordinates z = V^-1 y of the primary-region state
+    matrix A0 = V diag(d) V^-1 (doc/theory.md §8).
+
+    The linearized DMF torque is rank one along the wind-up: ``y' = A0 y + b (k(t) er.dy +
+    c(t) er.dy')``, b = [0, -er]. Over each of the N steps of the uniform grid ``w``, ``v``
+    (wind-up and rate on the cycle, period [s]) k and c are held at the step's values
+    (:func:`step_law`) and the step is split (Strang): the exact flow of A0 (diagonal,
+    exp(d h)) and the exact exponential of the rank-one part, ``I + beta u^T (exp(sigma h) -
+    1) / sigma`` with u = k p + c q, sigma = u.beta = -c |er|^2 (``beta`` = V^-1 b, p and q the
+    rows [er, 0] V and [0, er] V, er2 = |er|^2). The symmetric splitting's product is similar
+    to the product of ``R_j exp(d h)``, which is what is formed: O(n^2) per step. Second order
+    in h, unconditionally stable for any friction damping (the stiff part is exact)."""
+    N = w.shape[0]
+    n = d.shape[0]
+    h = period / N
+    E = np.exp(d * h)
+    for i in range(n):
+        for j in range(n):
+            Z[i, j] = 1.0 if i == j else 0.0
+    u = np.empty(n, dtype=np.complex128)
+    srow = np.empty(n, dtype=np.complex128)
+    for step in range(N):
+        nxt = step + 1 if step + 1 < N else 0
+        k, c = step_law(w[step], w[nxt], v[step], v[nxt], amp, knees, slopes, offsets,
+                        primary, law)
+        for i in range(n):
+            e = E[i]
+            for j in range(n):
+                Z[i, j] *= e
+        if k == 0.0 and c == 0.0:
+            continue
+        for i in range(n):
+            u[i] = k * p[i] + c * q[i]
+        sigma = -c * er2
+        x = sigma * h
+        phi = h if abs(x) < 1e-12 else math.expm1(x) / sigma
+        for j in range(n):
+            srow[j] = 0.0
+        for i in range(n):
+            ui = u[i]
+            for j in range(n):
+                srow[j] += ui * Z[i, j]
+        for i in range(n):
+            bi = beta[i] * phi
+            for j in range(n):
+                Z[i, j] += bi * srow[j]
+    return Z
+
+
 floquet_segments = jit(floquet_segments)
 monodromy_similar = jit(monodromy_similar)
 floquet = jit(floquet)
 floquet_many = jit(floquet_many)
+step_law = jit(step_law)
+monodromy_law = jit(monodromy_law, fastmath={'reassoc', 'contract'})

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import copy
 import json
-import math
 
 import numpy as np
 import pytest
@@ -19,7 +18,7 @@ from dmf_sim.core.paths import config_dir
 from dmf_sim.core.units import RPM_TO_RAD_S
 from dmf_sim.physics.loads import ConstantTorque, DrivelineExcitation
 from dmf_sim.physics.model import driveline_from_dict
-from dmf_sim.physics.spring import HBM_FRICTION_MESSAGE, ArcFriction, EndStops
+from dmf_sim.physics.spring import ArcFriction, EndStops
 from dmf_sim.solvers.newmark import NewmarkIntegrator, SimulationOptions, StepRecord, simulate
 
 ENGINE = 'engine_d13'
@@ -276,59 +275,54 @@ def test_bad_friction_and_stop_fields_are_one_line(friction, stops, needle):
     assert needle in str(err.value) and '\n' not in str(err.value)
 
 
-def test_the_harmonic_balance_refuses_friction_in_one_line(capsys, tmp_path):
+def test_the_harmonic_balance_takes_friction_and_stops(capsys):
+    """steady and sweep run on the spring with friction and end stops (the harmonic balance
+    balances g + T_f + T_s, doc/theory.md §7); friction lowers the 3rd-order wind-up at the
+    knee resonance against the elastic spring's."""
     assert cli_main(['steady', '--config', 'truck_dmf_friction', '--speed', '1000',
-                     '--load', '1']) == 2
-    err = capsys.readouterr().err.strip()
-    assert err.count('\n') == 0 and HBM_FRICTION_MESSAGE in err and 'Traceback' not in err
-    loads = dmf.DrivelineExcitation(dmf.read_model('truck_dmf_friction'),
-                                    dmf.read_engine(ENGINE))
-    with pytest.raises(ConfigError, match='does not model arc-spring friction'):
-        dmf.sweep(loads, 1.0, (1000.0, 1050.0))
-    # the end stops alone do not stop it (a periodic state inside the travel is unaffected)
-    stops_only = _line(end_stops=_doc()['dmf']['end_stops'])
-    assert stops_only.spring.friction is None and stops_only.spring.stops is not None
-    assert math.isfinite(stops_only.spring.stops.stiffness)
+                     '--load', '1']) == 0
+    assert 'Traceback' not in capsys.readouterr().err
+    eng = dmf.read_engine(ENGINE)
+    rough = dmf.sweep(dmf.DrivelineExcitation(dmf.read_model('truck_dmf_friction'), eng), 1.0,
+                      (1100.0, 1300.0))
+    plain = dmf.sweep(dmf.DrivelineExcitation(dmf.read_model('truck_dmf'), eng), 1.0,
+                      (1100.0, 1300.0))
+    top = [max(p.order_3 for b in r.branches for p in b.points) for r in (rough, plain)]
+    assert top[0] < top[1]
+    assert all(p.stable is not None for b in rough.branches for p in b.points)
 
 
-def test_the_monitor_keeps_its_orders_but_predicts_nothing_with_friction():
-    """The node's monitor: no harmonic-balance job for a spring with friction (the solver is
-    never called), and the reason in its status values."""
+def test_the_monitor_predicts_with_friction():
+    """The node's monitor submits its harmonic-balance job for a spring with friction too, and
+    no reason to be off stands in its status values."""
     from dmf_sim.monitor.worker import LiveMonitor, MonitorSettings
     calls = []
 
     def solver(*args, **kw):
         calls.append(args)
-        raise AssertionError('the prediction must not run')
+        raise AssertionError('not run: only the submission is checked')
 
     line = dmf.read_driveline('truck_dmf_friction')
     mon = LiveMonitor(line, dmf.read_engine(ENGINE), MonitorSettings(worker='thread'),
                       solver=solver)
     try:
         mon.wait_ready(60.0)
+        assert mon.counters['prediction_off'] == ''
         mon.set_setpoint(1200.0, 1.0)
-        assert mon._job is None                      # nothing submitted to the worker
-        assert mon.poll().prediction is None and not calls
-        assert mon.counters['prediction_off'] == HBM_FRICTION_MESSAGE
+        assert mon._job is not None                  # submitted to the worker
     finally:
         mon.close()
-    plain = LiveMonitor(dmf.read_driveline('truck_dmf'), dmf.read_engine(ENGINE),
-                        MonitorSettings(worker='thread'), solver=solver)
-    try:
-        assert plain.counters['prediction_off'] == ''
-    finally:
-        plain.close()
 
 
-def test_runup_and_analyze_skip_the_overlay_with_one_warning(tmp_path, capsys):
+def test_runup_overlays_the_harmonic_balance_with_friction(tmp_path, capsys):
     bag = tmp_path / 'ru'
     assert cli_main(['run', 'ramp:1000:1200:200', '--config', 'truck_dmf_friction', '--out',
                      str(bag), '--no-progress', '--no-sensors']) == 0
     capsys.readouterr()
     assert cli_main(['runup', str(bag), '--out', str(tmp_path / 'r')]) == 0
     capsys.readouterr()
-    text = (tmp_path / 'r' / 'runup.json').read_text()
-    assert text.count(f'no HBM overlay: {HBM_FRICTION_MESSAGE}') == 1
+    warnings = json.loads((tmp_path / 'r' / 'runup.json').read_text())['warnings']
+    assert warnings and not any('HBM' in w for rows in warnings for w in rows)
 
 
 def test_published_torques_carry_the_friction_and_stop_torque():

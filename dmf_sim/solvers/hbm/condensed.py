@@ -57,10 +57,11 @@ from dmf_sim.solvers.hbm.expansion import DrivelineExpansion
 from dmf_sim.solvers.hbm.faulted import FaultedParts, combustion_factors, is_symmetric
 from dmf_sim.solvers.hbm.point import HBMOptions, HBMPoint, LinearParts
 from dmf_sim.solvers.hbm.unknowns import fit_harmonics, times_h, to_complex, to_real
+from dmf_sim.solvers.spring_kernels import law_parts
 from dmf_sim.solvers.stability import FlexibleModes
 
-__all__ = ['aft_tables', 'SHARP_DAMPING_RATIO', 'RESONANCE_SHARE', 'LINEAR_PARTS_CACHE',
-           'PREPARE_BATCH', 'ENGINE_BATCH_MIN', 'CondensedHBM']
+__all__ = ['aft_tables', 'REGULARIZATION_HOMOTOPY', 'SHARP_DAMPING_RATIO', 'RESONANCE_SHARE',
+           'LINEAR_PARTS_CACHE', 'PREPARE_BATCH', 'ENGINE_BATCH_MIN', 'CondensedHBM']
 
 SHARP_DAMPING_RATIO = 0.01
 """A mode damped less than this (damping ratio [-]) makes a resonance a few rpm wide: a spike in
@@ -72,6 +73,10 @@ reaches this share of the linear wind-up's dynamic amplitude (sum of |w_n|, n >=
 
 #: linear parts kept per problem (one per speed; a sweep's grid + search revisit ~150 speeds)
 LINEAR_PARTS_CACHE = 512
+REGULARIZATION_HOMOTOPY = (1024.0, 256.0, 64.0, 16.0, 4.0, 1.0)
+"""Factors on the friction's slip speed omega_reg of the stages of
+:meth:`CondensedHBM.newton_regularized`, softest first, the last the spring's own law."""
+
 #: speeds per vectorized batch of :meth:`CondensedHBM.prepare`
 PREPARE_BATCH = 64
 #: fewest speeds asked of the engine in one vectorized query (``Engine.coefficients_many``);
@@ -132,7 +137,8 @@ class CondensedHBM(DrivelineExpansion, FaultedParts):
             raise ConfigError(f'driveline {self.model.line.name!r} has no dmf section: '
                               'nothing to condense on')
         self.spring = self.model.spring
-        self.spring.require_no_friction()          # friction is modelled in time domain only
+        #: the spring has friction or end stops (eq. 8a-8b): the AFT adds their torque N
+        self.has_law = not self.spring.smooth_elastic
         self.H = H = int(self.options.n_harmonics)
         if H < 1:
             raise ConfigError(f'n_harmonics={H}: must be >= 1')
@@ -176,7 +182,11 @@ class CondensedHBM(DrivelineExpansion, FaultedParts):
         # what the compiled kernels read: the AFT matrices and the spring's arrays (the same
         # ones the Newmark kernel reads)
         self._aft_mats = (self.E, weights, cos_m, sin_m)
-        self._spring_arrays = (*self.spring.arrays(), int(self.spring.primary_index))
+        self._spring_arrays = (*self.spring.arrays(), int(self.spring.primary_index),
+                               self.spring.law_array())
+        # the wind-up rate per unit omega / 2 on the AFT samples: w_dot_j = (omega/2) (D x)_j
+        nn = np.arange(1, H + 1)
+        self._D = np.hstack([np.zeros((M, 1)), nn * self.E[:, H + 1:], -nn * self.E[:, 1:H + 1]])
         self._newton_opts = (float(self.options.tol), int(self.options.max_iter),
                              int(self.options.stall_iter), float(self.options.stall_ratio))
         self.factors = combustion_factors(factors, L.phase.shape[0])
@@ -309,7 +319,7 @@ class CondensedHBM(DrivelineExpansion, FaultedParts):
             self._linear_numpy(omega, A, dA, ml, wlin0, dwlin0, h, dh, wlin, dw)
             wr, dwr = to_real(wlin, H), to_real(dw, H)          # (K, 2H+1) real layouts
         return [LinearParts(speeds[k], float(omega[k]), h[k], wlin[k], dh[k], dw[k],
-                            (wr[k], h[k]), (dwr[k], dh[k]))
+                            (wr[k], h[k], float(omega[k])), (dwr[k], dh[k]))
                 for k in range(K)]
 
     def _linear_numpy(self, omega, A, dA, ml, wlin0, dwlin0, h, dh, wlin, dw) -> None:
@@ -356,8 +366,8 @@ class CondensedHBM(DrivelineExpansion, FaultedParts):
                 self.__dict__.pop('_kernel_engine', None)
             return None
         omega = (S * RPM_TO_RAD_S).tolist()
-        return [LinearParts(speeds[k], omega[k], h[k], wlin[k], dh[k], dw[k], (wr[k], h[k]),
-                            (dwr[k], dh[k])) for k in range(K)]
+        return [LinearParts(speeds[k], omega[k], h[k], wlin[k], dh[k], dw[k],
+                            (wr[k], h[k], float(omega[k])), (dwr[k], dh[k])) for k in range(K)]
 
     def _linear_parts_one(self, s: float) -> LinearParts:
         """:meth:`_linear_parts_many` of one speed (each arc-length corrector iteration asks for
@@ -384,7 +394,8 @@ class CondensedHBM(DrivelineExpansion, FaultedParts):
         linear_kernels.linear_parts(np.array([omega]), self._dOm, self._d, self._modal_load[1:],
                                     self._a, A[None], dA[None], np.array([wlin0]),
                                     np.array([dwlin0]), self._h0, h, dh, wlin, dw, wr, dwr)
-        return LinearParts(s, omega, h[0], wlin[0], dh[0], dw[0], (wr[0], h[0]), (dwr[0], dh[0]))
+        return LinearParts(s, omega, h[0], wlin[0], dh[0], dw[0], (wr[0], h[0], omega),
+                           (dwr[0], dh[0]))
 
     def linear_response(self, speeds_rpm) -> np.ndarray:
         """(K, H+1) complex linear wind-up harmonics wlin_n at K speeds at once (same modal
@@ -500,40 +511,92 @@ class CondensedHBM(DrivelineExpansion, FaultedParts):
         """w(psi_j) on the M AFT samples of one cycle [rad]."""
         return self.E @ x
 
-    def nonlinear_harmonics(self, x: np.ndarray, jacobian: bool = False):
-        """G = harmonics of g(w(psi)) on the real layout [Nm] (and dG/dx [Nm/rad], None if zero).
+    def nonlinear_harmonics(self, x: np.ndarray, jacobian: bool = False,
+                            speed_rpm: float | None = None):
+        """G = harmonics of the non-linear DMF torque on the real layout [Nm] (and dG/dx
+        [Nm/rad], None if zero): ``g(w(psi))``, plus with friction or end stops
+        ``N(w, w_dot, Omega)`` (eq. 8a-8b) at engine speed ``speed_rpm`` (then required).
 
-        AFT: w_j = E x -> g(w_j) -> G = F g. Jacobian dG/dx = F diag(g'(w_j)) E, summed over the
-        samples where g' != 0 only (the others contribute nothing).
+        AFT: w_j = E x -> g(w_j) (+ N) -> G = F g. Jacobian dG/dx = F diag(g'(w_j)) E, summed
+        over the samples where g' != 0 only (the others contribute nothing); with N also
+        F diag(dN/dw_dot) dw_dot/dx.
         """
         if not self.compiled:
-            return self.nonlinear_harmonics_reference(x, jacobian)
+            return self.nonlinear_harmonics_reference(x, jacobian, speed_rpm)
         G, dG, count = kernels.harmonics_py(np.ascontiguousarray(x, dtype=float),
-                                            self._aft_mats, self._spring_arrays, jacobian)
+                                            self._law_omega(speed_rpm), self._aft_mats,
+                                            self._spring_arrays, jacobian)
+        n = 2 * self.H + 1
         if not jacobian:
-            return G
-        return G, (dG if count else None)
+            return G[:n]
+        return G[:n], (dG if count else None)
 
-    def nonlinear_harmonics_reference(self, x: np.ndarray, jacobian: bool = False):
-        """:meth:`nonlinear_harmonics` in readable numpy (the compiled kernel's reference)."""
+    def _law_omega(self, speed_rpm: float | None) -> float:
+        """Engine speed [rad/s] the friction law reads (0.0 for an elastic spring, where it
+        reads none); a spring with friction or stops needs the speed."""
+        if speed_rpm is None:
+            if self.has_law:
+                raise ValueError('the non-linear torque of a spring with friction or end stops '
+                                 'depends on the engine speed: give speed_rpm')
+            return 0.0
+        return float(speed_rpm) * RPM_TO_RAD_S
+
+    def nonlinear_harmonics_reference(self, x: np.ndarray, jacobian: bool = False,
+                                      speed_rpm: float | None = None):
+        """:meth:`nonlinear_harmonics` in readable numpy (the compiled kernel's reference); the
+        law N through the spring's own :meth:`~dmf_sim.physics.spring.PiecewiseLinearSpring.
+        law_torque` and its derivatives by :meth:`law_tangents`."""
+        G, dG, _ = self._nonlinear_reference(x, jacobian, speed_rpm)
+        return (G, dG) if jacobian else G
+
+    def law_tangents(self, w: np.ndarray, w_dot: np.ndarray, omega: float):
+        """(N, dN/dw, dN/dw_dot, dN/domega) [Nm, Nm/rad, Nms/rad, Nm s/rad] of the friction and
+        end-stop law at wind-ups ``w``, rates ``w_dot`` and engine speed ``omega`` [rad/s]: N by
+        the spring's ``law_torque``; the derivatives of the compiled law
+        (:func:`dmf_sim.solvers.spring_kernels.law_parts`), sample by sample, and the omega
+        derivative at fixed harmonics (w_dot scales with omega, the amplitude with omega^2)."""
+        law = self._spring_arrays[4]
+        amp = float(self.spring.friction.amplitude(omega)) if self.spring.friction else 0.0
+        N = np.asarray(self.spring.law_torque(w, w_dot, omega), dtype=float)
+        parts = np.array([law_parts(a, b, amp, law) for a, b in zip(w.tolist(),
+                                                                        w_dot.tolist())])
+        parts = parts.reshape(-1, 5)
+        dw = parts[:, 3]
+        dv = parts[:, 2] + parts[:, 4]
+        damp = 2.0 * law[1] * omega
+        dom = dv * (w_dot / omega if omega else 0.0) + damp * np.tanh(w_dot / law[2])
+        return N, dw, dv, dom
+
+    def _nonlinear_reference(self, x: np.ndarray, jacobian: bool, speed_rpm: float | None):
+        """(G, dG/dx or None, dG/domega or None) in numpy: the reference of the compiled
+        :func:`kernels.nonlinear`."""
+        omega = self._law_omega(speed_rpm)
         w = self.E @ x
         sp = self.spring
         lo, hi = self._primary
-        if w.max() <= hi and w.min() >= lo:          # primary region only (knees tie to it)
-            G = np.zeros(2 * self.H + 1)
-            return (G, None) if jacobian else G
-        idx = np.flatnonzero((w > hi) | (w < lo))
-        Fa = self.F[:, idx]
-        g, dg = sp.extra_torque_and_stiffness(w[idx])
-        G = Fa @ g
+        if not self.has_law:
+            if w.max() <= hi and w.min() >= lo:      # primary region only (knees tie to it)
+                G = np.zeros(2 * self.H + 1)
+                return G, None, None
+            idx = np.flatnonzero((w > hi) | (w < lo))
+            Fa = self.F[:, idx]
+            g, dg = sp.extra_torque_and_stiffness(w[idx])
+            G = Fa @ g
+            return G, ((Fa * dg) @ self.E[idx] if jacobian else None), None
+        wd = 0.5 * omega * (self._D @ x)
+        g, dg = sp.extra_torque_and_stiffness(w)
+        N, dNw, dNv, dNo = self.law_tangents(w, wd, omega)
+        G = self.F @ (g + N)
+        Gs = self.F @ dNo
         if not jacobian:
-            return G
-        return G, (Fa * dg) @ self.E[idx]
+            return G, None, Gs
+        dG = (self.F * (dg + dNw)) @ self.E + (self.F * dNv) @ (0.5 * omega * self._D)
+        return G, dG, Gs
 
     # ---- residual (eq. 15) -------------------------------------------------------------------
     def residual(self, x: np.ndarray, lp: LinearParts) -> np.ndarray:
-        """r = w - wlin + h g(w) on the real layout [rad]."""
-        G = self.nonlinear_harmonics(x)
+        """r = w - wlin + h (g(w) + N) on the real layout [rad]."""
+        G = self.nonlinear_harmonics(x, speed_rpm=lp.speed_rpm)
         return x - to_real(lp.wlin, self.H) + times_h(lp.h, G, self.H)
 
     def residual_and_jacobian(self, x: np.ndarray, lp: LinearParts):
@@ -547,7 +610,7 @@ class CondensedHBM(DrivelineExpansion, FaultedParts):
 
     def residual_and_jacobian_reference(self, x: np.ndarray, lp: LinearParts):
         """:meth:`residual_and_jacobian` in readable numpy (the compiled kernel's reference)."""
-        G, dG = self.nonlinear_harmonics_reference(x, jacobian=True)
+        G, dG = self.nonlinear_harmonics_reference(x, jacobian=True, speed_rpm=lp.speed_rpm)
         if dG is None:                          # no sample beyond a knee: the linear problem
             return x - to_real(lp.wlin, self.H), self._eye.copy()
         r = x - to_real(lp.wlin, self.H) + times_h(lp.h, G, self.H)
@@ -556,9 +619,15 @@ class CondensedHBM(DrivelineExpansion, FaultedParts):
         return r, Jx
 
     def residual_speed_derivative(self, x: np.ndarray, lp: LinearParts) -> np.ndarray:
-        """dr/ds [rad/rpm] at fixed wind-up harmonics."""
-        G = self.nonlinear_harmonics(x)
-        return -to_real(lp.dwlin_ds, self.H) + times_h(lp.dh_ds, G, self.H)
+        """dr/ds [rad/rpm] at fixed wind-up harmonics: -dwlin/ds + dh/ds G, plus with friction
+        or end stops h dG/ds (w_dot scales with the speed, the friction amplitude with its
+        square)."""
+        if not self.has_law:
+            G = self.nonlinear_harmonics(x)
+            return -to_real(lp.dwlin_ds, self.H) + times_h(lp.dh_ds, G, self.H)
+        G, _, Gs = self._nonlinear_reference(x, False, lp.speed_rpm)
+        return (-to_real(lp.dwlin_ds, self.H) + times_h(lp.dh_ds, G, self.H)
+                + RPM_TO_RAD_S * times_h(lp.h, Gs, self.H))
 
     # ---- solving at one speed ------------------------------------------------------------------
     def linear_solution(self, speed_rpm: float) -> np.ndarray:
@@ -572,8 +641,37 @@ class CondensedHBM(DrivelineExpansion, FaultedParts):
         if x0 is None:
             x0 = self.linear_solution(speed_rpm)
             x0[0] = self.spring.solve_condensed(float(lp.wlin[0].real), float(lp.h[0].real))
-        x, it, res = self.newton(x0, lp)
+        try:
+            x, it, res = self.newton(x0, lp)
+        except ConvergenceError:
+            if not (self.compiled and self.spring.has_friction):
+                raise
+            x, it, res = self.newton_regularized(x0, lp)
         return self.make_point(speed_rpm, x, res, it)
+
+    def newton_regularized(self, x0: np.ndarray, lp: LinearParts
+                           ) -> tuple[np.ndarray, int, float]:
+        """Newton by a homotopy in the friction's regularization (HBM-specific, doc/theory.md
+        §7): where the friction torque is large against the motion the residual is as stiff as
+        T_f / omega_reg and Newton from the linear guess stalls; solved first with omega_reg
+        times each factor of :data:`REGULARIZATION_HOMOTOPY` (a softer law), each solution the
+        next one's start, ending on the spring's own omega_reg. Returns (x, iterations in all,
+        max|r|); raises ConvergenceError where a stage fails."""
+        base = self._spring_arrays
+        x = np.array(x0, dtype=float)
+        out = np.empty_like(x)
+        total = 0
+        for factor in REGULARIZATION_HOMOTOPY:
+            law = base[4].copy()
+            law[2] *= factor
+            status, it, nr = kernels.newton(x, lp.lin, self._aft_mats, (*base[:4], law),
+                                            self._newton_opts, out)
+            total += it
+            if status != kernels.CONVERGED:
+                raise ConvergenceError(f'HBM Newton: residual {nr:.2e} rad with the friction '
+                                       f'regularization x{factor:g} at {lp.speed_rpm:.1f} rpm')
+            x = out.copy()
+        return x, total, nr
 
     def newton(self, x0: np.ndarray, lp: LinearParts) -> tuple[np.ndarray, int, float]:
         """Damped Newton on r(x) = 0 at fixed speed; returns (x, iterations, max|r|)."""

@@ -27,6 +27,7 @@ import math
 import numpy as np
 
 from dmf_sim.core.compiled import jit
+from dmf_sim.core.units import RPM_TO_RAD_S
 from dmf_sim.solvers.hbm.dense_kernels import lu_solve, lu_work, max_abs
 from dmf_sim.solvers.hbm.kernels import (
     CONVERGED,
@@ -34,7 +35,7 @@ from dmf_sim.solvers.hbm.kernels import (
     MAX_ITER,
     NOT_FINITE,
     SINGULAR,
-    aft,
+    nonlinear,
     residual_jacobian,
     speed_derivative,
 )
@@ -112,7 +113,7 @@ def corrector_fixed_speed(y_pred, xs, lin, dlin, aft_mats, spring, tol, max_iter
     for i in range(n):
         y[i] = y_pred[i]
     x = np.empty(n)
-    G = np.empty(n)
+    G = np.empty(2 * n)
     A, mr, dy, LU, piv = lu_work(n)
     res = np.inf
     it = 0
@@ -144,7 +145,7 @@ def corrector_fixed_speed(y_pred, xs, lin, dlin, aft_mats, spring, tol, max_iter
             status = CONVERGED
             break
     # dr/ds at the solution: -dwlin + dh G (G: the harmonics of the last evaluation)
-    speed_derivative(dlin, G, rs)
+    speed_derivative(lin, dlin, spring, G, rs)
     return status, it, res
 
 
@@ -161,9 +162,10 @@ def residual_jacobians_at(x, s, fd, table, statics, modal, aft_mats, spring):
     st = linear_parts_at(s, fd, table, statics, modal, A, A2, dA, h, dh, wlin, dw, wr, dwr)
     if st != ENGINE_OK:
         return st, r, J, rs
-    G = np.empty(n)
-    residual_jacobian(x, (wr[0], h[0]), aft_mats, spring, r, J, G, True)
-    speed_derivative((dwr[0], dh[0]), G, rs)
+    G = np.empty(2 * n)
+    lin = (wr[0], h[0], s * RPM_TO_RAD_S)
+    residual_jacobian(x, lin, aft_mats, spring, r, J, G, True)
+    speed_derivative(lin, (dwr[0], dh[0]), spring, G, rs)
     return st, r, J, rs
 
 
@@ -299,7 +301,7 @@ def grid_run(s0, y, t, h, lo, hi, opts, max_iter, easy_iter, check_linear, budge
     X, S, T, IT, RES, ONG = rows
     n = y.shape[0] - 1
     A, A2, dA, hh, dh, wlin, dw, wr, dwr = one_speed_work(n)
-    G = np.empty(n)
+    G = np.empty(2 * n)
     dG = np.empty((1, 1))
     y_pred = np.empty(n + 1)
     y_new = np.empty(n + 1)
@@ -313,7 +315,8 @@ def grid_run(s0, y, t, h, lo, hi, opts, max_iter, easy_iter, check_linear, budge
     while count < budget:
         tn = t[n]
         if check_linear and count > 0 and ONG[count - 1] and abs(tn) >= min_ts:
-            aft(X[count - 1], aft_mats, spring, G, dG, False)
+            nonlinear(X[count - 1], S[count - 1] * RPM_TO_RAD_S, aft_mats, spring, G, dG,
+                      False)
             linear = True
             for i in range(n):
                 if G[i] != 0.0:
@@ -330,7 +333,8 @@ def grid_run(s0, y, t, h, lo, hi, opts, max_iter, easy_iter, check_linear, budge
         if linear_parts_at(y_pred[n] * ss, fd, table, statics, modal, A, A2, dA, hh, dh, wlin,
                            dw, wr, dwr) != ENGINE_OK:
             return count, h, RUN_RETRY
-        status, it, res = step_fixed_speed(y_pred, t, xs, ss, (wr[0], hh[0]), (dwr[0], dh[0]),
+        lin = (wr[0], hh[0], y_pred[n] * ss * RPM_TO_RAD_S)
+        status, it, res = step_fixed_speed(y_pred, t, xs, ss, lin, (dwr[0], dh[0]),
                                            aft_mats, spring, tol, max_iter, y_new, t_new, r, J,
                                            rs)
         if status != CONVERGED:

@@ -29,8 +29,9 @@ class ExpansionHost(Protocol):
     2. ``H`` is the number of harmonics of the 720 deg base frequency, and ``_u0`` the static
        flexibility K^+ e at the DMF (rigid mode removed).
     3. ``dof_loads(speed_rpm)`` gives the generalized loads P_n on every DOF (H+1, n_dof).
-    4. ``nonlinear_harmonics(x, jacobian=False)`` gives the spring's extra-torque harmonics g_n
-       of a wind-up solution x (and their Jacobian, or None).
+    4. ``nonlinear_harmonics(x, jacobian=False, speed_rpm=None)`` gives the harmonics g_n of
+       the spring's non-linear torque (extra torque, plus friction and end stops at engine
+       speed ``speed_rpm``) of a wind-up solution x (and their Jacobian, or None).
     """
 
     model: object
@@ -42,7 +43,8 @@ class ExpansionHost(Protocol):
 
     def dof_loads(self, speed_rpm: float) -> np.ndarray: ...
 
-    def nonlinear_harmonics(self, x: np.ndarray, jacobian: bool = False): ...
+    def nonlinear_harmonics(self, x: np.ndarray, jacobian: bool = False,
+                            speed_rpm: float | None = None): ...
 
 
 class DrivelineExpansion:
@@ -70,7 +72,7 @@ class DrivelineExpansion:
         """(H+1, n_dof) complex DOF harmonics q_n = H_n (P_n - e g_n) [rad] (eq. 10-13), by direct
         solves of the whole chain (rigid-body motion included for n >= 1, removed at n = 0)."""
         _, _, u, v = self.linear_parts_direct(point.speed_rpm)
-        g = to_complex(self.nonlinear_harmonics(point.x), self.H)
+        g = to_complex(self.nonlinear_harmonics(point.x, speed_rpm=point.speed_rpm), self.H)
         return v - u * g[:, None]
 
     def element_harmonics(self, point: HBMPoint) -> np.ndarray:
@@ -89,7 +91,7 @@ class DrivelineExpansion:
         pe = self.loads.element_harmonics(point.speed_rpm, self.load, self.factors)
         k = min(len(pe), self.H + 1)
         p[:k] = pe[:k]
-        g = to_complex(self.nonlinear_harmonics(point.x), self.H)
+        g = to_complex(self.nonlinear_harmonics(point.x, speed_rpm=point.speed_rpm), self.H)
         return m.transmitted_torques(qn, 1j * Om * qn, -(Om ** 2) * qn, p, extra_torque=g)
 
     def dof_state(self, point: HBMPoint, psi: float = 0.0) -> tuple[np.ndarray, np.ndarray]:

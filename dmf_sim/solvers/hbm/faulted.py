@@ -211,4 +211,4 @@ class FaultedParts:
             dw += dwc
         wr, dwr = to_real(wlin, H), to_real(dw, H)
         return [LinearParts(speeds[k], float(omega[k]), h[k], wlin[k], dh[k], dw[k],
-                            (wr[k], h[k]), (dwr[k], dh[k])) for k in range(K)]
+                            (wr[k], h[k], float(omega[k])), (dwr[k], dh[k])) for k in range(K)]

@@ -42,11 +42,13 @@ import math
 import numpy as np
 
 from dmf_sim.core.compiled import jit
+from dmf_sim.core.units import RPM_TO_RAD_S
 from dmf_sim.solvers.hbm.dense_kernels import lu_solve, max_abs
-from dmf_sim.solvers.newmark_kernel import region_of
+from dmf_sim.solvers.spring_kernels import law_active, law_parts, region_of
 
 __all__ = ['CONVERGED', 'STALLED', 'MAX_ITER', 'SINGULAR', 'NOT_FINITE', 'ENGINE_FAILED',
-           'BACKTRACK_MIN', 'aft', 'times_h_into', 'times_h_matrix', 'residual_jacobian',
+           'BACKTRACK_MIN', 'aft', 'aft_law', 'assemble', 'nonlinear', 'times_h_into',
+           'times_h_matrix', 'residual_jacobian',
            'residual_jacobian_py', 'speed_derivative', 'residual_jacobians_py', 'harmonics_py',
            'newton', 'deflated_newton', 'deflated_newton_first']
 
@@ -68,7 +70,7 @@ def aft(x, aft_mats, spring, G, dG, jac):
     (products of two harmonics n, p are harmonics n + p and n - p), instead of one rank-one
     update per sample: O(M H) instead of O(M H^2)."""
     E, weights, Tc, Ts = aft_mats
-    knees, slopes, offsets, primary = spring
+    knees, slopes, offsets, primary = spring[0], spring[1], spring[2], spring[3]
     nk = knees.shape[0]
     lo = knees[primary - 1] if primary > 0 else -np.inf
     hi = knees[primary] if primary < nk else np.inf
@@ -99,25 +101,122 @@ def aft(x, aft_mats, spring, G, dG, jac):
     for a in range(n):
         G[a] *= weights[a]
     if jac:
-        for m in range(2 * H + 1):
-            Cm[m] /= M
-            Sm[m] /= M
-        dG[0, 0] = Cm[0]
-        for q in range(1, H + 1):
-            dG[0, q] = Cm[q]
-            dG[0, H + q] = -Sm[q]
-            dG[q, 0] = 2.0 * Cm[q]
-            dG[H + q, 0] = -2.0 * Sm[q]
-        for p in range(1, H + 1):
-            for q in range(1, H + 1):
-                d = p - q
-                cd = Cm[d] if d >= 0 else Cm[-d]
-                sd = Sm[d] if d >= 0 else -Sm[-d]          # S_(p-q)
-                dG[p, q] = cd + Cm[p + q]
-                dG[p, H + q] = -(Sm[q + p] - sd)            # -(S_(q+p) + S_(q-p))
-                dG[H + p, q] = -(Sm[p + q] + sd)
-                dG[H + p, H + q] = cd - Cm[p + q]
+        assemble(Cm, Sm, M, H, dG)
     return count
+
+
+def assemble(Cm, Sm, M, H, dG):
+    """dG <- F diag(c_j) E on the real layout from the sums ``Cm[m] = sum_j c_j cos(m phi_j)``,
+    ``Sm[m] = sum_j c_j sin(m phi_j)``, m = 0..2H (divided by M here, in place): the products
+    of two harmonics n, p are harmonics n + p and n - p."""
+    for m in range(2 * H + 1):
+        Cm[m] /= M
+        Sm[m] /= M
+    dG[0, 0] = Cm[0]
+    for q in range(1, H + 1):
+        dG[0, q] = Cm[q]
+        dG[0, H + q] = -Sm[q]
+        dG[q, 0] = 2.0 * Cm[q]
+        dG[H + q, 0] = -2.0 * Sm[q]
+    for p in range(1, H + 1):
+        for q in range(1, H + 1):
+            d = p - q
+            cd = Cm[d] if d >= 0 else Cm[-d]
+            sd = Sm[d] if d >= 0 else -Sm[-d]          # S_(p-q)
+            dG[p, q] = cd + Cm[p + q]
+            dG[p, H + q] = -(Sm[q + p] - sd)            # -(S_(q+p) + S_(q-p))
+            dG[H + p, q] = -(Sm[p + q] + sd)
+            dG[H + p, H + q] = cd - Cm[p + q]
+
+
+def aft_law(x, omega, aft_mats, spring, G, dG, jac):
+    """:func:`aft` of the whole non-linear DMF torque with friction and end stops,
+    ``g(w) + N(w, w_dot, Omega)`` (eq. 8a-8b, 9; doc/theory.md §2, §7): on each sample the wind-up
+    ``w_j = E_j x`` and its rate ``w_dot_j = (omega/2) sum_n n (-Re w_n sin n phi_j - Im w_n
+    cos n phi_j)`` (harmonic n turns at n omega / 2, omega [rad/s] the engine speed), N from the
+    spring's compiled law (:func:`dmf_sim.solvers.spring_kernels.law_parts` on
+    ``spring[4]`` = ``law_array()``, the sliding torque T0 + c_Omega omega^2).
+
+    Writes G[:n] = the harmonics of g + N [Nm], G[n:2n] = their derivative with respect to omega
+    at fixed x [Nm s/rad] (w_dot scales with omega, the friction amplitude with omega^2: what the
+    continuation's dr/ds adds), and with ``jac`` dG = dG/dx = F diag(dg/dw + dN/dw) E +
+    F diag(dN/dw_dot) dw_dot/dx, both by the cosine/sine sums of :func:`assemble`; the rate's
+    row ``dw_dot_j/dx`` is (omega/2) n times E's sine column for Re w_n and minus its cosine
+    column for Im w_n, so its part is :func:`assemble` of dN/dw_dot with columns swapped and
+    scaled. Returns the number of samples with a non-zero torque."""
+    E, weights, Tc, Ts = aft_mats
+    knees, slopes, offsets, primary, law = spring
+    nk = knees.shape[0]
+    lo = knees[primary - 1] if primary > 0 else -np.inf
+    hi = knees[primary] if primary < nk else np.inf
+    M = E.shape[0]
+    n = E.shape[1]
+    H = (n - 1) // 2
+    n2 = 2 * H + 1
+    half = 0.5 * omega
+    amp = law[0] + law[1] * omega * omega
+    damp = 2.0 * law[1] * omega                 # d(amp)/d(omega)
+    for a in range(2 * n):
+        G[a] = 0.0
+    Cm = np.zeros(n2)
+    Sm = np.zeros(n2)
+    Cv = np.zeros(n2)
+    Sv = np.zeros(n2)
+    count = 0
+    for j in range(M):
+        w = 0.0
+        for k in range(n):
+            w += E[j, k] * x[k]
+        unit = 0.0                               # w_dot / (omega / 2)
+        for q in range(1, H + 1):
+            unit += q * (x[q] * E[j, H + q] - x[H + q] * E[j, q])
+        wd = half * unit
+        s = 0.0
+        g = 0.0
+        if w > hi or w < lo:
+            r = region_of(w, knees, primary)
+            s = slopes[r]
+            g = s * w + offsets[r]
+        tf, ts, dtf, dws, dvs = law_parts(w, wd, amp, law)
+        tot = g + tf + ts
+        if tot == 0.0 and s == 0.0 and dtf + dvs == 0.0:
+            continue
+        count += 1
+        cv = dtf + dvs                           # dN/dw_dot [Nms/rad]
+        th = math.tanh(wd / law[2])
+        ds = cv * 0.5 * unit + damp * th         # dN/domega at fixed x
+        for a in range(n):
+            G[a] += E[j, a] * tot
+            G[n + a] += E[j, a] * ds
+        if jac:
+            kw = s + dws
+            for m in range(n2):
+                Cm[m] += kw * Tc[j, m]
+                Sm[m] += kw * Ts[j, m]
+                Cv[m] += cv * Tc[j, m]
+                Sv[m] += cv * Ts[j, m]
+    for a in range(n):
+        G[a] *= weights[a]
+        G[n + a] *= weights[a]
+    if jac:
+        dV = np.empty((n, n))
+        assemble(Cm, Sm, M, H, dG)
+        assemble(Cv, Sv, M, H, dV)
+        for a in range(n):
+            for q in range(1, H + 1):
+                f = half * q
+                dG[a, q] += f * dV[a, H + q]
+                dG[a, H + q] -= f * dV[a, q]
+    return count
+
+
+def nonlinear(x, omega, aft_mats, spring, G, dG, jac):
+    """:func:`aft_law` when the spring has friction or end stops (``spring[4]``), else
+    :func:`aft` (the elastic spring's pass, unchanged: G[n:] is not written and counts as
+    zero). Returns the number of samples with a non-zero torque."""
+    if law_active(spring[4]):
+        return aft_law(x, omega, aft_mats, spring, G, dG, jac)
+    return aft(x, aft_mats, spring, G, dG, jac)
 
 
 def times_h_into(h, v, out):
@@ -152,11 +251,12 @@ def times_h_matrix(h, V):
 
 
 def residual_jacobian(x, lin, aft_mats, spring, r, J, G, jac):
-    """r = x - wlin + h G (eq. 15) and, with ``jac``, J = I + h dG/dx, in place; G keeps the
-    harmonics of g. Returns the number of AFT samples beyond a knee."""
-    wlin_r, h = lin
+    """r = x - wlin + h G (eq. 15) and, with ``jac``, J = I + h dG/dx, in place; G (2n) keeps the
+    harmonics of the non-linear torque and their omega derivative (:func:`nonlinear`). Returns
+    the number of AFT samples with a non-zero torque."""
+    wlin_r, h, omega = lin
     n = x.shape[0]
-    count = aft(x, aft_mats, spring, G, J, jac)
+    count = nonlinear(x, omega, aft_mats, spring, G, J, jac)
     times_h_into(h, G, r)
     for i in range(n):
         r[i] += x[i] - wlin_r[i]
@@ -177,18 +277,25 @@ def residual_jacobian_py(x, lin, aft_mats, spring, jac):
     n = x.shape[0]
     r = np.empty(n)
     J = np.empty((n, n))
-    G = np.empty(n)
+    G = np.empty(2 * n)
     count = residual_jacobian(x, lin, aft_mats, spring, r, J, G, jac)
     return r, J, count
 
 
-def speed_derivative(dlin, G, rs):
-    """rs <- dr/ds = -dwlin + dh G at fixed x (``dlin`` = (dwlin_r, dh), G the harmonics of g):
-    reference ``CondensedHBM.residual_speed_derivative``."""
+def speed_derivative(lin, dlin, spring, G, rs):
+    """rs <- dr/ds = -dwlin + dh G at fixed x (``dlin`` = (dwlin_r, dh), G the harmonics of the
+    non-linear torque), plus h dG/ds with friction or end stops (``G[n:]``: dG/domega,
+    omega = s RPM_TO_RAD_S): reference ``CondensedHBM.residual_speed_derivative``."""
     dwlin_r, dh = dlin
     times_h_into(dh, G, rs)
-    for i in range(rs.shape[0]):
+    n = rs.shape[0]
+    for i in range(n):
         rs[i] -= dwlin_r[i]
+    if law_active(spring[4]):
+        hs = np.empty(n)
+        times_h_into(lin[1], G[n:], hs)
+        for i in range(n):
+            rs[i] += RPM_TO_RAD_S * hs[i]
 
 
 def residual_jacobians_py(x, lin, dlin, aft_mats, spring):
@@ -198,19 +305,20 @@ def residual_jacobians_py(x, lin, dlin, aft_mats, spring):
     n = x.shape[0]
     r = np.empty(n)
     J = np.empty((n, n))
-    G = np.empty(n)
+    G = np.empty(2 * n)
     rs = np.empty(n)
     residual_jacobian(x, lin, aft_mats, spring, r, J, G, True)
-    speed_derivative(dlin, G, rs)
+    speed_derivative(lin, dlin, spring, G, rs)
     return r, J, rs
 
 
-def harmonics_py(x, aft_mats, spring, jac):
-    """(G, dG/dx, count) as new arrays (the non-linear torque harmonics alone)."""
+def harmonics_py(x, omega, aft_mats, spring, jac):
+    """(G, dG/dx, count) as new arrays (the non-linear torque harmonics alone, at engine speed
+    omega [rad/s]; G has 2n entries, :func:`nonlinear`)."""
     n = x.shape[0]
-    G = np.empty(n)
+    G = np.zeros(2 * n)
     dG = np.empty((n, n))
-    count = aft(x, aft_mats, spring, G, dG, jac)
+    count = nonlinear(x, omega, aft_mats, spring, G, dG, jac)
     return G, dG, count
 
 
@@ -224,7 +332,7 @@ def _newton_start(x0, x):
     n = x0.shape[0]
     for i in range(n):
         x[i] = x0[i]
-    return (np.empty(n), np.empty((n, n)), np.empty(n), np.empty(n), np.empty((n, n)),
+    return (np.empty(n), np.empty((n, n)), np.empty(2 * n), np.empty(n), np.empty((n, n)),
             np.empty(n), np.empty(n), np.empty(n), np.empty((n, n)), np.empty(n, dtype=np.int64))
 
 
@@ -381,6 +489,9 @@ def deflated_newton_first(X0, start, known, lin, aft_mats, spring, tol, defl, x)
 # reassociation lets LLVM vectorize the sums (rounding-level differences to the reference);
 # no 'nnan' flag: the NaN checks of the solvers stay valid
 aft = jit(aft, fastmath={'reassoc', 'contract'})
+assemble = jit(assemble)
+aft_law = jit(aft_law, fastmath={'reassoc', 'contract'})
+nonlinear = jit(nonlinear)
 times_h_into = jit(times_h_into)
 times_h_matrix = jit(times_h_matrix)
 residual_jacobian = jit(residual_jacobian)

@@ -224,7 +224,7 @@ class SpeedSweep(BranchSwitching, StateSearch):
         # the point must stay below the knees: no torque beyond one on the AFT samples (one
         # kernel call; this ends the check at a point on the non-linear part of a branch), and
         # none on the finer samples the stability analysis reads
-        if hb.nonlinear_harmonics(cp.x).any():
+        if hb.nonlinear_harmonics(cp.x, speed_rpm=cp.s).any():
             return []
         if not self._in_primary(hb.time_series(cp.x, self.floquet.n_fine)[None])[0]:
             return []

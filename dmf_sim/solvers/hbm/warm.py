@@ -22,6 +22,7 @@ from dmf_sim.solvers.hbm.continuation_kernels import (
     tangent,
 )
 from dmf_sim.solvers.hbm.kernels import (
+    aft_law,
     deflated_newton,
     deflated_newton_first,
     harmonics_py,
@@ -53,26 +54,28 @@ def warm_up() -> float:
     m_all = np.arange(n)
     aft_mats = (E, weights, np.cos(np.outer(phi, m_all)), np.sin(np.outer(phi, m_all)))
     sp = PiecewiseLinearSpring.two_step(1.0, 0.5, 1.0)
-    spring = (*sp.arrays(), int(sp.primary_index))
+    spring = (*sp.arrays(), int(sp.primary_index), sp.law_array())
     h = np.full(H + 1, 0.5 + 0.1j)
     x0 = np.zeros(n)
     x0[1] = 1.0
-    lin = (x0.copy(), h)
+    lin = (x0.copy(), h, 1.0)
+    dlin = (x0.copy(), h)
     out = np.empty(n)
     residual_jacobian_py(x0, lin, aft_mats, spring, True)
-    residual_jacobians_py(x0, lin, lin, aft_mats, spring)
-    harmonics_py(x0, aft_mats, spring, True)
+    residual_jacobians_py(x0, lin, dlin, aft_mats, spring)
+    harmonics_py(x0, 1.0, aft_mats, spring, True)
+    aft_law(x0, 1.0, aft_mats, spring, np.empty(2 * n), np.empty((n, n)), True)
     newton(x0, lin, aft_mats, spring, (1e-10, 5, 8, 0.5), out)
     deflated_newton(x0, np.zeros((1, n)), lin, aft_mats, spring, 1e-10,
                     np.array([2.0, 1.0, 1e-2, 5.0, 0.125, 6.0]), out)
     deflated_newton_first(x0[None], 0, np.zeros((1, n)), lin, aft_mats, spring, 1e-10,
                           np.array([2.0, 1.0, 1e-2, 5.0, 0.125, 6.0]), out)
-    corrector_fixed_speed(x0, 1.0, lin, lin, aft_mats, spring, 1e-10, 3, out, np.empty(n),
+    corrector_fixed_speed(x0, 1.0, lin, dlin, aft_mats, spring, 1e-10, 3, out, np.empty(n),
                           np.empty((n, n)), np.empty(n))
     t1 = np.zeros(n + 1)
     t1[n] = 1.0
     tangent(np.eye(n), np.ones(n), t1, 1.0, 1.0, np.empty(n + 1))
-    step_fixed_speed(t1, t1, 1.0, 1.0, lin, lin, aft_mats, spring, 1e-10, 3, np.empty(n + 1),
+    step_fixed_speed(t1, t1, 1.0, 1.0, lin, dlin, aft_mats, spring, 1e-10, 3, np.empty(n + 1),
                      np.empty(n + 1), np.empty(n), np.empty((n, n)), np.empty(n))
     m = 2
     for K in (1, 2):     # one speed: h[:, 1:] is C-contiguous; a batch: it is not (two layouts)
@@ -121,6 +124,12 @@ def warm_up() -> float:
                                   np.empty(1, dtype=np.int64), np.empty(1, dtype=np.int64),
                                   np.empty(1), np.empty((1, ns)), np.empty((1, ns)),
                                   np.empty(1, dtype=np.int64))
+    # the monodromy with friction and end stops (the spring's law array, a uniform grid)
+    grid = np.zeros(4)
+    stability_kernel.monodromy_law(grid, grid, 1.0, 1.0, *spring, -np.ones(ns, dtype=complex),
+                                   np.ones(ns, dtype=complex), np.ones(ns, dtype=complex),
+                                   np.ones(ns, dtype=complex), 1.0,
+                                   np.empty((ns, ns), dtype=complex))
     # the multipliers of one point analyzed alone (stability.eigenvalues calls it from Python)
     eigenvalues_into(np.eye(ns), np.empty(ns), np.empty(ns))
     # the continuation loop's step control, called from Python with these types

@@ -1,0 +1,62 @@
+"""The DMF spring's laws compiled once for every kernel (numba: nopython, cached): the region
+lookup of the piecewise-linear spring and the friction and end-stop law (doc/theory.md §2, eq.
+8a-8b), on the arrays of :class:`dmf_sim.physics.spring.PiecewiseLinearSpring`
+(``arrays()``, ``primary_index``, ``law_array()``). The Newmark step
+(:mod:`dmf_sim.solvers.newmark_kernel`), the harmonic balance's AFT
+(:mod:`dmf_sim.solvers.hbm.kernels`) and the Floquet monodromy
+(:mod:`dmf_sim.solvers.stability_kernel`) call these and write no law of their own; the spring
+object's numpy methods (``region_index``, ``law_torque``) are their readable twins.
+"""
+from __future__ import annotations
+
+import math
+
+from dmf_sim.core.compiled import jit
+
+__all__ = ['region_of', 'law_parts', 'law_active']
+
+
+def region_of(w, knees, primary):
+    """Region index of wind-up w (count of knees below w; ties go to the primary side)."""
+    r = 0
+    nk = knees.shape[0]
+    while r < nk and (w > knees[r] or (w == knees[r] and r < primary)):
+        r += 1
+    return r
+
+
+def law_parts(w, wd, amp, law):
+    """(friction torque T_f, end-stop torque T_s, d(T_f)/d(w_dot), d(T_s)/dw, d(T_s)/d(w_dot))
+    at wind-up w [rad], rate wd [rad/s] and sliding friction torque ``amp`` = T0 + c_Omega
+    Omega^2 [Nm] (eq. 8a, 8b; ``law`` = PiecewiseLinearSpring.law_array())."""
+    th = math.tanh(wd / law[2])
+    tf = amp * th
+    dtf = amp * (1.0 - th * th) / law[2]
+    ts = 0.0
+    dts_w = 0.0
+    dts_v = 0.0
+    if law[5] > 0.0:
+        if w > law[4]:
+            f = law[5] * (w - law[4]) + law[6] * wd
+            if f > 0.0:
+                ts = f
+                dts_w = law[5]
+                dts_v = law[6]
+        elif w < law[3]:
+            f = law[5] * (law[3] - w) - law[6] * wd
+            if f > 0.0:
+                ts = -f
+                dts_w = law[5]
+                dts_v = law[6]
+    return tf, ts, dtf, dts_w, dts_v
+
+
+def law_active(law):
+    """Whether ``law`` (``PiecewiseLinearSpring.law_array()``) gives any torque: friction (T0 or
+    c_Omega > 0) or end stops (k_s > 0)."""
+    return law[0] > 0.0 or law[1] > 0.0 or law[5] > 0.0
+
+
+region_of = jit(region_of)
+law_parts = jit(law_parts)
+law_active = jit(law_active)
