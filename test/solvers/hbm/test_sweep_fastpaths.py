@@ -37,13 +37,13 @@ def _by_states_at(sw, speeds):
     return [any(st for _, st in sw.states_at(float(s))) for s in speeds]
 
 
-def test_stable_at_is_states_at_on_made_up_branches():
+def test_stable_at_is_states_at_on_made_up_branches(loads):
     """Folds, repeated speeds, unknown stability (None), a one-point branch: the mask of many
     speeds at once is what ``states_at`` says speed by speed."""
-    sw = SpeedSweep.__new__(SpeedSweep)
+    sw = SpeedSweep(CondensedHBM(loads, 1.0))
     fold = [(600.0, True), (610.0, True), (620.0, False), (615.0, False), (612.5, True),
             (620.0, True), (630.0, None), (640.0, True), (640.0, False), (650.0, False)]
-    sw.branches = [Branch(0, 'main', [_point(s, st) for s, st in fold]),
+    sw.branches[:] = [Branch(0, 'main', [_point(s, st) for s, st in fold]),
                    Branch(1, 'main', [_point(635.0, True)]),
                    Branch(2, 'main', [_point(645.0, None), _point(655.0, True)])]
     speeds = np.concatenate([np.arange(595.0, 661.0, 0.5), [612.5 + 1e-10, 635.0, 640.0]])
