@@ -15,7 +15,7 @@ def test_the_hosts_keep_the_contracts_of_their_parts(paper_hbm):
     from dmf_sim.solvers.hbm.expansion import ExpansionHost
     hb = paper_hbm
     assert isinstance(hb, ExpansionHost) and isinstance(hb, StepsHost)
-    assert hb.steps.host is hb
+    assert hb.steps.host is hb and hb.expansion.host is hb
     part = types.SimpleNamespace(**{m: getattr(hb, m) for m in ('model', 'loads', 'load',
                                                                  'factors', 'H', 'dof_loads',
                                                                  'nonlinear_harmonics')})
