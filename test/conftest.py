@@ -7,8 +7,9 @@ Markers (registered in setup.cfg, ``[tool:pytest]``):
            test; with ``DMF_SIM_REQUIRE_ROS=1`` (``make test``) a missing rclpy stops the run.
 ``slow``   takes more than ~10 s on a quiet 2-core machine (``-m 'not slow'`` for a quick run).
 ``bench``  a benchmark's smoke run (small sizes; the full benchmarks are ``make bench``).
-``parity`` a compiled kernel against its reference: set here on every test the kernel registry
-           (dmf_sim/solvers/kernel_registry.py) names as a parity test (``-m parity`` runs them).
+``parity`` a compiled kernel against its reference: the tests of
+           test/solvers/test_kernel_parity.py, one per case the kernel registry
+           (dmf_sim/solvers/kernel_registry.py) names.
 
 Session fixtures: the default engine and the 2500 Nm engine (Load A, excitation grid computed
 once) and the DMF driveline model, loaded once for the whole run. They are shared: do not modify
@@ -30,17 +31,7 @@ def ros_available() -> bool:
     return importlib.util.find_spec('rclpy') is not None
 
 
-def _mark_parity_tests(items: list[pytest.Item]) -> None:
-    """The ``parity`` marker on the tests the kernel registry names (every parametrization)."""
-    from dmf_sim.solvers.kernel_registry import KERNELS
-    named = {k.parity for k in KERNELS}
-    for item in items:
-        if item.nodeid.split('[')[0] in named:
-            item.add_marker(pytest.mark.parity)
-
-
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    _mark_parity_tests(items)
     if ros_available():
         return
     ros_items = [item for item in items if item.get_closest_marker('ros') is not None]

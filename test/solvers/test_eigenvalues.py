@@ -1,7 +1,8 @@
 """The Floquet multipliers' eigenvalue call: LAPACK's balancing and
-Hessenberg reduction, then the package's compiled double-shift QR (``francis_qr``), against
-``numpy.linalg.eigvals`` on random and hard matrices and on a sweep's monodromies; the fall-back
-on ``dgeev`` where the QR iteration does not converge; numpy's contract kept."""
+Hessenberg reduction, then the package's compiled double-shift QR (``francis_qr``): complex pairs
+laid out as LAPACK does, against ``numpy.linalg.eigvals`` on a sweep's monodromies (on random and
+hard matrices: test_kernel_parity.py); the fall-back on ``dgeev`` where the QR iteration does not
+converge; numpy's contract kept."""
 from __future__ import annotations
 
 import json
@@ -12,53 +13,25 @@ from pathlib import Path
 import numpy as np
 import pytest
 from scipy.linalg.lapack import dgeev
+from support.kernel_cases import eigen_matrices, eigenvalues_of
 
-from dmf_sim.solvers.francis_qr import MAX_ITER, hessenberg_eigenvalues
-from dmf_sim.solvers.lapack_kernel import dgeev_into, eigenvalues_into
+from dmf_sim.solvers.francis_qr import hessenberg_eigenvalues
+from dmf_sim.solvers.kernel_registry import KERNELS
+from dmf_sim.solvers.lapack_kernel import dgeev_into
 from dmf_sim.solvers.stability import eigenvalues
 
 REPO = Path(__file__).resolve().parents[2]
-REL_TOL = 1e-12        # distance to the nearest reference eigenvalue / the largest modulus
+REL_TOL = next(k.rel_tol for k in KERNELS if k.case == 'eigenvalues')
+"""The registry's tolerance of the eigenvalue call: distance to the nearest reference eigenvalue
+over the largest modulus."""
 
 
-def _call(X, max_iter=MAX_ITER):
-    keep = X.copy()
-    wr, wi = np.empty(len(X)), np.empty(len(X))
-    assert eigenvalues_into(X, wr, wi, max_iter) == 0
-    assert np.array_equal(X, keep)                      # X is not touched
-    return wr, wi
-
-
-def _matrices():
-    rng = np.random.default_rng(2026)
-    out = [rng.standard_normal((n, n)) for n in (1, 2, 3, 4, 5, 7, 16, 32, 33, 64)]
-    D = np.diag(10.0 ** rng.integers(-6, 7, 12))        # badly scaled: balancing's work
-    out.append(D @ rng.standard_normal((12, 12)) @ np.linalg.inv(D))
-    out.append(np.triu(rng.standard_normal((9, 9))))     # triangular: the diagonal
-    out.append(np.zeros((5, 5)))
-    out.append(3.0 * np.eye(4))                          # one eigenvalue, repeated
-    out.append(np.roll(np.eye(6), 1, axis=1))            # cyclic shift: the 6th roots of unity
-    # known complex pairs under an orthogonal similarity
-    B = np.zeros((8, 8))
-    for k, (s, w) in enumerate(((-0.1, 2.0), (0.3, 0.5), (-2.0, 7.0), (1e-3, 1e3))):
-        B[2 * k:2 * k + 2, 2 * k:2 * k + 2] = [[s, w], [-w, s]]
-    Q, _ = np.linalg.qr(rng.standard_normal((8, 8)))
-    out.append(Q @ B @ Q.T)
-    return out
-
-
-@pytest.mark.slow
-@pytest.mark.parametrize('k', range(len(_matrices())))
-def test_eigenvalues_equal_numpys(k):
-    X = _matrices()[k]
-    wr, wi = _call(X)
-    got, ref = wr + 1j * wi, np.linalg.eigvals(X)
-    scale = max(np.abs(ref).max(), 1.0)
-    # each reference eigenvalue has a computed one near it, and the other way round
-    assert np.abs(ref[:, None] - got[None, :]).min(axis=1).max() <= REL_TOL * scale
-    assert np.abs(got[:, None] - ref[None, :]).min(axis=1).max() <= REL_TOL * scale
-    # as many real ones, and complex pairs as LAPACK gives them: the positive imaginary part first
-    assert (wi == 0).sum() == (ref.imag == 0).sum()
+@pytest.mark.parametrize('k', range(len(eigen_matrices())))
+def test_complex_pairs_are_laid_out_as_lapack_does(k):
+    """As many real eigenvalues as numpy finds, and each complex pair as LAPACK gives it: the
+    positive imaginary part first, then its conjugate (the values against numpy's:
+    test_kernel_parity.py)."""
+    wr, wi = eigenvalues_of(eigen_matrices()[k])
     i = 0
     while i < len(wi):
         if wi[i] != 0.0:
@@ -70,7 +43,7 @@ def test_eigenvalues_equal_numpys(k):
 
 def test_known_spectrum_exactly_where_the_matrix_is_triangular():
     X = np.triu(np.arange(1.0, 26.0).reshape(5, 5))
-    wr, wi = _call(X)
+    wr, wi = eigenvalues_of(X)
     assert not wi.any()
     assert sorted(wr) == sorted(np.diag(X))
 
@@ -82,7 +55,7 @@ def test_qr_that_does_not_converge_falls_back_on_dgeev():
     X = rng.standard_normal((10, 10))
     h = np.triu(X, -1)
     assert hessenberg_eigenvalues(h.copy(), np.empty(10), np.empty(10), 0) > 0
-    wr, wi = _call(X, max_iter=0)
+    wr, wi = eigenvalues_of(X, max_iter=0)
     ref_wr, ref_wi, _, _, info = dgeev(X, compute_vl=0, compute_vr=0)
     assert info == 0
     assert np.array_equal(wr, ref_wr) and np.array_equal(wi, ref_wi)
@@ -100,7 +73,7 @@ def test_eigenvalues_keep_numpys_contract():
         ref = np.linalg.eigvals(X)
         mu = eigenvalues(X.copy())
         assert mu.dtype == ref.dtype
-        wr, wi = _call(X)
+        wr, wi = eigenvalues_of(X)
         assert np.array_equal(mu, wr + 1j * wi)
     S = rng.standard_normal((6, 6))
     sym = S + S.T

@@ -1,20 +1,17 @@
 """The kernel registry (dmf_sim/solvers/kernel_registry.py) is complete and true: every compiled
-function of the solvers is listed, each entry point's reference twin and parity test exist, and
-each group's warm-up loads exactly the entry points the registry gives it."""
+function of the solvers is listed, each entry point's reference twin exists, and each group's
+warm-up loads exactly the entry points the registry gives it (the parity cases the entries name:
+test_kernel_parity.py)."""
 from __future__ import annotations
 
-import ast
 import importlib
 import pkgutil
-from pathlib import Path
 
 import pytest
 
 import dmf_sim.solvers
 from dmf_sim.solvers import kernel_registry
 from dmf_sim.solvers.kernel_registry import HELPERS, KERNELS, entry_points, resolve
-
-ROOT = Path(__file__).resolve().parents[2]
 
 
 def compiled_functions() -> set[str]:
@@ -37,20 +34,13 @@ def test_every_compiled_function_of_the_solvers_is_registered():
     assert set(listed) == found, (set(listed) - found, found - set(listed))
 
 
-def _test_names(path: Path) -> set[str]:
-    tree = ast.parse(path.read_text())
-    return {node.name for node in tree.body if isinstance(node, ast.FunctionDef)}
-
-
 @pytest.mark.parametrize('entry', KERNELS, ids=lambda k: k.kernel.split(':')[1])
-def test_an_entry_point_has_its_reference_and_parity_test(entry):
+def test_an_entry_point_has_its_reference(entry):
     assert hasattr(resolve(entry.kernel), 'py_func')          # a compiled kernel
     if entry.reference:
         assert callable(resolve(entry.reference))
     else:                        # the one version: only the step control has none
         assert entry.kernel.startswith('dmf_sim.solvers.step_control:')
-    path, _, test = entry.parity.partition('::')
-    assert test in _test_names(ROOT / path), entry.parity
 
 
 def test_the_groups_load_the_registered_entry_points():
@@ -65,18 +55,3 @@ def test_the_groups_load_the_registered_entry_points():
         assert all(len(k.signatures) >= 1 for k in mine), group.name
     assert kernel_registry.SWEEP == SWEEP.name
     assert kernel_registry.TIME_INTEGRATION == TIME_INTEGRATION.name
-
-
-
-def test_the_parity_marker_selects_the_registry_parity_tests():
-    """``pytest -m parity`` collects exactly the tests the registry names (test/conftest.py
-    marks them from the table)."""
-    import os
-    import subprocess
-    import sys
-    files = sorted({k.parity.partition('::')[0] for k in KERNELS})
-    out = subprocess.run([sys.executable, '-m', 'pytest', '--collect-only', '-q', '-m', 'parity',
-                          '-p', 'no:cacheprovider', *files], cwd=ROOT, capture_output=True,
-                         text=True, timeout=300, env=dict(os.environ)).stdout
-    collected = {line.split('[')[0] for line in out.splitlines() if '::' in line}
-    assert collected == {k.parity for k in KERNELS}

@@ -21,7 +21,7 @@ directions when it converges to a solution not yet on a branch:
 """
 from __future__ import annotations
 
-from typing import Protocol, runtime_checkable
+from typing import Callable
 
 import numpy as np
 
@@ -31,40 +31,39 @@ from dmf_sim.solvers.hbm.point import HBMPoint
 from dmf_sim.solvers.hbm.results import Branch, SweepEvent, on_grid, runs
 from dmf_sim.solvers.hbm.unknowns import SUB_HARMONICS, sub_part, to_complex, to_real
 
-__all__ = ['SwitchingHost', 'BranchSwitching']
-
-
-@runtime_checkable
-class SwitchingHost(Protocol):
-    """What :class:`BranchSwitching` reads of the sweep it is mixed into
-    (:class:`dmf_sim.solvers.hbm.sweep.SpeedSweep`).
-
-    1. ``hbm`` (the :class:`~dmf_sim.solvers.hbm.condensed.CondensedHBM`), ``options``
-       (``SweepOptions``), ``cont`` (``ContinuationOptions``) and ``floquet`` (the
-       ``FloquetAnalyzer``) are the sweep's settings and solvers, never changed.
-    2. ``branches`` (list of :class:`~dmf_sim.solvers.hbm.results.Branch`) and ``events`` (list
-       of ``SweepEvent``) are the sweep's results so far; branch switching appends to them,
-       each new branch with the next id.
-    3. ``_trace(x0, s0, direction, branch, kind, bar, stop=None)`` follows a branch by
-       continuation from a solution and returns its finished points.
-    4. ``_events(branch)`` records a traced branch's folds and stability changes.
-    """
-
-    hbm: object
-    options: object
-    cont: object
-    floquet: object
-    branches: list
-    events: list
-
-    def _trace(self, x0, s0, direction, branch, kind, bar, stop=None) -> list: ...
-
-    def _events(self, b) -> None: ...
+__all__ = ['BranchSwitching']
 
 
 class BranchSwitching:
-    """Seeding and following of further branches: a mixin of
-    :class:`dmf_sim.solvers.hbm.sweep.SpeedSweep`, whose host is a :class:`SwitchingHost`."""
+    """Seeding and following of further branches: a collaborator of
+    :class:`dmf_sim.solvers.hbm.sweep.SpeedSweep`, given what it uses.
+
+    Args:
+        hbm: the :class:`~dmf_sim.solvers.hbm.condensed.CondensedHBM` (the problem).
+        options: the sweep's ``SweepOptions`` (the switching's settings).
+        cont: the sweep's ``ContinuationOptions`` (its scales and step, to tell a closed branch).
+        floquet: the sweep's ``FloquetAnalyzer`` (the sub-harmonic eigen-solution of a point).
+        branches: the sweep's list of :class:`~dmf_sim.solvers.hbm.results.Branch`; every new
+            branch is appended to it, with the next id.
+        events: the sweep's list of ``SweepEvent``; a branch switch is appended to it.
+        trace: ``trace(x0, s0, direction, branch, kind, bar, stop=None)`` follows a branch by
+            continuation from a solution and returns its finished points.
+        record_events: ``record_events(branch)`` records a traced branch's folds and stability
+            changes.
+
+    Neither settings nor solvers are changed; ``branches`` and ``events`` grow.
+    """
+
+    def __init__(self, hbm, options, cont, floquet, branches: list, events: list,
+                 trace: Callable[..., list], record_events: Callable[[Branch], None]) -> None:
+        self.hbm = hbm
+        self.options = options
+        self.cont = cont
+        self.floquet = floquet
+        self.branches = branches
+        self.events = events
+        self._trace = trace
+        self._events = record_events
 
     # ---- is a solution already on a branch? -----------------------------------------------------
     def _fingerprints(self, x: np.ndarray) -> np.ndarray:

@@ -34,7 +34,7 @@ frequency-time (AFT) pass: w(psi_j) on M samples of the cycle -> g(w(psi_j)) -> 
 analytic Jacobian dg_n/dw_m = (2/M) sum_j g'(w_j) exp(-i n phi_j) dw_j/dw_m.
 
 All element responses follow afterwards (the expansion), ``q_n = H_n (P_n - e g_n)``
-(:mod:`dmf_sim.solvers.hbm.expansion`, a mixin of :class:`CondensedHBM`).
+(:mod:`dmf_sim.solvers.hbm.expansion`, the collaborator ``CondensedHBM.expansion``).
 
 Real unknown layout used throughout: ``x = [w_0, Re w_1..Re w_H, Im w_1..Im w_H]`` [rad].
 """
@@ -111,7 +111,7 @@ def aft_tables(H: int, M: int) -> tuple[np.ndarray, ...]:
     return out
 
 
-class CondensedHBM(DrivelineExpansion, FaultedParts):
+class CondensedHBM(FaultedParts):
     """Harmonic balance of one driveline at one load fraction, condensed on the DMF wind-up.
 
     Args:
@@ -125,6 +125,10 @@ class CondensedHBM(DrivelineExpansion, FaultedParts):
         symmetric: every cylinder fires alike (the 120 deg shift symmetries hold).
         steps: what the continuation calls on the problem, compiled
             (:class:`~dmf_sim.solvers.hbm.continuation_steps.CondensedSteps`).
+        expansion: the solution expanded to the whole driveline
+            (:class:`~dmf_sim.solvers.hbm.expansion.DrivelineExpansion`; its methods are also
+            the problem's: ``linear_parts_direct``, ``dof_harmonics``, ``element_harmonics``,
+            ``torque_harmonics``, ``dof_state``, ``newmark_from``).
     """
 
     def __init__(self, loads: DrivelineExcitation, load: float, options: HBMOptions | None = None,
@@ -192,8 +196,34 @@ class CondensedHBM(DrivelineExpansion, FaultedParts):
         self.factors = combustion_factors(factors, L.phase.shape[0])
         self.symmetric = is_symmetric(self.factors)
         self.steps = CondensedSteps(self)
+        self.expansion = DrivelineExpansion(self)
         if self.factors is not None:
             self._set_up_faults()
+
+    # ---- the expansion to the whole driveline (DrivelineExpansion) ----------------------------
+    def linear_parts_direct(self, speed_rpm: float):
+        """:meth:`.DrivelineExpansion.linear_parts_direct`."""
+        return self.expansion.linear_parts_direct(speed_rpm)
+
+    def dof_harmonics(self, point: HBMPoint) -> np.ndarray:
+        """:meth:`.DrivelineExpansion.dof_harmonics`."""
+        return self.expansion.dof_harmonics(point)
+
+    def element_harmonics(self, point: HBMPoint) -> np.ndarray:
+        """:meth:`.DrivelineExpansion.element_harmonics`."""
+        return self.expansion.element_harmonics(point)
+
+    def torque_harmonics(self, point: HBMPoint) -> np.ndarray:
+        """:meth:`.DrivelineExpansion.torque_harmonics`."""
+        return self.expansion.torque_harmonics(point)
+
+    def dof_state(self, point: HBMPoint, psi: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`.DrivelineExpansion.dof_state`."""
+        return self.expansion.dof_state(point, psi)
+
+    def newmark_from(self, point: HBMPoint, *, perturb: np.ndarray | None = None, **fields):
+        """:meth:`.DrivelineExpansion.newmark_from`."""
+        return self.expansion.newmark_from(point, perturb=perturb, **fields)
 
     # ---- loads and linear parts -------------------------------------------------------------
     def dof_loads(self, speed_rpm: float) -> np.ndarray:

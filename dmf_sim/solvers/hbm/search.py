@@ -30,12 +30,12 @@ are deflated, and every state counts once.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Protocol, runtime_checkable
+from typing import Callable
 
 import numpy as np
 
 from dmf_sim.core.errors import ConvergenceError, OperatingRangeError
-from dmf_sim.solvers.hbm.branches import SwitchingHost
+from dmf_sim.solvers.hbm.branches import BranchSwitching
 from dmf_sim.solvers.hbm.deflation import DeflatedNewton, DeflationOptions
 from dmf_sim.solvers.hbm.point import HBMPoint
 from dmf_sim.solvers.hbm.results import Branch, NonPeriodicBand, SweepEvent
@@ -43,7 +43,7 @@ from dmf_sim.solvers.hbm.unknowns import all_shifts, amplitudes, shift, to_compl
 from dmf_sim.solvers.newmark import SimulationOptions, simulate
 from dmf_sim.solvers.nonperiodic import NonPeriodicOptions, analyze
 
-__all__ = ['N_SHIFTS', 'SearchOptions', 'SearchHost', 'StateSearch']
+__all__ = ['N_SHIFTS', 'SearchOptions', 'StateSearch']
 
 N_SHIFTS = 6        # a 720 deg cycle holds six 120 deg firing intervals
 
@@ -138,48 +138,49 @@ def _seed_label(label: tuple) -> str:
     return f'3rd-order seed x {label[1]:g}'
 
 
-@runtime_checkable
-class SearchHost(SwitchingHost, Protocol):
-    """What :class:`StateSearch` reads of the sweep it is mixed into
-    (:class:`dmf_sim.solvers.hbm.sweep.SpeedSweep`), besides a :class:`SwitchingHost`'s.
+class StateSearch:
+    """The full search: a collaborator of :class:`dmf_sim.solvers.hbm.sweep.SpeedSweep`, given
+    what it uses.
 
-    1. ``search`` is the ``SearchOptions`` of the sweep (never None when the search runs), and
-       ``range`` the sweep's speed range (lo, hi) [rpm].
-    2. ``non_periodic``, ``uncovered`` and ``not_computed`` are result lists the search fills
-       (bands without a stable periodic state, grid speeds no branch reached, speeds that could
-       not be computed and why).
-    3. ``output_grid()`` gives the requested speeds [rpm] and ``_uncovered()`` the grid speeds
-       no branch reached.
-    4. ``check_time(speed_rpm)`` raises ``TimeLimitError`` once the time limit has passed,
-       naming ``_phase``, which the search sets to the step it is in.
-    5. ``_follow(seed, origin, bar)``, ``_known(point, tol)`` and ``_novelty_tol(point)`` are
-       the branch switching's (:class:`~dmf_sim.solvers.hbm.branches.BranchSwitching`): follow
-       a new state both ways as a new branch, and whether a state is on a known branch.
+    Args:
+        hbm: the :class:`~dmf_sim.solvers.hbm.condensed.CondensedHBM` (the problem).
+        options: the sweep's ``SweepOptions``: its ``search`` (``SearchOptions``, never None when
+            the search runs) and its output grid step.
+        floquet: the sweep's ``FloquetAnalyzer`` (how a periodic state lost stability).
+        switching: the sweep's :class:`~dmf_sim.solvers.hbm.branches.BranchSwitching`: its
+            ``branches`` and ``events`` are the sweep's; a new state is followed both ways as a
+            new branch by it (``_follow``), and it tells whether a state is on a known branch
+            (``_known``, ``_novelty_tol``).
+        non_periodic, uncovered, not_computed: the sweep's result lists the search fills (bands
+            without a stable periodic state, grid speeds no branch reached, speeds that could
+            not be computed and why).
+        output_grid: ``output_grid()`` gives the requested speeds [rpm].
+        uncovered_speeds: ``uncovered_speeds()`` gives the grid speeds no branch reached.
+        check_time: ``check_time(speed_rpm)`` raises ``TimeLimitError`` once the sweep's time
+            limit has passed, naming the step ``set_phase(text)`` last said the search is in.
     """
 
-    search: object
-    range: tuple
-    non_periodic: list
-    uncovered: list
-    not_computed: list
-    _phase: str
-
-    def output_grid(self) -> np.ndarray: ...
-
-    def _uncovered(self) -> np.ndarray: ...
-
-    def check_time(self, speed_rpm: float) -> None: ...
-
-    def _follow(self, seed, origin: str, bar): ...
-
-    def _known(self, q, tol: float) -> bool: ...
-
-    def _novelty_tol(self, q) -> float: ...
-
-
-class StateSearch:
-    """The full search: a mixin of :class:`dmf_sim.solvers.hbm.sweep.SpeedSweep`, whose host is
-    a :class:`SearchHost`."""
+    def __init__(self, hbm, options, floquet, switching: BranchSwitching, *, non_periodic: list,
+                 uncovered: list, not_computed: list, output_grid: Callable[[], np.ndarray],
+                 uncovered_speeds: Callable[[], np.ndarray],
+                 check_time: Callable[[float], None], set_phase: Callable[[str], None]) -> None:
+        self.hbm = hbm
+        self.options = options
+        self.search = options.search
+        self.floquet = floquet
+        self.branches = switching.branches
+        self.events = switching.events
+        self._follow = switching._follow
+        self._known = switching._known
+        self._novelty_tol = switching._novelty_tol
+        self.non_periodic = non_periodic
+        self.uncovered = uncovered
+        self.not_computed = not_computed
+        self.output_grid = output_grid
+        self._uncovered = uncovered_speeds
+        self.check_time = check_time
+        self._set_phase = set_phase
+        self._branch_stretches: dict[int, tuple] = {}
 
     # ---- known states at one speed --------------------------------------------------------------
     def states_at(self, s: float) -> list[tuple[np.ndarray, bool | None]]:
@@ -198,7 +199,7 @@ class StateSearch:
     def _stretches_of(self, b: Branch) -> tuple:
         """:func:`_stretches` of b's speeds, kept while b has the same points (branches only
         grow: a sweep asks for the states at every grid speed, several times)."""
-        cache = self.__dict__.setdefault('_branch_stretches', {})
+        cache = self._branch_stretches
         hit = cache.get(id(b))
         if hit is None or hit[0] is not b.points or hit[1] != len(b.points):
             hit = cache[id(b)] = (b.points, len(b.points), _stretches(b.column('speed_rpm')))
@@ -346,27 +347,27 @@ class StateSearch:
     def _new_branches(self) -> int:
         return sum(1 for b in self.branches if b.origin.startswith(('deflated', 'Newmark shot')))
 
-    def _seed_grid(self) -> np.ndarray:
-        lo, hi = self.range
+    def _seed_grid(self, speed_range: tuple[float, float]) -> np.ndarray:
+        lo, hi = speed_range
         step = self.search.seed_step_rpm
         grid = np.arange(np.ceil(lo / step - 1e-9), np.floor(hi / step + 1e-9) + 1) * step
         return grid[(grid >= lo - 1e-9) & (grid <= hi + 1e-9)]
 
-    def full_search(self, bar) -> None:
-        """Steps 1-4 of the module docstring; results go to ``branches``, ``events``,
-        ``non_periodic``, ``not_computed`` and ``uncovered``."""
-        grid = self._seed_grid()
+    def full_search(self, bar, speed_range: tuple[float, float]) -> None:
+        """Steps 1-4 of the module docstring over ``speed_range`` (lo, hi) [rpm]; results go to
+        ``branches``, ``events``, ``non_periodic``, ``not_computed`` and ``uncovered``."""
+        grid = self._seed_grid(speed_range)
         bar.note('deflated Newton search')
-        self._phase = 'the deflated Newton search'
+        self._set_phase('the deflated Newton search')
         for s in grid:
             if self._new_branches >= self.search.max_new_branches:
                 break
             self.check_time(s)
             self._deflated_pass(float(s), bar)
-        self._phase = 're-seeding uncovered speeds'
+        self._set_phase('re-seeding uncovered speeds')
         self._reseed_uncovered(bar)
         bar.note('stable states check')
-        self._phase = 'the stable-states check (Newmark shots)'
+        self._set_phase('the stable-states check (Newmark shots)')
         stable = self.stable_at(grid)     # a shot only adds branches: stable stays stable
         for s, known_stable in zip(grid, stable.tolist()):
             self.check_time(s)
@@ -379,7 +380,7 @@ class StateSearch:
         speeds = self.nonperiodic_speeds()
         if self.search.nonperiodic:
             bar.note('non-periodic speeds')
-            self._phase = 'the non-periodic classification'
+            self._set_phase('the non-periodic classification')
             self._label_nonperiodic(speeds)
         else:
             self.not_computed.extend(
@@ -439,7 +440,7 @@ class StateSearch:
                 if not self._known(first, self._novelty_tol(first)):
                     self._follow(first, f'continuation from {s:g} rpm '
                                         '(re-seeded: no branch reached it)', bar)
-        self.uncovered = [float(s) for s in self._uncovered()]
+        self.uncovered[:] = [float(s) for s in self._uncovered()]
 
     # ---- twins ----------------------------------------------------------------------------------
     def multiplicity(self, p: HBMPoint) -> int:

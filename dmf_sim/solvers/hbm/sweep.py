@@ -109,14 +109,16 @@ class _Progress:
             self.bar.close()
 
 
-class SpeedSweep(BranchSwitching, StateSearch):
+class SpeedSweep:
     """Continuation over engine speed with stability and branch switching (used by :func:`sweep`).
 
     Follows the branch from the lowest speed (pseudo-arc-length continuation through turning
     points, fast-forwarding linear stretches), covers speeds no branch reached, computes the
     Floquet stability of every point and records events; the branch switching to 1.5th-order
-    and other coexisting branches is :class:`dmf_sim.solvers.hbm.branches.BranchSwitching`, the
-    full search for every stable state :class:`dmf_sim.solvers.hbm.search.StateSearch`.
+    and other coexisting branches is its collaborator :attr:`switching` (a
+    :class:`dmf_sim.solvers.hbm.branches.BranchSwitching`), the full search for every stable
+    state :attr:`state_search` (a :class:`dmf_sim.solvers.hbm.search.StateSearch`); both are
+    given the sweep's settings, its result lists and the sweep's own steps they call.
 
     Args:
         hbm: CondensedHBM (driveline, engine, load fraction).
@@ -141,6 +143,40 @@ class SpeedSweep(BranchSwitching, StateSearch):
         self.range = (0.0, 0.0)
         self._deadline = math.inf          # perf_counter() value of the time limit
         self._phase = 'continuation'
+        self.switching = BranchSwitching(hbm, self.options, self.cont, self.floquet,
+                                         self.branches, self.events, self._trace, self._events)
+        self.state_search = StateSearch(
+            hbm, self.options, self.floquet, self.switching, non_periodic=self.non_periodic,
+            uncovered=self.uncovered, not_computed=self.not_computed,
+            output_grid=self.output_grid, uncovered_speeds=self._uncovered,
+            check_time=self.check_time, set_phase=self._set_phase)
+
+    # ---- the collaborators' public steps --------------------------------------------------------
+    def states_at(self, s: float) -> list[tuple[np.ndarray, bool | None]]:
+        """:meth:`StateSearch.states_at <dmf_sim.solvers.hbm.search.StateSearch.states_at>`."""
+        return self.state_search.states_at(s)
+
+    def stable_at(self, speeds) -> np.ndarray:
+        """:meth:`StateSearch.stable_at <dmf_sim.solvers.hbm.search.StateSearch.stable_at>`."""
+        return self.state_search.stable_at(speeds)
+
+    def multiplicity(self, p: HBMPoint) -> int:
+        """:meth:`StateSearch.multiplicity
+        <dmf_sim.solvers.hbm.search.StateSearch.multiplicity>`."""
+        return self.state_search.multiplicity(p)
+
+    def nonperiodic_speeds(self) -> list[float]:
+        """:meth:`StateSearch.nonperiodic_speeds
+        <dmf_sim.solvers.hbm.search.StateSearch.nonperiodic_speeds>`."""
+        return self.state_search.nonperiodic_speeds()
+
+    def full_search(self, bar) -> None:
+        """The full search over the sweep's range (:meth:`StateSearch.full_search
+        <dmf_sim.solvers.hbm.search.StateSearch.full_search>`)."""
+        self.state_search.full_search(bar, self.range)
+
+    def _set_phase(self, text: str) -> None:
+        self._phase = text
 
     # ---- time limit -----------------------------------------------------------------------------
     def check_time(self, speed_rpm: float) -> None:
@@ -303,7 +339,7 @@ class SpeedSweep(BranchSwitching, StateSearch):
                 x0, origin = self._approach(lo)   # None: the re-seeding below starts elsewhere
             if x0 is not None:
                 pts = self._trace(x0, lo, +1.0, 0, 'main', bar)
-                self.branches = [Branch(0, 'main', pts, origin)]
+                self.branches[:] = [Branch(0, 'main', pts, origin)]
                 self._events(self.branches[0])
             self._cover(bar)
             if not self.branches:
@@ -312,7 +348,7 @@ class SpeedSweep(BranchSwitching, StateSearch):
             if self.options.stability and self.options.branch_switching:
                 bar.note('branch switching')
                 self._phase = 'branch switching'
-                self._switch_branches(bar)
+                self.switching._switch_branches(bar)
             if self.options.stability and self.search is not None:
                 self.full_search(bar)
                 for b in self.branches:
@@ -320,7 +356,7 @@ class SpeedSweep(BranchSwitching, StateSearch):
                         b.multiplicity = self.multiplicity(max(b.points,
                                                                key=lambda q: q.order_1_5))
             else:
-                self.uncovered = [float(s) for s in self._uncovered()]
+                self.uncovered[:] = [float(s) for s in self._uncovered()]
                 self._not_searched()
         finally:
             bar.close()

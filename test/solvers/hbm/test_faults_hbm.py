@@ -24,10 +24,10 @@ from dmf_sim.physics.modal import modes
 from dmf_sim.physics.model import read_driveline
 from dmf_sim.physics.orders import CYCLE_RAD, OrderSummary, half_orders, resample_on_angle
 from dmf_sim.solvers.hbm import CondensedHBM, HBMOptions, SweepOptions, sweep
-from dmf_sim.solvers.hbm.branches import BranchSwitching
 from dmf_sim.solvers.hbm.faulted import apply_faults, is_symmetric, steady_faults
 from dmf_sim.solvers.hbm.results import Branch, SweepResult
-from dmf_sim.solvers.hbm.search import N_SHIFTS, StateSearch
+from dmf_sim.solvers.hbm.search import N_SHIFTS
+from dmf_sim.solvers.hbm.sweep import SpeedSweep
 from dmf_sim.solvers.hbm.unknowns import shift
 from dmf_sim.solvers.newmark import SimulationOptions, simulate
 from dmf_sim.solvers.steady import BasinOptions, SteadyState, _Matcher, find_steady_states
@@ -292,12 +292,12 @@ def test_a_table_engine_refuses_combustion_faults_in_one_line(line, tmp_path):
 # symmetry: twins only while the cylinders fire alike
 # ------------------------------------------------------------------------------------------------
 
-class _Search(BranchSwitching, StateSearch):
-    """The sweep's state bookkeeping on a given problem, without running a sweep."""
-
-    def __init__(self, hbm, branches=()):
-        self.hbm = hbm
-        self.branches = list(branches)
+def _sweep(hbm, branches=()):
+    """A sweep on a given problem holding ``branches``, not run: its branch switching and its
+    search keep the state bookkeeping."""
+    sw = SpeedSweep(hbm)
+    sw.branches[:] = branches
+    return sw
 
 
 def _point_branch(hb, x, speed):
@@ -322,7 +322,7 @@ def test_known_state_fingerprint_merges_shifted_copies_only_when_alike(loads, li
     f = factors_of(MISFIRE_1, line) if isinstance(factors, str) else factors
     hb = CondensedHBM(loads, 1.0, factors=f)
     x = _subharmonic_state(hb, 1100.0)
-    search = _Search(hb, [_point_branch(hb, x, 1100.0)])
+    search = _sweep(hb, [_point_branch(hb, x, 1100.0)]).switching
     twin = hb.make_point(1100.0, shift(x, 1, hb.H))
     assert np.abs(twin.x - x).max() > 0.01                  # really another vector
     assert search._known(twin, 1e-6) is merged
@@ -336,7 +336,7 @@ def test_deflation_and_multiplicity_use_shifts_only_when_alike(loads, line, faul
     misfire every state counts once, whatever Newton reaches from a shifted start."""
     hb = CondensedHBM(loads, 1.0, factors=factors_of(MISFIRE_1, line) if faulty else None)
     x = _subharmonic_state(hb, 1100.0)
-    search = _Search(hb)
+    search = _sweep(hb).state_search
     rows = search._deflation_set([x])
     assert len(rows) == (1 if faulty else N_SHIFTS)
     assert np.array_equal(rows[0], x)

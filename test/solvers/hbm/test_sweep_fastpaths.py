@@ -1,8 +1,9 @@
 """The sweep's cheaper per-point paths give what the general
 code gives: the stable-state mask of many speeds, the linear parts of one off-grid speed and of
 many speeds, the scalar order summary, the spring's condensed static solve, a linear stretch's
-points made in one batch and where it starts, a traced branch's points made in one batch and
-the sharp resonances' modal contributions (the multipliers' eigenvalue call: test_eigenvalues)."""
+points made in one batch and where it starts, and the sharp resonances' modal contributions (a
+grid's linear parts and a traced branch's points in one batch against the general code:
+test_kernel_parity.py; the multipliers' eigenvalue call: test_eigenvalues)."""
 from __future__ import annotations
 
 import numpy as np
@@ -36,13 +37,13 @@ def _by_states_at(sw, speeds):
     return [any(st for _, st in sw.states_at(float(s))) for s in speeds]
 
 
-def test_stable_at_is_states_at_on_made_up_branches():
+def test_stable_at_is_states_at_on_made_up_branches(loads):
     """Folds, repeated speeds, unknown stability (None), a one-point branch: the mask of many
     speeds at once is what ``states_at`` says speed by speed."""
-    sw = SpeedSweep.__new__(SpeedSweep)
+    sw = SpeedSweep(CondensedHBM(loads, 1.0))
     fold = [(600.0, True), (610.0, True), (620.0, False), (615.0, False), (612.5, True),
             (620.0, True), (630.0, None), (640.0, True), (640.0, False), (650.0, False)]
-    sw.branches = [Branch(0, 'main', [_point(s, st) for s, st in fold]),
+    sw.branches[:] = [Branch(0, 'main', [_point(s, st) for s, st in fold]),
                    Branch(1, 'main', [_point(635.0, True)]),
                    Branch(2, 'main', [_point(645.0, None), _point(655.0, True)])]
     speeds = np.concatenate([np.arange(595.0, 661.0, 0.5), [612.5 + 1e-10, 635.0, 640.0]])
@@ -77,24 +78,17 @@ def test_linear_parts_of_one_speed_equal_the_batch(loads):
         assert np.allclose(one.wlin, ref.wlin, rtol=1e-12, atol=0.0)
 
 
-def test_linear_parts_of_a_grid_in_one_kernel_call_equal_the_numpy_batch(loads):
-    """A sweep's grid in one kernel call with the engine query compiled (the engine's speed
-    table) gives bitwise the numpy batch's linear parts, at the top of the range too; a speed
-    outside the engine's data is left to the Python path, which raises as usual."""
+def test_linear_parts_of_a_grid_outside_the_engine_data_are_left_to_python(loads):
+    """A grid with a speed outside the engine's data, or a problem without the compiled engine
+    query, gets no compiled batch (None: the numpy batch instead), and the Python path raises as
+    usual there (the batch's parity with numpy: test_kernel_parity.py)."""
     from dmf_sim.core.errors import OperatingRangeError
     hb = CondensedHBM(loads, 1.0)
-    lo, top = hb._speed_range()
-    speeds = [lo, 610.0, 1234.567, 1500.0, 1700.25, 1800.0, 1900.0, 1950.0, top - 0.01, top]
-    fast = hb._linear_parts_compiled(speeds)
-    assert fast is not None and len(fast) == len(speeds)
+    top = hb._speed_range()[1]
+    assert hb._linear_parts_compiled([1000.0, top]) is not None
     ref = CondensedHBM(loads, 1.0)
     ref._kernel_engine = ()                 # no compiled engine query: the numpy batch
-    assert ref._linear_parts_compiled(speeds) is None
-    for a, b in zip(fast, ref._linear_parts_many(speeds)):
-        assert (a.speed_rpm, a.omega) == (b.speed_rpm, b.omega)
-        for name in ('h', 'wlin', 'dh_ds', 'dwlin_ds'):
-            assert np.array_equal(getattr(a, name), getattr(b, name)), name
-        assert np.array_equal(a.lin[0], b.lin[0]) and np.array_equal(a.dlin[0], b.dlin[0])
+    assert ref._linear_parts_compiled([1000.0, top]) is None
     assert hb._linear_parts_compiled([1000.0, top + 50.0]) is None
     with pytest.raises(OperatingRangeError):
         hb.linear_parts(top + 50.0)
@@ -184,39 +178,6 @@ def test_the_linear_stretch_starts_only_below_the_knees(loads):
         for q in own:
             assert q.point.stable is True and np.isclose(np.linalg.norm(q.tangent), 1.0)
             assert not np.any(sw.hbm.nonlinear_harmonics(q.x))
-
-
-def test_points_of_a_traced_branch_made_in_one_batch_equal_one_by_one(loads):
-    """``SpeedSweep._points`` (the points of a traced branch, made after the trace: one FFT, one
-    summary pass, one compiled Floquet call) gives bitwise what making each point and analyzing
-    it alone gives, for points below the knees (closed-form multipliers) and across them."""
-    from dmf_sim.solvers.continuation import ContinuationPoint
-    sw = SpeedSweep(CondensedHBM(loads, 1.0), SweepOptions(step_rpm=10.0, search=None))
-    hb, fl = sw.hbm, sw.floquet
-    cps = []
-    for k, s in enumerate((700.0, 1250.0, 1300.0, 1333.3, 1500.0)):
-        x = hb.solve(s).x
-        t = np.r_[np.zeros(len(x)), 1.0]
-        t[-1] = 0.5 + 0.1 * k
-        cps.append(ContinuationPoint(x, s, t, k + 1, 1e-12 * k, True))
-    made = sw._points(cps, 3, 'subharmonic')
-    assert len(made) == len(cps)
-    crossing = 0
-    for cp, p in zip(cps, made):
-        lp = hb.linear_parts(cp.s)
-        q = hb.make_point(cp.s, cp.x, cp.residual, cp.iterations, wlin0=float(lp.wlin[0].real))
-        fr = fl.analyze(q.windup_orders, cp.s)
-        crossing += fr.n_crossings > 0
-        assert (p.speed_rpm, p.residual, p.iterations) == (q.speed_rpm, q.residual, q.iterations)
-        assert np.array_equal(p.x, q.x) and np.array_equal(p.windup_orders, q.windup_orders)
-        assert p.summary == q.summary
-        assert (p.branch, p.kind, p.tangent_speed) == (3, 'subharmonic', cp.tangent[-1])
-        assert p.forced_order_1_5 == abs(lp.wlin[3])
-        assert p.stable == fr.stable and p.max_multiplier == fr.max_abs
-        assert p.multipliers.dtype == fr.multipliers.dtype
-        assert np.array_equal(p.multipliers, fr.multipliers)
-    assert 0 < crossing < len(cps)
-    assert sw._points([], 0, 'main') == []
 
 
 def test_sharp_resonance_contribution_is_the_dof_load_formula(loads):
