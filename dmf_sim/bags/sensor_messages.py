@@ -38,7 +38,8 @@ from dmf_sim.physics.sensors import FLAG_FIRST_AFTER_GAP, FLAG_SPURIOUS
 
 __all__ = ['EDGES_TYPE', 'BUS_TYPE', 'EDGE_DIM_LABELS', 'EDGE_FIELDS', 'FLAG_FIRST_AFTER_GAP',
            'FLAG_SPURIOUS', 'edge_topic', 'bus_topic', 'wheel_of_topic', 'signal_of_topic',
-           'encode_edges', 'encode_sensor_messages', 'fill_messages', 'decode_edges',
+           'batch_log_ns', 'encode_edges', 'encode_sensor_messages', 'fill_messages',
+           'decode_edges',
            'edges_of_message',
            'encode_float64', 'float64_bytes', 'FLOAT64_BYTES', 'EDGE_HEADER_BYTES',
            'EDGE_ROW_BYTES']
@@ -103,6 +104,14 @@ _COUNT_AT = EDGE_HEADER_BYTES - 4                             # data count
 FLOAT64_BYTES = 12                                            # encapsulation + float64
 _FLOAT64_HEAD = b'\x00\x01\x00\x00'
 _FLOAT64 = struct.Struct('<4sd')
+
+
+def batch_log_ns(t_ns: np.ndarray, period_ns: float) -> np.ndarray:
+    """The send (log) time [ns of simulated time] of edges captured at ``t_ns``: the end of
+    their batch period, ``ceil(t / period) * period`` (edges in (b - period, b] go at b;
+    :meth:`dmf_sim.physics.sensors.SensorSet.edge_batch_ns`). One rule for the node and
+    ``dmf-sim run``."""
+    return np.rint(np.ceil(np.asarray(t_ns) / period_ns) * period_ns).astype(np.int64)
 
 
 def encode_edges(rows: np.ndarray, epoch_ns: int = 0) -> bytes:

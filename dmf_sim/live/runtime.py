@@ -100,8 +100,10 @@ class LiveRuntime:
         except ValueError as exc:
             raise ConfigError(one_line(exc)) from None
         ls = self.sim.live_sensors
-        self.sensor_messages = (SensorMessages(ls.wheel_names, ls.signal_names)
-                                if ls is not None else None)
+        self.sensor_messages = (
+            SensorMessages(ls.wheel_names, ls.signal_names,
+                           line.sensors.edge_batch_ns(self.sim.stride * self.sim.dt))
+            if ls is not None else None)
         pacer = Pacer(p['dt'], _rtf(p['real_time_factor'], p['pacing']), p['max_lag'],
                       p['overrun_policy'])
         self.loop = RunLoop(self.sim, pacer, sink, log, publish_clock=p['publish_clock'],

@@ -20,7 +20,7 @@ from typing import Sequence
 
 import numpy as np
 
-from dmf_sim.bags.sensor_messages import encode_edges, float64_bytes
+from dmf_sim.bags.sensor_messages import batch_log_ns, encode_edges, float64_bytes
 from dmf_sim.live.streams import bus_key, edge_key
 from dmf_sim.physics.faults import SENSOR_KINDS
 from dmf_sim.physics.sensor_signals import SensorChunk, SensorSynthesizer
@@ -117,23 +117,33 @@ class LiveSensors:
 
 class SensorMessages:
     """The node's sensor messages of a chunk: (stream key, log time [ns], CDR bytes), keys as
-    :func:`dmf_sim.live.streams.streams_for` names them."""
+    :func:`dmf_sim.live.streams.streams_for` names them. Each wheel's edges are held until
+    their batch period ends (``batch_period_ns``,
+    :meth:`dmf_sim.physics.sensors.SensorSet.edge_batch_ns`; default: none held, one batch per
+    chunk as a publish period) and sent in one message logged at its end
+    (:func:`dmf_sim.bags.sensor_messages.batch_log_ns`, the rule ``dmf-sim run`` writes by)."""
 
-    def __init__(self, wheel_names: Sequence[str], signal_names: Sequence[str]) -> None:
+    def __init__(self, wheel_names: Sequence[str], signal_names: Sequence[str],
+                 batch_period_ns: float | None = None) -> None:
         self.edge_keys = [edge_key(w) for w in wheel_names]
         self.bus_keys = [bus_key(b) for b in signal_names]
+        self.batch_period_ns = batch_period_ns
+        self._held: list[list[np.ndarray]] = [[] for _ in wheel_names]
 
     def of(self, chunk: SensorChunk, epoch_ns: int, log_offset_ns: int = 0
            ) -> list[tuple[str, int, bytes]]:
         """Stamps = ``epoch_ns`` + simulated ns (:class:`dmf_sim.live.pacing.TimeBase`); log
         times = stamps + ``log_offset_ns``."""
         out = []
-        if any(chunk.edge_counts):
-            log_end = epoch_ns + int(round(chunk.t_end_s * 1e9)) + log_offset_ns
-            for w, n in enumerate(chunk.edge_counts):
-                if n:
-                    out.append((self.edge_keys[w], log_end,
-                                encode_edges(chunk.edge_rows(w), epoch_ns)))
+        if self.batch_period_ns is None:
+            if any(chunk.edge_counts):
+                log_end = epoch_ns + int(round(chunk.t_end_s * 1e9)) + log_offset_ns
+                for w, n in enumerate(chunk.edge_counts):
+                    if n:
+                        out.append((self.edge_keys[w], log_end,
+                                    encode_edges(chunk.edge_rows(w), epoch_ns)))
+        else:
+            out += self._batches(chunk, epoch_ns, log_offset_ns)
         if any(chunk.bus_counts):
             for b, n in enumerate(chunk.bus_counts):
                 if n:
@@ -141,4 +151,26 @@ class SensorMessages:
                     key = self.bus_keys[b]
                     for t, v in zip(ns.tolist(), rpm.tolist()):
                         out.append((key, epoch_ns + t + log_offset_ns, float64_bytes(v)))
+        return out
+
+    def _batches(self, chunk: SensorChunk, epoch_ns: int, log_offset_ns: int) -> list:
+        """The edge batches whose period ended by the chunk's end; later edges are held."""
+        end_ns = int(round(chunk.t_end_s * 1e9))
+        out = []
+        for w, n in enumerate(chunk.edge_counts):
+            if n:
+                self._held[w].append(chunk.edge_rows(w).copy())
+            if not self._held[w]:
+                continue
+            rows = (np.concatenate(self._held[w]) if len(self._held[w]) > 1
+                    else self._held[w][0])
+            log = batch_log_ns(rows[:, 0], self.batch_period_ns)
+            due = int(np.searchsorted(log, end_ns, side='right'))
+            self._held[w] = [rows[due:]] if due < len(rows) else []
+            if not due:
+                continue
+            starts = np.flatnonzero(np.diff(log[:due], prepend=-1))
+            for a, b in zip(starts, [*starts[1:], due]):
+                out.append((self.edge_keys[w], epoch_ns + int(log[a]) + log_offset_ns,
+                            encode_edges(rows[a:b], epoch_ns)))
         return out

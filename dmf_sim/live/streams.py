@@ -51,9 +51,9 @@ class Stream(NamedTuple):
     with '/'), ROS type, history depth, latched (transient-local durability), and when it is
     published: per ``'sample'`` (publish_rate), ``'diagnostics'`` (diagnostics_rate),
     ``'cycle'`` (per engine cycle), ``'setpoint'`` (when the setpoint changes), ``'fault'``
-    (when a fault starts or ends, a combustion misfires), ``'edges'`` (per publish tick, when a
-    tooth wheel has edges), ``'bus'`` (when a bus value is delivered) or ``'clock'`` (with
-    the samples, while /clock is on); what it carries, for people."""
+    (when a fault starts or ends, a combustion misfires), ``'edges'`` (per edge-batch period,
+    when a tooth wheel has edges), ``'bus'`` (when a bus value is delivered) or ``'clock'``
+    (with the samples, while /clock is on); what it carries, for people."""
 
     topic: str
     msgtype: str
@@ -100,7 +100,8 @@ CLOCK = Stream('/clock', 'rosgraph_msgs/msg/Clock', LATCHED_DEPTH, per='clock',
 """/clock: not in :data:`STREAMS` (not recorded; advertised only while published)."""
 PUBLISHED = {'sample': 'every sample (publish_rate)', 'diagnostics': 'diagnostics_rate',
              'cycle': 'per engine cycle', 'setpoint': 'when the setpoint changes',
-             'fault': 'per fault event', 'edges': 'a batch per publish tick with edges',
+             'fault': 'per fault event',
+             'edges': 'a batch per edge-batch period with edges (sensors.edge_batch_s)',
              'bus': 'when the bus delivers a value', 'clock': 'with the samples'}
 """When a stream is published (:attr:`Stream.per`), for people."""
 SENSOR_STREAMS = {

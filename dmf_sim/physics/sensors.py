@@ -45,9 +45,10 @@ __all__ = ['SECTION_KEYS', 'WHEEL_KEYS_REQUIRED', 'WHEEL_KEYS_OPTIONAL', 'BUS_KE
            'BUS_DELAY_MAX_S', 'BUS_RESOLUTION_MAX_RPM', 'BUS_NOISE_MAX_RPM',
            'PITCH_SIGMA_MAX_PITCHES', 'PITCH_ERROR_MAX_PITCHES', 'STREAM_PITCH_PATTERN',
            'MAX_SEED', 'NAME_PATTERN', 'FLAG_FIRST_AFTER_GAP', 'FLAG_SPURIOUS', 'ToothWheel',
-           'BusSignal', 'SensorSet', 'parse_sensors']
+           'BusSignal', 'SensorSet', 'parse_sensors', 'EDGE_BATCH_MAX_S']
 
-SECTION_KEYS = ('tooth_wheels', 'bus_signals')
+SECTION_KEYS = ('tooth_wheels', 'bus_signals', 'edge_batch_s')
+EDGE_BATCH_MAX_S = 1.0       # longest edge-batch period [s]
 WHEEL_KEYS_REQUIRED = ('name', 'element', 'teeth')
 WHEEL_KEYS_OPTIONAL = ('gap', 'offset_deg', 'pitch_errors_deg', 'pitch_error_sigma_deg',
                        'timer_resolution_s', 'timer_jitter_s', 'seed')
@@ -172,6 +173,16 @@ class SensorSet:
 
     tooth_wheels: tuple[ToothWheel, ...] = ()
     bus_signals: tuple[BusSignal, ...] = ()
+    edge_batch_s: float = 0.0
+    """Each wheel's edges go out in one message per this period of simulated time [s] (0: per
+    publish period; rounded to a whole number of publish periods, at least one): the edges
+    captured in (b - period, b] are sent at b (:meth:`edge_batch_ns`)."""
+
+    def edge_batch_ns(self, sample_period_s: float) -> float:
+        """The edge-batch period [ns] at publish period ``sample_period_s`` [s]: a whole
+        number of publish periods, at least one (the node sends at its publish ticks)."""
+        k = max(1, round(self.edge_batch_s / sample_period_s))
+        return k * sample_period_s * 1e9
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -191,8 +202,11 @@ class SensorSet:
 
     def as_dict(self) -> dict[str, Any]:
         """The ``sensors:`` mapping that gives this set back (:func:`parse_sensors`)."""
-        return {'tooth_wheels': [w.as_dict() for w in self.tooth_wheels],
-                'bus_signals': [s.as_dict() for s in self.bus_signals]}
+        out: dict[str, Any] = {'tooth_wheels': [w.as_dict() for w in self.tooth_wheels],
+                               'bus_signals': [s.as_dict() for s in self.bus_signals]}
+        if self.edge_batch_s:
+            out['edge_batch_s'] = self.edge_batch_s
+        return out
 
 
 # --------------------------------------------------------------------------------------------
@@ -332,4 +346,6 @@ def parse_sensors(raw, elements: Sequence[str] | None = None) -> SensorSet:
             raise ConfigError(f'sensors.bus_signals[{i}]: name {s.name!r} is used twice; '
                               'sensor names must be unique')
         signals[s.name] = s
-    return SensorSet(tuple(wheels.values()), tuple(signals.values()))
+    batch = number(raw.get('edge_batch_s', 0.0), 'sensors', 'edge_batch_s', 0.0,
+                   EDGE_BATCH_MAX_S, unit='s')
+    return SensorSet(tuple(wheels.values()), tuple(signals.values()), batch)

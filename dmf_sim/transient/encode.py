@@ -21,7 +21,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from dmf_sim.bags.columns import FLOAT64, JOINT_STATE, joint_state_layout
-from dmf_sim.bags.sensor_messages import FLOAT64_BYTES, encode_sensor_messages
+from dmf_sim.bags.sensor_messages import FLOAT64_BYTES, batch_log_ns, encode_sensor_messages
 from dmf_sim.live.simulation import Samples
 from dmf_sim.live.streams import SAMPLE_STREAMS, STREAMS
 from dmf_sim.monitor.messages import StatusData
@@ -191,22 +191,23 @@ class SensorBlock:
     """The sensor messages of ``dmf-sim run``, gathered chunk by chunk and encoded and written
     at once (:func:`dmf_sim.bags.sensor_messages.encode_sensor_messages`,
     :meth:`dmf_sim.bags.writer.BagRecorder.write_messages`), as the node sends them: per wheel
-    one edge batch per sample period with the edges captured in it (logged at the period's end
-    sample, as the node logs a publish tick's batch at its end; none when empty), and one
-    ``Float64`` per bus value at its delivery (layouts: :mod:`dmf_sim.bags.sensor_messages`).
+    one edge batch per batch period with the edges captured in it (logged at the period's end,
+    :func:`dmf_sim.bags.sensor_messages.batch_log_ns`; none when empty), and one ``Float64``
+    per bus value at its delivery (layouts: :mod:`dmf_sim.bags.sensor_messages`).
 
     ``topics``: stream key -> topic (:func:`dmf_sim.live.streams.resolved_topics` of the run's
-    streams); ``sample_period_s``: the bag's sample period (1 / rate); ``epoch_ns``: the stamp
-    of simulated time 0 (:class:`dmf_sim.live.pacing.TimeBase`)."""
+    streams); ``batch_period_ns``: the edge-batch period
+    (:meth:`dmf_sim.physics.sensors.SensorSet.edge_batch_ns`); ``epoch_ns``: the stamp of
+    simulated time 0 (:class:`dmf_sim.live.pacing.TimeBase`)."""
 
     def __init__(self, wheel_names: Sequence[str], signal_names: Sequence[str],
-                 topics: dict[str, str], sample_period_s: float, epoch_ns: int) -> None:
+                 topics: dict[str, str], batch_period_ns: float, epoch_ns: int) -> None:
         from dmf_sim.live.streams import bus_key, edge_key
         self.wheel_names = tuple(wheel_names)
         self.signal_names = tuple(signal_names)
         self.topics = ([topics[edge_key(w)] for w in wheel_names]
                        + [topics[bus_key(b)] for b in signal_names])
-        self.period_ns = sample_period_s * _NS_PER_S
+        self.period_ns = float(batch_period_ns)
         self.epoch_ns = int(epoch_ns)
         self._edges: list[list[np.ndarray]] = [[] for _ in self.wheel_names]
         self._bus: list[list[tuple[np.ndarray, np.ndarray]]] = [[] for _ in self.signal_names]
@@ -233,8 +234,7 @@ class SensorBlock:
             if not parts:
                 continue
             r = np.concatenate(parts) if len(parts) > 1 else parts[0]
-            period = np.ceil(r[:, 0] / self.period_ns)
-            log = np.rint(period * self.period_ns).astype(np.int64)
+            log = batch_log_ns(r[:, 0], self.period_ns)
             n = int(np.searchsorted(log, limit, side='right'))
             self._edges[w] = [r[n:]] if n < len(r) else []
             if not n:

@@ -434,10 +434,11 @@ def bag_bytes(sim: LiveSimulation, samples: int, profile: Profile | None = None)
         return total
     seconds, rpm = profile.duration_s, float(profile.speed_rpm.max())
     sensors, line = sim.line.sensors, sim.line
-    for w in sensors.tooth_wheels:        # every edge; at most one batch per sample
+    batches = seconds / (sensors.edge_batch_ns(sim.stride * sim.dt) * 1e-9)
+    for w in sensors.tooth_wheels:        # every edge; at most one batch per batch period
         edges = w.present_teeth * rpm / 60.0 / abs(sim.model.R[line.index(w.element)]) * seconds
         total += (edges * EDGE_ROW_BYTES
-                  + min(edges, samples) * (EDGE_HEADER_BYTES + MESSAGE_OVERHEAD_BYTES))
+                  + min(edges, batches) * (EDGE_HEADER_BYTES + MESSAGE_OVERHEAD_BYTES))
     for b in sensors.bus_signals:
         total += seconds / b.period_s * (FLOAT64_BYTES + MESSAGE_OVERHEAD_BYTES)
     return total
@@ -489,7 +490,8 @@ def _stream(profile: Profile, out, opt: RunOptions, sim: LiveSimulation,
     statuses = StatusEncoder() if write else None
     health = _Health(sim, 1.0 / opt.diagnostics_hz)
     ls = sim.live_sensors
-    sensors = (SensorBlock(ls.wheel_names, ls.signal_names, topics, sim.stride * sim.dt,
+    sensors = (SensorBlock(ls.wheel_names, ls.signal_names, topics,
+                           sim.line.sensors.edge_batch_ns(sim.stride * sim.dt),
                            timebase.epoch_ns) if write and ls is not None else None)
     max_rows = chunk // stride + 1
     work = np.zeros((max_rows, 3 * sim.model.n_elements))

@@ -103,6 +103,33 @@ def test_messages_of_a_chunk_and_their_keys():
     assert set(seen) == set(streams) - set(streams_for(None)) - {'misfire_detections'}
 
 
+def test_edge_batches_of_the_node_hold_each_period_s_edges_once():
+    """The node holds each wheel's edges until its batch period ends (10 ms on the shipped
+    truck, 10 chunks of 1 ms): every edge goes out once, in order, in the message logged at the
+    end of its period, (log - period, log], as dmf-sim run writes them."""
+    s = sim(sensors=True)
+    period = s.line.sensors.edge_batch_ns(s.stride * s.dt)
+    assert period == 1e7
+    msgs = SensorMessages(s.live_sensors.wheel_names, s.live_sensors.signal_names, period)
+    epoch = 1_700_000_000_000_000_000
+    sent, captured = {}, {}
+    for _ in range(500):                             # 0.5 s in chunks of 1 ms
+        chunk = s.advance(10).sensors
+        for w, name in enumerate(chunk.wheel_names):
+            captured.setdefault(name, []).append(chunk.edge_rows(w)[:, 0].copy())
+        for key, log, data in msgs.of(chunk, epoch, 0):
+            if key.startswith('edges/'):
+                t = decode_edges(data)[0]
+                assert (log - epoch) % period == 0 and log - period < t[0] and t[-1] <= log
+                sent.setdefault(key[len('edges/'):], []).append(t - epoch)
+    for name, parts in sent.items():
+        got, want = np.concatenate(parts), np.concatenate(captured[name])
+        assert len(parts) <= 50                      # one message per 10 ms at most
+        assert np.array_equal(got, want[want <= round(s.t * 1e9)][:len(got)])
+        assert len(want) - len(got) <= len(want) // 40   # at most the last period held
+    assert len(sent['crank']) >= 45
+
+
 def test_run_loop_hands_every_chunk_s_signals_to_the_sink():
     from support.live_core import ListLog, ListSink
 
@@ -146,7 +173,8 @@ def test_run_bag_holds_the_sensor_topics_with_the_node_s_layout(sensor_bag):
     assert parse_sensors(RunMetadata.from_bag_metadata(meta).sensors) == SENSORS
     for f in meta['files']:                       # every split file holds its own second
         assert f['duration']['nanoseconds'] <= 1e9
-    period_ns = 1e6                               # 1 kHz samples: one batch per sample period
+    period_ns = SENSORS.edge_batch_ns(1e-3)       # 1 kHz samples, batches of edge_batch_s
+    assert period_ns == 1e7
     edges, bus = {}, {}
     for m in read_messages(out, raw=True):
         if m.topic.endswith('/edges'):

@@ -20,6 +20,17 @@ def raw(name='truck_dmf'):
     return yaml.safe_load(config_file(name).read_text())
 
 
+def test_edge_batch_period_is_whole_publish_periods():
+    from dmf_sim.physics.sensors import SensorSet
+    assert SensorSet().edge_batch_ns(1e-3) == 1e6                    # 0: one publish period
+    assert SensorSet(edge_batch_s=0.01).edge_batch_ns(1e-3) == 1e7
+    assert SensorSet(edge_batch_s=0.0104).edge_batch_ns(2e-3) == 1e7  # rounded to 5 periods
+    assert SensorSet(edge_batch_s=1e-4).edge_batch_ns(1e-3) == 1e6   # at least one
+    shipped = driveline_from_dict(raw(), 'truck.yaml').sensors
+    assert shipped.edge_batch_s == 0.01
+    assert driveline_from_dict({**raw(), 'sensors': shipped.as_dict()}).sensors == shipped
+
+
 def test_shipped_sensors_of_the_dmf_truck():
     s = read_driveline('truck_dmf').sensors
     crank, secondary = s.wheel('crank'), s.wheel('flywheel_secondary')
@@ -87,6 +98,9 @@ def _bus(**kw):
 
 
 BAD = [
+    ({'edge_batch_s': -0.01, 'tooth_wheels': [_wheel()]}, ("'edge_batch_s'", '[0, 1]')),
+    ({'edge_batch_s': 2.0, 'tooth_wheels': [_wheel()]}, ("'edge_batch_s'", 'got 2.0')),
+    ({'edge_batch_s': float('nan'), 'tooth_wheels': [_wheel()]}, ("'edge_batch_s'",)),
     ({'tooth_wheels': [_wheel(teeth=0)]}, ('tooth_wheels[0] (crank)', "'teeth'", '[1, 3600]')),
     ({'tooth_wheels': [_wheel(teeth=-60)]}, ("'teeth'", 'got -60')),
     ({'tooth_wheels': [_wheel(teeth=60.5)]}, ("'teeth'", 'integer')),
