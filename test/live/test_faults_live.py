@@ -4,6 +4,7 @@ keeps running; the ground truth and the active set published (ROS over DDS: test
 from __future__ import annotations
 
 import pytest
+from support.live_core import StatusSink
 
 from dmf_sim.core.errors import ConfigError
 from dmf_sim.live.faults import FAULT_PARAMETERS
@@ -11,7 +12,6 @@ from dmf_sim.live.parameters import DMF_PARAMETERS, PARAMETERS
 from dmf_sim.live.runtime import LiveRuntime, read_line
 from dmf_sim.live.streams import STREAMS, resolved_topics
 from dmf_sim.monitor.messages import values_of
-from dmf_sim.physics.faults import event_from_values
 
 NODE = '/driveline_node'
 
@@ -30,41 +30,13 @@ class Log:
         self.lines.append(('error', m))
 
 
-class Sink:
-    """Statuses published, by stream key."""
-
-    def __init__(self):
-        self.statuses: dict[str, list] = {}
-        self.samples = 0
-
-    def publish_samples(self, s, stamps_ns, log_ns):
-        self.samples += len(s)
-
-    def publish_clock(self, stamp_ns):
-        pass
-
-    def publish_sensors(self, chunk, epoch_ns, log_offset_ns):
-        pass
-
-    def publish_statuses(self, key, statuses, stamp_ns):
-        self.statuses.setdefault(key, []).append((stamp_ns, list(statuses)))
-
-    def events(self):
-        out = []
-        for _, statuses in self.statuses.get('fault_ground_truth', []):
-            assert len(statuses) == 1            # one message per event
-            s = statuses[0]
-            out.append(event_from_values(s.message, values_of(s)))
-        return out
-
-
 def make(**over):
     values = {name: spec.default for name, spec in PARAMETERS.items()}
     values.update(alpha=2.5, theta=0.24, monitor=False, pacing='fast', initial_speed_rpm=1200.0,
                   initial_load=1.0)
     values.update(over)
     topics = resolved_topics('')
-    log, sink = Log(), Sink()
+    log, sink = Log(), StatusSink()
     rt = LiveRuntime(values, read_line(values['driveline']), sink, log,
                      topics={topics[k]: s.msgtype for k, s in STREAMS.items()}, node_name=NODE)
     rt.loop.start()

@@ -6,47 +6,26 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from support.live_core import StatusSink
 
 from dmf_sim.live.parameters import PARAMETERS
 from dmf_sim.live.runtime import LiveRuntime, read_line
 from dmf_sim.live.streams import resolved_topics, streams_for
 from dmf_sim.monitor.messages import values_of
 from dmf_sim.monitor.misfire import dmf_wheels
-from dmf_sim.physics.faults import event_from_values
 
 NODE = '/driveline_node'
 
 
-class Sink:
-    """Statuses by stream key; samples and sensors dropped."""
-
-    def __init__(self):
-        self.statuses: dict[str, list] = {}
-
-    def publish_samples(self, s, stamps_ns, log_ns):
-        pass
-
-    def publish_clock(self, stamp_ns):
-        pass
-
-    def publish_sensors(self, chunk, epoch_ns, log_offset_ns):
-        pass
-
-    def publish_statuses(self, key, statuses, stamp_ns):
-        self.statuses.setdefault(key, []).append((stamp_ns, list(statuses)))
+class Sink(StatusSink):
+    """The runtime's statuses; the detector's and the ground truth's misfires read back."""
 
     def detections(self) -> list[dict]:
         return [values_of(s) for _, st in self.statuses.get('misfire_detections', [])
                 for s in st]
 
     def misfires(self) -> list[dict]:
-        out = []
-        for _, st in self.statuses.get('fault_ground_truth', []):
-            for s in st:
-                ev = event_from_values(s.message, values_of(s))
-                if ev['what'] == 'misfire':
-                    out.append(ev)
-        return out
+        return [e for e in self.events() if e['what'] == 'misfire']
 
 
 def make(**over):

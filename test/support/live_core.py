@@ -46,6 +46,37 @@ class ListSink:
         self.sensors.append((chunk, epoch_ns, log_offset_ns))
 
 
+class StatusSink:
+    """The live runtime's output by stream key: the statuses published (stamp, list), samples
+    counted, sensors dropped; ``events()`` the faults' ground truth events in order."""
+
+    def __init__(self) -> None:
+        self.statuses: dict[str, list] = {}
+        self.samples = 0
+
+    def publish_samples(self, s, stamps_ns, log_ns):
+        self.samples += len(s)
+
+    def publish_clock(self, stamp_ns):
+        pass
+
+    def publish_sensors(self, chunk, epoch_ns, log_offset_ns):
+        pass
+
+    def publish_statuses(self, key, statuses, stamp_ns):
+        self.statuses.setdefault(key, []).append((stamp_ns, list(statuses)))
+
+    def events(self) -> list[dict]:
+        from dmf_sim.monitor.messages import values_of
+        from dmf_sim.physics.faults import event_from_values
+        out = []
+        for _, statuses in self.statuses.get('fault_ground_truth', []):
+            assert len(statuses) == 1            # one message per event
+            s = statuses[0]
+            out.append(event_from_values(s.message, values_of(s)))
+        return out
+
+
 class FakeClock:
     """Monotonic [s] and wall [ns] clocks that move only when told (or by ``auto`` per read)."""
 
