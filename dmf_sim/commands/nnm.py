@@ -94,6 +94,7 @@ def run(args) -> int:
                        options=opts)
     data = res.as_dict(xi_max=args.xi_max)
     data['summary'] = summary(res, args.xi_max)
+    data['left_out'] = left_out(model.spring)
     if args.check_scaling:
         data['scaling_check'] = scaling_check(model, mode=args.mode, options=opts)
     if args.json:
@@ -104,6 +105,18 @@ def run(args) -> int:
         with dest.writing() as out:
             _write(out, res, data, args)
     return 0
+
+
+def left_out(spring) -> str:
+    """What of the spring the NNMs leave out ('' when nothing): a non-linear normal mode is
+    a periodic motion of the undamped elastic system, so arc-spring friction is not in it, and
+    the end stops' contact is not modelled (the modes hold below the stop angle)."""
+    parts = []
+    if spring is not None and spring.friction is not None:
+        parts.append('arc-spring friction (dissipative: not part of a normal mode)')
+    if spring is not None and spring.stops is not None:
+        parts.append('the end stops (the modes hold below the stop angles)')
+    return '; '.join(parts)
 
 
 def _num(v):
@@ -124,6 +137,8 @@ def _print(res, data, args) -> None:
         print(f'  {r:9s} branch: static wind-up {br.windup_static:.4f} rad (knee distance '
               f'{br.distance:.4f} rad), linear {br.linear_frequency_hz:.2f} Hz, '
               f'E_nl = {br.e_nl:.4g} J')
+    if data['left_out']:
+        print(f'  left out: {data["left_out"]}')
     s = data['summary']
     print(f'{"xi":>8}  {"primary [Hz]":>13}  {"secondary [Hz]":>14}')
     for i, x in enumerate(s['xi']):

@@ -193,3 +193,16 @@ def test_cli_writes_csv_json_png(tmp_path, capsys):
     header = (out / 'nnm.csv').read_text().splitlines()[0].split(',')
     assert header[:4] == ['region', 'segment', 'xi', 'frequency_hz']
     assert main(['nnm', '--xi-max', '0.5']) == 2
+
+
+def test_the_command_says_what_the_modes_leave_out(capsys):
+    """A friction DMF's NNMs are those of its elastic spring: the command says so."""
+    from dmf_sim.cli import main
+    from dmf_sim.commands.nnm import left_out
+    from dmf_sim.physics.model import read_model
+
+    assert left_out(read_model('truck_dmf').spring) == ''
+    text = left_out(read_model('truck_dmf_friction').spring)
+    assert 'friction' in text and 'end stops' in text
+    assert main(['nnm', '--config', 'truck_dmf_friction', '--xi-max', '1.5']) == 0
+    assert f'left out: {text}' in capsys.readouterr().out
