@@ -107,7 +107,8 @@ def misfire_scores(t_p: np.ndarray, theta_p: np.ndarray, t_w: np.ndarray, phi: n
     at times [s]; spring_torque: the DMF characteristic T(phi) [Nm] (default: linear, Tbar
     then the mean wind-up itself). Returns the segments of ``segment_speeds`` (``cylinder``,
     ``combustion``, ``tdc_rad``, ...) of the scored intervals (each the segment whose TDC
-    starts it) plus ``t_s`` (the TDC's time) and ``score``. ``learned``: the gain's fit
+    starts it) plus ``t_s`` (the TDC's time), ``score`` and ``windup_rad`` (the mean of the
+    wind-up (W1) over the interval, from the sensors). ``learned``: the gain's fit
     accumulated over the data before (a live detector's earlier windows): the gain is
     fitted to those and this window's later differences together, as on the whole run, and
     the window's differences are returned too (``diff_rad``, ``diff_num``, ``diff_den``,
@@ -122,7 +123,8 @@ def misfire_scores(t_p: np.ndarray, theta_p: np.ndarray, t_w: np.ndarray, phi: n
     frac = (np.arange(WINDUP_POINTS) + 0.5) / WINDUP_POINTS
     tt = tm[:-1, None] + np.diff(tm)[:, None] * frac[None, :]
     wind_t = np.interp(tt, t_w, phi)
-    tbar = (wind_t if spring_torque is None else spring_torque(wind_t)).mean(axis=1)
+    wbar = wind_t.mean(axis=1)
+    tbar = wbar if spring_torque is None else spring_torque(wind_t).mean(axis=1)
     n = len(energy)
     # the spring's work per unit inertia, one factor for the run: first differences of (M1)
     # against those of Tbar (slow levels cancel; refitted without the outliers)
@@ -149,6 +151,7 @@ def misfire_scores(t_p: np.ndarray, theta_p: np.ndarray, t_w: np.ndarray, phi: n
     out = {k: v[:-1][ok] for k, v in seg.items()}
     out['t_s'] = tm[:-1][ok]
     out['score'] = score[ok]
+    out['windup_rad'] = wbar[ok]
     if learned is not None:
         out.update(diff_rad=label, diff_num=de * dtq, diff_den=dtq * dtq, diff_use=use)
     return out

@@ -174,13 +174,16 @@ def monitor_status(node: str, report: AlarmReport, cycle, prediction: Prediction
 def detection_statuses(node: str, detections) -> list[StatusData]:
     """The live misfire detector's message: one status per scored firing interval
     (:class:`dmf_sim.monitor.misfire.Detection`), in crank-angle order; WARN and 'misfire
-    cylinder N' for an alarm. ``tdc_crank_angle_rad`` is the crank angle of the interval's
-    TDC, as the ground truth (``faults/ground_truth``) gives a misfire's."""
+    cylinder N' for an alarm; ``speed_rpm`` the segment's crank speed and
+    ``windup_sensors_rad`` the interval's mean DMF wind-up, both from the tooth edges.
+    ``tdc_crank_angle_rad`` is the crank angle of the interval's TDC, as the ground truth
+    (``faults/ground_truth``) gives a misfire's."""
     out = []
     for d in detections:
         vals = {'cylinder': d.cylinder, 'combustion': d.combustion,
                 'tdc_crank_angle_rad': d.tdc_crank_angle_rad, 'tdc_time_s': d.t_ns * 1e-9,
-                'speed_rpm': d.speed_rpm, 'score': d.score, 'alarm': d.alarm}
+                'speed_rpm': d.speed_rpm, 'score': d.score, 'alarm': d.alarm,
+                'windup_sensors_rad': d.windup_rad}
         text = (f'misfire cylinder {d.cylinder}' if d.alarm
                 else f'cylinder {d.cylinder}: no misfire')
         out.append(StatusData(WARN if d.alarm else OK, f'{node}: {DETECTOR_NAME}',

@@ -88,7 +88,9 @@ class MisfireWindow:
 class Detection:
     """One scored firing interval: the time of its TDC [ns of simulated time], its cylinder
     (1-based) and combustion number, the TDC's crank angle [rad] (as the ground truth gives a
-    misfire's), the segment speed [rpm], the score (M2) and whether it raised an alarm."""
+    misfire's), the segment speed [rpm], the score (M2), whether it raised an alarm, and the
+    mean DMF wind-up over the interval from the two wheels [rad] (eq. W1 of
+    :mod:`dmf_sim.analysis.windup_estimate`)."""
 
     t_ns: int
     cylinder: int
@@ -97,6 +99,7 @@ class Detection:
     speed_rpm: float
     score: float
     alarm: bool
+    windup_rad: float = float('nan')
 
 
 class MisfireTracker:
@@ -183,8 +186,8 @@ def analyze_window(window: MisfireWindow,
         return [], {}                 # too few edges for a fit (the sensors dropped them)
     rpm = 60.0 / (2.0 * math.pi)
     return [Detection(int(o + round(t * 1e9)), int(c), int(m), float(tdc), float(om * rpm),
-                      float(s), bool(a))
-            for o, t, c, m, tdc, om, s, a in zip(
+                      float(s), bool(a), float(wu))
+            for o, t, c, m, tdc, om, s, a, wu in zip(
                 sc['origin_ns'], sc['t_s'], sc['cylinder'], sc['combustion'], sc['tdc_rad'],
-                sc['omega'], sc['score'], sc['alarm'])], \
+                sc['omega'], sc['score'], sc['alarm'], sc['windup_rad'])], \
         {k: v for k, v in sc.items() if k.startswith('diff_')}
