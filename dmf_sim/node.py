@@ -222,11 +222,13 @@ class DrivelineNode(Node):
         if rt.foxglove is not None:
             rt.foxglove.publish(self._topics[key], data, log_ns)
 
-    def publish_statuses(self, key: str, statuses, stamp_ns: int) -> None:
+    def publish_statuses(self, key: str, statuses, stamp_ns: int,
+                         sent_ns: int | None = None) -> None:
         msg = DiagnosticArray()
         msg.header.stamp = Time(sec=stamp_ns // 1_000_000_000, nanosec=stamp_ns % 1_000_000_000)
         msg.status = [s.to_msg(DiagnosticStatus, KeyValue) for s in statuses]
-        self._emit(key, msg, stamp_ns + self.runtime.loop.time.log_offset_ns)
+        self._emit(key, msg, (stamp_ns if sent_ns is None else sent_ns)
+                   + self.runtime.loop.time.log_offset_ns)
 
     def publish_samples(self, s, stamps_ns, log_ns) -> None:
         js, f = self._js, self._f64

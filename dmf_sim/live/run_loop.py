@@ -96,9 +96,13 @@ class SampleSink(Protocol):
         """A chunk's sensor signals (:class:`dmf_sim.physics.sensor_signals.SensorChunk`):
         stamps are ``epoch_ns`` + simulated ns, log times the stamps + ``log_offset_ns``."""
 
-    def publish_statuses(self, key: str, statuses: list, stamp_ns: int) -> None:
+    def publish_statuses(self, key: str, statuses: list, stamp_ns: int,
+                         sent_ns: int | None = None) -> None:
         """A DiagnosticArray of ``statuses`` (dmf_sim.monitor.messages.StatusData) on stream
-        ``key`` ('dmf_orders', 'dmf_predicted', 'misfire_detections'), stamped ``stamp_ns``."""
+        ``key`` ('dmf_orders', 'dmf_predicted', 'misfire_detections'), stamped ``stamp_ns``
+        and sent (recorded) at stamp ``sent_ns`` (default ``stamp_ns``): a status about the
+        past, stamped with the time it is about, is recorded when it is sent, so a bag's
+        log times stay in the order things were sent."""
 
 
 # ------------------------------------------------------------------------------------------------

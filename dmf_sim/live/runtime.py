@@ -185,9 +185,10 @@ class LiveRuntime:
             if up.prediction is not None:
                 sink.publish_statuses('dmf_predicted', list(up.prediction_statuses),
                                       int(stamps_ns[-1]))
-            if up.detection_statuses:     # stamped with the last interval's TDC
+            if up.detection_statuses:     # about the last interval's TDC, sent now
                 sink.publish_statuses('misfire_detections', up.detection_statuses,
-                                      self.loop.time.epoch_ns + up.detections[-1].t_ns)
+                                      self.loop.time.epoch_ns + up.detections[-1].t_ns,
+                                      int(stamps_ns[-1]))
         self.loop.observers.append(observe)
         if monitor.misfires is not None and sim.live_sensors is not None:
             self.loop.sensor_observers.append(

@@ -108,6 +108,11 @@ def test_live_alarms_are_the_misfires_of_the_ground_truth():
                                         - ev['tdc_crank_angle_rad']) < half]
         assert len(hit) == 1 and int(hit[0]['cylinder']) == ev['cylinder'] == 3
     assert len(alarms) == len(truth)         # no false alarm
+    # each message is about its last interval's TDC (its stamp) and recorded when it is sent,
+    # a sample stamp later: a bag's log times stay in the order of sending
+    stamps = [st for st, _ in sink.statuses['misfire_detections']]
+    sent = sink.sent['misfire_detections']
+    assert all(b > a for a, b in zip(stamps, sent)) and sent == sorted(sent)
     counters = rt.monitor.counters
     assert counters['misfire_alarms'] == 3 and counters['intervals_scored'] == len(det)
 

@@ -52,10 +52,13 @@ class StatusSink:
 
     def __init__(self) -> None:
         self.statuses: dict[str, list] = {}
+        self.sent: dict[str, list] = {}          # the send stamps, by stream key
         self.samples = 0
+        self.last_stamp = 0
 
     def publish_samples(self, s, stamps_ns, log_ns):
         self.samples += len(s)
+        self.last_stamp = int(stamps_ns[-1])
 
     def publish_clock(self, stamp_ns):
         pass
@@ -63,8 +66,9 @@ class StatusSink:
     def publish_sensors(self, chunk, epoch_ns, log_offset_ns):
         pass
 
-    def publish_statuses(self, key, statuses, stamp_ns):
+    def publish_statuses(self, key, statuses, stamp_ns, sent_ns=None):
         self.statuses.setdefault(key, []).append((stamp_ns, list(statuses)))
+        self.sent.setdefault(key, []).append(stamp_ns if sent_ns is None else sent_ns)
 
     def events(self) -> list[dict]:
         from dmf_sim.monitor.messages import values_of
