@@ -41,7 +41,7 @@ from dmf_sim.core.units import CYCLE_RAD, RPM_TO_RAD_S, cycle_period_s
 from dmf_sim.physics.model import ReducedModel
 from dmf_sim.physics.orders import synthesize
 from dmf_sim.solvers.lapack_kernel import eigenvalues_into
-from dmf_sim.solvers.stability_kernel import floquet, floquet_many, monodromy_law
+from dmf_sim.solvers.stability_kernel import floquet, floquet_law_many, floquet_many
 
 __all__ = ['CROSSING_NEWTON_STEPS', 'EXTREME_SPREAD', 'FloquetResult', 'ModeClass', 'by_modulus',
            'real_eigenbasis', 'extreme_quantity', 'FlexibleModes', 'FloquetAnalyzer']
@@ -351,12 +351,19 @@ class FloquetAnalyzer:
             nf = self.nf
             zero = np.zeros(nf)
             b = np.concatenate([zero, -self.er])
+            rows = (np.concatenate([self.er, zero]), np.concatenate([zero, self.er]))
+            er2 = float(self.er @ self.er)
+            # the numpy reference works in the complex eigen-coordinates of the primary region,
+            # the compiled kernel in its real eigenbasis Q (the same flow, in real arithmetic)
             self._law_basis = (V, Vinv)
-            self._law_args = (*sp.arrays(), int(sp.primary_index), sp.law_array(),
-                              np.ascontiguousarray(d), np.ascontiguousarray(Vinv @ b),
-                              np.ascontiguousarray(np.concatenate([self.er, zero]) @ V),
-                              np.ascontiguousarray(np.concatenate([zero, self.er]) @ V),
-                              float(self.er @ self.er))
+            self._law_complex = (np.ascontiguousarray(d), np.ascontiguousarray(Vinv @ b),
+                                 *(np.ascontiguousarray(r @ V) for r in rows), er2)
+            Q0, kind0, sigma0, freq0 = real_bases[sp.stages().index(0)]
+            Qinv0 = Qinv[sp.stages().index(0)]
+            self._law_real = (Q0, Qinv0)
+            self._law_args = (*sp.arrays(), int(sp.primary_index), sp.law_array(), kind0,
+                              sigma0, freq0, Qinv0 @ b,
+                              *(np.ascontiguousarray(r @ Q0) for r in rows), er2)
 
     # ---- regions and crossings -------------------------------------------------------------
     def linear_multipliers(self, speeds_rpm: np.ndarray, region: int = 0) -> np.ndarray:
@@ -456,8 +463,13 @@ class FloquetAnalyzer:
         one's wind-up over the cycle. Returns the multipliers (sorted by decreasing modulus),
         max |mu| and stability of each, the same values as K calls of :meth:`analyze`; the
         crossings, monodromies and eigenvalues in one compiled call
-        (:func:`dmf_sim.solvers.stability_kernel.floquet_many`)."""
+        (:func:`dmf_sim.solvers.stability_kernel.floquet_many`; with friction or end stops
+        :func:`~dmf_sim.solvers.stability_kernel.floquet_law_many`)."""
         speeds = np.asarray(speeds_rpm, dtype=float).reshape(-1)
+        if self.compiled and self.has_law and len(speeds):
+            res = [by_modulus(mu) for mu in self._law_many(C, speeds, samples)[0]]
+            top = [float(mx) for _, mx in res]
+            return [mu for mu, _ in res], top, [m < 1.0 + self.tol for m in top]
         if not self.compiled or self.has_law or len(speeds) == 0:
             res = [self.analyze(c, s, samples=w) for c, s, w in zip(C, speeds.tolist(), samples)]
             return ([r.multipliers for r in res], [r.max_abs for r in res],
@@ -485,18 +497,40 @@ class FloquetAnalyzer:
                 [m < 1.0 + self.tol for m in top])
 
     # ---- friction and end stops: the time-varying damping ------------------------------------
-    def law_samples(self, c: np.ndarray, speed_rpm: float, samples: np.ndarray | None = None
-                    ) -> tuple[np.ndarray, np.ndarray, float, float]:
+    def law_samples(self, c: np.ndarray, speed_rpm, samples: np.ndarray | None = None
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(w, w_dot, period [s], sliding friction torque [Nm]) of the periodic wind-up with
         harmonics ``c`` at ``speed_rpm``, on the uniform grid of ``n_fine`` points of the cycle
-        (or of ``samples``' length): what the step-by-step monodromy reads."""
-        omega = speed_rpm * RPM_TO_RAD_S
+        (or of ``samples``' length): what the step-by-step monodromy reads. ``c`` (K, H+1) at
+        K speeds (``samples`` (K, N)) gives them for each row, the same values as row by row."""
+        omega = np.asarray(speed_rpm, dtype=float) * RPM_TO_RAD_S
         c = np.asarray(c, dtype=complex)
-        N = self.n_fine if samples is None else len(samples)
+        N = self.n_fine if samples is None else np.shape(samples)[-1]
         w = synthesize(c, N) if samples is None else np.asarray(samples, dtype=float)
-        v = synthesize(1j * np.arange(len(c)) * (0.5 * omega) * c, N)
-        amp = float(self.spring.friction.amplitude(omega)) if self.spring.friction else 0.0
+        half = 0.5 * omega[..., None] if omega.ndim else 0.5 * float(omega)
+        v = synthesize(1j * np.arange(c.shape[-1]) * half * c, N)
+        amp = (self.spring.friction.amplitude(omega) if self.spring.friction
+               else np.zeros_like(omega))
         return (np.ascontiguousarray(w), np.ascontiguousarray(v), CYCLE_RAD / omega, amp)
+
+    def _law_many(self, C: np.ndarray, speeds: np.ndarray, samples: np.ndarray | None
+                  ) -> tuple[list[np.ndarray], np.ndarray]:
+        """(multipliers of each point, unsorted: real where all are, as :func:`eigenvalues`
+        gives them; monodromies (K, 2 nf, 2 nf)) of K periodic wind-ups with friction or end
+        stops in one compiled call (:func:`dmf_sim.solvers.stability_kernel.floquet_law_many`)."""
+        w, v, periods, amps = self.law_samples(C, speeds, samples)
+        K, ns = len(speeds), 2 * self.nf
+        M = np.empty((K, ns, ns))
+        wr = np.zeros((K, ns))
+        wi = np.zeros((K, ns))
+        status = np.empty(K, dtype=np.int64)
+        floquet_law_many(w, v, np.ascontiguousarray(periods, dtype=float),
+                         np.ascontiguousarray(amps, dtype=float), *self._law_args,
+                         *self._law_real, M, wr, wi, status)
+        if status.any():        # as eigenvalues() raises for one point
+            raise np.linalg.LinAlgError(_NOT_FINITE if 1 in status else _NO_CONVERGENCE)
+        mu = wr + 1j * wi
+        return [mu[k] if wi[k].any() else wr[k] for k in range(K)], M
 
     def analyze_law(self, c: np.ndarray, speed_rpm: float, keep_monodromy: bool = False,
                     samples: np.ndarray | None = None) -> FloquetResult:
@@ -504,18 +538,22 @@ class FloquetAnalyzer:
         (doc/theory.md §8): the linearization has the time-varying stiffness dg/dw + dT_s/dw and
         damping dT_f/dw_dot + dT_s/dw_dot along the wind-up; the monodromy is formed over the
         ``n_fine`` steps of the cycle by the compiled splitting
-        (:func:`dmf_sim.solvers.stability_kernel.monodromy_law`; ``compiled`` off: its numpy
-        twin :meth:`monodromy_law_reference`)."""
-        w, v, period, amp = self.law_samples(c, speed_rpm, samples)
-        ns = 2 * self.nf
+        (:func:`dmf_sim.solvers.stability_kernel.monodromy_law`, the same call as a sweep's
+        batch, :meth:`analyze_many`; ``compiled`` off: its numpy twin
+        :meth:`monodromy_law_reference`)."""
         if self.compiled:
-            Z = monodromy_law(w, v, period, amp, *self._law_args,
-                              np.empty((ns, ns), dtype=complex))
+            c = np.asarray(c, dtype=complex)
+            mus, Ms = self._law_many(c[None], np.array([float(speed_rpm)]),
+                                     None if samples is None else np.asarray(samples)[None])
+            mu, M = mus[0], Ms[0]
+            w = synthesize(c, self.n_fine) if samples is None else np.asarray(samples)
         else:
-            Z = self.monodromy_law_reference(w, v, period, amp)
-        V, Vinv = self._law_basis
-        M = ((V @ Z) @ Vinv).real
-        mu, mx = by_modulus(eigenvalues(M))
+            w, v, period, amp = self.law_samples(c, speed_rpm, samples)
+            Z = self.monodromy_law_reference(w, v, float(period), float(amp))
+            V, Vinv = self._law_basis
+            M = ((V @ Z) @ Vinv).real
+            mu = eigenvalues(M)
+        mu, mx = by_modulus(mu)
         mx = float(mx)
         idx = self.spring.region_index(w)
         crossings = int(np.count_nonzero(idx != np.roll(idx, -1)))
@@ -530,7 +568,7 @@ class FloquetAnalyzer:
         end stop's, by a centred difference: exact on their linear pieces).
         With ``record`` also the eigen-coordinate transition after each step (N, n, n)."""
         sp = self.spring
-        d, beta, p, q, er2 = self._law_args[5:]
+        d, beta, p, q, er2 = self._law_complex
         N = len(w)
         h = period / N
         E = np.exp(d * h)
@@ -568,7 +606,7 @@ class FloquetAnalyzer:
         the step-by-step monodromy (:meth:`monodromy_law_reference`, recording each step),
         read out along the wind-up at every step and resampled."""
         w, v, period, amp = self.law_samples(c, speed_rpm, None)
-        Z, steps = self.monodromy_law_reference(w, v, period, amp, record=True)
+        Z, steps = self.monodromy_law_reference(w, v, float(period), float(amp), record=True)
         mu, vecs = np.linalg.eig(Z)
         order = np.argsort(-np.abs(mu))
         m = complex(mu[order[which]])
