@@ -347,23 +347,22 @@ class FloquetAnalyzer:
         #: damping too, and the monodromy is integrated step by step (:meth:`analyze_law`)
         self.has_law = not sp.smooth_elastic
         if self.has_law:
-            d, V, Vinv = self._eig[0]
             nf = self.nf
             zero = np.zeros(nf)
             b = np.concatenate([zero, -self.er])
             rows = (np.concatenate([self.er, zero]), np.concatenate([zero, self.er]))
             er2 = float(self.er @ self.er)
-            # the numpy reference works in the complex eigen-coordinates of the primary region,
-            # the compiled kernel in its real eigenbasis Q (the same flow, in real arithmetic)
-            self._law_basis = (V, Vinv)
-            self._law_complex = (np.ascontiguousarray(d), np.ascontiguousarray(Vinv @ b),
-                                 *(np.ascontiguousarray(r @ V) for r in rows), er2)
-            Q0, kind0, sigma0, freq0 = real_bases[sp.stages().index(0)]
-            Qinv0 = Qinv[sp.stages().index(0)]
-            self._law_real = (Q0, Qinv0)
-            self._law_args = (*sp.arrays(), int(sp.primary_index), sp.law_array(), kind0,
-                              sigma0, freq0, Qinv0 @ b,
-                              *(np.ascontiguousarray(r @ Q0) for r in rows), er2)
+            # per region (by region index): the numpy reference works in the complex
+            # eigen-coordinates (d, V, V^-1, beta, p, q), the compiled kernel in the real
+            # eigenbasis Q (the same flows, in real arithmetic)
+            self._law_complex = [(*self._eig[st], *(np.ascontiguousarray(a) for a in (
+                self._eig[st][2] @ b, rows[0] @ self._eig[st][1], rows[1] @ self._eig[st][1])))
+                for st in sp.stages()]
+            self._law_real = (np.stack(Q), np.stack(Qinv))
+            self._law_args = (*sp.arrays(), int(sp.primary_index), sp.law_array(),
+                              *self._kernel_args[3:],
+                              np.stack([qi @ b for qi in Qinv]),
+                              *(np.stack([r @ q for q in Q]) for r in rows), er2)
 
     # ---- regions and crossings -------------------------------------------------------------
     def linear_multipliers(self, speeds_rpm: np.ndarray, region: int = 0) -> np.ndarray:
@@ -549,8 +548,8 @@ class FloquetAnalyzer:
             w = synthesize(c, self.n_fine) if samples is None else np.asarray(samples)
         else:
             w, v, period, amp = self.law_samples(c, speed_rpm, samples)
-            Z = self.monodromy_law_reference(w, v, float(period), float(amp))
-            V, Vinv = self._law_basis
+            Z, first = self.monodromy_law_reference(w, v, float(period), float(amp))
+            _, V, Vinv = self._law_complex[first][:3]
             M = ((V @ Z) @ Vinv).real
             mu = eigenvalues(M)
         mu, mx = by_modulus(mu)
@@ -563,19 +562,23 @@ class FloquetAnalyzer:
     def monodromy_law_reference(self, w: np.ndarray, v: np.ndarray, period: float, amp: float,
                                 record: bool = False):
         """The compiled :func:`~dmf_sim.solvers.stability_kernel.monodromy_law` in numpy: the
-        same splitting step by step, with the law's numpy form (the spring's ``extra_torque``,
-        its friction's and end stops' ``torque``; a tangent where a secant is undefined, and the
-        end stop's, by a centred difference: exact on their linear pieces).
-        With ``record`` also the eigen-coordinate transition after each step (N, n, n)."""
+        same splitting step by step, in the complex eigen-coordinates of each step's base
+        region (where the step starts), with the law's numpy form (the spring's
+        ``extra_torque``, its friction's and end stops' ``torque``; a tangent where a secant is
+        undefined, and the end stop's, by a centred difference: exact on their linear pieces).
+        Returns (Z in the coordinates of the first step's region, that region's index); with
+        ``record`` also the wind-up read-out of the transition after each step (N, n)."""
         sp = self.spring
-        d, beta, p, q, er2 = self._law_complex
+        _, slopes, _ = sp.arrays()
+        er2 = float(self.er @ self.er)
         N = len(w)
         h = period / N
-        E = np.exp(d * h)
         w1, v1 = np.roll(w, -1), np.roll(v, -1)
         dw, dv = w1 - w, v1 - v
+        base = sp.region_index(w)
         g0, g1 = sp.extra_torque(w), sp.extra_torque(w1)
-        k = np.where(dw != 0, (g1 - g0) / np.where(dw != 0, dw, 1.0), sp.extra_stiffness(w))
+        k = np.where(base == np.roll(base, -1), 0.0,
+                     (g1 - g0) / np.where(dw != 0, dw, 1.0) - slopes[base])
         omega = CYCLE_RAD / period
         if sp.friction is not None:
             f0 = sp.friction.torque(v, omega)
@@ -588,17 +591,26 @@ class FloquetAnalyzer:
             wm, vm = 0.5 * (w + w1), 0.5 * (v + v1)
             k = k + _slope(lambda x: sp.stops.torque(x, vm), wm)
             c = c + _slope(lambda x: sp.stops.torque(wm, x), vm)
-        Z = np.eye(len(d), dtype=complex)
+        first = cur = int(base[0])
+        Z = np.eye(2 * self.nf, dtype=complex)
         steps = []
         for j in range(N):
-            Z = E[:, None] * Z
+            r = int(base[j])
+            if r != cur:
+                Z = (self._law_complex[r][2] @ self._law_complex[cur][1]) @ Z
+                cur = r
+            d, V, _, beta, p, q = self._law_complex[r]
+            half = np.exp(0.5 * d * h)[:, None]
+            Z = half * Z
             if k[j] != 0.0 or c[j] != 0.0:
                 sigma = -c[j] * er2
                 phi = h if abs(sigma * h) < 1e-12 else np.expm1(sigma * h) / sigma
                 Z = Z + np.outer(beta * phi, (k[j] * p + c[j] * q) @ Z)
+            Z = half * Z
             if record:
-                steps.append(Z)
-        return (Z, np.array(steps)) if record else Z
+                steps.append((self._ew @ V) @ Z)
+        Z = (self._law_complex[first][2] @ self._law_complex[cur][1]) @ Z
+        return (Z, first, np.array(steps)) if record else (Z, first)
 
     def _law_eigen_solution(self, c: np.ndarray, speed_rpm: float, which: int, n_grid: int):
         """(multiplier, wind-up perturbation on ``n_grid`` points of the cycle, 0.0) of the
@@ -606,14 +618,14 @@ class FloquetAnalyzer:
         the step-by-step monodromy (:meth:`monodromy_law_reference`, recording each step),
         read out along the wind-up at every step and resampled."""
         w, v, period, amp = self.law_samples(c, speed_rpm, None)
-        Z, steps = self.monodromy_law_reference(w, v, float(period), float(amp), record=True)
+        Z, first, steps = self.monodromy_law_reference(w, v, float(period), float(amp),
+                                                       record=True)
         mu, vecs = np.linalg.eig(Z)
         order = np.argsort(-np.abs(mu))
         m = complex(mu[order[which]])
         z0 = vecs[:, order[which]]
-        V, _ = self._law_basis
-        ev = self._ew @ V
-        dw_steps = np.concatenate([[ev @ z0], (steps @ z0) @ ev])[:-1]   # at t_0 .. t_(N-1)
+        ev = self._ew @ self._law_complex[first][1]
+        dw_steps = np.concatenate([[ev @ z0], steps @ z0])[:-1]   # at t_0 .. t_(N-1)
         grid = np.arange(n_grid) * len(w) / n_grid
         dw = (np.interp(grid, np.arange(len(w)), dw_steps.real)
               + 1j * np.interp(grid, np.arange(len(w)), dw_steps.imag))

@@ -128,11 +128,10 @@ def warm_up() -> float:
     # array, a uniform grid)
     grid = np.zeros((1, 4))
     stability_kernel.floquet_law_many(grid, grid, np.ones(1), np.ones(1), *spring,
-                                      np.array([1, 2], dtype=np.int64), -np.ones(ns),
-                                      np.ones(ns), np.ones(ns), np.ones(ns), np.ones(ns), 1.0,
-                                      np.eye(ns), np.eye(ns), np.empty((1, ns, ns)),
-                                      np.empty((1, ns)), np.empty((1, ns)),
-                                      np.empty(1, dtype=np.int64))
+                                      *fl_args[3:], np.ones((2, ns)), np.ones((2, ns)),
+                                      np.ones((2, ns)), 1.0, W[0].copy(), W[0].copy(),
+                                      np.empty((1, ns, ns)), np.empty((1, ns)),
+                                      np.empty((1, ns)), np.empty(1, dtype=np.int64))
     # the multipliers of one point analyzed alone (stability.eigenvalues calls it from Python)
     eigenvalues_into(np.eye(ns), np.empty(ns), np.empty(ns))
     # the continuation loop's step control, called from Python with these types
