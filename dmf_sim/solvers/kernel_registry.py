@@ -112,7 +112,7 @@ KERNELS: tuple[Kernel, ...] = (
            'dmf_sim.solvers.stability:FloquetAnalyzer.analyze_reference', 'floquet', REL_TOL),
     Kernel('dmf_sim.solvers.stability_kernel:floquet_many',
            'dmf_sim.solvers.stability:FloquetAnalyzer.analyze', 'traced points', BITWISE),
-    Kernel('dmf_sim.solvers.stability_kernel:monodromy_law',
+    Kernel('dmf_sim.solvers.stability_kernel:floquet_law_many',
            'dmf_sim.solvers.stability:FloquetAnalyzer.monodromy_law_reference',
            'floquet with friction', FRICTION_TOL),
     Kernel('dmf_sim.solvers.lapack_kernel:eigenvalues_into', 'numpy.linalg:eigvals',
@@ -137,13 +137,16 @@ HELPERS: tuple[str, ...] = (
     f'{_C}:add_step', f'{_C}:_evaluate_scaled', f'{_S}:next_grid',
     'dmf_sim.solvers.stability_kernel:floquet_segments',
     'dmf_sim.solvers.stability_kernel:monodromy_similar',
-    'dmf_sim.solvers.stability_kernel:step_law',
+    *(f'dmf_sim.solvers.stability_kernel:{n}' for n in ('flow_factors', 'flow_apply',
+                                                         'flow_real', 'law_steps',
+                                                         'monodromy_law')),
     'dmf_sim.solvers.lapack_kernel:dgeev_into',
     'dmf_sim.solvers.francis_qr:hessenberg_eigenvalues',
     *(f'dmf_sim.solvers.newmark_kernel:{n}' for n in ('newmark_constants', 'thomas',
                                                       'knee_between', 'regular_block',
                                                       'law_solve')),
-    *(f'dmf_sim.solvers.spring_kernels:{n}' for n in ('region_of', 'law_parts', 'law_active')),
+    *(f'dmf_sim.solvers.spring_kernels:{n}' for n in ('region_of', 'friction_parts',
+                                                      'stop_parts', 'law_parts', 'law_active')),
 )
 """Compiled functions called only from other kernels (compiled and cached with their callers)."""
 

@@ -13,7 +13,7 @@ import math
 
 from dmf_sim.core.compiled import jit
 
-__all__ = ['region_of', 'law_parts', 'law_active']
+__all__ = ['region_of', 'friction_parts', 'stop_parts', 'law_parts', 'law_active']
 
 
 def region_of(w, knees, primary):
@@ -25,13 +25,17 @@ def region_of(w, knees, primary):
     return r
 
 
-def law_parts(w, wd, amp, law):
-    """(friction torque T_f, end-stop torque T_s, d(T_f)/d(w_dot), d(T_s)/dw, d(T_s)/d(w_dot))
-    at wind-up w [rad], rate wd [rad/s] and sliding friction torque ``amp`` = T0 + c_Omega
-    Omega^2 [Nm] (eq. 8a, 8b; ``law`` = PiecewiseLinearSpring.law_array())."""
+def friction_parts(wd, amp, law):
+    """(friction torque T_f [Nm], d(T_f)/d(w_dot) [Nms/rad]) at wind-up rate wd [rad/s] and
+    sliding friction torque ``amp`` = T0 + c_Omega Omega^2 [Nm] (eq. 8a; ``law`` =
+    PiecewiseLinearSpring.law_array())."""
     th = math.tanh(wd / law[2])
-    tf = amp * th
-    dtf = amp * (1.0 - th * th) / law[2]
+    return amp * th, amp * (1.0 - th * th) / law[2]
+
+
+def stop_parts(w, wd, law):
+    """(end-stop torque T_s [Nm], d(T_s)/dw [Nm/rad], d(T_s)/d(w_dot) [Nms/rad]) at wind-up w
+    [rad] and rate wd [rad/s] (eq. 8b; all zero without stops, ``law[5]`` = 0)."""
     ts = 0.0
     dts_w = 0.0
     dts_v = 0.0
@@ -48,6 +52,16 @@ def law_parts(w, wd, amp, law):
                 ts = -f
                 dts_w = law[5]
                 dts_v = law[6]
+    return ts, dts_w, dts_v
+
+
+def law_parts(w, wd, amp, law):
+    """(friction torque T_f, end-stop torque T_s, d(T_f)/d(w_dot), d(T_s)/dw, d(T_s)/d(w_dot))
+    at wind-up w [rad], rate wd [rad/s] and sliding friction torque ``amp`` = T0 + c_Omega
+    Omega^2 [Nm] (eq. 8a, 8b; ``law`` = PiecewiseLinearSpring.law_array()):
+    :func:`friction_parts` and :func:`stop_parts` together."""
+    tf, dtf = friction_parts(wd, amp, law)
+    ts, dts_w, dts_v = stop_parts(w, wd, law)
     return tf, ts, dtf, dts_w, dts_v
 
 
@@ -58,5 +72,7 @@ def law_active(law):
 
 
 region_of = jit(region_of)
+friction_parts = jit(friction_parts)
+stop_parts = jit(stop_parts)
 law_parts = jit(law_parts)
 law_active = jit(law_active)

@@ -41,7 +41,7 @@ from dmf_sim.core.units import CYCLE_RAD, RPM_TO_RAD_S, cycle_period_s
 from dmf_sim.physics.model import ReducedModel
 from dmf_sim.physics.orders import synthesize
 from dmf_sim.solvers.lapack_kernel import eigenvalues_into
-from dmf_sim.solvers.stability_kernel import floquet, floquet_many, monodromy_law
+from dmf_sim.solvers.stability_kernel import floquet, floquet_law_many, floquet_many
 
 __all__ = ['CROSSING_NEWTON_STEPS', 'EXTREME_SPREAD', 'FloquetResult', 'ModeClass', 'by_modulus',
            'real_eigenbasis', 'extreme_quantity', 'FlexibleModes', 'FloquetAnalyzer']
@@ -347,16 +347,22 @@ class FloquetAnalyzer:
         #: damping too, and the monodromy is integrated step by step (:meth:`analyze_law`)
         self.has_law = not sp.smooth_elastic
         if self.has_law:
-            d, V, Vinv = self._eig[0]
             nf = self.nf
             zero = np.zeros(nf)
             b = np.concatenate([zero, -self.er])
-            self._law_basis = (V, Vinv)
+            rows = (np.concatenate([self.er, zero]), np.concatenate([zero, self.er]))
+            er2 = float(self.er @ self.er)
+            # per region (by region index): the numpy reference works in the complex
+            # eigen-coordinates (d, V, V^-1, beta, p, q), the compiled kernel in the real
+            # eigenbasis Q (the same flows, in real arithmetic)
+            self._law_complex = [(*self._eig[st], *(np.ascontiguousarray(a) for a in (
+                self._eig[st][2] @ b, rows[0] @ self._eig[st][1], rows[1] @ self._eig[st][1])))
+                for st in sp.stages()]
+            self._law_real = (np.stack(Q), np.stack(Qinv))
             self._law_args = (*sp.arrays(), int(sp.primary_index), sp.law_array(),
-                              np.ascontiguousarray(d), np.ascontiguousarray(Vinv @ b),
-                              np.ascontiguousarray(np.concatenate([self.er, zero]) @ V),
-                              np.ascontiguousarray(np.concatenate([zero, self.er]) @ V),
-                              float(self.er @ self.er))
+                              *self._kernel_args[3:],
+                              np.stack([qi @ b for qi in Qinv]),
+                              *(np.stack([r @ q for q in Q]) for r in rows), er2)
 
     # ---- regions and crossings -------------------------------------------------------------
     def linear_multipliers(self, speeds_rpm: np.ndarray, region: int = 0) -> np.ndarray:
@@ -456,8 +462,13 @@ class FloquetAnalyzer:
         one's wind-up over the cycle. Returns the multipliers (sorted by decreasing modulus),
         max |mu| and stability of each, the same values as K calls of :meth:`analyze`; the
         crossings, monodromies and eigenvalues in one compiled call
-        (:func:`dmf_sim.solvers.stability_kernel.floquet_many`)."""
+        (:func:`dmf_sim.solvers.stability_kernel.floquet_many`; with friction or end stops
+        :func:`~dmf_sim.solvers.stability_kernel.floquet_law_many`)."""
         speeds = np.asarray(speeds_rpm, dtype=float).reshape(-1)
+        if self.compiled and self.has_law and len(speeds):
+            res = [by_modulus(mu) for mu in self._law_many(C, speeds, samples)[0]]
+            top = [float(mx) for _, mx in res]
+            return [mu for mu, _ in res], top, [m < 1.0 + self.tol for m in top]
         if not self.compiled or self.has_law or len(speeds) == 0:
             res = [self.analyze(c, s, samples=w) for c, s, w in zip(C, speeds.tolist(), samples)]
             return ([r.multipliers for r in res], [r.max_abs for r in res],
@@ -485,18 +496,40 @@ class FloquetAnalyzer:
                 [m < 1.0 + self.tol for m in top])
 
     # ---- friction and end stops: the time-varying damping ------------------------------------
-    def law_samples(self, c: np.ndarray, speed_rpm: float, samples: np.ndarray | None = None
-                    ) -> tuple[np.ndarray, np.ndarray, float, float]:
+    def law_samples(self, c: np.ndarray, speed_rpm, samples: np.ndarray | None = None
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(w, w_dot, period [s], sliding friction torque [Nm]) of the periodic wind-up with
         harmonics ``c`` at ``speed_rpm``, on the uniform grid of ``n_fine`` points of the cycle
-        (or of ``samples``' length): what the step-by-step monodromy reads."""
-        omega = speed_rpm * RPM_TO_RAD_S
+        (or of ``samples``' length): what the step-by-step monodromy reads. ``c`` (K, H+1) at
+        K speeds (``samples`` (K, N)) gives them for each row, the same values as row by row."""
+        omega = np.asarray(speed_rpm, dtype=float) * RPM_TO_RAD_S
         c = np.asarray(c, dtype=complex)
-        N = self.n_fine if samples is None else len(samples)
+        N = self.n_fine if samples is None else np.shape(samples)[-1]
         w = synthesize(c, N) if samples is None else np.asarray(samples, dtype=float)
-        v = synthesize(1j * np.arange(len(c)) * (0.5 * omega) * c, N)
-        amp = float(self.spring.friction.amplitude(omega)) if self.spring.friction else 0.0
+        half = 0.5 * omega[..., None] if omega.ndim else 0.5 * float(omega)
+        v = synthesize(1j * np.arange(c.shape[-1]) * half * c, N)
+        amp = (self.spring.friction.amplitude(omega) if self.spring.friction
+               else np.zeros_like(omega))
         return (np.ascontiguousarray(w), np.ascontiguousarray(v), CYCLE_RAD / omega, amp)
+
+    def _law_many(self, C: np.ndarray, speeds: np.ndarray, samples: np.ndarray | None
+                  ) -> tuple[list[np.ndarray], np.ndarray]:
+        """(multipliers of each point, unsorted: real where all are, as :func:`eigenvalues`
+        gives them; monodromies (K, 2 nf, 2 nf)) of K periodic wind-ups with friction or end
+        stops in one compiled call (:func:`dmf_sim.solvers.stability_kernel.floquet_law_many`)."""
+        w, v, periods, amps = self.law_samples(C, speeds, samples)
+        K, ns = len(speeds), 2 * self.nf
+        M = np.empty((K, ns, ns))
+        wr = np.zeros((K, ns))
+        wi = np.zeros((K, ns))
+        status = np.empty(K, dtype=np.int64)
+        floquet_law_many(w, v, np.ascontiguousarray(periods, dtype=float),
+                         np.ascontiguousarray(amps, dtype=float), *self._law_args,
+                         *self._law_real, M, wr, wi, status)
+        if status.any():        # as eigenvalues() raises for one point
+            raise np.linalg.LinAlgError(_NOT_FINITE if 1 in status else _NO_CONVERGENCE)
+        mu = wr + 1j * wi
+        return [mu[k] if wi[k].any() else wr[k] for k in range(K)], M
 
     def analyze_law(self, c: np.ndarray, speed_rpm: float, keep_monodromy: bool = False,
                     samples: np.ndarray | None = None) -> FloquetResult:
@@ -504,18 +537,22 @@ class FloquetAnalyzer:
         (doc/theory.md §8): the linearization has the time-varying stiffness dg/dw + dT_s/dw and
         damping dT_f/dw_dot + dT_s/dw_dot along the wind-up; the monodromy is formed over the
         ``n_fine`` steps of the cycle by the compiled splitting
-        (:func:`dmf_sim.solvers.stability_kernel.monodromy_law`; ``compiled`` off: its numpy
-        twin :meth:`monodromy_law_reference`)."""
-        w, v, period, amp = self.law_samples(c, speed_rpm, samples)
-        ns = 2 * self.nf
+        (:func:`dmf_sim.solvers.stability_kernel.monodromy_law`, the same call as a sweep's
+        batch, :meth:`analyze_many`; ``compiled`` off: its numpy twin
+        :meth:`monodromy_law_reference`)."""
         if self.compiled:
-            Z = monodromy_law(w, v, period, amp, *self._law_args,
-                              np.empty((ns, ns), dtype=complex))
+            c = np.asarray(c, dtype=complex)
+            mus, Ms = self._law_many(c[None], np.array([float(speed_rpm)]),
+                                     None if samples is None else np.asarray(samples)[None])
+            mu, M = mus[0], Ms[0]
+            w = synthesize(c, self.n_fine) if samples is None else np.asarray(samples)
         else:
-            Z = self.monodromy_law_reference(w, v, period, amp)
-        V, Vinv = self._law_basis
-        M = ((V @ Z) @ Vinv).real
-        mu, mx = by_modulus(eigenvalues(M))
+            w, v, period, amp = self.law_samples(c, speed_rpm, samples)
+            Z, first = self.monodromy_law_reference(w, v, float(period), float(amp))
+            _, V, Vinv = self._law_complex[first][:3]
+            M = ((V @ Z) @ Vinv).real
+            mu = eigenvalues(M)
+        mu, mx = by_modulus(mu)
         mx = float(mx)
         idx = self.spring.region_index(w)
         crossings = int(np.count_nonzero(idx != np.roll(idx, -1)))
@@ -525,19 +562,23 @@ class FloquetAnalyzer:
     def monodromy_law_reference(self, w: np.ndarray, v: np.ndarray, period: float, amp: float,
                                 record: bool = False):
         """The compiled :func:`~dmf_sim.solvers.stability_kernel.monodromy_law` in numpy: the
-        same splitting step by step, with the law's numpy form (the spring's ``extra_torque``,
-        its friction's and end stops' ``torque``; a tangent where a secant is undefined, and the
-        end stop's, by a centred difference: exact on their linear pieces).
-        With ``record`` also the eigen-coordinate transition after each step (N, n, n)."""
+        same splitting step by step, in the complex eigen-coordinates of each step's base
+        region (where the step starts), with the law's numpy form (the spring's
+        ``extra_torque``, its friction's and end stops' ``torque``; a tangent where a secant is
+        undefined, and the end stop's, by a centred difference: exact on their linear pieces).
+        Returns (Z in the coordinates of the first step's region, that region's index); with
+        ``record`` also the wind-up read-out of the transition after each step (N, n)."""
         sp = self.spring
-        d, beta, p, q, er2 = self._law_args[5:]
+        _, slopes, _ = sp.arrays()
+        er2 = float(self.er @ self.er)
         N = len(w)
         h = period / N
-        E = np.exp(d * h)
         w1, v1 = np.roll(w, -1), np.roll(v, -1)
         dw, dv = w1 - w, v1 - v
+        base = sp.region_index(w)
         g0, g1 = sp.extra_torque(w), sp.extra_torque(w1)
-        k = np.where(dw != 0, (g1 - g0) / np.where(dw != 0, dw, 1.0), sp.extra_stiffness(w))
+        k = np.where(base == np.roll(base, -1), 0.0,
+                     (g1 - g0) / np.where(dw != 0, dw, 1.0) - slopes[base])
         omega = CYCLE_RAD / period
         if sp.friction is not None:
             f0 = sp.friction.torque(v, omega)
@@ -550,17 +591,26 @@ class FloquetAnalyzer:
             wm, vm = 0.5 * (w + w1), 0.5 * (v + v1)
             k = k + _slope(lambda x: sp.stops.torque(x, vm), wm)
             c = c + _slope(lambda x: sp.stops.torque(wm, x), vm)
-        Z = np.eye(len(d), dtype=complex)
+        first = cur = int(base[0])
+        Z = np.eye(2 * self.nf, dtype=complex)
         steps = []
         for j in range(N):
-            Z = E[:, None] * Z
+            r = int(base[j])
+            if r != cur:
+                Z = (self._law_complex[r][2] @ self._law_complex[cur][1]) @ Z
+                cur = r
+            d, V, _, beta, p, q = self._law_complex[r]
+            half = np.exp(0.5 * d * h)[:, None]
+            Z = half * Z
             if k[j] != 0.0 or c[j] != 0.0:
                 sigma = -c[j] * er2
                 phi = h if abs(sigma * h) < 1e-12 else np.expm1(sigma * h) / sigma
                 Z = Z + np.outer(beta * phi, (k[j] * p + c[j] * q) @ Z)
+            Z = half * Z
             if record:
-                steps.append(Z)
-        return (Z, np.array(steps)) if record else Z
+                steps.append((self._ew @ V) @ Z)
+        Z = (self._law_complex[first][2] @ self._law_complex[cur][1]) @ Z
+        return (Z, first, np.array(steps)) if record else (Z, first)
 
     def _law_eigen_solution(self, c: np.ndarray, speed_rpm: float, which: int, n_grid: int):
         """(multiplier, wind-up perturbation on ``n_grid`` points of the cycle, 0.0) of the
@@ -568,14 +618,14 @@ class FloquetAnalyzer:
         the step-by-step monodromy (:meth:`monodromy_law_reference`, recording each step),
         read out along the wind-up at every step and resampled."""
         w, v, period, amp = self.law_samples(c, speed_rpm, None)
-        Z, steps = self.monodromy_law_reference(w, v, period, amp, record=True)
+        Z, first, steps = self.monodromy_law_reference(w, v, float(period), float(amp),
+                                                       record=True)
         mu, vecs = np.linalg.eig(Z)
         order = np.argsort(-np.abs(mu))
         m = complex(mu[order[which]])
         z0 = vecs[:, order[which]]
-        V, _ = self._law_basis
-        ev = self._ew @ V
-        dw_steps = np.concatenate([[ev @ z0], (steps @ z0) @ ev])[:-1]   # at t_0 .. t_(N-1)
+        ev = self._ew @ self._law_complex[first][1]
+        dw_steps = np.concatenate([[ev @ z0], steps @ z0])[:-1]   # at t_0 .. t_(N-1)
         grid = np.arange(n_grid) * len(w) / n_grid
         dw = (np.interp(grid, np.arange(len(w)), dw_steps.real)
               + 1j * np.interp(grid, np.arange(len(w)), dw_steps.imag))

@@ -14,10 +14,11 @@ import numpy as np
 from dmf_sim.core.compiled import jit
 from dmf_sim.core.units import CYCLE_RAD
 from dmf_sim.solvers.lapack_kernel import eigenvalues_into
-from dmf_sim.solvers.spring_kernels import law_parts, region_of
+from dmf_sim.solvers.spring_kernels import friction_parts, region_of, stop_parts
 
-__all__ = ['floquet_segments', 'monodromy_similar', 'floquet', 'floquet_many', 'step_law',
-           'monodromy_law']
+__all__ = ['floquet_segments', 'monodromy_similar', 'floquet', 'floquet_many', 'flow_factors',
+           'flow_apply', 'flow_real',
+           'law_steps', 'monodromy_law', 'floquet_law_many']
 
 
 def floquet_segments(c, w, omega, knees, primary, n_newton, stages, taus):
@@ -187,66 +188,163 @@ def floquet_many(C, w, omegas, knees, primary, n_newton, kind, sigma, freq, W, c
             status[k] = 2
 
 
-def step_law(w0, w1, v0, v1, amp, knees, slopes, offsets, primary, law):
-    """(k, c): the extra stiffness [Nm/rad] and damping [Nms/rad] of the DMF's non-linear torque
-    over one step of the cycle from (w0, v0) to (w1, v1) (wind-up [rad], rate [rad/s]), as the
-    linearized system of a spring with friction and end stops sees them (doc/theory.md §8):
-    the secants of g over w and of the friction T_f over w_dot (exact averages of the tangents
-    when w, w_dot are linear in time over the step: the friction's tangent is a spike of width
-    ~omega_reg / |w_ddot| at a reversal, which a sample would miss or overweight), plus the end
-    stop's tangents at the step's middle."""
-    r0 = region_of(w0, knees, primary)
-    r1 = region_of(w1, knees, primary)
-    if w1 != w0:
-        k = ((slopes[r1] * w1 + offsets[r1]) - (slopes[r0] * w0 + offsets[r0])) / (w1 - w0)
-    else:
-        k = slopes[r0]
-    tf0, _, dtf0, _, _ = law_parts(w0, v0, amp, law)
-    tf1, _, dtf1, _, _ = law_parts(w1, v1, amp, law)
-    c = (tf1 - tf0) / (v1 - v0) if v1 != v0 else 0.5 * (dtf0 + dtf1)
-    _, _, _, dsw, dsv = law_parts(0.5 * (w0 + w1), 0.5 * (v0 + v1), amp, law)
-    return k + dsw, c + dsv
+def flow_factors(kind, sigma, freq, tau, fa, fb):
+    """fa, fb <- the entries of exp(B tau) for the block-diagonal B of a region's real
+    eigenbasis (:func:`dmf_sim.solvers.stability.real_eigenbasis`: ``kind`` 0 a real eigenvalue
+    ``sigma``, fa = exp(sigma tau); 1 and 2 the rows of a pair sigma +- i freq, whose block is
+    [[fa, fb], [-fb, fa]] with fa = exp(sigma tau) cos(freq tau), fb = exp(sigma tau)
+    sin(freq tau))."""
+    ns = kind.shape[0]
+    for i in range(ns):
+        e = math.exp(sigma[i] * tau)
+        if kind[i] == 0:
+            fa[i] = e
+            fb[i] = 0.0
+        else:
+            fa[i] = e * math.cos(freq[i] * tau)
+            fb[i] = e * math.sin(freq[i] * tau)
 
 
-def monodromy_law(w, v, period, amp, knees, slopes, offsets, primary, law, d, beta, p, q, er2,
-                  Z):
-    """Z <- the monodromy (up to similarity) of the driveline linearized about a periodic wind-up
-    with friction and end stops, in the eigen-coordinates z = V^-1 y of the primary-region state
-    matrix A0 = V diag(d) V^-1 (doc/theory.md §8).
+def flow_apply(X, kind, fa, fb):
+    """X <- exp(B tau) X with the factors of :func:`flow_factors`, in place."""
+    ns = X.shape[0]
+    i = 0
+    while i < ns:
+        if kind[i] == 0:
+            e = fa[i]
+            for j in range(ns):
+                X[i, j] *= e
+            i += 1
+        else:
+            c = fa[i]
+            sn = fb[i]
+            for j in range(ns):
+                a = X[i, j]
+                b = X[i + 1, j]
+                X[i, j] = c * a + sn * b
+                X[i + 1, j] = -sn * a + c * b
+            i += 2
 
-    The linearized DMF torque is rank one along the wind-up: ``y' = A0 y + b (k(t) er.dy +
-    c(t) er.dy')``, b = [0, -er]. Over each of the N steps of the uniform grid ``w``, ``v``
-    (wind-up and rate on the cycle, period [s]) k and c are held at the step's values
-    (:func:`step_law`) and the step is split (Strang): the exact flow of A0 (diagonal,
-    exp(d h)) and the exact exponential of the rank-one part, ``I + beta u^T (exp(sigma h) -
-    1) / sigma`` with u = k p + c q, sigma = u.beta = -c |er|^2 (``beta`` = V^-1 b, p and q the
-    rows [er, 0] V and [0, er] V, er2 = |er|^2). The symmetric splitting's product is similar
-    to the product of ``R_j exp(d h)``, which is what is formed: O(n^2) per step. Second order
-    in h, unconditionally stable for any friction damping (the stiff part is exact)."""
+
+def flow_real(X, kind, sigma, freq, tau):
+    """X <- exp(B tau) X for the block-diagonal B of a region's real eigenbasis, in place
+    (:func:`flow_factors`, :func:`flow_apply`)."""
+    ns = kind.shape[0]
+    fa = np.empty(ns)
+    fb = np.empty(ns)
+    flow_factors(kind, sigma, freq, tau, fa, fb)
+    flow_apply(X, kind, fa, fb)
+
+
+def law_steps(w, v, amp, knees, slopes, offsets, primary, law, base, k, c):
+    """base, k, c <- for each step of the cycle's uniform grid, from (w[j], v[j]) to the next
+    sample (wind-up [rad], rate [rad/s]; the last step back to the first): the spring region
+    of its start (``base``, the region whose state matrix carries the step's flow), and the
+    extra stiffness [Nm/rad] beyond that region's and the damping [Nms/rad] of the DMF's
+    non-linear torque over the step, as the linearized system of a spring with friction and end
+    stops sees them (doc/theory.md §8): the secants of g over w (minus the base region's slope;
+    zero where the step stays in its region) and of the friction T_f over w_dot (exact averages
+    of the tangents when w, w_dot are linear in time over the step: the friction's tangent is a
+    spike of width ~omega_reg / |w_ddot| at a reversal, which a sample would miss or
+    overweight), plus the end stop's tangents at the step's middle. g and T_f are evaluated
+    once per sample. Returns the number of steps with k or c non-zero."""
     N = w.shape[0]
-    n = d.shape[0]
+    g = np.empty(N)
+    tf = np.empty(N)
+    dtf = np.empty(N)
+    for j in range(N):
+        r = region_of(w[j], knees, primary)
+        base[j] = r
+        g[j] = slopes[r] * w[j] + offsets[r]
+        tf[j], dtf[j] = friction_parts(v[j], amp, law)
+    active = 0
+    for j in range(N):
+        m = j + 1 if j + 1 < N else 0
+        w0 = w[j]
+        w1 = w[m]
+        v0 = v[j]
+        v1 = v[m]
+        r = base[j]
+        kj = 0.0 if base[m] == r else (g[m] - g[j]) / (w1 - w0) - slopes[r]
+        cj = (tf[m] - tf[j]) / (v1 - v0) if v1 != v0 else 0.5 * (dtf[j] + dtf[m])
+        _, dsw, dsv = stop_parts(0.5 * (w0 + w1), 0.5 * (v0 + v1), law)
+        k[j] = kj + dsw
+        c[j] = cj + dsv
+        if k[j] != 0.0 or c[j] != 0.0:
+            active += 1
+    return active
+
+
+def monodromy_law(w, v, period, amp, knees, slopes, offsets, primary, law, kind, sigma, freq, W,
+                  beta, p, q, er2, Z):
+    """Z <- the monodromy (up to similarity) of the driveline linearized about a periodic wind-up
+    with friction and end stops, in the real eigen-coordinates z = Q_r^-1 y of the state matrix
+    A_r = Q_r blockdiag(B_r) Q_r^-1 of the spring region r its first step starts in
+    (:func:`dmf_sim.solvers.stability.real_eigenbasis` of each region, stacked by region
+    index: ``kind``, ``sigma``, ``freq``; ``W[a, b]`` = Q_a^-1 Q_b; doc/theory.md §8).
+    Returns that region's index.
+
+    The linearized DMF torque beyond region r's is rank one along the wind-up: ``y' = A_r y +
+    b (k(t) er.dy + c(t) er.dy')``, b = [0, -er]. Over each of the N steps of the uniform grid
+    ``w``, ``v`` (wind-up and rate on the cycle, period [s]) the base region r (where the step
+    starts), k and c are held at the step's values (:func:`law_steps`) and the step is split
+    (Strang): ``exp(A_r h/2) R_j exp(A_r h/2)``, the exact flow of A_r (2 x 2 rotation blocks,
+    :func:`flow_real`) and the exact exponential of the rank-one part,
+    ``R_j = I + beta u^T (exp(sigma h) - 1) / sigma`` with u = k p + c q,
+    sigma = u.beta = -c |er|^2 (``beta[r]`` = Q_r^-1 b, ``p[r]`` and ``q[r]`` the rows [er, 0] Q_r
+    and [0, er] Q_r, er2 = |er|^2); a step in another region than the one before first changes
+    coordinates (W), so the half steps on either side of a crossing flow in their own regions.
+    Real arithmetic, O(n^2) per step. Where k = c = 0 (the friction saturated, the step inside
+    one region: most of a slipping cycle) R_j = I, the flow is exact, and the flows of
+    consecutive such steps are applied as one (exp(A_r m h)): the cost is that of the steps
+    near the reversals and the crossings. Second order in h, unconditionally stable for any
+    friction damping (the stiff part is exact)."""
+    N = w.shape[0]
+    n = sigma.shape[1]
     h = period / N
-    E = np.exp(d * h)
+    base = np.empty(N, dtype=np.int64)
+    k = np.empty(N)
+    c = np.empty(N)
+    law_steps(w, v, amp, knees, slopes, offsets, primary, law, base, k, c)
     for i in range(n):
         for j in range(n):
             Z[i, j] = 1.0 if i == j else 0.0
-    u = np.empty(n, dtype=np.complex128)
-    srow = np.empty(n, dtype=np.complex128)
+    Y = np.empty((n, n))
+    u = np.empty(n)
+    srow = np.empty(n)
+    R = sigma.shape[0]
+    fa = np.empty((R, n))               # each region's flow over one step, made once
+    fb = np.empty((R, n))
+    for r in range(R):
+        flow_factors(kind[r], sigma[r], freq[r], h, fa[r], fb[r])
+    first = base[0]
+    cur = first
+    half = 0.5 * h
+    pending = 0                         # half steps of flow not applied yet (in region cur)
     for step in range(N):
-        nxt = step + 1 if step + 1 < N else 0
-        k, c = step_law(w[step], w[nxt], v[step], v[nxt], amp, knees, slopes, offsets,
-                        primary, law)
-        for i in range(n):
-            e = E[i]
-            for j in range(n):
-                Z[i, j] *= e
-        if k == 0.0 and c == 0.0:
+        r = base[step]
+        if r != cur:
+            if pending:
+                flow_real(Z, kind[cur], sigma[cur], freq[cur], pending * half)
+                pending = 0
+            np.dot(W[r, cur], Z, Y)
+            Z[:, :] = Y
+            cur = r
+        kj = k[step]
+        cj = c[step]
+        if kj == 0.0 and cj == 0.0:
+            pending += 2
             continue
+        if pending == 1:                # the step before was active too: one step's flow
+            flow_apply(Z, kind[r], fa[r], fb[r])
+        else:
+            flow_real(Z, kind[r], sigma[r], freq[r], (pending + 1) * half)
+        pending = 1
         for i in range(n):
-            u[i] = k * p[i] + c * q[i]
-        sigma = -c * er2
-        x = sigma * h
-        phi = h if abs(x) < 1e-12 else math.expm1(x) / sigma
+            u[i] = kj * p[r, i] + cj * q[r, i]
+        sig = -cj * er2
+        x = sig * h
+        phi = h if abs(x) < 1e-12 else math.expm1(x) / sig
         for j in range(n):
             srow[j] = 0.0
         for i in range(n):
@@ -254,15 +352,51 @@ def monodromy_law(w, v, period, amp, knees, slopes, offsets, primary, law, d, be
             for j in range(n):
                 srow[j] += ui * Z[i, j]
         for i in range(n):
-            bi = beta[i] * phi
+            bi = beta[r, i] * phi
             for j in range(n):
                 Z[i, j] += bi * srow[j]
-    return Z
+    if pending:
+        flow_real(Z, kind[cur], sigma[cur], freq[cur], pending * half)
+    if cur != first:                    # back to the coordinates of the start
+        np.dot(W[first, cur], Z, Y)
+        Z[:, :] = Y
+    return first
+
+
+def floquet_law_many(w, v, periods, amps, knees, slopes, offsets, primary, law, kind, sigma,
+                     freq, W, beta, p, q, er2, Q, Qinv, M, wr, wi, status):
+    """The Floquet multipliers of K periodic wind-ups with friction and end stops in one call:
+    point k's wind-up w[k] and rate v[k] on the cycle's uniform grid, period periods[k] [s],
+    sliding friction torque amps[k] [Nm]. M[k] <- the monodromy Q_r Z Q_r^-1 of
+    :func:`monodromy_law`'s Z (``Q``, ``Qinv``: each region's real eigenbasis and its inverse,
+    stacked by region index), wr[k] + i wi[k] <- its eigenvalues
+    (:func:`dmf_sim.solvers.lapack_kernel.eigenvalues_into`); status[k]: 0, 1 for a monodromy
+    with an inf or NaN, 2 where the eigenvalues did not converge (the caller raises as
+    ``stability.eigenvalues`` does)."""
+    K = w.shape[0]
+    ns = sigma.shape[1]
+    Z = np.empty((ns, ns))
+    T = np.empty((ns, ns))
+    for k in range(K):
+        r = monodromy_law(w[k], v[k], periods[k], amps[k], knees, slopes, offsets, primary, law,
+                          kind, sigma, freq, W, beta, p, q, er2, Z)
+        np.dot(Q[r], Z, T)
+        np.dot(T, Qinv[r], M[k])
+        status[k] = 0
+        if not np.isfinite(M[k]).all():
+            status[k] = 1
+            continue
+        if eigenvalues_into(M[k], wr[k], wi[k]) != 0:
+            status[k] = 2
 
 
 floquet_segments = jit(floquet_segments)
 monodromy_similar = jit(monodromy_similar)
 floquet = jit(floquet)
 floquet_many = jit(floquet_many)
-step_law = jit(step_law)
+flow_factors = jit(flow_factors)
+flow_apply = jit(flow_apply)
+flow_real = jit(flow_real)
+law_steps = jit(law_steps)
 monodromy_law = jit(monodromy_law, fastmath={'reassoc', 'contract'})
+floquet_law_many = jit(floquet_law_many)

@@ -469,15 +469,23 @@ def floquet(p: Problems) -> Iterator[Pair]:
 def traced_points(p: Problems) -> Iterator[Pair]:
     """``SpeedSweep._points`` (the points of a traced branch, made after the trace: one FFT, one
     summary pass, one compiled Floquet call for all) vs making each point and analyzing it
-    alone, for points below the knees (closed-form multipliers) and across them."""
+    alone, for points below the knees (closed-form multipliers) and across them, and with
+    friction and end stops (the batch of step-by-step monodromies)."""
+    paper, _ = p.paper
+    for loads, speeds in ((paper, (700.0, 1250.0, 1300.0, 1333.3, 1500.0)),
+                          (_friction(p), (800.0, FRICTION_SPEED, 1500.0))):
+        yield from _traced_points(loads, speeds)
+
+
+def _traced_points(loads, speeds) -> Iterator[Pair]:
+    """The pairs of :func:`traced_points` at ``speeds`` [rpm] of one driveline."""
     from dmf_sim.solvers.continuation import ContinuationPoint
     from dmf_sim.solvers.hbm import CondensedHBM, SweepOptions
     from dmf_sim.solvers.hbm.sweep import SpeedSweep
-    loads, _ = p.paper
     sw = SpeedSweep(CondensedHBM(loads, 1.0), SweepOptions(step_rpm=10.0, search=None))
     hb, fl = sw.hbm, sw.floquet
     cps = []
-    for k, s in enumerate((700.0, 1250.0, 1300.0, 1333.3, 1500.0)):
+    for k, s in enumerate(speeds):
         x = hb.solve(s).x
         t = np.r_[np.zeros(len(x)), 0.5 + 0.1 * k]
         cps.append(ContinuationPoint(x, s, t, k + 1, 1e-12 * k, True))

@@ -156,20 +156,23 @@ def aft_law(x, omega, aft_mats, spring, G, dG, jac):
     half = 0.5 * omega
     amp = law[0] + law[1] * omega * omega
     damp = 2.0 * law[1] * omega                 # d(amp)/d(omega)
-    for a in range(2 * n):
-        G[a] = 0.0
     Cm = np.zeros(n2)
     Sm = np.zeros(n2)
     Cv = np.zeros(n2)
     Sv = np.zeros(n2)
+    Gt = np.zeros(n)                             # harmonics of g + N and of dN/domega
+    Gs = np.zeros(n)
+    y = np.zeros(n)                              # unit = E_j y: the rate's harmonics
+    for q in range(1, H + 1):
+        y[q] = -q * x[H + q]
+        y[H + q] = q * x[q]
     count = 0
     for j in range(M):
         w = 0.0
+        unit = 0.0                               # w_dot / (omega / 2)
         for k in range(n):
             w += E[j, k] * x[k]
-        unit = 0.0                               # w_dot / (omega / 2)
-        for q in range(1, H + 1):
-            unit += q * (x[q] * E[j, H + q] - x[H + q] * E[j, q])
+            unit += E[j, k] * y[k]
         wd = half * unit
         s = 0.0
         g = 0.0
@@ -186,9 +189,9 @@ def aft_law(x, omega, aft_mats, spring, G, dG, jac):
         th = math.tanh(wd / law[2])
         ds = cv * 0.5 * unit + damp * th         # dN/domega at fixed x
         for a in range(n):
-            G[a] += E[j, a] * tot
-            G[n + a] += E[j, a] * ds
-        if jac:
+            Gt[a] += E[j, a] * tot
+            Gs[a] += E[j, a] * ds
+        if jac and (s + dws != 0.0 or cv != 0.0):     # else (friction saturated) no part
             kw = s + dws
             for m in range(n2):
                 Cm[m] += kw * Tc[j, m]
@@ -196,8 +199,8 @@ def aft_law(x, omega, aft_mats, spring, G, dG, jac):
                 Cv[m] += cv * Tc[j, m]
                 Sv[m] += cv * Ts[j, m]
     for a in range(n):
-        G[a] *= weights[a]
-        G[n + a] *= weights[a]
+        G[a] = Gt[a] * weights[a]
+        G[n + a] = Gs[a] * weights[a]
     if jac:
         dV = np.empty((n, n))
         assemble(Cm, Sm, M, H, dG)

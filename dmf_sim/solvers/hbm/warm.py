@@ -124,12 +124,14 @@ def warm_up() -> float:
                                   np.empty(1, dtype=np.int64), np.empty(1, dtype=np.int64),
                                   np.empty(1), np.empty((1, ns)), np.empty((1, ns)),
                                   np.empty(1, dtype=np.int64))
-    # the monodromy with friction and end stops (the spring's law array, a uniform grid)
-    grid = np.zeros(4)
-    stability_kernel.monodromy_law(grid, grid, 1.0, 1.0, *spring, -np.ones(ns, dtype=complex),
-                                   np.ones(ns, dtype=complex), np.ones(ns, dtype=complex),
-                                   np.ones(ns, dtype=complex), 1.0,
-                                   np.empty((ns, ns), dtype=complex))
+    # the monodromies with friction and end stops and their multipliers (the spring's law
+    # array, a uniform grid)
+    grid = np.zeros((1, 4))
+    stability_kernel.floquet_law_many(grid, grid, np.ones(1), np.ones(1), *spring,
+                                      *fl_args[3:], np.ones((2, ns)), np.ones((2, ns)),
+                                      np.ones((2, ns)), 1.0, W[0].copy(), W[0].copy(),
+                                      np.empty((1, ns, ns)), np.empty((1, ns)),
+                                      np.empty((1, ns)), np.empty(1, dtype=np.int64))
     # the multipliers of one point analyzed alone (stability.eigenvalues calls it from Python)
     eigenvalues_into(np.eye(ns), np.empty(ns), np.empty(ns))
     # the continuation loop's step control, called from Python with these types
