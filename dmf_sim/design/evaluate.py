@@ -21,7 +21,12 @@ from dataclasses import dataclass, field, replace
 from dmf_sim.core.errors import one_line
 from dmf_sim.design.metrics import condition_metrics, design_summary
 from dmf_sim.design.parameters import Parameter, design_driveline
-from dmf_sim.design.transient import step_metrics, transient_summary
+from dmf_sim.design.transient import (
+    cycle_metrics,
+    cycle_summary,
+    step_metrics,
+    transient_summary,
+)
 
 __all__ = ['install_context', 'drop_context', 'context_loads', 'SolverSettings', 'StudyContext',
            'solve_condition', 'sweep_condition', 'evaluate_design', 'BatchResult',
@@ -73,6 +78,7 @@ class StudyContext:
     settings: SolverSettings
     variable_names: list[str] = field(default_factory=list)
     load_steps: list = field(default_factory=list)     # dmf_sim.design.transient.LoadStep
+    road_cycle: object = None                          # dmf_sim.design.transient.RoadCycle
 
     @classmethod
     def from_study(cls, study) -> 'StudyContext':
@@ -80,7 +86,7 @@ class StudyContext:
                                   study.base.index(study.torque_element), study.search,
                                   study.time_limit_s)
         return cls(study.base, study.engines, study.conditions, study.params, study.fixed,
-                   settings, study.variable_names, list(study.load_steps))
+                   settings, study.variable_names, list(study.load_steps), study.road_cycle)
 
     def design_values(self, row) -> dict[Parameter, float]:
         """Parameter -> value of one design: its variables plus the fixed parameters."""
@@ -150,6 +156,8 @@ def evaluate_design(ctx: StudyContext, design_id: int, row) -> list[dict]:
     else:
         summary.update(design_summary(rows), status='ok', error='')
         _load_steps(ctx, line, summary)
+        if summary['status'] == 'ok':
+            _road_cycle(ctx, line, summary)
     summary['seconds'] = time.perf_counter() - t0
     return rows + [summary]
 
@@ -165,6 +173,20 @@ def _load_steps(ctx: StudyContext, line, summary: dict) -> None:
             summary.update(status='failed', error=f'{step.label}: {_failure(exc)}')
             return
     summary.update(transient_summary(ctx.load_steps, results))
+
+
+def _road_cycle(ctx: StudyContext, line, summary: dict) -> None:
+    """The design's road cycle (:mod:`dmf_sim.design.transient`) into its summary row; a
+    cycle that fails fails the design, naming the cycle."""
+    cycle = ctx.road_cycle
+    if cycle is None:
+        return
+    try:
+        result = cycle_metrics(line, ctx.engines[cycle.load_set], cycle)
+    except Exception as exc:          # noqa: BLE001 - the design failed, the study goes on
+        summary.update(status='failed', error=f'{cycle.label}: {_failure(exc)}')
+        return
+    summary.update(cycle_summary(cycle, result))
 
 
 @dataclass

@@ -19,7 +19,9 @@ over many cycles: what the driveline does there):
 The load steps of a study (``conditions.load_steps``, :mod:`dmf_sim.design.transient`) add
 ``transient_windup`` [rad], ``transient_dmf_torque`` [Nm], ``transient_stop_contacts`` and
 ``transient_travel_margin`` [rad] to a design's summary row: the peaks of its tip-ins and
-tip-outs in the time domain.
+tip-outs in the time domain. Its road cycle (``conditions.road_cycle``) adds
+``cycle_friction_heat`` [J], the arc-spring friction's heat over the cycle, and
+``cycle_dmf_torque`` [Nm].
 
 Every worst value comes with the speed where it occurs (``<name>_rpm``) and, in a design's summary
 row, the condition (``<name>_condition``). Objectives are any of :data:`OBJECTIVES`, all minimized.
@@ -44,6 +46,8 @@ OBJECTIVES = {
     'transient_windup': 'largest wind-up magnitude in the load steps [rad]',
     'transient_dmf_torque': 'largest DMF spring torque magnitude in the load steps [Nm]',
     'transient_stop_contacts': 'end-stop contacts in the load steps',
+    'cycle_friction_heat': "arc-spring friction's heat over the road cycle [J]",
+    'cycle_dmf_torque': 'largest DMF spring torque magnitude in the road cycle [Nm]',
 }
 WORST = ('worst_order_1_5', 'worst_order_3', 'worst_torque_3', 'max_dmf_torque')
 """Metrics that are a maximum over states, reported with the speed and condition where."""

@@ -41,7 +41,7 @@ class StudyResult:
         f2 = np.array([r[o2] for r in summ], dtype=float)
         mask = pareto_mask(f1, f2) if summ else np.zeros(0, dtype=bool)
         front = {r['design_id'] for r, m in zip(summ, mask) if m}
-        best = summ[compromise(f1, f2, mask)]['design_id'] if summ else None
+        best = summ[compromise((f1, f2), mask)]['design_id'] if summ else None
         for r in rows:
             r['pareto'] = (r['design_id'] in front) if r['kind'] == 'design' else None
         table = to_table(rows, study.variable_names, final=True)

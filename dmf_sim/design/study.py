@@ -16,6 +16,8 @@ A study (YAML mapping; ``config/study_example.yaml`` shows every key)::
       speeds_rpm: {from: 600, to: 2000, step: 10}
       load_steps:                     # optional: tip-ins/tip-outs per design, time domain
         - {speed_rpm: 1200, from: 0, to: 1, rise_s: 0.1}  # (dmf_sim.design.transient)
+      road_cycle: {profile: truck_road_cycle, from_s: 10, to_s: 42}   # optional: a drive
+                                      # cycle's window per design (friction heat)
     objectives: [worst_order_1_5, worst_torque_3]   # minimized; the first two: Pareto front
     torque_element: INPUT SHAFT       # optional: where the 3rd-order torque is taken
     solver: {harmonics: 24, branch_switching: true, search: true}  # optional; search: the
@@ -42,7 +44,14 @@ from dmf_sim.core.validation import Where
 from dmf_sim.design import sampling
 from dmf_sim.design.metrics import OBJECTIVES
 from dmf_sim.design.parameters import Parameter, check_parameter_set, parse_parameter
-from dmf_sim.design.transient import TRANSIENT, LoadStep, parse_load_steps
+from dmf_sim.design.transient import (
+    CYCLE,
+    TRANSIENT,
+    LoadStep,
+    RoadCycle,
+    parse_load_steps,
+    parse_road_cycle,
+)
 from dmf_sim.physics.model import Driveline
 from dmf_sim.solvers.hbm.sweep import TIME_LIMIT_RANGE_S
 
@@ -103,6 +112,7 @@ class Study:
     engines: dict = field(default_factory=dict, repr=False)
     file_digest: str = ''
     load_steps: list[LoadStep] = field(default_factory=list)
+    road_cycle: RoadCycle | None = None
 
     @property
     def variable_names(self) -> list[str]:
@@ -135,7 +145,9 @@ class Study:
             'conditions': {'load_sets': sorted({c.load_set for c in self.conditions}),
                            'loads': sorted({c.load for c in self.conditions}),
                            'speeds_rpm': {'from': lo, 'to': hi, 'step': step},
-                           'load_steps': [st.as_dict() for st in self.load_steps]},
+                           'load_steps': [st.as_dict() for st in self.load_steps],
+                           **({'road_cycle': self.road_cycle.as_dict()}
+                              if self.road_cycle is not None else {})},
             'objectives': list(self.objectives), 'torque_element': self.torque_element,
             'solver': {'harmonics': self.harmonics, 'branch_switching': self.branch_switching,
                        'search': self.search, 'time_limit_s': self.time_limit_s},
@@ -207,9 +219,9 @@ def study_from_dict(data: dict, source: str = 'study', *, base_dir: Path | None 
     if n_designs > MAX_DESIGNS:
         raise w.error('variables', f'the grid has {n_designs} designs; at most {MAX_DESIGNS}')
 
-    engines, conditions, speeds, load_steps = _conditions(w, data['conditions'], data['engine'],
-                                                          base_dir)
-    objectives = _objectives(w, data['objectives'], bool(load_steps))
+    engines, conditions, speeds, load_steps, cycle = _conditions(w, data['conditions'],
+                                                                 data['engine'], base_dir)
+    objectives = _objectives(w, data['objectives'], bool(load_steps), cycle is not None)
     torque_element = str(data.get('torque_element', DEFAULT_TORQUE_ELEMENT))
     if torque_element not in base.names:
         raise w.error('torque_element', f'no element {torque_element!r} in driveline '
@@ -253,7 +265,7 @@ def study_from_dict(data: dict, source: str = 'study', *, base_dir: Path | None 
                  reference=reference,
                  description=str(data.get('description') or ''), base=base, engines=engines,
                  file_digest=_digest(base_dir, data['driveline'], data['engine']),
-                 load_steps=load_steps)
+                 load_steps=load_steps, road_cycle=cycle)
 
 
 def _resolve(value, base_dir: Path) -> str:
@@ -318,7 +330,8 @@ def _variables(w: Where, raw, method: str):
 
 def _conditions(w: Where, raw, engine_source, base_dir: Path):
     from dmf_sim.physics.engine import load_error, read_engine
-    w.mapping(raw, 'conditions', ('load_sets', 'loads', 'speeds_rpm'), ('load_steps',))
+    w.mapping(raw, 'conditions', ('load_sets', 'loads', 'speeds_rpm'),
+              ('load_steps', 'road_cycle'))
     load_sets = w.nonempty_list(raw['load_sets'], 'conditions.load_sets')
     loads = w.nonempty_list(raw['loads'], 'conditions.loads')
     loads = [w.bounded(x, f'conditions.loads[{i}]', 'load') for i, x in enumerate(loads)]
@@ -361,8 +374,9 @@ def _conditions(w: Where, raw, engine_source, base_dir: Path):
     conditions = [Condition(ls, ld) for ls in engines for ld in loads]
     if len(set(conditions)) != len(conditions):
         raise w.error('conditions.loads', 'repeated load fractions')
-    return engines, conditions, (lo, hi, step), parse_load_steps(w, raw.get('load_steps'),
-                                                                 engines)
+    return (engines, conditions, (lo, hi, step),
+            parse_load_steps(w, raw.get('load_steps'), engines),
+            parse_road_cycle(w, raw.get('road_cycle'), engines))
 
 
 def _engine_error(src) -> bool:
@@ -375,7 +389,7 @@ def _engine_error(src) -> bool:
     return False
 
 
-def _objectives(w: Where, raw, load_steps: bool) -> list[str]:
+def _objectives(w: Where, raw, load_steps: bool, road_cycle: bool = False) -> list[str]:
     objs = w.nonempty_list(raw, 'objectives')
     for i, o in enumerate(objs):
         if o not in OBJECTIVES:
@@ -384,6 +398,9 @@ def _objectives(w: Where, raw, load_steps: bool) -> list[str]:
         if o in TRANSIENT and not load_steps:
             raise w.error(f'objectives[{i}]', f'{o!r} is measured in load steps: give '
                           'conditions.load_steps')
+        if o in CYCLE and not road_cycle:
+            raise w.error(f'objectives[{i}]', f'{o!r} is measured in the road cycle: give '
+                          'conditions.road_cycle')
     if len(objs) < 2 or len(set(objs)) != len(objs):
         raise w.error('objectives', f'need at least 2 different objectives (the first two span '
                       f'the Pareto front), got {objs!r}')

@@ -5,8 +5,9 @@ Rows: one per design x condition (``kind`` 'condition') and one summary per desi
 ('ok', 'failed': the design itself failed, with ``error``; 'lost': its task was lost, e.g. a
 worker died, and it is recomputed on ``--resume``), the design variables, ``load_set``,
 ``load``, ``condition``, the metrics (dmf_sim.design.metrics; the load steps' ``transient_*``
-columns on the summary rows, dmf_sim.design.transient), ``seconds`` (compute time) and,
-in the final table, ``pareto`` (summary rows on the front of the first two objectives).
+and the road cycle's ``cycle_*`` columns on the summary rows, dmf_sim.design.transient),
+``seconds`` (compute time) and, in the final table, ``pareto`` (summary rows on the front of the
+first two objectives of a design study, of all of an optimization's).
 
 :class:`ResultStore` writes every finished batch at once as its own small Parquet file
 (``DIR/parts/part-NNNNNN.parquet``, written to a temporary name and renamed, so a part is either
@@ -55,7 +56,9 @@ def schema(variable_names: list[str], final: bool = False, extra=()) -> pa.Schem
              ('transient_windup', f64), ('transient_windup_condition', text),
              ('transient_dmf_torque', f64), ('transient_dmf_torque_condition', text),
              ('transient_stop_contacts', pa.int64()), ('transient_travel_margin', f64),
-             ('transient_seconds', f64), ('seconds', f64)]
+             ('transient_seconds', f64), ('cycle_friction_heat', f64),
+             ('cycle_dmf_torque', f64), ('cycle_dmf_torque_condition', text),
+             ('cycle_seconds', f64), ('seconds', f64)]
     cols += list(extra)
     if final:
         cols.append(('pareto', pa.bool_()))

@@ -21,6 +21,24 @@ Newmark step :data:`LOAD_STEP_DT_S`). What it measures are the peaks of
   stops: nothing to hit); ``transient_travel_margin``: the smallest distance to a stop [rad]
   (NaN without stops);
 * ``transient_seconds``: compute time of the steps.
+
+A study's ``conditions.road_cycle`` runs one drive cycle per design the same way (the thermal
+load a DMF carries in service)::
+
+    road_cycle: {profile: truck_road_cycle, from_s: 10, to_s: 42}
+      # optional: from_s (default 0), to_s (default the profile's end) [s], a window of the
+      # profile; settle_s (default 2 s) at its first row before the window; load_set
+
+The profile (a packaged name, a CSV/YAML path: :func:`dmf_sim.transient.profiles.read_profile`)
+cut to the window [from_s, to_s] (linear between rows, as the run follows it), started from
+static equilibrium at its first row and held there ``settle_s`` first (not counted), gives
+(:func:`cycle_metrics`, :func:`cycle_summary`):
+
+* ``cycle_friction_heat``: the arc-spring friction's work over the window [J] (the kernel's,
+  eq. 8a of doc/theory.md, summed at every Newmark step; 0 for a spring without friction): the
+  heat the grease and the arc springs take;
+* ``cycle_dmf_torque``: the largest DMF spring torque magnitude in the window [Nm];
+* ``cycle_seconds``: its compute time.
 """
 from __future__ import annotations
 
@@ -38,7 +56,8 @@ from dmf_sim.transient.profiles import DEFAULT_HOLD_S, DEFAULT_SETTLE_S, Profile
 from dmf_sim.transient.run import RunOptions, follow_profile
 
 __all__ = ['LOAD_STEP_DT_S', 'LOAD_STEP_KEYS', 'TRANSIENT', 'LoadStep', 'parse_load_steps',
-           'step_metrics', 'transient_summary']
+           'step_metrics', 'transient_summary', 'ROAD_CYCLE_KEYS', 'CYCLE', 'RoadCycle',
+           'parse_road_cycle', 'cycle_metrics', 'cycle_summary']
 
 LOAD_STEP_DT_S = RunOptions.dt
 """Newmark step [s] of a load step: ``dmf-sim run``'s default (a rise shorter is refused)."""
@@ -49,6 +68,15 @@ LOAD_STEP_KEYS = (('speed_rpm', 'from', 'to', 'rise_s'), ('hold_s', 'settle_s', 
 TRANSIENT = ('transient_windup', 'transient_dmf_torque', 'transient_stop_contacts',
              'transient_travel_margin')
 """The summary columns of the load steps (module docstring)."""
+
+ROAD_CYCLE_KEYS = (('profile',), ('from_s', 'to_s', 'settle_s', 'load_set'))
+"""Required and optional keys of the road cycle."""
+
+CYCLE = ('cycle_friction_heat', 'cycle_dmf_torque')
+"""The summary columns of the road cycle (module docstring)."""
+
+MAX_CYCLE_SETTLE_S = 60.0
+"""Longest settling time before the road cycle's window [s]."""
 
 
 @dataclass(frozen=True)
@@ -153,3 +181,104 @@ def transient_summary(steps: list[LoadStep], results: list[dict]) -> dict:
             'transient_travel_margin': (min(r['travel_margin_rad'] for r in stops) if stops
                                         else math.nan),
             'transient_seconds': sum(r['seconds'] for r in results)}
+
+
+@dataclass(frozen=True)
+class RoadCycle:
+    """The study's road cycle: the profile's spec as given, the window [from_s, to_s] [s], the
+    settling time before it [s] and the engine's load set; ``window``: the cut profile."""
+
+    profile: str
+    from_s: float
+    to_s: float
+    settle_s: float
+    load_set: str
+    window: Profile
+
+    @property
+    def label(self) -> str:
+        return f'{self.window.name} {self.load_set}'
+
+    def as_dict(self) -> dict:
+        return {'profile': self.profile, 'from_s': self.from_s, 'to_s': self.to_s,
+                'settle_s': self.settle_s, 'load_set': self.load_set}
+
+
+def _cut(profile: Profile, from_s: float, to_s: float) -> Profile:
+    """``profile`` between ``from_s`` and ``to_s`` [s] (rows inside kept, the ends interpolated
+    as the run does), its time starting at 0."""
+    from dmf_sim.transient.profiles import make_profile
+    inside = (profile.t_s > from_s) & (profile.t_s < to_s)
+    t = np.r_[from_s, profile.t_s[inside], to_s]
+    speed, load = profile.at(t)
+    return make_profile(np.column_stack([t - from_s, speed, load]),
+                        name=f'{profile.name}[{from_s:g}:{to_s:g} s]', source=profile.source)
+
+
+def parse_road_cycle(w: Where, raw, engines: dict) -> RoadCycle | None:
+    """The study's ``conditions.road_cycle`` (absent: None), checked as the run checks a profile:
+    readable, the window inside it, its speeds in the engine data, its loads allowed by the
+    engine; one-line errors naming the field."""
+    from dmf_sim.transient.profiles import read_profile
+    if raw is None:
+        return None
+    field = 'conditions.road_cycle'
+    d = w.mapping(raw, field, *ROAD_CYCLE_KEYS)
+    spec = d['profile']
+    if not isinstance(spec, str) or not spec.strip():
+        raise w.error(f'{field}.profile', 'must be a profile name or path', spec)
+    try:
+        profile = read_profile(spec)
+    except ConfigError as exc:
+        raise w.error(f'{field}.profile', str(exc)) from None
+    end = profile.duration_s
+    from_s = w.number(d.get('from_s', 0.0), f'{field}.from_s', 0.0, end, 's', hi_open=True)
+    to_s = w.number(d.get('to_s', end), f'{field}.to_s', from_s, end, 's', lo_open=True)
+    settle = w.number(d.get('settle_s', DEFAULT_SETTLE_S), f'{field}.settle_s', 0.0,
+                      MAX_CYCLE_SETTLE_S, 's')
+    load_set = d.get('load_set', next(iter(engines)))
+    if load_set not in engines:
+        raise w.error(f'{field}.load_set', f'must be one of the conditions.load_sets '
+                      f'({", ".join(engines)})', load_set)
+    engine = engines[load_set]
+    window = _cut(profile, from_s, to_s)
+    lo, hi = getattr(engine, 'speed_range_rpm', (0.0, math.inf))
+    bad = (window.speed_rpm < lo) | (window.speed_rpm > hi)
+    if bad.any():
+        raise w.error(f'{field}.profile', f'speed outside the engine data ({lo:g}..{hi:g} rpm) '
+                      f'at {from_s + window.t_s[bad][0]:g} s', float(window.speed_rpm[bad][0]))
+    for x in (float(window.load.min()), float(window.load.max())):
+        if reason := load_error(engine, x, f'{field}.profile load'):
+            raise ConfigError(f'{w.source}: {reason}')
+    return RoadCycle(str(spec), from_s, to_s, settle, str(load_set), window)
+
+
+def cycle_metrics(line, engine, cycle: RoadCycle, dt: float = LOAD_STEP_DT_S) -> dict:
+    """The road cycle of the driveline ``line`` (a design) under ``engine``: held ``settle_s``
+    at the window's first row from static equilibrium, then the window, whose peaks
+    (:meth:`dmf_sim.live.peaks.WindupPeaks.as_dict`, friction heat included) are returned with
+    the compute time ``seconds``; ``dt``: the Newmark step [s]."""
+    from dmf_sim.live.simulation import LiveSimulation
+    from dmf_sim.transient.profiles import make_profile
+    t0 = time.perf_counter()
+    win = cycle.window
+    speed, load = float(win.speed_rpm[0]), float(win.load[0])
+    lo, hi = getattr(engine, 'speed_range_rpm', (0.0, math.inf))
+    sim = LiveSimulation(line, engine, dt=dt, speed_rpm=speed, load=load,
+                         speed_limits_rpm=(lo, hi))
+    if cycle.settle_s > 0:
+        follow_profile(sim, make_profile([(0.0, speed, load), (cycle.settle_s, speed, load)],
+                                         name='settle'))
+    out = follow_profile(sim, win).as_dict()          # the peaks start afresh here
+    out['seconds'] = time.perf_counter() - t0
+    return out
+
+
+def cycle_summary(cycle: RoadCycle | None, result: dict | None) -> dict:
+    """The design's road-cycle columns (module docstring); none without a road cycle."""
+    if cycle is None or result is None:
+        return {}
+    torque = max(abs(result['peak_dmf_torque_nm'][0]), abs(result['peak_dmf_torque_nm'][1]))
+    return {'cycle_friction_heat': float(result.get('friction_heat_j', 0.0)),
+            'cycle_dmf_torque': torque, 'cycle_dmf_torque_condition': cycle.label,
+            'cycle_seconds': result['seconds']}

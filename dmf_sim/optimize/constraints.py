@@ -151,10 +151,11 @@ def _finite(value, where: str, allow_inf: bool) -> float:
     return float(value)
 
 
-def rank(feasible: np.ndarray, violations: np.ndarray, f1: np.ndarray, f2: np.ndarray,
+def rank(feasible: np.ndarray, violations: np.ndarray, objectives: np.ndarray,
          failed: np.ndarray) -> np.ndarray:
-    """Rank of every design (1 best): feasible designs by non-dominated layer of (f1, f2), then
-    infeasible ones by total violation, then failed ones. Never drops a design."""
+    """Rank of every design (1 best): feasible designs by non-dominated layer of their
+    ``objectives`` ((n_designs, n_objectives), all minimized), then infeasible ones by total
+    violation, then failed ones. Never drops a design."""
     from dmf_sim.design.pareto import pareto_mask
     n = len(feasible)
     out = np.zeros(n, dtype=int)
@@ -162,7 +163,7 @@ def rank(feasible: np.ndarray, violations: np.ndarray, f1: np.ndarray, f2: np.nd
     layer = 0
     while len(left):
         layer += 1
-        m = pareto_mask(f1[left], f2[left])
+        m = pareto_mask(*np.asarray(objectives, dtype=float)[left].T)
         if not m.any():                       # undefined objectives: one last layer
             m[:] = True
         out[left[m]] = layer

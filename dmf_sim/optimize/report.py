@@ -75,50 +75,57 @@ def reference_design(problem) -> dict:
 
 def compare_with_reference(result, ref: dict) -> dict:
     """best_vs_paper: the compromise design's objectives relative to the paper's, and whether a
-    feasible design dominates the paper's (<= in every objective of the front, < in one); the
-    dominating design with the largest smallest improvement."""
-    o1, o2 = result.problem.objectives[:2]
-    out = {'paper': {o1: ref.get(o1), o2: ref.get(o2), 'feasible': bool(ref['feasible']),
+    feasible design dominates the paper's (<= in every objective, < in one); the dominating
+    design with the largest smallest improvement."""
+    objs = result.problem.objectives
+    out = {'paper': {**{o: ref.get(o) for o in objs}, 'feasible': bool(ref['feasible']),
                      'constraints': ref['constraints']}}
     if result.best_id is not None and ref['status'] == 'ok':
         b = result.design(result.best_id)
-        out['best'] = {'design_id': b['design_id'], o1: b[o1], o2: b[o2],
-                       f'{o1}_ratio': b[o1] / ref[o1], f'{o2}_ratio': b[o2] / ref[o2]}
+        out['best'] = {'design_id': b['design_id'], **{o: b[o] for o in objs},
+                       **{f'{o}_ratio': _ratio(b[o], ref[o]) for o in objs}}
     dom = []
     if ref['status'] == 'ok':
         for r in result.rows('design'):
             if not _counts(r):
                 continue
-            if r[o1] <= ref[o1] and r[o2] <= ref[o2] and (r[o1] < ref[o1] or r[o2] < ref[o2]):
+            if all(r[o] <= ref[o] for o in objs) and any(r[o] < ref[o] for o in objs):
                 dom.append(r)
     out['n_dominating'] = len(dom)
     out['dominates_paper'] = bool(dom)
     if dom:
-        top = min(dom, key=lambda r: max(r[o1] / ref[o1], r[o2] / ref[o2]))
-        out['dominating'] = {'design_id': top['design_id'], f'{o1}_ratio': top[o1] / ref[o1],
-                             f'{o2}_ratio': top[o2] / ref[o2]}
+        top = min(dom, key=lambda r: max(_ratio(r[o], ref[o]) for o in objs))
+        out['dominating'] = {'design_id': top['design_id'],
+                             **{f'{o}_ratio': _ratio(top[o], ref[o]) for o in objs}}
     return out
 
 
-def common_hypervolumes(result, baseline, reference_point: tuple[float, float] | None = None
-                        ) -> dict:
+def _ratio(value: float, paper: float) -> float:
+    """A design's objective over the paper design's (NaN when the paper's is 0)."""
+    return value / paper if paper else math.nan
+
+
+def _objective_points(rows: list[dict], objs) -> np.ndarray:
+    return np.array([[_f(r.get(o)) for o in objs] for r in rows], dtype=float).reshape(
+        len(rows), len(objs))
+
+
+def common_hypervolumes(result, baseline, reference_point=None) -> dict:
     """Hypervolume histories of both runs against one reference point (default 1.1 x the
     largest feasible value of each objective over both runs; e.g. the paper's design's
-    objectives to count only the area that improves on it), and their final ratio."""
-    o1, o2 = result.problem.objectives[:2]
+    objectives to count only the volume that improves on it), and their final ratio."""
+    objs = result.problem.objectives
     cols = {}
     for name, res in (('optimizer', result), ('lhs', baseline)):
         rows = sorted(res.rows('design'), key=lambda r: r['design_id'])
-        cols[name] = (np.array([_f(r.get(o1)) for r in rows]),
-                      np.array([_f(r.get(o2)) for r in rows]),
-                      np.array([_counts(r) for r in rows]))
-    f1 = np.concatenate([c[0][c[2]] for c in cols.values()])
-    f2 = np.concatenate([c[1][c[2]] for c in cols.values()])
-    if not len(f1):
+        cols[name] = (_objective_points(rows, objs), np.array([_counts(r) for r in rows],
+                                                               dtype=bool))
+    f = np.concatenate([c[0][c[1]] for c in cols.values()])
+    if not len(f):
         return {'reference_point': None, 'optimizer': [], 'lhs': [], 'optimizer_final': 0.0,
                 'lhs_final': 0.0, 'ratio': math.nan}
     ref = (tuple(float(v) for v in reference_point) if reference_point is not None
-           else (1.1 * float(f1.max()), 1.1 * float(f2.max())))
+           else tuple(1.1 * float(v) for v in f.max(axis=0)))
     hv = {k: hypervolume_history(*c, ref) for k, c in cols.items()}
     last = {k: float(v[-1]) if len(v) else 0.0 for k, v in hv.items()}
     return {'reference_point': list(ref), 'optimizer': hv['optimizer'].tolist(),
@@ -128,30 +135,29 @@ def common_hypervolumes(result, baseline, reference_point: tuple[float, float] |
 
 
 def front_reference_point(result, baseline, margin: float = FRONT_REFERENCE_MARGIN
-                          ) -> tuple[float, float] | None:
+                          ) -> tuple[float, ...] | None:
     """The reference point of the fronts themselves: the nadir of both runs' final feasible
     Pareto fronts (the worst value of each objective over their points) plus ``margin`` times
     the fronts' range (nadir - ideal) in each objective, so every point of either front counts.
 
-    The default reference point (1.1 x the worst feasible design) spans the area of designs many
-    times worse than either front, which neither run's front changes: two fronts that differ
+    The default reference point (1.1 x the worst feasible design) spans the volume of designs
+    many times worse than either front, which neither run's front changes: two fronts that differ
     near the best designs then have nearly the same hypervolume (their ratio is bounded by that
     of the ideal point, see :func:`front_hypervolumes`). A reference just beyond the nadir of the
     fronts compared is the usual choice for comparing fronts (H. Ishibuchi et al., "How to
     specify a reference point in hypervolume calculation for fair performance comparison",
     Evolutionary Computation 26(3), 2018). None when a run has no feasible design."""
-    o1, o2 = result.problem.objectives[:2]
+    objs = result.problem.objectives
     pts = []
     for res in (result, baseline):
         rows = [r for r in res.rows('design') if _counts(r) and r.get('pareto')]
         if not rows:
             return None
-        pts += [(float(r[o1]), float(r[o2])) for r in rows]
-    p = np.array(pts)
+        pts.append(_objective_points(rows, objs))
+    p = np.concatenate(pts)
     lo, hi = p.min(axis=0), p.max(axis=0)
     span = np.where(hi > lo, hi - lo, np.abs(hi))    # a front of one point: its own size
-    ref = hi + margin * span
-    return float(ref[0]), float(ref[1])
+    return tuple(float(v) for v in hi + margin * span)
 
 
 def front_hypervolumes(result, baseline, wide: dict | None = None,
@@ -169,20 +175,20 @@ def front_hypervolumes(result, baseline, wide: dict | None = None,
     out = common_hypervolumes(result, baseline, ref)
     wide = wide if wide is not None else common_hypervolumes(result, baseline)
     ideal = ideal_point_search(result, baseline)['ideal']
-    o1, o2 = result.problem.objectives[:2]
-    best = hypervolume([ideal[o1]], [ideal[o2]], tuple(wide['reference_point']))
+    best = hypervolume([[ideal[o] for o in result.problem.objectives]],
+                       tuple(wide['reference_point']))
     out['wide_bound'] = best / wide['lhs_final'] if wide['lhs_final'] > 0 else math.inf
     return out
 
 
 def ideal_point_search(result, baseline, rel: float = 0.01) -> dict:
-    """How each run reaches the ideal point of the two front objectives (the smallest feasible
-    value of each over both runs): the evaluations until one feasible design lies within ``rel``
-    of it in both objectives (None: never), how many designs do, and the size of each run's final
-    front. Where one design is (nearly) best in both objectives -- objectives that do not
+    """How each run reaches the ideal point of the objectives (the smallest feasible value of
+    each over both runs): the evaluations until one feasible design lies within ``rel`` of it in
+    every objective (None: never), how many designs do, and the size of each run's final
+    front. Where one design is (nearly) best in every objective -- objectives that do not
     conflict -- both fronts shrink to that point and their hypervolumes agree whatever the
     method; these figures still tell how fast and how often a method finds it."""
-    o1, o2 = result.problem.objectives[:2]
+    objs = result.problem.objectives
     runs = {}
     for name, res in (('optimizer', result), ('lhs', baseline)):
         rows = sorted(filter(_counts, res.rows('design')), key=lambda r: r['design_id'])
@@ -190,11 +196,10 @@ def ideal_point_search(result, baseline, rel: float = 0.01) -> dict:
     every = [r for rows, _ in runs.values() for r in rows]
     if not every:
         return {'ideal': None}
-    ideal = (min(r[o1] for r in every), min(r[o2] for r in every))
-    out: dict = {'ideal': {o1: ideal[0], o2: ideal[1]}, 'rel': rel}
+    ideal = {o: min(r[o] for r in every) for o in objs}
+    out: dict = {'ideal': ideal, 'rel': rel}
     for name, (rows, front) in runs.items():
-        near = [r for r in rows
-                if r[o1] <= (1 + rel) * ideal[0] and r[o2] <= (1 + rel) * ideal[1]]
+        near = [r for r in rows if all(r[o] <= (1 + rel) * ideal[o] for o in objs)]
         out[name] = {'front_size': front, 'n_near_ideal': len(near),
                      'evaluations_to_ideal': (near[0]['design_id'] + 1 if near else None)}
     return out
@@ -228,6 +233,7 @@ def _label(name: str) -> str:
 
 def pareto_figure(result, baseline, ref: dict) -> Figure:
     o1, o2 = result.problem.objectives[:2]
+    n_obj = len(result.problem.objectives)
     fig = Figure(figsize=(10.0, 5.2), layout='constrained')
     ax = fig.subplots()
     for res, color, name in ((baseline, 'tab:gray', 'Latin hypercube'),
@@ -242,8 +248,11 @@ def pareto_figure(result, baseline, ref: dict) -> Figure:
         ax.plot([r[o1] for r in feas], [r[o2] for r in feas], '.', color=color, alpha=0.6,
                 label=f'{name}: feasible ({len(feas)})')
         front = sorted((r for r in rows if r['pareto']), key=lambda r: r[o1])
-        ax.plot([r[o1] for r in front], [r[o2] for r in front], 'o-' if res is result else 'o--',
-                color=color, ms=4, label=f'{name}: Pareto front ({len(front)})')
+        # with more than two objectives the front is drawn as points: its projection on the
+        # plane of the first two is no staircase
+        style = ('o-' if res is result else 'o--') if n_obj == 2 else 'o'
+        ax.plot([r[o1] for r in front], [r[o2] for r in front], style, color=color, ms=4,
+                mfc='none' if n_obj > 2 else color, label=f'{name}: Pareto front ({len(front)})')
     if result.best_id is not None:
         b = result.design(result.best_id)
         ax.plot(b[o1], b[o2], '*', color='tab:orange', ms=15,
@@ -257,7 +266,9 @@ def pareto_figure(result, baseline, ref: dict) -> Figure:
     ax.set_ylabel(_label(o2), fontsize=8)
     ax.grid(alpha=0.3, which='both')
     legend_beside(ax, fontsize=7)
-    ax.set_title(f'{result.problem.study.name}: both objectives minimized, worst over conditions '
+    what = ('both objectives' if n_obj == 2 else
+            f'the first two of {n_obj} objectives (front: non-dominated in all {n_obj})')
+    ax.set_title(f'{result.problem.study.name}: {what} minimized, worst over conditions '
                  'and states', fontsize=9)
     return fig
 
@@ -275,7 +286,7 @@ def hypervolume_figure(hv: dict, method: str) -> Figure:
     legend_beside(ax)
     ref = hv.get('reference_point')
     if ref:
-        ax.set_title(f'reference point ({ref[0]:.4g}, {ref[1]:.4g}); final ratio '
+        ax.set_title(f'reference point ({", ".join(f"{v:.4g}" for v in ref)}); final ratio '
                      f'{hv["ratio"]:.3g}', fontsize=9)
     return fig
 
@@ -398,7 +409,8 @@ def write_report(result, baseline, out, *, ref: dict, hv: dict, best_vs_paper: d
 def _blocks(result, baseline, ref, hv, bvp, exported, seconds, front) -> list[Block]:
     p = result.problem
     s = p.study
-    o1, o2 = p.objectives[:2]
+    objs = p.objectives
+    o1 = objs[0]
     c = p.constraints
     n_feas = sum(bool(r['feasible']) for r in result.rows('design'))
     b: list[Block] = [Block('h1', f'DMF spring optimization: {s.name}')]
@@ -438,27 +450,28 @@ def _blocks(result, baseline, ref, hv, bvp, exported, seconds, front) -> list[Bl
     else:
         b.append(Block('p', 'No baseline run (--no-baseline).'))
     b.append(Block('h2', 'Best design vs the paper\'s'))
-    rows = [['paper (α 3, θ 0.24)', _g(ref.get(o1)), _g(ref.get(o2)),
+    rows = [['paper (α 3, θ 0.24)', *[_g(ref.get(o)) for o in objs],
              'yes' if ref['feasible'] else 'no', ref['constraints']]]
     if result.best_id is not None:
         r = result.design(result.best_id)
-        rows.append([f'best: design {r["design_id"]}', _g(r[o1]), _g(r[o2]), 'yes',
+        rows.append([f'best: design {r["design_id"]}', *[_g(r[o]) for o in objs], 'yes',
                      r['constraints']])
-    b.append(Block('table', (['design', o1, o2, 'feasible', 'constraint values (> 0 violated)'],
+    b.append(Block('table', (['design', *objs, 'feasible', 'constraint values (> 0 violated)'],
                              rows)))
     if bvp.get('dominates_paper'):
         d = bvp['dominating']
         b.append(Block('p', f'{bvp["n_dominating"]} feasible designs dominate the paper\'s; '
-                            f'design {d["design_id"]}: {o1} x {d[f"{o1}_ratio"]:.3g}, '
-                            f'{o2} x {d[f"{o2}_ratio"]:.3g} of the paper\'s.'))
+                            f'design {d["design_id"]}: '
+                            + ', '.join(f'{o} x {d[f"{o}_ratio"]:.3g}' for o in objs)
+                            + ' of the paper\'s.'))
     else:
         b.append(Block('p', 'No feasible design dominates the paper\'s within the bounds.'))
     b.append(Block('h2', 'Pareto designs'))
-    head = ['design', *s.variable_names, o1, o2, 'max DMF torque [Nm]', 'T(travel) [Nm]',
+    head = ['design', *s.variable_names, *objs, 'max DMF torque [Nm]', 'T(travel) [Nm]',
             'driveline YAML']
     b.append(Block('table', (head, [[str(r['design_id']), *[_g(r[v]) for v in
                                                               s.variable_names],
-                                     _g(r[o1]), _g(r[o2]), _g(r['max_dmf_torque']),
+                                     *[_g(r[o]) for o in objs], _g(r['max_dmf_torque']),
                                      _g(r['torque_at_travel']),
                                      Path(exported.get(str(r['design_id']), '')).name]
                                     for r in sorted(front, key=lambda r: r[o1])])))
@@ -507,7 +520,7 @@ def _pct(v: float) -> str:
 
 
 def _pt(p) -> str:
-    return 'none' if not p else f'({p[0]:.4g}, {p[1]:.4g})'
+    return 'none' if not p else '(' + ', '.join(f'{v:.4g}' for v in p) + ')'
 
 
 def _g(v) -> str:

@@ -59,7 +59,7 @@ EXTRA = [('method', pa.string()), ('generation', pa.int64()), ('feasible', pa.bo
 @dataclass
 class OptimizationResult(StudyResult):
     """A design study's result (every evaluated design as rows of its table, plus
-    :data:`EXTRA`; ``pareto_ids``: the *feasible* non-dominated designs of the first two
+    :data:`EXTRA`; ``pareto_ids``: the *feasible* non-dominated designs of all the
     objectives; ``best_id``: the compromise among them) with the problem, the hypervolume after
     each evaluation and the time-domain verification (of the harmonic-balance objectives, and
     of the transient ones by step refinement)."""
@@ -79,7 +79,7 @@ class OptimizationResult(StudyResult):
             out.pop(key)
         out.update({
             'method': p.method, 'budget': p.budget, 'seed': p.seed,
-            'batch_size': p.batch_size,
+            'batch_size': p.batch_size, 'pareto_objectives': list(p.objectives),
             'n_feasible': sum(bool(r['feasible']) for r in self.rows('design')),
             'constraints': p.constraints.as_dict(),
             'hypervolume_final': (float(self.hypervolume[-1]) if len(self.hypervolume)
@@ -201,41 +201,41 @@ def run_optimization(problem, client=None, *, out=None, resume: bool = False,
 
 def finish(problem: Problem, rows: list[dict], **run) -> OptimizationResult:
     """The final table: rows sorted, ranks (feasible by layer, infeasible, failed), the
-    feasible Pareto front of the first two objectives, the compromise, hypervolume history."""
+    feasible Pareto front of all the objectives, the compromise, hypervolume history."""
     from dmf_sim.design.pareto import compromise
     study = problem.study
     rows = sort_rows(rows, [c.label for c in study.conditions])
-    o1, o2 = study.objectives[:2]
     summ = [r for r in rows if r['kind'] == 'design']
-    f1 = np.array([_num(r.get(o1)) for r in summ])
-    f2 = np.array([_num(r.get(o2)) for r in summ])
+    f = np.array([[_num(r.get(o)) for o in study.objectives] for r in summ]).reshape(
+        len(summ), len(study.objectives))
     feas = np.array([bool(r.get('feasible')) for r in summ], dtype=bool)
     failed = np.array([r['status'] != 'ok' for r in summ], dtype=bool)
     viol = np.array([_num(r.get('violation'), math.inf) for r in summ])
-    ranks = rank(feas, viol, f1, f2, failed) if summ else np.zeros(0, int)
+    ranks = rank(feas, viol, f, failed) if summ else np.zeros(0, int)
     front = {r['design_id'] for r, k in zip(summ, ranks) if k == 1 and r['feasible']}
     for r, k in zip(summ, ranks):
         r['rank'] = int(k)
     mask = np.array([r['design_id'] in front for r in summ], dtype=bool)
-    best = summ[compromise(f1, f2, mask)]['design_id'] if mask.any() else None
+    best = summ[compromise(f.T, mask)]['design_id'] if mask.any() else None
     for r in rows:
         r['pareto'] = (r['design_id'] in front) if r['kind'] == 'design' else None
     table = to_table(rows, study.variable_names, final=True, extra=EXTRA)
     order = np.argsort([r['design_id'] for r in summ], kind='stable')
-    hv = hypervolume_history(f1[order], f2[order], feas[order] & ~failed[order],
-                             reference_point(problem, f1[feas], f2[feas]))
+    hv = hypervolume_history(f[order], feas[order] & ~failed[order],
+                             reference_point(problem, f[feas]))
     return OptimizationResult(study, table, sorted(front), best, problem=problem,
                               hypervolume=hv, **run)
 
 
-def reference_point(problem: Problem, f1, f2) -> tuple[float, float]:
+def reference_point(problem: Problem, f) -> tuple[float, ...]:
     """The hypervolume reference point: 1.1 x the largest feasible value of each objective
-    (comparisons of runs pass one common point, :func:`hypervolume_history`)."""
-    f1, f2 = np.asarray(f1, float), np.asarray(f2, float)
-    ok = np.isfinite(f1) & np.isfinite(f2)
+    (``f``: (n_designs, n_objectives) of the feasible designs; comparisons of runs pass one
+    common point, :func:`hypervolume_history`)."""
+    f = np.asarray(f, float).reshape(-1, len(problem.objectives))
+    ok = np.all(np.isfinite(f), axis=1)
     if not ok.any():
-        return (math.nan, math.nan)
-    return (1.1 * float(f1[ok].max()), 1.1 * float(f2[ok].max()))
+        return tuple(math.nan for _ in problem.objectives)
+    return tuple(1.1 * float(v) for v in f[ok].max(axis=0))
 
 
 def _num(v, default=math.nan) -> float:

@@ -21,7 +21,9 @@ coexisting states one way up and another way down, and it sees peaks between gri
 The transient objectives (peak wind-up or DMF torque in the study's load steps,
 :mod:`dmf_sim.design.transient`) are time-domain values already: :func:`verify_transient` runs a
 design's load steps again with the verification's finer Newmark step (``VerifySettings.dt``)
-and compares: the step-refinement check of the study's value.
+and compares: the step-refinement check of the study's value. The road cycle's objectives
+(friction heat, peak DMF torque; ``conditions.road_cycle``) are checked the same way: the cycle
+run again at the finer step.
 """
 from __future__ import annotations
 
@@ -42,8 +44,10 @@ VERIFIABLE = {'worst_order_1_5': ('windup', ORDER_1_5), 'worst_order_3': ('windu
 """Objectives the time domain can check: (signal, half-order index)."""
 
 
-TRANSIENT_VERIFIABLE = ('transient_windup', 'transient_dmf_torque')
-"""Transient objectives checked by step refinement (:func:`verify_transient`)."""
+TRANSIENT_VERIFIABLE = ('transient_windup', 'transient_dmf_torque', 'cycle_friction_heat',
+                        'cycle_dmf_torque')
+"""Time-domain objectives (load steps, road cycle) checked by step refinement
+(:func:`verify_transient`)."""
 
 
 @dataclass(frozen=True)
@@ -129,21 +133,35 @@ def _design(study, row: dict):
 
 def verify_transient(problem, row: dict, settings: VerifySettings | None = None
                      ) -> list[TransientCheck]:
-    """The step-refinement checks of a design's transient objectives (module docstring)."""
-    from dmf_sim.design.transient import LOAD_STEP_DT_S, step_metrics, transient_summary
+    """The step-refinement checks of a design's time-domain objectives (module docstring)."""
+    from dmf_sim.design.transient import (
+        CYCLE,
+        LOAD_STEP_DT_S,
+        cycle_metrics,
+        cycle_summary,
+        step_metrics,
+        transient_summary,
+    )
     s = settings or VerifySettings()
     study = problem.study
     wanted = [o for o in study.objectives if o in TRANSIENT_VERIFIABLE
               and row.get(o) is not None and np.isfinite(row[o])]
-    if not wanted or not study.load_steps:
+    if not wanted:
         return []
     _, line = _design(study, row)
-    results = [step_metrics(line, study.engines[step.load_set], step, dt=s.dt)
-               for step in study.load_steps]
-    refined = transient_summary(study.load_steps, results)
-    return [TransientCheck(int(row['design_id']), o, str(row.get(f'{o}_condition', '')),
+    refined: dict = {}
+    if study.load_steps and any(o not in CYCLE for o in wanted):
+        results = [step_metrics(line, study.engines[step.load_set], step, dt=s.dt)
+                   for step in study.load_steps]
+        refined.update(transient_summary(study.load_steps, results))
+    cycle = study.road_cycle
+    if cycle is not None and any(o in CYCLE for o in wanted):
+        refined.update(cycle_summary(cycle, cycle_metrics(line, study.engines[cycle.load_set],
+                                                          cycle, dt=s.dt)))
+    return [TransientCheck(int(row['design_id']), o,
+                           str(row.get(f'{o}_condition') or (cycle.label if o in CYCLE else '')),
                            float(row[o]), float(refined[o]), LOAD_STEP_DT_S, s.dt)
-            for o in wanted]
+            for o in wanted if o in refined]
 
 
 def verify_design(problem, row: dict, settings: VerifySettings | None = None) -> list[Check]:

@@ -110,7 +110,7 @@ def test_speed_ranges_and_pareto():
     f2 = np.array([4.0, 2.0, 1.0, 3.0, 0.0, 4.0])      # NaN: never on the front
     mask = pareto_mask(f1, f2)
     assert list(mask) == [True, True, True, False, False, True]
-    assert compromise(f1, f2, mask) == 1
+    assert compromise((f1, f2), mask) == 1
 
 
 @pytest.mark.slow
