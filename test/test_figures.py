@@ -261,7 +261,8 @@ def test_springs_figure_shows_every_coast_knee():
     from dmf_sim.optimize.report import springs_figure
     problem = read_problem('config/optimize_example.yaml')
     names = problem.study.variable_names
-    design = dict(zip(names, (0.254, 1.16, 0.276, 4.3, 0.279, 9.7, 0.224, 2.0)))
+    design = dict(zip(names, (0.254, 1.16, 0.276, 4.3, 0.279, 9.7, 0.224, 2.0, 40.0, 3e-3)))
+    assert len(design) == len(names)
     rows = [{**design, 'design_id': 155}, {**design, 'design_id': 157,
                                            'coast_stages[0].angle_rad': 0.12}]
     ref = {'spring': design_driveline(problem.study.base, problem.study.reference).spring}

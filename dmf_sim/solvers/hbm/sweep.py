@@ -360,6 +360,9 @@ class SpeedSweep:
                 self._not_searched()
         finally:
             bar.close()
+        # a sweep that ran over its limit between two checks (a compiled stretch) says so too
+        self._phase = 'the sweep'
+        self.check_time(hi)
         sp = self.hbm.spring
         return SweepResult(self.branches, self.events, (lo, hi), self.hbm.load, sp.alpha, sp.theta,
                            seconds=time.perf_counter() - t0, n_harmonics=self.hbm.H,

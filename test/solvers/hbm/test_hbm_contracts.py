@@ -53,3 +53,23 @@ def paper_hbm():
     loads = DrivelineExcitation(read_model('truck_dmf', alpha=3.0),
                                 read_engine('engine_d13', load_set='A'))
     return CondensedHBM(loads, 1.0)
+
+
+def test_a_sweep_over_its_time_limit_never_returns(paper_hbm, monkeypatch):
+    """The limit is checked between steps and once more at the end: a sweep whose compiled
+    stretches ran past it between two checks raises too (no check inside it fires here)."""
+    from dmf_sim.core.errors import TimeLimitError
+    from dmf_sim.solvers.hbm import SpeedSweep
+    from dmf_sim.solvers.hbm.sweep import SweepOptions
+    sw = SpeedSweep(paper_hbm, SweepOptions(time_limit_s=1e-3, search=None))
+    checks = []
+    real = SpeedSweep.check_time
+
+    def during(self, speed_rpm):            # the checks while sweeping see time to spare
+        checks.append(self._phase)
+        if self._phase == 'the sweep':
+            real(self, speed_rpm)
+    monkeypatch.setattr(SpeedSweep, 'check_time', during)
+    with pytest.raises(TimeLimitError, match='reached during the sweep at 1600 rpm'):
+        sw.run((800.0, 1600.0))
+    assert checks[-1] == 'the sweep' and len(checks) > 1
