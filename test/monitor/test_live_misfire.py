@@ -73,6 +73,12 @@ def run_for(rt, seconds: float) -> None:
             rt.loop.tick(rt.loop.clock())
 
 
+def drain(rt) -> None:
+    """Every window handed in analysed, and a tick that publishes what finished."""
+    rt.monitor.wait_idle(120.0)
+    run_for(rt, 0.002)
+
+
 def test_the_default_truck_has_the_wheels_around_its_dmf():
     line = read_line(PARAMETERS['driveline'].default)
     assert dmf_wheels(line) == ('crank', 'flywheel_secondary')
@@ -87,8 +93,7 @@ def test_live_alarms_are_the_misfires_of_the_ground_truth():
             assert rt.faults.offer('{kind: misfire, cylinders: [3]}') is None
             run_for(rt, 0.5)
         run_for(rt, 0.4)                      # the last one's right baseline
-        rt.monitor.wait_idle(120.0)
-        run_for(rt, 0.002)                    # a tick polls and publishes what finished
+        drain(rt)
     finally:
         rt.close()
     det = sink.detections()
@@ -127,8 +132,7 @@ def test_no_alarm_through_a_speed_ramp_and_a_load_step_nor_after_a_reset():
         run_for(rt, 1.0)
         rt.reset()                                    # the motion jumps: the detector restarts
         run_for(rt, 1.0)
-        rt.monitor.wait_idle(120.0)
-        run_for(rt, 0.002)
+        drain(rt)
     finally:
         rt.close()
     det = sink.detections()
@@ -148,8 +152,7 @@ def test_the_segment_speed_and_wind_up_from_the_sensors_are_the_true_ones():
     rt, sink = make()
     try:
         run_for(rt, 2.0)
-        rt.monitor.wait_idle(120.0)
-        run_for(rt, 0.002)
+        drain(rt)
     finally:
         rt.close()
     det = sink.detections()
