@@ -119,12 +119,12 @@ class SensorMessages:
     """The node's sensor messages of a chunk: (stream key, log time [ns], CDR bytes), keys as
     :func:`dmf_sim.live.streams.streams_for` names them. Each wheel's edges are held until
     their batch period ends (``batch_period_ns``,
-    :meth:`dmf_sim.physics.sensors.SensorSet.edge_batch_ns`; default: none held, one batch per
-    chunk as a publish period) and sent in one message logged at its end
-    (:func:`dmf_sim.bags.sensor_messages.batch_log_ns`, the rule ``dmf-sim run`` writes by)."""
+    :meth:`dmf_sim.physics.sensors.SensorSet.edge_batch_ns`: one publish period or more) and
+    sent in one message logged at its end (:func:`dmf_sim.bags.sensor_messages.batch_log_ns`,
+    the rule ``dmf-sim run`` writes by)."""
 
     def __init__(self, wheel_names: Sequence[str], signal_names: Sequence[str],
-                 batch_period_ns: float | None = None) -> None:
+                 batch_period_ns: float) -> None:
         self.edge_keys = [edge_key(w) for w in wheel_names]
         self.bus_keys = [bus_key(b) for b in signal_names]
         self.batch_period_ns = batch_period_ns
@@ -134,16 +134,7 @@ class SensorMessages:
            ) -> list[tuple[str, int, bytes]]:
         """Stamps = ``epoch_ns`` + simulated ns (:class:`dmf_sim.live.pacing.TimeBase`); log
         times = stamps + ``log_offset_ns``."""
-        out = []
-        if self.batch_period_ns is None:
-            if any(chunk.edge_counts):
-                log_end = epoch_ns + int(round(chunk.t_end_s * 1e9)) + log_offset_ns
-                for w, n in enumerate(chunk.edge_counts):
-                    if n:
-                        out.append((self.edge_keys[w], log_end,
-                                    encode_edges(chunk.edge_rows(w), epoch_ns)))
-        else:
-            out += self._batches(chunk, epoch_ns, log_offset_ns)
+        out = self._batches(chunk, epoch_ns, log_offset_ns)
         if any(chunk.bus_counts):
             for b, n in enumerate(chunk.bus_counts):
                 if n:

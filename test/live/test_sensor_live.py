@@ -5,6 +5,7 @@ offline bag that holds the node's sensor topics with the same layout. Over DDS:
 test_sensor_node.py."""
 from __future__ import annotations
 
+from dataclasses import replace
 from types import SimpleNamespace
 
 import numpy as np
@@ -86,7 +87,9 @@ def test_sensor_faults_through_the_simulation():
 def test_messages_of_a_chunk_and_their_keys():
     s = sim(sensors=True)
     streams = streams_for(s.line.sensors)
-    msgs = SensorMessages(s.live_sensors.wheel_names, s.live_sensors.signal_names)
+    # one batch per publish period (sensors.edge_batch_s 0): the batch of a 1-ms chunk
+    per_tick = replace(s.line.sensors, edge_batch_s=0.0).edge_batch_ns(s.stride * s.dt)
+    msgs = SensorMessages(s.live_sensors.wheel_names, s.live_sensors.signal_names, per_tick)
     epoch, offset = 1_700_000_000_000_000_000, 5
     seen = {}
     for _ in range(300):
