@@ -4,7 +4,7 @@ keeps running; the ground truth and the active set published (ROS over DDS: test
 from __future__ import annotations
 
 import pytest
-from support.live_core import StatusSink
+from support.live_core import ListLog, StatusSink
 
 from dmf_sim.core.errors import ConfigError
 from dmf_sim.live.faults import FAULT_PARAMETERS
@@ -16,27 +16,13 @@ from dmf_sim.monitor.messages import values_of
 NODE = '/driveline_node'
 
 
-class Log:
-    def __init__(self):
-        self.lines = []
-
-    def info(self, m):
-        self.lines.append(('info', m))
-
-    def warning(self, m):
-        self.lines.append(('warning', m))
-
-    def error(self, m):
-        self.lines.append(('error', m))
-
-
 def make(**over):
     values = {name: spec.default for name, spec in PARAMETERS.items()}
     values.update(alpha=2.5, theta=0.24, monitor=False, pacing='fast', initial_speed_rpm=1200.0,
                   initial_load=1.0)
     values.update(over)
     topics = resolved_topics('')
-    log, sink = Log(), StatusSink()
+    log, sink = ListLog(), StatusSink()
     rt = LiveRuntime(values, read_line(values['driveline']), sink, log,
                      topics={topics[k]: s.msgtype for k, s in STREAMS.items()}, node_name=NODE)
     rt.loop.start()
