@@ -1,20 +1,13 @@
 """The faults benchmark runs small and prints its figures as the last JSON line: every injected
 misfire of its grid found, no false alarm, the wind-up from the sensors within 3 %."""
-import json
-import subprocess
-import sys
-from pathlib import Path
 
 import pytest
-
-BENCH = Path(__file__).resolve().parents[2] / 'benchmarks' / 'bench_faults.py'
+from support.benchmarks import bench_json
 
 
 @pytest.mark.slow
 def test_bench_faults_small_prints_json():
-    out = subprocess.run([sys.executable, str(BENCH), '--small'], capture_output=True, text=True,
-                         check=True, timeout=600).stdout.strip().splitlines()
-    data = json.loads(out[-1])
+    data = bench_json('bench_faults.py', '--small', timeout=600)
     assert data['small'] and data['misfires'] == 12 and data['engine_cycles'] > 50
     assert data['misfire_detection_rate'] >= 0.99
     assert data['false_alarm_rate'] <= 1e-3

@@ -1,20 +1,13 @@
 """The friction benchmark runs small and prints its figures as the last JSON line: both sweep
 ratios measured, HBM and Newmark within 2 % on the 1.5th and 3rd orders where the DMF slips."""
-import json
-import subprocess
-import sys
-from pathlib import Path
 
 import pytest
-
-BENCH = Path(__file__).resolve().parents[2] / 'benchmarks' / 'bench_friction_hbm.py'
+from support.benchmarks import bench_json
 
 
 @pytest.mark.slow
 def test_bench_friction_hbm_small_prints_json():
-    out = subprocess.run([sys.executable, str(BENCH), '--small'], capture_output=True, text=True,
-                         check=True, timeout=900).stdout.strip().splitlines()
-    data = json.loads(out[-1])
+    data = bench_json('bench_friction_hbm.py', '--small', timeout=900)
     assert data['small'] and data['repeat'] == 2
     for mode in ('fast', 'full'):
         assert data[f'friction_sweep_time_ratio_{mode}'] > 0

@@ -1,21 +1,15 @@
 """The Newmark benchmark runs on small sizes and prints real figures as its last JSON line."""
-import json
 import math
-import subprocess
-import sys
-from pathlib import Path
 
 import pytest
+from support.benchmarks import bench_json
 
 pytestmark = pytest.mark.bench
-BENCH = Path(__file__).resolve().parents[2] / 'benchmarks' / 'bench_newmark.py'
 
 
 @pytest.mark.slow
 def test_bench_newmark_quick_prints_json():
-    out = subprocess.run([sys.executable, str(BENCH), '--quick'], capture_output=True, text=True,
-                         check=True, timeout=300).stdout.strip().splitlines()
-    data = json.loads(out[-1])
+    data = bench_json('bench_newmark.py', '--quick', timeout=300)
     for key in ('steps_per_s', 'realtime_factor', 'speedup_vs_solve_ivp'):
         assert math.isfinite(data[key]) and data[key] > 0
     # same accuracy: solve_ivp's error is no larger than Newmark's (or the tightest rtol tried)

@@ -1,22 +1,15 @@
 """The transient-run benchmark runs on small sizes and prints its figures as the last JSON
 line (the whole chain: run with and without a bag, run-up analysis, fold case up and down, a
 profile's memory, durability in batches)."""
-import json
 import math
-import subprocess
-import sys
-from pathlib import Path
 
 import pytest
-
-BENCH = Path(__file__).resolve().parents[2] / 'benchmarks' / 'bench_run.py'
+from support.benchmarks import bench_json
 
 
 @pytest.mark.slow
 def test_bench_run_small_prints_json():
-    out = subprocess.run([sys.executable, str(BENCH), '--small'], capture_output=True, text=True,
-                         check=True, timeout=900).stdout.strip().splitlines()
-    data = json.loads(out[-1])
+    data = bench_json('bench_run.py', '--small', timeout=900)
     for key in ('realtime_factor', 'realtime_factor_cpu', 'realtime_factor_no_write',
                 'realtime_factor_no_write_cpu', 'realtime_factor_threads1',
                 'realtime_factor_threads2', 'realtime_factor_no_sensors',
