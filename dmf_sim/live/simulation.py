@@ -465,6 +465,10 @@ class LiveSimulation:
         recorded states in ``record`` (default: this simulation's own buffer; a caller's must
         hold the chunk's rows). :meth:`read_out` turns the result into samples; ``dmf-sim run``
         integrates the next chunk in another thread meanwhile (the kernel releases the GIL)."""
+        if self.faults is not None and self.faults.dmf_version != self._dmf_version:
+            # a DMF fault ended between chunks (its parameter cleared, ~/clear_faults): the
+            # timeline's scans only see changes made inside a chunk
+            self._swap(self.line, self.engine)
         it = self.integ
         if nsteps > 0:
             # the excitation of the chunk's middle (speed and load half-way along their ramps):

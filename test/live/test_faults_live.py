@@ -119,6 +119,25 @@ def test_parameter_every_cycle_then_cleared_and_overlap_refused():
     assert rt.sim.integ.factors is None                    # every cylinder fires again
 
 
+@pytest.mark.parametrize('how', ['parameter', 'clear_service'])
+def test_a_dmf_fault_ended_between_ticks_restores_the_spring_at_the_next(how):
+    # nothing else on the timeline: the next chunk takes the fault-free path, which must still
+    # apply a DMF change made between ticks
+    rt, sink, log = make()
+    run_for(rt, 0.01)
+    k = rt.sim.model.spring.k
+    rt.apply({'fault_dmf': '{kind: dmf_stiffness, stage: 1, factor: 0.5}'})
+    run_for(rt, 0.01)
+    assert rt.sim.model.spring.k == 0.5 * k
+    if how == 'parameter':
+        rt.apply({'fault_dmf': ''})
+    else:
+        rt.clear_faults()
+    assert rt.faults.timeline.idle
+    run_for(rt, 0.001)
+    assert rt.sim.model.spring.k == k
+
+
 def test_dmf_parameter_rebuilds_and_clear_service_ends_all():
     rt, sink, log = make()
     run_for(rt, 0.01)
