@@ -251,6 +251,23 @@ class DrivelineNode(Node):
         for key, log_ns, data in self.runtime.sensor_messages.of(chunk, epoch_ns, log_offset_ns):
             self._emit_raw(key, data, log_ns)
 
+    def publish_held_sensors(self) -> None:
+        """Send and record the edges of the batch periods not ended yet (shutdown, before the
+        bag closes): the bag keeps every edge of the simulated time."""
+        rt = self.runtime
+        if rt.sensor_messages is None:
+            return
+        with rt.lock:
+            t = rt.loop.time
+            held = rt.sensor_messages.held(t.epoch_ns, t.log_offset_ns)
+            for key, log_ns, data in held:        # the bag first: it is what must not be lost
+                rt.recording.write(self._topics[key], log_ns, data)
+        try:
+            for key, _, data in held:
+                self._pubs[key].publish(data)
+        except Exception as exc:       # a context shut down already: the bag has them
+            self.get_logger().warning(f'the last sensor batches were recorded, not sent: {exc}')
+
     def publish_clock(self, stamp_ns: int) -> None:
         if self._clock_pub is not None:
             self._clock_msg.clock = Time(sec=stamp_ns // 1_000_000_000,
@@ -445,6 +462,7 @@ def _shut_down(node: DrivelineNode, signals: StopSignals) -> None:
     rec = rt.recording
     if rec.active:
         signals.doing = f'closing the bag {rec.path.absolute()}'
+    node.publish_held_sensors()
     closed = rt.close_recording()       # logs 'stopped recording: bag X closed, N messages'
     if closed == 'not recording':
         log.info('stopped; no bag was open' + (f' (last bag: {rec.path.absolute()})'

@@ -144,12 +144,19 @@ class SensorMessages:
                         out.append((key, epoch_ns + t + log_offset_ns, float64_bytes(v)))
         return out
 
-    def _batches(self, chunk: SensorChunk, epoch_ns: int, log_offset_ns: int) -> list:
-        """The edge batches whose period ended by the chunk's end; later edges are held."""
-        end_ns = int(round(chunk.t_end_s * 1e9))
+    def held(self, epoch_ns: int, log_offset_ns: int = 0) -> list[tuple[str, int, bytes]]:
+        """The edges still held, each batch logged at the end of its period as :meth:`of` would
+        log it (``dmf-sim run`` writes its last batches so too): what the node sends and records
+        when it stops, so a bag ends with every edge of the simulated time."""
+        return self._batches(None, epoch_ns, log_offset_ns)
+
+    def _batches(self, chunk: SensorChunk | None, epoch_ns: int, log_offset_ns: int) -> list:
+        """The edge batches whose period ended by the chunk's end (no chunk: all); later edges
+        are held."""
+        end_ns = math.inf if chunk is None else int(round(chunk.t_end_s * 1e9))
         out = []
-        for w, n in enumerate(chunk.edge_counts):
-            if n:
+        for w in range(len(self._held)):
+            if chunk is not None and chunk.edge_counts[w]:
                 self._held[w].append(chunk.edge_rows(w).copy())
             if not self._held[w]:
                 continue

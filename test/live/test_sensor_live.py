@@ -116,7 +116,7 @@ def test_edge_batches_of_the_node_hold_each_period_s_edges_once():
     msgs = SensorMessages(s.live_sensors.wheel_names, s.live_sensors.signal_names, period)
     epoch = 1_700_000_000_000_000_000
     sent, captured = {}, {}
-    for _ in range(500):                             # 0.5 s in chunks of 1 ms
+    for _ in range(505):                 # 0.505 s in chunks of 1 ms: the last period unfinished
         chunk = s.advance(10).sensors
         for w, name in enumerate(chunk.wheel_names):
             captured.setdefault(name, []).append(chunk.edge_rows(w)[:, 0].copy())
@@ -131,6 +131,17 @@ def test_edge_batches_of_the_node_hold_each_period_s_edges_once():
         assert np.array_equal(got, want[want <= round(s.t * 1e9)][:len(got)])
         assert len(want) - len(got) <= len(want) // 40   # at most the last period held
     assert len(sent['crank']) >= 45
+    # stopping: the held edges go out, logged at their period's end as the others
+    end = round(s.t * 1e9)
+    held = msgs.held(epoch, 0)
+    assert held and not msgs.held(epoch, 0)
+    for key, log, data in held:
+        t = decode_edges(data)[0]
+        assert (log - epoch) % period == 0 and log - period < t[0]
+        assert t[-1] - epoch <= end < log - epoch
+        sent[key[len('edges/'):]].append(t - epoch)
+    for name, parts in sent.items():                 # every edge once, in order
+        assert np.array_equal(np.concatenate(parts), np.concatenate(captured[name]))
 
 
 def test_run_loop_hands_every_chunk_s_signals_to_the_sink():

@@ -99,11 +99,17 @@ def test_edge_batches_and_bus_speeds_over_dds_and_in_the_bag(tmp_path):
 
     # --- the bag: the same topics and layout, its sensor set in the metadata -------------------
     counts: dict[str, int] = {}
+    last_edge_ns = last_sample_ns = 0
     for m in read_messages(bag, raw=True):
         counts[m.topic] = counts.get(m.topic, 0) + 1
         if m.topic == '/sensors/crank/edges':
             bt, btooth, _ = decode_edges(m.msg)
             assert bt[-1] <= m.timestamp_ns and np.all(np.diff(btooth) % present == 1)
+            last_edge_ns = max(last_edge_ns, int(bt[-1]))
+        elif m.topic == '/driveline/joint_states':
+            last_sample_ns = max(last_sample_ns, m.timestamp_ns)
+    # the bag ends with every edge: they reach the last sample (within the gap, 3 pitches)
+    assert last_edge_ns >= last_sample_ns - 3.5 * pitch_s * 1e9
     assert counts['/sensors/crank/edges'] > 500 and counts['/vehicle_bus/engine_speed'] > 50
     assert set(counts) >= {f'/sensors/{w.name}/edges' for w in sensors.tooth_wheels}
     import yaml
