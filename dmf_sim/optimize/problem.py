@@ -9,7 +9,7 @@ left out) with::
       stages[1].angle_step_rad: {min: 0.005, max: 0.06}   # stage 1 knee = stage 0 knee + step
       stages[1].stiffness_factor: {min: 0.5, max: 10}
     optimizer:
-      method: nsga2                   # nsga2 | tpe (optuna) | lhs | random (the baselines)
+      method: tpe                     # tpe | nsga2 (optuna) | lhs | random (the baselines)
       budget: 200                     # designs evaluated in all
       batch_size: 16                  # designs evaluated in parallel per generation (ask)
       seed: 1
