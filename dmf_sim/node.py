@@ -259,14 +259,8 @@ class DrivelineNode(Node):
             return
         with rt.lock:
             t = rt.loop.time
-            held = rt.sensor_messages.held(t.epoch_ns, t.log_offset_ns)
-            for key, log_ns, data in held:        # the bag first: it is what must not be lost
-                rt.recording.write(self._topics[key], log_ns, data)
-        try:
-            for key, _, data in held:
-                self._pubs[key].publish(data)
-        except Exception as exc:       # a context shut down already: the bag has them
-            self.get_logger().warning(f'the last sensor batches were recorded, not sent: {exc}')
+            for key, log_ns, data in rt.sensor_messages.held(t.epoch_ns, t.log_offset_ns):
+                self._emit_raw(key, data, log_ns)
 
     def publish_clock(self, stamp_ns: int) -> None:
         if self._clock_pub is not None:
