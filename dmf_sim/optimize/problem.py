@@ -194,7 +194,7 @@ def problem_from_dict(data: dict, source: str = 'study', *, base_dir: Path | Non
             raise error('optimizer', f'unknown key {key!r} (allowed: '
                         f'{", ".join(sorted(OPTIMIZER_REQUIRED + OPTIMIZER_OPTIONAL))})')
     method = opt['method']
-    if method not in METHODS:
+    if not isinstance(method, str) or method not in METHODS:
         raise error('optimizer.method', f'unknown method {method!r} (allowed: '
                     f'{", ".join(METHODS)})')
     budget = _integer(error, opt['budget'], 'optimizer.budget', 1, MAX_BUDGET)

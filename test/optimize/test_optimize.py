@@ -282,6 +282,7 @@ def test_the_summary_says_what_the_time_domain_is_compared_with():
 
 @pytest.mark.parametrize('change, field', [
     ({'method': 'simplex'}, 'optimizer.method'),
+    ({'method': ['tpe']}, 'optimizer.method'),                    # not a name: no traceback
     ({'budget': 0}, 'optimizer.budget'),
     ({'batch_size': 1.5}, 'optimizer.batch_size'),
     ({'popsize': 3}, "unknown key 'popsize'"),
