@@ -4,8 +4,9 @@ The one place the layout is written: the live node and ``dmf-sim run`` encode wi
 analysis of bags decodes with it.
 
 **Edge batches**, topic ``sensors/<wheel>/edges`` (relative to the node's namespace), type
-``std_msgs/msg/UInt64MultiArray``, one message per wheel per publish tick with that tick's edges
-(an empty batch is not sent)::
+``std_msgs/msg/UInt64MultiArray``, one message per wheel per batch period (the driveline's
+``sensors.edge_batch_s``, at least one publish period) with that period's edges, logged at its
+end (:func:`batch_log_ns`; an empty batch is not sent)::
 
     layout.dim = [{label: 'edge', size: n, stride: 3 n},
                   {label: 'time_ns,tooth,flags', size: 3, stride: 3}]

@@ -232,8 +232,10 @@ class LiveRuntime:
         lines.append(f'faults: {", ".join(by["fault"])}; inject: dmf-sim fault{where} '
                      "'{kind: misfire, cylinders: [3]}' or the fault_* parameters")
         if 'edges' in by or 'bus' in by:
+            every = (f'every {self.sensor_messages.batch_period_ns / 1e6:g} ms'
+                     if self.sensor_messages is not None else 'none')
             lines.append(f'sensors: edge batches {", ".join(by.get("edges", ())) or "none"} '
-                         f'per publish tick; bus {", ".join(by.get("bus", ())) or "none"} when '
+                         f'{every}; bus {", ".join(by.get("bus", ())) or "none"} when '
                          'delivered')
         lines.append(f'look: dmf-sim monitor{where} | ros2 topic hz {topics["speed"]} | set: '
                      f'dmf-sim setpoint{where} --speed 1200 --load 0.8')

@@ -557,3 +557,17 @@ def test_start_lines_say_topics_rates_where_to_look_and_how_to_stop(tmp_path):
     assert 'dmf-sim monitor --namespace /truck1' in text
     assert 'ros2 topic hz /truck1/engine/speed' in text
     assert lines[-1] == f'stop: Ctrl-C or SIGTERM (closes the bag {tmp_path / "b"})'
+    # with sensors: the edge batches' period is the driveline's (10 ms on the shipped truck)
+    from dmf_sim.live.streams import resolved_topics, streams_for
+    values = runtime_values(monitor=False, sensors=True)
+    line = read_line(values['driveline'])
+    streams = streams_for(line.sensors)
+    topics = resolved_topics('', streams)
+    rt = LiveRuntime(values, line, ListSink(), ListLog(),
+                     topics={topics[k]: st.msgtype for k, st in streams.items()},
+                     node_name='/driveline_node', streams=streams)
+    try:
+        text = '\n'.join(rt.ready_lines(topics))
+    finally:
+        rt.close()
+    assert 'sensors: edge batches /sensors/crank/edges' in text and 'every 10 ms; bus' in text
