@@ -13,7 +13,12 @@ import math
 
 from dmf_sim.core.compiled import jit
 
-__all__ = ['region_of', 'friction_parts', 'stop_parts', 'law_parts', 'law_active']
+__all__ = ['TANH_ONE', 'region_of', 'friction_parts', 'stop_parts', 'law_parts', 'law_active']
+
+TANH_ONE = 20.0
+"""Beyond this argument tanh is 1 in double precision (from 19.1 on: 1 - tanh(x) = 2 exp(-2x) is
+below half an ulp of 1), so the regularized friction law skips the call there: the same bits,
+and most samples of a slipping cycle cost a comparison."""
 
 
 def region_of(w, knees, primary):
@@ -29,7 +34,12 @@ def friction_parts(wd, amp, law):
     """(friction torque T_f [Nm], d(T_f)/d(w_dot) [Nms/rad]) at wind-up rate wd [rad/s] and
     sliding friction torque ``amp`` = T0 + c_Omega Omega^2 [Nm] (eq. 8a; ``law`` =
     PiecewiseLinearSpring.law_array())."""
-    th = math.tanh(wd / law[2])
+    z = wd / law[2]
+    if z > TANH_ONE:
+        return amp, 0.0
+    if z < -TANH_ONE:
+        return -amp, 0.0
+    th = math.tanh(z)
     return amp * th, amp * (1.0 - th * th) / law[2]
 
 

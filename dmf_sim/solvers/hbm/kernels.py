@@ -143,7 +143,9 @@ def aft_law(x, omega, aft_mats, spring, G, dG, jac):
     F diag(dN/dw_dot) dw_dot/dx, both by the cosine/sine sums of :func:`assemble`; the rate's
     row ``dw_dot_j/dx`` is (omega/2) n times E's sine column for Re w_n and minus its cosine
     column for Im w_n, so its part is :func:`assemble` of dN/dw_dot with columns swapped and
-    scaled. Returns the number of samples with a non-zero torque."""
+    scaled. Every sample carries friction torque, so the samples of w and w_dot are one matrix
+    product ``E [x, y]`` and the harmonics of the torque and of dN/domega one product with
+    ``E^T`` (BLAS), not a sum per sample. Returns the number of samples with a non-zero torque."""
     E, weights, Tc, Ts = aft_mats
     knees, slopes, offsets, primary, law = spring
     nk = knees.shape[0]
@@ -156,23 +158,22 @@ def aft_law(x, omega, aft_mats, spring, G, dG, jac):
     half = 0.5 * omega
     amp = law[0] + law[1] * omega * omega
     damp = 2.0 * law[1] * omega                 # d(amp)/d(omega)
+    XY = np.zeros((n, 2))                        # [x, y]: E y = w_dot / (omega / 2)
+    for a in range(n):
+        XY[a, 0] = x[a]
+    for q in range(1, H + 1):
+        XY[q, 1] = -q * x[H + q]
+        XY[H + q, 1] = q * x[q]
+    WU = np.dot(E, XY)                           # (M, 2): w_j, w_dot_j / (omega / 2)
+    TD = np.empty((M, 2))                        # g + N and dN/domega on each sample
     Cm = np.zeros(n2)
     Sm = np.zeros(n2)
     Cv = np.zeros(n2)
     Sv = np.zeros(n2)
-    Gt = np.zeros(n)                             # harmonics of g + N and of dN/domega
-    Gs = np.zeros(n)
-    y = np.zeros(n)                              # unit = E_j y: the rate's harmonics
-    for q in range(1, H + 1):
-        y[q] = -q * x[H + q]
-        y[H + q] = q * x[q]
     count = 0
     for j in range(M):
-        w = 0.0
-        unit = 0.0                               # w_dot / (omega / 2)
-        for k in range(n):
-            w += E[j, k] * x[k]
-            unit += E[j, k] * y[k]
+        w = WU[j, 0]
+        unit = WU[j, 1]
         wd = half * unit
         s = 0.0
         g = 0.0
@@ -182,15 +183,12 @@ def aft_law(x, omega, aft_mats, spring, G, dG, jac):
             g = s * w + offsets[r]
         tf, ts, dtf, dws, dvs = law_parts(w, wd, amp, law)
         tot = g + tf + ts
-        if tot == 0.0 and s == 0.0 and dtf + dvs == 0.0:
+        cv = dtf + dvs                           # dN/dw_dot [Nms/rad]
+        TD[j, 0] = tot
+        TD[j, 1] = cv * 0.5 * unit + damp * (tf / amp if amp != 0.0 else 0.0)
+        if tot == 0.0 and s == 0.0 and cv == 0.0:
             continue
         count += 1
-        cv = dtf + dvs                           # dN/dw_dot [Nms/rad]
-        th = math.tanh(wd / law[2])
-        ds = cv * 0.5 * unit + damp * th         # dN/domega at fixed x
-        for a in range(n):
-            Gt[a] += E[j, a] * tot
-            Gs[a] += E[j, a] * ds
         if jac and (s + dws != 0.0 or cv != 0.0):     # else (friction saturated) no part
             kw = s + dws
             for m in range(n2):
@@ -198,9 +196,10 @@ def aft_law(x, omega, aft_mats, spring, G, dG, jac):
                 Sm[m] += kw * Ts[j, m]
                 Cv[m] += cv * Tc[j, m]
                 Sv[m] += cv * Ts[j, m]
+    GT = np.dot(E.T, TD)                         # (n, 2): the sums over the samples
     for a in range(n):
-        G[a] = Gt[a] * weights[a]
-        G[n + a] = Gs[a] * weights[a]
+        G[a] = GT[a, 0] * weights[a]
+        G[n + a] = GT[a, 1] * weights[a]
     if jac:
         dV = np.empty((n, n))
         assemble(Cm, Sm, M, H, dG)
