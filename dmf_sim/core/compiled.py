@@ -1,5 +1,7 @@
 """How the package compiles its hot loops, written once: numba in nopython mode, cached on disk
-(beside the modules in ``__pycache__``, or under ``NUMBA_CACHE_DIR``), without the GIL (a
+(beside the modules in ``__pycache__``, or under ``NUMBA_CACHE_DIR``; an entry is kept for
+the contents of its module and of the package modules it imports,
+:func:`dmf_sim.core.kernel_cache.install_locators`), without the GIL (a
 thread may integrate while another writes) and with numpy's error model (a division by zero
 gives inf / nan as in the numpy reference paths, not an exception).
 
@@ -14,6 +16,12 @@ try:
     HAVE_NUMBA = True
 except ImportError:  # pragma: no cover - numba is a hard dependency, kept optional for reading
     HAVE_NUMBA = False
+
+if HAVE_NUMBA:
+    from dmf_sim.core.kernel_cache import install_locators
+
+    # a cache entry keyed on every source it is compiled from, not on its own module's alone
+    install_locators()
 
 __all__ = ['HAVE_NUMBA', 'jit']
 

@@ -5,12 +5,18 @@ compiled first.
 The kernels (:func:`dmf_sim.core.compiled.jit`) are compiled on their first call on a machine
 and kept in numba's cache: ``__pycache__`` beside each module, or, where that directory is not
 writable (a package installed read-only), numba's per-user cache directory; ``NUMBA_CACHE_DIR``
-puts every entry under one directory instead. A cache entry belongs to the source file (size and
-time stamp), the function's bytecode, numba's version and this CPU, so a new release, an edited
-module or another machine compiles again. ``dmf-sim warm-up`` (what ``make venv`` runs) compiles
-every kernel where the user expects to wait; a command that finds a cold kernel anyway says so
-before it compiles (:func:`warm_up`), and starts its progress bar only afterwards, so the bar's
-rate does not include the compile.
+puts every entry under one directory instead. A cache entry belongs to the kernel's sources,
+numba's version and this CPU, so a new release, an edited module or another machine compiles
+again. numba itself keys an entry on the kernel's own file only, while the machine code also
+holds the kernels it calls and the constants it reads from other modules (the spring's law in
+:mod:`dmf_sim.solvers.spring_kernels` is compiled into the Newmark step, the AFT and the
+monodromy): an edit there would leave the callers' entries in use, running the old law. The
+package's locators (:func:`install_locators`, installed by :mod:`dmf_sim.core.compiled` before
+any kernel is made) key every entry of the package on the contents of its module and of every
+package module that module imports, directly or not (:func:`source_stamp`).
+``dmf-sim warm-up`` (what ``make venv`` runs) compiles every kernel where the user expects to
+wait; a command that finds a cold kernel anyway says so before it compiles (:func:`warm_up`),
+and starts its progress bar only afterwards, so the bar's rate does not include the compile.
 
 A group of kernels (:class:`KernelGroup`) is defined beside its kernels: its ``warm_up`` calls
 every entry point with the argument types of the real calls; ``kernels`` lists those entry points
@@ -18,14 +24,19 @@ every entry point with the argument types of the real calls; ``kernels`` lists t
 """
 from __future__ import annotations
 
+import ast
+import functools
+import hashlib
 import json
+import re
 import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-__all__ = ['COMPILING', 'TIMES_FILE', 'KernelGroup', 'cached', 'cold', 'warm_up']
+__all__ = ['COMPILING', 'TIMES_FILE', 'KernelGroup', 'cached', 'cold', 'warm_up',
+           'source_files', 'source_stamp', 'install_locators']
 
 COMPILING = ('compiling the numerical kernels once (~{seconds:.0f} s {where}; later runs load '
              'them)')
@@ -125,3 +136,139 @@ def warm_up(groups: Sequence[KernelGroup], say: Callable[[str], None] | None = N
 def _times_path(group: KernelGroup) -> Path:
     first = group.kernels()[0]
     return Path(first.stats.cache_path) / TIMES_FILE
+
+
+# ---- what a kernel's machine code is made of: its module and the package modules it imports ----
+PACKAGE_ROOT = Path(__file__).resolve().parents[1]
+"""The package's directory (``dmf_sim/``): the modules whose sources key the cache."""
+_THIS = Path(__file__).resolve()     # imported by every kernel module, compiled into none
+
+
+def _module_file(name: str, root: Path) -> Path | None:
+    """The file of module ``name`` (``dmf_sim.a.b``) of the package at ``root``, found without
+    importing it; None for a name that is not one of its modules (an attribute imported from
+    one, another package)."""
+    parts = name.split('.')
+    if parts[0] != root.name:
+        return None
+    base = root.joinpath(*parts[1:])
+    for f in (base.with_suffix('.py'), base / '__init__.py'):
+        if f.is_file():
+            return f.resolve()
+    return None
+
+
+_IMPORT = re.compile(rb'^[ \t]*(from[ \t]+[.\w]+[ \t]+import[ \t]*(?:\([^)]*\)|[^\n]*)'
+                     rb'|import[ \t]+[^\n]*)', re.MULTILINE)
+"""An import statement at any indentation (found by pattern rather than by parsing the whole
+module: a kernel's stamp is computed as its module is imported)."""
+
+
+@functools.lru_cache(maxsize=None)
+def _imported_files(path: Path, root: Path) -> tuple[Path, ...]:
+    """The files of the modules of the package at ``root`` that the module at ``path`` imports
+    (``import dmf_sim.x``, ``from dmf_sim.x import y``, ``from . import y``: for the last two
+    both ``x`` and ``x.y``, as either may be a module). Imports inside functions count too: more
+    than a kernel can read, never less."""
+    package = path.parent.relative_to(root.parent).parts
+    names: set[str] = set()
+    for match in _IMPORT.finditer(path.read_bytes()):
+        try:
+            (node,) = ast.parse(match.group(1).decode()).body
+        except (SyntaxError, ValueError):    # a line that only looks like one (in a string)
+            continue
+        if isinstance(node, ast.Import):
+            names.update(a.name for a in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                up = package[:len(package) - node.level + 1]
+                module = '.'.join(up + ((node.module,) if node.module else ()))
+            else:
+                module = node.module or ''
+            names.add(module)
+            names.update(f'{module}.{a.name}' for a in node.names)
+    files = {_module_file(n, root) for n in names} - {None, _THIS}
+    return tuple(sorted(files))
+
+
+@functools.lru_cache(maxsize=None)
+def _compiles(path: Path) -> bool:
+    """Whether the module at ``path`` makes kernels (calls ``jit``): only such a module's
+    imports reach further into a kernel's machine code."""
+    return b'jit(' in path.read_bytes()
+
+
+@functools.lru_cache(maxsize=None)
+def source_files(path: Path, root: Path = PACKAGE_ROOT) -> tuple[Path, ...]:
+    """The module at ``path``, the modules of the package at ``root`` it imports, and theirs
+    through every module that makes kernels or is a package's ``__init__`` (which may pass on a
+    kernel it imports): everything a kernel defined there can compile in (the kernels it calls,
+    wherever they are defined, and the constants it and they read from the modules they
+    import). Another module without kernels is included, not followed: nothing of what it
+    imports is compiled unless a kernel module imports that too."""
+    path, root = path.resolve(), root.resolve()
+    seen = {path}
+    todo = [path]
+    while todo:
+        f = todo.pop()
+        if f != path and f.name != '__init__.py' and not _compiles(f):
+            continue
+        for g in _imported_files(f, root):
+            if g not in seen:
+                seen.add(g)
+                todo.append(g)
+    return tuple(sorted(seen))
+
+
+@functools.lru_cache(maxsize=None)
+def source_stamp(path: Path, root: Path = PACKAGE_ROOT) -> bytes:
+    """SHA-256 over the contents of :func:`source_files` (with their paths in the package): the
+    key of every cache entry of a kernel defined in the module at ``path``."""
+    root = root.resolve()
+    h = hashlib.sha256()
+    for f in source_files(path, root):
+        h.update(str(f.relative_to(root)).encode())
+        h.update(hashlib.sha256(f.read_bytes()).digest())
+    return h.digest()
+
+
+@functools.lru_cache(maxsize=None)
+def _inside(py_file: str, root: Path) -> bool:
+    return Path(py_file).resolve().is_relative_to(root)
+
+
+def install_locators(root: Path = PACKAGE_ROOT) -> bool:
+    """Put cache locators for the package at ``root`` before numba's own: numba's locators
+    (cache beside the module; per-user; ``NUMBA_CACHE_DIR``) with the entries of the package's
+    kernels keyed by :func:`source_stamp` instead of the kernel's file alone; a function outside
+    the package is left to numba's. Once per process and root; returns whether they are
+    installed (False where this numba has no locators to extend: numba's own keys stay)."""
+    try:
+        from numba.core import caching
+    except ImportError:  # pragma: no cover - numba is a hard dependency
+        return False
+    impl = getattr(caching, 'CacheImpl', None) or getattr(caching, '_CacheImpl', None)
+    bases = [getattr(caching, n, None) or getattr(caching, '_' + n, None)
+             for n in ('UserProvidedCacheLocator', 'InTreeCacheLocator', 'UserWideCacheLocator')]
+    current = getattr(impl, '_locator_classes', None)
+    if current is None or None in bases:    # pragma: no cover - another numba's layout
+        return False
+    root = root.resolve()
+    if any(getattr(c, 'package_root', None) == root for c in current):
+        return True
+
+    class _PackageSources:
+        package_root = root
+
+        @classmethod
+        def from_function(cls, py_func, py_file):
+            if not _inside(py_file, root):
+                return None
+            return super().from_function(py_func, py_file)
+
+        def get_source_stamp(self):
+            return source_stamp(Path(self._py_file), root)
+
+    ours = [type(f'Package{b.__name__.lstrip("_")}', (_PackageSources, b), {}) for b in bases]
+    impl._locator_classes = [*ours, *current]
+    return True
