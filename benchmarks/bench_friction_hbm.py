@@ -9,6 +9,10 @@ agreement with Newmark where the DMF slips.
    is of one moment on a shared machine); min and median over the repetitions. Measured in
    both modes: ``fast`` (continuation, Floquet stability of every point, branch switching:
    ``dmf-sim sweep --fast``) and ``full`` (plus the search for every stable state).
+   ``floquet_over_baseline_fast``: the Floquet stage of the friction sweep alone (the compiled
+   monodromies and their eigenvalues, :meth:`FloquetAnalyzer.analyze_many` on the sweep's
+   points, timed right after each repetition's pair) divided by the whole sweep without
+   friction: the share of the 2x budget that stability takes before any Newton step.
 2. ``max_rel_diff``: HBM vs Newmark (dt 5e-5 s, from the HBM state, to steady state) at speeds
    where the DMF slips: the largest relative difference of the 3rd- and 1.5th-order wind-up
    amplitudes; the 0.5th and 1st orders (about 1 % of the 3rd) as an absolute difference
@@ -41,8 +45,10 @@ def main(argv=None) -> int:
     from dmf_sim.physics.engine import read_engine
     from dmf_sim.physics.loads import DrivelineExcitation
     from dmf_sim.physics.model import read_model
+    from dmf_sim.physics.orders import synthesize
     from dmf_sim.solvers.hbm import CondensedHBM, SweepOptions, sweep
     from dmf_sim.solvers.hbm.warm import warm_up
+    from dmf_sim.solvers.stability import FloquetAnalyzer
 
     warm_up()
     engine = read_engine(args.engine)
@@ -54,8 +60,10 @@ def main(argv=None) -> int:
     for name, ld in loads.items():                  # one untimed sweep each (first-call costs)
         sweep(ld, 1.0, rng, options=modes['fast'])
     out = {'speeds_rpm': list(rng), 'repeat': args.repeat, 'small': args.small}
+    model = loads['truck_dmf_friction'].model
+    floquet = FloquetAnalyzer(model, modes=CondensedHBM(loads['truck_dmf_friction'], 1.0).modes)
     for mode, opts in modes.items():
-        ratios, secs = [], {'truck_dmf': [], 'truck_dmf_friction': []}
+        ratios, shares, secs = [], [], {'truck_dmf': [], 'truck_dmf_friction': []}
         for _ in range(args.repeat):
             t = {}
             for name, ld in loads.items():
@@ -64,12 +72,21 @@ def main(argv=None) -> int:
                 t[name] = time.perf_counter() - t0
                 secs[name].append(t[name])
             ratios.append(t['truck_dmf_friction'] / t['truck_dmf'])
-            points = sum(len(b.points) for b in res.branches)
+            points = [p for b in res.branches for p in b.points]
+            C = np.array([p.windup_orders for p in points])
+            W = synthesize(C, floquet.n_fine)
+            t0 = time.perf_counter()
+            floquet.analyze_many(C, [p.speed_rpm for p in points], W)
+            shares.append((time.perf_counter() - t0) / t['truck_dmf'])
         print(f'{mode}: without friction {statistics.median(secs["truck_dmf"]):.3f} s, with '
-              f'{statistics.median(secs["truck_dmf_friction"]):.3f} s ({points} points); '
-              f'ratio min {min(ratios):.2f} median {statistics.median(ratios):.2f}')
+              f'{statistics.median(secs["truck_dmf_friction"]):.3f} s ({len(points)} points); '
+              f'ratio min {min(ratios):.2f} median {statistics.median(ratios):.2f}; its '
+              f'Floquet stage alone {statistics.median(shares):.2f}x the sweep without '
+              f'friction (min {min(shares):.2f})')
         out[f'friction_sweep_time_ratio_{mode}'] = statistics.median(ratios)
         out[f'friction_sweep_time_ratio_{mode}_min'] = min(ratios)
+        out[f'floquet_over_baseline_{mode}'] = statistics.median(shares)
+        out[f'floquet_over_baseline_{mode}_min'] = min(shares)
         out[f'sweep_seconds_{mode}'] = {k: statistics.median(v) for k, v in secs.items()}
     out['friction_sweep_time_ratio'] = out['friction_sweep_time_ratio_fast']
     hb = CondensedHBM(loads['truck_dmf_friction'], 1.0)
