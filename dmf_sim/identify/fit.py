@@ -27,6 +27,11 @@ factor :data:`START_SPREAD` of the bag's own values, the first one those values)
 result is the answer. The starts run on the Dask cluster of :mod:`dmf_sim.cluster` when one is
 given (:func:`identify` ``client``), else in turn here.
 
+**Identifiability.** Before the fit, a step in each parameter's logarithm at the model's values
+(:func:`unidentifiable`): a parameter the simulated signal does not change with — a knee, or the
+stage beyond it, that the run never reaches — is refused in one line, naming it, the wind-up's
+range and the parameters that can be fitted (``--parameters``), before anything is written.
+
 **Uncertainty.** Linearized at the optimum: with J the Jacobian of the residuals in the log
 parameters, ``cov = s^2 (J^T J)^-1`` with ``s^2 = sum r_i^2 / (m - n)`` (m samples, n
 parameters); the relative standard deviation of a parameter is the square root of its diagonal
@@ -47,8 +52,8 @@ from dmf_sim.core.errors import ConfigError
 from dmf_sim.core.validation import SEED_MAX
 
 __all__ = ['DEFAULT_PARAMETERS', 'SIGNALS', 'START_SPREAD', 'REBUILT_ROW_S', 'IdentifyOptions',
-           'Measurement', 'Identification', 'read_measurement', 'simulate', 'identify',
-           'fitted_signals']
+           'Measurement', 'Identification', 'read_measurement', 'simulate', 'unidentifiable',
+           'identify', 'fitted_signals']
 
 DEFAULT_PARAMETERS = ('k', 'theta', 'alpha', 'damping')
 """What :func:`identify` fits unless told: the two-step spring and its damping."""
@@ -61,6 +66,13 @@ FRICTION_START = {'friction.torque_nm': 20.0, 'friction.speed_coefficient': 1.0e
 small sliding torque [Nm] and centrifugal coefficient [Nm s^2/rad^2]."""
 LOG_FLOOR = 1e-6
 """The lower end of a parameter whose bound starts at 0, for its logarithm."""
+IDENTIFIABLE_STEP = 1e-3
+"""Step in a parameter's logarithm of the identifiability check (:func:`unidentifiable`), as
+the fit's own finite differences."""
+IDENTIFIABLE_MIN = 1e-9
+"""A parameter whose step moves the signal by at most this fraction of the largest move is not
+identifiable from the recording: far below any noise, and exactly zero where the run never
+reaches what the parameter shapes."""
 REBUILT_ROW_S = 0.05
 """Row spacing [s] of a profile rebuilt from a recording's speed and load."""
 DECIMATE_HZ = 1000.0
@@ -329,11 +341,10 @@ def _log_bounds(model: _Model) -> tuple[np.ndarray, np.ndarray]:
     return np.array(lo), np.array(hi)
 
 
-def _fit_one(meas: Measurement, names: tuple[str, ...], x0: np.ndarray, lo: np.ndarray,
-             hi: np.ndarray, max_evaluations: int) -> dict:
-    """One least-squares run from ``x0`` (log parameters): its result as a dict (what a Dask
-    worker sends back)."""
-    from scipy.optimize import least_squares
+def _residual(meas: Measurement, names: tuple[str, ...]):
+    """(residual of log parameters x: simulated minus measured over the fitted samples, in
+    units of the measured signal's standard deviation; the fitted samples' count, scale): the
+    samples after the settling, thinned to :data:`DECIMATE_HZ`."""
     model = _model(meas, names)
     keep = meas.t_s >= meas.settle_s
     step = max(int(round(1.0 / (DECIMATE_HZ * np.median(np.diff(meas.t_s))))), 1)
@@ -348,10 +359,37 @@ def _fit_one(meas: Measurement, names: tuple[str, ...], x0: np.ndarray, lo: np.n
             return (simulate(sub, model, values) - y_fit) / scale
         except (ConfigError, ValueError, FloatingPointError):
             return np.full(len(y_fit), 1e3)              # a failed design: far off
+    return residual, len(y_fit), scale
+
+
+def unidentifiable(meas: Measurement, names: Sequence[str], x: np.ndarray,
+                   step: float = IDENTIFIABLE_STEP) -> list[str]:
+    """The parameters among ``names`` that the signal does not change with at log parameters
+    ``x``: a step of ``step`` in a parameter's logarithm moves no sample by more than
+    :data:`IDENTIFIABLE_MIN` of the largest move any parameter makes (a knee, or the stage
+    beyond it, that the run never reaches: the simulation is the same to the bit). Costs one
+    simulation per parameter and one at ``x``."""
+    residual, _, _ = _residual(meas, tuple(names))
+    r0 = residual(x)
+    moves = []
+    for i in range(len(names)):
+        xi = np.array(x, dtype=float)
+        xi[i] += step
+        moves.append(float(np.max(np.abs(residual(xi) - r0))))
+    top = max(moves)
+    return [n for n, m in zip(names, moves) if m <= IDENTIFIABLE_MIN * top]
+
+
+def _fit_one(meas: Measurement, names: tuple[str, ...], x0: np.ndarray, lo: np.ndarray,
+             hi: np.ndarray, max_evaluations: int) -> dict:
+    """One least-squares run from ``x0`` (log parameters): its result as a dict (what a Dask
+    worker sends back)."""
+    from scipy.optimize import least_squares
+    residual, m, scale = _residual(meas, names)
     t0 = time.perf_counter()
     res = least_squares(residual, x0, bounds=(lo, hi), method='trf', x_scale=1.0,
                         diff_step=1e-3, max_nfev=max_evaluations)
-    m, n = len(y_fit), len(x0)
+    n = len(x0)
     rss = float(np.sum(res.fun ** 2)) * scale ** 2
     s2 = float(np.sum(res.fun ** 2)) / max(m - n, 1)
     try:
@@ -375,6 +413,18 @@ def identify(bag, options: IdentifyOptions = IdentifyOptions(), *, client=None
     initial = _base_values(model)
     lo, hi = _log_bounds(model)
     x_init = np.log([initial[n] for n in options.parameters])
+    flat = unidentifiable(meas, options.parameters, x_init)
+    if flat:
+        fit = [n for n in options.parameters if n not in flat]
+        signal = 'wind-up' if meas.signal == 'windup' else 'flywheel speed difference'
+        what = (f'; the wind-up stays within [{meas.y.min():.4g}, {meas.y.max():.4g}] rad'
+                if meas.signal == 'windup' else '')
+        hint = (f'fit --parameters {",".join(fit)}, or ' if fit else '')
+        them = 'it' if len(flat) == 1 else 'them'
+        raise ConfigError(f'{meas.bag}: {", ".join(flat)} cannot be identified from this '
+                          f'recording: at the model\'s values the {signal} does not change with '
+                          f'{them} (a knee or stage the run never reaches{what}); {hint}record '
+                          f'a run that reaches {them}')
     starts = _start_points(x_init, lo, hi, options.starts, options.seed)
     args = (meas, tuple(options.parameters))
     if client is None:

@@ -9,8 +9,10 @@ from __future__ import annotations
 
 import json
 import sys
+from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / 'benchmarks'))
@@ -99,3 +101,39 @@ def test_bad_options_one_line(case, extra, needle, capsys):
     err = capsys.readouterr().err
     assert code == 2 and err.count('\n') == 1 and needle in err, err
     assert err.startswith('dmf-sim identify: error: '), err
+
+
+LOW_ROWS = [(0, 1200, 0.3), (3, 1200, 0.3)]     # part load: the wind-up stays below the knee
+
+
+@pytest.fixture(scope='module')
+def below_knee(tmp_path_factory):
+    return make_bag(tmp_path_factory.mktemp('identify_low'), 'low', TRUE, LOW_ROWS)
+
+
+def test_a_run_below_the_knee_refuses_the_knee_in_one_line(below_knee, tmp_path, capsys):
+    """Nothing of the knee or the stage beyond it is in a run that never leaves the first
+    stage: identify says so (which parameters, the wind-up's range, what can be fitted) instead
+    of fitting them to noise-free nothing, and writes nothing."""
+    bag, prof = below_knee
+    out = tmp_path / 'out'
+    code = cli_main(['identify', str(bag), '--profile', str(prof), '--out', str(out)])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count('\n') == 1, err
+    assert err.startswith('dmf-sim identify: error: ')
+    assert 'theta, alpha cannot be identified' in err
+    assert 'fit --parameters k,damping' in err and 'the wind-up stays within [' in err
+    assert not out.exists()
+
+
+def test_below_the_knee_the_first_stage_and_damping_still_fit(below_knee):
+    from dmf_sim.identify.fit import unidentifiable
+    bag, prof = below_knee
+    options = IdentifyOptions(parameters=('k', 'theta', 'alpha', 'damping'), profile=str(prof))
+    meas = read_measurement(bag, options)
+    x = np.log([10890.0, 0.24, 2.5, 49.5])            # the shipped spring, not the bag's
+    assert unidentifiable(meas, options.parameters, x) == ['theta', 'alpha']
+    fit = identify(meas, replace(options, parameters=('k', 'damping'), starts=1))
+    assert fit.values['k'] == pytest.approx(TRUE['k'], rel=TOL)
+    assert fit.values['damping'] == pytest.approx(TRUE['damping'], rel=TOL)
+    assert all(np.isfinite(list(fit.rel_std.values())))
