@@ -145,8 +145,9 @@ HELPERS: tuple[str, ...] = (
     *(f'dmf_sim.solvers.newmark_kernel:{n}' for n in ('newmark_constants', 'thomas',
                                                       'knee_between', 'regular_block',
                                                       'law_solve')),
-    *(f'dmf_sim.solvers.spring_kernels:{n}' for n in ('region_of', 'friction_parts',
-                                                      'stop_parts', 'law_parts', 'law_active')),
+    *(f'dmf_sim.solvers.spring_kernels:{n}' for n in ('region_of', 'primary_range',
+                                                      'friction_parts', 'stop_parts',
+                                                      'law_parts', 'law_active')),
 )
 """Compiled functions called only from other kernels (compiled and cached with their callers)."""
 

@@ -13,7 +13,8 @@ import math
 
 from dmf_sim.core.compiled import jit
 
-__all__ = ['TANH_ONE', 'region_of', 'friction_parts', 'stop_parts', 'law_parts', 'law_active']
+__all__ = ['TANH_ONE', 'region_of', 'primary_range', 'friction_parts', 'stop_parts', 'law_parts',
+           'law_active']
 
 TANH_ONE = 20.0
 """Beyond this argument tanh is 1 in double precision (from 19.1 on: 1 - tanh(x) = 2 exp(-2x) is
@@ -28,6 +29,16 @@ def region_of(w, knees, primary):
     while r < nk and (w > knees[r] or (w == knees[r] and r < primary)):
         r += 1
     return r
+
+
+def primary_range(knees, primary):
+    """(lowest, highest) wind-up [rad] of the primary stage, region ``primary``: the knees on
+    either side of it, -inf / inf where it has none. Inside it the spring adds no torque to
+    the linear driveline's."""
+    nk = knees.shape[0]
+    lo = knees[primary - 1] if primary > 0 else -math.inf
+    hi = knees[primary] if primary < nk else math.inf
+    return lo, hi
 
 
 def friction_parts(wd, amp, law):
@@ -82,6 +93,7 @@ def law_active(law):
 
 
 region_of = jit(region_of)
+primary_range = jit(primary_range)
 friction_parts = jit(friction_parts)
 stop_parts = jit(stop_parts)
 law_parts = jit(law_parts)

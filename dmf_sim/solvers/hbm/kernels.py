@@ -44,7 +44,7 @@ import numpy as np
 from dmf_sim.core.compiled import jit
 from dmf_sim.core.units import RPM_TO_RAD_S
 from dmf_sim.solvers.hbm.dense_kernels import lu_solve, max_abs
-from dmf_sim.solvers.spring_kernels import law_active, law_parts, region_of
+from dmf_sim.solvers.spring_kernels import law_active, law_parts, primary_range, region_of
 
 __all__ = ['CONVERGED', 'STALLED', 'MAX_ITER', 'SINGULAR', 'NOT_FINITE', 'ENGINE_FAILED',
            'BACKTRACK_MIN', 'aft', 'aft_law', 'assemble', 'nonlinear', 'times_h_into',
@@ -71,9 +71,7 @@ def aft(x, aft_mats, spring, G, dG, jac):
     update per sample: O(M H) instead of O(M H^2)."""
     E, weights, Tc, Ts = aft_mats
     knees, slopes, offsets, primary = spring[0], spring[1], spring[2], spring[3]
-    nk = knees.shape[0]
-    lo = knees[primary - 1] if primary > 0 else -np.inf
-    hi = knees[primary] if primary < nk else np.inf
+    lo, hi = primary_range(knees, primary)
     M = E.shape[0]
     n = E.shape[1]
     H = (n - 1) // 2
@@ -148,9 +146,7 @@ def aft_law(x, omega, aft_mats, spring, G, dG, jac):
     ``E^T`` (BLAS), not a sum per sample. Returns the number of samples with a non-zero torque."""
     E, weights, Tc, Ts = aft_mats
     knees, slopes, offsets, primary, law = spring
-    nk = knees.shape[0]
-    lo = knees[primary - 1] if primary > 0 else -np.inf
-    hi = knees[primary] if primary < nk else np.inf
+    lo, hi = primary_range(knees, primary)
     M = E.shape[0]
     n = E.shape[1]
     H = (n - 1) // 2
