@@ -31,7 +31,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numba
 import numpy as np
 from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError, RecordLengthLimitExceeded
@@ -40,6 +39,8 @@ from mcap.reader import make_reader
 from mcap.records import Channel, Chunk, DataEnd, Footer, MessageIndex, Schema
 from mcap.stream_reader import StreamReader, breakup_chunk, get_chunk_data_stream, read_magic
 from zlib_ng import zlib_ng as zlib  # zlib's CRC-32, ~4.7x faster (SIMD; the same values)
+
+from dmf_sim.core.compiled import jit
 
 __all__ = ['TRUNCATION_ERRORS', 'SUMMARY_ERRORS', 'RECORD_HEAD', 'CheckedChunk', 'CorruptChunk',
            'Scan', 'iter_records', 'record_offsets', 'normalize_type', 'file_topics',
@@ -54,7 +55,6 @@ _MAGIC_BYTES = 8          # the magic before the first record
 _NS = 1e-9
 
 
-@numba.njit(cache=True)
 def record_offsets(buf: np.ndarray) -> np.ndarray:
     """Offsets of the complete records of a chunk's records area (uint8 array)."""
     n = buf.shape[0]
@@ -409,3 +409,6 @@ def chunk_declarations(chunk: CheckedChunk) -> list[Schema | Channel]:
         body = ReadDataStream(io.BytesIO(chunk.data[o + RECORD_HEAD:o + RECORD_HEAD + length]))
         out.append(Schema.read(body) if buf[o] == Opcode.SCHEMA else Channel.read(body))
     return out
+
+
+record_offsets = jit(record_offsets)

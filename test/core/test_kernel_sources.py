@@ -111,3 +111,15 @@ def test_functions_outside_the_package_keep_numba_s_own_locators():
                                __file__) is None for c in ours)
     assert kernel_cache.install_locators()                 # once: nothing added the second time
     assert len(impl._locator_classes) == len([*{id(c) for c in impl._locator_classes}])
+
+
+def test_every_kernel_of_the_package_is_made_by_its_jit():
+    """The locators are installed when dmf_sim.core.compiled is imported: a kernel made by
+    numba's decorators directly could be made before that, with numba's own key in one process
+    and the package's in another, each finding the other's cache entries stale."""
+    import re
+    direct = re.compile(r'numba\s*\.\s*(n?jit|vectorize|guvectorize|cfunc)\b|'
+                        r'from\s+numba\s+import\s+[^\n]*\b(n?jit|vectorize|guvectorize|cfunc)\b')
+    made_directly = [str(f.relative_to(PACKAGE_ROOT)) for f in sorted(PACKAGE_ROOT.rglob('*.py'))
+                     if f.name != 'compiled.py' and direct.search(f.read_text())]
+    assert made_directly == []
