@@ -28,9 +28,10 @@ result is the answer. The starts run on the Dask cluster of :mod:`dmf_sim.cluste
 given (:func:`identify` ``client``), else in turn here.
 
 **Identifiability.** Before the fit, a step in each parameter's logarithm at the model's values
-(:func:`unidentifiable`): a parameter the simulated signal does not change with — a knee, or the
-stage beyond it, that the run never reaches — is refused in one line, naming it, the wind-up's
-range and the parameters that can be fitted (``--parameters``), before anything is written.
+(:func:`identifiability`): a parameter the simulated signal does not change with — a knee, or
+the stage beyond it, that the run never reaches — and parameters that change it only together —
+the friction's constant and centrifugal parts in a run at one speed — are refused in one line,
+naming them and what to do, before anything is written.
 
 **Uncertainty.** Linearized at the optimum: with J the Jacobian of the residuals in the log
 parameters, ``cov = s^2 (J^T J)^-1`` with ``s^2 = sum r_i^2 / (m - n)`` (m samples, n
@@ -52,8 +53,8 @@ from dmf_sim.core.errors import ConfigError
 from dmf_sim.core.validation import SEED_MAX
 
 __all__ = ['DEFAULT_PARAMETERS', 'SIGNALS', 'START_SPREAD', 'REBUILT_ROW_S', 'IdentifyOptions',
-           'Measurement', 'Identification', 'read_measurement', 'simulate', 'unidentifiable',
-           'identify', 'fitted_signals']
+           'Measurement', 'Identification', 'Identifiability', 'read_measurement', 'simulate',
+           'identifiability', 'identify', 'fitted_signals']
 
 DEFAULT_PARAMETERS = ('k', 'theta', 'alpha', 'damping')
 """What :func:`identify` fits unless told: the two-step spring and its damping."""
@@ -67,12 +68,17 @@ small sliding torque [Nm] and centrifugal coefficient [Nm s^2/rad^2]."""
 LOG_FLOOR = 1e-6
 """The lower end of a parameter whose bound starts at 0, for its logarithm."""
 IDENTIFIABLE_STEP = 1e-3
-"""Step in a parameter's logarithm of the identifiability check (:func:`unidentifiable`), as
+"""Step in a parameter's logarithm of the identifiability check (:func:`identifiability`), as
 the fit's own finite differences."""
 IDENTIFIABLE_MIN = 1e-9
 """A parameter whose step moves the signal by at most this fraction of the largest move is not
 identifiable from the recording: far below any noise, and exactly zero where the run never
 reaches what the parameter shapes."""
+TIED_MAX = 1e-3
+"""Parameters whose normalized effects on the signal have a smallest singular value below this
+fraction of the largest act only together in the recording. Measured: the friction's constant
+and centrifugal parts in a run at one speed 1.7e-4 (all six parameters 4.5e-5); the benchmark's
+separable cases, all six parameters over a range of speeds and loads, 4.0e-2 to 9.4e-2."""
 REBUILT_ROW_S = 0.05
 """Row spacing [s] of a profile rebuilt from a recording's speed and load."""
 DECIMATE_HZ = 1000.0
@@ -362,22 +368,76 @@ def _residual(meas: Measurement, names: tuple[str, ...]):
     return residual, len(y_fit), scale
 
 
-def unidentifiable(meas: Measurement, names: Sequence[str], x: np.ndarray,
-                   step: float = IDENTIFIABLE_STEP) -> list[str]:
-    """The parameters among ``names`` that the signal does not change with at log parameters
-    ``x``: a step of ``step`` in a parameter's logarithm moves no sample by more than
-    :data:`IDENTIFIABLE_MIN` of the largest move any parameter makes (a knee, or the stage
-    beyond it, that the run never reaches: the simulation is the same to the bit). Costs one
-    simulation per parameter and one at ``x``."""
+@dataclass(frozen=True)
+class Identifiability:
+    """What a recording can tell about the parameters, from one step in each parameter's
+    logarithm at the model's values (:func:`identifiability`).
+
+    flat: the parameters the signal does not change with (a step moves no sample by more than
+    :data:`IDENTIFIABLE_MIN` of the largest move: a knee, or the stage beyond it, that the run
+    never reaches — the simulation is the same to the bit); tied: the parameters of the
+    direction the signal hardly tells (their changes of the signal, normalized, have a smallest
+    singular value below :data:`TIED_MAX` of the largest: they act only together, as the
+    friction's constant and centrifugal parts at one speed); ratio: that smallest over largest
+    singular value (1 for one parameter)."""
+
+    flat: tuple[str, ...]
+    tied: tuple[str, ...]
+    ratio: float
+
+
+def identifiability(meas: Measurement, names: Sequence[str], x: np.ndarray,
+                    step: float = IDENTIFIABLE_STEP) -> Identifiability:
+    """:class:`Identifiability` of ``names`` at log parameters ``x``: one simulation per
+    parameter and one at ``x``, the fit's own residual (forward differences, as its Jacobian).
+    The tied direction is the right singular vector of the smallest singular value; a parameter
+    belongs to it where its entry is at least a third of the largest."""
     residual, _, _ = _residual(meas, tuple(names))
     r0 = residual(x)
-    moves = []
+    cols = []
     for i in range(len(names)):
         xi = np.array(x, dtype=float)
         xi[i] += step
-        moves.append(float(np.max(np.abs(residual(xi) - r0))))
+        cols.append(residual(xi) - r0)
+    moves = [float(np.max(np.abs(c))) for c in cols]
     top = max(moves)
-    return [n for n, m in zip(names, moves) if m <= IDENTIFIABLE_MIN * top]
+    flat = tuple(n for n, m in zip(names, moves) if m <= IDENTIFIABLE_MIN * top)
+    live = [i for i, n in enumerate(names) if n not in flat]
+    if len(live) < 2:
+        return Identifiability(flat, (), 1.0)
+    D = np.column_stack([cols[i] / np.linalg.norm(cols[i]) for i in live])
+    _, sv, vt = np.linalg.svd(D, full_matrices=False)
+    ratio = float(sv[-1] / sv[0])
+    v = np.abs(vt[-1])
+    tied = tuple(names[i] for i, e in zip(live, v) if e >= v.max() / 3) if ratio < TIED_MAX \
+        else ()
+    return Identifiability(flat, tied, ratio)
+
+
+def _refuse_unidentifiable(meas: Measurement, names: Sequence[str],
+                           found: Identifiability) -> None:
+    """One line for what :func:`identifiability` found the recording cannot tell (nothing if it
+    can tell every parameter)."""
+    signal = 'wind-up' if meas.signal == 'windup' else 'flywheel speed difference'
+    if found.flat:
+        fit = [n for n in names if n not in found.flat]
+        what = (f'; the wind-up stays within [{meas.y.min():.4g}, {meas.y.max():.4g}] rad'
+                if meas.signal == 'windup' else '')
+        hint = (f'fit --parameters {",".join(fit)}, or ' if fit else '')
+        them = 'it' if len(found.flat) == 1 else 'them'
+        raise ConfigError(f'{meas.bag}: {", ".join(found.flat)} cannot be identified from this '
+                          f'recording: at the model\'s values the {signal} does not change with '
+                          f'{them} (a knee or stage the run never reaches{what}); {hint}record '
+                          f'a run that reaches {them}')
+    if found.tied:
+        speeds = meas.profile.speed_rpm
+        raise ConfigError(f'{meas.bag}: {", ".join(found.tied)} cannot be told apart by this '
+                          f'recording: at the model\'s values they change the {signal} only '
+                          f'together (smallest singular value of their effects {found.ratio:.1e} '
+                          f'of the largest, below {TIED_MAX:g}; the run spans '
+                          f'{float(np.min(speeds)):.0f}-{float(np.max(speeds)):.0f} rpm); fit '
+                          f'fewer of them with --parameters, or record a run that separates '
+                          f'them (the friction\'s two parts: a range of speeds)')
 
 
 def _fit_one(meas: Measurement, names: tuple[str, ...], x0: np.ndarray, lo: np.ndarray,
@@ -413,18 +473,8 @@ def identify(bag, options: IdentifyOptions = IdentifyOptions(), *, client=None
     initial = _base_values(model)
     lo, hi = _log_bounds(model)
     x_init = np.log([initial[n] for n in options.parameters])
-    flat = unidentifiable(meas, options.parameters, x_init)
-    if flat:
-        fit = [n for n in options.parameters if n not in flat]
-        signal = 'wind-up' if meas.signal == 'windup' else 'flywheel speed difference'
-        what = (f'; the wind-up stays within [{meas.y.min():.4g}, {meas.y.max():.4g}] rad'
-                if meas.signal == 'windup' else '')
-        hint = (f'fit --parameters {",".join(fit)}, or ' if fit else '')
-        them = 'it' if len(flat) == 1 else 'them'
-        raise ConfigError(f'{meas.bag}: {", ".join(flat)} cannot be identified from this '
-                          f'recording: at the model\'s values the {signal} does not change with '
-                          f'{them} (a knee or stage the run never reaches{what}); {hint}record '
-                          f'a run that reaches {them}')
+    _refuse_unidentifiable(meas, options.parameters,
+                           identifiability(meas, options.parameters, x_init))
     starts = _start_points(x_init, lo, hi, options.starts, options.seed)
     args = (meas, tuple(options.parameters))
     if client is None:

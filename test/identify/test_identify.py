@@ -127,13 +127,51 @@ def test_a_run_below_the_knee_refuses_the_knee_in_one_line(below_knee, tmp_path,
 
 
 def test_below_the_knee_the_first_stage_and_damping_still_fit(below_knee):
-    from dmf_sim.identify.fit import unidentifiable
+    from dmf_sim.identify.fit import identifiability
     bag, prof = below_knee
     options = IdentifyOptions(parameters=('k', 'theta', 'alpha', 'damping'), profile=str(prof))
     meas = read_measurement(bag, options)
     x = np.log([10890.0, 0.24, 2.5, 49.5])            # the shipped spring, not the bag's
-    assert unidentifiable(meas, options.parameters, x) == ['theta', 'alpha']
+    found = identifiability(meas, options.parameters, x)
+    assert found.flat == ('theta', 'alpha') and found.tied == ()
     fit = identify(meas, replace(options, parameters=('k', 'damping'), starts=1))
     assert fit.values['k'] == pytest.approx(TRUE['k'], rel=TOL)
     assert fit.values['damping'] == pytest.approx(TRUE['damping'], rel=TOL)
     assert all(np.isfinite(list(fit.rel_std.values())))
+
+
+ONE_SPEED_ROWS = [(0, 1200, 1.0), (3, 1200, 1.0)]
+FRICTION = ('friction.torque_nm', 'friction.speed_coefficient')
+
+
+@pytest.fixture(scope='module')
+def one_speed(tmp_path_factory):
+    return make_bag(tmp_path_factory.mktemp('identify_one_speed'), 'one_speed', TRUE,
+                    ONE_SPEED_ROWS)
+
+
+def test_the_friction_s_two_parts_at_one_speed_are_refused_as_tied(one_speed, capsys):
+    """At one speed the sliding torque is T0 + c_Omega Omega^2 with one Omega: the fit could
+    trade one part for the other (it returned T0 55.5 Nm and c_Omega 2.0e-3 for the true 40 and
+    3.0e-3, each '± 0.0003 %'). Refused instead, naming both and what separates them."""
+    bag, prof = one_speed
+    code = cli_main(['identify', str(bag), '--profile', str(prof), '--parameters',
+                     ','.join(('k', 'damping') + FRICTION)])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count('\n') == 1, err
+    assert f'{", ".join(FRICTION)} cannot be told apart by this recording' in err
+    assert 'the run spans 1200-1200 rpm' in err and 'a range of speeds' in err
+
+
+def test_over_a_range_of_speeds_every_parameter_can_be_told(case, one_speed):
+    from dmf_sim.identify.fit import TIED_MAX, identifiability
+    bag, prof = case                       # SMALL: 900 and 1800 rpm, loads 0.2-1
+    meas = read_measurement(bag, IdentifyOptions(parameters=PARAMETERS))
+    x = np.log([TRUE[n] for n in PARAMETERS])
+    wide = identifiability(meas, PARAMETERS, x)
+    assert wide.flat == () and wide.tied == () and wide.ratio > 10 * TIED_MAX
+    bag, prof = one_speed
+    meas = read_measurement(bag, IdentifyOptions(parameters=PARAMETERS, profile=str(prof)))
+    narrow = identifiability(meas, PARAMETERS, x)
+    assert narrow.flat == () and set(narrow.tied) == set(FRICTION)
+    assert narrow.ratio < TIED_MAX
