@@ -158,10 +158,21 @@ def _module_file(name: str, root: Path) -> Path | None:
     return None
 
 
-_IMPORT = re.compile(rb'^[ \t]*(from[ \t]+[.\w]+[ \t]+import[ \t]*(?:\([^)]*\)|[^\n]*)'
-                     rb'|import[ \t]+[^\n]*)', re.MULTILINE)
-"""An import statement at any indentation (found by pattern rather than by parsing the whole
-module: a kernel's stamp is computed as its module is imported)."""
+_IMPORT = re.compile(rb'^[ \t]*(from[ \t]+[.\w]+[ \t]+import[ \t]*(?:\([^)]*\)|(?:\\\n|[^\n])*)'
+                     rb'|import[ \t]+(?:\\\n|[^\n])*)', re.MULTILINE)
+"""An import statement at any indentation, its parenthesized or backslash-continued lines
+included (found by pattern rather than by parsing the whole module: a kernel's stamp is
+computed as its module is imported)."""
+
+
+def _statement(text: str) -> ast.stmt | None:
+    """The import statement ``text`` parsed; None for text that only looks like one (in a
+    string)."""
+    try:
+        (node,) = ast.parse(text).body
+    except (SyntaxError, ValueError):
+        return None
+    return node
 
 
 @functools.lru_cache(maxsize=None)
@@ -173,10 +184,7 @@ def _imported_files(path: Path, root: Path) -> tuple[Path, ...]:
     package = path.parent.relative_to(root.parent).parts
     names: set[str] = set()
     for match in _IMPORT.finditer(path.read_bytes()):
-        try:
-            (node,) = ast.parse(match.group(1).decode()).body
-        except (SyntaxError, ValueError):    # a line that only looks like one (in a string)
-            continue
+        node = _statement(match.group(1).decode())
         if isinstance(node, ast.Import):
             names.update(a.name for a in node.names)
         elif isinstance(node, ast.ImportFrom):

@@ -43,14 +43,15 @@ def _package(tmp_path: Path, name: str = 'kpkg') -> Path:
         'from numba import njit\n\nfrom ..law import SCALE\n\n\ndef g(x):\n'
         '    return SCALE * x\n\n\ng = njit(cache=True)(g)\n')
     (root / 'sub' / 'kernel.py').write_text(
-        f'from numba import njit\n\nfrom {name}.sub import helper\nfrom {name} import plain\n\n\n'
+        f'from numba import njit\n\nfrom {name}.sub import helper\nfrom {name} import \\\n'
+        '    plain\n\n\n'
         'def f(x):\n    return helper.g(x) + 1.0\n\n\nf = njit(cache=True)(f)\n')
-    (root / 'plain.py').write_text(f'import {name}.deep\n')
+    (root / 'plain.py').write_text(f'import {name}.deep\n"""\nimport of nothing: text\n"""\n')
     (root / 'deep.py').write_text('Z = 0\n')
     return root
 
 
-def test_the_stamp_follows_imports_absolute_relative_and_transitive(tmp_path):
+def test_the_stamp_follows_imports_absolute_relative_continued_and_transitive(tmp_path):
     root = _package(tmp_path)
     kernel = root / 'sub' / 'kernel.py'
     files = {str(f.relative_to(root)) for f in source_files(kernel, root)}
