@@ -49,7 +49,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from dmf_sim.identify.fit import IdentifyOptions, fitted_signals, identify, read_measurement
+    from dmf_sim.identify.fit import (
+        TIED_MAX,
+        IdentifyOptions,
+        fitted_signals,
+        identify,
+        read_measurement,
+    )
     from dmf_sim.live.warm import warm_up
 
     names = tuple(n.strip() for n in args.parameters.split(',') if n.strip())
@@ -99,6 +105,9 @@ def run(args: argparse.Namespace) -> int:
         print(f'  {n:>22} = {result.values[n]:.6g}   (start {result.initial[n]:.6g}, '
               f'± {100 * result.rel_std[n]:.2g} %)')
     print(f'  rms residual {result.rms:.3g} {result.unit} (at the start {result.rms_initial:.3g})')
+    print(f'  identifiability {result.identifiability:.2g} (the smallest over the largest '
+          f'singular value of the parameters\' effects; below {TIED_MAX:g} they are refused as '
+          'tied)')
     for path in written:
         print(f'wrote {path}')
     return 0

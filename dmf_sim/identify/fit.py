@@ -158,8 +158,11 @@ class Identification:
     rel_std: parameter -> relative standard deviation (linearized, a lower bound);
     correlation: the parameters' correlation matrix (rows/columns in ``parameters`` order);
     rms: root mean square of the residual (the signal's unit); rms_initial: at the bag's own
-    values; evaluations: simulations in all; starts: per start (its values, rms, evaluations,
-    status); seconds: wall time.
+    values; evaluations: simulations of the fit in all; starts: per start (its values, rms,
+    evaluations, status); seconds: wall time; identifiability: the smallest over the largest
+    singular value of the parameters' normalized effects on the signal at the bag's own values
+    (:class:`Identifiability`: 1 for one parameter, near :data:`TIED_MAX` for a fit that can
+    hardly tell them apart).
     """
 
     parameters: tuple[str, ...]
@@ -177,6 +180,7 @@ class Identification:
     starts: list[dict] = field(default_factory=list)
     bag: str = ''
     profile: str = ''
+    identifiability: float = float('nan')
 
     def as_dict(self) -> dict:
         return {'bag': self.bag, 'profile': self.profile, 'signal': self.signal,
@@ -185,7 +189,7 @@ class Identification:
                 'correlation': self.correlation, 'rms': self.rms,
                 'rms_initial': self.rms_initial, 'samples': self.samples,
                 'evaluations': self.evaluations, 'seconds': self.seconds,
-                'starts': self.starts}
+                'identifiability': self.identifiability, 'starts': self.starts}
 
 
 # ---------------------------------------------------------------------------- the measurement
@@ -473,8 +477,8 @@ def identify(bag, options: IdentifyOptions = IdentifyOptions(), *, client=None
     initial = _base_values(model)
     lo, hi = _log_bounds(model)
     x_init = np.log([initial[n] for n in options.parameters])
-    _refuse_unidentifiable(meas, options.parameters,
-                           identifiability(meas, options.parameters, x_init))
+    found = identifiability(meas, options.parameters, x_init)
+    _refuse_unidentifiable(meas, options.parameters, found)
     starts = _start_points(x_init, lo, hi, options.starts, options.seed)
     args = (meas, tuple(options.parameters))
     if client is None:
@@ -503,7 +507,7 @@ def identify(bag, options: IdentifyOptions = IdentifyOptions(), *, client=None
         seconds=time.perf_counter() - t0,
         starts=[{'values': {n: math.exp(v) for n, v in zip(names, r['x'])}, 'rms': r['rms'],
                  'evaluations': r['evaluations'], 'status': r['message']} for r in results],
-        bag=meas.bag, profile=getattr(meas.profile, 'name', ''))
+        bag=meas.bag, profile=getattr(meas.profile, 'name', ''), identifiability=found.ratio)
 
 
 def fitted_signals(result: Identification, meas: Measurement

@@ -74,7 +74,10 @@ def test_the_command_writes_json_and_plot_and_runs_on_dask(case, tmp_path, capsy
     assert cli_main([*argv, '--out', str(tmp_path / 'local')]) == 0
     local = json.loads((tmp_path / 'local' / 'identify.json').read_text())
     assert (tmp_path / 'local' / 'identify.png').stat().st_size > 20_000
-    assert 'wrote' in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert 'wrote' in out and f'identifiability {local["identifiability"]:.2g}' in out
+    from dmf_sim.identify.fit import TIED_MAX
+    assert TIED_MAX < local['identifiability'] <= 1.0
     assert cli_main([*argv, '--workers', '2', '--json']) == 0
     dask = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert len(dask['starts']) == 2
