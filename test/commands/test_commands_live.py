@@ -188,7 +188,7 @@ def test_setpoint_and_monitor_against_a_running_node(tmp_path):
 
         # the monitor shows the node's state, refreshing with values that change, and the
         # per-cycle and prediction topics (published here as the node will publish them)
-        frames = _frames(_monitor_with_monitor_topics(domain))
+        frames = _frames(_monitor_with_monitor_topics(domain, _shows_monitor_topics))
         frames = [f for f in frames if 'speed' in f]
         assert len(frames) >= 3, frames
         last = frames[-1]
@@ -208,10 +208,27 @@ def test_setpoint_and_monitor_against_a_running_node(tmp_path):
         node.stop()
 
 
-def _monitor_with_monitor_topics(domain: int) -> str:
+MONITOR_FRAMES_MAX = 120      # at 2 Hz: the monitor's discovery of this process's topics may
+#                               take seconds on a loaded machine; it is stopped once it shows them
+
+
+def _shows_monitor_topics(frame: dict[str, str]) -> bool:
+    return ('3rd ' in frame.get('orders', '') and 'stable state' in frame.get('predicted', '')
+            and 'live - predicted' in frame.get('vs', ''))
+
+
+def _read_lines(stream, lines: list[str]) -> None:
+    for line in stream:
+        lines.append(line)
+
+
+def _monitor_with_monitor_topics(domain: int, ready) -> str:
     """Run ``dmf-sim monitor --plain`` while this process publishes a real per-cycle message
-    and a latched prediction on /truck1 (the node's monitor is wired in separately); returns
-    the monitor's output."""
+    and a latched prediction on /truck1 (the node's monitor is wired in separately), until three
+    frames are complete and the last of them is ``ready`` (SIGINT then; at most
+    :data:`MONITOR_FRAMES_MAX` frames); returns the monitor's complete frames."""
+    import threading
+
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
     from rclpy.executors import SingleThreadedExecutor
@@ -249,14 +266,26 @@ def _monitor_with_monitor_topics(domain: int) -> str:
             'n', cyc, compare(cyc, pred, 10, 0.02), pred, report).to_msg(DiagnosticStatus,
                                                                           KeyValue)])
         proc = subprocess.Popen([sys.executable, '-m', 'dmf_sim.cli', 'monitor', '--namespace',
-                                 '/truck1', '--plain', '--rate', '2', '--frames', '6'],
+                                 '/truck1', '--plain', '--rate', '2', '--frames',
+                                 str(MONITOR_FRAMES_MAX)],
                                 env=_env(domain), stdout=subprocess.PIPE, text=True)
-        # publish until the monitor ends: its 6 frames start once it has the node's diagnostics
+        lines: list[str] = []
+        reader = threading.Thread(target=_read_lines, args=(proc.stdout, lines), daemon=True)
+        reader.start()
+        # publish until the monitor shows what is published (its frames start once it has the
+        # node's diagnostics; the match with this process's publishers may come later)
         end = time.monotonic() + 120
         while proc.poll() is None and time.monotonic() < end:
             cyc_pub.publish(cyc_msg)
             ex.spin_once(timeout_sec=0.1)
-        out, _ = proc.communicate(timeout=30)
+            done = _frames(''.join(lines))[:-1]         # the last one may still be printing
+            if len(done) >= 3 and ready(done[-1]):
+                proc.send_signal(signal.SIGINT)
+                break
+        proc.wait(timeout=30)
+        reader.join(timeout=30)
+        out = ''.join(lines)
+        out = out[:out.rfind('--- frame')]           # the complete frames
     finally:
         if proc is not None and proc.poll() is None:
             proc.kill()
