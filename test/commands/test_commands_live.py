@@ -225,7 +225,7 @@ def _read_lines(stream, lines: list[str]) -> None:
 def _monitor_with_monitor_topics(domain: int, ready) -> str:
     """Run ``dmf-sim monitor --plain`` while this process publishes a real per-cycle message
     and a latched prediction on /truck1 (the node's monitor is wired in separately), until three
-    frames are complete and the last of them is ``ready`` (SIGINT then; at most
+    frames are complete and the last of them is ``ready`` (then it is killed; at most
     :data:`MONITOR_FRAMES_MAX` frames); returns the monitor's complete frames."""
     import threading
 
@@ -280,7 +280,9 @@ def _monitor_with_monitor_topics(domain: int, ready) -> str:
             ex.spin_once(timeout_sec=0.1)
             done = _frames(''.join(lines))[:-1]         # the last one may still be printing
             if len(done) >= 3 and ready(done[-1]):
-                proc.send_signal(signal.SIGINT)
+                # ended by SIGKILL: a process started with SIGINT ignored (a CI job started in
+                # the background) keeps ignoring it, as it should; its frames are read already
+                proc.kill()
                 break
         proc.wait(timeout=30)
         reader.join(timeout=30)
