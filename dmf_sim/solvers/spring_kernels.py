@@ -42,16 +42,17 @@ def primary_range(knees, primary):
 
 
 def friction_parts(wd, amp, law):
-    """(friction torque T_f [Nm], d(T_f)/d(w_dot) [Nms/rad]) at wind-up rate wd [rad/s] and
-    sliding friction torque ``amp`` = T0 + c_Omega Omega^2 [Nm] (eq. 8a; ``law`` =
-    PiecewiseLinearSpring.law_array())."""
+    """(friction torque T_f [Nm], d(T_f)/d(w_dot) [Nms/rad], tanh(w_dot / omega_reg) = T_f /
+    ``amp``) at wind-up rate wd [rad/s] and sliding friction torque ``amp`` = T0 + c_Omega
+    Omega^2 [Nm] (eq. 8a; ``law`` = PiecewiseLinearSpring.law_array()). The third value is the
+    law's shape, which d(T_f)/d(Omega) = d(amp)/d(Omega) tanh(...) reads."""
     z = wd / law[2]
     if z > TANH_ONE:
-        return amp, 0.0
+        return amp, 0.0, 1.0
     if z < -TANH_ONE:
-        return -amp, 0.0
+        return -amp, 0.0, -1.0
     th = math.tanh(z)
-    return amp * th, amp * (1.0 - th * th) / law[2]
+    return amp * th, amp * (1.0 - th * th) / law[2], th
 
 
 def stop_parts(w, wd, law):
@@ -81,7 +82,7 @@ def law_parts(w, wd, amp, law):
     at wind-up w [rad], rate wd [rad/s] and sliding friction torque ``amp`` = T0 + c_Omega
     Omega^2 [Nm] (eq. 8a, 8b; ``law`` = PiecewiseLinearSpring.law_array()):
     :func:`friction_parts` and :func:`stop_parts` together."""
-    tf, dtf = friction_parts(wd, amp, law)
+    tf, dtf, _ = friction_parts(wd, amp, law)
     ts, dts_w, dts_v = stop_parts(w, wd, law)
     return tf, ts, dtf, dts_w, dts_v
 

@@ -256,7 +256,7 @@ def law_steps(w, v, amp, knees, slopes, offsets, primary, law, base, k, c):
         r = region_of(w[j], knees, primary)
         base[j] = r
         g[j] = slopes[r] * w[j] + offsets[r]
-        tf[j], dtf[j] = friction_parts(v[j], amp, law)
+        tf[j], dtf[j], _ = friction_parts(v[j], amp, law)
     active = 0
     for j in range(N):
         m = j + 1 if j + 1 < N else 0

@@ -44,7 +44,13 @@ import numpy as np
 from dmf_sim.core.compiled import jit
 from dmf_sim.core.units import RPM_TO_RAD_S
 from dmf_sim.solvers.hbm.dense_kernels import lu_solve, max_abs
-from dmf_sim.solvers.spring_kernels import law_active, law_parts, primary_range, region_of
+from dmf_sim.solvers.spring_kernels import (
+    friction_parts,
+    law_active,
+    primary_range,
+    region_of,
+    stop_parts,
+)
 
 __all__ = ['CONVERGED', 'STALLED', 'MAX_ITER', 'SINGULAR', 'NOT_FINITE', 'ENGINE_FAILED',
            'BACKTRACK_MIN', 'aft', 'aft_law', 'assemble', 'nonlinear', 'times_h_into',
@@ -132,8 +138,8 @@ def aft_law(x, omega, aft_mats, spring, G, dG, jac):
     ``g(w) + N(w, w_dot, Omega)`` (eq. 8a-8b, 9; doc/theory.md §2, §7): on each sample the wind-up
     ``w_j = E_j x`` and its rate ``w_dot_j = (omega/2) sum_n n (-Re w_n sin n phi_j - Im w_n
     cos n phi_j)`` (harmonic n turns at n omega / 2, omega [rad/s] the engine speed), N from the
-    spring's compiled law (:func:`dmf_sim.solvers.spring_kernels.law_parts` on
-    ``spring[4]`` = ``law_array()``, the sliding torque T0 + c_Omega omega^2).
+    spring's compiled law (:func:`dmf_sim.solvers.spring_kernels.friction_parts` and
+    ``stop_parts`` on ``spring[4]`` = ``law_array()``, the sliding torque T0 + c_Omega omega^2).
 
     Writes G[:n] = the harmonics of g + N [Nm], G[n:2n] = their derivative with respect to omega
     at fixed x [Nm s/rad] (w_dot scales with omega, the friction amplitude with omega^2: what the
@@ -177,19 +183,24 @@ def aft_law(x, omega, aft_mats, spring, G, dG, jac):
             r = region_of(w, knees, primary)
             s = slopes[r]
             g = s * w + offsets[r]
-        tf, ts, dtf, dws, dvs = law_parts(w, wd, amp, law)
+        tf, dtf, th = friction_parts(wd, amp, law)
+        ts, dws, dvs = stop_parts(w, wd, law)
         tot = g + tf + ts
         cv = dtf + dvs                           # dN/dw_dot [Nms/rad]
         TD[j, 0] = tot
-        TD[j, 1] = cv * 0.5 * unit + damp * (tf / amp if amp != 0.0 else 0.0)
+        TD[j, 1] = cv * 0.5 * unit + damp * th
         if tot == 0.0 and s == 0.0 and cv == 0.0:
             continue
         count += 1
-        if jac and (s + dws != 0.0 or cv != 0.0):     # else (friction saturated) no part
-            kw = s + dws
+        if not jac:
+            continue
+        kw = s + dws
+        if kw != 0.0:                            # else (inside the primary stage) no part
             for m in range(n2):
                 Cm[m] += kw * Tc[j, m]
                 Sm[m] += kw * Ts[j, m]
+        if cv != 0.0:                            # else (friction saturated) no part
+            for m in range(n2):
                 Cv[m] += cv * Tc[j, m]
                 Sv[m] += cv * Ts[j, m]
     GT = np.dot(E.T, TD)                         # (n, 2): the sums over the samples
