@@ -43,11 +43,18 @@ from dmf_sim.physics.orders import synthesize
 from dmf_sim.solvers.lapack_kernel import eigenvalues_into
 from dmf_sim.solvers.stability_kernel import floquet, floquet_law_many, floquet_many
 
-__all__ = ['CROSSING_NEWTON_STEPS', 'EXTREME_SPREAD', 'FloquetResult', 'ModeClass', 'by_modulus',
-           'real_eigenbasis', 'extreme_quantity', 'FlexibleModes', 'FloquetAnalyzer']
+__all__ = ['CROSSING_NEWTON_STEPS', 'NEGLIGIBLE_STEPS', 'EXTREME_SPREAD', 'FloquetResult',
+           'ModeClass', 'by_modulus', 'real_eigenbasis', 'extreme_quantity', 'FlexibleModes',
+           'FloquetAnalyzer']
 
 #: Newton steps refining each knee crossing on the wind-up's trigonometric polynomial
 CROSSING_NEWTON_STEPS = 4
+#: what the step-by-step monodromy with friction or end stops may leave out, in all: a step whose
+#: linearized DMF part changes the state by at most this over the cycle's steps (|R_j - I| <=
+#: NEGLIGIBLE_STEPS / N, in each region's real eigenbasis) is flowed without it. Those are the
+#: far tails of the regularized friction, where tanh' is tiny but not zero. A hundredth of the
+#: stability tolerance's default, and below the splitting's own error at N = 1024 steps
+NEGLIGIBLE_STEPS = 1e-9
 #: a connection's rate this many times the lowest natural frequency is named as the cause when a
 #: modal decomposition fails (its small eigenvalues lose ~log10 of it of double's 16 digits)
 EXTREME_SPREAD = 1e6
@@ -309,16 +316,21 @@ class FloquetAnalyzer:
         compiled: crossings, monodromy and multipliers of :meth:`analyze` through the compiled
             kernel (:func:`dmf_sim.solvers.stability_kernel.floquet`); False: the readable numpy
             reference below.
+        negligible: with friction or end stops, the bound on the steps whose linearized DMF
+            part the monodromy leaves out (default :data:`NEGLIGIBLE_STEPS`; 0 keeps every
+            step).
     """
 
     def __init__(self, model: ReducedModel, n_fine: int = 1024, tol: float = 1e-7,
-                 modes: FlexibleModes | None = None, compiled: bool = True):
+                 modes: FlexibleModes | None = None, compiled: bool = True,
+                 negligible: float = NEGLIGIBLE_STEPS):
         if model.spring is None:
             raise ConfigError('model has no DMF: stability of the linear chain is trivial')
         self.model = model
         self.spring = model.spring
         self.n_fine = int(n_fine)
         self.tol = float(tol)
+        self.negligible = float(negligible)
         self.modes = modes or FlexibleModes(model)
         self.nf = self.modes.nf
         self.er = self.modes.er
@@ -359,10 +371,16 @@ class FloquetAnalyzer:
                 self._eig[st][2] @ b, rows[0] @ self._eig[st][1], rows[1] @ self._eig[st][1])))
                 for st in sp.stages()]
             self._law_real = (np.stack(Q), np.stack(Qinv))
+            beta = np.stack([qi @ b for qi in Qinv])
+            p, q = (np.stack([r @ qr for qr in Q]) for r in rows)
+            nb = np.linalg.norm(beta, axis=1)
+            #: per region, |beta| |p| and |beta| |q|: a step's |R_j - I| <= h (|k| bound[r, 0]
+            #: + |c| bound[r, 1]) in the real eigenbasis (which steps ``negligible`` skips)
+            self._law_bound = np.ascontiguousarray(
+                np.stack([nb * np.linalg.norm(p, axis=1), nb * np.linalg.norm(q, axis=1)], axis=1))
             self._law_args = (*sp.arrays(), int(sp.primary_index), sp.law_array(),
-                              *self._kernel_args[3:],
-                              np.stack([qi @ b for qi in Qinv]),
-                              *(np.stack([r @ q for q in Q]) for r in rows), er2)
+                              *self._kernel_args[3:], beta, p, q, er2, self._law_bound,
+                              self.negligible)
 
     # ---- regions and crossings -------------------------------------------------------------
     def linear_multipliers(self, speeds_rpm: np.ndarray, region: int = 0) -> np.ndarray:
@@ -591,6 +609,9 @@ class FloquetAnalyzer:
             wm, vm = 0.5 * (w + w1), 0.5 * (v + v1)
             k = k + _slope(lambda x: sp.stops.torque(x, vm), wm)
             c = c + _slope(lambda x: sp.stops.torque(wm, x), vm)
+        bound = self._law_bound[base]           # the steps the kernel leaves out, likewise
+        skip = h * (np.abs(k) * bound[:, 0] + np.abs(c) * bound[:, 1]) <= self.negligible / N
+        k, c = np.where(skip, 0.0, k), np.where(skip, 0.0, c)
         first = cur = int(base[0])
         Z = np.eye(2 * self.nf, dtype=complex)
         steps = []

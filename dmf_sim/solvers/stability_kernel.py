@@ -276,7 +276,7 @@ def law_steps(w, v, amp, knees, slopes, offsets, primary, law, base, k, c):
 
 
 def monodromy_law(w, v, period, amp, knees, slopes, offsets, primary, law, kind, sigma, freq, W,
-                  beta, p, q, er2, Z):
+                  beta, p, q, er2, bound, drop, Z):
     """Z <- the monodromy (up to similarity) of the driveline linearized about a periodic wind-up
     with friction and end stops, in the real eigen-coordinates z = Q_r^-1 y of the state matrix
     A_r = Q_r blockdiag(B_r) Q_r^-1 of the spring region r its first step starts in
@@ -297,8 +297,11 @@ def monodromy_law(w, v, period, amp, knees, slopes, offsets, primary, law, kind,
     Real arithmetic, O(n^2) per step. Where k = c = 0 (the friction saturated, the step inside
     one region: most of a slipping cycle) R_j = I, the flow is exact, and the flows of
     consecutive such steps are applied as one (exp(A_r m h)): the cost is that of the steps
-    near the reversals and the crossings. Second order in h, unconditionally stable for any
-    friction damping (the stiff part is exact)."""
+    near the reversals and the crossings. So is a step whose |R_j - I| <= h (|k| bound[r, 0] +
+    |c| bound[r, 1]) (``bound[r]`` = |beta_r| |p_r|, |beta_r| |q_r|) is at most ``drop`` / N:
+    the far tails of the regularized friction, where its slope is tiny but not zero; together
+    they change the product by about ``drop`` at most. Second order in h, unconditionally
+    stable for any friction damping (the stiff part is exact)."""
     N = w.shape[0]
     n = sigma.shape[1]
     h = period / N
@@ -306,6 +309,12 @@ def monodromy_law(w, v, period, amp, knees, slopes, offsets, primary, law, kind,
     k = np.empty(N)
     c = np.empty(N)
     law_steps(w, v, amp, knees, slopes, offsets, primary, law, base, k, c)
+    cut = drop / N
+    for j in range(N):
+        r = base[j]
+        if h * (abs(k[j]) * bound[r, 0] + abs(c[j]) * bound[r, 1]) <= cut:
+            k[j] = 0.0
+            c[j] = 0.0
     for i in range(n):
         for j in range(n):
             Z[i, j] = 1.0 if i == j else 0.0
@@ -364,7 +373,7 @@ def monodromy_law(w, v, period, amp, knees, slopes, offsets, primary, law, kind,
 
 
 def floquet_law_many(w, v, periods, amps, knees, slopes, offsets, primary, law, kind, sigma,
-                     freq, W, beta, p, q, er2, Q, Qinv, M, wr, wi, status):
+                     freq, W, beta, p, q, er2, bound, drop, Q, Qinv, M, wr, wi, status):
     """The Floquet multipliers of K periodic wind-ups with friction and end stops in one call:
     point k's wind-up w[k] and rate v[k] on the cycle's uniform grid, period periods[k] [s],
     sliding friction torque amps[k] [Nm]. M[k] <- the monodromy Q_r Z Q_r^-1 of
@@ -379,7 +388,7 @@ def floquet_law_many(w, v, periods, amps, knees, slopes, offsets, primary, law, 
     T = np.empty((ns, ns))
     for k in range(K):
         r = monodromy_law(w[k], v[k], periods[k], amps[k], knees, slopes, offsets, primary, law,
-                          kind, sigma, freq, W, beta, p, q, er2, Z)
+                          kind, sigma, freq, W, beta, p, q, er2, bound, drop, Z)
         np.dot(Q[r], Z, T)
         np.dot(T, Qinv[r], M[k])
         status[k] = 0

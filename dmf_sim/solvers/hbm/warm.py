@@ -129,7 +129,8 @@ def warm_up() -> float:
     grid = np.zeros((1, 4))
     stability_kernel.floquet_law_many(grid, grid, np.ones(1), np.ones(1), *spring,
                                       *fl_args[3:], np.ones((2, ns)), np.ones((2, ns)),
-                                      np.ones((2, ns)), 1.0, W[0].copy(), W[0].copy(),
+                                      np.ones((2, ns)), 1.0, np.ones((2, 2)), 0.0,
+                                      W[0].copy(), W[0].copy(),
                                       np.empty((1, ns, ns)), np.empty((1, ns)),
                                       np.empty((1, ns)), np.empty(1, dtype=np.int64))
     # the multipliers of one point analyzed alone (stability.eigenvalues calls it from Python)

@@ -172,6 +172,27 @@ def test_floquet_multipliers_with_friction_are_inside_and_converge():
                                np.sort(np.abs(res[1024].multipliers)), rtol=0, atol=1e-10)
 
 
+
+@pytest.mark.parametrize('speed', SLIP_SPEEDS)
+def test_the_monodromy_leaves_out_only_negligible_steps(speed):
+    """The far tails of the regularized friction (tanh' tiny but not zero), which the monodromy
+    skips below NEGLIGIBLE_STEPS in all: the multipliers move (steps were left out) by far less
+    than the stability tolerance, compiled and numpy alike."""
+    from dmf_sim.solvers.stability import NEGLIGIBLE_STEPS
+    hb = CondensedHBM(_loads(), 1.0)
+    c = hb.solve(speed).windup_orders
+    mu = {}
+    for compiled in (True, False):
+        for neg in (NEGLIGIBLE_STEPS, 0.0):
+            fa = FloquetAnalyzer(hb.model, modes=hb.modes, compiled=compiled, negligible=neg)
+            mu[compiled, neg] = np.sort_complex(np.asarray(fa.analyze(c, speed).multipliers,
+                                                           dtype=complex))
+    for compiled in (True, False):
+        moved = np.abs(mu[compiled, NEGLIGIBLE_STEPS] - mu[compiled, 0.0]).max()
+        assert 0.0 < moved <= 1e-3 * fa.tol
+    np.testing.assert_allclose(np.sort(np.abs(mu[True, NEGLIGIBLE_STEPS])),
+                               np.sort(np.abs(mu[False, NEGLIGIBLE_STEPS])), rtol=0, atol=1e-10)
+
 @pytest.mark.slow
 @pytest.mark.parametrize('reg, tol', [(0.05, 0.01), (0.2, 0.01)])
 def test_where_the_dmf_sticks_hbm_is_newmarks_regularized_creep(reg, tol):
