@@ -157,7 +157,8 @@ class Identification:
     values: parameter -> fitted value; initial: parameter -> the bag's own value;
     rel_std: parameter -> relative standard deviation (linearized, a lower bound);
     correlation: the parameters' correlation matrix (rows/columns in ``parameters`` order);
-    rms: root mean square of the residual (the signal's unit); rms_initial: at the bag's own
+    rms: root mean square of the residual (the signal's unit, over the fitted samples: after
+    the settling, thinned to :data:`DECIMATE_HZ`); rms_initial: the same at the bag's own
     values; evaluations: simulations of the fit in all; starts: per start (its values, rms,
     evaluations, status); seconds: wall time; identifiability: the smallest over the largest
     singular value of the parameters' normalized effects on the signal at the bag's own values
@@ -363,11 +364,16 @@ def _residual(meas: Measurement, names: tuple[str, ...]):
     sub = replace(meas, t_s=t_fit, y=y_fit)
     scale = float(np.std(y_fit)) or 1.0
 
-    def residual(x: np.ndarray) -> np.ndarray:
+    def residual(x: np.ndarray, strict: bool = False) -> np.ndarray:
+        """``strict``: a model that fails to simulate raises (else it counts as far off)."""
         values = {n: math.exp(v) for n, v in zip(names, x)}
         try:
             return (simulate(sub, model, values) - y_fit) / scale
-        except (ConfigError, ValueError, FloatingPointError):
+        except (ConfigError, ValueError, FloatingPointError) as exc:
+            if strict:
+                raise ConfigError(f'{meas.bag}: the model does not run the recording at '
+                                  f'{", ".join(f"{n} {values[n]:.4g}" for n in names)}: '
+                                  f'{exc}') from None
             return np.full(len(y_fit), 1e3)              # a failed design: far off
     return residual, len(y_fit), scale
 
@@ -383,11 +389,13 @@ class Identifiability:
     direction the signal hardly tells (their changes of the signal, normalized, have a smallest
     singular value below :data:`TIED_MAX` of the largest: they act only together, as the
     friction's constant and centrifugal parts at one speed); ratio: that smallest over largest
-    singular value (1 for one parameter)."""
+    singular value (1 for one parameter); rms: the residual's root mean square at those values
+    (the signal's unit, over the fitted samples, as :attr:`Identification.rms`)."""
 
     flat: tuple[str, ...]
     tied: tuple[str, ...]
     ratio: float
+    rms: float
 
 
 def identifiability(meas: Measurement, names: Sequence[str], x: np.ndarray,
@@ -395,9 +403,12 @@ def identifiability(meas: Measurement, names: Sequence[str], x: np.ndarray,
     """:class:`Identifiability` of ``names`` at log parameters ``x``: one simulation per
     parameter and one at ``x``, the fit's own residual (forward differences, as its Jacobian).
     The tied direction is the right singular vector of the smallest singular value; a parameter
-    belongs to it where its entry is at least a third of the largest."""
-    residual, _, _ = _residual(meas, tuple(names))
-    r0 = residual(x)
+    belongs to it where its entry is at least a third of the largest. A model that fails to
+    simulate at ``x`` is refused (:class:`ConfigError`, with why), not taken for one the
+    parameters do not change."""
+    residual, _, scale = _residual(meas, tuple(names))
+    r0 = residual(x, strict=True)
+    rms = scale * math.sqrt(float(np.mean(r0 ** 2)))
     cols = []
     for i in range(len(names)):
         xi = np.array(x, dtype=float)
@@ -408,14 +419,14 @@ def identifiability(meas: Measurement, names: Sequence[str], x: np.ndarray,
     flat = tuple(n for n, m in zip(names, moves) if m <= IDENTIFIABLE_MIN * top)
     live = [i for i, n in enumerate(names) if n not in flat]
     if len(live) < 2:
-        return Identifiability(flat, (), 1.0)
+        return Identifiability(flat, (), 1.0, rms)
     D = np.column_stack([cols[i] / np.linalg.norm(cols[i]) for i in live])
     _, sv, vt = np.linalg.svd(D, full_matrices=False)
     ratio = float(sv[-1] / sv[0])
     v = np.abs(vt[-1])
     tied = tuple(names[i] for i, e in zip(live, v) if e >= v.max() / 3) if ratio < TIED_MAX \
         else ()
-    return Identifiability(flat, tied, ratio)
+    return Identifiability(flat, tied, ratio, rms)
 
 
 def _refuse_unidentifiable(meas: Measurement, names: Sequence[str],
@@ -494,14 +505,11 @@ def identify(bag, options: IdentifyOptions = IdentifyOptions(), *, client=None
     sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     with np.errstate(invalid='ignore', divide='ignore'):
         corr = cov / np.outer(sd, sd)
-    keep = meas.t_s >= meas.settle_s
-    y0 = simulate(replace(meas, t_s=meas.t_s[keep]), model, initial)
-    rms0 = float(np.sqrt(np.mean((y0 - meas.y[keep]) ** 2)))
     return Identification(
         parameters=tuple(names), values=values, initial=initial,
         rel_std={n: float(s) for n, s in zip(names, sd)},
         correlation=[[float(c) for c in row] for row in corr], rms=best['rms'],
-        rms_initial=rms0, signal=meas.signal,
+        rms_initial=found.rms, signal=meas.signal,
         unit='rad' if meas.signal == 'windup' else 'rad/s', samples=best['samples'],
         evaluations=sum(r['evaluations'] for r in results),
         seconds=time.perf_counter() - t0,

@@ -178,3 +178,20 @@ def test_over_a_range_of_speeds_every_parameter_can_be_told(case, one_speed):
     narrow = identifiability(meas, PARAMETERS, x)
     assert narrow.flat == () and set(narrow.tied) == set(FRICTION)
     assert narrow.ratio < TIED_MAX
+
+
+def test_a_start_the_model_cannot_run_is_refused_with_why(case):
+    """Where the model fails at the values the check starts from, that failure is the answer,
+    not 'no parameter changes the signal' (a failed run counts as a constant far-off
+    residual in the fit, which would make every parameter look flat)."""
+    from dmf_sim.core.errors import ConfigError
+    from dmf_sim.identify.fit import identifiability
+    bag, _ = case
+    meas = read_measurement(bag, IdentifyOptions(parameters=PARAMETERS))
+    x = np.log([50.0 if n == 'theta' else TRUE[n] for n in PARAMETERS])
+    with pytest.raises(ConfigError, match=r'the model does not run the recording at .*theta 50'
+                                          r'.*angle_rad must be') as err:
+        identifiability(meas, PARAMETERS, x)
+    assert '\n' not in str(err.value)
+    ok = identifiability(meas, PARAMETERS, np.log([TRUE[n] for n in PARAMETERS]))
+    assert ok.flat == () and ok.rms < 1e-6        # the bag's own model: its own signal
