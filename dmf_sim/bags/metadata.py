@@ -53,6 +53,9 @@ class RunMetadata:
         node: fully qualified node name (namespace included) of the recording node, or the
             command that wrote the bag (``dmf-sim run``).
         profile: the speed/load profile ``dmf-sim run`` followed (its name).
+        profile_table: that whole profile (``Profile.as_table()`` of
+            :mod:`dmf_sim.transient.profiles`, which ``profile_from_table`` reads back), so the
+            run can be followed again where its file is not (``dmf-sim identify``).
         settle_s: the first seconds of the recording (from its first message) in which the
             driveline settles from static equilibrium (``dmf-sim run`` starts there): their
             engine cycles are not steady running, and the analysis leaves them out.
@@ -73,11 +76,12 @@ class RunMetadata:
     publish_rate_hz: float | None = None
     node: str | None = None
     profile: str | None = None
+    profile_table: dict | None = None
     settle_s: float | None = None
     sensors: dict | None = None
 
     _FLOATS = ('alpha', 'theta_rad', 'load', 'speed_rpm', 'dt_s', 'publish_rate_hz', 'settle_s')
-    _MAPPINGS = ('spring', 'sensors')
+    _MAPPINGS = ('spring', 'sensors', 'profile_table')
 
     def to_custom_data(self) -> dict[str, str]:
         """The ``custom_data`` entries (only the known values)."""

@@ -194,8 +194,9 @@ class Identification:
 
 
 # ---------------------------------------------------------------------------- the measurement
-def _rebuilt_profile(series):
-    """A profile from a recording's engine speed and the load of its health statuses."""
+def _rebuilt_profile(series, end_ns: int):
+    """A profile from a recording's engine speed and the load of its health statuses, from its
+    first speed sample to ``end_ns`` (the last sample to fit: the run must reach it)."""
     from dmf_sim.analysis.load_timeline import HEALTH_KEYS
     from dmf_sim.transient.profiles import make_profile
     speed, health = series.series.get('speed'), series.health
@@ -204,7 +205,8 @@ def _rebuilt_profile(series):
                           'bag) and holds no engine speed and health statuses to rebuild one')
     t0 = int(speed.t_ns[0])
     ts = (speed.t_ns - t0) * 1e-9
-    rows_t = np.arange(0.0, ts[-1], REBUILT_ROW_S)
+    end_s = max((end_ns - t0) * 1e-9, float(ts[-1]))
+    rows_t = np.arange(0.0, end_s + REBUILT_ROW_S, REBUILT_ROW_S)     # one row at or past it
     hs_t = (health[0] - t0) * 1e-9
     load_col = health[1][:, HEALTH_KEYS.index('load')]
     idx = np.clip(np.searchsorted(hs_t, rows_t, side='right') - 1, 0, len(hs_t) - 1)
@@ -218,7 +220,7 @@ def read_measurement(bag, options: IdentifyOptions = IdentifyOptions()) -> Measu
     :class:`~dmf_sim.core.errors.ConfigError` / BagError when the bag lacks what is needed)."""
     from dmf_sim.analysis.series import SignalSpec, read_bag_series
     from dmf_sim.bags.layout import resolve_bag
-    from dmf_sim.transient.profiles import read_profile
+    from dmf_sim.transient.profiles import profile_from_table, read_profile
 
     resolved = resolve_bag(bag)
     meta = resolved.run_metadata
@@ -235,18 +237,21 @@ def read_measurement(bag, options: IdentifyOptions = IdentifyOptions()) -> Measu
     else:
         n = min(len(got[0]), len(got[1]))
         t_ns, y = got[0].t_ns[:n], got[1].values[:n] - got[0].values[:n]
-    rebuilt = options.profile is None and meta.profile is None
+    profile, rebuilt = None, False
     if options.profile is not None:
         profile = read_profile(options.profile)
-    elif not rebuilt:
+    elif meta.profile_table is not None:    # a dmf-sim run bag: the run's own profile
+        profile = profile_from_table(meta.profile_table,
+                                     f'{resolved.path}: the profile in its metadata')
+    elif meta.profile is not None:
         try:
             profile = read_profile(meta.profile)
         except ConfigError:                 # a file of the recording machine: not here
-            rebuilt = True
-    if rebuilt:
-        profile = _rebuilt_profile(series)
+            pass
     rate = meta.publish_rate_hz or 1000.0
     t_s = (t_ns - t_ns[0]) * 1e-9 + 1.0 / rate        # the first sample: one period in
+    if profile is None:
+        profile, rebuilt = _rebuilt_profile(series, int(t_ns[-1]) + int(1e9 / rate)), True
     return Measurement(
         t_s=t_s, y=np.asarray(y, float), signal=options.signal, profile=profile,
         driveline=options.driveline or meta.driveline or 'truck_dmf',

@@ -37,7 +37,7 @@ import io
 import math
 import os
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -56,7 +56,8 @@ from dmf_sim.physics.engine import LOAD_LIMITS, load_error
 
 __all__ = ['COLUMNS', 'DEFAULT_SETTLE_S', 'DEFAULT_LOAD', 'DEFAULT_HOLD_S',
            'MAX_SPEED_RATE_RPM_PER_S', 'RAMP_RATE_RANGE', 'SETTLE_RANGE_S', 'STEP_TIME_RANGE_S',
-           'PROFILE_DIR', 'RAMP_PREFIX', 'STEP_PREFIX', 'Profile', 'make_profile', 'ramp_profile',
+           'PROFILE_DIR', 'RAMP_PREFIX', 'STEP_PREFIX', 'Profile', 'make_profile',
+           'profile_from_table', 'ramp_profile',
            'ramp_spec', 'step_profile', 'step_spec', 'packaged_profiles', 'read_profile']
 
 COLUMNS = ('time_s', 'speed_rpm', 'load')
@@ -122,6 +123,14 @@ class Profile:
         """Time of the first row after ``t`` (inf past the end)."""
         i = int(np.searchsorted(self.t_s, t, side='right'))
         return float(self.t_s[i]) if i < len(self) else math.inf
+
+    def as_table(self) -> dict:
+        """The whole profile as plain values (JSON): what a ``dmf-sim run`` bag keeps in its
+        metadata so the run can be followed again without the file
+        (:func:`profile_from_table` reads it back)."""
+        return {'name': self.name, 'source': self.source, 'settle_s': self.settle_s,
+                't_s': self.t_s.tolist(), 'speed_rpm': self.speed_rpm.tolist(),
+                'load': self.load.tolist()}
 
     def check_speed_range(self, lo: float, hi: float, what: str = 'the engine data') -> None:
         """OperatingRangeError (one line) if a row's speed lies outside [lo, hi] rpm."""
@@ -192,6 +201,23 @@ def make_profile(rows, *, name: str = 'profile', source: str = '', where: str = 
     _check_table(out, at, where)
     t, speed, load = out.T
     return Profile(t.copy(), speed.copy(), load.copy(), name=name, source=source)
+
+
+def profile_from_table(table: Mapping, where: str = 'profile table') -> Profile:
+    """The :class:`Profile` of :meth:`Profile.as_table`, validated as a file's rows are (a
+    one-line ConfigError naming ``where`` if the table is not one)."""
+    try:
+        cols = [table[c] for c in ('t_s', 'speed_rpm', 'load')]
+        rows = list(zip(*cols, strict=True))
+    except (KeyError, TypeError, ValueError):
+        raise ConfigError(f'{where}: not a profile table (t_s, speed_rpm and load lists of one '
+                          'length)') from None
+    prof = make_profile(rows, name=str(table.get('name') or 'profile'),
+                        source=str(table.get('source') or ''), where=where)
+    settle = table.get('settle_s')
+    if settle is None:
+        return prof
+    return replace(prof, settle_s=number(settle, where, 'settle_s', *SETTLE_RANGE_S, unit='s'))
 
 
 def _check_rows(n: int, where: str) -> None:

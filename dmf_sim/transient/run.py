@@ -262,7 +262,7 @@ def open_bag(out, sim: LiveSimulation, profile: Profile, opt: RunOptions, rate_h
     topics = resolved_topics(opt.namespace, streams)
     meta = run_metadata(sim, driveline=opt.driveline, engine=opt.engine, node=WRITER_NAME,
                         publish_rate_hz=rate_hz)
-    custom = replace(meta, profile=profile.name,
+    custom = replace(meta, profile=profile.name, profile_table=profile.as_table(),
                      settle_s=profile.start_settle_s).to_custom_data()
     return BagRecorder(out, {topics[k]: s.msgtype for k, s in streams.items()},
                        qos={topics[k]: s.qos_profile() for k, s in streams.items()},

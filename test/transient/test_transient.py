@@ -28,7 +28,7 @@ from dmf_sim.live.streams import SAMPLE_STREAMS, STREAMS, resolved_topics, strea
 from dmf_sim.physics.model import read_driveline
 from dmf_sim.physics.sensors import parse_sensors
 from dmf_sim.transient.encode import SampleEncoder
-from dmf_sim.transient.profiles import ramp_profile, read_profile
+from dmf_sim.transient.profiles import profile_from_table, ramp_profile, read_profile
 from dmf_sim.transient.run import RunOptions, run_profile
 
 REPO = Path(__file__).resolve().parents[2]
@@ -99,6 +99,20 @@ def test_bad_specs_refused_with_one_line(capsys, spec, words):
         assert w in err
 
 
+@pytest.mark.parametrize('table, words', [
+    ({'t_s': [0, 1], 'speed_rpm': [1000, 1000]}, 'not a profile table'),
+    ({'t_s': [0, 1], 'speed_rpm': [1000], 'load': [1, 1]}, 'not a profile table'),
+    ({'t_s': [0, 1], 'speed_rpm': [1000, 'x'], 'load': [1, 1]}, 'speed_rpm'),
+    ({'t_s': [1, 0], 'speed_rpm': [1000, 1000], 'load': [1, 1]}, 'time_s'),
+    ({'t_s': [0, 1], 'speed_rpm': [1000, 1000], 'load': [1, 1], 'settle_s': -1}, 'settle_s'),
+])
+def test_a_bad_profile_table_is_refused_with_one_line(table, words):
+    """A bag's stored profile read back is checked as a file's rows are."""
+    with pytest.raises(ConfigError, match=words) as err:
+        profile_from_table(table, 'bag: the profile in its metadata')
+    assert '\n' not in str(err.value) and str(err.value).startswith('bag: the profile')
+
+
 def test_out_of_range_is_an_operating_range_error():
     with pytest.raises(OperatingRangeError):
         run_profile(ramp_profile(1000, 2500, 500, settle_s=0), None)
@@ -137,6 +151,11 @@ def test_run_bag_has_the_nodes_topics_and_follows_the_profile(run_bag):
     rm = RunMetadata.from_bag_metadata(meta)
     assert parse_sensors(rm.sensors) == read_driveline('truck_dmf').sensors
     assert rm.profile == prof.name and rm.node == 'dmf-sim run' and rm.publish_rate_hz == 1000
+    kept = profile_from_table(rm.profile_table)        # the whole run, without its file
+    for col in ('t_s', 'speed_rpm', 'load'):
+        np.testing.assert_array_equal(getattr(kept, col), getattr(prof, col))
+    assert (kept.name, kept.settle_s, kept.start_settle_s) == (prof.name, prof.settle_s,
+                                                               prof.start_settle_s)
     # the reference speed is on the table at every sample (ramp exact in the kernel)
     msgs = _read(out, {'/engine/speed', '/engine/crank_angle'})
     speed = np.array([STORE.deserialize_cdr(r, mt).data for tp, _, r, mt in msgs
