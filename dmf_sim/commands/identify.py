@@ -48,6 +48,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument('--json', action='store_true', help='print one JSON object to stdout')
 
 
+def _run_text(meas, result) -> str:
+    """The run a summary names: the bag's profile, or the one rebuilt and what of it is read."""
+    if not meas.rebuilt:
+        return f'profile {result.profile}'
+    return 'profile rebuilt from its speed and health statuses; read where the load is known'
+
+
 def run(args: argparse.Namespace) -> int:
     from dmf_sim.identify.fit import (
         TIED_MAX,
@@ -98,7 +105,7 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(result.as_dict()))
         return 0
     print(f'{result.bag}: {result.samples} samples of the {result.signal} '
-          f'({"rebuilt profile" if meas.rebuilt else "profile " + result.profile}), '
+          f'({_run_text(meas, result)}), '
           f'{result.evaluations} simulations from {len(result.starts)} starts, '
           f'{result.seconds:.1f} s')
     for n in result.parameters:

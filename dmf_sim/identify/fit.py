@@ -8,11 +8,13 @@ friction's ``friction.torque_nm`` [Nm] and ``friction.speed_coefficient`` [Nm s^
 friction the model lacks starts at :data:`FRICTION_START`), every value within the bound of its
 physical quantity (:data:`dmf_sim.core.bounds.BOUNDS`).
 
-**Run.** The profile the bag was recorded along (``custom_data`` of a ``dmf-sim run`` bag), or
-for a node's recording one rebuilt from what it recorded: the engine speed and the load of its
-health statuses every :data:`REBUILT_ROW_S`. The live core integrates it as ``dmf-sim run``
-does (:func:`dmf_sim.transient.run.follow_profile`, sensors off), and the simulated signal is
-taken at the bag's sample times.
+**Run.** The profile the bag was recorded along (kept whole in the ``custom_data`` of a
+``dmf-sim run`` bag), or for a node's recording one rebuilt from what it recorded: the engine
+speed and the load of its health statuses every :data:`REBUILT_ROW_S`, read only where the
+recorded load is known and settled (:attr:`Measurement.fit_mask`: a load change reaches the
+rebuilt profile late). The live
+core integrates it as ``dmf-sim run`` does (:func:`dmf_sim.transient.run.follow_profile`,
+sensors off), and the simulated signal is taken at the bag's sample times.
 
 **Measurement.** The DMF wind-up (``/driveline/dmf_windup``), or where only the speeds of the
 two flywheels were recorded (``--signal speeds``), their difference (the wind-up rate, from
@@ -134,7 +136,9 @@ class Measurement:
     t_s: sample times [s] from the run's start (simulated time); y: the signal; signal: its
     kind; profile: the run's :class:`~dmf_sim.transient.profiles.Profile`; driveline, engine,
     load_set, dt: the model; settle_s: left out from the start [s]; bag: its path;
-    rebuilt: the profile was rebuilt from the recorded speed and load.
+    rebuilt: the profile was rebuilt from the recorded speed and load; fit_mask: the samples
+    the fit may read beyond those (a rebuilt profile's: where the recorded load is known and
+    settled), None for all.
     """
 
     t_s: np.ndarray
@@ -148,6 +152,13 @@ class Measurement:
     settle_s: float
     bag: str
     rebuilt: bool = False
+    fit_mask: np.ndarray | None = None
+
+    @property
+    def fitted(self) -> np.ndarray:
+        """The samples a fit reads: after the settling, and in :attr:`fit_mask`."""
+        keep = self.t_s >= self.settle_s
+        return keep if self.fit_mask is None else keep & self.fit_mask
 
 
 @dataclass
@@ -194,25 +205,50 @@ class Identification:
 
 
 # ---------------------------------------------------------------------------- the measurement
-def _rebuilt_profile(series, end_ns: int):
-    """A profile from a recording's engine speed and the load of its health statuses, from its
-    first speed sample to ``end_ns`` (the last sample to fit: the run must reach it)."""
+def _rebuilt_profile(series, origin_ns: int, end_ns: int):
+    """A profile from a recording's engine speed and the load of its health statuses, from the
+    run's start ``origin_ns`` (one sample period before its first sample) to ``end_ns`` (the last
+    sample to fit: the run must reach it)."""
     from dmf_sim.analysis.load_timeline import HEALTH_KEYS
     from dmf_sim.transient.profiles import make_profile
     speed, health = series.series.get('speed'), series.health
     if speed is None or len(speed) < 2 or health is None:
         raise ConfigError(f'{series.bag.path}: the bag names no profile (not a dmf-sim run '
                           'bag) and holds no engine speed and health statuses to rebuild one')
-    t0 = int(speed.t_ns[0])
-    ts = (speed.t_ns - t0) * 1e-9
-    end_s = max((end_ns - t0) * 1e-9, float(ts[-1]))
+    ts = (speed.t_ns - origin_ns) * 1e-9
+    end_s = max((end_ns - origin_ns) * 1e-9, float(ts[-1]))
     rows_t = np.arange(0.0, end_s + REBUILT_ROW_S, REBUILT_ROW_S)     # one row at or past it
-    hs_t = (health[0] - t0) * 1e-9
+    hs_t = (health[0] - origin_ns) * 1e-9
     load_col = health[1][:, HEALTH_KEYS.index('load')]
     idx = np.clip(np.searchsorted(hs_t, rows_t, side='right') - 1, 0, len(hs_t) - 1)
     rows = np.column_stack([rows_t, np.interp(rows_t, ts, speed.values), load_col[idx]])
     return make_profile(rows, name='rebuilt', source=str(series.bag.path),
                         where=f'{series.bag.path}: rebuilt profile')
+
+
+def _known_load(series, start_load: float | None, t_ns: np.ndarray, settle_s: float
+                ) -> np.ndarray:
+    """Which samples (times ``t_ns``) a rebuilt profile reproduces: those in a stretch of known,
+    constant load (the bag analysis's :func:`dmf_sim.analysis.load_timeline.load_timeline` of
+    the health statuses, the recorded setpoints and the start load) at least ``settle_s`` after
+    the stretch began, or in the stretch the recording starts in. A load change shows up in the
+    rebuilt profile only at the next health status; the run it simulates differs from the
+    recorded one until that transient has decayed."""
+    from dmf_sim.analysis.load_timeline import LOAD_TOLERANCE, load_timeline
+    tl = load_timeline(series.health, series.load_setpoints, start_load, int(t_ns[0]),
+                       int(t_ns[-1]))
+    if tl is None:
+        return np.ones(len(t_ns), dtype=bool)
+    t0, t1, val = tl.t0_ns, tl.t1_ns, tl.value
+    began = t0.copy()                  # where each interval's stretch of one known load began
+    for i in range(1, len(t0)):
+        if (np.isfinite(val[i]) and np.isfinite(val[i - 1]) and t0[i] == t1[i - 1]
+                and abs(val[i] - val[i - 1]) <= LOAD_TOLERANCE):
+            began[i] = began[i - 1]
+    i = np.searchsorted(t0, t_ns, side='right') - 1
+    j = np.clip(i, 0, None)
+    inside = (i >= 0) & (t_ns < t1[j]) & np.isfinite(val[j])
+    return inside & ((began[j] <= t_ns[0]) | (t_ns - began[j] >= settle_s * 1e9))
 
 
 def read_measurement(bag, options: IdentifyOptions = IdentifyOptions()) -> Measurement:
@@ -250,8 +286,12 @@ def read_measurement(bag, options: IdentifyOptions = IdentifyOptions()) -> Measu
             pass
     rate = meta.publish_rate_hz or 1000.0
     t_s = (t_ns - t_ns[0]) * 1e-9 + 1.0 / rate        # the first sample: one period in
+    period_ns = int(round(1e9 / rate))
+    fit_mask = None
     if profile is None:
-        profile, rebuilt = _rebuilt_profile(series, int(t_ns[-1]) + int(1e9 / rate)), True
+        profile = _rebuilt_profile(series, int(t_ns[0]) - period_ns, int(t_ns[-1]) + period_ns)
+        rebuilt = True
+        fit_mask = _known_load(series, meta.load, t_ns, profile.start_settle_s)
     return Measurement(
         t_s=t_s, y=np.asarray(y, float), signal=options.signal, profile=profile,
         driveline=options.driveline or meta.driveline or 'truck_dmf',
@@ -260,7 +300,7 @@ def read_measurement(bag, options: IdentifyOptions = IdentifyOptions()) -> Measu
         dt=options.dt or meta.dt_s or 1e-4,
         settle_s=float(meta.settle_s if meta.settle_s is not None
                        else profile.start_settle_s),
-        bag=str(resolved.path), rebuilt=rebuilt)
+        bag=str(resolved.path), rebuilt=rebuilt, fit_mask=fit_mask)
 
 
 # ---------------------------------------------------------------------------- the model
@@ -362,11 +402,21 @@ def _residual(meas: Measurement, names: tuple[str, ...]):
     units of the measured signal's standard deviation; the fitted samples' count, scale): the
     samples after the settling, thinned to :data:`DECIMATE_HZ`."""
     model = _model(meas, names)
-    keep = meas.t_s >= meas.settle_s
+    keep = meas.fitted
+    if not keep.any() and meas.fit_mask is None:
+        raise ConfigError(f'{meas.bag}: no sample to fit: the recording ends within the run\'s '
+                          f'first {meas.settle_s:g} s (its settling, left out); record a longer '
+                          f'run')
+    if not keep.any():
+        raise ConfigError(f'{meas.bag}: no sample to fit: no stretch of the recording holds a '
+                          f'known, constant load for more than {meas.settle_s:g} s (the run\'s '
+                          f'settling after a change; the load is known from the node\'s health '
+                          f'statuses and recorded setpoints); give the profile it followed with '
+                          f'--profile, or record longer stretches at one load')
     step = max(int(round(1.0 / (DECIMATE_HZ * np.median(np.diff(meas.t_s))))), 1)
     keep &= (np.arange(len(keep)) % step) == 0
     t_fit, y_fit = meas.t_s[keep], meas.y[keep]
-    sub = replace(meas, t_s=t_fit, y=y_fit)
+    sub = replace(meas, t_s=t_fit, y=y_fit, fit_mask=None)
     scale = float(np.std(y_fit)) or 1.0
 
     def residual(x: np.ndarray, strict: bool = False) -> np.ndarray:
