@@ -147,7 +147,8 @@ HELPERS: tuple[str, ...] = (
                                                       'law_solve')),
     *(f'dmf_sim.solvers.spring_kernels:{n}' for n in ('region_of', 'primary_range',
                                                       'friction_parts', 'stop_parts',
-                                                      'law_parts', 'law_active')),
+                                                      'travel_range', 'law_parts',
+                                                      'law_active')),
 )
 """Compiled functions called only from other kernels (compiled and cached with their callers)."""
 

@@ -13,8 +13,8 @@ import math
 
 from dmf_sim.core.compiled import jit
 
-__all__ = ['TANH_ONE', 'region_of', 'primary_range', 'friction_parts', 'stop_parts', 'law_parts',
-           'law_active']
+__all__ = ['TANH_ONE', 'region_of', 'primary_range', 'friction_parts', 'stop_parts',
+           'travel_range', 'law_parts', 'law_active']
 
 TANH_ONE = 20.0
 """Beyond this argument tanh is 1 in double precision (from 19.1 on: 1 - tanh(x) = 2 exp(-2x) is
@@ -77,6 +77,15 @@ def stop_parts(w, wd, law):
     return ts, dts_w, dts_v
 
 
+def travel_range(law):
+    """(lowest, highest) wind-up [rad] within the end stops' travel, -inf / inf without stops
+    (``law[5]`` = 0): inside it :func:`stop_parts` is zero, so a loop over samples calls it only
+    outside (as :func:`primary_range` spares the region lookup)."""
+    if law[5] > 0.0:
+        return law[3], law[4]
+    return -math.inf, math.inf
+
+
 def law_parts(w, wd, amp, law):
     """(friction torque T_f, end-stop torque T_s, d(T_f)/d(w_dot), d(T_s)/dw, d(T_s)/d(w_dot))
     at wind-up w [rad], rate wd [rad/s] and sliding friction torque ``amp`` = T0 + c_Omega
@@ -97,5 +106,6 @@ region_of = jit(region_of)
 primary_range = jit(primary_range)
 friction_parts = jit(friction_parts)
 stop_parts = jit(stop_parts)
+travel_range = jit(travel_range)
 law_parts = jit(law_parts)
 law_active = jit(law_active)

@@ -14,7 +14,7 @@ import numpy as np
 from dmf_sim.core.compiled import jit
 from dmf_sim.core.units import CYCLE_RAD
 from dmf_sim.solvers.lapack_kernel import eigenvalues_into
-from dmf_sim.solvers.spring_kernels import friction_parts, region_of, stop_parts
+from dmf_sim.solvers.spring_kernels import friction_parts, region_of, stop_parts, travel_range
 
 __all__ = ['floquet_segments', 'monodromy_similar', 'floquet', 'floquet_many', 'flow_factors',
            'flow_apply', 'flow_real',
@@ -249,6 +249,7 @@ def law_steps(w, v, amp, knees, slopes, offsets, primary, law, base, k, c):
     overweight), plus the end stop's tangents at the step's middle. g and T_f are evaluated
     once per sample. Returns the number of steps with k or c non-zero."""
     N = w.shape[0]
+    slo, shi = travel_range(law)
     g = np.empty(N)
     tf = np.empty(N)
     dtf = np.empty(N)
@@ -267,9 +268,13 @@ def law_steps(w, v, amp, knees, slopes, offsets, primary, law, base, k, c):
         r = base[j]
         kj = 0.0 if base[m] == r else (g[m] - g[j]) / (w1 - w0) - slopes[r]
         cj = (tf[m] - tf[j]) / (v1 - v0) if v1 != v0 else 0.5 * (dtf[j] + dtf[m])
-        _, dsw, dsv = stop_parts(0.5 * (w0 + w1), 0.5 * (v0 + v1), law)
-        k[j] = kj + dsw
-        c[j] = cj + dsv
+        wm = 0.5 * (w0 + w1)
+        if wm > shi or wm < slo:
+            _, dsw, dsv = stop_parts(wm, 0.5 * (v0 + v1), law)
+            kj += dsw
+            cj += dsv
+        k[j] = kj
+        c[j] = cj
         if k[j] != 0.0 or c[j] != 0.0:
             active += 1
     return active

@@ -50,6 +50,7 @@ from dmf_sim.solvers.spring_kernels import (
     primary_range,
     region_of,
     stop_parts,
+    travel_range,
 )
 
 __all__ = ['CONVERGED', 'STALLED', 'MAX_ITER', 'SINGULAR', 'NOT_FINITE', 'ENGINE_FAILED',
@@ -153,6 +154,7 @@ def aft_law(x, omega, aft_mats, spring, G, dG, jac):
     E, weights, Tc, Ts = aft_mats
     knees, slopes, offsets, primary, law = spring
     lo, hi = primary_range(knees, primary)
+    slo, shi = travel_range(law)
     M = E.shape[0]
     n = E.shape[1]
     H = (n - 1) // 2
@@ -184,7 +186,9 @@ def aft_law(x, omega, aft_mats, spring, G, dG, jac):
             s = slopes[r]
             g = s * w + offsets[r]
         tf, dtf, th = friction_parts(wd, amp, law)
-        ts, dws, dvs = stop_parts(w, wd, law)
+        ts = dws = dvs = 0.0
+        if w > shi or w < slo:
+            ts, dws, dvs = stop_parts(w, wd, law)
         tot = g + tf + ts
         cv = dtf + dvs                           # dN/dw_dot [Nms/rad]
         TD[j, 0] = tot
