@@ -24,6 +24,44 @@ from dmf_sim.solvers import newmark_kernel as kernel
 
 __all__ = ['StepRecord', 'NewmarkIntegrator', 'SimulationOptions', 'SimulationResult', 'simulate']
 
+STOP_STEPS_PER_PERIOD = 20.0
+"""Newmark steps an end-stop contact's period 2 pi sqrt(J_eff / k_s) must span at least: fewer,
+and the impact torque depends on the step (the average-acceleration rule is stable there but
+shortens nothing: it stretches the contact's period and misplaces its force)."""
+STOP_DAMPING_STEP = 2.0
+"""Largest contact damping rate c_s dt / J_eff per step: beyond it the average-acceleration rule
+turns the contact's overdamped decay into an oscillation flipping sign every step, which the
+contact's on/off switching (it pushes, never pulls) drives to divergence (a contact of 5e5
+Nms/rad at dt = 1e-4 s on the truck's DMF reached a wind-up of 1e251 rad)."""
+
+__all__ += ['STOP_STEPS_PER_PERIOD', 'STOP_DAMPING_STEP', 'stop_resolution_error']
+
+
+def stop_resolution_error(model, dt: float) -> str | None:
+    """Why the Newmark step ``dt`` [s] cannot resolve the end-stop contact of ``model``'s DMF
+    (one line naming the field and the largest value it can take), or None (no stops, or
+    resolved). J_eff = 1 / (e^T J^-1 e) is the inertia of the DMF's relative motion [kg m^2]
+    with the rest of the driveline free: the fastest the contact can move."""
+    sp = model.spring
+    if sp is None or sp.stops is None:
+        return None
+    e = np.asarray(model.e, dtype=float)
+    j_eff = 1.0 / float(np.sum(e * e / np.diag(model.J)))
+    k_max = j_eff * (2.0 * math.pi / (STOP_STEPS_PER_PERIOD * dt)) ** 2
+    c_max = STOP_DAMPING_STEP * j_eff / dt
+    where = (f'the Newmark step dt = {dt:g} s, J_eff = {j_eff:.3g} kg m^2 the inertia of the '
+             "DMF's relative motion")
+    if sp.stops.stiffness > k_max:
+        return (f'dmf.end_stops.stiffness {sp.stops.stiffness:g} Nm/rad: {where}, resolves a '
+                f'contact stiffness up to {k_max:.3g} Nm/rad (a contact period of '
+                f'{STOP_STEPS_PER_PERIOD:g} steps); lower it or the step')
+    if sp.stops.damping > c_max:
+        return (f'dmf.end_stops.damping {sp.stops.damping:g} Nms/rad: {where}, resolves a '
+                f'contact damping up to {c_max:.3g} Nms/rad ({STOP_DAMPING_STEP:g} J_eff / dt); '
+                f'lower it or the step')
+    return None
+
+
 # ------------------------------------------------------------------------------------------------
 # Integrator object (stepping API for the node; simulate() for offline use)
 # ------------------------------------------------------------------------------------------------
@@ -94,6 +132,8 @@ class NewmarkIntegrator:
             raise ConfigError(f'beta={self.beta}, gamma={self.gamma}: need 0.5 <= gamma <= 1 and '
                              'gamma/4 <= beta <= 0.5 (unconditionally stable Newmark)')
         m = self.loads.model
+        if reason := stop_resolution_error(m, self.dt):
+            raise ConfigError(reason)
         self.model = m
         n = m.n_dof
         Jd = np.diag(m.J).copy()
