@@ -54,7 +54,8 @@ import numpy as np
 from dmf_sim.core.errors import ConfigError
 from dmf_sim.core.validation import SEED_MAX
 
-__all__ = ['DEFAULT_PARAMETERS', 'SIGNALS', 'START_SPREAD', 'REBUILT_ROW_S', 'IdentifyOptions',
+__all__ = ['DEFAULT_PARAMETERS', 'SIGNALS', 'START_SPREAD', 'REBUILT_ROW_S', 'MIN_FIT_CYCLES',
+           'PROFILE_SPEED_MATCH', 'IdentifyOptions',
            'Measurement', 'Identification', 'Identifiability', 'read_measurement', 'simulate',
            'identifiability', 'identify', 'fitted_signals']
 
@@ -83,6 +84,12 @@ and centrifugal parts in a run at one speed 1.7e-4 (all six parameters 4.5e-5); 
 separable cases, all six parameters over a range of speeds and loads, 4.0e-2 to 9.4e-2."""
 REBUILT_ROW_S = 0.05
 """Row spacing [s] of a profile rebuilt from a recording's speed and load."""
+MIN_FIT_CYCLES = 1.0
+"""Engine cycles (two revolutions, at the slowest speed of the run) the fitted samples must span
+at least: less holds not one period of the 0.5th order, and a fit of a few samples is no fit."""
+PROFILE_SPEED_MATCH = 0.01
+"""Largest relative difference between a given profile's engine speed and the one the bag
+recorded at the same time: beyond it the profile is not the one the bag was recorded along."""
 DECIMATE_HZ = 1000.0
 """Samples per simulated second the fit compares at most (a bag's rate above it is thinned):
 every sample of a 1 kHz bag. A measurement's noise is independent from sample to sample where
@@ -226,6 +233,36 @@ def _rebuilt_profile(series, origin_ns: int, end_ns: int):
                         where=f'{series.bag.path}: rebuilt profile')
 
 
+def _given_profile(profile, spec: str, series, t_ns: np.ndarray, t_s: np.ndarray):
+    """``--profile``, checked against the bag (a one-line ConfigError where it is not the run
+    recorded: shorter than the recording, or at another engine speed where the bag recorded
+    one) and cut where the recording ends (a longer profile is simulated no further)."""
+    end = float(t_s[-1])
+    if profile.duration_s < end - 1e-9:
+        raise ConfigError(f'--profile {spec}: it lasts {profile.duration_s:g} s, the recording '
+                          f'{end:g} s: not the profile the bag was recorded along')
+    speed = series.series.get('speed')
+    if speed is not None and len(speed):
+        ts = (speed.t_ns - t_ns[0]) * 1e-9 + (t_s[0])
+        want = profile.at(ts)[0]
+        off = np.abs(want - speed.values) / np.maximum(np.abs(speed.values), 1.0)
+        i = int(np.argmax(off))
+        if off[i] > PROFILE_SPEED_MATCH:
+            raise ConfigError(f'--profile {spec}: at t = {ts[i]:.3g} s it runs at '
+                              f'{want[i]:.0f} rpm, the bag recorded {speed.values[i]:.0f} rpm: '
+                              'not the profile the bag was recorded along')
+    if profile.duration_s <= end + REBUILT_ROW_S:
+        return profile
+    keep = profile.t_s < end + REBUILT_ROW_S
+    t_end = end + REBUILT_ROW_S
+    rows = np.column_stack([np.append(profile.t_s[keep], t_end),
+                            *(np.append(col[keep], val) for col, val in
+                              zip((profile.speed_rpm, profile.load), profile.at(t_end)))])
+    from dmf_sim.transient.profiles import make_profile
+    cut = make_profile(rows, name=profile.name, source=profile.source, where=f'--profile {spec}')
+    return replace(cut, settle_s=profile.settle_s)
+
+
 def _known_load(series, start_load: float | None, t_ns: np.ndarray, settle_s: float
                 ) -> np.ndarray:
     """Which samples (times ``t_ns``) a rebuilt profile reproduces: those in a stretch of known,
@@ -287,6 +324,8 @@ def read_measurement(bag, options: IdentifyOptions = IdentifyOptions()) -> Measu
     rate = meta.publish_rate_hz or 1000.0
     t_s = (t_ns - t_ns[0]) * 1e-9 + 1.0 / rate        # the first sample: one period in
     period_ns = int(round(1e9 / rate))
+    if options.profile is not None:
+        profile = _given_profile(profile, options.profile, series, t_ns, t_s)
     fit_mask = None
     if profile is None:
         profile = _rebuilt_profile(series, int(t_ns[0]) - period_ns, int(t_ns[-1]) + period_ns)
@@ -327,6 +366,16 @@ def _model(meas: Measurement, names: Sequence[str]) -> _Model:
         hi = float(np.max(meas.profile.speed_rpm)) * 2
     params = [parse_parameter(n, '--parameters') for n in names]
     return _Model(base, engine, params, (float(lo), float(hi)))
+
+
+def _check_run(meas: Measurement, model: _Model) -> None:
+    """The run checked as ``dmf-sim run`` checks a profile (one-line errors naming it): its
+    speeds within the engine data, its loads torque demands the engine accepts, no load change
+    faster than one Newmark step."""
+    prof = meas.profile
+    prof.check_speed_range(*model.speed_limits, 'the engine data')
+    prof.check_load_range(model.engine)
+    prof.check_load_steps(meas.dt, "the Newmark step: --dt, else the bag's")
 
 
 def _base_values(model: _Model) -> dict[str, float]:
@@ -413,6 +462,14 @@ def _residual(meas: Measurement, names: tuple[str, ...]):
                           f'settling after a change; the load is known from the node\'s health '
                           f'statuses and recorded setpoints); give the profile it followed with '
                           f'--profile, or record longer stretches at one load')
+    t_all = meas.t_s[keep]
+    cycle_s = 2.0 * 60.0 / float(np.min(meas.profile.at(t_all)[0]))     # two revolutions
+    if t_all[-1] - t_all[0] < MIN_FIT_CYCLES * cycle_s:
+        raise ConfigError(f'{meas.bag}: {len(t_all)} sample{"s" * (len(t_all) != 1)} to fit over '
+                          f'{t_all[-1] - t_all[0]:.3g} s after the run\'s settling ('
+                          f'{meas.settle_s:g} s, left out): identify needs at least '
+                          f'{MIN_FIT_CYCLES:g} engine cycle ({cycle_s:.3g} s at the run\'s '
+                          f'slowest speed); record a longer run')
     step = max(int(round(1.0 / (DECIMATE_HZ * np.median(np.diff(meas.t_s))))), 1)
     keep &= (np.arange(len(keep)) % step) == 0
     t_fit, y_fit = meas.t_s[keep], meas.y[keep]
@@ -540,6 +597,7 @@ def identify(bag, options: IdentifyOptions = IdentifyOptions(), *, client=None
     t0 = time.perf_counter()
     meas = bag if isinstance(bag, Measurement) else read_measurement(bag, options)
     model = _model(meas, options.parameters)
+    _check_run(meas, model)
     initial = _base_values(model)
     lo, hi = _log_bounds(model)
     x_init = np.log([initial[n] for n in options.parameters])

@@ -262,3 +262,39 @@ def test_a_node_recording_with_no_settled_known_load_is_refused(tmp_path, capsys
     assert 'no sample to fit: no stretch of the recording holds a known, constant load' in err
     assert '--profile' in err
     assert not out.exists()
+
+
+def test_a_given_profile_must_be_the_run_recorded(case, tmp_path, capsys):
+    """--profile is checked against the bag: another speed, or a profile that ends before the
+    recording, is refused in one line (before, a profile at 1600 rpm fitted a 1200 rpm bag with
+    k '± 0.14 %'); a longer one is simulated only as far as the recording goes (a 122 s ramp
+    against a 4.2 s bag took 118 s)."""
+    from dmf_sim.identify.fit import identifiability
+    bag, prof = case
+    rows = ROWS[:-1] + [(ROWS[-1][0], 900, 0.2)]            # 900 rpm where the bag ran 1800
+    for text, needle in ((rows, 'the bag recorded'), (ROWS[:-1], 'it lasts 3.1 s')):
+        other = tmp_path / f'other{len(text)}.csv'
+        other.write_text('time_s,speed_rpm,load\n' + ''.join(f'{t},{s},{x}\n' for t, s, x in text))
+        code = cli_main(['identify', str(bag), '--profile', str(other), '--parameters',
+                         'k,damping', '--out', str(tmp_path / 'out')])
+        err = capsys.readouterr().err
+        assert code == 2 and err.count('\n') == 1 and needle in err, err
+        assert f'--profile {other}' in err and 'not the profile the bag was recorded along' in err
+    assert not (tmp_path / 'out').exists()
+    longer = tmp_path / 'longer.csv'
+    longer.write_text(prof.read_text() + '60,1800,0.2\n')
+    meas = read_measurement(bag, IdentifyOptions(parameters=PARAMETERS, profile=str(longer)))
+    assert meas.t_s[-1] <= meas.profile.duration_s < meas.t_s[-1] + 0.1
+    found = identifiability(meas, PARAMETERS, np.log([TRUE[n] for n in PARAMETERS]))
+    assert found.rms < 1e-6
+
+
+def test_a_recording_too_short_to_fit_is_refused(tmp_path, capsys):
+    """1.5 s of a run whose first 2 s are its settling: one sample was left, and identify fitted
+    four parameters to it ('± nan %'). Refused: the fitted samples must span an engine cycle."""
+    bag, _ = make_bag(tmp_path, 'short', TRUE, [(0, 1200, 1.0), (2.05, 1200, 1.0)])
+    code = cli_main(['identify', str(bag), '--out', str(tmp_path / 'out')])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count('\n') == 1, err
+    assert 'samples to fit over 0.05 s' in err and 'at least 1 engine cycle (0.1 s' in err
+    assert not (tmp_path / 'out').exists()
