@@ -149,6 +149,7 @@ def sweep_dict(alpha: float, load_set: str, res) -> dict:
 
 
 def _print_summary(data: dict, results) -> None:
+    from dmf_sim.solvers.hbm.results import instability_text
     lo, hi, step = data['speeds_rpm']
     print(f'{data["driveline"]}: harmonic balance sweep {lo:g}-{hi:g} rpm (grid {step:g} rpm), '
           f'engine {data["engine"]}, load {data["load"]:g}, theta {data["theta_rad"]:g} rad, '
@@ -180,8 +181,9 @@ def _print_summary(data: dict, results) -> None:
         for b in r.non_periodic:
             speeds = ', '.join(f'{x.speed_rpm:g}' for x in b.results)
             env = max(b.results, key=lambda x: x.max_deviation - x.min_deviation)
-            print(f'  alpha={a:g} Load {ls}: no stable periodic state at {speeds} rpm (after a '
-                  f'{b.instability} instability); time integration: {b.results[0].describe()}; '
+            print(f'  alpha={a:g} Load {ls}: no stable periodic state at {speeds} rpm '
+                  f'({instability_text(b.instability)}); time integration: '
+                  f'{b.results[0].describe()}; '
                   f'wind-up swings up to {env.max_deviation:+.4f}/{env.min_deviation:+.4f} rad '
                   f'at {env.speed_rpm:g} rpm (envelope per speed in the CSV/JSON)')
         for m in r.sharp_resonances:

@@ -11,7 +11,9 @@ from dmf_sim.solvers.hbm.condensed import CondensedHBM
 from dmf_sim.solvers.hbm.faulted import fingerprints
 from dmf_sim.solvers.hbm.point import HBMPoint
 
-__all__ = ['Branch', 'SweepEvent', 'NonPeriodicBand', 'SweepResult', 'runs', 'on_grid']
+__all__ = ['Branch', 'SweepEvent', 'NonPeriodicBand', 'SweepResult', 'runs', 'on_grid',
+           'UNREACHED',
+           'instability_text']
 
 
 @dataclass
@@ -66,12 +68,25 @@ class SweepEvent:
                 'detail': self.detail}
 
 
+UNREACHED = 'none'
+"""The ``instability`` of speeds no periodic solution reached at all (the time integration
+started from static equilibrium)."""
+
+
+def instability_text(kind: str) -> str:
+    """How the periodic state was lost, in words (what the sweep's messages say)."""
+    if kind == UNREACHED:
+        return 'no periodic solution reached this speed'
+    return f'the periodic solution lost stability by a {kind} bifurcation'
+
+
 @dataclass
 class NonPeriodicBand:
     """Neighbouring speeds [rpm] where no periodic state is stable: what time integration shows
     there (``results``: dmf_sim.solvers.nonperiodic.NonPeriodicResult per speed), ``label``
     (quasi-periodic, chaotic, long transient, periodic of k cycles) and how the periodic solution
-    lost stability (``instability``: torus, flip, fold, subharmonic)."""
+    lost stability (``instability``: torus, flip, fold, subharmonic, or :data:`UNREACHED`;
+    :func:`instability_text` says it in words)."""
 
     speed_min_rpm: float
     speed_max_rpm: float

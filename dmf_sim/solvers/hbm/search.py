@@ -38,7 +38,13 @@ from dmf_sim.core.errors import ConvergenceError, OperatingRangeError
 from dmf_sim.solvers.hbm.branches import BranchSwitching
 from dmf_sim.solvers.hbm.deflation import DeflatedNewton, DeflationOptions
 from dmf_sim.solvers.hbm.point import HBMPoint
-from dmf_sim.solvers.hbm.results import Branch, NonPeriodicBand, SweepEvent
+from dmf_sim.solvers.hbm.results import (
+    UNREACHED,
+    Branch,
+    NonPeriodicBand,
+    SweepEvent,
+    instability_text,
+)
 from dmf_sim.solvers.hbm.unknowns import all_shifts, amplitudes, shift, to_complex, to_real
 from dmf_sim.solvers.newmark import SimulationOptions, simulate
 from dmf_sim.solvers.nonperiodic import NonPeriodicOptions, analyze
@@ -333,7 +339,7 @@ class StateSearch:
         if x is None:
             res = analyze(hb.loads, s, hb.load, options=self.search.nonperiodic_options,
                           factors=hb.factors)
-            return res, 'none: no periodic solution reached this speed'
+            return res, UNREACHED
         p = hb.make_point(s, x)
         q, v = hb.dof_state(p, 0.0)
         u = hb.model.e / float(hb.model.e @ hb.model.e)
@@ -424,8 +430,7 @@ class StateSearch:
                 self.non_periodic.append(band)
                 self.events.append(SweepEvent('non_periodic', -1, res.speed_rpm,
                                               'no stable periodic state; time integration: '
-                                              f'{res.describe()} (periodic solution lost '
-                                              f'stability by {kind})'))
+                                              f'{res.describe()} ({instability_text(kind)})'))
             band.speed_max_rpm = res.speed_rpm
             band.results.append(res)
 

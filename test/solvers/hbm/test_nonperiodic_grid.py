@@ -54,6 +54,8 @@ def test_every_grid_speed_without_a_stable_state_has_its_envelope_on_the_grid(lo
     assert res.not_computed == []
     r, band = envelopes[lo]
     assert band.instability == 'torus' and r.label in ('quasi-periodic', 'chaotic')
+    assert any('(the periodic solution lost stability by a torus bifurcation)' in e.detail
+               for e in res.events if e.kind == 'non_periodic')
     # the envelope is what a long run shows: independent Newmark from the static equilibrium
     T = 4 * np.pi / (lo * np.pi / 30)
     nm = simulate(loads, lo, 1.0, t_end=150 * T, options=SimulationOptions(record_stride=2))
@@ -72,3 +74,12 @@ def test_without_the_search_each_such_grid_speed_says_not_computed_and_why(loads
     assert [nc['speed_rpm'] for nc in res.not_computed] == [lo, hi]
     assert all('--fast' in nc['reason'] for nc in res.not_computed)
     assert res.as_dict()['not_computed'] == res.not_computed
+
+
+def test_how_a_periodic_state_was_lost_reads_as_a_sentence():
+    """Where no periodic solution reached a speed the sweep said '(after a none: no periodic
+    solution reached this speed instability)'."""
+    from dmf_sim.solvers.hbm.results import UNREACHED, instability_text
+    assert instability_text(UNREACHED) == 'no periodic solution reached this speed'
+    assert instability_text('flip') == ('the periodic solution lost stability by a flip '
+                                        'bifurcation')
