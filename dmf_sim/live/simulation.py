@@ -6,9 +6,11 @@ loop in :mod:`dmf_sim.live.run_loop`.
 * :func:`check_setpoint`, :func:`ramp_toward`, :func:`split_steps` — small pure functions
   (setpoint validation, rate limiting, phase-exact chunking of the Newmark stepper).
 * :class:`LiveSimulation` — owns the model, the engine and the Newmark integrator:
-  setpoints with ramps (the speed ramp runs inside the Newmark kernel, the load ramp here, one
-  increment per chunk), excitation update per chunk, rebuild on alpha/theta/load-set changes
-  keeping the operating point and the vibratory state, reset to static equilibrium, solver health,
+  setpoints with ramps (the speed ramp runs inside the Newmark kernel, the load ramp too: the
+  excitation goes linearly in time over a chunk to that of the load's ramp end,
+  :meth:`~dmf_sim.solvers.newmark.NewmarkIntegrator.ramp_excitation`), rebuild on
+  alpha/theta/load-set changes keeping the operating point and the vibratory state, reset to
+  static equilibrium, solver health,
   and the per-element samples the node publishes (vibratory angle, velocity, transmitted torque).
 
 Faults (:attr:`LiveSimulation.faults`, a :class:`~dmf_sim.physics.faults.FaultTimeline`): a
@@ -201,7 +203,6 @@ class LiveSimulation:
         self.steps = 0
         self.phase = 0
         self._knees = self._secondary = 0
-        self._exc_key = None
         self.faults: FaultTimeline | None = None
         self._dmf_version = 0
         self.fault_events: list[FaultEvent] = []    # of the chunks of advance(), not taken yet
@@ -255,9 +256,7 @@ class LiveSimulation:
         new.reset(old.speed_rpm, self.load, psi=old.psi, t=old.t)
         new.q[:] = old.q
         new.v[:] = old.v
-        if old.factors is not None:      # the faulted excitation of the chunk in hand
-            new.update_excitation(*(self._exc_key or (old.speed_rpm, self.load)),
-                                  factors=old.factors)
+        new.follow_excitation(old)       # the (faulted) excitation and ramp of the chunk in hand
         new.a[:] = new.acceleration(new.q, new.v)
         new.set_target(self.speed_setpoint, self.speed_ramp_rpm_per_s)
         if self.live_sensors is not None:
@@ -269,8 +268,6 @@ class LiveSimulation:
         if self.faults is not None:
             self.faults.line = line
             self._dmf_version = self.faults.dmf_version
-        if old.factors is None:
-            self._exc_key = None
 
     def set_dmf(self, alpha: float | None = None, theta: float | None = None) -> None:
         """New DMF knee parameters (alpha, theta [rad]); ConfigError if invalid."""
@@ -306,11 +303,9 @@ class LiveSimulation:
         """The timeline changed the combustion factors or the DMF: new excitation (the chunk's
         speed and load) or a rebuild keeping the state."""
         tl = self.faults
-        key = self._exc_key or (self.integ.speed_rpm, self.load)
         if tl.dmf_version != self._dmf_version:
             self._swap(self.line, self.engine)
-        self.integ.update_excitation(*key, factors=tl.factors)
-        self._exc_key = key
+        self.integ.set_factors(tl.factors)
 
     def set_load_set(self, load_set: str) -> None:
         """Switch the engine's load set (A, B, C); ConfigError if unknown."""
@@ -389,7 +384,6 @@ class LiveSimulation:
         self.load = self.load_setpoint
         it.reset(self.speed_setpoint, self.load, psi=it.psi, t=it.t)
         it.set_target(self.speed_setpoint, self.speed_ramp_rpm_per_s)
-        self._exc_key = None
         if self.live_sensors is not None:
             self.live_sensors.resync(it)
 
@@ -447,8 +441,8 @@ class LiveSimulation:
 
     # ---- stepping ---------------------------------------------------------------------------
     def advance(self, nsteps: int) -> Samples:
-        """Integrate ``nsteps`` steps: load ramp and excitation update once (at the chunk's middle,
-        held over the chunk), then the kernel; returns the samples due in the chunk (every
+        """Integrate ``nsteps`` steps: the kernel, the load ramped step by step (and the
+        excitation with it, :meth:`integrate`); returns the samples due in the chunk (every
         ``stride``-th step). The chunk's fault events are kept in :attr:`fault_events`."""
         chunk = self.integrate(nsteps)
         if chunk.fault_events:
@@ -471,16 +465,15 @@ class LiveSimulation:
             self._swap(self.line, self.engine)
         it = self.integ
         if nsteps > 0:
-            # the excitation of the chunk's middle (speed and load half-way along their ramps):
-            # held over the chunk, it is off by at most half the chunk's change either way
-            half = 0.5 * nsteps * self.dt
-            key = (it.speed_after_rpm(half),
-                   ramp_toward(self.load, self.load_setpoint, self.load_ramp_per_s, half))
-            self.load = ramp_toward(self.load, self.load_setpoint, self.load_ramp_per_s,
-                                    nsteps * self.dt)
-            if key != self._exc_key:
-                it.update_excitation(*key)
-                self._exc_key = key
+            # the load ramps toward its setpoint at load_ramp_per_s step by step: the kernel's
+            # excitation goes linearly in time to that of the load's ramp end (the setpoint, or
+            # the chunk's end if it comes first) and the reference speed then
+            seconds = nsteps * self.dt
+            load = ramp_toward(self.load, self.load_setpoint, self.load_ramp_per_s, seconds)
+            ramp_s = min(seconds, abs(load - self.load) / self.load_ramp_per_s) \
+                if load != self.load else seconds
+            it.ramp_excitation(it.speed_after_rpm(ramp_s), load, it.t + ramp_s)
+            self.load = load
         calls, phase = split_steps(int(nsteps), self.phase, self.stride)
         rows = sum(c[2] for c in calls)
         if record is None:
@@ -524,7 +517,9 @@ class LiveSimulation:
         loads = None
         if self._torques.needs_loads:
             done = sum(len(p) for p in parts)
-            loads = np.concatenate(parts + [it.element_loads(record.psi[done:row], omega_dot)])
+            loads = np.concatenate(parts + [it.element_loads(record.psi[done:row], omega_dot,
+                                                             record.t[done:row])])
+        it.end_ramp()
         # a caller's record is read out later (dmf-sim run's pipeline): the signals copied
         sensors = (self.live_sensors.finish(copy=record is not self._rec)
                    if self.live_sensors is not None else None)
@@ -556,7 +551,8 @@ class LiveSimulation:
             done += k
             if changed:             # (a scan that changes nothing took the remaining steps)
                 if self._torques.needs_loads:
-                    parts.append(it.element_loads(record.psi[start:row], it.omega_dot))
+                    parts.append(it.element_loads(record.psi[start:row], it.omega_dot,
+                                                  record.t[start:row]))
                 self._apply_faults()
         return row, parts
 

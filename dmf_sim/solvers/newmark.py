@@ -163,7 +163,13 @@ class NewmarkIntegrator:
         self._rear_vec = L.rear_dof_vector.copy()
         self._B = np.zeros((len(cyl_dof), L.n_max + 1), dtype=complex)
         self._fixed = np.zeros(n)
-        self._excitation = (self._B, cyl_dof, cyl_scale, L.dalembert_dof.copy(), self._fixed)
+        # the setpoints' ramp: rates of B and fixed [per s] over ramp = [t0, t1] [s] (kernel)
+        self._dB = np.zeros_like(self._B)
+        self._dfixed = np.zeros(n)
+        self._ramp = np.zeros(2)
+        self._d_rear = 0.0
+        self._excitation = (self._B, cyl_dof, cyl_scale, L.dalembert_dof.copy(), self._fixed,
+                            self._dB, self._dfixed, self._ramp)
         # state
         self.q = np.zeros(n)
         self.v = np.zeros(n)
@@ -175,6 +181,10 @@ class NewmarkIntegrator:
         self.track_dofs = np.zeros(0, dtype=np.int64)
         self.load = 0.0
         self._rear_torque = 0.0
+        #: (speed [rpm], load) of the excitation at the ramp's start and at its end (the same
+        #: when no ramp is on: :meth:`ramp_excitation`)
+        self.excitation_keys: tuple[tuple[float, float], tuple[float, float]] = ((0.0, 0.0),
+                                                                                 (0.0, 0.0))
         #: per-cylinder combustion factors of the excitation (None: every cylinder fires)
         self.factors: np.ndarray | None = None
 
@@ -222,6 +232,80 @@ class NewmarkIntegrator:
         B, self._rear_torque = self.loads.excitation(speed_rpm, self.load, self.factors)
         self._B[:] = B
         self._fixed[:] = self._rear_vec * self._rear_torque
+        self._dB[:] = 0.0
+        self._dfixed[:] = 0.0
+        self._d_rear = 0.0
+        self._ramp[:] = self.t
+        key = (float(speed_rpm), self.load)
+        self.excitation_keys = (key, key)
+
+    @property
+    def ramping(self) -> bool:
+        """An excitation ramp (:meth:`ramp_excitation`) not yet at its end."""
+        return self._ramp[1] > self._ramp[0]
+
+    def ramp_excitation(self, speed_rpm: float, load: float, t_end_s: float) -> None:
+        """Let the excitation follow the setpoints step by step: from its (speed, load) now
+        linearly in time to (``speed_rpm`` [rpm], ``load``) at simulated time ``t_end_s`` [s],
+        then held there (each Newmark step uses the cylinder coefficients and rear load of its
+        end time, :mod:`dmf_sim.solvers.newmark_kernel`). A ramp ending now or before is
+        :meth:`update_excitation` at its end."""
+        start = self.excitation_at(self.t)
+        if self.ramping or self.excitation_keys[0] != start:
+            self.update_excitation(*start)
+        span = t_end_s - self.t
+        end = (float(speed_rpm), float(load))
+        if span <= 0.0 or end == start:
+            if end != start:
+                self.update_excitation(*end)
+            return
+        B1, rear1 = self.loads.excitation(end[0], end[1], self.factors)
+        self._dB[:] = (B1 - self._B) / span
+        self._d_rear = (rear1 - self._rear_torque) / span
+        self._dfixed[:] = self._rear_vec * self._d_rear
+        self._ramp[:] = (self.t, t_end_s)
+        self.excitation_keys = (start, end)
+
+    def excitation_at(self, t_s: float) -> tuple[float, float]:
+        """(speed [rpm], load) the excitation is at, at simulated time ``t_s`` [s] (along the
+        ramp of :meth:`ramp_excitation`, held at its ends)."""
+        (s0, l0), (s1, l1) = self.excitation_keys
+        t0, t1 = self._ramp
+        if not t1 > t0:
+            return s0, l0
+        x = min(max((t_s - t0) / (t1 - t0), 0.0), 1.0)
+        return s0 + x * (s1 - s0), l0 + x * (l1 - l0)
+
+    def end_ramp(self) -> None:
+        """The ramp is over (now at or past its end): the excitation at its end, held."""
+        if self.ramping and self.t >= self._ramp[1] - 0.5 * self.dt:
+            self.update_excitation(*self.excitation_keys[1])
+
+    def set_factors(self, factors) -> None:
+        """New per-cylinder combustion ``factors`` from now on, the ramp (if any) carried on
+        with them to its end."""
+        end, t_end = self.excitation_keys[1], float(self._ramp[1])
+        ramping = self.ramping and self.t < t_end
+        self.update_excitation(*self.excitation_at(self.t), factors=factors)
+        if ramping:
+            self.ramp_excitation(*end, t_end)
+
+    def follow_excitation(self, other: 'NewmarkIntegrator') -> None:
+        """The excitation of ``other`` from now on (its combustion factors, and its ramp to
+        its end), on this integrator's loads: a rebuild that keeps the operating point."""
+        (end, t_end), ramping = (other.excitation_keys[1], float(other._ramp[1])), other.ramping
+        self.update_excitation(*other.excitation_at(self.t),
+                               factors=other.factors if other.factors is not None
+                               else np.ones(len(self._B)))
+        if ramping and self.t < t_end:
+            self.ramp_excitation(*end, t_end)
+
+    def _tau(self, t_s) -> np.ndarray | float:
+        """Seconds [s] into the ramp at time(s) ``t_s`` (0 without a ramp)."""
+        if not self.ramping:
+            return 0.0
+        t0, t1 = self._ramp
+        return np.clip(np.asarray(t_s, dtype=float) - t0, 0.0, t1 - t0)
 
     def step_ends(self, nsteps: int) -> tuple[np.ndarray, np.ndarray]:
         """(t [s], psi [rad]) at the end of each of the next ``nsteps`` steps: the kernel's
@@ -277,7 +361,7 @@ class NewmarkIntegrator:
     def acceleration(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
         """a = J^-1 (P - C v - K q - e (g + T_f + T_s)) at the current psi, omega and
         omega_dot (T_f, T_s: friction and end stops, eq. 8a-8b, where the spring has them)."""
-        P = self.generalized_load(self.psi, self.omega_dot)
+        P = self.generalized_load(self.psi, self.omega_dot, self.t)
         m = self.model
         sp = m.spring
         g = float(sp.extra_torque(m.e @ q)) if sp is not None else 0.0
@@ -285,21 +369,29 @@ class NewmarkIntegrator:
             g += float(sp.law_torque(m.e @ q, m.e @ v, self.omega))
         return (P - m.C @ v - m.K @ q - m.e * g) / self._Jd
 
-    def generalized_load(self, psi, omega_dot=0.0) -> np.ndarray:
+    def generalized_load(self, psi, omega_dot=0.0, t_s=None) -> np.ndarray:
         """Generalized load [Nm] with the current coefficients at crank angle(s) psi [rad]:
         ``T^T p`` of :meth:`element_loads` (virtual work)."""
-        return self.model.element_vector(self.element_loads(psi, omega_dot))
+        return self.model.element_vector(self.element_loads(psi, omega_dot, t_s))
 
-    def element_loads(self, psi, omega_dot=0.0) -> np.ndarray:
-        """Element torques [Nm] (cylinders, rear, d'Alembert) at crank angle(s) psi."""
+    def element_loads(self, psi, omega_dot=0.0, t_s=None) -> np.ndarray:
+        """Element torques [Nm] (cylinders, rear, d'Alembert) at crank angle(s) psi, with the
+        coefficients at simulated time(s) ``t_s`` [s] along an excitation ramp
+        (:meth:`ramp_excitation`; None: those at the ramp's start)."""
         psi = np.asarray(psi, dtype=float)
         L = self.loads
         n = np.arange(self._B.shape[1])
-        cyl = np.real(np.exp(1j * np.multiply.outer(psi, n) / 2) @ self._B.T)
+        z = np.exp(1j * np.multiply.outer(psi, n) / 2)
+        cyl = np.real(z @ self._B.T)
+        rear = self._rear_torque
+        if t_s is not None and self.ramping:
+            tau = np.multiply(self._tau(t_s), np.ones_like(psi))
+            cyl = cyl + tau[..., None] * np.real(z @ self._dB.T)
+            rear = rear + tau * self._d_rear
         p = np.multiply.outer(np.asarray(omega_dot, float) * np.ones_like(psi),
                               L.dalembert_elements)
         p[..., L.cylinder_elements] += cyl
-        p[..., L.rear_element] += self._rear_torque
+        p[..., L.rear_element] += rear
         return p
 
     # ---- stepping ------------------------------------------------------------------------

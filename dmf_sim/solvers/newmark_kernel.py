@@ -44,7 +44,12 @@ Packed arguments (all float64 unless noted):
   ``PiecewiseLinearSpring.arrays()``, its ``law_array()`` (friction and end stops, eq.
   8a-8b; all zero but omega_reg: none) and
   ``sums`` float64[2], accumulated in place: [friction heat J, largest |end-stop torque| Nm]
-* ``excitation`` = (B complex (n_cyl, N+1), cyl_dof int64, cyl_scale, dal, fixed)
+* ``excitation`` = (B complex (n_cyl, N+1), cyl_dof int64, cyl_scale, dal, fixed, dB, dfixed,
+  ramp): the cylinder coefficients B and fixed loads at time ramp[0] [s], their rates dB, dfixed
+  [per s] and ramp = [t0, t1] [s]: a (piece of a) step ending at time t uses B + tau dB and
+  fixed + tau dfixed, tau = clip(t - t0, 0, t1 - t0) (the setpoints' ramps followed step by
+  step: :meth:`dmf_sim.solvers.newmark.NewmarkIntegrator.ramp_excitation`); t1 <= t0: no ramp,
+  B and fixed as they are (the same arithmetic as without a ramp)
 * ``out`` = (t, psi, omega, q, v, a, w) recorded every ``stride`` steps
 * ``track`` = (dofs int64 (k,), rows (nsteps, 3 + 2k)): every step's t, psi, omega and the
   angles and velocities of DOFs ``dofs`` (the sensors' elements), row j = step j; or None (no
@@ -191,11 +196,13 @@ def law_solve(w_lin, hc, a1, w_n, rate0, amp, law, knees, slopes, offsets, prima
     return x
 
 
-def regular_block(nb, h, scal, Br, Bi, blk_scal, blk_cyl, cr, ci, zr, zi):
+def regular_block(nb, h, scal, Br, Bi, blk_scal, blk_cyl, cr, ci, zr, zi, ramping, dBr, dBi,
+                  blk_dcyl):
     """The next ``nb`` regular steps of length h, ahead of the state: the reference speed, phase
     and time of each (the kernel's own ramp arithmetic from ``scal``, so the same numbers) into
     ``blk_scal[0:4, s]`` = t, psi, omega, omega_dot, and each cylinder's excitation
-    Re(sum_k B_ck z^k), z = exp(i psi/2), into ``blk_cyl[c, s]``.
+    Re(sum_k B_ck z^k), z = exp(i psi/2), into ``blk_cyl[c, s]``; ``ramping``: also the
+    coefficient rates' Re(sum_k dB_ck z^k) into ``blk_dcyl[c, s]`` (per s of the ramp).
 
     Neither depends on the vibratory state, so they are computed for many steps at once, the
     steps in the inner loops (vectorized by the compiler) instead of one step's 25 dependent
@@ -232,6 +239,11 @@ def regular_block(nb, h, scal, Br, Bi, blk_scal, blk_cyl, cr, ci, zr, zi):
         b_i = Bi[c, 0]
         for j in range(nb):
             blk_cyl[c, j] = 0.0 + (b_r * zr[j] - b_i * zi[j])
+        if ramping:
+            d_r = dBr[c, 0]
+            d_i = dBi[c, 0]
+            for j in range(nb):
+                blk_dcyl[c, j] = 0.0 + (d_r * zr[j] - d_i * zi[j])
     for k in range(1, n_h):
         for j in range(nb):
             a = zr[j]
@@ -243,6 +255,11 @@ def regular_block(nb, h, scal, Br, Bi, blk_scal, blk_cyl, cr, ci, zr, zi):
             b_i = Bi[c, k]
             for j in range(nb):
                 blk_cyl[c, j] += b_r * zr[j] - b_i * zi[j]
+            if ramping:
+                d_r = dBr[c, k]
+                d_i = dBi[c, k]
+                for j in range(nb):
+                    blk_dcyl[c, j] += d_r * zr[j] - d_i * zi[j]
 
 
 # ------------------------------------------------------------------------------------------------
@@ -266,7 +283,7 @@ def advance_kernel(nsteps, stride, state, system, factors, spring, excitation, o
     Jd, Klo, Kd, Kup, Clo, Cd, Cup, e, params = system
     coef, f_lo, f_inv, f_cp, u = factors
     knees, slopes, offsets, primary, law, sums = spring
-    B, cyl_dof, cyl_scale, dal, fixed = excitation
+    B, cyl_dof, cyl_scale, dal, fixed, dB, dfixed, ramp = excitation
     out_t, out_psi, out_omega, out_q, out_v, out_a, out_w = out
     n = q.shape[0]
     n_cyl = B.shape[0]
@@ -289,12 +306,22 @@ def advance_kernel(nsteps, stride, state, system, factors, spring, excitation, o
     # regular steps computed ahead (regular_block): speed/phase, cylinder loads, work rows
     Br = np.empty((n_cyl, n_h))
     Bi = np.empty((n_cyl, n_h))
+    dBr = np.empty((n_cyl, n_h))
+    dBi = np.empty((n_cyl, n_h))
     for cc in range(n_cyl):
         for k in range(n_h):
             Br[cc, k] = B[cc, k].real
             Bi[cc, k] = B[cc, k].imag
+            dBr[cc, k] = dB[cc, k].real
+            dBi[cc, k] = dB[cc, k].imag
+    # the setpoints' ramp (load and speed followed step by step): tau = clip(t - t0, 0, t1 - t0)
+    ramping = ramp[1] > ramp[0]
+    t_ramp = ramp[0]
+    tau_max = ramp[1] - ramp[0]
+    tau = 0.0
     blk_scal = np.empty((4, LOOKAHEAD_STEPS))
     blk_cyl = np.empty((n_cyl, LOOKAHEAD_STEPS))
+    blk_dcyl = np.empty((n_cyl, LOOKAHEAD_STEPS))
     blk_w = np.empty((4, LOOKAHEAD_STEPS))
     nb = 0                           # steps in the block, the next one's index
     jb = 0
@@ -323,7 +350,7 @@ def advance_kernel(nsteps, stride, state, system, factors, spring, excitation, o
         if jb >= nb:
             nb = min(LOOKAHEAD_STEPS, nsteps - step)
             regular_block(nb, dt, scal, Br, Bi, blk_scal, blk_cyl, blk_w[0], blk_w[1], blk_w[2],
-                          blk_w[3])
+                          blk_w[3], ramping, dBr, dBi, blk_dcyl)
             jb = 0
         for i in range(n):
             q0[i] = q[i]
@@ -366,10 +393,18 @@ def advance_kernel(nsteps, stride, state, system, factors, spring, excitation, o
                 scal[1] = blk_scal[1, jb]
                 scal[2] = blk_scal[2, jb]
                 scal[5] = omega_dot
-                for i in range(n):
-                    rhs[i] = fixed[i] + dal[i] * omega_dot
-                for cc in range(n_cyl):
-                    rhs[cyl_dof[cc]] += cyl_scale[cc] * blk_cyl[cc, jb]
+                if ramping:
+                    tau = min(max(scal[0] - t_ramp, 0.0), tau_max)
+                    for i in range(n):
+                        rhs[i] = fixed[i] + tau * dfixed[i] + dal[i] * omega_dot
+                    for cc in range(n_cyl):
+                        rhs[cyl_dof[cc]] += cyl_scale[cc] * (blk_cyl[cc, jb]
+                                                             + tau * blk_dcyl[cc, jb])
+                else:
+                    for i in range(n):
+                        rhs[i] = fixed[i] + dal[i] * omega_dot
+                    for cc in range(n_cyl):
+                        rhs[cyl_dof[cc]] += cyl_scale[cc] * blk_cyl[cc, jb]
             else:
                 # --- a piece of a split step: the same, for this piece alone ----------------
                 # reference speed and excitation phase psi = integral of omega dt
@@ -388,8 +423,12 @@ def advance_kernel(nsteps, stride, state, system, factors, spring, excitation, o
                 scal[2] = omega_new
                 scal[5] = omega_dot
                 # load: eq. (16)-(17) with z = exp(i psi/2), plus fixed and d'Alembert loads
+                if ramping:
+                    tau = min(max(scal[0] - t_ramp, 0.0), tau_max)
                 for i in range(n):
                     rhs[i] = fixed[i] + dal[i] * omega_dot
+                    if ramping:
+                        rhs[i] += tau * dfixed[i]
                 z = complex(math.cos(0.5 * psi), math.sin(0.5 * psi))
                 zp[0] = 1.0
                 for k in range(1, n_h):
@@ -398,6 +437,10 @@ def advance_kernel(nsteps, stride, state, system, factors, spring, excitation, o
                     acc = 0.0
                     for k in range(n_h):
                         acc += B[cc, k].real * zp[k].real - B[cc, k].imag * zp[k].imag
+                    if ramping:
+                        for k in range(n_h):
+                            acc += tau * (dB[cc, k].real * zp[k].real
+                                          - dB[cc, k].imag * zp[k].imag)
                     rhs[cyl_dof[cc]] += cyl_scale[cc] * acc
             # --- rhs += J (a0 q + a2 v + a3 a) + C (a1 q + a4 v + a5 a) ------------------
             for i in range(n):
@@ -556,7 +599,7 @@ def advance_reference(nsteps, stride, state, system, factors, spring_obj, excita
     q, v, a, scal = state
     Jd, Klo, Kd, Kup, Clo, Cd, Cup, e, (beta, gam) = system
     dt = factors[0][0]
-    B, cyl_dof, cyl_scale, dal, fixed = excitation
+    B, cyl_dof, cyl_scale, dal, fixed, dB, dfixed, ramp = excitation
     K = np.diag(Kd) + np.diag(Kup, 1) + np.diag(Klo, -1)
     C = np.diag(Cd) + np.diag(Cup, 1) + np.diag(Clo, -1)
     J = np.diag(Jd)
@@ -592,8 +635,10 @@ def advance_reference(nsteps, stride, state, system, factors, spring_obj, excita
         scal[1] += (omega + 0.5 * d) * h                         # psi = integral of omega
         scal[2] = omega + d
         scal[0] += h
-        P = fixed + dal * scal[5]
-        np.add.at(P, cyl_dof, cyl_scale * np.real(B @ np.exp(1j * nh * scal[1] / 2)))   # eq. (17)
+        tau = min(max(scal[0] - ramp[0], 0.0), ramp[1] - ramp[0]) if ramp[1] > ramp[0] else 0.0
+        P = fixed + tau * dfixed + dal * scal[5]
+        np.add.at(P, cyl_dof, cyl_scale * np.real((B + tau * dB)
+                                                  @ np.exp(1j * nh * scal[1] / 2)))   # eq. (17)
         rhs = P + J @ (a0 * q + a2 * v + a3 * a) + C @ (a1 * q + a4 * v + a5 * a)
         x = np.linalg.solve(Khat, rhs)
         uu = np.linalg.solve(Khat, e)

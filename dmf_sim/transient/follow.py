@@ -5,7 +5,7 @@ node share it).
 live core's setpoints: the speed setpoint is the segment's end speed, its ramp rate the one that
 reaches it at the segment's end (so the kernel's exact speed ramp, and with it the excitation
 phase psi = integral of omega dt, follows the table piecewise linearly); the load likewise
-(:class:`dmf_sim.live.simulation.LiveSimulation` ramps the load once per chunk). Called before
+(:class:`dmf_sim.live.simulation.LiveSimulation` ramps the load every Newmark step). Called before
 every chunk; ``dmf-sim run`` also ends its chunks at the profile's rows, so there the speed is on
 the table exactly; the node calls it after every published chunk (<= one tick late, ~10 ms of
 simulated time at real time, 1 ms in fast mode). After the last row the last setpoints hold and

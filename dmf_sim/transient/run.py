@@ -4,7 +4,8 @@
 The same equation and stepping as the live node: :class:`dmf_sim.live.simulation.LiveSimulation`
 (the compiled Newmark kernel with the speed ramp inside it, excitation phase psi = integral of
 omega dt, d'Alembert loads of the reference acceleration balanced at the rear element, the load
-ramped per chunk, the excitation coefficients updated per chunk), driven by
+ramped step by step with the excitation coefficients, interpolated linearly in time over each
+chunk between the profile's speed and load at its ends), driven by
 :class:`dmf_sim.transient.follow.ProfileFollower`. Chunks end at every profile row, so the
 reference speed is on the table exactly. Samples every ``1 / rate_hz`` s go to a bag with the
 node's topics, types, stamps (wall clock at the start + simulated time, as
@@ -180,9 +181,11 @@ def _peak_rss_mib() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0    # KiB on Linux
 
 
-def _chunk_limit(profile: Profile, segment: int, chunk: int, stride: int, dt: float) -> int:
+def _chunk_limit(profile: Profile, segment: int, chunk: int, dt: float) -> int:
     """Steps per chunk in a profile segment: at most ``chunk``, and few enough that speed and
-    load move at most CHUNK_SPEED_STEP_RPM / CHUNK_LOAD_STEP (a whole number of samples)."""
+    load move at most CHUNK_SPEED_STEP_RPM / CHUNK_LOAD_STEP (the excitation is interpolated
+    linearly in time over a chunk; whatever the sample rate: the chunks, and with them every
+    value, do not depend on it)."""
     i = min(max(segment, 0), len(profile) - 2)
     span = profile.t_s[i + 1] - profile.t_s[i]
     seconds = opt_s = chunk * dt
@@ -190,8 +193,7 @@ def _chunk_limit(profile: Profile, segment: int, chunk: int, stride: int, dt: fl
                         (profile.load[i + 1] - profile.load[i], CHUNK_LOAD_STEP)):
         if delta:
             seconds = min(seconds, step * span / abs(delta))
-    steps = int(min(seconds, opt_s) / dt) // stride * stride
-    return max(steps, stride)
+    return max(int(min(seconds, opt_s) / dt), 1)
 
 
 def build_simulation(profile: Profile, opt: RunOptions) -> LiveSimulation:
@@ -328,7 +330,7 @@ def _chunk_plan(profile: Profile, sim: LiveSimulation, follower: ProfileFollower
                 next_row = follower.t0 + float(profile.t_s[row])
             else:
                 next_row = math.inf
-            limit = (_chunk_limit(profile, follower.segment, chunk, sim.stride, sim.dt)
+            limit = (_chunk_limit(profile, follower.segment, chunk, sim.dt)
                      if row == follower.segment + 1 else chunk)
         to_row = (int(round((next_row - sim.t) / sim.dt)) if math.isfinite(next_row)
                   else total)
@@ -339,8 +341,9 @@ def _chunk_plan(profile: Profile, sim: LiveSimulation, follower: ProfileFollower
 
 
 def _chunk_steps(sim: LiveSimulation, chunk_s: float) -> int:
-    """Steps of a full chunk of ``chunk_s`` [s]: a whole number of samples, at least one."""
-    return max(int(round(chunk_s / sim.dt)) // sim.stride, 1) * sim.stride
+    """Steps of a full chunk of ``chunk_s`` [s], at least one (not tied to the samples: the
+    chunks, and with them the integration, are those of any sample rate)."""
+    return max(int(round(chunk_s / sim.dt)), 1)
 
 
 def follow_profile(sim: LiveSimulation, profile: Profile, chunk_s: float = DEFAULT_CHUNK_S,
