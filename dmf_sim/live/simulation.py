@@ -9,9 +9,10 @@ loop in :mod:`dmf_sim.live.run_loop`.
   setpoints with ramps (the speed ramp runs inside the Newmark kernel, the load ramp too: the
   excitation goes linearly in time over a chunk to that of the load's ramp end,
   :meth:`~dmf_sim.solvers.newmark.NewmarkIntegrator.ramp_excitation`), rebuild on
-  alpha/theta/load-set changes keeping the operating point and the vibratory state, reset to
-  static equilibrium, solver health,
-  and the per-element samples the node publishes (vibratory angle, velocity, transmitted torque).
+  alpha/theta/load-set changes keeping the operating point, the vibratory state and every
+  count (knee crossings, stop contacts, friction heat), reset to static equilibrium, solver
+  health, and the per-element samples the node publishes (vibratory angle, velocity,
+  transmitted torque).
 
 Faults (:attr:`LiveSimulation.faults`, a :class:`~dmf_sim.physics.faults.FaultTimeline`): a
 chunk is split at the step where a combustion window opens with another combustion factor or a
@@ -202,7 +203,8 @@ class LiveSimulation:
         self.load = float(self.load)
         self.steps = 0
         self.phase = 0
-        self._knees = self._secondary = 0
+        self._knees = self._secondary = self._contacts = 0
+        self._heat_j = self._stop_peak_nm = 0.0
         self.faults: FaultTimeline | None = None
         self._dmf_version = 0
         self.fault_events: list[FaultEvent] = []    # of the chunks of advance(), not taken yet
@@ -261,13 +263,22 @@ class LiveSimulation:
         new.set_target(self.speed_setpoint, self.speed_ramp_rpm_per_s)
         if self.live_sensors is not None:
             self.live_sensors.attach(new)
-        self._knees += old.knee_crossings
-        self._secondary += old.steps_secondary
+        self._carry_counters(old)
         self.integ, self._torques, self.line, self.engine = new, torques, line, engine
         self.peaks.set_spring(new.model.spring)
         if self.faults is not None:
             self.faults.line = line
             self._dmf_version = self.faults.dmf_version
+
+    def _carry_counters(self, old: NewmarkIntegrator) -> None:
+        """Keep what ``old`` counted since its last reset (knee crossings, steps beyond a
+        knee, end-stop contacts, friction heat [J], largest stop torque [Nm] of the chunk)
+        before it is rebuilt or reset: the totals of this simulation go on from there."""
+        self._knees += old.knee_crossings
+        self._secondary += old.steps_secondary
+        self._contacts += sum(old.stop_contacts)
+        self._heat_j += old.friction_heat_j
+        self._stop_peak_nm = max(self._stop_peak_nm, old.peak_stop_torque_nm)
 
     def set_dmf(self, alpha: float | None = None, theta: float | None = None) -> None:
         """New DMF knee parameters (alpha, theta [rad]); ConfigError if invalid."""
@@ -379,8 +390,7 @@ class LiveSimulation:
         if peaks:
             self.peaks.reset(self.t)
         it = self.integ
-        self._knees += it.knee_crossings
-        self._secondary += it.steps_secondary
+        self._carry_counters(it)
         self.load = self.load_setpoint
         it.reset(self.speed_setpoint, self.load, psi=it.psi, t=it.t)
         it.set_target(self.speed_setpoint, self.speed_ramp_rpm_per_s)
@@ -425,6 +435,17 @@ class LiveSimulation:
     @property
     def steps_secondary(self) -> int:
         return self._secondary + self.integ.steps_secondary
+
+    @property
+    def stop_contacts(self) -> int:
+        """End-stop contacts the kernel counted (drive and coast) since the start, across
+        rebuilds and resets."""
+        return self._contacts + sum(self.integ.stop_contacts)
+
+    @property
+    def friction_heat_j(self) -> float:
+        """The arc-spring friction's work [J] since the start, across rebuilds and resets."""
+        return self._heat_j + self.integ.friction_heat_j
 
     @property
     def finite(self) -> bool:
@@ -485,8 +506,9 @@ class LiveSimulation:
             raise ValueError(f'record holds {record.t.shape[0]} rows, the chunk needs {rows}')
         first = self.steps + (self.stride - self.phase)
         row = 0
-        law_start = (it, sum(it.stop_contacts), it.friction_heat_j)
+        law_start = (self.stop_contacts, self.friction_heat_j)
         it.restart_stop_peak()
+        self._stop_peak_nm = 0.0
         events: list[FaultEvent] = []
         parts: list[np.ndarray] = []
         if self.live_sensors is not None and self.faults is not None:
@@ -500,7 +522,12 @@ class LiveSimulation:
             it = self.integ
         self.steps += int(nsteps)
         self.phase = phase
-        if not self.finite:
+        finite = self.finite
+        if finite:                     # the kernel's stop contacts and friction heat of the chunk
+            self.peaks.observe_law(self.stop_contacts - law_start[0],
+                                   self.friction_heat_j - law_start[1],
+                                   max(self._stop_peak_nm, it.peak_stop_torque_nm))
+        if not finite:
             # Newmark (average acceleration) is unconditionally stable; a non-finite state means
             # bad input data. Never publish it: restart from static equilibrium.
             self.solver_resets += 1
@@ -508,10 +535,6 @@ class LiveSimulation:
             row = 0
             parts = []
         self.peaks.observe(record.windup[:row], record.t[:row])
-        if law_start[0] is it:         # the kernel's stop contacts and friction heat of the chunk
-            self.peaks.observe_law(max(sum(it.stop_contacts) - law_start[1], 0),
-                                   max(it.friction_heat_j - law_start[2], 0.0),
-                                   it.peak_stop_torque_nm)
         omega_dot = it.omega_dot
         # element loads with this chunk's excitation, now (the next chunk changes it)
         loads = None
