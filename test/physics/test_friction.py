@@ -299,7 +299,9 @@ def test_contacts_at_the_resolvable_limits_converge_under_step_refinement(tmp_pa
         a, b = out[1e-4], out[5e-5]
         assert 0.25 < a['peak_windup_rad'][1] < 0.26
         assert a['peak_windup_rad'][1] == pytest.approx(b['peak_windup_rad'][1], rel=0.005)
-        assert abs(a['stop_contacts'] - b['stop_contacts']) <= 2 and a['stop_contacts'] >= 20
+        # grazing contacts come and go with the step: the count agrees within 15 %
+        assert abs(a['stop_contacts'] - b['stop_contacts']) <= 0.15 * b['stop_contacts']
+        assert a['stop_contacts'] >= 20
         if impact_rel is not None:
             assert a['peak_stop_torque_nm'] == pytest.approx(b['peak_stop_torque_nm'],
                                                              rel=impact_rel)
