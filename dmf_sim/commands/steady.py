@@ -107,8 +107,10 @@ def run(args) -> int:
         print(f'basin: {res.samples} runs from wind-up offsets '
               f'within +-{res.amplitude_rad * 1e3:.1f} mrad '
               f'(rates within +-{res.rate_rad_s:.2f} rad/s); {res.unsettled} did not settle')
-    for r in res.non_periodic:
-        print(f'no stable periodic state: {r.label}; wind-up {r.mean * 1e3:.1f} mrad '
+    for r in res.non_periodic:       # the search's time integration, before the basin runs
+        what = ('no stable periodic state' if not res.stable else    # found by the basin runs
+                'beside them a non-periodic motion')
+        print(f'{what}: {r.label}; wind-up {r.mean * 1e3:.1f} mrad '
               f'{r.max_deviation * 1e3:+.1f}/{r.min_deviation * 1e3:+.1f} mrad, '
               f'3rd order {r.order_3 * 1e3:.2f}, 1.5th {r.order_1_5 * 1e3:.2f} mrad '
               '(time integration)')

@@ -212,11 +212,7 @@ def find_steady_states(loads: DrivelineExcitation, speed_rpm: float, load: float
     states: list[SteadyState] = []
     for q in res.solutions_at(s):
         mult = next((br.multiplicity for br in res.branches if br.id == q.branch), 1)
-        f = fingerprints(q.x, hb.H, hb.symmetric)
-        known = next((st for st in states
-                      if np.abs(fingerprints(st.point.x, hb.H, hb.symmetric) - f).max()
-                      <= 1e-6 + 1e-4 * np.abs(q.x).max()), None)
-        if known is None:
+        if _same_state(states, q, hb) is None:
             states.append(SteadyState(q, mult, f'harmonic balance (branch {q.branch}: {q.kind})',
                                       forced_ratio=None if hb.symmetric else opts.ratio_1_5))
     nonper = [r for band in res.non_periodic for r in band.results if abs(r.speed_rpm - s) < 1e-6]
@@ -227,6 +223,15 @@ def find_steady_states(loads: DrivelineExcitation, speed_rpm: float, load: float
     out.states.sort(key=lambda st: (not st.point.stable, -st.hits, st.point.order_1_5))
     out.seconds = time.perf_counter() - t0
     return out
+
+
+def _same_state(states: list[SteadyState], q, hb: CondensedHBM) -> SteadyState | None:
+    """The state of ``states`` the harmonic-balance point ``q`` is (its fingerprints within
+    1e-4 of its largest harmonic: the same solution up to the solver's tolerance), or None."""
+    f = fingerprints(q.x, hb.H, hb.symmetric)
+    return next((st for st in states
+                 if np.abs(fingerprints(st.point.x, hb.H, hb.symmetric) - f).max()
+                 <= 1e-6 + 1e-4 * np.abs(q.x).max()), None)
 
 
 def dmf_modes(model, count: int = 2) -> list[tuple[np.ndarray, float]]:
@@ -289,7 +294,8 @@ def _basins(out: SteadyStateSet, hb: CondensedHBM, loads: DrivelineExcitation, b
 def _add_from_newmark(out: SteadyStateSet, hb: CondensedHBM, floquet: FloquetAnalyzer,
                       c: np.ndarray, s: float, forced_ratio: float | None = None
                       ) -> SteadyState | None:
-    """A settled Newmark run that matches no state: Newton from its orders, stability, add."""
+    """A settled Newmark run that matches no state: Newton from its orders; the state Newton
+    ends on if it is known already, else its stability, and added if stable."""
     x = np.zeros(hb.H + 1, dtype=complex)
     k = min(len(c), hb.H + 1)
     x[:k] = c[:k]
@@ -297,7 +303,9 @@ def _add_from_newmark(out: SteadyStateSet, hb: CondensedHBM, floquet: FloquetAna
         q = hb.solve(s, to_real(x, hb.H))
     except ConvergenceError:
         return None
-    fr = floquet.analyze(q.windup_orders, s)
+    if (known := _same_state(out.states, q, hb)) is not None:
+        return known if known.point.stable else None   # a state known already (its run's
+    fr = floquet.analyze(q.windup_orders, s)            # orders were off it by > match_tol)
     q.stable, q.multipliers, q.max_multiplier = fr.stable, fr.multipliers, fr.max_abs
     if not q.stable:
         return None          # the run passed near an unstable state: it had not settled

@@ -301,3 +301,32 @@ def test_sweep_cli_time_limit(capsys):
     err = capsys.readouterr().err
     assert code == 2 and 'sweep time limit 0.001 s reached during continuation' in err
     assert 'Traceback' not in err
+
+
+def test_a_state_newton_reaches_from_several_runs_is_listed_once(tmp_path, capsys):
+    """Friction DMF with its drive stop moved to 0.25 rad (in contact every cycle at 1200 rpm,
+    full load): basin runs settle within the steady tolerance but off the harmonic balance
+    state by more than the match tolerance, and each one's Newton polish reached the same
+    state. It was listed five times (identical rows, basins 25/15/5/5/5 %) and the output then
+    said 'no stable periodic state'. One row now carries every run that reached it, and the
+    search's chaotic motion is reported beside it."""
+    import yaml
+
+    from dmf_sim.core.paths import config_file
+    from dmf_sim.solvers.steady import _fingerprint
+    doc = yaml.safe_load(config_file('truck_dmf_friction').read_text())
+    doc['dmf']['end_stops']['drive_angle_rad'] = 0.25
+    cfg = tmp_path / 'stop_close.yaml'
+    cfg.write_text(yaml.safe_dump(doc))
+    loads = DrivelineExcitation(read_driveline(cfg).reduce(), read_engine('engine_d13'))
+    res = find_steady_states(loads, 1200.0, 1.0, basin=BasinOptions(samples=20, seed=0))
+    prints = [_fingerprint(st.point.windup_orders) for st in res.states]
+    for i in range(len(prints)):
+        for j in range(i):
+            assert np.abs(prints[i] - prints[j]).max() > 1e-4 * np.abs(prints[j]).max()
+    assert sum(st.hits for st in res.states) + res.unsettled == 20
+    assert cli_main(['steady', '--speed', '1200', '--config', str(cfg), '--samples', '20',
+                     '--no-progress']) == 0
+    out = capsys.readouterr().out
+    if res.stable and res.non_periodic:
+        assert 'beside them a non-periodic motion' in out and 'no stable periodic' not in out
