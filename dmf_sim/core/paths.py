@@ -20,7 +20,8 @@ import yaml
 
 from dmf_sim.core.errors import ConfigError, ConfigFileError
 
-__all__ = ['PACKAGE', 'CONFIG_SUFFIXES', 'config_dir', 'config_file', 'read_text', 'parse_yaml',
+__all__ = ['PACKAGE', 'CONFIG_SUFFIXES', 'config_dir', 'config_file', 'config_reference',
+           'read_text', 'parse_yaml',
            'read_yaml_mapping']
 
 PACKAGE = 'dmf_sim'
@@ -78,6 +79,17 @@ def _existing_config(raw: str) -> Path:
             raise ConfigFileError(f'{raw}: not readable (permission denied)')
         return path
     raise ConfigFileError(f'config file not found: {raw} (a path, or a name in {config_dir()})')
+
+
+def config_reference(name_or_path: str | os.PathLike) -> str:
+    """How a bag names a configuration so that another working directory finds it again: a
+    packaged name as given, a file by its absolute path (as given where it does not resolve)."""
+    raw = os.fspath(name_or_path)
+    try:
+        found = config_file(raw)
+    except ConfigFileError:
+        return raw
+    return raw if found.parent == config_dir() else str(found.resolve())
 
 
 def read_text(path: Path) -> str:

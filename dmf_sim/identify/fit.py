@@ -293,6 +293,8 @@ def read_measurement(bag, options: IdentifyOptions = IdentifyOptions()) -> Measu
     :class:`~dmf_sim.core.errors.ConfigError` / BagError when the bag lacks what is needed)."""
     from dmf_sim.analysis.series import SignalSpec, read_bag_series
     from dmf_sim.bags.layout import resolve_bag
+    from dmf_sim.core.errors import one_line
+    from dmf_sim.core.paths import config_file
     from dmf_sim.transient.profiles import profile_from_table, read_profile
 
     resolved = resolve_bag(bag)
@@ -321,6 +323,16 @@ def read_measurement(bag, options: IdentifyOptions = IdentifyOptions()) -> Measu
             profile = read_profile(meta.profile)
         except ConfigError:                 # a file of the recording machine: not here
             pass
+    for what, given, named, option in (('driveline', options.driveline, meta.driveline,
+                                        '--config'),
+                                       ('engine', options.engine, meta.engine, '--engine')):
+        if given is None and named is not None:
+            try:
+                config_file(named)
+            except ConfigError as exc:
+                raise ConfigError(f'{resolved.path}: the {what} the bag was recorded with, '
+                                  f'{named}, is not here ({one_line(exc)}); give it with '
+                                  f'{option}') from None
     rate = meta.publish_rate_hz or 1000.0
     t_s = (t_ns - t_ns[0]) * 1e-9 + 1.0 / rate        # the first sample: one period in
     period_ns = int(round(1e9 / rate))

@@ -54,6 +54,7 @@ from threadpoolctl import threadpool_limits
 from dmf_sim.core.destinations import Destination, check_free_space
 from dmf_sim.core.errors import ConfigError, OperatingRangeError, one_line
 from dmf_sim.core.names import check_namespace
+from dmf_sim.core.paths import config_reference
 from dmf_sim.live.faults import (
     ACTIVE_STREAM,
     GROUND_TRUTH_STREAM,
@@ -262,7 +263,8 @@ def open_bag(out, sim: LiveSimulation, profile: Profile, opt: RunOptions, rate_h
 
     streams = streams_for(sim.line.sensors if sim.live_sensors is not None else None)
     topics = resolved_topics(opt.namespace, streams)
-    meta = run_metadata(sim, driveline=opt.driveline, engine=opt.engine, node=WRITER_NAME,
+    meta = run_metadata(sim, driveline=config_reference(opt.driveline),
+                        engine=config_reference(opt.engine), node=WRITER_NAME,
                         publish_rate_hz=rate_hz)
     custom = replace(meta, profile=profile.name, profile_table=profile.as_table(),
                      settle_s=profile.start_settle_s).to_custom_data()

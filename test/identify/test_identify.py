@@ -298,3 +298,26 @@ def test_a_recording_too_short_to_fit_is_refused(tmp_path, capsys):
     assert code == 2 and err.count('\n') == 1, err
     assert 'samples to fit over 0.05 s' in err and 'at least 1 engine cycle (0.1 s' in err
     assert not (tmp_path / 'out').exists()
+
+
+def test_a_bag_names_its_config_so_another_directory_finds_it(tmp_path, monkeypatch, capsys):
+    """`run --config cfg/x.yaml` stored the relative path: identify from elsewhere said only
+    'config file not found: cfg/x.yaml'. The bag now names the file by its absolute path, and
+    one that is gone is named as the bag's, with the option that replaces it."""
+    import shutil
+
+    from dmf_sim.core.paths import config_file
+    (tmp_path / 'cfg').mkdir()
+    shutil.copy(config_file('truck_dmf_friction'), tmp_path / 'cfg' / 'x.yaml')
+    monkeypatch.chdir(tmp_path)
+    assert cli_main(['run', 'step:1200:0:1:0.1', '--config', 'cfg/x.yaml', '--out', 'bag',
+                     '--no-progress', '--no-sensors']) == 0
+    monkeypatch.chdir(tmp_path / 'cfg')
+    meas = read_measurement(tmp_path / 'bag', IdentifyOptions(parameters=('k', 'damping')))
+    assert meas.driveline == str((tmp_path / 'cfg' / 'x.yaml').resolve())
+    (tmp_path / 'cfg' / 'x.yaml').unlink()
+    capsys.readouterr()
+    code = cli_main(['identify', str(tmp_path / 'bag'), '--parameters', 'k,damping'])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count('\n') == 1, err
+    assert 'the driveline the bag was recorded with' in err and 'give it with --config' in err
