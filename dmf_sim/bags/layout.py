@@ -22,6 +22,7 @@ from __future__ import annotations
 import functools
 import os
 import re
+import struct
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -30,7 +31,7 @@ from typing import Any
 import yaml
 from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
-from mcap.stream_reader import read_magic
+from mcap.stream_reader import MAGIC_SIZE, read_magic
 
 from dmf_sim import __version__
 from dmf_sim.bags.metadata import RunMetadata
@@ -190,18 +191,26 @@ def split_number(path: Path) -> tuple[str, int]:
 
 
 def is_mcap(path: Path) -> bool:
-    """Whether ``path`` starts with the MCAP magic (read with the mcap library)."""
+    """Whether ``path`` starts with the MCAP magic (read with the mcap library).
+
+    A file shorter than the magic is not one: the library's ``struct.unpack`` of the short read
+    raises ``struct.error`` then, which is no McapError."""
     try:
         with open(path, 'rb') as fh:
             read_magic(ReadDataStream(fh))
-    except (McapError, OSError, ValueError, EOFError):
+    except (McapError, OSError, ValueError, EOFError, struct.error):
         return False
     return True
 
 
 def _not_mcap(path: Path) -> BagError:
     size = path.stat().st_size if path.exists() else 0
-    what = 'an empty file' if size == 0 else f'{size} bytes without the MCAP magic'
+    if size == 0:
+        what = 'an empty file'
+    elif size < MAGIC_SIZE:
+        what = f'{size} bytes, shorter than the {MAGIC_SIZE}-byte MCAP magic'
+    else:
+        what = f'{size} bytes without the MCAP magic'
     return BagError(f'{path} is not an MCAP file ({what})')
 
 

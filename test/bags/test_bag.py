@@ -246,14 +246,16 @@ def test_truncated_read_and_recover(bag: Path, tmp_path: Path, fraction: float) 
 
 def test_empty_or_random_file_is_not_mcap(bag: Path, tmp_path: Path,
                                           capsys: pytest.CaptureFixture[str]) -> None:
-    """An empty file and random bytes are both "not an MCAP file"; bag-recover
-    refuses them (exit 2, one line) and writes nothing."""
+    """An empty file, one shorter than the magic and random bytes are all "not an MCAP file";
+    bag-recover refuses them (exit 2, one line) and writes nothing."""
     cut = truncated_copy(bag, tmp_path / 'cut', 0.0)
     empty = tmp_path / 'x.mcap'
     empty.write_bytes(b'')
+    short = tmp_path / 'short.mcap'
+    short.write_bytes(b'hello\n')
     noise = tmp_path / 'noise.mcap'
     noise.write_bytes(np.random.default_rng(0).bytes(1 << 20))
-    for path in (cut, empty, noise):
+    for path in (cut, empty, short, noise):
         with pytest.raises(BagError, match='is not an MCAP file'):
             list(read_messages(path))
         with pytest.raises(BagError, match='is not an MCAP file'):
@@ -261,7 +263,8 @@ def test_empty_or_random_file_is_not_mcap(bag: Path, tmp_path: Path,
         assert cli_main(['bag-recover', str(path)]) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and 'not an MCAP file' in err[0], err
-    assert sorted(p.name for p in tmp_path.iterdir()) == ['cut', 'noise.mcap', 'x.mcap']
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['cut', 'noise.mcap', 'short.mcap',
+                                                          'x.mcap']
 
 
 CHILD = textwrap.dedent('''
