@@ -19,6 +19,13 @@ Inputs per sample: time [ns], DMF wind-up w [rad] and its rate dw/dt [rad/s], en
   (both energies are reported apart too); without it (the paper's model) the viscous power alone;
 * with end stops (eq. 8b): the contacts (entries beyond a stop, on the samples) and the largest
   contact torque |T_s(w, dw/dt)| [Nm] of the samples (the impact).
+
+A record no driveline can produce is refused (BagError, one line naming the first such sample):
+a value that is not finite, an engine speed beyond the ``engine_speed`` bound, a crank angle
+beyond :data:`MAX_CRANK_ANGLE_RAD`, or a DMF torque
+(the spring's, the damper's c dw/dt, the end stops') beyond the ``torque`` bound of
+:data:`dmf_sim.core.bounds.BOUNDS` -- what a diverged simulation writes (a wind-up of 1e251 rad).
+Counted, such values would overflow every figure; no damage figure of them means anything.
 """
 from __future__ import annotations
 
@@ -28,15 +35,23 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from dmf_sim.core.bounds import BOUNDS
+from dmf_sim.core.errors import BagError
 from dmf_sim.core.units import RPM_TO_RAD_S
 from dmf_sim.durability.rainflow import StreamingRainflow
 from dmf_sim.durability.settings import DurabilitySettings
 from dmf_sim.physics.orders import CYCLE_RAD
 
-__all__ = ['MAX_GAP_STEPS', 'StageStats', 'DurabilityResult', 'DurabilityAccumulator']
+__all__ = ['MAX_GAP_STEPS', 'MAX_CRANK_ANGLE_RAD', 'StageStats', 'DurabilityResult',
+           'DurabilityAccumulator']
 
 MAX_GAP_STEPS = 100     # a time step this many median steps long is a gap (paused clock): its
                         # time is not counted
+
+MAX_CRANK_ANGLE_RAD = CYCLE_RAD * 2.0 ** 53
+"""Largest crank angle [rad] a record may hold: beyond 2^53 engine cycles a float64 angle no longer
+tells one cycle from the next (its spacing exceeds 720 deg), so the power per engine cycle has
+no meaning; 1.1e17 rad is 17 million years at 2000 rpm, so only a broken record gets there."""
 
 
 def _add_counts(store: dict, keys: np.ndarray, weights: np.ndarray) -> None:
@@ -196,6 +211,37 @@ class DurabilityAccumulator:
         self._beyond = 0                     # the last sample's side: +1 drive stop, -1 coast
 
     # ---- per batch -------------------------------------------------------------------------
+    def _check_physical(self, t_ns, w, wdot, speed_rpm, psi, torque) -> None:
+        """Refuse the batch at its first sample no driveline can produce (module docstring)."""
+        torque_hi, speed_hi = BOUNDS['torque'].hi, BOUNDS['engine_speed'].hi
+        with np.errstate(over='ignore', invalid='ignore'):     # what is refused may overflow
+            checks = [
+                ('DMF wind-up', w, 'rad', None),
+                ('DMF wind-up rate', wdot, 'rad/s', None),
+                ('engine speed', speed_rpm, 'rpm', speed_hi),
+                ('crank angle', psi, 'rad', MAX_CRANK_ANGLE_RAD),
+                ('DMF spring torque', torque, 'Nm', torque_hi),
+                ('DMF damper torque c dw/dt', self.c * wdot, 'Nm', torque_hi),
+            ]
+            if self.stops is not None:
+                checks.append(('DMF end-stop torque', self.stops.torque(w, wdot), 'Nm',
+                               torque_hi))
+            first = None
+            for name, x, unit, hi in checks:
+                bad = ~np.isfinite(x) if hi is None else ~(np.abs(x) <= hi)
+                if bad.any():
+                    i = int(np.argmax(bad))
+                    if first is None or i < first[0]:
+                        first = (i, name, float(x[i]), unit, hi)
+        if first is None:
+            return
+        i, name, value, unit, hi = first
+        t_s = (int(t_ns[i]) - self.t0_ns) * 1e-9
+        beyond = 'is not finite' if not np.isfinite(value) else f'is beyond {hi:g} {unit}'
+        raise BagError(f'the record is not physical from t = {t_s:.3f} s: {name} {value:.4g} '
+                       f'{unit} {beyond} (a diverged run?); durability assesses physical '
+                       'records only')
+
     def _weights(self, t_ns: np.ndarray) -> np.ndarray:
         """Time [s] each sample stands for (the step to the next one; gaps not counted)."""
         t_all = t_ns if self.t_prev is None else np.concatenate(([self.t_prev], t_ns))
@@ -220,11 +266,13 @@ class DurabilityAccumulator:
             self.t0_ns = int(t_ns[0])
         w, wdot = np.asarray(w, float), np.asarray(wdot, float)
         speed_rpm, psi = np.asarray(speed_rpm, float), np.asarray(psi, float)
+        with np.errstate(over='ignore', invalid='ignore'):
+            torque = self.spring.torque(w)
+        self._check_physical(t_ns, w, wdot, speed_rpm, psi, torque)
         dt = self._weights(t_ns)
         self.t_prev = int(t_ns[-1])
         self.samples += len(t_ns)
         self.duration += float(dt.sum())
-        torque = self.spring.torque(w)
         self.tmin = min(self.tmin, float(torque.min()))
         self.tmax = max(self.tmax, float(torque.max()))
         s = self.s

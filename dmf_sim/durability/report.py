@@ -13,7 +13,14 @@ from dmf_sim.analysis.outputs import to_jsonable
 from dmf_sim.durability.read import DurabilityRun
 from dmf_sim.figures import legend_beside, save
 
-__all__ = ['report_dict', 'write_json', 'report_figure', 'plot_report']
+__all__ = ['MATRIX_PANEL_BINS', 'report_dict', 'write_json', 'report_figure', 'plot_report']
+
+MATRIX_PANEL_BINS = 200
+"""Most bins per axis of the report's rainflow-matrix panel: the panel is ~500 pixels wide, so
+finer bins are not seen. A record whose ranges or means span more bins of ``bins.range_nm`` /
+``bins.mean_nm`` (a torque swinging over 10 kNm at 50 Nm bins, or up to the torque bound, which
+would ask for a matrix of gigabytes) is drawn with neighbouring bins merged by a whole factor,
+which the panel's title states; the JSON keeps every cell."""
 
 _SIZE_IN = (11.0, 9.0)
 _POWER_COLOR = 'tab:orange'
@@ -95,22 +102,29 @@ def report_figure(run: DurabilityRun) -> Figure:
     ax.set_title('torque histogram (time per bin)', fontsize=10)
 
     ax = fig.add_subplot(grid[1, 1])
+    title = 'rainflow matrix'
     if r.rainflow:
         cells = np.array([(rb, mb, c) for (rb, mb), c in r.rainflow.items()])
-        r0, r1 = int(cells[:, 0].min()), int(cells[:, 0].max())
-        m0, m1 = int(cells[:, 1].min()), int(cells[:, 1].max())
-        mat = np.full((r1 - r0 + 1, m1 - m0 + 1), np.nan)
-        for rb, mb, c in cells:
-            mat[int(rb) - r0, int(mb) - m0] = c
+        r0, m0 = int(cells[:, 0].min()), int(cells[:, 1].min())
+        fr = -(-(int(cells[:, 0].max()) - r0 + 1) // MATRIX_PANEL_BINS)    # merge factors
+        fm = -(-(int(cells[:, 1].max()) - m0 + 1) // MATRIX_PANEL_BINS)
+        ri = (cells[:, 0].astype(np.int64) - r0) // fr
+        mi = (cells[:, 1].astype(np.int64) - m0) // fm
+        mat = np.zeros((int(ri.max()) + 1, int(mi.max()) + 1))
+        np.add.at(mat, (ri, mi), cells[:, 2])
+        mat[mat == 0] = np.nan
+        rbin, mbin = fr * s.range_bin_nm, fm * s.mean_bin_nm
         im = ax.imshow(np.log10(mat), origin='lower', aspect='auto', cmap='viridis',
-                       extent=[m0 * s.mean_bin_nm, (m1 + 1) * s.mean_bin_nm,
-                               r0 * s.range_bin_nm, (r1 + 1) * s.range_bin_nm])
+                       extent=[m0 * s.mean_bin_nm, m0 * s.mean_bin_nm + mat.shape[1] * mbin,
+                               r0 * s.range_bin_nm, r0 * s.range_bin_nm + mat.shape[0] * rbin])
         # in an inset beside the axes: the column's right margin is shared with the power
         # panel's speed axis below, so a layout colorbar would sit at the margin's far edge
         fig.colorbar(im, cax=ax.inset_axes([1.03, 0.0, 0.04, 1.0]), label='log10 cycles')
+        if fr > 1 or fm > 1:
+            title += f' (bins merged to {rbin:g} x {mbin:g} Nm)'
     ax.set_xlabel('cycle mean torque [Nm]')
     ax.set_ylabel('cycle torque range [Nm]')
-    ax.set_title('rainflow matrix', fontsize=10)
+    ax.set_title(title, fontsize=10)
 
     ax = fig.add_subplot(grid[2, 0])
     bands = sorted(set(r.damage_by_band) | set(r.time_by_band))

@@ -234,3 +234,98 @@ def test_durability_of_a_bag_without_the_topics(tmp_path, capsys):
     assert cli_main(['durability', str(tmp_path / 'other'), '--json']) == 2
     err = capsys.readouterr().err
     assert 'durability needs the joint states' in err and err.count('\n') == 1
+
+
+def _diverging(n: int = 4000, fs: float = 1000.0, speed: float = 1200.0):
+    """A record whose wind-up grows without bound from 2 s on, as a diverged run writes it:
+    time [ns], w, dw/dt, speed, crank angle."""
+    t = np.arange(n) / fs
+    om = speed * np.pi / 30
+    grow = np.exp(np.clip(t - 2.0, 0.0, None) * 300.0)            # 1e260 at 4 s
+    w = 0.1 + 0.03 * np.sin(3 * om * t) * grow
+    wdot = np.gradient(w, t)
+    return (t * 1e9).astype(np.int64), w, wdot, np.full(n, speed), om * t
+
+
+@pytest.mark.parametrize('spoil, words', [
+    (None, 'Nm is beyond 1e+06 Nm'),
+    ('nan', 'DMF wind-up nan rad is not finite'),
+    ('speed', 'engine speed 1e+05 rpm is beyond 10000 rpm'),
+])
+def test_a_diverged_record_is_refused_where_it_leaves_physics(spoil, words):
+    """A diverged run (wind-up 1e251 rad) used to overflow every figure with numpy warnings and
+    crash the report: it is refused at its first sample beyond the physical bounds, naming it."""
+    import warnings
+
+    from dmf_sim.core.errors import BagError
+    t, w, wdot, speed, psi = _diverging()
+    if spoil == 'nan':
+        w = np.where(t >= 3e9, np.nan, 0.1)
+        wdot = np.zeros_like(w)
+    elif spoil == 'speed':
+        w, wdot = np.full_like(w, 0.1), np.zeros_like(w)
+        speed = np.where(t >= 3e9, 1e5, speed)
+    spring = PiecewiseLinearSpring.two_step(10890.0, 0.24, 2.5)
+    acc = DurabilityAccumulator(spring, 49.5, read_settings())
+    with warnings.catch_warnings():
+        warnings.simplefilter('error')
+        with pytest.raises(BagError, match='the record is not physical from t = ') as err:
+            for a in range(0, len(t), 1000):
+                sl = slice(a, a + 1000)
+                acc.add(t[sl], w[sl], wdot[sl], speed[sl], psi[sl])
+    msg = str(err.value)
+    assert words in msg and '\n' not in msg, msg
+    first = float(msg.split('from t = ')[1].split(' s')[0])
+    assert 2.0 <= first <= 3.0 + 1e-9
+
+
+def test_report_of_torques_near_the_bound_merges_matrix_bins():
+    """Torque swings of ~1 MNm (inside the torque bound) would ask for a rainflow-matrix panel of
+    20000 x 20000 cells (3 GB); the panel merges bins instead and says so."""
+    from dmf_sim.durability.read import DurabilityRun
+    from dmf_sim.durability.report import MATRIX_PANEL_BINS, report_figure
+    spring = PiecewiseLinearSpring.two_step(10890.0, 0.24, 2.5)
+    n, fs, speed = 4000, 1000.0, 1200.0
+    t = np.arange(n) / fs
+    om = speed * np.pi / 30
+    amp = np.where(t < 2.0, 0.01, 20.0)                    # 0.75 MNm swings after 2 s
+    w = amp * np.sin(3 * om * t)
+    wdot = amp * 3 * om * np.cos(3 * om * t)
+    acc = DurabilityAccumulator(spring, 0.0, read_settings())
+    acc.add((t * 1e9).astype(np.int64), w, wdot, np.full(n, speed), om * t)
+    res = acc.finish()
+    fig = report_figure(DurabilityRun(res, 'synthetic', 1, [], {}, 0.0, 0.0, 1))
+    ax = next(a for a in fig.axes if a.get_title().startswith('rainflow matrix'))
+    shape = ax.get_images()[0].get_array().shape
+    assert max(shape) <= MATRIX_PANEL_BINS and 'bins merged to' in ax.get_title()
+    # the counts are kept: the merged panel holds every cycle
+    assert float(np.nansum(10 ** ax.get_images()[0].get_array())) == pytest.approx(res.cycles)
+
+
+def test_durability_of_a_diverged_bag_is_one_line(tmp_path, capsys):
+    """`dmf-sim durability` of a diverged run's bag: one line, exit 2, nothing written."""
+    from support.cdr import Float64, joint_state, serialize_message
+
+    from dmf_sim.bags.writer import BagRecorder
+    from dmf_sim.physics.model import read_driveline
+    names = read_driveline('truck_dmf').names
+    s = names.index('SECONDARY FLYWHEEL')
+    t, w, wdot, speed, psi = _diverging()
+    topics = {'/driveline/joint_states': 'sensor_msgs/msg/JointState',
+              '/engine/speed': 'std_msgs/msg/Float64',
+              '/engine/crank_angle': 'std_msgs/msg/Float64'}
+    with BagRecorder(tmp_path / 'div', topics) as rec:
+        for i in range(len(t)):
+            pos, vel = np.zeros(len(names)), np.zeros(len(names))
+            pos[s - 1], vel[s - 1] = w[i], wdot[i]
+            stamp = 1_700_000_000_000_000_000 + int(t[i])
+            rec.write('/driveline/joint_states', stamp,
+                      serialize_message(joint_state(stamp, names, pos, vel)))
+            rec.write('/engine/speed', stamp, serialize_message(Float64(data=float(speed[i]))))
+            rec.write('/engine/crank_angle', stamp, serialize_message(Float64(data=float(psi[i]))))
+    for extra in (['--json'], ['--out', str(tmp_path / 'rep')]):
+        assert cli_main(['durability', str(tmp_path / 'div'), *extra]) == 2
+        out = capsys.readouterr()
+        assert out.out == '' and out.err.count('\n') == 1, out.err
+        assert 'not physical from t = ' in out.err and 'Traceback' not in out.err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['div']
