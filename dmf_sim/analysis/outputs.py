@@ -7,7 +7,6 @@ dynamic ``mean`` and ``mean_minus_theta``, the model's ``static_windup`` and ``t
 """
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -16,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from dmf_sim.core.csv_out import write_csv as write_table
+from dmf_sim.core.json_out import jsonable as to_jsonable, write_json
 
 __all__ = ['to_jsonable', 'table_rows', 'analysis_dict', 'write_csv', 'write_cycles_csv',
            'write_outputs']
@@ -24,25 +24,6 @@ __all__ = ['to_jsonable', 'table_rows', 'analysis_dict', 'write_csv', 'write_cyc
 def _f(v) -> float | None:
     v = float(v)
     return v if math.isfinite(v) else None
-
-
-def to_jsonable(obj: Any) -> Any:
-    """Recursively convert numpy values to JSON types (NaN/inf -> None)."""
-    if isinstance(obj, dict):
-        return {str(k): to_jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [to_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return [to_jsonable(v) for v in obj.tolist()]
-    if isinstance(obj, (bool, np.bool_)):
-        return bool(obj)
-    if isinstance(obj, (int, np.integer)):
-        return int(obj)
-    if isinstance(obj, (float, np.floating)):
-        return _f(obj)
-    if isinstance(obj, Path):
-        return str(obj)
-    return obj
 
 
 def _optional(values: np.ndarray | None, i: int) -> float | None:
@@ -148,7 +129,7 @@ def write_outputs(res, out: Path, *, natural: Mapping[str, Sequence[float]] | No
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     p = out / 'analysis.json'
-    p.write_text(json.dumps(analysis_dict(res, extra), indent=1))
+    write_json(p, analysis_dict(res, extra))
     written = [p]
     for sig in res.signals:
         written.append(write_csv(sig, out / f'{sig.signal.slug}_orders.csv'))

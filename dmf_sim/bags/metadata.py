@@ -91,7 +91,7 @@ class RunMetadata:
             if v is None:
                 continue
             if f.name in self._MAPPINGS:
-                text = json.dumps(v, separators=(',', ':'))
+                text = json.dumps(v, separators=(',', ':'), allow_nan=False)
             elif f.name in self._FLOATS:
                 text = repr(float(v))
             else:

@@ -17,7 +17,6 @@ per engine cycle over the campaign, per fault and noise level, runs per second),
 from __future__ import annotations
 
 import itertools
-import json
 import shutil
 import tempfile
 import time
@@ -27,6 +26,7 @@ from typing import Any, Sequence
 
 from dmf_sim.core.csv_out import write_csv
 from dmf_sim.core.errors import ConfigError
+from dmf_sim.core.json_out import write_json
 
 __all__ = ['FAULTS', 'SETTLE_S', 'MISFIRE_SPACING_S', 'DEFAULT_DURATION_S', 'MAX_NOISE',
            'Case', 'cases', 'case_profile', 'run_case', 'run_campaign', 'summarize',
@@ -178,7 +178,7 @@ def write_outputs(rows: Sequence[dict[str, Any]], summary: dict[str, Any], out: 
             'seconds', 'bag']
     write_csv(out / 'scores.csv', keys, rows)
     files['scores'] = str(out / 'scores.csv')
-    (out / 'summary.json').write_text(json.dumps(summary, indent=1) + '\n')
+    write_json(out / 'summary.json', summary)
     files['summary'] = str(out / 'summary.json')
     if plots and rows:
         files['plot'] = str(_plot(rows, out / 'campaign.png'))

@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import sys
@@ -10,6 +9,7 @@ from pathlib import Path
 
 from dmf_sim.commands import _options as opt
 from dmf_sim.core.errors import ConfigError
+from dmf_sim.core.json_out import json_text
 
 __all__ = ['NAME', 'HELP', 'EPILOG', 'BIN_RPM_RANGE', 'MIN_CYCLES_RANGE', 'N_MAX_RANGE',
            'POINTS_PER_CYCLE_MAX', 'add_arguments', 'check_arguments', 'default_output', 'run']
@@ -185,7 +185,7 @@ def run(args) -> int:
             written = write_outputs(res, out, natural=natural, plots=not args.no_plots,
                                     extra=extra)
     if args.json:
-        print(json.dumps(analysis_dict(res, extra)))
+        print(json_text(analysis_dict(res, extra)))
         return 0
     _report(res, written)
     return 0

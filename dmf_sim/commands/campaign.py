@@ -3,11 +3,11 @@ by the reference misfire detector."""
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 from dmf_sim.commands import _options as opt
 from dmf_sim.core.errors import ConfigError
+from dmf_sim.core.json_out import json_text
 
 __all__ = ['NAME', 'HELP', 'add_arguments', 'run']
 
@@ -86,7 +86,7 @@ def run(args: argparse.Namespace) -> int:
                 client.close()
         files = write_outputs(rows, summary, out, plots=not args.no_plots)
     if args.json:
-        print(json.dumps(summary))
+        print(json_text(summary))
         return 0
     print(f'{"speed_rpm":>9} {"load":>5} {"fault":>8} {"noise":>5} {"misfires":>8} '
           f'{"detected":>8} {"false_alarms":>12} {"cycles":>7}')

@@ -1,12 +1,12 @@
 """``dmf-sim design``: a DMF design study (many designs x operating conditions) on Dask."""
 from __future__ import annotations
 
-import json
 import sys
 from pathlib import Path
 
 from dmf_sim.commands import _options as opt
 from dmf_sim.core.errors import ConfigError
+from dmf_sim.core.json_out import json_text, write_json
 from dmf_sim.core.optional import require_extra
 
 __all__ = ['NAME', 'HELP', 'add_arguments', 'run']
@@ -68,9 +68,9 @@ def run(args) -> int:
             from dmf_sim.design.plots import write_plots
             result.files.update(write_plots(result, out))
         summary = result.summary()
-        (out / 'summary.json').write_text(json.dumps(summary, indent=1))
+        write_json(out / 'summary.json', summary)
     if args.json:
-        print(json.dumps(summary))
+        print(json_text(summary))
     else:
         _print(summary)
     return 0

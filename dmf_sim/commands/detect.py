@@ -2,9 +2,9 @@
 from __future__ import annotations
 
 import argparse
-import json
 
 from dmf_sim.core.errors import ConfigError
+from dmf_sim.core.json_out import json_text
 
 __all__ = ['NAME', 'HELP', 'add_arguments', 'run']
 
@@ -43,7 +43,7 @@ def run(args: argparse.Namespace) -> int:
                      for t, c, s, a in zip(scores['t_s'], scores['cylinder'], scores['score'],
                                            scores['alarm']) if a]
     if args.json:
-        print(json.dumps(out))
+        print(json_text(out))
         return 0
     print(f'{args.bag}: {result.cycles:.1f} engine cycles, mean {result.mean_speed_rpm:.0f} rpm; '
           f'{result.misfires} misfires in the ground truth, {result.detected} detected, '

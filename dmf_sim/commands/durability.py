@@ -4,11 +4,11 @@ batches (``dmf_sim.durability``)."""
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
 from dmf_sim.commands import _options as opt
+from dmf_sim.core.json_out import json_text
 from dmf_sim.core.optional import require_extra
 
 __all__ = ['NAME', 'HELP', 'add_arguments', 'run']
@@ -65,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
             if not args.no_plots:
                 written.append(plot_report(result, out / 'durability.png'))
     if args.json:
-        print(json.dumps(report_dict(result)))
+        print(json_text(report_dict(result)))
     else:
         r = result.result
         print(f'{result.bag}: {r.duration_s:.1f} s, damage {r.damage:.3g} ({r.damage_per_hour:.3g}'

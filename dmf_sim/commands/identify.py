@@ -4,10 +4,10 @@ against fitted."""
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 from dmf_sim.commands import _options as opt
+from dmf_sim.core.json_out import json_text, write_json
 
 __all__ = ['NAME', 'HELP', 'add_arguments', 'run']
 
@@ -97,12 +97,12 @@ def run(args: argparse.Namespace) -> int:
         from dmf_sim.identify.plots import plot_identification
         with dest.writing() as out:
             path = out / 'identify.json'
-            path.write_text(json.dumps(result.as_dict(), indent=2) + '\n')
+            write_json(path, result.as_dict(), indent=2)
             written.append(path)
             written.append(plot_identification(result, *fitted_signals(result, meas),
                                                out / 'identify.png'))
     if args.json:
-        print(json.dumps(result.as_dict()))
+        print(json_text(result.as_dict()))
         return 0
     print(f'{result.bag}: {result.samples} samples of the {result.signal} '
           f'({_run_text(meas, result)}), '

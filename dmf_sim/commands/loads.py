@@ -3,7 +3,6 @@ content of the engine torque at one speed, and the torque before the flywheel of
 conventional driveline over the engine cycle (Fig. 8 right)."""
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
@@ -12,6 +11,7 @@ import numpy as np
 from dmf_sim.commands import _options as opt
 from dmf_sim.core.csv_out import write_csv
 from dmf_sim.core.errors import ConfigError
+from dmf_sim.core.json_out import json_text, write_json
 from dmf_sim.physics.cycle_torque import (
     FIG8_DRIVELINE,
     FIG8_ELEMENT,
@@ -86,7 +86,7 @@ def run(args) -> int:
         with dest.writing() as out:
             _write(out, data, speeds, mean, orders, args, psi, tq)
     if args.json:
-        print(json.dumps(data))
+        print(json_text(data))
     else:
         print(f'engine mean torque [Nm] at load {args.load:g}')
         print('speed_rpm ' + ' '.join(f'{s:>9}' for s in mean))
@@ -109,7 +109,7 @@ def _check_speeds(engine, speeds) -> None:
 
 def _write(out: Path, data: dict, speeds, mean, orders, args, psi, tq) -> None:
     from dmf_sim.figures import fig8, mean_torque_panel, order_bars_panel, save, two_panel_figure
-    (out / 'loads.json').write_text(json.dumps(data, indent=2))
+    write_json(out / 'loads.json', data, indent=2)
     write_csv(out / 'loads.csv', ['speed_rpm', *[f'mean_torque_{s}_nm' for s in mean]],
               ([v, *[mean[s][i] for s in mean]] for i, v in enumerate(speeds)))
     fig, left, right = two_panel_figure(f'Engine loads, engine {args.engine}', width=11.0)

@@ -1,12 +1,12 @@
 """``dmf-sim modes``: natural frequencies and mode shapes (paper Fig. 12)."""
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 from dmf_sim.commands import _options as opt
 from dmf_sim.core.csv_out import write_csv
 from dmf_sim.core.errors import ConfigError
+from dmf_sim.core.json_out import json_text, write_json
 from dmf_sim.physics.modal import modes, region_names
 from dmf_sim.physics.model import read_model
 
@@ -63,7 +63,7 @@ def run(args) -> int:
         data['regions'] = {r: [float(f) for f in modes(model, r).frequencies_hz[:n]]
                            for r in names}
     if args.json:
-        print(json.dumps(data))
+        print(json_text(data))
     else:
         dmf = f'DMF region: {region}' if region else 'no DMF (linear driveline)'
         print(f'{model.line.name}: {model.n_elements} elements, {model.n_dof} DOFs, {dmf}')
@@ -78,7 +78,7 @@ def run(args) -> int:
 
 def _write(out: Path, data: dict, args) -> None:
     from dmf_sim.figures import save
-    (out / 'modes.json').write_text(json.dumps(data, indent=2))
+    write_json(out / 'modes.json', data, indent=2)
     rows = zip(data['frequencies_hz'], data['mode_shapes_scaled'], strict=True)
     write_csv(out / 'modes.csv', ['mode', 'frequency_hz', *data['elements']],
               ([i, f, *shape] for i, (f, shape) in enumerate(rows)))

@@ -19,6 +19,7 @@ from pathlib import Path
 from dmf_sim.commands._options import check_wait
 from dmf_sim.commands._ros import NodeSelector, select_node
 from dmf_sim.core.errors import ConfigError, NoResponseError
+from dmf_sim.core.json_out import write_json
 from dmf_sim.live.health import LEVEL_NAMES as LEVELS, STATUS_SUFFIX as SIM_STATUS
 from dmf_sim.monitor.messages import MONITOR_NAME as MONITOR_STATUS
 
@@ -290,7 +291,6 @@ def run(args: argparse.Namespace) -> int:
 
 def _write_layout(path: Path, node: NodeSelector) -> int:
     """``--foxglove-layout FILE``: the shipped layout for this node, never overwriting."""
-    import json
 
     from dmf_sim.live.foxglove_bridge import DEFAULT_NODE, foxglove_layout
 
@@ -298,7 +298,7 @@ def _write_layout(path: Path, node: NodeSelector) -> int:
     if path.exists() or path.is_symlink():
         raise ConfigError(f'--foxglove-layout {path} exists already; not overwriting it')
     try:
-        path.write_text(json.dumps(foxglove_layout(fqn), indent=2) + '\n', encoding='utf-8')
+        write_json(path, foxglove_layout(fqn), indent=2)
     except OSError as exc:
         raise ConfigError(f'--foxglove-layout {path}: {exc.strerror or exc}') from None
     print(f'wrote {path}: Foxglove layout for {fqn} (Layouts > Import from file)')

@@ -1,7 +1,6 @@
 """``dmf-sim nnm``: non-linear normal modes of the conservative DMF driveline (paper Fig. 14)."""
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -9,6 +8,7 @@ import numpy as np
 from dmf_sim.commands import _options as opt
 from dmf_sim.core.csv_out import write_csv
 from dmf_sim.core.errors import ConfigError
+from dmf_sim.core.json_out import json_text, write_json
 from dmf_sim.physics.model import read_model
 from dmf_sim.solvers.nnm import REGIONS, NNMOptions, nnm_branches, scaling_check
 
@@ -98,7 +98,7 @@ def run(args) -> int:
     if args.check_scaling:
         data['scaling_check'] = scaling_check(model, mode=args.mode, options=opts)
     if args.json:
-        print(json.dumps(data))
+        print(json_text(data))
     else:
         _print(res, data, args)
     if dest is not None:
@@ -165,7 +165,7 @@ def _print(res, data, args) -> None:
 
 
 def _write(out: Path, res, data: dict, args) -> None:
-    (out / 'nnm.json').write_text(json.dumps(data, indent=1))
+    write_json(out / 'nnm.json', data)
     H = res.n_harmonics
     rows = [[r, int(br.segment[i]), br.xi[i], br.frequency_hz[i], br.energy[i],
              br.shares[i, 1], int(br.tongue_harmonic[i]), br.windup_static, *br.coefficients[i]]

@@ -1,13 +1,13 @@
 """``dmf-sim optimize``: design the DMF spring (multi-objective, robust, constrained) on Dask."""
 from __future__ import annotations
 
-import json
 import sys
 import time
 from pathlib import Path
 
 from dmf_sim.commands import _options as opt
 from dmf_sim.core.errors import ConfigError
+from dmf_sim.core.json_out import json_text, write_json
 from dmf_sim.core.optional import require_extra
 
 __all__ = ['NAME', 'HELP', 'DEFAULT_VERIFY', 'add_arguments', 'run']
@@ -81,9 +81,9 @@ def run(args) -> int:
         summary = _finish(problem, result, baseline, args, say, time.perf_counter() - t0)
         if baseline is not None:
             summary['baseline_dir'] = str(args.out / BASELINE_DIR)
-        (args.out / 'summary.json').write_text(json.dumps(summary, indent=1, default=_json))
+        write_json(args.out / 'summary.json', summary, default=_json)
     if args.json:
-        print(json.dumps(summary, default=_json))
+        print(json_text(summary, default=_json))
     else:
         _print(summary)
     return 0

@@ -9,13 +9,13 @@ nothing in the report is typed in. This module parses the options and prints.
 """
 from __future__ import annotations
 
-import json
 import sys
 import time
 from pathlib import Path
 
 from dmf_sim import __version__
 from dmf_sim.commands import _options as opt
+from dmf_sim.core.json_out import json_text, write_json
 from dmf_sim.paper.claims import NO, PARTLY, YES, claims
 from dmf_sim.paper.report import STATUS_MARK, report_html, report_markdown, write_figures
 from dmf_sim.paper.study import PaperStudy, StudySettings
@@ -67,15 +67,15 @@ def run(args) -> int:
             'claims': [{'key': c.key, 'status': c.status, 'package': c.package} for c in rows],
             'figures': files, 'solver_notes': results.notes, 'step_seconds': results.seconds,
         }
-        (out / 'claims.json').write_text(json.dumps(
-            {**summary, 'claims': [c.as_dict() for c in rows]}, indent=1, default=float))
+        write_json(out / 'claims.json', {**summary, 'claims': [c.as_dict() for c in rows]},
+                   default=float)
         (out / 'report.md').write_text(report_markdown(results, rows, summary))
         (out / 'report.html').write_text(report_html(results, rows, summary, out))
     summary['files'] = [str(out / n) for n in ('report.md', 'report.html', 'claims.json')]
     say(f'done: {summary["counts"][YES]} yes, {summary["counts"][PARTLY]} partly, '
         f'{summary["counts"][NO]} no; {args.out / "report.html"}')
     if args.json:
-        print(json.dumps(summary, default=float))
+        print(json_text(summary, default=float))
     else:
         for c in rows:
             print(f'{STATUS_MARK[c.status]:>6}  {c.topic}')

@@ -13,7 +13,6 @@ along the run, its ground truth written into the bag (``faults/ground_truth``,
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 
@@ -28,6 +27,7 @@ from dmf_sim.commands._options import (
     output,
 )
 from dmf_sim.core.errors import ConfigError
+from dmf_sim.core.json_out import json_text
 from dmf_sim.core.names import check_namespace
 from dmf_sim.live.peaks import peaks_text
 from dmf_sim.transient.defaults import CHUNK_RANGE_S, DEFAULT_CHUNK_S, default_threads
@@ -102,7 +102,7 @@ def run(args: argparse.Namespace) -> int:
     summary = run_profile(profile, None if args.no_write else args.out, opt,
                           progress=not (args.no_progress or args.json), destination=dest)
     if args.json:
-        print(json.dumps(summary.as_dict()))
+        print(json_text(summary.as_dict()))
     else:
         what = f'bag {summary.bag}: {summary.messages} messages' if summary.bag else 'not written'
         faults = (f'; faults {args.faults}: ground-truth events: {summary.fault_events}, '

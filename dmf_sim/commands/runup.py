@@ -4,12 +4,12 @@ sweep's branches, the jump speeds in the records and the sweep events that expla
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 from dmf_sim.analysis.outputs import to_jsonable
 from dmf_sim.commands import _options as opt
 from dmf_sim.core.errors import ConfigError
+from dmf_sim.core.json_out import json_text, write_json
 from dmf_sim.transient.defaults import DEFAULT_BIN_RPM, JUMP_WINDOW_CYCLES
 
 __all__ = ['NAME', 'HELP', 'MAX_BAGS', 'add_arguments', 'run']
@@ -59,10 +59,10 @@ def run(args: argparse.Namespace) -> int:
     data = to_jsonable(res.as_dict())
     if dest is not None:
         with dest.writing() as out:
-            (out / 'runup.json').write_text(json.dumps(data, indent=1))
+            write_json(out / 'runup.json', data)
             plot_runup(res, out / 'runup.png')
     if args.json:
-        print(json.dumps(data))
+        print(json_text(data))
     else:
         for r in res.runs:               # what the reading had to leave out, as analyze says
             for line in r.damage:

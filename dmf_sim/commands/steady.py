@@ -1,10 +1,9 @@
 """``dmf-sim steady``: every steady state at one operating point, its stability and basin."""
 from __future__ import annotations
 
-import json
-
 from dmf_sim.commands import _options as opt
 from dmf_sim.core.errors import ConfigError
+from dmf_sim.core.json_out import json_text
 from dmf_sim.core.validation import SEED_MAX
 
 __all__ = ['NAME', 'HELP', 'SEED_MAX', 'LIMITS', 'add_arguments', 'run']
@@ -80,7 +79,7 @@ def run(args) -> int:
     data.update(driveline=line.name, engine=str(args.engine), load_set=args.load_set,
                 alpha=line.spring.alpha, theta_rad=line.spring.theta)
     if args.json:
-        print(json.dumps(data))
+        print(json_text(data))
         return 0
     print(f'{line.name}, {args.engine} Load {args.load_set}: {args.speed:g} rpm, '
           f'load {args.load:g}, '

@@ -2,7 +2,6 @@
 continuation and Floquet stability (paper Fig. 13 and 15)."""
 from __future__ import annotations
 
-import json
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -12,6 +11,7 @@ import numpy as np
 from dmf_sim.commands import _options as opt
 from dmf_sim.core.csv_out import write_csv
 from dmf_sim.core.errors import ConfigError, ConvergenceError, DmfSimError, one_line
+from dmf_sim.core.json_out import json_text, write_json
 
 __all__ = ['NAME', 'HELP', 'CSV_FIELDS', 'FAULT_CSV_FIELDS', 'FIG15_ALPHA', 'MAX_SWEEPS',
            'add_arguments', 'run', 'sweep_dict', 'figures']
@@ -132,7 +132,7 @@ def run(args) -> int:
         with dest.writing() as out:
             data['files'] = _write(out, data, results)
     if args.json:
-        print(json.dumps(data))
+        print(json_text(data))
     else:
         _print_summary(data, results)
     return 0
@@ -249,5 +249,5 @@ def _write(out: Path, data: dict, results) -> dict:
     fields = CSV_FIELDS + (FAULT_CSV_FIELDS if data.get('faults') else [])
     write_csv(out / 'sweep.csv', fields, ({**row, 'load': data['load']}
                                           for sw in data['sweeps'] for row in sw['points']))
-    (out / 'sweep.json').write_text(json.dumps({**data, 'files': files}, indent=1))
+    write_json(out / 'sweep.json', {**data, 'files': files})
     return files

@@ -4,8 +4,9 @@ once after ``colcon build``)."""
 from __future__ import annotations
 
 import argparse
-import json
 import time
+
+from dmf_sim.core.json_out import json_text
 
 __all__ = ['NAME', 'HELP', 'add_arguments', 'run']
 
@@ -36,7 +37,7 @@ def run(args: argparse.Namespace) -> int:
                 for g, seconds, compiled in warm_up(GROUPS, prefix=f'dmf-sim {NAME}')]
     total = time.perf_counter() - t0
     if args.json:
-        print(json.dumps({'groups': rows, 'seconds': round(total, 2)}))
+        print(json_text({'groups': rows, 'seconds': round(total, 2)}))
         return 0
     for r in rows:
         if args.check:

@@ -40,6 +40,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from dmf_sim.core.errors import ConfigError
+from dmf_sim.core.json_out import write_json
 
 __all__ = ['MANIFEST', 'KINDS', 'DISK_MARGIN', 'DISK_RESERVE_BYTES', 'Destination', 'claim',
            'check_output_dir', 'check_free_space', 'free_bytes', 'human_bytes']
@@ -313,8 +314,7 @@ class Destination:
             return
         from dmf_sim import __version__
         tmp = p / (MANIFEST + '.tmp')
-        tmp.write_text(json.dumps({'command': self.command, 'version': __version__,
-                                   'files': files}, indent=1) + '\n', encoding='utf-8')
+        write_json(tmp, {'command': self.command, 'version': __version__, 'files': files})
         os.replace(tmp, p / MANIFEST)
 
 

@@ -35,6 +35,8 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from dmf_sim.core.json_out import json_text
+
 __all__ = ['COMPILING', 'TIMES_FILE', 'KernelGroup', 'cached', 'cold', 'warm_up',
            'source_files', 'source_stamp', 'install_locators']
 
@@ -82,7 +84,7 @@ class KernelGroup:
         try:
             times = json.loads(path.read_text()) if path.is_file() else {}
             times[self.name] = round(seconds, 1)
-            path.write_text(json.dumps(times))
+            path.write_text(json_text(times))
         except (OSError, ValueError, TypeError):
             pass
 

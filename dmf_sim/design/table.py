@@ -25,6 +25,7 @@ from pathlib import Path
 from dmf_sim.core.csv_out import write_csv
 from dmf_sim.core.destinations import check_output_dir
 from dmf_sim.core.errors import ConfigError
+from dmf_sim.core.json_out import write_json
 from dmf_sim.core.optional import require
 from dmf_sim.design.metrics import WORST
 
@@ -165,7 +166,7 @@ class ResultStore:
         """Create the directory and write study.json (the study and its fingerprint)."""
         (self.dir / PARTS).mkdir(parents=True, exist_ok=True)
         meta = {**self.study.as_dict(), 'fingerprint': self.study.fingerprint()}
-        _atomic_write(self.dir / STUDY_FILE, lambda p: p.write_text(json.dumps(meta, indent=1)))
+        _atomic_write(self.dir / STUDY_FILE, lambda p: write_json(p, meta))
 
     def append(self, rows: list[dict]) -> None:
         """Store one finished batch (one Parquet part, complete or absent)."""

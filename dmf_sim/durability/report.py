@@ -3,13 +3,13 @@ matrix, the damage by speed band and the dissipated power over the record (one p
 cycle). Drawn with :mod:`dmf_sim.figures`' rules, written by :func:`dmf_sim.figures.save`."""
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 from matplotlib.figure import Figure
 
 from dmf_sim.analysis.outputs import to_jsonable
+from dmf_sim.core.json_out import write_json as write_json_file
 from dmf_sim.durability.read import DurabilityRun
 from dmf_sim.figures import legend_beside, save
 
@@ -37,7 +37,7 @@ def report_dict(run: DurabilityRun) -> dict:
 
 
 def write_json(run: DurabilityRun, path: Path) -> Path:
-    path.write_text(json.dumps(report_dict(run), indent=1))
+    write_json_file(path, report_dict(run))
     return path
 
 

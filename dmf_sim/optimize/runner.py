@@ -27,6 +27,7 @@ import numpy as np
 
 from dmf_sim.cluster import start_local, wait_for_workers
 from dmf_sim.core.errors import ConfigError, one_line
+from dmf_sim.core.json_out import write_json
 from dmf_sim.core.optional import require
 from dmf_sim.design.evaluate import StudyContext, evaluate_batch
 from dmf_sim.design.result import StudyResult
@@ -134,8 +135,7 @@ def _check_problem_file(problem: Problem, out: Path, resume: bool) -> None:
             raise ConfigError(f'--resume: {out} holds another optimization (other method, seed, '
                               'batch size, variables or constraints); choose another --out')
     out.mkdir(parents=True, exist_ok=True)
-    meta.write_text(json.dumps({**problem.as_dict(), 'fingerprint': problem.fingerprint()},
-                               indent=1, default=float))
+    write_json(meta, {**problem.as_dict(), 'fingerprint': problem.fingerprint()}, default=float)
 
 
 def check_budget(problem: Problem, store: ResultStore | None) -> None:
