@@ -121,12 +121,14 @@ class SimulationHealth:
 def peak_values(peaks) -> dict[str, str]:
     """The health values of a :class:`dmf_sim.live.peaks.WindupPeaks`: the peak wind-up and
     the DMF spring torque there, both signs, since ``peaks_since_s`` (the start or the last
-    reset), and the end stops' travel margin and contacts for a spring with stops."""
+    reset), and the end stops' travel margin and contacts for a spring with stops; without a
+    DMF only ``peaks_since_s``."""
     d = peaks.as_dict()
-    (w_lo, w_hi), (t_lo, t_hi) = d['peak_windup_rad'], d['peak_dmf_torque_nm']
-    out = {'peak_windup_min_rad': f'{w_lo:.6f}', 'peak_windup_max_rad': f'{w_hi:.6f}',
-           'peak_dmf_torque_min_nm': f'{t_lo:.1f}', 'peak_dmf_torque_max_nm': f'{t_hi:.1f}',
-           'peaks_since_s': f'{d["since_s"]:.4f}'}
+    out = {'peaks_since_s': f'{d["since_s"]:.4f}'}
+    if 'peak_windup_rad' in d:
+        (w_lo, w_hi), (t_lo, t_hi) = d['peak_windup_rad'], d['peak_dmf_torque_nm']
+        out.update(peak_windup_min_rad=f'{w_lo:.6f}', peak_windup_max_rad=f'{w_hi:.6f}',
+                   peak_dmf_torque_min_nm=f'{t_lo:.1f}', peak_dmf_torque_max_nm=f'{t_hi:.1f}')
     if 'stop_contacts' in d:
         out.update(travel_margin_rad=f'{d["travel_margin_rad"]:.6f}',
                    stop_contacts=str(d['stop_contacts']))

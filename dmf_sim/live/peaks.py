@@ -18,6 +18,9 @@ amplitude, the slow overshoot of a load step not at all):
   Newmark kernel's, counted at every step (:meth:`WindupPeaks.observe_law`), and
   ``peak_stop_torque_nm`` is the largest contact torque |T_s| [Nm]: the impact;
 * with arc-spring friction (eq. 8a) ``friction_heat_j``: the friction's work [J], its heat.
+
+A driveline without a DMF has no wind-up and no DMF torque: the peak fields are left out (only
+``since_s`` remains), as the end-stop fields are without stops, and :func:`peaks_text` says so.
 """
 from __future__ import annotations
 
@@ -101,7 +104,10 @@ class WindupPeaks:
     def as_dict(self) -> dict:
         """The JSON/summary form: ``peak_windup_rad`` [min, max], ``peak_dmf_torque_nm`` [at
         min, at max], their times ``peak_windup_t_s``, ``since_s``; with end stops also
-        ``travel_margin_rad`` and ``stop_contacts`` (module docstring)."""
+        ``travel_margin_rad`` and ``stop_contacts`` (module docstring); without a DMF only
+        ``since_s``."""
+        if self.spring is None:
+            return {'since_s': self.since_s}
         out = {'peak_windup_rad': [self.lo, self.hi],
                'peak_dmf_torque_nm': [self.torque_lo, self.torque_hi],
                'peak_windup_t_s': [self.t_lo, self.t_hi], 'since_s': self.since_s}
@@ -119,7 +125,10 @@ class WindupPeaks:
 def peaks_text(d: dict) -> str:
     """One line for people from :meth:`WindupPeaks.as_dict` (or a run summary holding its keys):
     ``peak wind-up -0.0512 .. 0.3021 rad, DMF torque -558 .. 3601 Nm`` and the end stops'
-    margin and contacts where the spring has stops."""
+    margin and contacts where the spring has stops; ``no DMF: no wind-up, no DMF torque``
+    without one."""
+    if 'peak_windup_rad' not in d:
+        return 'no DMF: no wind-up, no DMF torque'
     (w_lo, w_hi), (t_lo, t_hi) = d['peak_windup_rad'], d['peak_dmf_torque_nm']
     text = (f'peak wind-up {w_lo:.4f} .. {w_hi:.4f} rad, DMF torque {t_lo:.0f} .. {t_hi:.0f} '
             'Nm')

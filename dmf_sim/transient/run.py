@@ -160,19 +160,19 @@ class RunSummary:
     faults: str | None = None     # the fault schedule
     fault_events: int = 0         # ground-truth events (starts, ends, misfires)
     misfires: int = 0             # combustions that misfired
-    peak_windup_rad: list = field(default_factory=list)     # [min, max] over the samples
-    peak_dmf_torque_nm: list = field(default_factory=list)  # spring torque at those wind-ups
+    peak_windup_rad: list | None = None     # [min, max] over the samples (a DMF driveline)
+    peak_dmf_torque_nm: list | None = None  # spring torque at those wind-ups (a DMF driveline)
     travel_margin_rad: float | None = None  # smallest distance to an end stop (spring with stops)
     stop_contacts: int | None = None        # entries beyond an end stop (spring with stops)
     peak_stop_torque_nm: float | None = None  # largest end-stop contact torque (end-stop law)
     friction_heat_j: float | None = None    # arc-spring friction's work [J] (spring with friction)
 
     def as_dict(self) -> dict:
-        """Every field; the end-stop fields only for a spring that has stops, the friction
-        heat only for one with friction."""
+        """Every field; the peaks only for a driveline with a DMF, the end-stop fields only
+        for a spring that has stops, the friction heat only for one with friction."""
         out = asdict(self)
-        for key in ('travel_margin_rad', 'stop_contacts', 'peak_stop_torque_nm',
-                    'friction_heat_j'):
+        for key in ('peak_windup_rad', 'peak_dmf_torque_nm', 'travel_margin_rad',
+                    'stop_contacts', 'peak_stop_torque_nm', 'friction_heat_j'):
             if out[key] is None:
                 del out[key]
         return out
@@ -623,8 +623,8 @@ def _stream(profile: Profile, out, opt: RunOptions, sim: LiveSimulation,
         dt_s=sim.dt, interrupted=interrupted, knee_crossings=sim.knee_crossings,
         solver_resets=sim.solver_resets, threads=opt.threads, peak_rss_mib=peaks,
         faults=opt.faults, fault_events=counts['events'], misfires=counts['misfires'],
-        peak_windup_rad=extremes['peak_windup_rad'],
-        peak_dmf_torque_nm=extremes['peak_dmf_torque_nm'],
+        peak_windup_rad=extremes.get('peak_windup_rad'),
+        peak_dmf_torque_nm=extremes.get('peak_dmf_torque_nm'),
         travel_margin_rad=extremes.get('travel_margin_rad'),
         stop_contacts=extremes.get('stop_contacts'),
         peak_stop_torque_nm=extremes.get('peak_stop_torque_nm'),

@@ -129,6 +129,28 @@ def test_braking_step_and_the_summary_json(capsys):
     assert 'step:1600:0:-1:0.1:0.5:0.5: peak wind-up -0.1' in out and 'DMF torque -1' in out
 
 
+def test_a_driveline_without_a_dmf_reports_no_peaks(capsys):
+    """Without a DMF there is no wind-up and no DMF torque: the summary printed "0.0000 ..
+    0.0000 rad, DMF torque nan .. nan Nm" and its JSON held NaN (not JSON). The peak fields are
+    left out now, the text says there is no DMF, and the node's health carries only the time
+    the peaks start at."""
+    from dmf_sim.live.health import peak_values
+
+    def refuse(name):
+        raise ValueError(f'not JSON: {name}')
+    argv = ['run', 'step:1200:0:1:0.1', '--config', 'truck_conventional', '--no-write']
+    assert cli_main([*argv, '--json']) == 0
+    d = json.loads(capsys.readouterr().out.strip().splitlines()[-1], parse_constant=refuse)
+    assert 'peak_windup_rad' not in d and 'peak_dmf_torque_nm' not in d and d['samples'] > 0
+    assert cli_main(argv) == 0
+    out = capsys.readouterr().out
+    assert 'step:1200:0:1:0.1: no DMF: no wind-up, no DMF torque' in out and 'nan' not in out
+    peaks = WindupPeaks(None)
+    peaks.observe(np.zeros(3), np.arange(3.0))
+    assert peaks.as_dict() == {'since_s': 0.0}
+    assert peak_values(peaks) == {'peaks_since_s': '0.0000'}
+
+
 def test_end_stops_through_the_spring_hook(monkeypatch):
     """With end stops on the spring (``stop_angles_rad``, set by the end-stop model) a run
     reports the travel margin and the stop contacts."""
