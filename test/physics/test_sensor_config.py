@@ -49,6 +49,14 @@ def test_shipped_sensors_of_the_dmf_truck():
     assert 'flywheel_secondary' not in conv.names
 
 
+@pytest.mark.parametrize('name', ['truck_dmf_friction', 'truck_dmf_coast'])
+def test_every_shipped_dmf_truck_has_the_dmf_trucks_sensors(name):
+    """The example DMF drivelines had no sensors: their bags carried no sensor topics and a
+    sensor fault (config/faults_example.yaml) was refused ("known: none")."""
+    assert read_driveline(name).sensors == read_driveline('truck_dmf').sensors
+    assert 'crank' in read_driveline(name).sensors.names
+
+
 def test_drawn_pitch_pattern_is_fixed_zero_mean_and_of_its_sigma():
     w = read_driveline('truck_dmf').sensors.wheel('crank')
     e = np.array(w.pitch_errors_deg)
