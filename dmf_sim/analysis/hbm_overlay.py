@@ -72,7 +72,10 @@ def model_settings(metadata: Mapping[str, Any] | None = None, *, config: str | N
     try:
         line = read_driveline(out['driveline'])
     except (OSError, ValueError) as exc:
-        where = 'stored in the bag' if src['driveline'] == 'bag' else 'given'
+        if src['driveline'] == 'option':
+            raise BagError(f'--config {out["driveline"]!r} cannot be loaded: '
+                           f'{one_line(exc)}') from None
+        where = 'stored in the bag' if src['driveline'] == 'bag' else 'the default'
         raise BagError(f'driveline {out["driveline"]!r} ({where}) cannot be loaded: '
                        f'{one_line(exc)}; pass --config') from None
     spring_src = 'driveline YAML'

@@ -261,17 +261,18 @@ def detect_edges(crank: WheelEdges, secondary: WheelEdges, crank_t_ns: np.ndarra
 
 def detect_bag(path: str | os.PathLike | BagFiles, *, crank: str = 'crank',
                secondary: str = 'flywheel_secondary', threshold: float = DEFAULT_THRESHOLD,
-               window: int = DEFAULT_WINDOW, skip_s: float | None = None
-               ) -> tuple[dict[str, np.ndarray], MisfireScore]:
+               window: int = DEFAULT_WINDOW, skip_s: float | None = None,
+               config: str | None = None) -> tuple[dict[str, np.ndarray], MisfireScore]:
     """Run the detector on a bag's tooth wheels (pitch errors from its metadata) and score it
     against its ground truth. skip_s: seconds from the first crank edge not scored (default:
-    the run's settling time from the metadata). Returns the scores (:func:`detect_edges`)
-    and the :class:`MisfireScore`."""
+    the run's settling time from the metadata); config: the driveline YAML instead of the one
+    the bag names (``--config`` of ``dmf-sim analyze``). Returns the scores
+    (:func:`detect_edges`) and the :class:`MisfireScore`."""
     from dmf_sim.analysis.hbm_overlay import build_model, model_settings
 
     bag = path if isinstance(path, BagFiles) else resolve_bag(path)
     meta = RunMetadata.from_bag_metadata(bag.metadata)
-    model = build_model(model_settings(bag.metadata))
+    model = build_model(model_settings(bag.metadata, config=config))
     beta = np.radians(np.asarray(model.line.firing_phases_deg, float))
     edges = read_wheel_edges(bag, [crank, secondary])
     ct_ns, psi = read_float64(bag, CRANK_ANGLE_TOPIC)

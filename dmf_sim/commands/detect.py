@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 
+from dmf_sim.commands import _options as opt
 from dmf_sim.core.errors import ConfigError
 from dmf_sim.core.json_out import json_text
 
@@ -23,18 +24,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         'the mean work below its neighbours (default: the detector\'s '
                         'DEFAULT_THRESHOLD, 0.3)')
     p.add_argument('--json', action='store_true', help='print one JSON object')
+    opt.add_config(p, default=None, help_default="the bag's driveline, else truck_dmf")
 
 
 def run(args: argparse.Namespace) -> int:
     from dmf_sim.analysis.misfire_detector import DEFAULT_THRESHOLD, detect_bag
     from dmf_sim.analysis.windup_estimate import windup_from_bag
 
+    opt.check_common(args)
     if args.threshold is None:
         args.threshold = DEFAULT_THRESHOLD
     if not 0.0 < args.threshold < 10.0:
         raise ConfigError(f'--threshold {args.threshold!r}: must be in (0, 10)')
     scores, result = detect_bag(args.bag, crank=args.crank, secondary=args.secondary,
-                                threshold=args.threshold)
+                                threshold=args.threshold, config=args.config)
     w = windup_from_bag(args.bag, args.crank, args.secondary)
     out = result.as_dict()
     out['windup'] = {'p2p_sensors_rad': w.p2p_est_rad, 'p2p_true_rad': w.p2p_true_rad,

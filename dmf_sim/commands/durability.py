@@ -34,6 +34,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     opt.add_overwrite(p)
     p.add_argument('--json', action='store_true', help='print the JSON report to stdout')
     p.add_argument('--no-plots', action='store_true', help='skip the PNG report')
+    opt.add_config(p, default=None, help_default="the bag's driveline, else truck_dmf")
     p.add_argument('--namespace', help="driveline namespace of the node's topics (default: "
                    'found in the bag)')
     p.add_argument('--progress', action='store_true', help='progress bar over the bytes read')
@@ -47,6 +48,7 @@ def run(args: argparse.Namespace) -> int:
     from dmf_sim.durability.settings import read_settings
     from dmf_sim.live.warm import warm_up
 
+    opt.check_common(args)
     settings = read_settings(args.settings, exponent=args.exponent,
                              reference_range_nm=args.reference_range,
                              reference_cycles=args.reference_cycles)
@@ -56,7 +58,7 @@ def run(args: argparse.Namespace) -> int:
         out = Path(f'{bag.path.resolve().name}_durability')
     dest = opt.output(args, NAME, out) if out is not None else None
     warm_up(NAME, 'bag reading')
-    result = bag_durability(bag, settings, namespace=args.namespace,
+    result = bag_durability(bag, settings, namespace=args.namespace, config=args.config,
                             progress=args.progress and sys.stderr.isatty())
     written = []
     if dest is not None:

@@ -33,6 +33,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    'default <first BAG name>_runup unless --json')
     opt.add_overwrite(p)
     p.add_argument('--json', action='store_true', help='print the JSON to stdout')
+    opt.add_config(p, default=None, help_default="the bag's driveline, else truck_dmf")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -41,6 +42,7 @@ def run(args: argparse.Namespace) -> int:
     from dmf_sim.transient.plots import plot_runup
     from dmf_sim.transient.runup import runup_analysis
 
+    opt.check_common(args)
     if not 0 < args.bin_rpm <= 500:
         raise ConfigError(f'--bin-rpm must be within (0, 500] rpm, got {args.bin_rpm!r}')
     if not 2 <= args.window <= 200:
@@ -55,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
     dest = opt.output(args, NAME, out) if out is not None else None
     warm_up(NAME, 'bag reading', *([] if args.no_hbm else ['sweep']))
     res = runup_analysis(args.bags, bin_rpm=args.bin_rpm, hbm=not args.no_hbm,
-                         window=args.window)
+                         window=args.window, config=args.config)
     data = to_jsonable(res.as_dict())
     if dest is not None:
         with dest.writing() as out:

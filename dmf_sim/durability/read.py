@@ -105,8 +105,11 @@ class _Aligner:
 
 
 def bag_durability(path: str | os.PathLike | BagFiles, settings: DurabilitySettings, *,
-                   namespace: str | None = None, progress: bool = False) -> DurabilityRun:
-    """Durability figures of a bag (see the module docstring)."""
+                   namespace: str | None = None, progress: bool = False,
+                   config: str | None = None) -> DurabilityRun:
+    """Durability figures of a bag (see the module docstring); ``config``: the driveline YAML
+    instead of the one the bag names (``--config`` of ``dmf-sim analyze``: the DMF spring
+    stored in the bag still applies)."""
     t0 = time.perf_counter()
     bag = path if isinstance(path, BagFiles) else resolve_bag(path)
     listed = bag_topics(bag)
@@ -117,7 +120,7 @@ def bag_durability(path: str | os.PathLike | BagFiles, settings: DurabilitySetti
         if listed and tp[key] not in listed:     # (no topic at all: read, then say why)
             raise BagError(f'the bag has no {tp[key]} topic ({needs}); topics found: '
                            f'{topics_text(listed)}')
-    st = model_settings(bag.metadata)
+    st = model_settings(bag.metadata, config=config)
     model = build_model(st)
     if model.spring is None:
         raise BagError(f'driveline {st["driveline"]!r} of this bag has no DMF: nothing to assess')

@@ -227,8 +227,10 @@ def quasi_static_difference(res: BagAnalysis, jumps: list[Jump], events: list[di
 
 def runup_analysis(bags: list[str | os.PathLike], *, bin_rpm: float = DEFAULT_BIN_RPM,
                    hbm: bool = True, window: int = JUMP_WINDOW_CYCLES,
-                   min_fraction: float = JUMP_MIN_FRACTION) -> RunupResult:
-    """Analyse run-up / run-down bags (module docstring)."""
+                   min_fraction: float = JUMP_MIN_FRACTION,
+                   config: str | None = None) -> RunupResult:
+    """Analyse run-up / run-down bags (module docstring); ``config``: the driveline YAML of
+    the HBM overlay instead of the one each bag names (``--config`` of ``dmf-sim analyze``)."""
     if not bags:
         raise BagError('give at least one run-up or run-down bag')
     runs, dirs, jumps, events = [], [], [], []
@@ -249,7 +251,7 @@ def runup_analysis(bags: list[str | os.PathLike], *, bin_rpm: float = DEFAULT_BI
             sig.cycle_load = sig.cycle_load[ramp]
         sig.table = bin_cycles(cyc, bin_rpm, res.theta, res.min_cycles, sig.cycle_load)
         if hbm:
-            overlay_all(res, model_settings(res.metadata))
+            overlay_all(res, model_settings(res.metadata, config=config))
             sig = res.signal('windup')
             if sig.hbm is not None:
                 for e in sig.hbm.events:

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from dmf_sim.cli import main as cli_main
+from dmf_sim.core.paths import config_file
 from dmf_sim.durability.accumulate import DurabilityAccumulator
 from dmf_sim.durability.rainflow import count_cycles
 from dmf_sim.durability.settings import SNCurve, read_settings
@@ -329,3 +330,34 @@ def test_durability_of_a_diverged_bag_is_one_line(tmp_path, capsys):
         assert out.out == '' and out.err.count('\n') == 1, out.err
         assert 'not physical from t = ' in out.err and 'Traceback' not in out.err
     assert sorted(p.name for p in tmp_path.iterdir()) == ['div']
+
+
+@pytest.mark.slow
+def test_a_bag_whose_driveline_file_is_gone_takes_config(tmp_path, capsys):
+    """A bag names its driveline file; once that file is gone the message says "pass --config",
+    which durability (like runup and detect) did not have ("unrecognized arguments"). Every
+    command that reads a bag's model takes it now, with analyze's meaning."""
+    import shutil
+
+    from dmf_sim.cli import build_parser
+    cfg = tmp_path / 'x' / 'cfg.yaml'
+    cfg.parent.mkdir()
+    shutil.copy(config_file('truck_dmf'), cfg)
+    bag = tmp_path / 'bag'
+    assert cli_main(['run', 'step:1200:0:1:0.1:0.5:0.5', '--config', str(cfg), '--out',
+                     str(bag), '--no-progress']) == 0
+    shutil.rmtree(cfg.parent)
+    capsys.readouterr()
+    assert cli_main(['durability', str(bag), '--json']) == 2
+    err = capsys.readouterr().err
+    assert 'cannot be loaded' in err and 'pass --config' in err and err.count('\n') == 1
+    assert cli_main(['durability', str(bag), '--json', '--config', 'truck_dmf']) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d['samples'] > 0 and d['model']['driveline'] == 'truck_dmf'
+    assert cli_main(['durability', str(bag), '--json', '--config', 'no_such_driveline']) == 2
+    err = capsys.readouterr().err
+    assert "--config 'no_such_driveline' cannot be loaded" in err and 'pass --config' not in err
+    parser = build_parser()
+    for command in ('analyze', 'durability', 'runup', 'detect', 'identify'):
+        args = parser.parse_args([command, str(bag), '--config', 'truck_dmf'])
+        assert args.config == 'truck_dmf', command
