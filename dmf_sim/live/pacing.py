@@ -40,26 +40,31 @@ STRIDE_TOLERANCE = 1e-6     # relative: 1/(rate dt) closer than this to an integ
 NS_PER_S = 1_000_000_000
 
 
-def publish_stride(publish_rate_hz: float, dt: float) -> int:
+def publish_stride(publish_rate_hz: float, dt: float, *, rate_name: str = 'publish_rate',
+                   dt_name: str = 'dt') -> int:
     """Newmark steps between published samples, ``1 / (publish_rate * dt)``, an integer >= 1.
 
     Raises ConfigError if the rate is not positive, faster than one sample per step, or not a
     whole number of steps per sample (e.g. 3000 Hz at dt = 1e-4 s: 3.33 steps); the message
-    names the nearest rates that are.
+    names the nearest rates that are. ``rate_name`` / ``dt_name``: what the messages call the
+    two, as the user set them (the node's parameters by default; ``--rate`` and ``--dt`` of
+    ``dmf-sim run``).
     """
     if not (math.isfinite(publish_rate_hz) and publish_rate_hz > 0):
-        raise ConfigError(f'publish_rate must be > 0 Hz, got {publish_rate_hz!r}')
+        raise ConfigError(f'{rate_name} must be > 0 Hz, got {publish_rate_hz!r}')
     step_rate = 1.0 / dt
     ratio = step_rate / publish_rate_hz
     if ratio < 1.0 - STRIDE_TOLERANCE:
-        raise ConfigError(f'publish_rate {fmt_num(publish_rate_hz)} Hz is faster than the step '
-                          f'rate 1/dt = {fmt_num(step_rate)} Hz')
+        raise ConfigError(f'{rate_name} {fmt_num(publish_rate_hz)} Hz is faster than the step '
+                          f'rate of {dt_name} = {fmt_num(dt)} s ({fmt_num(step_rate)} Hz): give '
+                          f'{rate_name} {fmt_num(step_rate)} Hz or less, or {dt_name} '
+                          f'{fmt_num(1.0 / publish_rate_hz)} s or less')
     n = max(int(round(ratio)), 1)
     if abs(ratio - n) > STRIDE_TOLERANCE * ratio:
         lo, hi = math.floor(ratio), math.ceil(ratio)
         raise ConfigError(
-            f'publish_rate {fmt_num(publish_rate_hz)} Hz is not a whole number of steps of dt = '
-            f'{fmt_num(dt)} s ({ratio:.4g} steps per sample); nearest rates: '
+            f'{rate_name} {fmt_num(publish_rate_hz)} Hz is not a whole number of steps of '
+            f'{dt_name} = {fmt_num(dt)} s ({ratio:.4g} steps per sample); nearest rates: '
             f'{step_rate / lo:.6g} Hz (every {lo} steps) or {step_rate / hi:.6g} Hz '
             f'(every {hi} steps)')
     return n

@@ -226,7 +226,7 @@ def build_simulation(profile: Profile, opt: RunOptions) -> LiveSimulation:
         engine.warm_up()           # the gas grid now (~0.1 s), not lazily inside the timed loop
     hi_lim = hi if math.isfinite(hi) else float(profile.speed_rpm.max()) * 2
     lo_lim = lo if lo > 0 else float(profile.speed_rpm.min()) / 2
-    stride = publish_stride(opt.rate_hz, opt.dt)
+    stride = publish_stride(opt.rate_hz, opt.dt, rate_name='--rate', dt_name='--dt')
     schedule = _schedule(opt.faults, line, profile) if opt.faults else None
     try:
         sim = LiveSimulation(line, engine, dt=opt.dt, speed_rpm=float(profile.speed_rpm[0]),

@@ -154,6 +154,12 @@ def _exit_code(argv) -> int:
     # the package refuses a value (ConfigError)
     (['sweep', '--harmonics', '3', '--no-progress'], 'sweep', '--harmonics=3'),
     (['run', 'ramp:800:2000:0', '--no-write'], 'run', 'rate_rpm_per_s'),
+    # run names its own options, not the node's parameters publish_rate and dt
+    (['run', 'step:1200:0:1:0.1', '--dt', '0.002', '--no-write', '--no-progress'], 'run',
+     '--rate 1000 Hz is faster than the step rate of --dt = 0.002 s (500 Hz): give --rate 500 '
+     'Hz or less, or --dt 0.001 s or less'),
+    (['run', 'step:1200:0:1:0.1', '--rate', '3000', '--no-write', '--no-progress'], 'run',
+     '--rate 3000 Hz is not a whole number of steps of --dt = 0.0001 s'),
 ])
 def test_every_mistake_is_one_line_in_one_form(argv, command, needle, capsys, monkeypatch):
     """argparse used to print its usage block and `dmf-sim: error:` without the command (for an

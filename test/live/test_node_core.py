@@ -62,7 +62,9 @@ def test_publish_stride_refuses_rates_the_step_cannot_divide():
     with pytest.raises(ConfigError, match=r'3000 Hz is not a whole number.*3333\.33 Hz \(every 3 '
                                           r'steps\) or 2500 Hz \(every 4 steps\)'):
         publish_stride(3000.0, 1e-4)
-    with pytest.raises(ConfigError, match='faster than the step rate'):
+    with pytest.raises(ConfigError, match=r'^publish_rate 20000 Hz is faster than the step rate '
+                                          r'of dt = 0\.0001 s \(10000 Hz\): give publish_rate '
+                                          r'10000 Hz or less, or dt 5e-05 s or less$'):
         publish_stride(20000.0, 1e-4)
     for bad in (0.0, -1.0, float('nan')):
         with pytest.raises(ConfigError):
