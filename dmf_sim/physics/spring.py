@@ -273,6 +273,8 @@ class PiecewiseLinearSpring:
             raise ConfigError(f'dmf: alpha must be finite and >= 0 '
                               '(first drive stage stiffness factor), '
                               f'got {alpha!r}')
+        if theta is not None:
+            self._check_theta(float(theta))
         if self.drive:
             first = self.drive[0]
             new = Stage(first.angle_rad if theta is None else float(theta),
@@ -281,6 +283,20 @@ class PiecewiseLinearSpring:
         if theta is None or alpha is None:
             raise ConfigError('dmf: the spring has no drive stage; give both theta and alpha')
         return self.replace(drive=(Stage(float(theta), float(alpha)),))
+
+    def _check_theta(self, theta: float) -> None:
+        """The shorthand's knee must stay before the spring's next drive stage and its drive end
+        stop: refused naming the shorthand (the API's and the node's ``theta``, the commands'
+        ``--theta``) and what it would pass, not the file's field it would then contradict."""
+        limits = [(st.angle_rad, f'the next drive stage at {st.angle_rad:g} rad '
+                   f'(dmf.stages[{i}].angle_rad)') for i, st in enumerate(self.drive[1:2], 1)]
+        if self.stops is not None:
+            a = self.stops.drive_angle_rad
+            limits.append((a, f'the drive end stop at {a:g} rad (dmf.end_stops.drive_angle_rad)'))
+        for angle, what in limits:
+            if theta >= angle:
+                raise ConfigError(f'theta {theta:g} rad (--theta {theta:g}) moves the first drive '
+                                  f'knee to or past {what}: give theta below {angle:g} rad')
 
     # ---- description -------------------------------------------------------------------------
     @property

@@ -160,6 +160,12 @@ def _exit_code(argv) -> int:
      'Hz or less, or --dt 0.001 s or less'),
     (['run', 'step:1200:0:1:0.1', '--rate', '3000', '--no-write', '--no-progress'], 'run',
      '--rate 3000 Hz is not a whole number of steps of --dt = 0.0001 s'),
+    # --theta moving the knee past the end stop is blamed on --theta, not on the file's stop
+    *[([cmd, *extra, '--config', 'truck_dmf_friction', '--theta', '0.5'], cmd,
+       'theta 0.5 rad (--theta 0.5) moves the first drive knee to or past the drive end stop at '
+       '0.45 rad (dmf.end_stops.drive_angle_rad): give theta below 0.45 rad')
+      for cmd, extra in (('run', ['step:1200:0:1:0.1', '--no-write', '--no-progress']),
+                         ('sweep', ['--no-progress']), ('steady', ['--speed', '1000']))],
 ])
 def test_every_mistake_is_one_line_in_one_form(argv, command, needle, capsys, monkeypatch):
     """argparse used to print its usage block and `dmf-sim: error:` without the command (for an

@@ -404,3 +404,20 @@ def test_published_torques_carry_the_friction_and_stop_torque():
     elastic = op.outputs_of(q, v, a, w, psi, it.omega_dot)[2].copy()
     np.testing.assert_allclose(with_law, ref, rtol=1e-9, atol=1e-6)
     np.testing.assert_allclose(with_law - elastic, np.multiply.outer(law, op.c), atol=1e-6)
+
+
+def test_the_theta_shorthand_stays_before_the_next_stage_and_the_stop():
+    """theta moved past the drive end stop (or the next drive stage) is refused naming theta and
+    what it passes; before, the message blamed the file's dmf.end_stops.drive_angle_rad."""
+    from dmf_sim.core.errors import ConfigError
+    from dmf_sim.physics.spring import PiecewiseLinearSpring, Stage
+    line = dmf.read_driveline('truck_dmf_friction')
+    assert line.with_dmf(theta=0.44).spring.theta == 0.44
+    with pytest.raises(ConfigError, match=r'^theta 0\.45 rad \(--theta 0\.45\) moves the '
+                                          r'first drive knee to or past the drive end stop at '
+                                          r'0\.45 rad'):
+        line.with_dmf(theta=0.45)
+    two = PiecewiseLinearSpring(10890.0, (Stage(0.2, 1.0), Stage(0.3, 2.0)))
+    with pytest.raises(ConfigError, match=r'past the next drive stage at 0\.3 rad '
+                                          r'\(dmf\.stages\[1\]\.angle_rad\)'):
+        two.with_first_stage(theta=0.35)
