@@ -1,6 +1,6 @@
-"""``dmf-sim identify BAG``: the DMF's spring stages, knee(s) and damping fitted to a recorded
-run (``dmf_sim.identify.fit``), with each parameter's uncertainty and a plot of measured
-against fitted."""
+"""``dmf-sim identify BAG``: the DMF's spring stages, knee(s), damping and arc-spring friction
+fitted to a recorded run (``dmf_sim.identify.fit``), with each parameter's uncertainty and a
+plot of measured against fitted."""
 from __future__ import annotations
 
 import argparse
@@ -12,10 +12,18 @@ from dmf_sim.core.json_out import json_text, write_json
 __all__ = ['NAME', 'HELP', 'add_arguments', 'run']
 
 NAME = 'identify'
-HELP = ("Fit the DMF's spring (stiffness, knee, stage factor) and damping to a recorded run-up "
+HELP = ("Fit the DMF's spring (stiffness, knees, stage factors), damping and arc-spring "
+        'friction (friction.torque_nm, friction.speed_coefficient) to a recorded run-up '
         'or drive cycle (its wind-up, or the two flywheel speeds): fitted values with their '
         'uncertainty, the fit from several starting points (on Dask with --workers or '
         '--scheduler), a plot of measured against fitted')
+
+PARAMETERS_TEXT = ('k, damping, theta, alpha, stages[i].angle_rad, stages[i].stiffness_factor, '
+                   'coast_stages[j].angle_rad, coast_stages[j].stiffness_factor, '
+                   'friction.torque_nm, friction.speed_coefficient')
+"""The parameters --parameters takes, as dmf_sim.design.parameters.ALLOWED_TEXT lists them
+(written out: importing the design package would load Dask for every ``dmf-sim --help``; a test
+keeps the two the same)."""
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -24,8 +32,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument('bag', metavar='BAG', help='rosbag2 bag directory, one of its .mcap files, '
                    'or a bare .mcap file')
     p.add_argument('--parameters', default=','.join(DEFAULT_PARAMETERS), metavar='NAMES',
-                   help='comma-separated design parameters to fit (k, damping, theta, alpha, '
-                        f'stages[i].angle_rad, ...; default {",".join(DEFAULT_PARAMETERS)})')
+                   help=f'comma-separated DMF parameters to fit, among {PARAMETERS_TEXT} '
+                        f'(default {",".join(DEFAULT_PARAMETERS)})')
     p.add_argument('--signal', default=d.signal, choices=SIGNALS,
                    help='what to fit: the wind-up, or the speeds of the two flywheels '
                         f'(default {d.signal})')

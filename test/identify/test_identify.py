@@ -321,3 +321,19 @@ def test_a_bag_names_its_config_so_another_directory_finds_it(tmp_path, monkeypa
     err = capsys.readouterr().err
     assert code == 2 and err.count('\n') == 1, err
     assert 'the driveline the bag was recorded with' in err and 'give it with --config' in err
+
+
+def test_the_help_names_the_friction_parameters(capsys):
+    """identify fits the arc-spring friction too, but its --help (summary and --parameters)
+    named only the spring and the damping."""
+    from dmf_sim.commands.identify import PARAMETERS_TEXT
+    from dmf_sim.design.parameters import ALLOWED_TEXT, FRICTION
+    assert PARAMETERS_TEXT == ALLOWED_TEXT
+    with pytest.raises(SystemExit):
+        cli_main(['identify', '--help'])
+    text = ' '.join(capsys.readouterr().out.split())
+    params = text.split('options:', 1)[1].split('--parameters NAMES', 1)[1].split('--signal')[0]
+    summary = text.split('positional arguments', 1)[0]
+    for name in FRICTION:
+        assert name in params and name in summary, name
+    assert ALLOWED_TEXT in params
