@@ -175,7 +175,7 @@ def _print(s: dict) -> None:
     print(f'{s["study"]} ({s["method"]}): {s["n_designs"]} designs ({s["n_feasible"]} feasible, '
           f'{s["n_failed"]} failed, {s["n_resumed"]} resumed); {s["seconds"]:.1f} s on '
           f'{s["workers"]} worker(s), {rate}')
-    print(f'feasible Pareto front of {", ".join(s["objectives"][:2])}: {len(s["pareto"])} designs')
+    print(f'feasible Pareto front of {", ".join(s["objectives"])}: {len(s["pareto"])} designs')
     for d in s['pareto'][:20]:
         print('  ' + ', '.join(f'{k} = {v:.5g}' if isinstance(v, float) else f'{k} = {v}'
                                for k, v in d.items()))

@@ -521,3 +521,16 @@ def test_hypervolumes_without_a_feasible_design_are_empty_not_an_error():
     for hv in (common_hypervolumes(run, run), front_hypervolumes(run, run)):
         assert hv['reference_point'] is None and math.isnan(hv['ratio'])
         assert hv['optimizer_final'] == hv['lhs_final'] == 0.0
+
+
+def test_the_printed_front_names_every_objective(capsys):
+    """The front is of all the objectives (finish: ranks over every one); the summary named the
+    first two of config/optimize_example.yaml's three."""
+    from dmf_sim.commands.optimize import _print
+    objectives = ['worst_torque_3', 'transient_dmf_torque', 'cycle_friction_heat']
+    _print({'designs_per_s': 1.0, 'study': 's', 'method': 'nsga2', 'n_designs': 2,
+            'n_feasible': 2, 'n_failed': 0, 'n_resumed': 0, 'seconds': 1.0, 'workers': 1,
+            'objectives': objectives, 'pareto': [], 'files': {}})
+    out = capsys.readouterr().out
+    assert ('feasible Pareto front of worst_torque_3, transient_dmf_torque, cycle_friction_heat: '
+            '0 designs') in out
