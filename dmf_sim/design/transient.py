@@ -19,7 +19,7 @@ Newmark step :data:`LOAD_STEP_DT_S`). What it measures are the peaks of
 * ``transient_dmf_torque``: the largest DMF spring torque magnitude [Nm] at those peaks, and where;
 * ``transient_stop_contacts``: end-stop contacts in all steps together (0 for a spring without
   stops: nothing to hit); ``transient_travel_margin``: the smallest distance to a stop [rad]
-  (NaN without stops);
+  (None without stops: no stop, no margin; an empty field of the CSV table, null in Parquet);
 * ``transient_seconds``: compute time of the steps.
 
 A study's ``conditions.road_cycle`` runs one drive cycle per design the same way (the thermal
@@ -179,7 +179,7 @@ def transient_summary(steps: list[LoadStep], results: list[dict]) -> dict:
             'transient_dmf_torque_condition': steps[kt].label,
             'transient_stop_contacts': sum(r['stop_contacts'] for r in stops),
             'transient_travel_margin': (min(r['travel_margin_rad'] for r in stops) if stops
-                                        else math.nan),
+                                        else None),
             'transient_seconds': sum(r['seconds'] for r in results)}
 
 
