@@ -110,7 +110,9 @@ def run(args: argparse.Namespace) -> int:
         print(f'{profile.name}: {summary.simulated_s:.3f} s simulated in {summary.wall_s:.2f} s '
               f'(x{summary.realtime_factor:.0f} real time), {summary.samples} samples at '
               f'{summary.rate_hz:g} Hz; {what}{faults}')
-        print(f'{profile.name}: {peaks_text(summary.as_dict())}')
+        after = (f' (after the first {summary.peaks_after_s:g} s: the settling from static '
+                 'equilibrium)' if summary.peaks_after_s > 0 else '')
+        print(f'{profile.name}: {peaks_text(summary.as_dict())}{after}')
     if summary.interrupted:
         print(f'dmf-sim run: interrupted at {summary.simulated_s:.3f} s; the bag holds what was '
               'simulated', file=sys.stderr)

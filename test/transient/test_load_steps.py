@@ -310,3 +310,34 @@ def test_the_sample_rate_does_not_change_the_integration():
     assert np.allclose(t_fine[at], t_coarse, rtol=0, atol=1e-9)
     assert np.max(np.abs(w_fine[at] - w_coarse)) < 1e-9
     assert knees_coarse == knees_fine > 0
+
+
+def test_the_run_summary_peaks_leave_out_the_settling(tmp_path, capsys):
+    """A run at constant full load from static equilibrium: the first swing (0.28 rad at 0.011
+    s) is the start from static equilibrium, not running; the summary reported it as the peak,
+    above a tip-in to the same load (0.273 rad). The peaks are now those of the samples after
+    the profile's settling, the same as the bag's, and the text says so."""
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+    prof = tmp_path / 'const.csv'
+    prof.write_text('time_s,speed_rpm,load\n0,1200,1\n5,1200,1\n')
+    bag = tmp_path / 'bag'
+    summary = run_profile(read_profile(str(prof)), bag, RunOptions(sensors=False))
+    assert summary.peaks_after_s == DEFAULT_SETTLE_S
+    store = get_typestore(Stores.ROS2_JAZZY)
+    t, w = [], []
+    with AnyReader([bag], default_typestore=store) as reader:
+        conns = [c for c in reader.connections if c.topic == '/driveline/dmf_windup']
+        for conn, stamp, raw in reader.messages(connections=conns):
+            t.append(stamp)
+            w.append(store.deserialize_cdr(raw, conn.msgtype).data)
+    t = (np.array(t) - t[0]) * 1e-9 + 1e-3
+    w = np.array(w)
+    after = w[t >= DEFAULT_SETTLE_S]
+    assert summary.peak_windup_rad == [after.min(), after.max()]
+    assert w.max() > after.max() + 0.01                       # the start's swing, left out
+    capsys.readouterr()
+    assert cli_main(['run', str(prof), '--no-write', '--no-progress', '--no-sensors']) == 0
+    line = capsys.readouterr().out.strip().splitlines()[-1]
+    assert f'peak wind-up {after.min():.4f} .. {after.max():.4f} rad' in line
+    assert line.endswith('(after the first 2 s: the settling from static equilibrium)')
