@@ -4,12 +4,13 @@ plot of measured against fitted."""
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 
 from dmf_sim.commands import _options as opt
 from dmf_sim.core.json_out import json_text, write_json
 
-__all__ = ['NAME', 'HELP', 'add_arguments', 'run']
+__all__ = ['NAME', 'HELP', 'add_arguments', 'run', 'value_line']
 
 NAME = 'identify'
 HELP = ("Fit the DMF's spring (stiffness, knees, stage factors), damping and arc-spring "
@@ -54,6 +55,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument('--out', type=Path, help='output directory (identify.json, identify.png)')
     opt.add_overwrite(p)
     p.add_argument('--json', action='store_true', help='print one JSON object to stdout')
+
+
+def value_line(result, name: str) -> str:
+    """The summary's line of one fitted parameter: value, start and relative uncertainty (or
+    why there is none: the fit's sensitivities singular at the optimum, ``rel_std`` NaN)."""
+    sd = result.rel_std[name]
+    spread = (f'± {100 * sd:.2g} %' if math.isfinite(sd) else
+              "uncertainty undetermined: the fit's sensitivities are singular there")
+    return (f'  {name:>22} = {result.values[name]:.6g}   (start {result.initial[name]:.6g}, '
+            f'{spread})')
 
 
 def _run_text(meas, result) -> str:
@@ -117,8 +128,7 @@ def run(args: argparse.Namespace) -> int:
           f'{result.evaluations} simulations from {len(result.starts)} starts, '
           f'{result.seconds:.1f} s')
     for n in result.parameters:
-        print(f'  {n:>22} = {result.values[n]:.6g}   (start {result.initial[n]:.6g}, '
-              f'± {100 * result.rel_std[n]:.2g} %)')
+        print(value_line(result, n))
     print(f'  rms residual {result.rms:.3g} {result.unit} (at the start {result.rms_initial:.3g})')
     print(f'  identifiability {result.identifiability:.2g} (the smallest over the largest '
           f'singular value of the parameters\' effects; below {TIED_MAX:g} they are refused as '

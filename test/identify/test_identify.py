@@ -337,3 +337,17 @@ def test_the_help_names_the_friction_parameters(capsys):
     for name in FRICTION:
         assert name in params and name in summary, name
     assert ALLOWED_TEXT in params
+
+
+def test_a_parameter_without_an_uncertainty_says_why():
+    """A fit whose sensitivities are singular at its optimum has no covariance: the summary
+    printed '± nan %'."""
+    from types import SimpleNamespace
+
+    from dmf_sim.commands.identify import value_line
+    r = SimpleNamespace(values={'k': 9800.0, 'damping': 42.0},
+                        initial={'k': 10890.0, 'damping': 49.5},
+                        rel_std={'k': 0.0123, 'damping': float('nan')})
+    assert value_line(r, 'k').endswith('(start 10890, ± 1.2 %)')
+    line = value_line(r, 'damping')
+    assert 'nan' not in line and 'uncertainty undetermined' in line
