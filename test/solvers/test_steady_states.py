@@ -303,6 +303,7 @@ def test_sweep_cli_time_limit(capsys):
     assert 'Traceback' not in err
 
 
+@pytest.mark.slow
 def test_a_state_newton_reaches_from_several_runs_is_listed_once(tmp_path, capsys):
     """Friction DMF with its drive stop moved to 0.25 rad (in contact every cycle at 1200 rpm,
     full load): basin runs settle within the steady tolerance but off the harmonic balance
