@@ -204,17 +204,6 @@ class RoadCycle:
                 'settle_s': self.settle_s, 'load_set': self.load_set}
 
 
-def _cut(profile: Profile, from_s: float, to_s: float) -> Profile:
-    """``profile`` between ``from_s`` and ``to_s`` [s] (rows inside kept, the ends interpolated
-    as the run does), its time starting at 0."""
-    from dmf_sim.transient.profiles import make_profile
-    inside = (profile.t_s > from_s) & (profile.t_s < to_s)
-    t = np.r_[from_s, profile.t_s[inside], to_s]
-    speed, load = profile.at(t)
-    return make_profile(np.column_stack([t - from_s, speed, load]),
-                        name=f'{profile.name}[{from_s:g}:{to_s:g} s]', source=profile.source)
-
-
 def parse_road_cycle(w: Where, raw, engines: dict) -> RoadCycle | None:
     """The study's ``conditions.road_cycle`` (absent: None), checked as the run checks a profile:
     readable, the window inside it, its speeds in the engine data, its loads allowed by the
@@ -241,7 +230,7 @@ def parse_road_cycle(w: Where, raw, engines: dict) -> RoadCycle | None:
         raise w.error(f'{field}.load_set', f'must be one of the conditions.load_sets '
                       f'({", ".join(engines)})', load_set)
     engine = engines[load_set]
-    window = _cut(profile, from_s, to_s)
+    window = profile.window(from_s, to_s)
     lo, hi = getattr(engine, 'speed_range_rpm', (0.0, math.inf))
     bad = (window.speed_rpm < lo) | (window.speed_rpm > hi)
     if bad.any():

@@ -12,9 +12,9 @@ physical quantity (:data:`dmf_sim.core.bounds.BOUNDS`).
 ``dmf-sim run`` bag), or for a node's recording one rebuilt from what it recorded: the engine
 speed and the load of its health statuses every :data:`REBUILT_ROW_S`, read only where the
 recorded load is known and settled (:attr:`Measurement.fit_mask`: a load change reaches the
-rebuilt profile late). The live
-core integrates it as ``dmf-sim run`` does (:func:`dmf_sim.transient.run.follow_profile`,
-sensors off), and the simulated signal is taken at the bag's sample times.
+rebuilt profile late). The live core integrates it as ``dmf-sim run`` does
+(:func:`dmf_sim.transient.run.follow_profile`, sensors off), and the simulated signal is taken
+at the bag's sample times.
 
 **Measurement.** The DMF wind-up (``/driveline/dmf_windup``), or where only the speeds of the
 two flywheels were recorded (``--signal speeds``), their difference (the wind-up rate, from
@@ -51,7 +51,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from dmf_sim.core.errors import ConfigError
+from dmf_sim.core.errors import ConfigError, one_line
 from dmf_sim.core.validation import SEED_MAX
 
 __all__ = ['DEFAULT_PARAMETERS', 'SIGNALS', 'START_SPREAD', 'REBUILT_ROW_S', 'MIN_FIT_CYCLES',
@@ -253,14 +253,8 @@ def _given_profile(profile, spec: str, series, t_ns: np.ndarray, t_s: np.ndarray
                               'not the profile the bag was recorded along')
     if profile.duration_s <= end + REBUILT_ROW_S:
         return profile
-    keep = profile.t_s < end + REBUILT_ROW_S
-    t_end = end + REBUILT_ROW_S
-    rows = np.column_stack([np.append(profile.t_s[keep], t_end),
-                            *(np.append(col[keep], val) for col, val in
-                              zip((profile.speed_rpm, profile.load), profile.at(t_end)))])
-    from dmf_sim.transient.profiles import make_profile
-    cut = make_profile(rows, name=profile.name, source=profile.source, where=f'--profile {spec}')
-    return replace(cut, settle_s=profile.settle_s)
+    return replace(profile.window(0.0, end + REBUILT_ROW_S, name=profile.name),
+                   settle_s=profile.settle_s)
 
 
 def _known_load(series, start_load: float | None, t_ns: np.ndarray, settle_s: float
@@ -293,7 +287,6 @@ def read_measurement(bag, options: IdentifyOptions = IdentifyOptions()) -> Measu
     :class:`~dmf_sim.core.errors.ConfigError` / BagError when the bag lacks what is needed)."""
     from dmf_sim.analysis.series import SignalSpec, read_bag_series
     from dmf_sim.bags.layout import resolve_bag
-    from dmf_sim.core.errors import one_line
     from dmf_sim.core.paths import config_file
     from dmf_sim.transient.profiles import profile_from_table, read_profile
 
@@ -384,10 +377,8 @@ def _check_run(meas: Measurement, model: _Model) -> None:
     """The run checked as ``dmf-sim run`` checks a profile (one-line errors naming it): its
     speeds within the engine data, its loads torque demands the engine accepts, no load change
     faster than one Newmark step."""
-    prof = meas.profile
-    prof.check_speed_range(*model.speed_limits, 'the engine data')
-    prof.check_load_range(model.engine)
-    prof.check_load_steps(meas.dt, "the Newmark step: --dt, else the bag's")
+    meas.profile.check_runnable(model.speed_limits, model.engine, meas.dt,
+                                dt_what="the Newmark step: --dt, else the bag's")
 
 
 def _base_values(model: _Model) -> dict[str, float]:

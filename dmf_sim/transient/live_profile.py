@@ -37,11 +37,9 @@ def check_profile(value: str, speed_limits_rpm: tuple[float, float], *, engine=N
         return None, None
     try:
         prof = read_profile(value)
-        prof.check_speed_range(*speed_limits_rpm, 'the node\'s speed_min_rpm/speed_max_rpm')
-        if engine is not None:
-            prof.check_load_range(engine)
-        if dt is not None:
-            prof.check_load_steps(dt, 'the node\'s dt')
+        prof.check_runnable(speed_limits_rpm, engine, dt,
+                            speed_what="the node's speed_min_rpm/speed_max_rpm",
+                            dt_what="the node's dt")
     except (DmfSimError, OSError) as exc:   # the message names the profile (read_profile)
         return None, one_line(exc)
     return prof, None

@@ -132,6 +132,30 @@ class Profile:
                 't_s': self.t_s.tolist(), 'speed_rpm': self.speed_rpm.tolist(),
                 'load': self.load.tolist()}
 
+    def window(self, from_s: float, to_s: float, name: str | None = None) -> 'Profile':
+        """The profile between ``from_s`` and ``to_s`` [s] (rows inside kept, the ends
+        interpolated as the run does), its time starting at 0; ``name`` (default
+        ``NAME[FROM:TO s]``), its source kept."""
+        inside = (self.t_s > from_s) & (self.t_s < to_s)
+        t = np.r_[from_s, self.t_s[inside], to_s]
+        speed, load = self.at(t)
+        return make_profile(np.column_stack([t - from_s, speed, load]),
+                            name=name or f'{self.name}[{from_s:g}:{to_s:g} s]',
+                            source=self.source)
+
+    def check_runnable(self, speed_limits_rpm: tuple[float, float], engine=None,
+                       dt: float | None = None, *, speed_what: str = 'the engine data',
+                       dt_what: str = 'dt') -> None:
+        """The checks a run makes of its profile before it starts (one-line errors naming the
+        row): speeds within ``speed_limits_rpm`` (:meth:`check_speed_range`), loads ``engine``
+        accepts (:meth:`check_load_range`) and no load change faster than one Newmark step
+        ``dt`` (:meth:`check_load_steps`); ``engine``, ``dt`` None: not checked."""
+        self.check_speed_range(*speed_limits_rpm, speed_what)
+        if engine is not None:
+            self.check_load_range(engine)
+        if dt is not None:
+            self.check_load_steps(dt, dt_what)
+
     def check_speed_range(self, lo: float, hi: float, what: str = 'the engine data') -> None:
         """OperatingRangeError (one line) if a row's speed lies outside [lo, hi] rpm."""
         bad = np.flatnonzero((self.speed_rpm < lo - 1e-9) | (self.speed_rpm > hi + 1e-9))

@@ -222,9 +222,8 @@ def build_simulation(profile: Profile, opt: RunOptions) -> LiveSimulation:
         raise ConfigError(one_line(exc)) from None
     rng = getattr(engine, 'speed_range_rpm', None)
     lo, hi = (float(rng[0]), float(rng[1])) if rng is not None else (0.0, math.inf)
-    profile.check_speed_range(lo, hi, f'the engine data of {opt.engine}')
-    profile.check_load_range(engine)
-    profile.check_load_steps(opt.dt, '--dt')
+    profile.check_runnable((lo, hi), engine, opt.dt, speed_what=f'the engine data of {opt.engine}',
+                           dt_what='--dt')
     if hasattr(engine, 'warm'):
         engine.warm_up()           # the gas grid now (~0.1 s), not lazily inside the timed loop
     hi_lim = hi if math.isfinite(hi) else float(profile.speed_rpm.max()) * 2
