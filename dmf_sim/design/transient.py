@@ -12,7 +12,10 @@ Each is the profile ``step:SPEED:FROM:TO:RISE:HOLD:SETTLE``
 FROM -> TO in RISE s, HOLD s, back in RISE s, HOLD s) integrated per design by the live core as
 ``dmf-sim run`` integrates it, without a bag (:func:`dmf_sim.transient.run.follow_profile`,
 Newmark step :data:`LOAD_STEP_DT_S`). What it measures are the peaks of
-:mod:`dmf_sim.live.peaks`; a design's summary row gets, over all its load steps
+:mod:`dmf_sim.live.peaks`, the wind-up's after the step's SETTLE (the start from static
+equilibrium is not the step: the run's summary leaves it out too; the stop contacts and the
+friction heat are the whole profile's, as there); a design's summary row gets, over all its
+load steps
 (:func:`transient_summary`, the study columns the optimizer's transient objective reads):
 
 * ``transient_windup``: the largest wind-up magnitude [rad] (either sign), and the step where;
@@ -152,7 +155,8 @@ def parse_load_steps(w: Where, raw, engines: dict) -> list[LoadStep]:
 
 def step_metrics(line, engine, step: LoadStep, dt: float = LOAD_STEP_DT_S) -> dict:
     """The peaks of one load step of the driveline ``line`` (a design) under ``engine``
-    (:meth:`dmf_sim.live.peaks.WindupPeaks.as_dict`) and its compute time ``seconds``;
+    (:meth:`dmf_sim.live.peaks.WindupPeaks.as_dict`; the wind-up's after the step's settle, as
+    ``dmf-sim run`` reports them) and its compute time ``seconds``;
     ``dt``: the Newmark step [s] (a finer one checks the study's, ``dmf_sim.optimize.verify``)."""
     from dmf_sim.live.simulation import LiveSimulation
     t0 = time.perf_counter()
@@ -160,7 +164,7 @@ def step_metrics(line, engine, step: LoadStep, dt: float = LOAD_STEP_DT_S) -> di
     lo, hi = getattr(engine, 'speed_range_rpm', (0.0, math.inf))
     sim = LiveSimulation(line, engine, dt=dt, speed_rpm=step.speed_rpm,
                          load=step.from_load, speed_limits_rpm=(lo, hi))
-    out = follow_profile(sim, prof).as_dict()
+    out = follow_profile(sim, prof, peaks_after_s=prof.start_settle_s).as_dict()
     out['seconds'] = time.perf_counter() - t0
     return out
 

@@ -43,7 +43,9 @@ class WindupPeaks:
 
     Args:
         spring: the DMF spring (``PiecewiseLinearSpring``) or None (a driveline without DMF).
-        t_s: the simulated time [s] the peaks start at.
+        t_s: the simulated time [s] the peaks start at: samples recorded before it are left out
+            of the wind-up's extremes (a later time leaves out a settling from static
+            equilibrium); the kernel's figures (:meth:`observe_law`) count from construction.
     """
 
     def __init__(self, spring, t_s: float = 0.0) -> None:
@@ -51,7 +53,8 @@ class WindupPeaks:
         self.reset(t_s)
 
     def reset(self, t_s: float = 0.0) -> None:
-        """Forget the peaks; the next ones start at simulated time ``t_s`` [s]."""
+        """Forget the peaks; the next ones start at simulated time ``t_s`` [s] (the samples
+        before it are left out; the kernel's figures of :meth:`observe_law` count from now)."""
         self.since_s = float(t_s)
         self.lo = self.hi = math.nan
         self.t_lo = self.t_hi = math.nan
@@ -83,7 +86,11 @@ class WindupPeaks:
         return float(self.spring.torque(w)) if self.spring is not None else math.nan
 
     def observe(self, windup: np.ndarray, t: np.ndarray) -> None:
-        """Take the wind-ups [rad] recorded at times ``t`` [s] (one chunk, in time order)."""
+        """Take the wind-ups [rad] recorded at times ``t`` [s] (one chunk, in time order), those
+        from :attr:`since_s` on."""
+        after = np.asarray(t) >= self.since_s
+        if not after.all():
+            windup, t = np.asarray(windup)[after], np.asarray(t)[after]
         if len(windup) == 0:
             return
         i_lo, i_hi = int(np.argmin(windup)), int(np.argmax(windup))

@@ -351,18 +351,22 @@ def _chunk_steps(sim: LiveSimulation, chunk_s: float) -> int:
 
 
 def follow_profile(sim: LiveSimulation, profile: Profile, chunk_s: float = DEFAULT_CHUNK_S,
-                   on_samples: Callable[[Samples], None] | None = None):
+                   on_samples: Callable[[Samples], None] | None = None,
+                   peaks_after_s: float = 0.0):
     """Integrate ``profile`` with the live core ``sim`` from its state now, in the chunks
     :func:`run_profile` integrates (the same setpoints, excitation updates and values), without
     writing anything: what a design study's load step is (``dmf_sim.design.transient``).
     ``on_samples``: called with each chunk's samples (views, valid during the call; None: no
     read-out at all). Returns the run's :class:`~dmf_sim.live.peaks.WindupPeaks`
-    (``sim.peaks``, started afresh)."""
+    (``sim.peaks``, started afresh), its wind-up extremes over the samples from
+    ``peaks_after_s`` [s] into the profile on (the profile's ``start_settle_s``: the settling
+    from static equilibrium left out, as :func:`run_profile`'s summary leaves it out; the stop
+    contacts, impact and friction heat are the whole profile's, as there)."""
     follower = ProfileFollower(profile, sim)
     chunk = _chunk_steps(sim, chunk_s)
     total = int(round(profile.duration_s / sim.dt))
     record = StepRecord.allocate(chunk // sim.stride + 1, sim.model.n_dof)
-    sim.peaks.reset(sim.t)
+    sim.peaks.reset(sim.t + peaks_after_s)
     for n in _chunk_plan(profile, sim, follower, total, chunk, threading.Event(), None):
         raw = sim.integrate(n, record)
         if on_samples is not None:
@@ -565,7 +569,7 @@ def _stream(profile: Profile, out, opt: RunOptions, sim: LiveSimulation,
     stop = threading.Event()
     plan = _chunk_plan(profile, sim, follower, total, chunk, stop, health)
     # the summary's peaks leave out the settling from static equilibrium, as analyze, runup and
-    # a design's road cycle do (the contacts, impact and heat are the whole run's)
+    # a design's load steps and road cycle do (the contacts, impact and heat are the whole run's)
     t_settled = sim.t + profile.start_settle_s
     settled = WindupPeaks(sim.peaks.spring, t_settled)
     t_wall, t_cpu = time.perf_counter(), time.process_time()
@@ -580,9 +584,7 @@ def _stream(profile: Profile, out, opt: RunOptions, sim: LiveSimulation,
                                    else _integrated(sim, plan, health, lambda: own)):
                 s = sim.read_out(raw, work)
                 settled.set_spring(sim.peaks.spring)
-                after = s.t >= t_settled
-                if after.any():
-                    settled.observe(s.windup[after], s.t[after])
+                settled.observe(s.windup, s.t)          # the samples from t_settled on
                 done += n
                 rows = len(s)
                 samples += rows

@@ -341,3 +341,25 @@ def test_the_run_summary_peaks_leave_out_the_settling(tmp_path, capsys):
     line = capsys.readouterr().out.strip().splitlines()[-1]
     assert f'peak wind-up {after.min():.4f} .. {after.max():.4f} rad' in line
     assert line.endswith('(after the first 2 s: the settling from static equilibrium)')
+
+
+def test_a_design_load_step_leaves_out_the_settling_as_the_run_does():
+    """A tip-out from full load (1 -> 0.8 at 1200 rpm) started from static equilibrium at full
+    load: the first swing (0.279 rad, 4.10 kNm at 0.012 s) is the start, not the step. A
+    design's load step reported it as the step's peak (transient_windup, transient_dmf_torque),
+    while ``dmf-sim run`` of the same profile leaves the settling out (0.252 rad, 3.07 kNm). The
+    design's peaks are now the run's (the same samples: equal to round-off), and the friction
+    heat, like the run's, is the whole profile's."""
+    from dmf_sim.design.transient import LoadStep, step_metrics
+    from dmf_sim.physics.model import read_driveline
+    step = LoadStep(speed_rpm=1200.0, from_load=1.0, to_load=0.8, rise_s=1.0, hold_s=0.5)
+    spec = 'step:1200:1:0.8:1:0.5'
+    assert step.label == f'{spec} A'
+    design = step_metrics(read_driveline('truck_dmf_friction'), dmf.read_engine('engine_d13'),
+                          step)
+    run = _run(spec, driveline='truck_dmf_friction', sensors=False)
+    assert run.peaks_after_s == DEFAULT_SETTLE_S and run.peak_windup_rad[1] < 0.26
+    for key in ('peak_windup_rad', 'peak_dmf_torque_nm', 'travel_margin_rad'):
+        assert design[key] == pytest.approx(getattr(run, key), rel=1e-9, abs=1e-12), key
+    assert design['friction_heat_j'] == pytest.approx(run.friction_heat_j, rel=1e-9)
+    assert design['stop_contacts'] == run.stop_contacts
