@@ -354,6 +354,12 @@ def step_profile(speed_rpm: float, from_load: float, to_load: float, rise_s: flo
     t1 = settle_s + rise_s
     rows = [(settle_s, from_load), (t1, to_load), (t1 + hold_s, to_load),
             (t1 + hold_s + rise_s, from_load), (t1 + 2 * hold_s + rise_s, from_load)]
+    spans = (('rise_s', rise_s), ('hold_s', hold_s)) * 2       # what moves each row on
+    for (t_a, _), (t_b, _), (field, span) in zip(rows, rows[1:], spans):
+        if not t_b > t_a:        # below the resolution of the time it is added to
+            lo, hi = STEP_TIME_RANGE_S
+            raise field_error(where, field, f'must be in ({lo:g}, {hi:g}] s and longer than the '
+                              f'time resolution at t = {t_a:g} s ({math.ulp(t_a):.3g} s)', span)
     if settle_s > 0:
         rows.insert(0, (0.0, from_load))
     kind = 'tip-in' if to_load > from_load else 'tip-out'

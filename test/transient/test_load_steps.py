@@ -56,6 +56,13 @@ def test_step_grammar_rows_and_defaults(tmp_path):
     ('step:1200:0:1:0', "field 'rise_s' must be in (0, 3600] s, got 0.0"),
     ('step:1200:0:1:0.1:-1', "field 'hold_s' must be in (0, 3600] s"),
     ('step:0:0:1:0.1', "field 'speed_rpm' must be > 0 rpm"),
+    # below the time's resolution at its start: named 'time_s' of a row the user never wrote
+    ('step:1200:0:1:1e-17', "field 'rise_s' must be in (0, 3600] s and longer than the time "
+                            'resolution at t = 2 s (4.44e-16 s), got 1e-17'),
+    ('step:1200:0:1:1e-300:1:0', "field 'rise_s' must be in (0, 3600] s and longer than the "
+                                 'time resolution at t = 1 s'),
+    ('step:1200:0:1:0.1:1e-300', "field 'hold_s' must be in (0, 3600] s and longer than the "
+                                 'time resolution at t = 2.1 s'),
 ])
 def test_bad_step_specs_are_one_line(spec, needle, capsys, tmp_path):
     out = tmp_path / 'bag'
