@@ -35,10 +35,6 @@ _SOLVER_ERRORS = (ConvergenceError, np.linalg.LinAlgError, FloatingPointError)
 
 # ------------------------------------------------------------------------------- settings
 
-def _stages(items) -> list[tuple[float, float]]:
-    return [(float(s['angle_rad']), float(s['stiffness_factor'])) for s in items or []]
-
-
 def model_settings(metadata: Mapping[str, Any] | None = None, *, config: str | None = None,
                    engine: str | None = None, alpha: float | None = None,
                    theta: float | None = None, load: float | None = None,
@@ -47,7 +43,8 @@ def model_settings(metadata: Mapping[str, Any] | None = None, *, config: str | N
 
     Each value: the option if given, else what the recording stored in ``metadata``'s
     ``custom_data`` (RunMetadata: driveline, engine, load set, load, and the whole spring,
-    rebuilt exactly with ``Driveline.with_dmf``), else the default (truck_dmf, engine_d13, load
+    rebuilt exactly with ``Driveline.with_spring``: stages, friction and end stops), else the
+    default (truck_dmf, engine_d13, load
     set A, load 1.0, the YAML's spring). ``alpha``/``theta`` options change the first drive
     stage of that spring. ``sources`` says where each value came from; ``spring`` is the
     resulting spring (``PiecewiseLinearSpring.as_dict()``, None without a DMF)."""
@@ -81,10 +78,8 @@ def model_settings(metadata: Mapping[str, Any] | None = None, *, config: str | N
     spring_src = 'driveline YAML'
     if line.dmf is not None:
         try:
-            if stored.spring is not None:
-                sp = stored.spring
-                line = line.with_dmf(k=sp.get('k'), stages=_stages(sp.get('stages')),
-                                     coast_stages=_stages(sp.get('coast_stages')))
+            if stored.spring is not None:       # friction and end stops too (eq. 8a-8b)
+                line = line.with_spring(stored.spring)
                 spring_src = 'bag'
             elif stored.alpha is not None or stored.theta_rad is not None:
                 line = line.with_dmf(alpha=stored.alpha, theta=stored.theta_rad)
@@ -111,8 +106,7 @@ def build_model(settings: Mapping[str, Any]):
     line = read_driveline(settings['driveline'])
     sp = settings.get('spring')
     if sp is not None and line.dmf is not None:
-        line = line.with_dmf(k=sp['k'], stages=_stages(sp['stages']),
-                             coast_stages=_stages(sp['coast_stages']))
+        line = line.with_spring(sp)
     return line.reduce()
 
 

@@ -176,6 +176,21 @@ class Driveline:
         _check_spring(dmf, line)
         return line
 
+    def with_spring(self, spring) -> 'Driveline':
+        """A copy whose DMF spring is ``spring`` as
+        :meth:`~dmf_sim.physics.spring.PiecewiseLinearSpring.as_dict` gives it (what a recording
+        stores): k [Nm/rad], the drive and coast stages, and the friction and end stops it holds
+        (absent: none; eq. 8a-8b), each checked as in a file (one-line ConfigError)."""
+        def pairs(items) -> list[tuple[float, float]]:
+            return [(float(s['angle_rad']), float(s['stiffness_factor'])) for s in items or []]
+        line = self.with_dmf(k=spring['k'], stages=pairs(spring['stages']),
+                             coast_stages=pairs(spring['coast_stages']))
+        dmf = replace(line.dmf, friction=_parse_friction(spring.get('friction')),
+                      end_stops=_parse_end_stops(spring.get('end_stops')))
+        line = replace(line, dmf=dmf)
+        _check_spring(dmf, line)
+        return line
+
     def reduce(self) -> 'ReducedModel':
         """Merge rigid connections into DOFs and assemble J, K, C (see ReducedModel)."""
         return ReducedModel(self)

@@ -361,3 +361,34 @@ def test_a_bag_whose_driveline_file_is_gone_takes_config(tmp_path, capsys):
     for command in ('analyze', 'durability', 'runup', 'detect', 'identify'):
         args = parser.parse_args([command, str(bag), '--config', 'truck_dmf'])
         assert args.config == 'truck_dmf', command
+
+
+def test_the_spring_stored_in_the_bag_keeps_its_friction_and_end_stops(tmp_path, capsys):
+    """``--config`` names another driveline YAML while the spring stored in the bag still
+    applies (the page says so): its stages did, its friction and end stops came from the YAML
+    given. A truck_dmf_friction bag read with ``--config truck_dmf`` (its file moved, say) lost
+    its friction heat (259 J of 640 J in a tip-in: reported 0) and its end stops; a bag without
+    friction read with ``--config truck_dmf_friction`` gained them. Both now keep the bag's."""
+    from dmf_sim.analysis.hbm_overlay import model_settings
+    from dmf_sim.bags.layout import resolve_bag
+    runs = {}
+    for name in ('truck_dmf_friction', 'truck_dmf'):
+        bag = tmp_path / name
+        assert cli_main(['run', 'step:1200:0:1:0.1:0.3:0.3', '--config', name, '--out', str(bag),
+                         '--no-progress', '--no-sensors', '--json']) == 0
+        runs[name] = (bag, json.loads(capsys.readouterr().out.strip().splitlines()[-1]))
+    for name, other in (('truck_dmf_friction', 'truck_dmf'), ('truck_dmf', 'truck_dmf_friction')):
+        bag, run = runs[name]
+        stored = resolve_bag(bag).metadata
+        assert model_settings(stored, config=other)['spring'] == model_settings(stored)['spring']
+        reports = []
+        for config in ([], ['--config', other]):
+            assert cli_main(['durability', str(bag), '--json', '--no-plots', *config]) == 0
+            reports.append(json.loads(capsys.readouterr().out))
+        own, given = reports
+        assert given['model']['driveline'] == other
+        assert given['end_stops'] == own['end_stops']
+        heat = run.get('friction_heat_j', 0.0)
+        for d in reports:
+            assert d['dissipated_power']['friction_energy_j'] == pytest.approx(heat, rel=0.02)
+    assert runs['truck_dmf_friction'][1]['friction_heat_j'] > 50.0
