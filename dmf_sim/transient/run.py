@@ -78,7 +78,7 @@ from dmf_sim.transient.profiles import Profile
 __all__ = ['WRITER_NAME', 'CHUNK_SPEED_STEP_RPM', 'CHUNK_LOAD_STEP', 'DEFAULT_SPLIT_S',
            'DEFAULT_DIAGNOSTICS_HZ', 'MEMORY_MARKS', 'BLAS_THREADS', 'BLOCK_ROWS',
            'PIPELINE_DEPTH', 'MERGE_ROWS_S', 'MIN_SAMPLES', 'MESSAGE_OVERHEAD_BYTES',
-           'RunOptions', 'RunSummary', 'build_simulation', 'open_bag', 'bag_bytes',
+           'RunOptions', 'RunSummary', 'dt_error', 'build_simulation', 'open_bag', 'bag_bytes',
            'run_profile', 'follow_profile']
 
 WRITER_NAME = 'dmf-sim run'
@@ -200,12 +200,23 @@ def _chunk_limit(profile: Profile, segment: int, chunk: int, dt: float) -> int:
     return max(int(min(seconds, opt_s) / dt), 1)
 
 
+def dt_error(dt: float, what: str = 'dt') -> str | None:
+    """Why ``dt`` [s] is not a Newmark step a run takes, or None: the node's range for its
+    ``dt`` parameter, one line naming ``what`` (``--dt`` on the command line)."""
+    lo, hi = PARAMETERS['dt'].range
+    if isinstance(dt, (int, float)) and math.isfinite(dt) and lo <= dt <= hi:
+        return None
+    return f'{what} must be within [{lo:g}, {hi:g}] s, got {dt!r}'
+
+
 def build_simulation(profile: Profile, opt: RunOptions) -> LiveSimulation:
     """The live core at the profile's first row (static equilibrium), speed limits = the
     engine's data range (a profile outside it: one-line OperatingRangeError)."""
     from dmf_sim.physics.engine import read_engine
     from dmf_sim.physics.model import read_driveline
 
+    if reason := dt_error(opt.dt):
+        raise ConfigError(reason)
     if not (CHUNK_RANGE_S[0] <= opt.chunk_s <= CHUNK_RANGE_S[1]):
         raise ConfigError(f'chunk_s must be within [{CHUNK_RANGE_S[0]:g}, {CHUNK_RANGE_S[1]:g}]'
                           f' s, got {opt.chunk_s!r}')

@@ -3,6 +3,7 @@ the node's messages encoded in bulk, block writing equal to per-message writing,
 by analyze, an interrupted run leaves a readable bag, a slow run-up follows the HBM branch."""
 from __future__ import annotations
 
+import math
 import os
 import signal
 import subprocess
@@ -118,6 +119,17 @@ def test_out_of_range_is_an_operating_range_error():
         run_profile(ramp_profile(1000, 2500, 500, settle_s=0), None)
     with pytest.raises(ConfigError, match='chunk_s'):
         run_profile(ramp_profile(1000, 1100, 500), None, RunOptions(chunk_s=5.0))
+
+
+@pytest.mark.parametrize('dt', [0.0, -1e-4, math.nan, math.inf, 1e-9, 0.1])
+def test_a_newmark_step_the_run_cannot_take_is_one_line(dt):
+    """The Python route (``run_profile``, what ``follow_profile`` and a design share) checked
+    the step only on the command line (``--dt``): dt = 0 ended in ZeroDivisionError, NaN in
+    "cannot convert float NaN to integer". Refused like ``chunk_s``, before anything runs,
+    naming the field and the node's range for its ``dt``."""
+    with pytest.raises(ConfigError) as err:
+        run_profile(read_profile('step:1200:0:1:0.1'), None, RunOptions(dt=dt, write=False))
+    assert str(err.value) == f'dt must be within [1e-06, 0.01] s, got {dt!r}'
 
 
 # --------------------------------------------------------------------------- the run's bag
