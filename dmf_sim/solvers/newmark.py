@@ -11,6 +11,7 @@ call, one :class:`SimulationResult`).
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -18,6 +19,7 @@ import numpy as np
 from dmf_sim.core.deprecation import options_from_keywords
 from dmf_sim.core.errors import ConfigError
 from dmf_sim.core.units import RPM_TO_RAD_S
+from dmf_sim.core.validation import field_error, number
 from dmf_sim.physics.loads import DrivelineExcitation
 from dmf_sim.physics.orders import CYCLE_RAD, half_orders, resample_on_angle, summarize_orders
 from dmf_sim.solvers import newmark_kernel as kernel
@@ -522,6 +524,20 @@ class SimulationOptions:
     record_stride: int = 1
     chunk_s: float = 0.01
     use_numba: bool = True
+
+    def __post_init__(self) -> None:
+        """Refuse options no run can use, one line naming the field and its range: the cycle
+        counts and the record stride whole numbers (``min_cycles`` >= 0, the others >= 1),
+        ``steady_tol`` a finite number >= 0, ``chunk_s`` > 0 s. ``dt``, ``beta`` and ``gamma``
+        are checked by :class:`NewmarkIntegrator`."""
+        where = 'SimulationOptions'
+        for name, lo in (('min_cycles', 0), ('max_cycles', 1), ('eval_cycles', 1),
+                         ('record_stride', 1)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < lo:
+                raise field_error(where, name, f'must be a whole number >= {lo}', value)
+        number(self.steady_tol, where, 'steady_tol', 0.0)
+        number(self.chunk_s, where, 'chunk_s', 0.0, lo_open=True, unit='s')
 
 
 def simulate(loads: DrivelineExcitation, speed_rpm: float, load: float, *,

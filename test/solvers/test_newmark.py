@@ -154,3 +154,24 @@ def test_step_refinement_real_engine_at_knee_grazing_point(engine_2500):
     for n in (3, 6):
         assert abs(runs[0].windup_orders[n]) == pytest.approx(abs(runs[1].windup_orders[n]),
                                                               rel=5e-3)
+
+
+@pytest.mark.parametrize('fields, needle', [
+    ({'max_cycles': 0}, "field 'max_cycles' must be a whole number >= 1, got 0"),
+    ({'max_cycles': 2.5}, "field 'max_cycles' must be a whole number >= 1, got 2.5"),
+    ({'eval_cycles': 0}, "field 'eval_cycles' must be a whole number >= 1, got 0"),
+    ({'min_cycles': -1}, "field 'min_cycles' must be a whole number >= 0, got -1"),
+    ({'record_stride': 0}, "field 'record_stride' must be a whole number >= 1, got 0"),
+    ({'steady_tol': float('nan')}, "field 'steady_tol' must be"),
+    ({'chunk_s': 0.0}, "field 'chunk_s' must be > 0 s, got 0.0"),
+])
+def test_options_no_run_can_use_are_one_line(fields, needle):
+    """``simulate`` / ``CondensedHBM.newmark_from`` took any options: max_cycles 0 ended in an
+    IndexError, record_stride 0 in a ZeroDivisionError, max_cycles 2.5 in a TypeError, and
+    eval_cycles 0 or a NaN tolerance ran on without a word. Refused when the options are made,
+    one line naming the field and its range."""
+    from dmf_sim.core.errors import ConfigError
+    with pytest.raises(ConfigError) as err:
+        SimulationOptions(**fields)
+    assert needle in str(err.value) and '\n' not in str(err.value)
+    assert SimulationOptions(max_cycles=np.int64(3), chunk_s=1e9).max_cycles == 3
