@@ -335,6 +335,17 @@ class PiecewiseLinearSpring:
         hi = float(self.knees[p]) if p < len(self.knees) else math.inf
         return lo, hi
 
+    def linear_bounds(self) -> tuple[float, float]:
+        """(lower, upper) wind-up [rad] between which the spring's elastic law and end stops
+        add nothing to k w: the primary region (:meth:`primary_bounds`) cut at the end stops
+        (eq. 8b) where the spring has them. Friction (eq. 8a) acts at any wind-up and bounds
+        nothing here."""
+        lo, hi = self.primary_bounds()
+        if self.stops is not None:
+            lo = max(lo, -float(self.stops.coast_angle_rad))
+            hi = min(hi, float(self.stops.drive_angle_rad))
+        return lo, hi
+
     def stage_stiffness(self, stage: int) -> float:
         """Extra stiffness dg/dw [Nm/rad] in the region of ``stage`` (0 in the primary region)."""
         return float(self.slopes[int(stage) + self.primary_index])

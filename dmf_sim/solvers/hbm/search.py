@@ -230,10 +230,10 @@ class StateSearch:
         return list(zip(W.min(axis=1).tolist(), W.max(axis=1).tolist()))
 
     def _reaches_knee(self, x: np.ndarray, span: tuple[float, float] | None = None) -> bool:
-        """Does the wind-up of x come within ``reach`` x its peak-to-peak of a knee? (``span``:
-        its :meth:`_windup_range`, if at hand.)"""
+        """Does the wind-up of x come within ``reach`` x its peak-to-peak of a knee or an end
+        stop (the spring's linear_bounds)? (``span``: its :meth:`_windup_range`, if at hand.)"""
         w_min, w_max = self._windup_range(x) if span is None else span
-        lo, hi = self.hbm.spring.primary_bounds()
+        lo, hi = self.hbm.spring.linear_bounds()
         reach = self.search.reach * max(w_max - w_min, 1e-6)
         return w_max > hi - reach or w_min < lo + reach
 

@@ -247,14 +247,16 @@ class SpeedSweep:
         return pts
 
     def _in_primary(self, w: np.ndarray) -> np.ndarray:
-        """Rows of w (K, N) that stay strictly inside the primary region over the whole cycle."""
-        lo, hi = self.hbm.spring.primary_bounds()
+        """Rows of w (K, N) that stay strictly inside the primary region, short of the end
+        stops (the spring's linear_bounds), over the whole cycle."""
+        lo, hi = self.hbm.spring.linear_bounds()
         return (w.max(axis=1) < hi) & (w.min(axis=1) > lo)
 
     def _linear_stretch(self, cp, sign: float) -> list:
-        """Grid points ahead of ``cp`` where the wind-up never reaches a knee: there g = 0, the HBM
-        solution is the linear response wlin (exact, no iteration) and the stability follows from
-        the primary-stiffness eigenvalues. Checked in batches of growing size."""
+        """Grid points ahead of ``cp`` where the wind-up never reaches a knee or an end stop:
+        there g = 0 and no stop pushes, the HBM solution is the linear response wlin (exact, no
+        iteration) and the stability follows from the primary-stiffness eigenvalues. Checked in
+        batches of growing size."""
         from dmf_sim.solvers.continuation import ContinuationPoint, tangent_of
         hb, o = self.hbm, self.options
         # the point must stay below the knees: no torque beyond one on the AFT samples (one

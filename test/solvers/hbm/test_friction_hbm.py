@@ -205,3 +205,24 @@ def test_where_the_dmf_sticks_hbm_is_newmarks_regularized_creep(reg, tol):
     c = _newmark(hb, p, max_cycles=400)
     assert abs(abs(p.windup_orders[6]) - abs(c[6])) <= tol * abs(c[6])
     assert abs(c[6]) < 0.05 * 1.5e-2             # far below the slipping DMF's 3rd order
+
+
+def test_the_linear_fast_forward_ends_at_an_end_stop():
+    """The sweep's fast-forward takes the linear response at grid speeds where the wind-up stays
+    inside the primary region, and that region ended at the knees only. With end stops and no
+    friction (truck_dmf_friction's stops, the coast one moved to 7 mrad, load 0), ``steady`` at
+    600 rpm reported the linear state as stable: 1 mrad beyond the coast stop (min -8.0 mrad),
+    ~1 kNm of contact torque left out, its residual with the stop law 8.5e-3 rad. Every state
+    reported now solves eq. 15 with the whole law (to Newton's tolerance)."""
+    from dmf_sim.solvers.steady import BasinOptions, find_steady_states
+    d = yaml.safe_load((config_dir() / 'truck_dmf_friction.yaml').read_text())
+    del d['dmf']['friction']
+    d['dmf']['end_stops']['coast_angle_rad'] = 0.007
+    loads = dmf.DrivelineExcitation(ReducedModel(driveline_from_dict(d)), dmf.read_engine(ENGINE))
+    res = find_steady_states(loads, 600.0, 0.0, basin=BasinOptions(samples=0))
+    hb = CondensedHBM(loads, 0.0)
+    lp = hb.linear_parts(600.0)
+    assert res.states
+    for st in res.states:
+        assert np.abs(hb.residual(st.point.x, lp)).max() < 1e-9
+    assert hb.spring.linear_bounds() == (-0.007, 0.24)
