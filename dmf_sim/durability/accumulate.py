@@ -17,8 +17,10 @@ Inputs per sample: time [ns], DMF wind-up w [rad] and its rate dw/dt [rad/s], en
   ``power_time_s``. With arc-spring friction in the spring (doc/theory.md eq. 8a) its power
   T_f(dw/dt, Omega) dw/dt is added: the real DMF's heat, usually larger than the viscous part
   (both energies are reported apart too); without it (the paper's model) the viscous power alone;
-* with end stops (eq. 8b): the contacts (entries beyond a stop, on the samples) and the largest
-  contact torque |T_s(w, dw/dt)| [Nm] of the samples (the impact).
+* with end stops (eq. 8b): the contacts (entries beyond a stop, on the samples), the largest
+  contact torque |T_s(w, dw/dt)| [Nm] of the samples (the impact), and the power the contact's
+  damping dissipates, c_s (dw/dt)^2 while a stop pushes (:meth:`EndStops.damping_power`), added
+  to the dissipated power and reported apart (``stop_energy_j``).
 
 A record no driveline can produce is refused (BagError, one line naming the first such sample):
 a value that is not finite, an engine speed beyond the ``engine_speed`` bound, a crank angle
@@ -111,8 +113,19 @@ class DurabilityResult:
     notes: list = field(default_factory=list)
     friction_energy_j: float = 0.0     # of energy_j, the arc-spring friction's [J]
     has_friction: bool = False
+    stop_energy_j: float = 0.0         # of energy_j, the end-stop contacts' damping [J]
     stop_contacts: int | None = None   # end-stop contacts (spring with stops)
     peak_stop_torque_nm: float | None = None
+
+    def _power_note(self) -> str:
+        parts = ['viscous DMF damping c (dw/dt)^2']
+        if self.has_friction:
+            parts.append('the arc-spring friction T_f dw/dt')
+        if self.stop_contacts is not None:
+            parts.append("the end stops' contact damping c_s (dw/dt)^2")
+        text = ' plus '.join(parts)
+        return text if self.has_friction else (text + ' of the model; the spring has no '
+                                               'arc-spring friction')
 
     def as_dict(self) -> dict:
         s = self.settings
@@ -144,12 +157,12 @@ class DurabilityResult:
                                  'engine_cycles': len(self.cycle_power_w),
                                  'energy_j': self.energy_j,
                                  'damping_nms_per_rad': self.damping_nms,
-                                 'viscous_energy_j': self.energy_j - self.friction_energy_j,
+                                 'viscous_energy_j': (self.energy_j - self.friction_energy_j
+                                                      - self.stop_energy_j),
                                  'friction_energy_j': self.friction_energy_j,
-                                 'note': ('viscous DMF damping c (dw/dt)^2 plus the arc-spring '
-                                          'friction T_f dw/dt' if self.has_friction else
-                                          'viscous DMF damping c (dw/dt)^2 of the model only; '
-                                          'the spring has no arc-spring friction')},
+                                 'stop_energy_j': (self.stop_energy_j
+                                                   if self.stop_contacts is not None else None),
+                                 'note': self._power_note()},
             'end_stops': ({'contacts': self.stop_contacts,
                            'peak_impact_torque_nm': self.peak_stop_torque_nm}
                           if self.stop_contacts is not None else None),
@@ -206,6 +219,7 @@ class DurabilityAccumulator:
         self.friction = getattr(spring, 'friction', None)
         self.stops = getattr(spring, 'stops', None)
         self.friction_energy = 0.0
+        self.stop_energy = 0.0
         self.stop_contacts = 0
         self.peak_stop_torque = 0.0
         self._beyond = 0                     # the last sample's side: +1 drive stop, -1 coast
@@ -300,6 +314,9 @@ class DurabilityAccumulator:
             self._beyond = int(side[-1])
             self.peak_stop_torque = max(self.peak_stop_torque,
                                         float(np.abs(st.torque(w, wdot)).max()))
+            stop_power = st.damping_power(w, wdot)
+            self.stop_energy += float((stop_power * dt).sum())
+            power = power + stop_power
         self.energy += float((power * dt).sum())
         self._cycle_power(t_ns, psi, power, dt, speed_rpm)
         self._windows(t_ns, torque, band, speed_rpm)
@@ -418,4 +435,4 @@ class DurabilityAccumulator:
             friction_energy_j=self.friction_energy, has_friction=self.friction is not None,
             stop_contacts=self.stop_contacts if self.stops is not None else None,
             peak_stop_torque_nm=self.peak_stop_torque if self.stops is not None else None,
-            notes=self.notes)
+            stop_energy_j=self.stop_energy, notes=self.notes)

@@ -157,6 +157,15 @@ class EndStops:
         coast = np.where(dc > 0, np.maximum(0.0, self.stiffness * dc - self.damping * wd), 0.0)
         return drive - coast
 
+    def damping_power(self, windup_rad, windup_rate_rad_s):
+        """Power [W] the contact's damping dissipates (eq. 8b): c_s d_dot^2 while a stop pushes
+        (its torque above zero), 0 elsewhere; the contact stiffness' part of T_s w_dot is
+        stored and given back, not heat."""
+        w = np.asarray(windup_rad, dtype=float)
+        wd = np.asarray(windup_rate_rad_s, dtype=float)
+        pushing = self.torque(w, wd) != 0.0
+        return np.where(pushing, self.damping * wd * wd, 0.0)
+
 
 @dataclass(frozen=True)
 class Stage:

@@ -137,6 +137,40 @@ def test_stage_time_and_dissipated_power_closed_form():
     assert res.largest[0][1] == pytest.approx(res.torque_max_nm)
 
 
+def test_end_stop_damping_heat_closed_form():
+    """w = w0 + A sin(W t) pressing past the drive stop a: the contact's damping dissipates
+    c_s (dw/dt)^2 while the stop pushes, per period c_s A^2 W ((pi - 2 a0) - sin 2 a0) / 2 with
+    a0 = asin((a - w0) / A) (the contact damping small enough that the stop never lets go
+    before the wind-up leaves it); it joins the dissipated power and is reported apart, and a
+    stop without damping dissipates nothing."""
+    from dmf_sim.physics.spring import EndStops
+    base = PiecewiseLinearSpring.two_step(10890.0, 0.24, 3.0)
+    c, c_s, amp, w0, a = 49.5, 2.0, 0.05, 0.22, 0.25
+    speed = 1200.0
+    om = speed * np.pi / 30
+    W = 3 * om
+    fs = 50_000.0
+    t = np.arange(int(2.0 * fs)) / fs
+    w = w0 + amp * np.sin(W * t)
+    wdot = amp * W * np.cos(W * t)
+    a0 = math.asin((a - w0) / amp)
+    per_period = c_s * amp ** 2 * W * ((math.pi - 2 * a0) - math.sin(2 * a0)) / 2
+    for damping, expected in ((c_s, per_period * t[-1] * W / (2 * math.pi)), (0.0, 0.0)):
+        spring = PiecewiseLinearSpring(base.k, base.drive, base.coast,
+                                       stops=EndStops(a, 0.25, 1e6, damping))
+        acc = DurabilityAccumulator(spring, c, read_settings())
+        acc.add((t * 1e9).astype(np.int64), w, wdot, np.full(len(t), speed), om * t)
+        d = acc.finish().as_dict()
+        p = d['dissipated_power']
+        assert d['end_stops']['contacts'] >= 10
+        # 1 %: ~245 samples per contact, and c_s (dw/dt)^2 jumps from 0 to near its largest
+        # value where the contact begins and ends (half a sample's weight each)
+        assert p['stop_energy_j'] == pytest.approx(expected, rel=1e-2, abs=1e-12)
+        assert p['viscous_energy_j'] == pytest.approx(c * amp ** 2 * W ** 2 / 2 * t[-1],
+                                                      rel=2e-3)
+        assert p['energy_j'] == pytest.approx(p['viscous_energy_j'] + p['stop_energy_j'])
+
+
 @pytest.mark.slow
 def test_damping_power_has_a_point_per_engine_cycle():
     """The report's power panel said 'per engine cycle' but drew one point per second (14 points

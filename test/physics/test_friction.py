@@ -240,7 +240,9 @@ def test_run_summary_health_and_durability_report_friction_and_stops(tmp_path, c
     rep = json.loads((tmp_path / 'dur' / 'durability.json').read_text())
     p = rep['dissipated_power']
     assert p['friction_energy_j'] == pytest.approx(d['friction_heat_j'], rel=0.02)
-    assert p['energy_j'] == pytest.approx(p['viscous_energy_j'] + p['friction_energy_j'])
+    assert p['energy_j'] == pytest.approx(p['viscous_energy_j'] + p['friction_energy_j']
+                                          + p['stop_energy_j'])
+    assert p['stop_energy_j'] > 0.0 and 'contact damping' in p['note']
     assert rep['end_stops']['contacts'] >= 2
     assert rep['end_stops']['peak_impact_torque_nm'] > 500.0
     # the node's health (ROS-free core)
