@@ -3,8 +3,10 @@
 What ``dmf-sim run`` reports in its summary, what the node's health gives since its start or its
 last ``~/reset`` and what a design study's load steps measure (``dmf_sim.design.transient``), in
 one place. :class:`WindupPeaks` observes the wind-up of every recorded step (the samples, every
-``stride``-th Newmark step: at 1 kHz a 60 Hz 3rd order's crest is missed by at most 2 % of its
-amplitude, the slow overshoot of a load step not at all):
+``stride``-th Newmark step) and, where the integrator gives them, the wind-up's extremes over
+every step (:attr:`dmf_sim.solvers.newmark.NewmarkIntegrator.windup_extremes`): the peaks do not
+depend on the output rate (without them a 60 Hz 3rd order's crest is missed by up to 2 % of its
+amplitude at 1 kHz, by all of it at a rate below the order's):
 
 * ``peak_windup_rad``: the smallest and the largest wind-up [rad] (negative: coast side);
 * ``peak_dmf_torque_nm``: the spring's torque T(w) [Nm] at those two wind-ups (the spring is
@@ -28,7 +30,18 @@ import math
 
 import numpy as np
 
-__all__ = ['WindupPeaks', 'stop_angles', 'peaks_text']
+__all__ = ['WindupPeaks', 'stop_angles', 'peaks_text', 'merge_extremes']
+
+NO_EXTREMES = (math.nan,) * 4
+"""(smallest wind-up, its time, largest wind-up, its time) before any step."""
+
+
+def merge_extremes(a: tuple, b: tuple) -> tuple:
+    """The wind-up extremes (smallest [rad], its time [s], largest [rad], its time [s]) of two
+    stretches of steps together; a stretch without steps is all nan."""
+    lo = a if not b[0] < a[0] and not math.isnan(a[0]) else b
+    hi = a if not b[2] > a[2] and not math.isnan(a[2]) else b
+    return (lo[0], lo[1], hi[2], hi[3])
 
 
 def stop_angles(spring) -> tuple[float, float] | None:
@@ -85,28 +98,40 @@ class WindupPeaks:
     def _torque(self, w: float) -> float:
         return float(self.spring.torque(w)) if self.spring is not None else math.nan
 
-    def observe(self, windup: np.ndarray, t: np.ndarray) -> None:
+    def observe(self, windup: np.ndarray, t: np.ndarray, extremes: tuple | None = None
+                ) -> None:
         """Take the wind-ups [rad] recorded at times ``t`` [s] (one chunk, in time order), those
-        from :attr:`since_s` on."""
+        from :attr:`since_s` on, and the chunk's ``extremes`` over every step (smallest wind-up
+        [rad], its time [s], largest, its time: :func:`merge_extremes`' layout; None or nan: the
+        samples alone), each where its time is from :attr:`since_s` on."""
         after = np.asarray(t) >= self.since_s
         if not after.all():
             windup, t = np.asarray(windup)[after], np.asarray(t)[after]
-        if len(windup) == 0:
+        chunk = NO_EXTREMES
+        if len(windup):
+            i_lo, i_hi = int(np.argmin(windup)), int(np.argmax(windup))
+            chunk = (float(windup[i_lo]), float(t[i_lo]), float(windup[i_hi]), float(t[i_hi]))
+        if extremes is not None:
+            lo, t_lo, hi, t_hi = extremes
+            steps = (lo if t_lo >= self.since_s else math.nan, t_lo,
+                     hi if t_hi >= self.since_s else math.nan, t_hi)
+            chunk = merge_extremes(chunk, steps)
+        lo, t_lo, hi, t_hi = chunk
+        if math.isnan(lo) and math.isnan(hi):
             return
-        i_lo, i_hi = int(np.argmin(windup)), int(np.argmax(windup))
-        lo, hi = float(windup[i_lo]), float(windup[i_hi])
-        if not self.lo <= lo:                       # NaN (first chunk) or a new minimum
-            self.lo, self.t_lo, self.torque_lo = lo, float(t[i_lo]), self._torque(lo)
-        if not self.hi >= hi:
-            self.hi, self.t_hi, self.torque_hi = hi, float(t[i_hi]), self._torque(hi)
+        if not math.isnan(lo) and not self.lo <= lo:       # NaN (first chunk) or a new minimum
+            self.lo, self.t_lo, self.torque_lo = lo, t_lo, self._torque(lo)
+        if not math.isnan(hi) and not self.hi >= hi:
+            self.hi, self.t_hi, self.torque_hi = hi, t_hi, self._torque(hi)
         stops = stop_angles(self.spring)
         if stops is not None:
             coast, drive = stops
-            self.margin = min(self.margin, drive - hi, lo - coast)
-            beyond = (windup >= drive) | (windup <= coast)
-            entries = int(np.count_nonzero(beyond[1:] & ~beyond[:-1]))
-            self.contacts += entries + int(bool(beyond[0]) and not self._beyond)
-            self._beyond = bool(beyond[-1])
+            self.margin = min(self.margin, drive - self.hi, self.lo - coast)
+            if len(windup):
+                beyond = (windup >= drive) | (windup <= coast)
+                entries = int(np.count_nonzero(beyond[1:] & ~beyond[:-1]))
+                self.contacts += entries + int(bool(beyond[0]) and not self._beyond)
+                self._beyond = bool(beyond[-1])
 
     def as_dict(self) -> dict:
         """The JSON/summary form: ``peak_windup_rad`` [min, max], ``peak_dmf_torque_nm`` [at

@@ -36,7 +36,7 @@ import numpy as np
 from dmf_sim.core.errors import ConfigError, OperatingRangeError
 from dmf_sim.core.numbers import fmt_num
 from dmf_sim.core.units import RAD_S_TO_RPM
-from dmf_sim.live.peaks import WindupPeaks
+from dmf_sim.live.peaks import WindupPeaks, merge_extremes
 from dmf_sim.live.sensors import LiveSensors, fault_windows
 from dmf_sim.live.torques import TorqueOperator
 from dmf_sim.physics.engine import load_error
@@ -137,7 +137,9 @@ class Integrated:
     record: the kernel's recorded states (rows from 0); rows: how many; first: step index of the
     first row; omega_dot: reference acceleration at the chunk's end [rad/s^2]; loads: element
     loads of the rows (rows x elements) where the read-out needs them, else None; sensors: the
-    chunk's sensor signals (None without sensors).
+    chunk's sensor signals (None without sensors); windup_extremes: the wind-up's extremes over
+    every step of the chunk (:func:`dmf_sim.live.peaks.merge_extremes`' layout), None where the
+    chunk was dropped (not finite).
     """
 
     record: StepRecord
@@ -147,6 +149,7 @@ class Integrated:
     loads: np.ndarray | None = None
     fault_events: list[FaultEvent] = field(default_factory=list)
     sensors: SensorChunk | None = None
+    windup_extremes: tuple | None = None
 
 
 @dataclass
@@ -205,6 +208,12 @@ class LiveSimulation:
         self.phase = 0
         self._knees = self._secondary = self._contacts = 0
         self._heat_j = self._stop_peak_nm = 0.0
+        #: the wind-up's extremes over every step of the last chunk (:meth:`integrate`):
+        #: (smallest [rad], its time [s], largest [rad], its time [s]), nan before a chunk
+        self.chunk_windup_extremes: tuple = (math.nan,) * 4
+        #: simulated time [s] from which the chunks' wind-up extremes count the steps (-inf:
+        #: all; a run sets its settling's end: :meth:`NewmarkIntegrator.extremes_from`)
+        self.extremes_from_s = -math.inf
         self.faults: FaultTimeline | None = None
         self._dmf_version = 0
         self.fault_events: list[FaultEvent] = []    # of the chunks of advance(), not taken yet
@@ -231,6 +240,7 @@ class LiveSimulation:
     # ---- building ---------------------------------------------------------------------------
     def _make_integrator(self, line: Driveline, engine):
         integ = NewmarkIntegrator(DrivelineExcitation(line.reduce(), engine), dt=self.dt)
+        integ.extremes_from(getattr(self, 'extremes_from_s', -math.inf))
         return integ, TorqueOperator(integ)
 
     @property
@@ -279,6 +289,8 @@ class LiveSimulation:
         self._contacts += sum(old.stop_contacts)
         self._heat_j += old.friction_heat_j
         self._stop_peak_nm = max(self._stop_peak_nm, old.peak_stop_torque_nm)
+        self.chunk_windup_extremes = merge_extremes(self.chunk_windup_extremes,
+                                                    old.windup_extremes)
 
     def set_dmf(self, alpha: float | None = None, theta: float | None = None) -> None:
         """New DMF knee parameters (alpha, theta [rad]); ConfigError if invalid."""
@@ -507,8 +519,10 @@ class LiveSimulation:
         first = self.steps + (self.stride - self.phase)
         row = 0
         law_start = (self.stop_contacts, self.friction_heat_j)
-        it.restart_stop_peak()
+        it.restart_chunk_peaks()
+        it.extremes_from(self.extremes_from_s)
         self._stop_peak_nm = 0.0
+        self.chunk_windup_extremes = (math.nan,) * 4
         events: list[FaultEvent] = []
         parts: list[np.ndarray] = []
         if self.live_sensors is not None and self.faults is not None:
@@ -527,6 +541,8 @@ class LiveSimulation:
             self.peaks.observe_law(self.stop_contacts - law_start[0],
                                    self.friction_heat_j - law_start[1],
                                    max(self._stop_peak_nm, it.peak_stop_torque_nm))
+            self.chunk_windup_extremes = merge_extremes(self.chunk_windup_extremes,
+                                                        it.windup_extremes)
         if not finite:
             # Newmark (average acceleration) is unconditionally stable; a non-finite state means
             # bad input data. Never publish it: restart from static equilibrium.
@@ -534,7 +550,8 @@ class LiveSimulation:
             self.reset(peaks=False)      # the sensors resync: the chunk's steps are dropped
             row = 0
             parts = []
-        self.peaks.observe(record.windup[:row], record.t[:row])
+        self.peaks.observe(record.windup[:row], record.t[:row],
+                           self.chunk_windup_extremes if finite else None)
         omega_dot = it.omega_dot
         # element loads with this chunk's excitation, now (the next chunk changes it)
         loads = None
@@ -546,7 +563,8 @@ class LiveSimulation:
         # a caller's record is read out later (dmf-sim run's pipeline): the signals copied
         sensors = (self.live_sensors.finish(copy=record is not self._rec)
                    if self.live_sensors is not None else None)
-        return Integrated(record, row, first, omega_dot, loads, events, sensors)
+        return Integrated(record, row, first, omega_dot, loads, events, sensors,
+                          self.chunk_windup_extremes if finite else None)
 
     def _advance(self, it: NewmarkIntegrator, nsteps: int, record: StepRecord,
                  stride: int) -> int:

@@ -75,6 +75,11 @@ def _tridiag(M: np.ndarray, name: str):
     return np.diag(M, -1).copy(), np.diag(M).copy(), np.diag(M, 1).copy()
 
 
+_SUMS_START = (0.0, 0.0, math.inf, -math.inf, math.nan, math.nan, -math.inf)
+"""The kernel's ``sums`` before a step: no heat, no contact, no wind-up extreme yet, every step
+counted for them."""
+
+
 @dataclass
 class StepRecord:
     """Preallocated buffers the stepper writes into (rows = recorded steps). SI units."""
@@ -125,6 +130,10 @@ class NewmarkIntegrator:
     friction_heat_j: float = field(default=0.0, init=False)
     #: largest end-stop contact torque |T_s| since the last reset [Nm] (eq. 8b)
     peak_stop_torque_nm: float = field(default=0.0, init=False)
+    #: (smallest wind-up [rad], its time [s], largest wind-up [rad], its time [s]) over every
+    #: step's end since the last reset or :meth:`restart_chunk_peaks` (nan before a step), of
+    #: the steps that end at :meth:`extremes_from` or later
+    windup_extremes: tuple = field(default=(math.nan,) * 4, init=False)
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.dt) and self.dt > 0):
@@ -155,7 +164,9 @@ class NewmarkIntegrator:
                                   else (np.zeros(0), np.zeros(1), np.zeros(1)))
         law = (sp.law_array() if sp is not None
                else np.array([0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0]))
-        self._sums = np.zeros(2)   # friction heat [J], largest |end-stop torque| [Nm]
+        # friction heat [J], largest |end-stop torque| [Nm], smallest and largest wind-up [rad]
+        # and their times [s] (the kernel's, every step)
+        self._sums = np.array(_SUMS_START)
         self._spring = (knees, slopes, offsets, sp.primary_index if sp is not None else 0, law,
                         self._sums)
         L = self.loads
@@ -357,7 +368,7 @@ class NewmarkIntegrator:
             self.v[:] = r * eta_dot
         self.a[:] = self.acceleration(self.q, self.v)
         self._counters[:] = 0
-        self._sums[:] = 0.0
+        self._sums[:6] = _SUMS_START[:6]
         self._read_counters()
 
     def acceleration(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -435,11 +446,17 @@ class NewmarkIntegrator:
         self._read_counters()
         return rows
 
-    def restart_stop_peak(self) -> None:
-        """Start :attr:`peak_stop_torque_nm` afresh (the next chunk's own largest contact
-        torque; the contacts and the friction heat keep counting)."""
-        self._sums[1] = 0.0
-        self.peak_stop_torque_nm = 0.0
+    def restart_chunk_peaks(self) -> None:
+        """Start :attr:`peak_stop_torque_nm` and :attr:`windup_extremes` afresh (the next
+        chunk's own largest contact torque and wind-up extremes; the contacts and the friction
+        heat keep counting)."""
+        self._sums[1:6] = _SUMS_START[1:6]
+        self._read_counters()
+
+    def extremes_from(self, t_s: float) -> None:
+        """Count only the steps ending at simulated time ``t_s`` [s] or later in
+        :attr:`windup_extremes` (-inf: every step; kept across resets)."""
+        self._sums[6] = float(t_s)
 
     def _read_counters(self) -> None:
         c = self._counters.tolist()
@@ -447,6 +464,8 @@ class NewmarkIntegrator:
         self.stop_contacts = (c[4], c[5])
         self.friction_heat_j = float(self._sums[0])
         self.peak_stop_torque_nm = float(self._sums[1])
+        lo, hi, t_lo, t_hi = self._sums[2:6].tolist()
+        self.windup_extremes = ((lo, t_lo, hi, t_hi) if lo <= hi else (math.nan,) * 4)
 
     def _scratch(self, rows: int) -> StepRecord:
         buf = getattr(self, '_scratch_buf', None)

@@ -43,7 +43,10 @@ Packed arguments (all float64 unless noted):
 * ``spring`` = (knees, slopes, offsets, primary_index, law, sums):
   ``PiecewiseLinearSpring.arrays()``, its ``law_array()`` (friction and end stops, eq.
   8a-8b; all zero but omega_reg: none) and
-  ``sums`` float64[2], accumulated in place: [friction heat J, largest |end-stop torque| Nm]
+  ``sums`` float64[7], accumulated in place: [friction heat J, largest |end-stop torque| Nm,
+  smallest wind-up rad, largest wind-up rad, the time s of each, and (read only) the time s
+  from which steps count for them]: the wind-up's extremes over every step's end from that
+  time on, not only the recorded ones (the caller starts them at +inf, -inf)
 * ``excitation`` = (B complex (n_cyl, N+1), cyl_dof int64, cyl_scale, dal, fixed, dB, dfixed,
   ramp): the cylinder coefficients B and fixed loads at time ramp[0] [s], their rates dB, dfixed
   [per s] and ramp = [t0, t1] [s]: a (piece of a) step ending at time t uses B + tau dB and
@@ -544,6 +547,13 @@ def advance_kernel(nsteps, stride, state, system, factors, spring, excitation, o
             counters[1] += 1
         elif r < primary:
             counters[2] += 1
+        if scal[0] >= sums[6]:
+            if w < sums[2]:
+                sums[2] = w
+                sums[4] = scal[0]
+            if w > sums[3]:
+                sums[3] = w
+                sums[5] = scal[0]
         r_prev = r
         w_prev = w
         if track is not None:
@@ -593,7 +603,7 @@ def advance_reference(nsteps, stride, state, system, factors, spring_obj, excita
     the condensed DMF equation with the spring's own torque and tangent; with friction or end
     stops, Brent's method (``scipy.optimize.brentq``) on eq. 8c with the spring's own
     :meth:`~dmf_sim.physics.spring.PiecewiseLinearSpring.law_torque`."""
-    sums = np.zeros(2)
+    sums = np.array([0.0, 0.0, np.inf, -np.inf, np.nan, np.nan, -np.inf])
     if isinstance(spring_obj, tuple):
         spring_obj, sums = spring_obj
     q, v, a, scal = state
@@ -726,6 +736,10 @@ def advance_reference(nsteps, stride, state, system, factors, spring_obj, excita
             if now != beyond and now != 0:
                 counters[4 if now > 0 else 5] += 1
             beyond = now
+        if scal[0] >= sums[6] and w < sums[2]:
+            sums[2], sums[4] = w, scal[0]
+        if scal[0] >= sums[6] and w > sums[3]:
+            sums[3], sums[5] = w, scal[0]
         r_prev, w_prev = r, w
         if track is not None:
             dofs, rows = track

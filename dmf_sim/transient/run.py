@@ -378,6 +378,7 @@ def follow_profile(sim: LiveSimulation, profile: Profile, chunk_s: float = DEFAU
     total = int(round(profile.duration_s / sim.dt))
     record = StepRecord.allocate(chunk // sim.stride + 1, sim.model.n_dof)
     sim.peaks.reset(sim.t + peaks_after_s)
+    sim.extremes_from_s = sim.t + peaks_after_s       # the kernel's extremes: the same steps
     for n in _chunk_plan(profile, sim, follower, total, chunk, threading.Event(), None):
         raw = sim.integrate(n, record)
         if on_samples is not None:
@@ -583,6 +584,7 @@ def _stream(profile: Profile, out, opt: RunOptions, sim: LiveSimulation,
     # a design's load steps and road cycle do (the contacts, impact and heat are the whole run's)
     t_settled = sim.t + profile.start_settle_s
     settled = WindupPeaks(sim.peaks.spring, t_settled)
+    sim.extremes_from_s = t_settled                   # the kernel's extremes: the same steps
     t_wall, t_cpu = time.perf_counter(), time.process_time()
     with threadpool_limits(BLAS_THREADS):
         if opt.threads > 1:
@@ -595,7 +597,7 @@ def _stream(profile: Profile, out, opt: RunOptions, sim: LiveSimulation,
                                    else _integrated(sim, plan, health, lambda: own)):
                 s = sim.read_out(raw, work)
                 settled.set_spring(sim.peaks.spring)
-                settled.observe(s.windup, s.t)          # the samples from t_settled on
+                settled.observe(s.windup, s.t, raw.windup_extremes)   # from t_settled on
                 done += n
                 rows = len(s)
                 samples += rows

@@ -341,12 +341,15 @@ def test_the_run_summary_peaks_leave_out_the_settling(tmp_path, capsys):
     t = (np.array(t) - t[0]) * 1e-9 + 1e-3
     w = np.array(w)
     after = w[t >= DEFAULT_SETTLE_S]
-    assert summary.peak_windup_rad == [after.min(), after.max()]
-    assert w.max() > after.max() + 0.01                       # the start's swing, left out
+    lo, hi = summary.peak_windup_rad          # over every Newmark step: beyond the samples'
+    swing = after.max() - after.min()
+    assert lo <= after.min() and hi >= after.max()
+    assert after.min() - lo < 0.02 * swing and hi - after.max() < 0.02 * swing
+    assert w.max() > hi + 0.01                                # the start's swing, left out
     capsys.readouterr()
     assert cli_main(['run', str(prof), '--no-write', '--no-progress', '--no-sensors']) == 0
     line = capsys.readouterr().out.strip().splitlines()[-1]
-    assert f'peak wind-up {after.min():.4f} .. {after.max():.4f} rad' in line
+    assert f'peak wind-up {lo:.4f} .. {hi:.4f} rad' in line
     assert line.endswith('(after the first 2 s: the settling from static equilibrium)')
 
 
@@ -370,3 +373,23 @@ def test_a_design_load_step_leaves_out_the_settling_as_the_run_does():
         assert design[key] == pytest.approx(getattr(run, key), rel=1e-9, abs=1e-12), key
     assert design['friction_heat_j'] == pytest.approx(run.friction_heat_j, rel=1e-9)
     assert design['stop_contacts'] == run.stop_contacts
+
+
+def test_the_run_summary_peaks_do_not_depend_on_the_output_rate(capsys):
+    """The summary's peak wind-up, DMF torque and travel margin are the kernel's extremes over
+    every Newmark step after the settling, not those of the published samples: at 2 Hz the
+    samples saw -0.0002 rad of a 0.27 rad tip-in, and at 100 Hz the margin was positive while
+    the stop was hit. Now 1 kHz and 2 Hz give the same figures (the integration is the same),
+    and the margin is negative exactly when the stops were hit."""
+    out = {}
+    for rate in ('1000', '2'):
+        assert cli_main(['run', 'step:1200:0:1:0.1:0.5:0.5', '--config', 'truck_dmf_friction',
+                         '--rate', rate, '--no-write', '--json', '--no-progress',
+                         '--no-sensors']) == 0
+        out[rate] = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    a, b = out['1000'], out['2']
+    assert a['peak_windup_rad'][1] > 0.25
+    for key in ('peak_windup_rad', 'peak_dmf_torque_nm'):
+        assert b[key] == pytest.approx(a[key], rel=1e-9, abs=1e-9), key
+    assert b['travel_margin_rad'] == pytest.approx(a['travel_margin_rad'], abs=1e-9)
+    assert (a['travel_margin_rad'] < 0) == (a['stop_contacts'] > 0)
