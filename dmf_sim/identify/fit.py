@@ -305,6 +305,14 @@ def read_measurement(bag, options: IdentifyOptions = IdentifyOptions()) -> Measu
     else:
         n = min(len(got[0]), len(got[1]))
         t_ns, y = got[0].t_ns[:n], got[1].values[:n] - got[0].values[:n]
+    if np.ptp(y) == 0.0:           # a driveline without a DMF records a wind-up of zeros
+        what, unit = (('wind-up', 'rad') if options.signal == 'windup' else
+                      ('flywheel speed difference', 'rad/s'))
+        raise ConfigError(f'{resolved.path}: the recorded {what} does not vary ({y[0]:g} {unit} '
+                          f'throughout): nothing to fit (recorded with '
+                          f'{meta.driveline or "a driveline the bag does not name"}: one without '
+                          f'a DMF records no wind-up); give a recording of a driveline with a '
+                          f'DMF')
     profile, rebuilt = None, False
     if options.profile is not None:
         profile = read_profile(options.profile)

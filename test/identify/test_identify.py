@@ -351,3 +351,22 @@ def test_a_parameter_without_an_uncertainty_says_why():
     assert value_line(r, 'k').endswith('(start 10890, ± 1.2 %)')
     line = value_line(r, 'damping')
     assert 'nan' not in line and 'uncertainty undetermined' in line
+
+
+def test_a_bag_without_a_dmf_is_refused(tmp_path, capsys):
+    """A bag of a driveline without a DMF records a wind-up of zeros: fitted from truck_dmf's
+    spring it gave k 1.9e9 Nm/rad and damping 4157 Nms/rad ('uncertainty undetermined'), exit
+    0, files written. Refused in one line, naming the driveline the bag was recorded with."""
+    assert cli_main(['run', 'step:1200:0.3:1:0.1', '--config', 'truck_conventional', '--out',
+                     str(tmp_path / 'bag'), '--no-progress', '--no-sensors']) == 0
+    capsys.readouterr()
+    out = tmp_path / 'out'
+    code = cli_main(['identify', str(tmp_path / 'bag'), '--config', 'truck_dmf', '--out',
+                     str(out)])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count('\n') == 1, err
+    assert err.startswith('dmf-sim identify: error: ')
+    assert 'the recorded wind-up does not vary (0 rad throughout)' in err
+    assert 'recorded with truck_conventional' in err
+    assert not out.exists()
+
