@@ -33,7 +33,10 @@ given (:func:`identify` ``client``), else in turn here.
 (:func:`identifiability`): a parameter the simulated signal does not change with — a knee, or
 the stage beyond it, that the run never reaches — and parameters that change it only together —
 the friction's constant and centrifugal parts in a run at one speed — are refused in one line,
-naming them and what to do, before anything is written.
+naming them and what to do, before anything is written. After the fit, a fitted knee (and the
+stage beyond it) that the fitted run never winds up beyond is refused the same way: the check
+before reads the starting values, and a knee that the recording never reaches is fitted to the
+edge of its wind-up with a tiny linearized uncertainty (:func:`_refuse_unreached`).
 
 **Uncertainty.** Linearized at the optimum: with J the Jacobian of the residuals in the log
 parameters, ``cov = s^2 (J^T J)^-1`` with ``s^2 = sum r_i^2 / (m - n)`` (m samples, n
@@ -578,6 +581,42 @@ def _refuse_unidentifiable(meas: Measurement, names: Sequence[str],
                           f'them (the friction\'s two parts: a range of speeds)')
 
 
+def _refuse_unreached(meas: Measurement, model: _Model, values: dict[str, float]) -> None:
+    """One line for the fitted parameters of a stage whose knee the fitted run never winds up
+    beyond at a fitted sample (nothing if the run reaches every fitted stage). The check before
+    the fit (:func:`identifiability`) reads the starting values: where the recording's knee lies
+    beyond its largest wind-up but the starting one does not, the fit moves the knee to that
+    edge, where only a touch between samples is left of the stage, and the linearized
+    uncertainty of the knee is tiny (the recording says only that the knee lies beyond)."""
+    from dmf_sim.design.parameters import design_driveline
+    keep = meas.fitted
+    sub = replace(meas, t_s=meas.t_s[keep], y=meas.y[keep], signal='windup', fit_mask=None)
+    windup = simulate(sub, model, values)
+    spring = design_driveline(model.base, {p: values[p.name] for p in model.params}).spring
+    sides = {'stages': (spring.drive, float(np.max(windup)), 1.0),
+             'coast_stages': (spring.coast, float(np.min(windup)), -1.0)}
+    unreached, knees = [], {}
+    for p in model.params:
+        if p.side is None:
+            continue
+        stages, reach, sign = sides[p.side]
+        knee = sign * stages[p.index].angle_rad
+        if sign * reach <= sign * knee:
+            unreached.append(p.name)
+            knees[f'{knee:.5g}'] = None
+    if not unreached:
+        return
+    fit = [p.name for p in model.params if p.name not in unreached]
+    hint = f'fit --parameters {",".join(fit)}, or ' if fit else ''
+    them = 'it' if len(unreached) == 1 else 'them'
+    raise ConfigError(f'{meas.bag}: {", ".join(unreached)} cannot be identified from this '
+                      f'recording: the fitted run never winds up beyond the knee (fitted at '
+                      f'{", ".join(knees)} rad; the wind-up of the fitted run stays within '
+                      f'[{float(np.min(windup)):.5g}, {float(np.max(windup)):.5g}] rad), so the '
+                      f'recording says only that the knee lies beyond it; {hint}record a run '
+                      f'that reaches {them}')
+
+
 def _fit_one(meas: Measurement, names: tuple[str, ...], x0: np.ndarray, lo: np.ndarray,
              hi: np.ndarray, max_evaluations: int) -> dict:
     """One least-squares run from ``x0`` (log parameters): its result as a dict (what a Dask
@@ -625,6 +664,7 @@ def identify(bag, options: IdentifyOptions = IdentifyOptions(), *, client=None
     best = min(results, key=lambda r: r['rms'])
     names = options.parameters
     values = {n: math.exp(v) for n, v in zip(names, best['x'])}
+    _refuse_unreached(meas, model, values)
     cov = np.array(best['cov'])
     sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     with np.errstate(invalid='ignore', divide='ignore'):

@@ -370,3 +370,30 @@ def test_a_bag_without_a_dmf_is_refused(tmp_path, capsys):
     assert 'recorded with truck_conventional' in err
     assert not out.exists()
 
+
+LATE_KNEE = {'k': 9800.0, 'theta': 0.34, 'alpha': 2.0, 'damping': 42.0}
+"""A spring whose knee lies beyond the largest wind-up of ROWS (0.297 rad)."""
+
+
+@pytest.fixture(scope='module')
+def late_knee(tmp_path_factory):
+    return make_bag(tmp_path_factory.mktemp('identify_late'), 'late', LATE_KNEE, ROWS)
+
+
+def test_a_knee_the_fitted_run_never_reaches_is_refused(late_knee, tmp_path, capsys):
+    """The check before the fit passes (the shipped knee, 0.24 rad, is reached at the start),
+    but the bag's knee, 0.34 rad, lies beyond every wind-up of the run: the fit moved the knee
+    just past the run's largest wind-up and reported theta 0.29682 ± 0.08 % for the true 0.34
+    (alpha ± 970 %), exit 0. Refused, naming the knee, where it was fitted and the wind-up the
+    fitted run reaches, and what can be fitted."""
+    bag, _ = late_knee
+    out = tmp_path / 'out'
+    code = cli_main(['identify', str(bag), '--config', 'truck_dmf', '--starts', '1', '--out',
+                     str(out)])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count('\n') == 1, err
+    assert err.startswith('dmf-sim identify: error: ')
+    assert 'theta, alpha cannot be identified from this recording' in err
+    assert 'the fitted run never winds up beyond the knee' in err
+    assert 'fit --parameters k,damping' in err
+    assert not out.exists()
