@@ -23,8 +23,8 @@ from dmf_sim.analysis.order_bins import LOAD_TOLERANCE, OrderTable
 from dmf_sim.bags.metadata import RunMetadata
 from dmf_sim.core.errors import BagError, ConfigError, ConvergenceError, one_line
 
-__all__ = ['COMPARED', 'HBMOverlay', 'model_settings', 'build_model', 'natural_frequencies',
-           'static_windups', 'hbm_overlay', 'overlay_all']
+__all__ = ['COMPARED', 'HBMOverlay', 'model_settings', 'with_stored_spring', 'build_model',
+           'natural_frequencies', 'static_windups', 'hbm_overlay', 'overlay_all']
 
 COMPARED = ('order_3', 'order_1_5', 'max_deviation', 'min_deviation', 'mean_minus_theta')
 _HBM_KEYS = ('order_3', 'order_1_5', 'max_deviation', 'min_deviation', 'mean_minus_theta', 'mean',
@@ -34,6 +34,22 @@ _SOLVER_ERRORS = (ConvergenceError, np.linalg.LinAlgError, FloatingPointError)
 
 
 # ------------------------------------------------------------------------------- settings
+
+def with_stored_spring(line, spring: Mapping[str, Any] | None = None,
+                       alpha: float | None = None, theta_rad: float | None = None):
+    """``line`` with the DMF spring a recording stored in its metadata: the whole ``spring``
+    (k [Nm/rad], stages, coast_stages, friction and end stops: ``Driveline.with_spring``), else
+    its first drive stage's ``alpha`` / ``theta_rad`` [rad]; ``line`` itself where it stored none
+    or the line has no DMF. An invalid spring raises as :meth:`Driveline.with_dmf` does
+    (ConfigError, KeyError, TypeError, ValueError)."""
+    if line.dmf is None:
+        return line
+    if spring is not None:
+        return line.with_spring(spring)
+    if alpha is not None or theta_rad is not None:
+        return line.with_dmf(alpha=alpha, theta=theta_rad)
+    return line
+
 
 def model_settings(metadata: Mapping[str, Any] | None = None, *, config: str | None = None,
                    engine: str | None = None, alpha: float | None = None,
@@ -78,11 +94,9 @@ def model_settings(metadata: Mapping[str, Any] | None = None, *, config: str | N
     spring_src = 'driveline YAML'
     if line.dmf is not None:
         try:
-            if stored.spring is not None:       # friction and end stops too (eq. 8a-8b)
-                line = line.with_spring(stored.spring)
-                spring_src = 'bag'
-            elif stored.alpha is not None or stored.theta_rad is not None:
-                line = line.with_dmf(alpha=stored.alpha, theta=stored.theta_rad)
+            if (stored.spring is not None or stored.alpha is not None
+                    or stored.theta_rad is not None):
+                line = with_stored_spring(line, stored.spring, stored.alpha, stored.theta_rad)
                 spring_src = 'bag'
         except (ConfigError, KeyError, TypeError, ValueError) as exc:
             raise BagError('the DMF spring stored in the bag is invalid: '

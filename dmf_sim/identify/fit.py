@@ -1,6 +1,7 @@
 """Fit the DMF's spring and damping to a recorded run (``dmf-sim identify``).
 
-**Model.** The bag's driveline, engine and load set (its ``custom_data``, or given) with the DMF
+**Model.** The bag's driveline, engine and load set (its ``custom_data``, or given; the bag's
+driveline with the DMF spring the bag recorded, :attr:`Measurement.stored_spring`) with the DMF
 parameters to fit replaced: the design parameter names of :mod:`dmf_sim.design.parameters`
 (``k`` primary stiffness [Nm/rad], ``theta`` first drive knee [rad], ``alpha`` first drive stage
 factor, ``damping`` [Nms/rad], further ``stages[i].…`` / ``coast_stages[j].…``, the arc-spring
@@ -148,7 +149,10 @@ class Measurement:
     load_set, dt: the model; settle_s: left out from the start [s]; bag: its path;
     rebuilt: the profile was rebuilt from the recorded speed and load; fit_mask: the samples
     the fit may read beyond those (a rebuilt profile's: where the recorded load is known and
-    settled), None for all.
+    settled), None for all; stored_spring: the DMF spring the bag was recorded with (its
+    metadata's ``spring``, ``alpha``, ``theta_rad``: the keywords of
+    :func:`dmf_sim.analysis.hbm_overlay.with_stored_spring`), applied to the driveline where it
+    is the bag's; None where ``--config`` gives the driveline (its YAML's spring).
     """
 
     t_s: np.ndarray
@@ -163,6 +167,7 @@ class Measurement:
     bag: str
     rebuilt: bool = False
     fit_mask: np.ndarray | None = None
+    stored_spring: dict | None = None
 
     @property
     def fitted(self) -> np.ndarray:
@@ -355,7 +360,9 @@ def read_measurement(bag, options: IdentifyOptions = IdentifyOptions()) -> Measu
         dt=options.dt or meta.dt_s or 1e-4,
         settle_s=float(meta.settle_s if meta.settle_s is not None
                        else profile.start_settle_s),
-        bag=str(resolved.path), rebuilt=rebuilt, fit_mask=fit_mask)
+        bag=str(resolved.path), rebuilt=rebuilt, fit_mask=fit_mask,
+        stored_spring=(None if options.driveline is not None else
+                       {'spring': meta.spring, 'alpha': meta.alpha, 'theta_rad': meta.theta_rad}))
 
 
 # ---------------------------------------------------------------------------- the model
@@ -370,10 +377,17 @@ class _Model:
 
 
 def _model(meas: Measurement, names: Sequence[str]) -> _Model:
+    from dmf_sim.analysis.hbm_overlay import with_stored_spring
     from dmf_sim.design.parameters import parse_parameter
     from dmf_sim.physics.engine import read_engine
     from dmf_sim.physics.model import read_driveline
     base = read_driveline(meas.driveline)
+    if meas.stored_spring is not None:
+        try:
+            base = with_stored_spring(base, **meas.stored_spring)
+        except (ConfigError, KeyError, TypeError, ValueError) as exc:
+            raise ConfigError(f'{meas.bag}: the DMF spring stored in the bag is invalid '
+                              f'({one_line(exc)}); give the driveline with --config') from None
     if base.spring is None:
         raise ConfigError(f'driveline {meas.driveline}: has no DMF spring to identify')
     engine = read_engine(meas.engine, load_set=meas.load_set)

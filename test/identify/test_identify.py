@@ -397,3 +397,23 @@ def test_a_knee_the_fitted_run_never_reaches_is_refused(late_knee, tmp_path, cap
     assert 'the fitted run never winds up beyond the knee' in err
     assert 'fit --parameters k,damping' in err
     assert not out.exists()
+
+
+def test_a_bag_run_with_its_own_knee_is_modelled_with_it(tmp_path):
+    """``dmf-sim run --theta 0.2 --alpha 3.5`` stores the spring it ran in the bag; identify
+    modelled the bag with the driveline YAML's (0.24 rad, 2.5) instead, and fitted k 12920
+    Nm/rad ± 0.16 % and damping 92.5 Nms/rad ± 3.8 % for the true 10890 and 49.5. The bag's
+    spring is the model (the YAML's where --config names one)."""
+    from dmf_sim.identify.fit import identifiability
+    assert cli_main(['run', 'step:1000:0.3:1:0.1', '--theta', '0.2', '--alpha', '3.5', '--out',
+                     str(tmp_path / 'bag'), '--no-progress', '--no-sensors']) == 0
+    names = ('k', 'theta', 'alpha', 'damping')
+    meas = read_measurement(tmp_path / 'bag', IdentifyOptions(parameters=names))
+    found = identifiability(meas, ('k', 'damping'), np.log([10890.0, 49.5]))
+    assert found.rms < 1e-6 < np.std(meas.y)          # the bag's own model: its own signal
+    r = identify(meas, IdentifyOptions(parameters=names, starts=1))
+    assert r.initial == {'k': 10890.0, 'theta': 0.2, 'alpha': 3.5, 'damping': 49.5}
+    assert r.rms_initial < 1e-6
+    given = read_measurement(tmp_path / 'bag', IdentifyOptions(parameters=names,
+                                                               driveline='truck_dmf'))
+    assert identifiability(given, ('k', 'damping'), np.log([10890.0, 49.5])).rms > 1e-3
