@@ -62,7 +62,7 @@ from dmf_sim.bags.read import read_messages
 
 __all__ = ['DEFAULT_WINDOW', 'DEFAULT_THRESHOLD', 'WINDUP_POINTS', 'CRANK_ANGLE_TOPIC',
            'GROUND_TRUTH_TOPIC', 'GainSums', 'misfire_scores', 'MisfireScore', 'score_detections',
-           'ground_truth_misfires', 'detect_edges', 'detect_bag']
+           'ground_truth_events', 'ground_truth_misfires', 'detect_edges', 'detect_bag']
 
 DEFAULT_WINDOW = 9          # intervals each side of the local baseline (1.5 engine cycles)
 DEFAULT_THRESHOLD = 0.3     # alarm below -0.3 of the mean engine work per firing interval (M2)
@@ -215,21 +215,23 @@ def score_detections(scores: dict[str, np.ndarray], misfire_tdc_rad: Sequence[fl
                         int((~truth & alarm).sum()), len(tdc) / n_cyl, per, speed)
 
 
-def ground_truth_misfires(path: str | os.PathLike | BagFiles) -> np.ndarray:
-    """The TDC crank angles [rad] of the misfired combustions in a bag's ground truth."""
+def ground_truth_events(path: str | os.PathLike | BagFiles) -> list[dict]:
+    """The fault events of a bag's ground truth (``faults/ground_truth``, in any namespace), in
+    the bag's order, as :func:`dmf_sim.physics.faults.event_from_values` reads them back."""
     from dmf_sim.bags.read import bag_topics
     from dmf_sim.physics.faults import event_from_values
 
     bag = path if isinstance(path, BagFiles) else resolve_bag(path)
     topics = [t for t in bag_topics(bag) if t.lstrip('/') == GROUND_TRUTH_TOPIC
               or t.endswith('/' + GROUND_TRUTH_TOPIC)]
-    out = []
-    for m in read_messages(bag, topics):
-        for s in m.msg.status:
-            ev = event_from_values(s.message, {kv.key: kv.value for kv in s.values})
-            if ev['what'] == 'misfire':
-                out.append(ev['tdc_crank_angle_rad'])
-    return np.asarray(out, float)
+    return [event_from_values(s.message, {kv.key: kv.value for kv in s.values})
+            for m in read_messages(bag, topics) for s in m.msg.status]
+
+
+def ground_truth_misfires(path: str | os.PathLike | BagFiles) -> np.ndarray:
+    """The TDC crank angles [rad] of the misfired combustions in a bag's ground truth."""
+    return np.asarray([ev['tdc_crank_angle_rad'] for ev in ground_truth_events(path)
+                       if ev['what'] == 'misfire'], float)
 
 
 def detect_edges(crank: WheelEdges, secondary: WheelEdges, crank_t_ns: np.ndarray,

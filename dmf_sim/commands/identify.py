@@ -68,10 +68,14 @@ def value_line(result, name: str) -> str:
 
 
 def _run_text(meas, result) -> str:
-    """The run a summary names: the bag's profile, or the one rebuilt and what of it is read."""
-    if not meas.rebuilt:
-        return f'profile {result.profile}'
-    return 'profile rebuilt from its speed and health statuses; read where the load is known'
+    """The run a summary names: the bag's profile, or the one rebuilt and what of it is read,
+    and where the samples read end at an injected fault."""
+    text = (f'profile {result.profile}' if not meas.rebuilt else
+            'profile rebuilt from its speed and health statuses; read where the load is known')
+    if meas.faults_from_s is not None:
+        text += (f'; read before the first injected fault, {meas.fault_kind} at '
+                 f'{meas.faults_from_s:.4g} s')
+    return text
 
 
 def run(args: argparse.Namespace) -> int:

@@ -152,7 +152,10 @@ class Measurement:
     settled), None for all; stored_spring: the DMF spring the bag was recorded with (its
     metadata's ``spring``, ``alpha``, ``theta_rad``: the keywords of
     :func:`dmf_sim.analysis.hbm_overlay.with_stored_spring`), applied to the driveline where it
-    is the bag's; None where ``--config`` gives the driveline (its YAML's spring).
+    is the bag's; None where ``--config`` gives the driveline (its YAML's spring);
+    faults_from_s, fault_kind: the run time [s] and kind of the first fault the bag's ground
+    truth names that changes the driveline (:func:`_first_fault`): the model is the healthy
+    driveline, so the fit reads only the samples before it (None: no such fault).
     """
 
     t_s: np.ndarray
@@ -168,11 +171,16 @@ class Measurement:
     rebuilt: bool = False
     fit_mask: np.ndarray | None = None
     stored_spring: dict | None = None
+    faults_from_s: float | None = None
+    fault_kind: str = ''
 
     @property
     def fitted(self) -> np.ndarray:
-        """The samples a fit reads: after the settling, and in :attr:`fit_mask`."""
+        """The samples a fit reads: after the settling, before the first fault, and in
+        :attr:`fit_mask`."""
         keep = self.t_s >= self.settle_s
+        if self.faults_from_s is not None:
+            keep &= self.t_s < self.faults_from_s
         return keep if self.fit_mask is None else keep & self.fit_mask
 
 
@@ -290,6 +298,18 @@ def _known_load(series, start_load: float | None, t_ns: np.ndarray, settle_s: fl
     return inside & ((began[j] <= t_ns[0]) | (t_ns - began[j] >= settle_s * 1e9))
 
 
+def _first_fault(resolved) -> tuple[int, str] | None:
+    """(stamp [ns], kind) of the first fault of the bag's ground truth that changes the
+    driveline's dynamics (a combustion or DMF fault: a sensor's leaves the recorded wind-up as
+    it was), None where it names none."""
+    from dmf_sim.analysis.misfire_detector import ground_truth_events
+    from dmf_sim.physics.faults import SENSOR_KINDS
+    found = [(ev['start_ns'] if ev['start_ns'] is not None else ev['event_ns'], ev['fault'].kind)
+             for ev in ground_truth_events(resolved) if ev['fault'].kind not in SENSOR_KINDS]
+    found = [f for f in found if f[0] is not None]
+    return min(found) if found else None
+
+
 def read_measurement(bag, options: IdentifyOptions = IdentifyOptions()) -> Measurement:
     """The signal of ``bag`` to fit, with the run and model behind it (one-line
     :class:`~dmf_sim.core.errors.ConfigError` / BagError when the bag lacks what is needed)."""
@@ -347,6 +367,7 @@ def read_measurement(bag, options: IdentifyOptions = IdentifyOptions()) -> Measu
     period_ns = int(round(1e9 / rate))
     if options.profile is not None:
         profile = _given_profile(profile, options.profile, series, t_ns, t_s)
+    fault = _first_fault(resolved)
     fit_mask = None
     if profile is None:
         profile = _rebuilt_profile(series, int(t_ns[0]) - period_ns, int(t_ns[-1]) + period_ns)
@@ -362,7 +383,10 @@ def read_measurement(bag, options: IdentifyOptions = IdentifyOptions()) -> Measu
                        else profile.start_settle_s),
         bag=str(resolved.path), rebuilt=rebuilt, fit_mask=fit_mask,
         stored_spring=(None if options.driveline is not None else
-                       {'spring': meta.spring, 'alpha': meta.alpha, 'theta_rad': meta.theta_rad}))
+                       {'spring': meta.spring, 'alpha': meta.alpha, 'theta_rad': meta.theta_rad}),
+        faults_from_s=(None if fault is None else
+                       float((fault[0] - t_ns[0]) * 1e-9 + 1.0 / rate)),
+        fault_kind='' if fault is None else fault[1])
 
 
 # ---------------------------------------------------------------------------- the model
@@ -480,6 +504,13 @@ def _residual(meas: Measurement, names: tuple[str, ...]):
     samples after the settling, thinned to :data:`DECIMATE_HZ`."""
     model = _model(meas, names)
     keep = meas.fitted
+    if meas.faults_from_s is not None and not keep.any() and \
+            not (meas.t_s[meas.t_s >= meas.settle_s] < meas.faults_from_s).any():
+        raise ConfigError(f'{meas.bag}: no sample to fit before the first injected fault '
+                          f'({meas.fault_kind} at {meas.faults_from_s:.4g} s of the run, the '
+                          f'bag\'s fault ground truth) after the run\'s settling '
+                          f'({meas.settle_s:g} s, left out): identify models the healthy '
+                          f'driveline; record a run with a healthy stretch after its settling')
     if not keep.any() and meas.fit_mask is None:
         raise ConfigError(f'{meas.bag}: no sample to fit: the recording ends within the run\'s '
                           f'first {meas.settle_s:g} s (its settling, left out); record a longer '
