@@ -69,12 +69,11 @@ def value_line(result, name: str) -> str:
 
 def _run_text(meas, result) -> str:
     """The run a summary names: the bag's profile, or the one rebuilt and what of it is read,
-    and where the samples read end at an injected fault."""
+    and where the samples read end (an injected fault, the node's spring set)."""
     text = (f'profile {result.profile}' if not meas.rebuilt else
             'profile rebuilt from its speed and health statuses; read where the load is known')
-    if meas.faults_from_s is not None:
-        text += (f'; read before the first injected fault, {meas.fault_kind} at '
-                 f'{meas.faults_from_s:.4g} s')
+    if meas.model_until_s is not None:
+        text += f'; read before {meas.model_until_why} at {meas.model_until_s:.4g} s'
     return text
 
 

@@ -153,9 +153,10 @@ class Measurement:
     metadata's ``spring``, ``alpha``, ``theta_rad``: the keywords of
     :func:`dmf_sim.analysis.hbm_overlay.with_stored_spring`), applied to the driveline where it
     is the bag's; None where ``--config`` gives the driveline (its YAML's spring);
-    faults_from_s, fault_kind: the run time [s] and kind of the first fault the bag's ground
-    truth names that changes the driveline (:func:`_first_fault`): the model is the healthy
-    driveline, so the fit reads only the samples before it (None: no such fault).
+    model_until_s, model_until_why: the run time [s] from which the recording is no longer the
+    model's run, and what happened there (:func:`_model_until`: the first injected fault that
+    changes the driveline, or the node's spring set to other values); the fit reads only the
+    samples before it (None: the whole recording is the model's).
     """
 
     t_s: np.ndarray
@@ -171,16 +172,16 @@ class Measurement:
     rebuilt: bool = False
     fit_mask: np.ndarray | None = None
     stored_spring: dict | None = None
-    faults_from_s: float | None = None
-    fault_kind: str = ''
+    model_until_s: float | None = None
+    model_until_why: str = ''
 
     @property
     def fitted(self) -> np.ndarray:
-        """The samples a fit reads: after the settling, before the first fault, and in
+        """The samples a fit reads: after the settling, before :attr:`model_until_s`, and in
         :attr:`fit_mask`."""
         keep = self.t_s >= self.settle_s
-        if self.faults_from_s is not None:
-            keep &= self.t_s < self.faults_from_s
+        if self.model_until_s is not None:
+            keep &= self.t_s < self.model_until_s
         return keep if self.fit_mask is None else keep & self.fit_mask
 
 
@@ -298,15 +299,31 @@ def _known_load(series, start_load: float | None, t_ns: np.ndarray, settle_s: fl
     return inside & ((began[j] <= t_ns[0]) | (t_ns - began[j] >= settle_s * 1e9))
 
 
-def _first_fault(resolved) -> tuple[int, str] | None:
-    """(stamp [ns], kind) of the first fault of the bag's ground truth that changes the
+def _model_until(resolved, series) -> tuple[int, str] | None:
+    """(stamp [ns], what) from which the recording is no longer the run of one healthy model,
+    None where it is throughout: the first fault of the bag's ground truth that changes the
     driveline's dynamics (a combustion or DMF fault: a sensor's leaves the recorded wind-up as
-    it was), None where it names none."""
+    it was), or the last health status before one reports another DMF knee (``alpha``,
+    ``theta_rad``: the node's spring set while it recorded; the change lies between the two
+    statuses)."""
+    from dmf_sim.analysis.load_timeline import HEALTH_KEYS
     from dmf_sim.analysis.misfire_detector import ground_truth_events
     from dmf_sim.physics.faults import SENSOR_KINDS
-    found = [(ev['start_ns'] if ev['start_ns'] is not None else ev['event_ns'], ev['fault'].kind)
+    found = [(ev['start_ns'] if ev['start_ns'] is not None else ev['event_ns'],
+              f'the first injected fault ({ev["fault"].kind})')
              for ev in ground_truth_events(resolved) if ev['fault'].kind not in SENSOR_KINDS]
     found = [f for f in found if f[0] is not None]
+    if series.health is not None:
+        hs_t, values = series.health
+        knee = values[:, [HEALTH_KEYS.index('alpha'), HEALTH_KEYS.index('theta_rad')]]
+        known = np.isfinite(knee).all(axis=1)
+        hs_t, knee = hs_t[known], knee[known]
+        changed = np.flatnonzero((knee != knee[:1]).any(axis=1)) if len(knee) else []
+        if len(changed):
+            i = int(changed[0])
+            found.append((int(hs_t[i - 1]), f'the node\'s spring set from alpha {knee[0, 0]:g}, '
+                                            f'theta {knee[0, 1]:g} rad to alpha {knee[i, 0]:g}, '
+                                            f'theta {knee[i, 1]:g} rad (its health statuses)'))
     return min(found) if found else None
 
 
@@ -367,7 +384,7 @@ def read_measurement(bag, options: IdentifyOptions = IdentifyOptions()) -> Measu
     period_ns = int(round(1e9 / rate))
     if options.profile is not None:
         profile = _given_profile(profile, options.profile, series, t_ns, t_s)
-    fault = _first_fault(resolved)
+    until = _model_until(resolved, series)
     fit_mask = None
     if profile is None:
         profile = _rebuilt_profile(series, int(t_ns[0]) - period_ns, int(t_ns[-1]) + period_ns)
@@ -384,9 +401,9 @@ def read_measurement(bag, options: IdentifyOptions = IdentifyOptions()) -> Measu
         bag=str(resolved.path), rebuilt=rebuilt, fit_mask=fit_mask,
         stored_spring=(None if options.driveline is not None else
                        {'spring': meta.spring, 'alpha': meta.alpha, 'theta_rad': meta.theta_rad}),
-        faults_from_s=(None if fault is None else
-                       float((fault[0] - t_ns[0]) * 1e-9 + 1.0 / rate)),
-        fault_kind='' if fault is None else fault[1])
+        model_until_s=(None if until is None else
+                       float((until[0] - t_ns[0]) * 1e-9 + 1.0 / rate)),
+        model_until_why='' if until is None else until[1])
 
 
 # ---------------------------------------------------------------------------- the model
@@ -504,13 +521,12 @@ def _residual(meas: Measurement, names: tuple[str, ...]):
     samples after the settling, thinned to :data:`DECIMATE_HZ`."""
     model = _model(meas, names)
     keep = meas.fitted
-    if meas.faults_from_s is not None and not keep.any() and \
-            not (meas.t_s[meas.t_s >= meas.settle_s] < meas.faults_from_s).any():
-        raise ConfigError(f'{meas.bag}: no sample to fit before the first injected fault '
-                          f'({meas.fault_kind} at {meas.faults_from_s:.4g} s of the run, the '
-                          f'bag\'s fault ground truth) after the run\'s settling '
-                          f'({meas.settle_s:g} s, left out): identify models the healthy '
-                          f'driveline; record a run with a healthy stretch after its settling')
+    if meas.model_until_s is not None and not keep.any() and \
+            not (meas.t_s[meas.t_s >= meas.settle_s] < meas.model_until_s).any():
+        raise ConfigError(f'{meas.bag}: no sample to fit before {meas.model_until_why} at '
+                          f'{meas.model_until_s:.4g} s of the run, after the run\'s settling '
+                          f'({meas.settle_s:g} s, left out): identify models one healthy '
+                          f'driveline; record a run with a stretch of it after its settling')
     if not keep.any() and meas.fit_mask is None:
         raise ConfigError(f'{meas.bag}: no sample to fit: the recording ends within the run\'s '
                           f'first {meas.settle_s:g} s (its settling, left out); record a longer '
