@@ -176,6 +176,11 @@ def _print(s: dict) -> None:
           f'{s["n_failed"]} failed, {s["n_resumed"]} resumed); {s["seconds"]:.1f} s on '
           f'{s["workers"]} worker(s), {rate}')
     print(f'feasible Pareto front of {", ".join(s["objectives"])}: {len(s["pareto"])} designs')
+    near = s.get('nearest_infeasible')
+    if near:
+        print(f'no design meets the constraints; the nearest, design {near["design_id"]}: '
+              f'{near["constraints"]} (values > 0 violated, relative to the bound: relax those '
+              f'in optimizer.constraints or widen the variables)')
     for d in s['pareto'][:20]:
         print('  ' + ', '.join(f'{k} = {v:.5g}' if isinstance(v, float) else f'{k} = {v}'
                                for k, v in d.items()))

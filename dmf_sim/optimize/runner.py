@@ -39,7 +39,7 @@ from dmf_sim.optimize.problem import Problem, read_problem, unit_to_values
 
 __all__ = ['JOURNAL', 'PROBLEM_FILE', 'OPTUNA_STUDY', 'MAX_CONSTRAINT', 'EXTRA',
            'OptimizationResult', 'check_budget', 'run_optimization', 'finish', 'reference_point',
-           'BASELINE_DIR', 'baseline_problem']
+           'BASELINE_DIR', 'baseline_problem', 'nearest_infeasible']
 
 pa = require('pyarrow', 'optimize')
 distributed = require('distributed', 'optimize')
@@ -82,12 +82,27 @@ class OptimizationResult(StudyResult):
             'method': p.method, 'budget': p.budget, 'seed': p.seed,
             'batch_size': p.batch_size, 'pareto_objectives': list(p.objectives),
             'n_feasible': sum(bool(r['feasible']) for r in self.rows('design')),
+            'nearest_infeasible': nearest_infeasible(self.rows('design')),
             'constraints': p.constraints.as_dict(),
             'hypervolume_final': (float(self.hypervolume[-1]) if len(self.hypervolume)
                                   else None),
             'verification': [v.as_dict() for v in self.verification],
             'transient_verification': [v.as_dict() for v in self.transient_verification]})
         return out
+
+
+def nearest_infeasible(rows) -> dict | None:
+    """Where no design row is feasible: the one nearest to it (the least violation, the sum of
+    its relative constraint values > 0), as design_id, violation and its constraint values'
+    text; None where one is feasible or none has constraint values (every one failed)."""
+    if any(bool(r.get('feasible')) for r in rows):
+        return None
+    scored = [r for r in rows if r.get('violation') is not None and math.isfinite(r['violation'])]
+    if not scored:
+        return None
+    near = min(scored, key=lambda r: r['violation'])
+    return {'design_id': int(near['design_id']), 'violation': float(near['violation']),
+            'constraints': str(near['constraints'])}
 
 
 def _sampler(problem: Problem):

@@ -534,3 +534,28 @@ def test_the_printed_front_names_every_objective(capsys):
     out = capsys.readouterr().out
     assert ('feasible Pareto front of worst_torque_3, transient_dmf_torque, cycle_friction_heat: '
             '0 designs') in out
+
+
+def test_a_run_without_a_feasible_design_names_the_nearest(capsys):
+    """capacity_nm 20000 Nm for the example's spring bounds (budget 8): no design feasible, and
+    the summary said only 'feasible Pareto front ...: 0 designs', not which constraint no
+    design met. It names the design nearest to feasible and its constraint values."""
+    from dmf_sim.commands.optimize import _print
+    from dmf_sim.optimize.runner import nearest_infeasible
+    rows = [{'design_id': 0, 'feasible': False, 'violation': 0.9,
+             'constraints': 'capacity +0.9, dmf_torque -0.8'},
+            {'design_id': 1, 'feasible': False, 'violation': 0.5,
+             'constraints': 'capacity +0.5, dmf_torque -0.7'},
+            {'design_id': 2, 'feasible': False, 'violation': math.inf, 'constraints': 'failed'}]
+    near = nearest_infeasible(rows)
+    assert near == {'design_id': 1, 'violation': 0.5,
+                    'constraints': 'capacity +0.5, dmf_torque -0.7'}
+    feasible = {'design_id': 3, 'feasible': True, 'violation': 0.0, 'constraints': ''}
+    assert nearest_infeasible([*rows, feasible]) is None
+    assert nearest_infeasible(rows[2:]) is None                  # only failed designs
+    _print({'designs_per_s': 1.0, 'study': 's', 'method': 'tpe', 'n_designs': 3,
+            'n_feasible': 0, 'n_failed': 1, 'n_resumed': 0, 'seconds': 1.0, 'workers': 1,
+            'objectives': ['a', 'b'], 'pareto': [], 'nearest_infeasible': near, 'files': {}})
+    out = capsys.readouterr().out
+    assert ('no design meets the constraints; the nearest, design 1: capacity +0.5, '
+            'dmf_torque -0.7') in out
