@@ -428,7 +428,7 @@ class _Model:
 
 def _model(meas: Measurement, names: Sequence[str]) -> _Model:
     from dmf_sim.analysis.hbm_overlay import with_stored_spring
-    from dmf_sim.design.parameters import parse_parameter
+    from dmf_sim.design.parameters import check_parameter_set, parse_parameter
     from dmf_sim.physics.engine import read_engine
     from dmf_sim.physics.model import read_driveline
     base = read_driveline(meas.driveline)
@@ -445,6 +445,12 @@ def _model(meas: Measurement, names: Sequence[str]) -> _Model:
     if not math.isfinite(hi):
         hi = float(np.max(meas.profile.speed_rpm)) * 2
     params = [parse_parameter(n, '--parameters') for n in names]
+    for p in params:
+        stages = {'stages': base.spring.drive, 'coast_stages': base.spring.coast}.get(p.side)
+        if stages is not None and p.index >= len(stages):
+            raise ConfigError(f'--parameters {p.name}: the spring of the bag has '
+                              f'{len(stages)} {p.side.replace("_", " ")}')
+    check_parameter_set(params, base, '--parameters')     # one quantity under two names
     return _Model(base, engine, params, (float(lo), float(hi)))
 
 
@@ -469,11 +475,8 @@ def _base_values(model: _Model) -> dict[str, float]:
             friction = model.base.dmf.friction
             value = getattr(friction, p.kind.split('.', 1)[1]) if friction is not None else 0.0
             out[p.name] = float(value) or FRICTION_START[p.kind]
-        else:
+        else:                           # the stage exists: checked by _model
             stages = spring.drive if p.side == 'stages' else spring.coast
-            if p.index >= len(stages):
-                raise ConfigError(f'--parameters {p.name}: the spring of the bag has '
-                                  f'{len(stages)} {p.side.replace("_", " ")}')
             out[p.name] = float(getattr(stages[p.index], p.kind))
     return out
 

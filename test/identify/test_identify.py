@@ -89,6 +89,10 @@ def test_the_command_writes_json_and_plot_and_runs_on_dask(case, tmp_path, capsy
 @pytest.mark.parametrize('extra, needle', [
     (['--parameters', 'k,stiffness'], '--parameters'),
     (['--parameters', 'k,k'], 'named twice'),
+    # one quantity under two names: the check before the fit said the knee did not change the
+    # wind-up (the second name's value replaced the first's)
+    (['--parameters', 'k,stages[0].angle_rad,theta'],
+     "--parameters: 'theta' and 'stages[0].angle_rad' set the same quantity; give it once"),
     (['--parameters', 'stages[3].angle_rad'], 'stages'),
     (['--starts', '0'], '--starts 0: allowed 1..1000'),
     (['--seed', '-1', '--starts', '2'], '--seed -1: allowed 0..4294967295'),
