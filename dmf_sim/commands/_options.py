@@ -249,7 +249,8 @@ def add_cluster(p) -> None:
 
 
 def check_cluster(args) -> None:
-    """One-line errors for the options of :func:`add_cluster`."""
+    """One-line errors for the options of :func:`add_cluster` (and a command's ``--local``,
+    which runs without Dask)."""
     limit = max_local_workers()
     if args.workers is not None and not 1 <= args.workers <= limit:
         raise ConfigError(f'--workers {args.workers}: allowed 1..{limit} on this machine '
@@ -257,4 +258,6 @@ def check_cluster(args) -> None:
     if args.workers is not None and args.scheduler:
         raise ConfigError('--workers sizes the local cluster; with --scheduler the cluster '
                           'brings its own workers (leave out one of them)')
+    if getattr(args, 'local', False) and (args.workers is not None or args.scheduler):
+        raise ConfigError('--local runs without Dask: leave out --workers and --scheduler')
     check_wait(args.connect_timeout, '--connect-timeout')

@@ -61,8 +61,6 @@ def run(args: argparse.Namespace) -> int:
     if not 0.5 <= args.duration <= 600:
         raise ConfigError(f'--duration {args.duration!r}: must be in [0.5, 600] s')
     opt.check_cluster(args)
-    if args.local and (args.workers is not None or args.scheduler):
-        raise ConfigError('--local runs without Dask: leave out --workers and --scheduler')
     dest = opt.output(args, NAME)
     if not args.local:
         from dmf_sim.core.optional import require_extra

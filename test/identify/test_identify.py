@@ -97,6 +97,7 @@ def test_the_command_writes_json_and_plot_and_runs_on_dask(case, tmp_path, capsy
     (['--starts', '0'], '--starts 0: allowed 1..1000'),
     (['--seed', '-1', '--starts', '2'], '--seed -1: allowed 0..4294967295'),
     (['--signal', 'torque'], 'invalid choice'),
+    (['--local', '--workers', '2'], '--local runs without Dask: leave out --workers'),  # ran Dask
     (['--profile', 'no_such_profile'], 'no_such_profile'),
 ])
 def test_bad_options_one_line(case, extra, needle, capsys):
