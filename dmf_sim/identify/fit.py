@@ -259,10 +259,20 @@ def _rebuilt_profile(series, origin_ns: int, end_ns: int):
                         where=f'{series.bag.path}: rebuilt profile')
 
 
+def _cut(profile, end_s: float):
+    """``profile`` simulated no further than the recording goes (``end_s`` [s], its last
+    sample): a longer ``--profile``, or the whole profile a ``dmf-sim run`` stopped early keeps
+    in its metadata."""
+    if profile.duration_s <= end_s + REBUILT_ROW_S:
+        return profile
+    return replace(profile.window(0.0, end_s + REBUILT_ROW_S, name=profile.name),
+                   settle_s=profile.settle_s)
+
+
 def _given_profile(profile, spec: str, series, t_ns: np.ndarray, t_s: np.ndarray):
     """``--profile``, checked against the bag (a one-line ConfigError where it is not the run
     recorded: shorter than the recording, or at another engine speed where the bag recorded
-    one) and cut where the recording ends (a longer profile is simulated no further)."""
+    one)."""
     end = float(t_s[-1])
     if profile.duration_s < end - 1e-9:
         raise ConfigError(f'--profile {spec}: it lasts {profile.duration_s:g} s, the recording '
@@ -277,10 +287,7 @@ def _given_profile(profile, spec: str, series, t_ns: np.ndarray, t_s: np.ndarray
             raise ConfigError(f'--profile {spec}: at t = {ts[i]:.3g} s it runs at '
                               f'{want[i]:.0f} rpm, the bag recorded {speed.values[i]:.0f} rpm: '
                               'not the profile the bag was recorded along')
-    if profile.duration_s <= end + REBUILT_ROW_S:
-        return profile
-    return replace(profile.window(0.0, end + REBUILT_ROW_S, name=profile.name),
-                   settle_s=profile.settle_s)
+    return profile
 
 
 def _known_load(series, start_load: float | None, t_ns: np.ndarray, settle_s: float
@@ -395,7 +402,9 @@ def read_measurement(bag, options: IdentifyOptions = IdentifyOptions()) -> Measu
         profile = _given_profile(profile, options.profile, series, t_ns, t_s)
     until = _model_until(resolved, series)
     fit_mask = None
-    if profile is None:
+    if profile is not None:
+        profile = _cut(profile, float(t_s[-1]))
+    else:
         profile = _rebuilt_profile(series, int(t_ns[0]) - period_ns, int(t_ns[-1]) + period_ns)
         rebuilt = True
         fit_mask = _known_load(series, meta.load, t_ns, profile.start_settle_s)

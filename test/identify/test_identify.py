@@ -504,3 +504,29 @@ def test_a_knee_the_noisy_run_barely_passes_is_refused(late_knee):
         identify(noisy, options)
     assert f'{KNEE_EVIDENCE:g} s^2 would show the stage' in str(err.value)
     assert 'fit --parameters k,damping' in str(err.value)
+
+
+def test_an_interrupted_run_bag_is_simulated_as_far_as_it_recorded(case, tmp_path):
+    """A ``dmf-sim run`` stopped early (Ctrl-C) keeps its whole profile in the metadata and only
+    the stretch it simulated: every evaluation of the fit simulated the whole profile (5 s
+    recorded of an 82 s tip-in: 0.19 s a simulation instead of 0.015 s). The bag's own profile
+    is cut where the recording ends, as a longer --profile is."""
+    import shutil
+
+    import yaml
+
+    from dmf_sim.identify.fit import identifiability
+    bag, _ = case
+    shutil.copytree(bag, tmp_path / 'bag')
+    meta_file = tmp_path / 'bag' / 'metadata.yaml'
+    meta = yaml.safe_load(meta_file.read_text())
+    custom = meta['rosbag2_bagfile_information']['custom_data']
+    table = json.loads(custom['dmf_sim.profile_table'])
+    for key, value in (('t_s', 60.0), ('speed_rpm', 1800.0), ('load', 0.2)):
+        table[key].append(value)                  # the run was to go on to 60 s
+    custom['dmf_sim.profile_table'] = json.dumps(table)
+    meta_file.write_text(yaml.safe_dump(meta))
+    meas = read_measurement(tmp_path / 'bag', IdentifyOptions(parameters=PARAMETERS))
+    assert meas.t_s[-1] <= meas.profile.duration_s < meas.t_s[-1] + 0.1
+    found = identifiability(meas, PARAMETERS, np.log([TRUE[n] for n in PARAMETERS]))
+    assert found.rms < 1e-6
