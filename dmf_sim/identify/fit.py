@@ -343,6 +343,50 @@ def _model_until(resolved, series) -> tuple[int, str] | None:
     return min(found) if found else None
 
 
+def _beyond_the_dmf(given, recorded) -> str | None:
+    """The first difference of driveline ``given`` from ``recorded`` in what identify does not
+    fit (the elements but the DMF element's stiffness and damping, the cylinders, firing phases,
+    the rear load element, which element is the DMF), as text; None where there is none."""
+    if given.names != recorded.names:
+        return (f'elements {", ".join(given.names)}, the bag\'s driveline '
+                f'{", ".join(recorded.names)}')
+    fitted = given.dmf.element if given.dmf is not None else None
+    for mine, theirs in zip(given.elements, recorded.elements):
+        for attr in ('ratio', 'stiffness', 'damping', 'inertia'):
+            if mine.name == fitted and attr in ('stiffness', 'damping'):
+                continue
+            if getattr(mine, attr) != getattr(theirs, attr):
+                return (f'element {mine.name!r} {attr} {getattr(mine, attr):g}, the bag\'s '
+                        f'driveline {getattr(theirs, attr):g}')
+    for attr in ('cylinders', 'firing_phases_deg', 'rear_load_element'):
+        if getattr(given, attr) != getattr(recorded, attr):
+            return f'{attr} {getattr(given, attr)}, the bag\'s driveline {getattr(recorded, attr)}'
+    if (recorded.dmf is not None and fitted != recorded.dmf.element):
+        return f'DMF element {fitted}, the bag\'s driveline {recorded.dmf.element}'
+    return None
+
+
+def _check_config(given: str, named: str | None) -> None:
+    """``--config`` ``given`` against the driveline the bag names (``named``, where it is here):
+    one that differs beyond the DMF is another driveline, refused in one line (the fit would
+    put the difference into the DMF's values)."""
+    from dmf_sim.physics.model import read_driveline
+    if named is None:
+        return
+    try:
+        recorded = read_driveline(named)
+    except (ConfigError, OSError):          # not on this machine: --config stands for it
+        return
+    line = read_driveline(given)
+    if line.dmf is None:                    # no DMF to fit: _model says so
+        return
+    what = _beyond_the_dmf(line, recorded)
+    if what is not None:
+        raise ConfigError(f'--config {given}: {what} ({named}): identify fits only the DMF, '
+                          f'the rest must be the driveline recorded; leave out --config, or give '
+                          f'the bag\'s driveline with other DMF values')
+
+
 def read_measurement(bag, options: IdentifyOptions = IdentifyOptions()) -> Measurement:
     """The signal of ``bag`` to fit, with the run and model behind it (one-line
     :class:`~dmf_sim.core.errors.ConfigError` / BagError when the bag lacks what is needed)."""
@@ -395,6 +439,8 @@ def read_measurement(bag, options: IdentifyOptions = IdentifyOptions()) -> Measu
                 raise ConfigError(f'{resolved.path}: the {what} the bag was recorded with, '
                                   f'{named}, is not here ({one_line(exc)}); give it with '
                                   f'{option}') from None
+    if options.driveline is not None:
+        _check_config(options.driveline, meta.driveline)
     rate = meta.publish_rate_hz or 1000.0
     t_s = (t_ns - t_ns[0]) * 1e-9 + 1.0 / rate        # the first sample: one period in
     period_ns = int(round(1e9 / rate))
