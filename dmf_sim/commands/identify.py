@@ -39,8 +39,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help='what to fit: the wind-up, or the speeds of the two flywheels '
                         f'(default {d.signal})')
     p.add_argument('--config', help="driveline YAML to start from (default: the bag's)")
-    p.add_argument('--engine', help="engine YAML (default: the bag's)")
-    p.add_argument('--load-set', help="load set A/B/C (default: the bag's)")
+    p.add_argument('--engine', help="engine YAML (default: the bag's; another than the bag's "
+                   "is refused)")
+    p.add_argument('--load-set', help="load set A/B/C (default: the bag's; another than the "
+                   "bag's is refused)")
     p.add_argument('--profile', help="the profile the bag was recorded along (default: the "
                    "one the bag names, else rebuilt from its recorded speed and load)")
     p.add_argument('--starts', type=int, default=d.starts,

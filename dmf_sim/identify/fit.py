@@ -366,6 +366,31 @@ def _beyond_the_dmf(given, recorded) -> str | None:
     return None
 
 
+def _check_model(options: IdentifyOptions, meta) -> None:
+    """The model's options against what the bag recorded (``meta``): ``--load-set`` or
+    ``--engine`` other than the bag's is another run, refused in one line (the fit would put
+    the difference into the DMF's values), as a ``--config`` other beyond the DMF is
+    (:func:`_check_config`). A file the bag names that is not here is not compared: the option
+    stands for it."""
+    from dmf_sim.core.paths import config_file
+    if options.load_set is not None and meta.load_set is not None \
+            and options.load_set.upper() != meta.load_set.upper():
+        raise ConfigError(f'--load-set {options.load_set}: the bag was recorded with load set '
+                          f'{meta.load_set}: identify fits only the DMF, the rest must be the '
+                          f'run recorded; leave out --load-set')
+    if options.engine is not None and meta.engine is not None:
+        try:
+            recorded = config_file(meta.engine).read_bytes()
+        except (ConfigError, OSError):
+            recorded = None
+        if recorded is not None and config_file(options.engine).read_bytes() != recorded:
+            raise ConfigError(f'--engine {options.engine}: not the engine the bag was recorded '
+                              f'with ({meta.engine}): identify fits only the DMF, the rest must '
+                              f'be the run recorded; leave out --engine')
+    if options.driveline is not None:
+        _check_config(options.driveline, meta.driveline)
+
+
 def _check_config(given: str, named: str | None) -> None:
     """``--config`` ``given`` against the driveline the bag names (``named``, where it is here):
     one that differs beyond the DMF is another driveline, refused in one line (the fit would
@@ -439,8 +464,7 @@ def read_measurement(bag, options: IdentifyOptions = IdentifyOptions()) -> Measu
                 raise ConfigError(f'{resolved.path}: the {what} the bag was recorded with, '
                                   f'{named}, is not here ({one_line(exc)}); give it with '
                                   f'{option}') from None
-    if options.driveline is not None:
-        _check_config(options.driveline, meta.driveline)
+    _check_model(options, meta)
     rate = meta.publish_rate_hz or 1000.0
     t_s = (t_ns - t_ns[0]) * 1e-9 + 1.0 / rate        # the first sample: one period in
     period_ns = int(round(1e9 / rate))

@@ -98,6 +98,11 @@ def test_the_command_writes_json_and_plot_and_runs_on_dask(case, tmp_path, capsy
     (['--seed', '-1', '--starts', '2'], '--seed -1: allowed 0..4294967295'),
     (['--signal', 'torque'], 'invalid choice'),
     (['--local', '--workers', '2'], '--local runs without Dask: leave out --workers'),  # ran Dask
+    # another engine or load set than the bag's is another run: the fit put the difference into
+    # the DMF (load set C: k 10312 ± 0.09 % for 9800; engine_d13_2500nm: k 8986 ± 0.06 %)
+    (['--load-set', 'C'], '--load-set C: the bag was recorded with load set A'),
+    (['--engine', 'engine_d13_2500nm'],
+     '--engine engine_d13_2500nm: not the engine the bag was recorded with (engine_d13)'),
     (['--profile', 'no_such_profile'], 'no_such_profile'),
 ])
 def test_bad_options_one_line(case, extra, needle, capsys):
@@ -565,3 +570,11 @@ def test_a_config_other_than_the_bags_beyond_the_dmf_is_refused(tmp_path, capsys
     meas = read_measurement(tmp_path / 'bag', IdentifyOptions(driveline=str(tmp_path /
                                                                              'start.yaml')))
     assert meas.driveline == str(tmp_path / 'start.yaml')
+
+
+def test_the_bags_own_engine_and_load_set_may_be_given(case):
+    """Naming the engine and load set the bag was recorded with is no mistake."""
+    bag, _ = case
+    meas = read_measurement(bag, IdentifyOptions(parameters=('k', 'damping'),
+                                                 engine='engine_d13', load_set='A'))
+    assert meas.engine == 'engine_d13' and meas.load_set == 'A'
