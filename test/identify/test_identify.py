@@ -390,6 +390,7 @@ def late_knee(tmp_path_factory):
     return make_bag(tmp_path_factory.mktemp('identify_late'), 'late', LATE_KNEE, ROWS)
 
 
+@pytest.mark.slow
 def test_a_knee_the_fitted_run_never_reaches_is_refused(late_knee, tmp_path, capsys):
     """The check before the fit passes (the shipped knee, 0.24 rad, is reached at the start),
     but the bag's knee, 0.34 rad, lies beyond every wind-up of the run: the fit moved the knee
@@ -409,6 +410,7 @@ def test_a_knee_the_fitted_run_never_reaches_is_refused(late_knee, tmp_path, cap
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_a_bag_run_with_its_own_knee_is_modelled_with_it(tmp_path):
     """``dmf-sim run --theta 0.2 --alpha 3.5`` stores the spring it ran in the bag; identify
     modelled the bag with the driveline YAML's (0.24 rad, 2.5) instead, and fitted k 12920
@@ -440,6 +442,7 @@ def _fault_bag(tmp_path, start_s: float) -> Path:
     return bag
 
 
+@pytest.mark.slow
 def test_a_bag_with_injected_faults_is_fitted_before_them(tmp_path, capsys):
     """identify models the healthy driveline: a bag whose cylinders 1 and 4 misfire from 2.5 s
     gave k 16693 Nm/rad ± 1.8 % and damping 34 Nms/rad ± 56 % for the true 10890 and 49.5.
@@ -490,6 +493,7 @@ def test_a_node_recording_is_fitted_before_its_spring_changes(tmp_path, monkeypa
     assert r.values['k'] == pytest.approx(10890.0, rel=TOL)
 
 
+@pytest.mark.slow
 def test_a_knee_the_noisy_run_barely_passes_is_refused(late_knee):
     """With 0.5 mrad of noise the fit put the knee of the same bag a little inside the run's
     wind-up, 0.2904 rad for the true 0.34, and reported it ± 51 % (alpha 0.0064 ± 4400 %; on a

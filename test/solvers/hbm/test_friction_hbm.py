@@ -207,6 +207,7 @@ def test_where_the_dmf_sticks_hbm_is_newmarks_regularized_creep(reg, tol):
     assert abs(c[6]) < 0.05 * 1.5e-2             # far below the slipping DMF's 3rd order
 
 
+@pytest.mark.slow
 def test_the_linear_fast_forward_ends_at_an_end_stop():
     """The sweep's fast-forward takes the linear response at grid speeds where the wind-up stays
     inside the primary region, and that region ended at the knees only. With end stops and no
