@@ -224,6 +224,14 @@ class DurabilityAccumulator:
         self.peak_stop_torque = 0.0
         self._beyond = 0                     # the last sample's side: +1 drive stop, -1 coast
 
+    def set_dmf(self, spring, damping_nms: float) -> None:
+        """The DMF from the next sample on: ``spring`` and viscous ``damping_nms`` [Nms/rad]
+        (a DMF fault of the recording, from its time on; the counts go on)."""
+        self.spring = spring
+        self.c = float(damping_nms)
+        self.friction = getattr(spring, 'friction', None)
+        self.stops = getattr(spring, 'stops', None)
+
     # ---- per batch -------------------------------------------------------------------------
     def _check_physical(self, t_ns, w, wdot, speed_rpm, psi, torque) -> None:
         """Refuse the batch at its first sample no driveline can produce (module docstring)."""

@@ -10,7 +10,11 @@ Signals: the joint states of the two elements around the DMF give the wind-up
 w = phi_(s-1) / r_s - phi_s and its rate from the recorded velocities (exact, no numerical
 differentiation); engine speed and crank angle are interpolated onto the joint-state stamps.
 The model (the DMF spring, its damping) is the one the bag's ``custom_data`` names
-(:func:`dmf_sim.analysis.hbm_overlay.model_settings`), as ``dmf-sim analyze`` rebuilds it.
+(:func:`dmf_sim.analysis.hbm_overlay.model_settings`), as ``dmf-sim analyze`` rebuilds it, with
+the DMF faults of the bag's ground truth (``faults/ground_truth``: a spring or damping changed
+from a time on, :data:`dmf_sim.physics.faults.DMF_KINDS`) applied where they were active
+(:func:`dmf_segments`): the samples of a faulted stretch are counted with the faulted spring
+and damping, and the notes say which.
 What the reading had to leave out (truncated files, corrupt chunks skipped) goes into the notes
 in the words ``dmf-sim analyze`` uses (:func:`dmf_sim.bags.records.damage_lines`) and, chunk by
 chunk, into ``corrupt_chunks`` (:func:`dmf_sim.bags.records.skipped_chunks`).
@@ -34,7 +38,49 @@ from dmf_sim.core.errors import BagError
 from dmf_sim.durability.accumulate import DurabilityAccumulator, DurabilityResult
 from dmf_sim.durability.settings import DurabilitySettings
 
-__all__ = ['DurabilityRun', 'bag_durability']
+__all__ = ['DurabilityRun', 'DmfSegment', 'dmf_segments', 'bag_durability']
+
+
+@dataclass(frozen=True)
+class DmfSegment:
+    """From stamp ``from_ns`` on (until the next segment's): the DMF ``spring`` and its viscous
+    ``damping_nms`` [Nms/rad], and the DMF faults active (``faults``, their text)."""
+
+    from_ns: int | None          # None: from the start
+    spring: object
+    damping_nms: float
+    faults: str = ''
+
+
+def dmf_segments(bag: BagFiles, line, element: int) -> list[DmfSegment]:
+    """The DMF of the recording stretch by stretch: ``line`` (the bag's driveline) with the DMF
+    faults of its ground truth active over each stretch applied (``FaultSet.apply_to_driveline``,
+    the node's own rebuild); one segment of ``line`` itself where the bag has none. ``element``:
+    the DMF element's index in ``line``."""
+    from dmf_sim.analysis.misfire_detector import ground_truth_events
+    from dmf_sim.physics.faults import DMF_KINDS, FaultSet
+
+    def stamp(ev, key):
+        return ev[f'{key}_ns'] if ev[f'{key}_ns'] is not None else ev['event_ns']
+
+    starts = [ev for ev in ground_truth_events(bag)
+              if ev['what'] == 'start' and ev['fault'].kind in DMF_KINDS
+              and stamp(ev, 'start') is not None]
+    nominal = DmfSegment(None, line.reduce().spring, float(line.elements[element].damping))
+    if not starts:
+        return [nominal]
+    spans = [(stamp(ev, 'start'), ev['end_ns'] if ev['end_ns'] is not None else None, ev)
+             for ev in starts]
+    cuts = sorted({a for a, _, _ in spans} | {b for _, b, _ in spans if b is not None})
+    out = [nominal]
+    for cut in cuts:
+        active = [ev for a, b, ev in spans if a <= cut and (b is None or cut < b)]
+        faulted = FaultSet(tuple(ev['fault'] for ev in active)).apply_to_driveline(line)
+        out.append(DmfSegment(int(cut), faulted.reduce().spring,
+                              float(faulted.elements[element].damping),
+                              ', '.join(f'fault {ev["id"]} {ev["fault"].text()}'
+                                        for ev in active)))
+    return out
 
 
 @dataclass
@@ -56,8 +102,11 @@ class _Aligner:
     """Joint-state rows with speed and crank angle interpolated onto their stamps, handed to
     the accumulator as soon as both scalars reach past them."""
 
-    def __init__(self, acc: DurabilityAccumulator, topics: dict, ratio: float) -> None:
+    def __init__(self, acc: DurabilityAccumulator, topics: dict, ratio: float,
+                 segments: list[DmfSegment]) -> None:
         self.acc, self.topics, self.ratio = acc, topics, ratio
+        self.segments = segments
+        self.used: set[int] = set()          # the segments that had samples
         self.joint: list = []
         self.scalar: dict[str, list] = {'speed': [], 'crank': []}
         self.batches = 0
@@ -94,7 +143,7 @@ class _Aligner:
         v = jv[:n]
         w = v[:, 0] / self.ratio - v[:, 1]
         wdot = v[:, 2] / self.ratio - v[:, 3]
-        self.acc.add(t, w, wdot, speed, psi)
+        self._add(t, w, wdot, speed, psi)
         self.batches += 1
         self.joint = [(jt[n:], jv[n:])] if n < len(jt) else []
         # keep the scalars from the last one at or before the processed stamps on
@@ -102,6 +151,21 @@ class _Aligner:
         for k, (st, sv) in sc.items():
             i = max(int(np.searchsorted(st, t[-1], side='right')) - 1, 0)
             self.scalar[k] = [(st[i:], sv[i:])]
+
+
+    def _add(self, t, w, wdot, speed, psi) -> None:
+        """The samples to the accumulator, each stretch of a DMF segment with its spring and
+        damping."""
+        segs = self.segments
+        cuts = np.searchsorted(t, [sg.from_ns for sg in segs[1:]], side='left').tolist()
+        bounds = [0, *cuts, len(t)]
+        for k, sg in enumerate(segs):
+            a, b = bounds[k], bounds[k + 1]
+            if b > a:
+                if len(segs) > 1:
+                    self.acc.set_dmf(sg.spring, sg.damping_nms)
+                self.used.add(k)
+                self.acc.add(t[a:b], w[a:b], wdot[a:b], speed[a:b], psi[a:b])
 
 
 def bag_durability(path: str | os.PathLike | BagFiles, settings: DurabilitySettings, *,
@@ -130,8 +194,9 @@ def bag_durability(path: str | os.PathLike | BagFiles, settings: DurabilitySetti
     el = line.elements[s]
     cols = [('position', names[s - 1]), ('position', names[s]), ('velocity', names[s - 1]),
             ('velocity', names[s])]
+    segments = dmf_segments(bag, line, s)
     acc = DurabilityAccumulator(model.spring, el.damping, settings)
-    align = _Aligner(acc, tp, el.ratio)
+    align = _Aligner(acc, tp, el.ratio, segments)
     requests = {tp['joints']: lambda dec, t: JointStateColumns(dec, t, cols),
                 tp['speed']: ScalarColumn, tp['crank']: ScalarColumn}
     decoder = TypeDecoder()
@@ -160,6 +225,10 @@ def bag_durability(path: str | os.PathLike | BagFiles, settings: DurabilitySetti
                        f'assess ({needs}); topics found: '
                        f'{topics_text(listed or message_counts(scans), message_counts(scans))}')
     result = acc.finish()
+    result.notes += [f'DMF faults of the ground truth from t = '
+                     f'{(sg.from_ns - acc.t0_ns) * 1e-9:.3f} s: {sg.faults or "none"} (counted '
+                     f'with the spring and damping they make: c = {sg.damping_nms:g} Nms/rad)'
+                     for k, sg in enumerate(segments) if k > 0 and k in align.used]
     result.notes += damage_lines(scans, truncated, acc.t0_ns)
     keep = ('driveline', 'engine', 'load_set', 'alpha', 'theta_rad')
     return DurabilityRun(result, str(bag.path), len(bag.files), truncated,

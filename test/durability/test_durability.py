@@ -426,3 +426,44 @@ def test_the_spring_stored_in_the_bag_keeps_its_friction_and_end_stops(tmp_path,
         for d in reports:
             assert d['dissipated_power']['friction_energy_j'] == pytest.approx(heat, rel=0.02)
     assert runs['truck_dmf_friction'][1]['friction_heat_j'] > 50.0
+
+
+def test_dmf_faults_of_the_bag_are_counted_with_the_dmf_they_make(tmp_path, capsys):
+    """A bag of a run whose DMF damping a fault triples from 0.8 s: the viscous heat is
+    c (dw/dt)^2 with c = 49.5 Nms/rad before and 148.5 after (computed here from the bag's own
+    joint states), not 49.5 throughout (239 J of the run's, reported before), and the notes
+    name the fault."""
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
+    from dmf_sim.durability.read import bag_durability
+    from dmf_sim.physics.model import read_driveline
+    faults = tmp_path / 'faults.yaml'
+    faults.write_text('faults:\n  - {kind: dmf_damping, factor: 3, start_s: 0.8}\n')
+    bag = tmp_path / 'bag'
+    assert cli_main(['run', 'step:1200:0:1:0.1:0.5:0.5', '--faults', str(faults), '--out',
+                     str(bag), '--no-progress', '--no-sensors']) == 0
+    capsys.readouterr()
+    res = bag_durability(bag, read_settings()).result
+    line = read_driveline('truck_dmf')
+    s = line.index(line.dmf.element)
+    c0, ratio = line.elements[s].damping, line.elements[s].ratio
+    store = get_typestore(Stores.ROS2_JAZZY)
+    t, wdot = [], []
+    with AnyReader([bag], default_typestore=store) as reader:
+        conns = [c for c in reader.connections if c.topic == '/driveline/joint_states']
+        for conn, stamp, raw in reader.messages(connections=conns):
+            m = store.deserialize_cdr(raw, conn.msgtype)
+            i, j = m.name.index(line.names[s - 1]), m.name.index(line.names[s])
+            t.append(stamp)
+            wdot.append(m.velocity[i] / ratio - m.velocity[j])
+    t = (np.array(t) - t[0]) * 1e-9
+    wdot = np.array(wdot)
+    dt = np.diff(t, append=t[-1] + (t[-1] - t[-2]))
+    after = t >= 0.8 - 1e-3
+    expected = float(np.sum(np.where(after, 3 * c0, c0) * wdot ** 2 * dt))
+    nominal = float(np.sum(c0 * wdot ** 2 * dt))
+    viscous = res.as_dict()['dissipated_power']['viscous_energy_j']
+    assert viscous == pytest.approx(expected, rel=0.01)
+    assert abs(viscous - nominal) > 0.2 * nominal           # the fault's share is not lost
+    assert any('dmf_damping' in n and 'c = 148.5 Nms/rad' in n for n in res.notes), res.notes
