@@ -33,7 +33,8 @@ def modal_sums(omega, dOm, d, ml, a, unit, dunit, h, dh):
     The harmonics are the innermost loop, so it runs in SIMD; each sum still runs over the modes
     k in order, and the complex operations are written out as numba performs them (``1j * Om``
     as a complex product, ``1 / z`` by CPython's algorithm, products as ``ac - bd``, ``ad + bc``):
-    the same bits as the complex arithmetic, 3.4x faster at K = 141, H = 24, 32 modes."""
+    the complex arithmetic's values to rounding (usually its bits; a compilation may order an
+    operation differently: within a few ulps), 3.4x faster at K = 141, H = 24, 32 modes."""
     K = omega.shape[0]
     H = ml.shape[0]
     m = d.shape[0]

@@ -237,10 +237,12 @@ def _modal_sums_complex(omega, dOm, d, ml, a, unit, dunit, h, dh):
 
 
 @pytest.mark.slow
-def test_modal_sums_written_out_equal_complex_arithmetic_bitwise():
+def test_modal_sums_written_out_equal_complex_arithmetic_to_rounding():
     """The linear parts' modal sums, harmonics innermost with the complex operations written out
-    (SIMD), give the bits of the same sums in numba's complex arithmetic: random poles (one at
-    zero, resonant ones where Im d = Om_n), receptance and residue vectors."""
+    (SIMD), give the same sums as numba's complex arithmetic to rounding: random poles (one at
+    zero, resonant ones where Im d = Om_n), receptance and residue vectors. Usually bit for bit;
+    not always (a fresh checkout's compile of the complex reference differed by up to 1.2e-16 of
+    the largest value on 40 % of the entries), so within 4 ulps of the largest magnitude."""
     from dmf_sim.core.compiled import jit
     from dmf_sim.solvers.hbm.linear_kernels import modal_sums
     reference = jit(_modal_sums_complex)
@@ -261,4 +263,5 @@ def test_modal_sums_written_out_equal_complex_arithmetic_bitwise():
         modal_sums(omega, dOm, d, ml, a, *got)
         reference(omega, dOm, d, ml, a, *ref)
         for g, r in zip(got, ref):
-            assert np.array_equal(g, r)
+            scale = float(np.abs(r).max())
+            assert np.abs(g - r).max() <= 4 * np.finfo(float).eps * scale
