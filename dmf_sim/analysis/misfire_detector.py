@@ -62,7 +62,8 @@ from dmf_sim.bags.read import read_messages
 
 __all__ = ['DEFAULT_WINDOW', 'DEFAULT_THRESHOLD', 'WINDUP_POINTS', 'CRANK_ANGLE_TOPIC',
            'GROUND_TRUTH_TOPIC', 'GainSums', 'misfire_scores', 'MisfireScore', 'score_detections',
-           'ground_truth_events', 'ground_truth_misfires', 'detect_edges', 'detect_bag']
+           'ground_truth_events', 'event_start_ns', 'ground_truth_misfires', 'detect_edges',
+           'detect_bag']
 
 DEFAULT_WINDOW = 9          # intervals each side of the local baseline (1.5 engine cycles)
 DEFAULT_THRESHOLD = 0.3     # alarm below -0.3 of the mean engine work per firing interval (M2)
@@ -226,6 +227,12 @@ def ground_truth_events(path: str | os.PathLike | BagFiles) -> list[dict]:
               or t.endswith('/' + GROUND_TRUTH_TOPIC)]
     return [event_from_values(s.message, {kv.key: kv.value for kv in s.values})
             for m in read_messages(bag, topics) for s in m.msg.status]
+
+
+def event_start_ns(event: dict) -> int | None:
+    """The stamp [ns] a ground-truth event of :func:`ground_truth_events` starts at: its fault's
+    start stamp, else the event's own (None where the status gave neither)."""
+    return event['start_ns'] if event['start_ns'] is not None else event['event_ns']
 
 
 def ground_truth_misfires(path: str | os.PathLike | BagFiles) -> np.ndarray:

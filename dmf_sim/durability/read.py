@@ -52,25 +52,22 @@ class DmfSegment:
     faults: str = ''
 
 
-def dmf_segments(bag: BagFiles, line, element: int) -> list[DmfSegment]:
-    """The DMF of the recording stretch by stretch: ``line`` (the bag's driveline) with the DMF
-    faults of its ground truth active over each stretch applied (``FaultSet.apply_to_driveline``,
-    the node's own rebuild); one segment of ``line`` itself where the bag has none. ``element``:
-    the DMF element's index in ``line``."""
-    from dmf_sim.analysis.misfire_detector import ground_truth_events
+def dmf_segments(bag: BagFiles, model) -> list[DmfSegment]:
+    """The DMF of the recording stretch by stretch: the bag's model (``ReducedModel``) as it is,
+    then its driveline with the DMF faults of the ground truth active over each stretch applied
+    (``FaultSet.apply_to_driveline``, the node's own rebuild); the first segment alone where the
+    bag has none."""
+    from dmf_sim.analysis.misfire_detector import event_start_ns, ground_truth_events
     from dmf_sim.physics.faults import DMF_KINDS, FaultSet
 
-    def stamp(ev, key):
-        return ev[f'{key}_ns'] if ev[f'{key}_ns'] is not None else ev['event_ns']
-
+    line, element = model.line, model.dmf_element
     starts = [ev for ev in ground_truth_events(bag)
               if ev['what'] == 'start' and ev['fault'].kind in DMF_KINDS
-              and stamp(ev, 'start') is not None]
-    nominal = DmfSegment(None, line.reduce().spring, float(line.elements[element].damping))
+              and event_start_ns(ev) is not None]
+    nominal = DmfSegment(None, model.spring, float(line.elements[element].damping))
     if not starts:
         return [nominal]
-    spans = [(stamp(ev, 'start'), ev['end_ns'] if ev['end_ns'] is not None else None, ev)
-             for ev in starts]
+    spans = [(event_start_ns(ev), ev['end_ns'], ev) for ev in starts]
     cuts = sorted({a for a, _, _ in spans} | {b for _, b, _ in spans if b is not None})
     out = [nominal]
     for cut in cuts:
@@ -194,8 +191,8 @@ def bag_durability(path: str | os.PathLike | BagFiles, settings: DurabilitySetti
     el = line.elements[s]
     cols = [('position', names[s - 1]), ('position', names[s]), ('velocity', names[s - 1]),
             ('velocity', names[s])]
-    segments = dmf_segments(bag, line, s)
-    acc = DurabilityAccumulator(model.spring, el.damping, settings)
+    segments = dmf_segments(bag, model)
+    acc = DurabilityAccumulator(segments[0].spring, segments[0].damping_nms, settings)
     align = _Aligner(acc, tp, el.ratio, segments)
     requests = {tp['joints']: lambda dec, t: JointStateColumns(dec, t, cols),
                 tp['speed']: ScalarColumn, tp['crank']: ScalarColumn}

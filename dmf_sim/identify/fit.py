@@ -323,10 +323,9 @@ def _model_until(resolved, series) -> tuple[int, str] | None:
     ``theta_rad``: the node's spring set while it recorded; the change lies between the two
     statuses)."""
     from dmf_sim.analysis.load_timeline import HEALTH_KEYS
-    from dmf_sim.analysis.misfire_detector import ground_truth_events
+    from dmf_sim.analysis.misfire_detector import event_start_ns, ground_truth_events
     from dmf_sim.physics.faults import SENSOR_KINDS
-    found = [(ev['start_ns'] if ev['start_ns'] is not None else ev['event_ns'],
-              f'the first injected fault ({ev["fault"].kind})')
+    found = [(event_start_ns(ev), f'the first injected fault ({ev["fault"].kind})')
              for ev in ground_truth_events(resolved) if ev['fault'].kind not in SENSOR_KINDS]
     found = [f for f in found if f[0] is not None]
     if series.health is not None:

@@ -30,7 +30,7 @@ import math
 
 import numpy as np
 
-__all__ = ['WindupPeaks', 'stop_angles', 'peaks_text', 'merge_extremes']
+__all__ = ['WindupPeaks', 'stop_angles', 'peaks_text', 'NO_EXTREMES', 'merge_extremes']
 
 NO_EXTREMES = (math.nan,) * 4
 """(smallest wind-up, its time, largest wind-up, its time) before any step."""

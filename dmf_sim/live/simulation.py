@@ -36,7 +36,7 @@ import numpy as np
 from dmf_sim.core.errors import ConfigError, OperatingRangeError
 from dmf_sim.core.numbers import fmt_num
 from dmf_sim.core.units import RAD_S_TO_RPM
-from dmf_sim.live.peaks import WindupPeaks, merge_extremes
+from dmf_sim.live.peaks import NO_EXTREMES, WindupPeaks, merge_extremes
 from dmf_sim.live.sensors import LiveSensors, fault_windows
 from dmf_sim.live.torques import TorqueOperator
 from dmf_sim.physics.engine import load_error
@@ -210,7 +210,7 @@ class LiveSimulation:
         self._heat_j = self._stop_peak_nm = 0.0
         #: the wind-up's extremes over every step of the last chunk (:meth:`integrate`):
         #: (smallest [rad], its time [s], largest [rad], its time [s]), nan before a chunk
-        self.chunk_windup_extremes: tuple = (math.nan,) * 4
+        self.chunk_windup_extremes: tuple = NO_EXTREMES
         #: simulated time [s] from which the chunks' wind-up extremes count the steps (-inf:
         #: all; a run sets its settling's end: :meth:`NewmarkIntegrator.extremes_from`)
         self.extremes_from_s = -math.inf
@@ -240,7 +240,7 @@ class LiveSimulation:
     # ---- building ---------------------------------------------------------------------------
     def _make_integrator(self, line: Driveline, engine):
         integ = NewmarkIntegrator(DrivelineExcitation(line.reduce(), engine), dt=self.dt)
-        integ.extremes_from(getattr(self, 'extremes_from_s', -math.inf))
+        integ.extremes_from(self.extremes_from_s)
         return integ, TorqueOperator(integ)
 
     @property
@@ -522,7 +522,7 @@ class LiveSimulation:
         it.restart_chunk_peaks()
         it.extremes_from(self.extremes_from_s)
         self._stop_peak_nm = 0.0
-        self.chunk_windup_extremes = (math.nan,) * 4
+        self.chunk_windup_extremes = NO_EXTREMES
         events: list[FaultEvent] = []
         parts: list[np.ndarray] = []
         if self.live_sensors is not None and self.faults is not None:

@@ -78,6 +78,8 @@ def _tridiag(M: np.ndarray, name: str):
 _SUMS_START = (0.0, 0.0, math.inf, -math.inf, math.nan, math.nan, -math.inf)
 """The kernel's ``sums`` before a step: no heat, no contact, no wind-up extreme yet, every step
 counted for them."""
+_NO_EXTREMES = (math.nan,) * 4
+"""``windup_extremes`` before a step (no wind-up extreme yet)."""
 
 
 @dataclass
@@ -133,7 +135,7 @@ class NewmarkIntegrator:
     #: (smallest wind-up [rad], its time [s], largest wind-up [rad], its time [s]) over every
     #: step's end since the last reset or :meth:`restart_chunk_peaks` (nan before a step), of
     #: the steps that end at :meth:`extremes_from` or later
-    windup_extremes: tuple = field(default=(math.nan,) * 4, init=False)
+    windup_extremes: tuple = field(default=_NO_EXTREMES, init=False)
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.dt) and self.dt > 0):
@@ -465,7 +467,7 @@ class NewmarkIntegrator:
         self.friction_heat_j = float(self._sums[0])
         self.peak_stop_torque_nm = float(self._sums[1])
         lo, hi, t_lo, t_hi = self._sums[2:6].tolist()
-        self.windup_extremes = ((lo, t_lo, hi, t_hi) if lo <= hi else (math.nan,) * 4)
+        self.windup_extremes = (lo, t_lo, hi, t_hi) if lo <= hi else _NO_EXTREMES
 
     def _scratch(self, rows: int) -> StepRecord:
         buf = getattr(self, '_scratch_buf', None)

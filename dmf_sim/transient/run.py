@@ -161,9 +161,9 @@ class RunSummary:
     faults: str | None = None     # the fault schedule
     fault_events: int = 0         # ground-truth events (starts, ends, misfires)
     misfires: int = 0             # combustions that misfired
-    peaks_after_s: float = 0.0    # the peaks below are over the samples from this time on [s]
+    peaks_after_s: float = 0.0    # the peaks below are over the steps from this time on [s]
     #                               (the profile's settling from static equilibrium left out)
-    peak_windup_rad: list | None = None     # [min, max] over the samples (a DMF driveline)
+    peak_windup_rad: list | None = None     # [min, max] over every step (a DMF driveline)
     peak_dmf_torque_nm: list | None = None  # spring torque at those wind-ups (a DMF driveline)
     travel_margin_rad: float | None = None  # smallest distance to an end stop (spring with stops)
     stop_contacts: int | None = None        # entries beyond an end stop (spring with stops)
@@ -369,7 +369,7 @@ def follow_profile(sim: LiveSimulation, profile: Profile, chunk_s: float = DEFAU
     writing anything: what a design study's load step is (``dmf_sim.design.transient``).
     ``on_samples``: called with each chunk's samples (views, valid during the call; None: no
     read-out at all). Returns the run's :class:`~dmf_sim.live.peaks.WindupPeaks`
-    (``sim.peaks``, started afresh), its wind-up extremes over the samples from
+    (``sim.peaks``, started afresh), its wind-up extremes over every Newmark step from
     ``peaks_after_s`` [s] into the profile on (the profile's ``start_settle_s``: the settling
     from static equilibrium left out, as :func:`run_profile`'s summary leaves it out; the stop
     contacts, impact and friction heat are the whole profile's, as there)."""
